@@ -1,0 +1,136 @@
+// granular-bench — measurements behind bench/*.py (a tool, not a test).
+//
+//   granular-bench throughput [--grain-radius R] [--seconds S]
+//     EPT ray casts per second through an aggregate against Embree's raw rtcIntersect1
+//     rate on the same prototype mesh, single thread, in the same run. One JSON line.
+//   granular-bench setup --grains N
+//     Set-up time and memory of an aggregate of about N grains. One JSON line.
+#include <sys/resource.h>
+
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <string>
+
+#include "aggregate.h"
+#include "shapes.h"
+
+using namespace granular;
+using Clock = std::chrono::steady_clock;
+
+namespace {
+
+double seconds(Clock::time_point a) { return std::chrono::duration<double>(Clock::now() - a).count(); }
+
+long maxRssKiB() {
+  struct rusage ru;
+  getrusage(RUSAGE_SELF, &ru);
+  return ru.ru_maxrss;
+}
+
+AggregateDesc sphereAggregate(float boundaryRadius, float R, int tileSpheres) {
+  AggregateDesc a;
+  a.name = "bench";
+  a.boundary = makeIcosphere(4);
+  a.xf = Transform::scale(Vec3(boundaryRadius));
+  a.grainRadius = R;
+  a.packingRate = 0.6f;
+  a.seed = 1;
+  a.tileSpheres = tileSpheres;
+  a.prototypes = {GrainPrototypeDesc{"rock", makeRock(2, 0.2f, 1), 0}};
+  a.weights = {1.0f};
+  return a;
+}
+
+int throughput(float R, double budget) {
+  EmbreeDevice dev = makeEmbreeDevice();
+  Aggregate agg;
+  agg.build(sphereAggregate(1.0f, R, 512), dev, {0});
+  const GrainPrototype& proto = agg.prototypes()[0];
+  Rng rng(1);
+
+  // Raw Embree: rays from a sphere of radius 2 towards random points of the unit ball.
+  long raw = 0, rawHits = 0;
+  auto t0 = Clock::now();
+  while (seconds(t0) < budget) {
+    for (int i = 0; i < 4096; ++i) {
+      Vec3 o = sampleUniformSphere(rng.next1D(), rng.next1D()) * 2.0f;
+      Vec3 target = sampleUniformSphere(rng.next1D(), rng.next1D()) * std::cbrt(rng.next1D());
+      RTCIntersectContext ctx;
+      rtcInitIntersectContext(&ctx);
+      RTCRayHit rh = makeRayHit(o, normalize(target - o), 0.0f, kInf);
+      rtcIntersect1(proto.bvh.get(), &ctx, &rh);
+      rawHits += rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
+    }
+    raw += 4096;
+  }
+  double rawRate = raw / seconds(t0);
+
+  // Aggregate: the rays a path tracer casts — half from outside towards the object,
+  // half from random points inside in random directions (scattered paths).
+  long ept = 0, eptHits = 0;
+  t0 = Clock::now();
+  while (seconds(t0) < budget) {
+    for (int i = 0; i < 4096; ++i) {
+      Vec3 target = sampleUniformSphere(rng.next1D(), rng.next1D()) * std::cbrt(rng.next1D()) * 0.95f;
+      Vec3 dir = sampleUniformSphere(rng.next1D(), rng.next1D());
+      Vec3 o = (i & 1) ? target - dir * 3.0f : target;
+      GrainHit h;
+      eptHits += agg.intersect(o, dir, 0.0f, kInf, h);
+    }
+    ept += 4096;
+  }
+  double eptRate = ept / seconds(t0);
+  std::printf(
+      "{\"grain_radius\": %g, \"grains\": %.4g, \"embree_rays_per_s\": %.4g, \"embree_hit_fraction\": %.3f, "
+      "\"aggregate_rays_per_s\": %.4g, \"aggregate_hit_fraction\": %.3f, \"ratio\": %.3f}\n",
+      R, agg.stats().approxGrains, rawRate, double(rawHits) / raw, eptRate, double(eptHits) / ept, eptRate / rawRate);
+  return 0;
+}
+
+int setup(double grains) {
+  const float R = 1.0f, f = 0.6f;
+  float radius = R * float(std::cbrt(grains / f));  // ball volume * f / grain volume = grains
+  long rss0 = maxRssKiB();
+  auto t0 = Clock::now();
+  EmbreeDevice dev = makeEmbreeDevice();
+  Aggregate agg;
+  agg.build(sphereAggregate(radius, R, 512), dev, {0});
+  double t = seconds(t0);
+  // Touch the aggregate once so lazy structures count.
+  GrainHit h;
+  agg.intersect(Vec3(-2 * radius, 0.1f, 0.2f), Vec3(1, 0, 0), 0, kInf, h);
+  const AggregateStats& s = agg.stats();
+  std::printf(
+      "{\"requested_grains\": %.3g, \"grains\": %.4g, \"cells\": %lld, \"setup_s\": %.3f, \"tile_s\": %.3f, "
+      "\"sdf_s\": %.3f, \"aggregate_mib\": %.2f, \"peak_rss_mib\": %.1f, \"rss_growth_mib\": %.1f}\n",
+      grains, s.approxGrains, (long long)s.cells, t, s.tileSeconds, s.sdfSeconds, s.memoryBytes / 1048576.0,
+      maxRssKiB() / 1024.0, (maxRssKiB() - rss0) / 1024.0);
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc < 2) {
+    std::fprintf(stderr, "usage: granular-bench throughput [--grain-radius R] [--seconds S] | setup --grains N\n");
+    return 2;
+  }
+  std::string mode = argv[1];
+  float R = 0.01f;
+  double secs = 2.0, grains = 1e6;
+  for (int i = 2; i + 1 < argc; i += 2) {
+    std::string a = argv[i];
+    if (a == "--grain-radius") R = std::strtof(argv[i + 1], nullptr);
+    else if (a == "--seconds") secs = std::strtod(argv[i + 1], nullptr);
+    else if (a == "--grains") grains = std::strtod(argv[i + 1], nullptr);
+  }
+  try {
+    if (mode == "throughput") return throughput(R, secs);
+    if (mode == "setup") return setup(grains);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "error: %s\n", e.what());
+    return 1;
+  }
+  return 2;
+}

@@ -1,0 +1,280 @@
+#include "aggregate.h"
+
+#include <chrono>
+#include <cmath>
+
+#include "error.h"
+
+namespace granular {
+
+namespace {
+
+// Context handed through Embree to the tile's user-geometry callback.
+struct TileQuery {
+  RTCIntersectContext ctx;  // must come first: Embree passes a pointer to it
+  const class Aggregate* agg;
+  int64_t cell[3];
+  Vec3 cellOrigin;
+  GrainHit* best;
+};
+
+// A direction unlikely to run along mesh edges, for the parity inside test.
+const Vec3 kInsideProbeDir = normalize(Vec3(0.5773f, 0.5774f, 0.5775f) + Vec3(0.0123f, -0.0311f, 0.0207f));
+
+}  // namespace
+
+struct AggregateCallbacks {
+  static void bounds(const RTCBoundsFunctionArguments* args) {
+    auto* agg = static_cast<const Aggregate*>(args->geometryUserPtr);
+    const Aggregate::TileSphere& s = agg->spheres_[args->primID];
+    float r = agg->R_;
+    args->bounds_o->lower_x = s.center.x - r; args->bounds_o->upper_x = s.center.x + r;
+    args->bounds_o->lower_y = s.center.y - r; args->bounds_o->upper_y = s.center.y + r;
+    args->bounds_o->lower_z = s.center.z - r; args->bounds_o->upper_z = s.center.z + r;
+  }
+
+  static void intersect(const RTCIntersectFunctionNArguments* args) {
+    if (!args->valid[0]) return;
+    auto* agg = static_cast<const Aggregate*>(args->geometryUserPtr);
+    auto* q = reinterpret_cast<const TileQuery*>(args->context);
+    RTCRayHit* rh = reinterpret_cast<RTCRayHit*>(args->rayhit);  // N == 1 for rtcIntersect1
+    const Aggregate::TileSphere& s = agg->spheres_[args->primID];
+    Vec3 o(rh->ray.org_x, rh->ray.org_y, rh->ray.org_z), d(rh->ray.dir_x, rh->ray.dir_y, rh->ray.dir_z);
+    // Bounding sphere first: cheap rejection before any hashing.
+    Vec3 oc = o - s.center;
+    float b = dot(oc, d), c = length2(oc) - agg->R_ * agg->R_;
+    float disc = b * b - c;
+    if (disc < 0) return;
+    float sq = std::sqrt(disc);
+    if (-b + sq < rh->ray.tnear || -b - sq > rh->ray.tfar) return;
+    int64_t home[3] = {q->cell[0] + s.home[0], q->cell[1] + s.home[1], q->cell[2] + s.home[2]};
+    // The centre from the home cell, computed as forEachGrain does, so that every cell
+    // that lists this sphere makes the same inside decision.
+    Vec3 worldCenter = agg->origin_ + Vec3(float(home[0]), float(home[1]), float(home[2])) * agg->L_ +
+                       agg->tile_.centers[s.id] * agg->L_;
+    if (!agg->sphereIsInside(home, worldCenter)) return;
+    GrainChoice g = agg->selector_.choose(home[0], home[1], home[2], s.id);
+    const GrainPrototype& proto = agg->prototypes_[g.prototype];
+    // Into the grain frame; t is unchanged because the direction is scaled by 1/R too.
+    float invR = 1.0f / agg->R_;
+    Vec3 ol = g.rotation.transposeMul(oc) * invR, dl = g.rotation.transposeMul(d) * invR;
+    RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    RTCRayHit local = makeRayHit(ol, dl, rh->ray.tnear, rh->ray.tfar);
+    rtcIntersect1(proto.bvh.get(), &ctx, &local);
+    if (local.hit.geomID == RTC_INVALID_GEOMETRY_ID) return;
+    rh->ray.tfar = local.ray.tfar;
+    rh->hit.geomID = args->geomID;
+    rh->hit.primID = args->primID;
+    GrainHit* best = q->best;
+    best->t = local.ray.tfar;
+    best->ng = normalize(g.rotation * triangleNormal(proto.mesh, local.hit.primID));
+    best->prototype = g.prototype;
+    best->cell[0] = home[0]; best->cell[1] = home[1]; best->cell[2] = home[2];
+    best->sphere = s.id;
+  }
+};
+
+void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, const std::vector<int>& prototypeMaterials) {
+  auto t0 = std::chrono::steady_clock::now();
+  name_ = desc.name;
+  R_ = desc.grainRadius;
+  f_ = desc.packingRate;
+  prototypeMaterials_ = prototypeMaterials;
+  boundary_ = desc.boundary.transformed(desc.xf);
+  if (boundary_.signedVolume() < 0) boundary_.flip();
+
+  // Tile: periodic packing at the requested rate, scaled so its spheres have radius R.
+  auto tt = std::chrono::steady_clock::now();
+  tile_ = loadOrGenerateTile(desc.tileSpheres, desc.packingRate, desc.seed);
+  stats_.tileSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - tt).count();
+  L_ = float(R_ / tile_.radius);
+
+  // Grid over the boundary's bounds grown by R (spheres centred inside may poke out).
+  Bounds3 mb = boundary_.bounds();
+  bounds_.lo = mb.lo - Vec3(R_);
+  bounds_.hi = mb.hi + Vec3(R_);
+  origin_ = bounds_.lo;
+  double cells = 1;
+  for (int a = 0; a < 3; ++a) {
+    double n = std::ceil(double(bounds_.hi[a] - bounds_.lo[a]) / L_);
+    n_[a] = std::max<int64_t>(1, int64_t(std::min(n, 1e9)));
+    cells *= double(n_[a]);
+  }
+  const double kMaxCells = double(1u << 28);  // 256 Mi cells = 256 MiB of classes
+  if (cells > kMaxCells)
+    throw InputError(desc.name, "grainRadius",
+                     str(R_, " is too small for the boundary's size: ", cells, " tiles of ", desc.tileSpheres,
+                         " grains exceed the limit of ", kMaxCells, " (raise grainRadius or tileSpheres)"));
+  for (int a = 0; a < 3; ++a) bounds_.hi[a] = origin_[a] + float(n_[a]) * L_;
+
+  // Distance field: voxels of half a cell (or coarser for huge grids), band covering the margin.
+  auto ts = std::chrono::steady_clock::now();
+  float extent = maxComponent(mb.extent());
+  float voxel = std::max(0.5f * L_, extent / 1024.0f);
+  float margin = 0.8661f * L_ + R_ + 1.5f * voxel;
+  sdf_.build(boundary_, voxel, margin + voxel);
+  stats_.sdfSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - ts).count();
+
+  classes_.assign(size_t(cells), CellClass::Outside);
+  stats_.cells = int64_t(cells);
+  double insideFractionSum = 0;
+  for (int64_t k = 0; k < n_[2]; ++k)
+    for (int64_t j = 0; j < n_[1]; ++j)
+      for (int64_t i = 0; i < n_[0]; ++i) {
+        Vec3 c = origin_ + Vec3(float(i) + 0.5f, float(j) + 0.5f, float(k) + 0.5f) * L_;
+        float dist = sdf_.distance(c);
+        CellClass cls = dist > margin ? CellClass::Outside : (dist < -margin ? CellClass::Inside : CellClass::Partial);
+        classes_[size_t((k * n_[1] + j) * n_[0] + i)] = cls;
+        if (cls == CellClass::Inside) ++stats_.insideCells;
+        if (cls == CellClass::Partial) {
+          ++stats_.partialCells;
+          insideFractionSum += std::min(1.0, std::max(0.0, 0.5 - double(dist) / L_));
+        }
+      }
+  stats_.approxGrains = double(tile_.numSpheres) * (double(stats_.insideCells) + insideFractionSum);
+
+  boundaryBvh_ = buildTriangleScene(device, boundary_);
+
+  prototypes_.clear();
+  for (size_t i = 0; i < desc.prototypes.size(); ++i) {
+    prototypes_.push_back(makeGrainPrototype(device, desc.prototypes[i]));
+    prototypes_.back().material = prototypeMaterials[i];
+  }
+  selector_ = GrainSelector(desc.weights, desc.seed);
+
+  // The tile's spheres plus every periodic image that reaches into the unit cell.
+  spheres_.clear();
+  double r = tile_.radius;
+  for (int s = 0; s < tile_.numSpheres; ++s) {
+    const Vec3& c = tile_.centers[s];
+    for (int dz = -1; dz <= 1; ++dz)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          double p[3] = {c.x + dx, c.y + dy, c.z + dz};
+          double d2 = 0;
+          for (double v : p) {
+            double e = v < 0 ? -v : (v > 1 ? v - 1 : 0);
+            d2 += e * e;
+          }
+          if (d2 >= r * r) continue;
+          TileSphere ts;
+          ts.center = Vec3(float(p[0] * L_), float(p[1] * L_), float(p[2] * L_));
+          ts.home[0] = int8_t(dx); ts.home[1] = int8_t(dy); ts.home[2] = int8_t(dz);
+          ts.id = s;
+          spheres_.push_back(ts);
+        }
+  }
+  tileBvh_ = makeEmbreeScene(device);
+  RTCGeometry g = rtcNewGeometry(device.get(), RTC_GEOMETRY_TYPE_USER);
+  rtcSetGeometryUserPrimitiveCount(g, unsigned(spheres_.size()));
+  rtcSetGeometryUserData(g, this);
+  rtcSetGeometryBoundsFunction(g, &AggregateCallbacks::bounds, nullptr);
+  rtcSetGeometryIntersectFunction(g, &AggregateCallbacks::intersect);
+  rtcCommitGeometry(g);
+  rtcAttachGeometry(tileBvh_.get(), g);
+  rtcReleaseGeometry(g);
+  rtcCommitScene(tileBvh_.get());
+
+  stats_.memoryBytes = classes_.size() * sizeof(CellClass) + sdf_.memoryBytes() +
+                       spheres_.size() * (sizeof(TileSphere) + 64) + boundary_.points.size() * 40;
+  for (const auto& p : prototypes_) stats_.memoryBytes += p.mesh.points.size() * 40 + p.mesh.indices.size() * 8;
+  stats_.setupSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+CellClass Aggregate::cellClass(int64_t i, int64_t j, int64_t k) const {
+  if (i < 0 || j < 0 || k < 0 || i >= n_[0] || j >= n_[1] || k >= n_[2]) return CellClass::Outside;
+  return classes_[size_t((k * n_[1] + j) * n_[0] + i)];
+}
+
+bool Aggregate::insideBoundary(const Vec3& p) const {
+  RTCIntersectContext ctx;
+  rtcInitIntersectContext(&ctx);
+  RTCRayHit rh = makeRayHit(p, kInsideProbeDir, 0.0f, kInf);
+  rtcIntersect1(boundaryBvh_.get(), &ctx, &rh);
+  if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
+  return dot(triangleNormal(boundary_, rh.hit.primID), kInsideProbeDir) > 0;
+}
+
+bool Aggregate::sphereIsInside(const int64_t home[3], const Vec3& worldCenter) const {
+  switch (cellClass(home[0], home[1], home[2])) {
+    case CellClass::Inside: return true;
+    case CellClass::Outside: return false;
+    case CellClass::Partial: break;
+  }
+  // Far enough from the surface, the field's sign is certain; near it, cast a ray.
+  float d = sdf_.distance(worldCenter);
+  if (std::fabs(d) > 2.0f * sdf_.voxelSize()) return d < 0;
+  return insideBoundary(worldCenter);
+}
+
+bool Aggregate::intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, GrainHit& hit) const {
+  Vec3 invD(1.0f / d.x, 1.0f / d.y, 1.0f / d.z);
+  float t0, t1;
+  if (!bounds_.intersect(o, invD, tmin, tmax, t0, t1)) return false;
+  int64_t cell[3], step[3];
+  float tNext[3], tDelta[3];
+  Vec3 p = o + d * t0;
+  for (int a = 0; a < 3; ++a) {
+    float rel = (p[a] - origin_[a]) / L_;
+    cell[a] = std::min<int64_t>(std::max<int64_t>(int64_t(std::floor(rel)), 0), n_[a] - 1);
+    if (d[a] > 0) {
+      step[a] = 1;
+      tNext[a] = t0 + (origin_[a] + float(cell[a] + 1) * L_ - p[a]) * invD[a];
+      tDelta[a] = L_ * invD[a];
+    } else if (d[a] < 0) {
+      step[a] = -1;
+      tNext[a] = t0 + (origin_[a] + float(cell[a]) * L_ - p[a]) * invD[a];
+      tDelta[a] = -L_ * invD[a];
+    } else {
+      step[a] = 0;
+      tNext[a] = kInf;
+      tDelta[a] = kInf;
+    }
+  }
+  const float pad = 1e-4f * L_;
+  float tEnter = t0;
+  TileQuery q;
+  rtcInitIntersectContext(&q.ctx);
+  q.agg = this;
+  q.best = &hit;
+  for (;;) {
+    int axis = tNext[0] < tNext[1] ? (tNext[0] < tNext[2] ? 0 : 2) : (tNext[1] < tNext[2] ? 1 : 2);
+    float tExit = std::min(tNext[axis], t1);
+    if (cellClass(cell[0], cell[1], cell[2]) != CellClass::Outside) {
+      q.cell[0] = cell[0]; q.cell[1] = cell[1]; q.cell[2] = cell[2];
+      q.cellOrigin = origin_ + Vec3(float(cell[0]), float(cell[1]), float(cell[2])) * L_;
+      RTCRayHit rh = makeRayHit(o - q.cellOrigin, d, std::max(tmin, tEnter - pad), std::min(tmax, tExit + pad));
+      rtcIntersect1(tileBvh_.get(), &q.ctx, &rh);
+      if (rh.hit.geomID != RTC_INVALID_GEOMETRY_ID) return true;
+    }
+    if (tExit >= t1) return false;
+    cell[axis] += step[axis];
+    if (cell[axis] < 0 || cell[axis] >= n_[axis]) return false;
+    tEnter = tNext[axis];
+    tNext[axis] += tDelta[axis];
+  }
+}
+
+void Aggregate::forEachGrain(const Bounds3& box, const std::function<void(const GrainInstance&)>& fn) const {
+  int64_t lo[3], hi[3];
+  for (int a = 0; a < 3; ++a) {
+    lo[a] = std::max<int64_t>(0, int64_t(std::floor((box.lo[a] - R_ - origin_[a]) / L_)));
+    hi[a] = std::min<int64_t>(n_[a] - 1, int64_t(std::floor((box.hi[a] + R_ - origin_[a]) / L_)));
+  }
+  for (int64_t k = lo[2]; k <= hi[2]; ++k)
+    for (int64_t j = lo[1]; j <= hi[1]; ++j)
+      for (int64_t i = lo[0]; i <= hi[0]; ++i) {
+        if (cellClass(i, j, k) == CellClass::Outside) continue;
+        int64_t home[3] = {i, j, k};
+        Vec3 cellOrigin = origin_ + Vec3(float(i), float(j), float(k)) * L_;
+        for (int s = 0; s < tile_.numSpheres; ++s) {
+          Vec3 c = cellOrigin + tile_.centers[s] * L_;  // as the intersection callback computes it
+          if (!sphereIsInside(home, c)) continue;
+          GrainChoice g = selector_.choose(i, j, k, s);
+          fn(GrainInstance{c, R_, g.prototype, g.rotation, {i, j, k}, s});
+        }
+      }
+}
+
+}  // namespace granular

@@ -1,0 +1,115 @@
+// aggregate.h — a granular aggregate: boundary, tiled sphere packing and grains
+// (seed §1.1–1.2).
+//
+// Contract: build() voxelises the world-space boundary into cells of one tile edge
+// L = R / r_tile, classified outside / partial / inside from the boundary's signed
+// distance field with a margin of half a cell diagonal plus R (so no sphere whose
+// centre is inside the boundary can reach an "outside" cell). intersect() walks the
+// cells along the ray by 3-D DDA; in a non-outside cell it traces the tile's sphere
+// BVH, keeps a sphere only if its centre is inside the boundary (exactly, by a ray cast
+// against the boundary mesh, in partial cells), instantiates its grain from a hash and
+// traces the prototype's BVH in the grain's frame. Memory is the tile, the cell
+// classes (one byte per cell) and the narrow-band distance field: independent of the
+// number of grains per cell. Queries are thread-safe.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "distance_field.h"
+#include "embree_util.h"
+#include "grain.h"
+#include "packing.h"
+#include "scene_desc.h"
+
+namespace granular {
+
+enum class CellClass : uint8_t { Outside = 0, Partial = 1, Inside = 2 };
+
+struct GrainHit {
+  float t = kInf;
+  Vec3 ng;                 // world, outward from the grain
+  int prototype = -1;
+  int64_t cell[3] = {0, 0, 0};
+  int sphere = -1;
+};
+
+// One grain, as the brute-force reference and the exporters see it.
+struct GrainInstance {
+  Vec3 center;
+  float radius;
+  int prototype;
+  Mat3 rotation;
+  int64_t cell[3];
+  int sphere;
+};
+
+struct AggregateStats {
+  int64_t cells = 0, insideCells = 0, partialCells = 0;
+  double approxGrains = 0;       // inside cells * N + partial cells * N * inside fraction
+  size_t memoryBytes = 0;        // classes + distance field + tile BVH + prototypes
+  double setupSeconds = 0;
+  double tileSeconds = 0, sdfSeconds = 0;
+};
+
+class Aggregate {
+ public:
+  Aggregate() = default;
+  Aggregate(const Aggregate&) = delete;
+  Aggregate& operator=(const Aggregate&) = delete;
+
+  // prototypeMaterials: scene material index of each prototype.
+  void build(const AggregateDesc& desc, const EmbreeDevice& device, const std::vector<int>& prototypeMaterials);
+
+  bool intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, GrainHit& hit) const;
+  // Exact inside test of a world point against the boundary mesh (ray parity by the
+  // orientation of the first hit).
+  bool insideBoundary(const Vec3& p) const;
+  // Signed distance to the boundary (negative inside), from the distance field.
+  float boundaryDistance(const Vec3& p) const { return sdf_.distance(p); }
+
+  CellClass cellClass(int64_t i, int64_t j, int64_t k) const;
+  void forEachGrain(const Bounds3& box, const std::function<void(const GrainInstance&)>& fn) const;
+
+  const std::string& name() const { return name_; }
+  const Bounds3& bounds() const { return bounds_; }
+  float grainRadius() const { return R_; }
+  float cellSize() const { return L_; }
+  const Tile& tile() const { return tile_; }
+  const std::vector<GrainPrototype>& prototypes() const { return prototypes_; }
+  const GrainSelector& selector() const { return selector_; }
+  const AggregateStats& stats() const { return stats_; }
+  const DistanceField& distanceField() const { return sdf_; }
+  const TriangleMesh& boundary() const { return boundary_; }
+  float packingRate() const { return f_; }
+
+ private:
+  struct TileSphere {
+    Vec3 center;            // relative to the cell's origin, world units
+    int8_t home[3];         // offset of the cell that holds the centre
+    int id;                 // sphere index in the tile
+  };
+  friend struct AggregateCallbacks;
+
+  bool sphereIsInside(const int64_t home[3], const Vec3& worldCenter) const;
+
+  std::string name_;
+  float R_ = 0, L_ = 0, f_ = 0;
+  Tile tile_;
+  std::vector<TileSphere> spheres_;
+  std::vector<GrainPrototype> prototypes_;
+  std::vector<int> prototypeMaterials_;
+  GrainSelector selector_;
+  TriangleMesh boundary_;
+  DistanceField sdf_;
+  EmbreeScene boundaryBvh_, tileBvh_;
+  Vec3 origin_;
+  int64_t n_[3] = {0, 0, 0};
+  std::vector<CellClass> classes_;
+  Bounds3 bounds_;
+  AggregateStats stats_;
+};
+
+}  // namespace granular

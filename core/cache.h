@@ -1,0 +1,21 @@
+// cache.h — the on-disk cache for derived data (tiles, transport parameters).
+//
+// Contract: cacheDirectory() is $GRANULAR_CACHE_DIR, else $XDG_CACHE_HOME/hdgranular,
+// else ~/.cache/hdgranular, created on first use; it returns "" when none can be
+// created, and callers then simply recompute. Entries are written to a temporary
+// name and renamed, so concurrent renders never read half a file.
+#pragma once
+
+#include <string>
+#include <vector>
+
+namespace granular {
+
+std::string cacheDirectory();
+
+// Reads a whole cache entry; false if it is absent or unreadable.
+bool readCacheFile(const std::string& name, std::vector<char>& bytes);
+// Writes a cache entry atomically; false (and no exception) on failure.
+bool writeCacheFile(const std::string& name, const std::vector<char>& bytes);
+
+}  // namespace granular

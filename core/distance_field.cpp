@@ -1,0 +1,61 @@
+#include "distance_field.h"
+
+#include <mutex>
+
+#include <openvdb/openvdb.h>
+#include <openvdb/tools/Interpolation.h>
+#include <openvdb/tools/MeshToVolume.h>
+
+namespace granular {
+
+struct DistanceField::Impl {
+  openvdb::FloatGrid::Ptr grid;
+};
+
+DistanceField::DistanceField() = default;
+DistanceField::~DistanceField() = default;
+DistanceField::DistanceField(DistanceField&&) noexcept = default;
+DistanceField& DistanceField::operator=(DistanceField&&) noexcept = default;
+
+void DistanceField::build(const TriangleMesh& mesh, float voxelSize, float minBand) {
+  static std::once_flag once;
+  std::call_once(once, [] { openvdb::initialize(); });
+  openvdb::math::Transform::Ptr xform = openvdb::math::Transform::createLinearTransform(voxelSize);
+  std::vector<openvdb::Vec3s> pts;
+  pts.reserve(mesh.points.size());
+  for (const Vec3& p : mesh.points) pts.emplace_back(p.x, p.y, p.z);  // world space: OpenVDB applies xform
+  std::vector<openvdb::Vec3I> tris;
+  tris.reserve(mesh.numTriangles());
+  for (size_t i = 0; i < mesh.numTriangles(); ++i)
+    tris.emplace_back(mesh.indices[3 * i], mesh.indices[3 * i + 1], mesh.indices[3 * i + 2]);
+  float halfWidthVoxels = std::max(3.0f, std::ceil(minBand / voxelSize) + 1.0f);
+  impl_ = std::make_unique<Impl>();
+  impl_->grid = openvdb::tools::meshToLevelSet<openvdb::FloatGrid>(*xform, pts, tris, halfWidthVoxels);
+  impl_->grid->setName("boundary_sdf");
+  voxel_ = voxelSize;
+  band_ = halfWidthVoxels * voxelSize;
+}
+
+bool DistanceField::empty() const { return !impl_ || !impl_->grid; }
+
+float DistanceField::distance(const Vec3& p) const {
+  // A local accessor per query: the shared tree is read-only, accessors are not thread-safe.
+  openvdb::tools::GridSampler<openvdb::FloatGrid::ConstAccessor, openvdb::tools::BoxSampler> sampler(
+      impl_->grid->getConstAccessor(), impl_->grid->transform());
+  return sampler.wsSample(openvdb::Vec3d(p.x, p.y, p.z));
+}
+
+Vec3 DistanceField::gradient(const Vec3& p) const {
+  float h = 0.5f * voxel_;
+  Vec3 g(distance(p + Vec3(h, 0, 0)) - distance(p - Vec3(h, 0, 0)),
+         distance(p + Vec3(0, h, 0)) - distance(p - Vec3(0, h, 0)),
+         distance(p + Vec3(0, 0, h)) - distance(p - Vec3(0, 0, h)));
+  float l = length(g);
+  return l > 0 ? g / l : Vec3(0, 0, 1);
+}
+
+size_t DistanceField::memoryBytes() const { return impl_ && impl_->grid ? impl_->grid->memUsage() : 0; }
+
+const void* DistanceField::grid() const { return impl_ ? impl_->grid.get() : nullptr; }
+
+}  // namespace granular

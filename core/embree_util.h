@@ -1,0 +1,44 @@
+// embree_util.h — ownership of Embree handles and a triangle-mesh BVH.
+//
+// Contract: EmbreeDevice/EmbreeScene release their handle when the last owner goes.
+// buildTriangleScene() makes a static, robust BVH over one mesh (geometry id 0).
+#pragma once
+
+#include <embree3/rtcore.h>
+
+#include <memory>
+
+#include "mesh.h"
+
+namespace granular {
+
+using EmbreeDevice = std::shared_ptr<std::remove_pointer_t<RTCDevice>>;
+using EmbreeScene = std::shared_ptr<std::remove_pointer_t<RTCScene>>;
+
+EmbreeDevice makeEmbreeDevice();
+EmbreeScene makeEmbreeScene(const EmbreeDevice& device);
+// Adds mesh as a triangle geometry to scene (not committed); returns its geometry id.
+unsigned attachTriangleMesh(RTCDevice device, RTCScene scene, const TriangleMesh& mesh);
+EmbreeScene buildTriangleScene(const EmbreeDevice& device, const TriangleMesh& mesh);
+
+// Unit outward normal of triangle prim (counter-clockwise winding seen from outside).
+inline Vec3 triangleNormal(const TriangleMesh& m, unsigned prim) {
+  const Vec3& a = m.points[m.indices[3 * prim]];
+  const Vec3& b = m.points[m.indices[3 * prim + 1]];
+  const Vec3& c = m.points[m.indices[3 * prim + 2]];
+  return normalize(cross(b - a, c - a));
+}
+
+inline RTCRayHit makeRayHit(const Vec3& o, const Vec3& d, float tnear, float tfar) {
+  RTCRayHit rh;
+  rh.ray.org_x = o.x; rh.ray.org_y = o.y; rh.ray.org_z = o.z;
+  rh.ray.dir_x = d.x; rh.ray.dir_y = d.y; rh.ray.dir_z = d.z;
+  rh.ray.tnear = tnear; rh.ray.tfar = tfar;
+  rh.ray.time = 0; rh.ray.mask = 0xffffffffu; rh.ray.id = 0; rh.ray.flags = 0;
+  rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+  rh.hit.primID = RTC_INVALID_GEOMETRY_ID;
+  rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+  return rh;
+}
+
+}  // namespace granular

@@ -1,0 +1,35 @@
+// error.h — the one exception type for bad user input.
+//
+// Contract: anything a user can get wrong (a scene file, a USD attribute, a setting)
+// is reported as InputError whose message names the object and the attribute, e.g.
+//   /World/Sand.packingRate: 0.9 is outside (0, 0.64]
+// Front ends print the message and exit with status 2; nothing ever crashes or
+// renders NaN because of input.
+#pragma once
+
+#include <sstream>
+#include <stdexcept>
+#include <string>
+
+namespace granular {
+
+class InputError : public std::runtime_error {
+ public:
+  InputError(const std::string& object, const std::string& attribute, const std::string& what)
+      : std::runtime_error(object + (attribute.empty() ? "" : "." + attribute) + ": " + what),
+        object_(object), attribute_(attribute) {}
+  const std::string& object() const { return object_; }
+  const std::string& attribute() const { return attribute_; }
+
+ private:
+  std::string object_, attribute_;
+};
+
+template <typename... Ts>
+std::string str(const Ts&... parts) {
+  std::ostringstream s;
+  (s << ... << parts);
+  return s.str();
+}
+
+}  // namespace granular

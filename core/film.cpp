@@ -1,0 +1,59 @@
+#include "film.h"
+
+#include <cmath>
+
+namespace granular {
+
+Film::Film(int width, int height) : width_(width), height_(height), px_(size_t(width) * height) {}
+
+void Film::clear() { std::fill(px_.begin(), px_.end(), Pixel()); }
+
+void Film::add(int x, int y, const PixelSample& s) {
+  Pixel& p = px_[idx(x, y)];
+  p.sum[0] += s.L.x; p.sum[1] += s.L.y; p.sum[2] += s.L.z;
+  double lum = luminance(s.L);
+  p.sumLum2 += lum * lum;
+  ++p.n;
+  if (s.hit) {
+    ++p.hits;
+    p.depth += s.depth;
+    p.normal[0] += s.normal.x; p.normal[1] += s.normal.y; p.normal[2] += s.normal.z;
+  }
+}
+
+Vec3 Film::mean(int x, int y) const {
+  const Pixel& p = px_[idx(x, y)];
+  if (p.n == 0) return Vec3(0.0f);
+  return Vec3(float(p.sum[0] / p.n), float(p.sum[1] / p.n), float(p.sum[2] / p.n));
+}
+
+float Film::stdError(int x, int y) const {
+  const Pixel& p = px_[idx(x, y)];
+  if (p.n < 2) return kInf;
+  double m = luminance(mean(x, y));
+  double var = std::max(0.0, (p.sumLum2 / p.n - m * m)) * p.n / (p.n - 1);
+  return float(std::sqrt(var / p.n));
+}
+
+Image Film::toImage() const {
+  Image img;
+  img.width = width_;
+  img.height = height_;
+  img.channels = {"R", "G", "B", "A", "Z", "N.X", "N.Y", "N.Z"};
+  img.pixels.assign(size_t(width_) * height_ * img.channels.size(), 0.0f);
+  for (int y = 0; y < height_; ++y)
+    for (int x = 0; x < width_; ++x) {
+      const Pixel& p = px_[idx(x, y)];
+      float* o = &img.pixels[idx(x, y) * img.channels.size()];
+      Vec3 c = mean(x, y);
+      o[0] = c.x; o[1] = c.y; o[2] = c.z;
+      o[3] = p.n ? float(double(p.hits) / p.n) : 0.0f;
+      o[4] = p.hits ? float(p.depth / p.hits) : kInf;
+      Vec3 n(float(p.normal[0]), float(p.normal[1]), float(p.normal[2]));
+      n = p.hits ? normalize(n) : Vec3(0.0f);
+      o[5] = n.x; o[6] = n.y; o[7] = n.z;
+    }
+  return img;
+}
+
+}  // namespace granular

@@ -1,0 +1,50 @@
+// film.h — per-pixel accumulation of radiance and AOVs.
+//
+// Contract: the film sums samples (double precision) per pixel; each pixel is written
+// by one thread at a time, in sample order, so the result does not depend on the
+// thread count. toImage() averages into channels R,G,B,A (coverage), Z (depth along the
+// view axis, of the covered samples; +inf where nothing was hit), N.X,N.Y,N.Z (mean
+// normal of the first hits).
+#pragma once
+
+#include <vector>
+
+#include "image_io.h"
+#include "math.h"
+
+namespace granular {
+
+struct PixelSample {
+  Vec3 L;
+  bool hit = false;
+  float depth = 0;
+  Vec3 normal;
+};
+
+class Film {
+ public:
+  Film() = default;
+  Film(int width, int height);
+  int width() const { return width_; }
+  int height() const { return height_; }
+  void add(int x, int y, const PixelSample& s);
+  long samples(int x, int y) const { return px_[idx(x, y)].n; }
+  Vec3 mean(int x, int y) const;
+  // Standard error of the mean of the pixel's luminance.
+  float stdError(int x, int y) const;
+  Image toImage() const;
+  void clear();
+
+ private:
+  struct Pixel {
+    double sum[3] = {0, 0, 0};
+    double sumLum2 = 0;
+    double depth = 0, normal[3] = {0, 0, 0};
+    long n = 0, hits = 0;
+  };
+  size_t idx(int x, int y) const { return size_t(y) * width_ + x; }
+  int width_ = 0, height_ = 0;
+  std::vector<Pixel> px_;
+};
+
+}  // namespace granular

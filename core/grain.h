@@ -1,0 +1,60 @@
+// grain.h — grain prototypes and the per-grain random choices (seed §1.1–1.2).
+//
+// Contract: a GrainPrototype is its mesh moved and scaled into the unit bounding
+// sphere (centre at the origin, radius 1, outward winding) with its own Embree BVH, so
+// a grain of bounding radius R at centre c with rotation Q maps a local point q to
+// c + R Q q. GrainSelector draws a grain's prototype (by the mixing weights) and its
+// uniform random rotation from a hash of (tile cell, sphere id, seed): deterministic,
+// nothing stored per grain.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "embree_util.h"
+#include "math.h"
+#include "rng.h"
+#include "sampling.h"
+#include "scene_desc.h"
+
+namespace granular {
+
+struct GrainPrototype {
+  std::string name;
+  TriangleMesh mesh;        // in the unit bounding sphere
+  int material = -1;        // scene material index
+  EmbreeScene bvh;
+  Vec3 fitCenter;           // bounding-sphere centre in the description's space
+  float fitRadius = 1.0f;   // its radius there
+};
+
+// Normalises desc.mesh into its bounding sphere (Ritter's approximate minimal sphere,
+// refined) and builds its BVH. The mesh must already be validated as closed.
+GrainPrototype makeGrainPrototype(const EmbreeDevice& device, const GrainPrototypeDesc& desc);
+
+struct GrainChoice {
+  int prototype = 0;
+  Mat3 rotation;
+};
+
+class GrainSelector {
+ public:
+  GrainSelector() = default;
+  GrainSelector(const std::vector<float>& weights, uint64_t seed);
+  // cell: the tile cell holding the sphere's centre; sphere: its index in the tile.
+  GrainChoice choose(int64_t cx, int64_t cy, int64_t cz, int sphere) const {
+    uint64_t h = hashInts(seed_, uint64_t(cx), uint64_t(cy), uint64_t(cz), uint64_t(sphere));
+    GrainChoice c;
+    c.prototype = weights_.sampleDiscrete(toUnitFloat(h));
+    uint64_t h2 = mix64(h + 1), h3 = mix64(h + 2);
+    c.rotation = sampleUniformRotation(toUnitFloat(h2), toUnitFloat(h2 << 24), toUnitFloat(h3));
+    return c;
+  }
+  float probability(int prototype) const { return weights_.discreteProb(prototype); }
+
+ private:
+  Distribution1D weights_;
+  uint64_t seed_ = 0;
+};
+
+}  // namespace granular

@@ -1,0 +1,258 @@
+// image_io.cpp — OIIO for files, OCIO (built in code) for the display encoding.
+#include "image_io.h"
+
+#include <OpenColorIO/OpenColorIO.h>
+#include <OpenImageIO/imageio.h>
+#include <OpenImageIO/strutil.h>
+
+#include <algorithm>
+#include <cctype>
+#include <cerrno>
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <cstring>
+#include <set>
+#include <stdexcept>
+
+#include "error.h"
+
+namespace OCIO = OCIO_NAMESPACE;
+
+namespace granular {
+namespace {
+
+// sRGB piecewise curve: ExponentWithLinear with gamma 2.4 / offset 0.055 is the
+// sRGB EOTF (decode) forward, the encoding inverse. OCIO 2.1 has no built-in
+// configs, so the transform is assembled here on a raw config.
+OCIO::ExponentWithLinearTransformRcPtr srgbCurve(OCIO::TransformDirection dir) {
+  auto curve = OCIO::ExponentWithLinearTransform::Create();
+  // Alpha gets the same curve (a 1/0 pair is degenerate); it is never used:
+  // only RGB buffers are processed.
+  const double gamma[4] = {2.4, 2.4, 2.4, 2.4};
+  const double offset[4] = {0.055, 0.055, 0.055, 0.055};
+  curve->setGamma(gamma);
+  curve->setOffset(offset);
+  curve->setDirection(dir);
+  return curve;
+}
+
+OCIO::ConstCPUProcessorRcPtr cpuProcessor(const OCIO::ConstTransformRcPtr& t) {
+  // Lossless only: the default flags may swap pow() for a fast approximation.
+  return OCIO::Config::CreateRaw()->getProcessor(t)->getOptimizedCPUProcessor(
+      OCIO::BIT_DEPTH_F32, OCIO::BIT_DEPTH_F32, OCIO::OPTIMIZATION_LOSSLESS);
+}
+
+// Linear -> scale by 2^exposure -> sRGB encoding.
+OCIO::ConstCPUProcessorRcPtr makeEncoder(float exposure) {
+  auto group = OCIO::GroupTransform::Create();
+  const double s = std::exp2(static_cast<double>(exposure));
+  if (s != 1.0) {
+    auto scale = OCIO::MatrixTransform::Create();
+    const double m[16] = {s, 0, 0, 0, 0, s, 0, 0, 0, 0, s, 0, 0, 0, 0, 1};
+    scale->setMatrix(m);
+    group->appendTransform(scale);
+  }
+  group->appendTransform(srgbCurve(OCIO::TRANSFORM_DIR_INVERSE));
+  return cpuProcessor(group);
+}
+
+const OCIO::CPUProcessor& defaultEncoder() {
+  static const OCIO::ConstCPUProcessorRcPtr p = makeEncoder(0.0f);
+  return *p;
+}
+
+const OCIO::CPUProcessor& srgbDecoder() {
+  static const OCIO::ConstCPUProcessorRcPtr p = cpuProcessor(srgbCurve(OCIO::TRANSFORM_DIR_FORWARD));
+  return *p;
+}
+
+float finiteOrZero(float v) { return std::isfinite(v) ? v : 0.0f; }
+
+// Encodes n interleaved RGB triples in place to display values in [0,1]. Non-finite
+// input is zeroed before OCIO (NaN must not reach the curve) and the result is
+// checked again, so nothing non-finite can come out.
+void encodeRGB(const OCIO::CPUProcessor& proc, float* rgb, size_t n) {
+  for (size_t i = 0; i < 3 * n; ++i) rgb[i] = finiteOrZero(rgb[i]);
+  if (n > 0) {
+    OCIO::PackedImageDesc desc(rgb, static_cast<long>(n), 1, 3);
+    proc.apply(desc);
+  }
+  for (size_t i = 0; i < 3 * n; ++i) rgb[i] = std::clamp(finiteOrZero(rgb[i]), 0.0f, 1.0f);
+}
+
+uint8_t toByte(float v01) { return static_cast<uint8_t>(std::lround(v01 * 255.0f)); }
+
+std::string failure(const std::string& path, const std::string& why) {
+  return "cannot write image " + path + ": " + (why.empty() ? "unknown error" : why);
+}
+
+void checkShape(const std::string& path, const Image& img, int minChannels) {
+  if (img.width <= 0 || img.height <= 0)
+    throw std::runtime_error(failure(path, str("empty image ", img.width, "x", img.height)));
+  if (img.numChannels() < minChannels)
+    throw std::runtime_error(failure(path, str("needs at least ", minChannels, " channels, has ", img.numChannels())));
+  const size_t expected = static_cast<size_t>(img.width) * img.height * img.channels.size();
+  if (img.pixels.size() != expected)
+    throw std::runtime_error(
+        failure(path, str("pixel buffer holds ", img.pixels.size(), " floats, expected ", expected)));
+}
+
+// Writes through "<path>.tmp" and renames, so <path> is either the old file or the
+// complete new one. The plugin is chosen by format name because ".tmp" says nothing.
+void writeAtomically(const std::string& path, const char* format, const OIIO::ImageSpec& spec,
+                     OIIO::TypeDesc type, const void* data) {
+  const std::string tmp = path + ".tmp";
+  auto out = OIIO::ImageOutput::create(format);
+  if (!out) throw std::runtime_error(failure(path, OIIO::geterror()));
+  auto fail = [&](const std::string& why) {
+    out.reset();  // closes the handle before the unlink
+    std::remove(tmp.c_str());
+    throw std::runtime_error(failure(path, why));
+  };
+  if (!out->open(tmp, spec)) fail(out->geterror());
+  if (!out->write_image(type, data)) fail(out->geterror());
+  if (!out->close()) fail(out->geterror());
+  out.reset();
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
+    const int err = errno;
+    std::remove(tmp.c_str());
+    throw std::runtime_error(failure(path, str("rename from ", tmp, " failed: ", std::strerror(err))));
+  }
+}
+
+std::string lowerExtension(const std::string& path) {
+  const size_t slash = path.find_last_of('/');
+  const size_t dot = path.find_last_of('.');
+  if (dot == std::string::npos || (slash != std::string::npos && dot < slash)) return "";
+  std::string ext = path.substr(dot + 1);
+  for (char& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  return ext;
+}
+
+}  // namespace
+
+void writeExr(const std::string& path, const Image& img) {
+  checkShape(path, img, 1);
+  std::set<std::string> seen;
+  for (const std::string& name : img.channels)
+    if (name.empty() || !seen.insert(name).second)
+      throw std::runtime_error(failure(path, "channel names must be unique and non-empty"));
+
+  OIIO::ImageSpec spec(img.width, img.height, img.numChannels(), OIIO::TypeDesc::FLOAT);
+  spec.channelnames = img.channels;
+  // The constructor guesses alpha at index 3; only a channel named A is alpha.
+  spec.alpha_channel = img.channelIndex("A");
+  spec.z_channel = img.channelIndex("Z");
+  spec.attribute("compression", "zip");
+  writeAtomically(path, "openexr", spec, OIIO::TypeDesc::FLOAT, img.pixels.data());
+}
+
+void writePngSrgb(const std::string& path, const Image& img, float exposure) {
+  checkShape(path, img, 3);
+  if (!std::isfinite(exposure)) throw InputError(path, "exposure", str(exposure, " is not finite"));
+
+  const size_t n = static_cast<size_t>(img.width) * img.height;
+  const size_t nch = img.channels.size();
+  const int alphaIndex = img.channelIndex("A");
+  std::vector<float> rgb(3 * n), alpha(alphaIndex >= 0 ? n : 0);
+  for (size_t i = 0; i < n; ++i) {
+    const float* p = img.pixels.data() + i * nch;
+    float r = finiteOrZero(p[0]), g = finiteOrZero(p[1]), b = finiteOrZero(p[2]);
+    if (alphaIndex >= 0) {
+      const float a = std::clamp(finiteOrZero(p[alphaIndex]), 0.0f, 1.0f);
+      alpha[i] = a;
+      // Un-premultiply in linear: PNG alpha is straight. With a == 0 there is no
+      // coverage to divide by; the colour is kept as it is.
+      if (a > 0.0f) r /= a, g /= a, b /= a;
+    }
+    rgb[3 * i] = r, rgb[3 * i + 1] = g, rgb[3 * i + 2] = b;
+  }
+
+  try {
+    if (exposure == 0.0f) {
+      encodeRGB(defaultEncoder(), rgb.data(), n);
+    } else {
+      auto proc = makeEncoder(exposure);
+      encodeRGB(*proc, rgb.data(), n);
+    }
+  } catch (const OCIO::Exception& e) {
+    throw std::runtime_error(failure(path, str("OpenColorIO: ", e.what())));
+  }
+
+  const int outCh = alphaIndex >= 0 ? 4 : 3;
+  std::vector<uint8_t> bytes(n * outCh);
+  for (size_t i = 0; i < n; ++i) {
+    for (int c = 0; c < 3; ++c) bytes[i * outCh + c] = toByte(rgb[3 * i + c]);
+    if (outCh == 4) bytes[i * outCh + 3] = toByte(alpha[i]);
+  }
+
+  OIIO::ImageSpec spec(img.width, img.height, outCh, OIIO::TypeDesc::UINT8);
+  spec.alpha_channel = outCh == 4 ? 3 : -1;
+  spec.attribute("oiio:ColorSpace", "sRGB");
+  // The bytes are final: stop OIIO from un-premultiplying them a second time.
+  spec.attribute("oiio:UnassociatedAlpha", 1);
+  writeAtomically(path, "png", spec, OIIO::TypeDesc::UINT8, bytes.data());
+}
+
+void writeImage(const std::string& path, const Image& img) {
+  const std::string ext = lowerExtension(path);
+  if (ext == "exr") return writeExr(path, img);
+  if (ext == "png") return writePngSrgb(path, img);
+  throw InputError(path, "", "unsupported image format '" + ext + "' (use .exr or .png)");
+}
+
+Image readImageRGB(const std::string& path) {
+  auto in = OIIO::ImageInput::open(path);
+  if (!in) {
+    std::string why = OIIO::geterror();
+    throw InputError(path, "", "cannot read image: " + (why.empty() ? std::string("unknown error") : why));
+  }
+  const OIIO::ImageSpec spec = in->spec();
+  if (spec.deep) throw InputError(path, "", "cannot read image: deep images are not supported");
+  if (spec.width <= 0 || spec.height <= 0 || spec.depth > 1 || spec.nchannels <= 0)
+    throw InputError(path, "", str("cannot read image: unusable size ", spec.width, "x", spec.height, "x",
+                                   spec.depth, " with ", spec.nchannels, " channels"));
+
+  const size_t n = static_cast<size_t>(spec.width) * spec.height;
+  const int nch = spec.nchannels;
+  std::vector<float> all(n * nch);
+  if (!in->read_image(0, 0, 0, nch, OIIO::TypeDesc::FLOAT, all.data()))
+    throw InputError(path, "", "cannot read image: " + in->geterror());
+  in->close();
+
+  // Channel picks: named R,G,B when present, else the first three, else grey.
+  int src[3] = {0, 0, 0};
+  auto named = [&](const char* name) {
+    for (int c = 0; c < nch; ++c)
+      if (spec.channel_name(c) == name) return c;
+    return -1;
+  };
+  const int r = named("R"), g = named("G"), b = named("B");
+  if (r >= 0 && g >= 0 && b >= 0) src[0] = r, src[1] = g, src[2] = b;
+  else if (nch >= 3) src[0] = 0, src[1] = 1, src[2] = 2;
+
+  Image img(spec.width, spec.height, {"R", "G", "B"});
+  for (size_t i = 0; i < n; ++i)
+    for (int c = 0; c < 3; ++c) img.pixels[3 * i + c] = finiteOrZero(all[i * nch + src[c]]);
+
+  // 8-bit PNG/JPEG hold sRGB-encoded values; lighting needs linear radiance.
+  if (OIIO::Strutil::iequals(spec.get_string_attribute("oiio:ColorSpace"), "sRGB")) {
+    try {
+      OCIO::PackedImageDesc desc(img.pixels.data(), static_cast<long>(n), 1, 3);
+      srgbDecoder().apply(desc);
+    } catch (const OCIO::Exception& e) {
+      throw InputError(path, "", str("cannot read image: OpenColorIO: ", e.what()));
+    }
+  }
+  for (float& v : img.pixels) v = (std::isfinite(v) && v > 0.0f) ? v : 0.0f;  // also -0 -> +0
+  return img;
+}
+
+float srgbEncode(float linear) {
+  float rgb[3] = {linear, linear, linear};
+  encodeRGB(defaultEncoder(), rgb, 1);
+  return rgb[0];
+}
+
+}  // namespace granular

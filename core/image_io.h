@@ -1,0 +1,64 @@
+// image_io.h — writing renders (EXR, PNG) and reading environment maps.
+//
+// Contract: Image is a float image with named, interleaved channels, row-major, top
+// row first. writeExr stores every channel as float32 (ZIP); writePngSrgb stores the
+// first three channels (linear Rec.709) as 8-bit sRGB through an OpenColorIO
+// processor built in code, with exposure, clamping and NaN/Inf -> 0. Both writers go
+// through "<path>.tmp" + rename, so a failure never leaves a partial file at <path>;
+// they throw std::runtime_error naming the path. readImageRGB returns finite,
+// non-negative linear RGB or throws InputError. No OIIO/OCIO types leak out of here.
+#pragma once
+
+#include <cstddef>
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace granular {
+
+struct Image {
+  int width = 0, height = 0;
+  std::vector<std::string> channels;  // e.g. {"R","G","B","A","Z","N.X","N.Y","N.Z"}
+  std::vector<float> pixels;          // width*height*channels.size(), interleaved
+
+  Image() = default;
+  Image(int w, int h, std::vector<std::string> names)
+      : width(w), height(h), channels(std::move(names)),
+        pixels(static_cast<size_t>(w) * h * channels.size(), 0.0f) {}
+
+  int numChannels() const { return static_cast<int>(channels.size()); }
+  // Index of a named channel, or -1.
+  int channelIndex(const std::string& name) const {
+    for (size_t i = 0; i < channels.size(); ++i)
+      if (channels[i] == name) return static_cast<int>(i);
+    return -1;
+  }
+  float* at(int x, int y) { return pixels.data() + (static_cast<size_t>(y) * width + x) * channels.size(); }
+  const float* at(int x, int y) const {
+    return pixels.data() + (static_cast<size_t>(y) * width + x) * channels.size();
+  }
+};
+
+// OpenEXR, float32 for every channel, ZIP compression.
+void writeExr(const std::string& path, const Image& img);
+
+// 8-bit PNG: linear RGB * 2^exposure, sRGB-encoded, clamped to [0,1]; NaN/Inf -> 0.
+// With an "A" channel the PNG is RGBA; colour is taken as premultiplied by A (as the
+// renderer produces it) and un-premultiplied in linear before encoding, because PNG
+// alpha is straight.
+void writePngSrgb(const std::string& path, const Image& img, float exposure = 0.0f);
+
+// .exr -> writeExr, .png -> writePngSrgb (case-insensitive); else InputError.
+void writeImage(const std::string& path, const Image& img);
+
+// Any OIIO-readable image as 3-channel linear RGB (grey expanded, alpha dropped), for
+// lat-long environment maps. Images tagged sRGB (8-bit PNG/JPEG) are decoded to
+// linear. Non-finite values become 0 and negatives are clamped to 0.
+// Throws InputError(path, "", "cannot read image: ...").
+Image readImageRGB(const std::string& path);
+
+// The PNG's encoding of one linear value (exposure 0), through the same OCIO
+// processor, clamped to [0,1] and before 8-bit quantisation.
+float srgbEncode(float linear);
+
+}  // namespace granular

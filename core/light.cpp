@@ -1,0 +1,235 @@
+#include "light.h"
+
+#include "error.h"
+#include "image_io.h"
+
+namespace granular {
+
+namespace {
+
+// Lat-long mapping of a dome direction (dome space, +Y up): u runs with the azimuth
+// from -Z towards +X, v from the zenith (0) to the nadir (1).
+void dirToUV(const Vec3& d, float& u, float& v) {
+  u = 0.5f + std::atan2(d.x, -d.z) * (0.5f * kInvPi);
+  v = std::acos(std::min(1.0f, std::max(-1.0f, d.y))) * kInvPi;
+}
+Vec3 uvToDir(float u, float v) {
+  float phi = (u - 0.5f) * 2.0f * kPi, theta = v * kPi;
+  float s = std::sin(theta);
+  return {s * std::sin(phi), std::cos(theta), -s * std::cos(phi)};
+}
+
+}  // namespace
+
+Light Light::fromDesc(const LightDesc& d) {
+  Light l;
+  l.type_ = d.type;
+  Vec3 L = d.color * (d.intensity * std::exp2(d.exposure));
+  switch (d.type) {
+    case LightType::Distant: {
+      l.dir_ = normalize(d.xf.vector(Vec3(0, 0, 1)));
+      float half = 0.5f * d.angle * kPi / 180.0f;
+      l.cosMax_ = std::cos(half);
+      if (l.cosMax_ > 1.0f - 1e-7f) l.cosMax_ = 1.0f;  // a point-like sun: delta light
+      if (d.normalize && l.cosMax_ < 1.0f) L /= (kPi * std::sin(half) * std::sin(half));  // irradiance = intensity
+      l.radiance_ = L;
+      break;
+    }
+    case LightType::Sphere: {
+      l.center_ = d.xf.point(Vec3(0.0f));
+      // Uniform scale of the transform scales the radius.
+      l.radius_ = d.radius * length(d.xf.vector(Vec3(1, 0, 0)));
+      if (d.normalize) L /= (4.0f * kPi * l.radius_ * l.radius_);
+      l.radiance_ = L;
+      break;
+    }
+    case LightType::Rect: {
+      l.corner_ = d.xf.point(Vec3(-0.5f * d.width, -0.5f * d.height, 0));
+      l.edgeU_ = d.xf.vector(Vec3(d.width, 0, 0));
+      l.edgeV_ = d.xf.vector(Vec3(0, d.height, 0));
+      Vec3 c = cross(l.edgeU_, l.edgeV_);
+      l.area_ = length(c);
+      l.normal_ = normalize(d.xf.vector(Vec3(0, 0, -1)));
+      if (d.normalize) L /= l.area_;
+      l.radiance_ = L;
+      break;
+    }
+    case LightType::Dome: {
+      l.radiance_ = L;
+      l.toWorld_ = d.xf;
+      if (!d.xf.inverse(l.toLocal_)) throw InputError(d.name, "transform", "is singular");
+      if (!d.textureFile.empty()) {
+        Image img = readImageRGB(d.textureFile);
+        l.texW_ = img.width;
+        l.texH_ = img.height;
+        l.texels_ = std::make_shared<std::vector<float>>(std::move(img.pixels));
+        std::vector<float> f(size_t(l.texW_) * l.texH_);
+        for (int y = 0; y < l.texH_; ++y) {
+          float s = std::sin(kPi * (y + 0.5f) / l.texH_);  // lat-long area element
+          for (int x = 0; x < l.texW_; ++x) {
+            const float* t = &(*l.texels_)[(size_t(y) * l.texW_ + x) * 3];
+            f[size_t(y) * l.texW_ + x] = (t[0] + t[1] + t[2]) * s + 1e-6f;
+          }
+        }
+        l.dist_ = std::make_shared<Distribution2D>(f, l.texW_, l.texH_);
+      }
+      break;
+    }
+  }
+  return l;
+}
+
+Vec3 Light::domeLookup(const Vec3& localDir) const {
+  if (!texels_) return radiance_;
+  float u, v;
+  dirToUV(localDir, u, v);
+  int x = std::min(std::max(int(u * texW_), 0), texW_ - 1);
+  int y = std::min(std::max(int(v * texH_), 0), texH_ - 1);
+  const float* t = &(*texels_)[(size_t(y) * texW_ + x) * 3];
+  return radiance_ * Vec3(t[0], t[1], t[2]);
+}
+
+bool Light::sampleLi(const Vec3& p, float u1, float u2, LightSample& s) const {
+  switch (type_) {
+    case LightType::Distant: {
+      if (cosMax_ >= 1.0f) {
+        s.wi = dir_; s.pdf = 0; s.delta = true; s.Li = radiance_; s.dist = kInf;
+        return true;
+      }
+      Frame f(dir_);
+      s.wi = f.toWorld(sampleUniformCone(u1, u2, cosMax_));
+      s.pdf = uniformConePdf(cosMax_);
+      s.Li = radiance_;
+      s.delta = false;
+      s.dist = kInf;
+      return true;
+    }
+    case LightType::Sphere: {
+      Vec3 toC = center_ - p;
+      float d2 = length2(toC);
+      float r2 = radius_ * radius_;
+      if (d2 <= r2 * 1.0001f) return false;  // inside the emitter: it faces away
+      float d = std::sqrt(d2);
+      float sin2 = r2 / d2;
+      float cosMax = std::sqrt(std::max(0.0f, 1.0f - sin2));
+      Frame f(toC / d);
+      s.wi = f.toWorld(sampleUniformCone(u1, u2, cosMax));
+      Ray r{p, s.wi, 0.0f, kInf};
+      float t;
+      if (!intersect(r, t)) t = d * cosMax;  // grazing the silhouette
+      s.dist = t;
+      s.pdf = uniformConePdf(cosMax);
+      s.Li = radiance_;
+      s.delta = false;
+      return true;
+    }
+    case LightType::Rect: {
+      Vec3 q = corner_ + edgeU_ * u1 + edgeV_ * u2;
+      Vec3 w = q - p;
+      float d2 = length2(w);
+      if (d2 <= 0) return false;
+      float d = std::sqrt(d2);
+      w /= d;
+      float cosL = -dot(w, normal_);
+      if (cosL <= 0) return false;  // one-sided
+      s.wi = w;
+      s.dist = d;
+      s.pdf = d2 / (cosL * area_);
+      s.Li = radiance_;
+      s.delta = false;
+      return true;
+    }
+    case LightType::Dome: {
+      if (!dist_) {
+        s.wi = sampleUniformSphere(u1, u2);
+        s.pdf = kUniformSpherePdf;
+        s.Li = radiance_;
+      } else {
+        float u, v, pdfUV;
+        dist_->sample(u1, u2, u, v, &pdfUV);
+        Vec3 local = uvToDir(u, v);
+        float sinT = std::sin(v * kPi);
+        if (sinT <= 0 || pdfUV <= 0) return false;
+        s.wi = normalize(toWorld_.vector(local));
+        s.pdf = pdfUV / (2.0f * kPi * kPi * sinT);
+        s.Li = domeLookup(local);
+      }
+      s.dist = kInf;
+      s.delta = false;
+      return true;
+    }
+  }
+  return false;
+}
+
+Vec3 Light::escapedLe(const Vec3& dir) const {
+  if (type_ == LightType::Dome) return domeLookup(normalize(toLocal_.vector(dir)));
+  if (type_ == LightType::Distant && cosMax_ < 1.0f && dot(dir, dir_) >= cosMax_) return radiance_;
+  return Vec3(0.0f);
+}
+
+float Light::pdfLi(const Vec3& p, const Vec3& wi, float dist) const {
+  switch (type_) {
+    case LightType::Distant:
+      return (cosMax_ < 1.0f && dot(wi, dir_) >= cosMax_) ? uniformConePdf(cosMax_) : 0.0f;
+    case LightType::Sphere: {
+      float d2 = length2(center_ - p), r2 = radius_ * radius_;
+      if (d2 <= r2 * 1.0001f) return 0.0f;
+      return uniformConePdf(std::sqrt(std::max(0.0f, 1.0f - r2 / d2)));
+    }
+    case LightType::Rect: {
+      float cosL = -dot(wi, normal_);
+      return cosL > 0 ? dist * dist / (cosL * area_) : 0.0f;
+    }
+    case LightType::Dome: {
+      if (!dist_) return kUniformSpherePdf;
+      Vec3 local = normalize(toLocal_.vector(wi));
+      float u, v;
+      dirToUV(local, u, v);
+      float sinT = std::sin(v * kPi);
+      return sinT > 0 ? dist_->pdf(u, v) / (2.0f * kPi * kPi * sinT) : 0.0f;
+    }
+  }
+  return 0.0f;
+}
+
+bool Light::intersect(const Ray& r, float& t) const {
+  if (type_ == LightType::Sphere) {
+    Vec3 oc = r.o - center_;
+    float b = dot(oc, r.d), c = length2(oc) - radius_ * radius_;
+    float disc = b * b - c;
+    if (disc < 0) return false;
+    float sq = std::sqrt(disc);
+    float t0 = -b - sq, t1 = -b + sq;
+    if (t0 > r.tmin && t0 < r.tmax) { t = t0; return true; }
+    if (t1 > r.tmin && t1 < r.tmax && c > 0) { t = t1; return true; }
+    return false;
+  }
+  if (type_ == LightType::Rect) {
+    float denom = dot(r.d, normal_);
+    if (denom >= 0) return false;  // back side is not emitting and does not block
+    float tt = dot(corner_ - r.o, normal_) / denom;
+    if (!(tt > r.tmin && tt < r.tmax)) return false;
+    Vec3 q = r.o + r.d * tt - corner_;
+    float a = dot(q, edgeU_) / length2(edgeU_), b = dot(q, edgeV_) / length2(edgeV_);
+    if (a < 0 || a > 1 || b < 0 || b > 1) return false;
+    t = tt;
+    return true;
+  }
+  return false;
+}
+
+Vec3 Light::areaLe(const Vec3& dir) const { return radiance_; }
+
+float Light::power() const {
+  float l = average(radiance_);
+  switch (type_) {
+    case LightType::Sphere: return l * 4.0f * kPi * radius_ * radius_ * kPi;
+    case LightType::Rect: return l * area_ * kPi;
+    case LightType::Distant: return cosMax_ < 1.0f ? l * 2.0f * kPi * (1.0f - cosMax_) : l;
+    case LightType::Dome: return l * 4.0f * kPi;
+  }
+  return l;
+}
+
+}  // namespace granular

@@ -1,0 +1,64 @@
+// light.h — the UsdLux lights: distant (with angular size), sphere, rect and dome.
+//
+// Contract: sampleLi() picks a direction from a shading point towards the light and
+// returns its radiance and pdf in solid angle (delta lights: pdf 0, radiance is the
+// irradiance). Le()/pdfLi() evaluate the same quantities for a direction found by BSDF
+// sampling, so that the integrator can weight both strategies by MIS. Area lights
+// (sphere, rect) are one-sided emitters hit by intersectLight(); distant and dome lights
+// are seen by rays that escape the scene (escapedLe()).
+#pragma once
+
+#include <memory>
+#include <vector>
+
+#include "math.h"
+#include "sampling.h"
+#include "scene_desc.h"
+
+namespace granular {
+
+struct LightSample {
+  Vec3 wi;          // towards the light
+  float dist = kInf;
+  Vec3 Li;          // radiance arriving along -wi
+  float pdf = 0;    // solid angle; 0 for delta lights
+  bool delta = false;
+};
+
+class Light {
+ public:
+  static Light fromDesc(const LightDesc& d);
+
+  LightType type() const { return type_; }
+  bool isInfinite() const { return type_ == LightType::Distant || type_ == LightType::Dome; }
+  bool sampleLi(const Vec3& p, float u1, float u2, LightSample& s) const;
+  // For infinite lights: radiance and solid-angle pdf for an escaping direction.
+  Vec3 escapedLe(const Vec3& dir) const;
+  float pdfLi(const Vec3& p, const Vec3& wi, float dist) const;
+  // For area lights: nearest hit of the emitting shape in (tmin, tmax).
+  bool intersect(const Ray& r, float& t) const;
+  // Radiance leaving the area light at a hit point towards -dir.
+  Vec3 areaLe(const Vec3& dir) const;
+  float power() const;  // rough emitted power, for choosing lights
+
+ private:
+  LightType type_ = LightType::Distant;
+  Vec3 radiance_;
+  // distant
+  Vec3 dir_;            // towards the light
+  float cosMax_ = 1;
+  // sphere
+  Vec3 center_;
+  float radius_ = 0;
+  // rect
+  Vec3 corner_, edgeU_, edgeV_, normal_;  // emits along normal_
+  float area_ = 0;
+  // dome
+  Transform toLocal_, toWorld_;
+  std::shared_ptr<const std::vector<float>> texels_;  // RGB
+  int texW_ = 0, texH_ = 0;
+  std::shared_ptr<const Distribution2D> dist_;
+  Vec3 domeLookup(const Vec3& localDir) const;
+};
+
+}  // namespace granular

@@ -1,0 +1,73 @@
+#include "material.h"
+
+#include "sampling.h"
+
+namespace granular {
+
+float fresnelDielectric(float cosI, float eta) {
+  // eta = n_inside / n_outside; flip when arriving from inside.
+  if (cosI < 0) { eta = 1.0f / eta; cosI = -cosI; }
+  float sin2T = (1.0f - cosI * cosI) / (eta * eta);
+  if (sin2T >= 1.0f) return 1.0f;  // total internal reflection
+  float cosT = std::sqrt(std::max(0.0f, 1.0f - sin2T));
+  float rs = (cosI - eta * cosT) / (cosI + eta * cosT);
+  float rp = (eta * cosI - cosT) / (eta * cosI + cosT);
+  return 0.5f * (rs * rs + rp * rp);
+}
+
+Material Material::fromDesc(const MaterialDesc& d) {
+  Material m;
+  m.type = d.type;
+  m.albedo = d.albedo;
+  m.ior = d.ior;
+  m.absorption = d.absorption;
+  m.emission = d.emission;
+  return m;
+}
+
+Vec3 Material::eval(const Vec3& wo, const Vec3& wi) const {
+  if (type != MaterialType::Lambert || wo.z <= 0 || wi.z <= 0) return Vec3(0.0f);
+  return albedo * (kInvPi * wi.z);
+}
+
+float Material::pdf(const Vec3& wo, const Vec3& wi) const {
+  if (type != MaterialType::Lambert || wo.z <= 0) return 0.0f;
+  return cosineHemispherePdf(wi.z);
+}
+
+bool Material::sample(const Vec3& wo, float uLobe, float u1, float u2, BsdfSample& s) const {
+  if (type == MaterialType::Lambert) {
+    if (wo.z <= 0) return false;  // seen from behind: opaque and black
+    s.wi = sampleCosineHemisphere(u1, u2);
+    s.pdf = cosineHemispherePdf(s.wi.z);
+    if (s.pdf <= 0) return false;
+    s.weight = albedo;  // (albedo/pi) cos / (cos/pi)
+    s.delta = false;
+    s.transmitted = false;
+    return true;
+  }
+  // Smooth dielectric.
+  float cosO = wo.z;
+  float F = fresnelDielectric(cosO, ior);
+  s.delta = true;
+  s.pdf = 0;
+  if (uLobe < F) {
+    s.wi = Vec3(-wo.x, -wo.y, wo.z);
+    s.weight = Vec3(1.0f);
+    s.transmitted = false;
+    return true;
+  }
+  bool entering = cosO > 0;
+  float eta = entering ? ior : 1.0f / ior;  // n_t / n_i
+  float cosA = std::fabs(cosO);
+  float sin2T = (1.0f - cosA * cosA) / (eta * eta);
+  float cosT = std::sqrt(std::max(0.0f, 1.0f - sin2T));
+  // wi = -wo / eta + (cosA / eta - cosT) n, with n on wo's side.
+  Vec3 n(0, 0, entering ? 1.0f : -1.0f);
+  s.wi = normalize(-wo / eta + n * (cosA / eta - cosT));
+  s.weight = Vec3(1.0f);  // see the header: the 1/eta^2 radiance scale cancels on exit
+  s.transmitted = true;
+  return true;
+}
+
+}  // namespace granular

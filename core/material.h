@@ -1,0 +1,45 @@
+// material.h — surface scattering of meshes and grains.
+//
+// Contract: directions are in the local shading frame (+Z = outward geometric
+// normal), wo points back along the incoming ray. sample() returns the sampled
+// direction, its pdf (solid angle; 0 marks a delta lobe) and weight = f cos / pdf,
+// already multiplied by the choice probability of a lobe. Lambert: f = albedo / pi.
+// Dielectric: smooth interface with exact Fresnel reflectance, reflection chosen with
+// probability F and refraction with 1 - F, so the weight is 1. The radiance scale
+// 1/eta^2 of refraction (Veach 1997 §5.2) is left out on purpose: cameras and lights
+// sit outside every grain, so each entry is undone by an exit, and leaving it out keeps
+// throughput at 1 inside clear grains (no Russian-roulette noise there). Absorption is
+// applied by the integrator along the path inside (Beer–Lambert).
+#pragma once
+
+#include "math.h"
+#include "scene_desc.h"
+
+namespace granular {
+
+struct BsdfSample {
+  Vec3 wi;
+  Vec3 weight;
+  float pdf = 0;      // 0 for delta lobes
+  bool delta = false;
+  bool transmitted = false;
+};
+
+// Unpolarised Fresnel reflectance of a smooth dielectric; cosI may be negative (inside).
+float fresnelDielectric(float cosI, float eta);
+
+struct Material {
+  MaterialType type = MaterialType::Lambert;
+  Vec3 albedo{0.5f};
+  float ior = 1.5f;
+  Vec3 absorption{0.0f};   // per unit length of the object's own space
+  Vec3 emission{0.0f};
+
+  static Material fromDesc(const MaterialDesc& d);
+  bool isDelta() const { return type == MaterialType::Dielectric; }
+  Vec3 eval(const Vec3& wo, const Vec3& wi) const;  // f * |cos wi|; zero for delta lobes
+  float pdf(const Vec3& wo, const Vec3& wi) const;
+  bool sample(const Vec3& wo, float uLobe, float u1, float u2, BsdfSample& s) const;
+};
+
+}  // namespace granular

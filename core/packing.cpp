@@ -1,0 +1,543 @@
+// packing.cpp — Lubachevsky–Stillinger growth of hard spheres in a periodic cube.
+//
+// Event-driven MD after Skoge, Donev, Stillinger, Torquato 2006 (PRE 74, 041127): spheres fly
+// ballistically, all diameters grow as D(t) = d0 + g*t, and the next event is either a pair
+// collision or a sphere leaving its cell of a grid whose cells are at least one final diameter
+// wide. Each sphere keeps one scheduled event (its earliest); an event is stale when its owner
+// was rescheduled (version) or its partner changed velocity (collision count). Every pair's true
+// contact time is then never earlier than the earlier of the two spheres' scheduled events,
+// so popping the queue in order never misses a collision.
+#include "packing.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <queue>
+#include <stdexcept>
+
+#include "cache.h"
+#include "error.h"
+#include "rng.h"
+
+namespace granular {
+
+namespace {
+
+constexpr double kPiD = 3.14159265358979323846;
+constexpr double kInfD = std::numeric_limits<double>::infinity();
+constexpr double kMaxPackingRate = 0.64;
+constexpr int kMaxSpheres = 100000;
+
+// Growth rate of the diameter in units of (final diameter) x (thermal speed sqrt(kT/m) = 1):
+// Skoge's dimensionless compression rate gamma with the final diameter as unit length. Faster
+// growth jams at lower densities; this one reaches 0.63 reliably (see the tests).
+constexpr double kGrowthRate = 0.1;
+// On jamming, retry from the same initial state with slower growth (denser jammed states).
+constexpr double kSlowdown = 4.0;
+constexpr int kAttempts = 3;
+// Reduced pressure p = PV/(NkT) above which the packing counts as jammed: near jamming
+// p ~ 3 / (1 - f/f_J), so this means f is within ~3e-5 of its jamming density.
+constexpr double kJamPressure = 1e5;
+// Guard against endless loops (bugs): events per attempt, per sphere.
+constexpr uint64_t kEventsPerSphere = 200000;
+
+double packingRateOf(int n, double r) { return n * (4.0 / 3.0) * kPiD * r * r * r; }
+
+// Largest change of a minimum-image distance when both centres in [0,1] are rounded to float:
+// each coordinate moves by at most 2^-25, a difference by 2^-24, a length by sqrt(3) 2^-24.
+constexpr double kFloatRoundingGap = 1.7320508075688772 * 0x1p-24;
+
+struct Sphere {
+  double x[3];  // position at time t (in its cell)
+  double v[3];
+  double t = 0;
+  int cell[3];
+  int slot = -1;               // index in its cell's member list
+  uint32_t version = 0;        // bumped when this sphere's scheduled event is replaced
+  uint32_t collisions = 0;     // bumped when its velocity changes
+};
+
+struct Event {
+  double t;
+  int i;         // owner
+  int j;         // collision partner, or -1 for a cell crossing
+  uint32_t version;           // owner's version when scheduled
+  uint32_t partnerCollisions; // partner's collision count when scheduled
+  int8_t axis, dir;           // cell crossing: axis and direction (+1 / -1)
+};
+
+struct LaterFirst {
+  bool operator()(const Event& a, const Event& b) const { return a.t > b.t; }
+};
+
+// Earliest tau >= 0 at which |dx + dv tau| = D + g tau (spheres touching, diameters growing),
+// or +inf. Roots of A tau^2 + 2B tau + C, written in the cancellation-free form.
+double contactTime(const double dx[3], const double dv[3], double D, double g) {
+  double A = dv[0] * dv[0] + dv[1] * dv[1] + dv[2] * dv[2] - g * g;
+  double B = dx[0] * dv[0] + dx[1] * dv[1] + dx[2] * dv[2] - D * g;
+  double C = dx[0] * dx[0] + dx[1] * dx[1] + dx[2] * dx[2] - D * D;
+  if (C <= 0) {  // touching (or overlapping by rounding)
+    if (B < 0) return 0;
+    if (A >= 0) return kInfD;
+    double disc = B * B - A * C;  // <= B^2 here
+    return disc >= 0 ? (B + std::sqrt(disc)) / -A : 0.0;
+  }
+  if (A < 0) {  // the growth outruns the relative speed: contact is certain
+    double disc = B * B - A * C;
+    return B <= 0 ? C / (-B + std::sqrt(disc)) : (-B - std::sqrt(disc)) / A;
+  }
+  if (B >= 0) return kInfD;
+  double disc = B * B - A * C;
+  if (disc < 0) return kInfD;
+  return C / (-B + std::sqrt(disc));
+}
+
+class LsSystem {
+ public:
+  // dStop: diameter at which growth stops; gamma: dimensionless growth rate.
+  LsSystem(int n, double dStop, double gamma, uint64_t seed) : n_(n), dStop_(dStop) {
+    g_ = gamma * dStop;
+    tStop_ = dStop_ / g_;
+    // Cells at least one final diameter wide (with a margin for rounding), and not many more
+    // cells than spheres (tiny targets would otherwise ask for huge grids).
+    int nc = int(std::floor(1.0 / (dStop * (1.0 + 1e-9))));
+    int ncCap = std::max(1, int(std::cbrt(2.0 * n)));
+    nc_ = std::max(1, std::min(nc, ncCap));
+    cells_.assign(size_t(nc_) * nc_ * nc_, {});
+
+    Rng rng(hashInts(seed, 0x4c53u /* "LS" */), 0x70616b);
+    s_.resize(n);
+    double mean[3] = {0, 0, 0};
+    for (int i = 0; i < n; ++i) {
+      Sphere& a = s_[i];
+      for (int k = 0; k < 3; ++k) {
+        a.x[k] = rng.nextDouble();
+        a.cell[k] = std::min(nc_ - 1, int(a.x[k] * nc_));
+      }
+      // Gaussian velocities (Box–Muller), kT/m = 1 per component.
+      for (int k = 0; k < 3; ++k) {
+        double u1 = 1.0 - rng.nextDouble(), u2 = rng.nextDouble();
+        a.v[k] = std::sqrt(-2.0 * std::log(u1)) * std::cos(2.0 * kPiD * u2);
+        mean[k] += a.v[k] / n;
+      }
+      insert(i);
+    }
+    for (Sphere& a : s_)
+      for (int k = 0; k < 3; ++k) a.v[k] -= mean[k];  // zero momentum: no drift of the tile
+    normaliseKineticEnergy();
+  }
+
+  // Runs until the diameter reaches dStop (true) or the packing jams first (false).
+  bool run() {
+    scheduleAll();
+    const uint64_t budget = kEventsPerSphere * uint64_t(n_) + 10000000ull;
+    uint64_t events = 0;
+    const uint64_t epochLength = std::max<uint64_t>(4 * uint64_t(n_), 1000);
+    while (!queue_.empty() && queue_.top().t < tStop_) {
+      Event e = queue_.top();
+      queue_.pop();
+      if (++events > budget)
+        throw std::runtime_error(str("tile: Lubachevsky-Stillinger growth of ", n_, " spheres exceeded its budget of ",
+                                     budget, " events at f=", packingRateOf(n_, 0.5 * diameter()), " (a bug)"));
+      if (e.version != s_[e.i].version) continue;  // superseded
+      now_ = e.t;
+      if (e.j < 0) {
+        cross(e.i, e.axis, e.dir);
+        schedule(e.i);
+        continue;
+      }
+      if (s_[e.j].collisions != e.partnerCollisions) {  // partner changed course: look again
+        schedule(e.i);
+        continue;
+      }
+      collide(e.i, e.j);
+      schedule(e.i);
+      schedule(e.j);
+      if (++epochCollisions_ >= epochLength && !endEpoch()) return false;
+    }
+    advanceAll(tStop_);
+    return true;
+  }
+
+  double diameter() const { return d0_ + g_ * now_; }
+  const std::vector<Sphere>& spheres() const { return s_; }
+
+ private:
+  int cellIndex(const int c[3]) const { return (c[2] * nc_ + c[1]) * nc_ + c[0]; }
+  double bound(int c) const { return double(c) / double(nc_); }  // exact 0 and 1 at the ends
+
+  // Cells hold index arrays, not linked lists: neighbour loads then do not wait on each other.
+  void insert(int i) {
+    std::vector<int>& members = cells_[cellIndex(s_[i].cell)];
+    s_[i].slot = int(members.size());
+    members.push_back(i);
+  }
+  void remove(int i) {
+    std::vector<int>& members = cells_[cellIndex(s_[i].cell)];
+    int last = members.back();
+    members[s_[i].slot] = last;
+    s_[last].slot = s_[i].slot;
+    members.pop_back();
+  }
+
+  void positionAt(const Sphere& a, double t, double out[3]) const {
+    for (int k = 0; k < 3; ++k) out[k] = a.x[k] + a.v[k] * (t - a.t);
+  }
+  void advance(Sphere& a, double t) {
+    for (int k = 0; k < 3; ++k) a.x[k] += a.v[k] * (t - a.t);
+    a.t = t;
+  }
+  void advanceAll(double t) {
+    for (Sphere& a : s_) advance(a, t);
+  }
+
+  void normaliseKineticEnergy() {
+    double sum = 0;
+    for (const Sphere& a : s_) sum += a.v[0] * a.v[0] + a.v[1] * a.v[1] + a.v[2] * a.v[2];
+    if (!(sum > 0)) return;  // a single sphere has nothing to move for
+    double scale = std::sqrt(3.0 * n_ / sum);
+    for (Sphere& a : s_)
+      for (double& v : a.v) v *= scale;
+  }
+
+  // Finds sphere i's earliest event (cell crossing or contact with a neighbour's image) from now.
+  void schedule(int i) {
+    Sphere& a = s_[i];
+    double xa[3];
+    positionAt(a, now_, xa);
+    Event best{kInfD, i, -1, 0, 0, 0, 0};
+    for (int k = 0; k < 3; ++k) {
+      double dt = kInfD;
+      if (a.v[k] > 0) dt = (bound(a.cell[k] + 1) - xa[k]) / a.v[k];
+      else if (a.v[k] < 0) dt = (bound(a.cell[k]) - xa[k]) / a.v[k];
+      dt = std::max(dt, 0.0);
+      if (now_ + dt < best.t) {
+        best.t = now_ + dt;
+        best.axis = int8_t(k);
+        best.dir = int8_t(a.v[k] > 0 ? 1 : -1);
+      }
+    }
+    const double D = diameter();
+    // The 27 neighbour cells of the infinite periodic grid; with fewer than 3 cells a side the
+    // same cell appears under different shifts, i.e. as different images, as it should.
+    for (int dz = -1; dz <= 1; ++dz)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          int c[3] = {a.cell[0] + dx, a.cell[1] + dy, a.cell[2] + dz};
+          double shift[3];
+          for (int k = 0; k < 3; ++k) {
+            shift[k] = 0;
+            if (c[k] < 0) { c[k] += nc_; shift[k] = -1; }
+            else if (c[k] >= nc_) { c[k] -= nc_; shift[k] = 1; }
+          }
+          for (int j : cells_[cellIndex(c)]) {
+            if (j == i) continue;  // own images stay >= 1 apart, and D <= 1 is checked up front
+            const Sphere& b = s_[j];
+            double xb[3], d[3], dv[3];
+            positionAt(b, now_, xb);
+            for (int k = 0; k < 3; ++k) {
+              d[k] = xb[k] + shift[k] - xa[k];
+              dv[k] = b.v[k] - a.v[k];
+            }
+            // Cheap rejections first; contactTime is the exact answer for the rest.
+            double B = d[0] * dv[0] + d[1] * dv[1] + d[2] * dv[2] - D * g_;
+            double A = dv[0] * dv[0] + dv[1] * dv[1] + dv[2] * dv[2] - g_ * g_;
+            if (B >= 0 && A >= 0) continue;  // separating faster than the surfaces grow
+            // For A >= 0 the contact time is at least C / (-2B): skip if that is too late.
+            double C = d[0] * d[0] + d[1] * d[1] + d[2] * d[2] - D * D;
+            if (A >= 0 && C > 0 && C >= -2.0 * B * (best.t - now_)) continue;
+            double t = now_ + contactTime(d, dv, D, g_);
+            if (t < best.t) {
+              best.t = t;
+              best.j = j;
+              best.partnerCollisions = b.collisions;
+            }
+          }
+        }
+    best.version = ++a.version;
+    if (best.t < kInfD) queue_.push(best);
+  }
+
+  void scheduleAll() {
+    queue_ = {};
+    for (int i = 0; i < n_; ++i) schedule(i);
+  }
+
+  void cross(int i, int axis, int dir) {
+    Sphere& a = s_[i];
+    advance(a, now_);
+    remove(i);
+    // Snap onto the face so rounding never lets a sphere drift out of its cell.
+    if (dir > 0) {
+      a.x[axis] = bound(++a.cell[axis]);
+      if (a.cell[axis] == nc_) { a.cell[axis] = 0; a.x[axis] -= 1.0; }
+    } else {
+      a.x[axis] = bound(a.cell[axis]--);
+      if (a.cell[axis] < 0) { a.cell[axis] = nc_ - 1; a.x[axis] += 1.0; }
+    }
+    insert(i);
+  }
+
+  // Elastic collision in the frame of the growing surfaces: the normal relative velocity u
+  // becomes 2g - u, so the pair separates faster than its surfaces grow (Skoge et al. 2006).
+  void collide(int i, int j) {
+    Sphere& a = s_[i];
+    Sphere& b = s_[j];
+    advance(a, now_);
+    advance(b, now_);
+    double d[3], len2 = 0;
+    for (int k = 0; k < 3; ++k) {
+      d[k] = b.x[k] - a.x[k];
+      d[k] -= std::round(d[k]);  // minimum image: the touching image is the nearest one
+      len2 += d[k] * d[k];
+    }
+    double len = std::sqrt(len2);
+    if (!(len > 0)) return;
+    double u = 0;
+    for (int k = 0; k < 3; ++k) u += (b.v[k] - a.v[k]) * d[k] / len;
+    // Never leave a pair that would touch again at once (rounding, grazing contacts): the
+    // floor keeps the contact-time numerator B = |d| u' - D g clearly positive.
+    double uMin = g_ * diameter() / len + 1e-3 * g_;
+    double u2 = std::max(u, std::max(2.0 * g_ - u, uMin));
+    double impulse = 0.5 * (u2 - u);
+    for (int k = 0; k < 3; ++k) {
+      a.v[k] -= impulse * d[k] / len;
+      b.v[k] += impulse * d[k] / len;
+    }
+    ++a.collisions;
+    ++b.collisions;
+    virial_ += len * impulse;
+  }
+
+  // Every epoch of collisions: measure the reduced pressure, put back the kinetic energy that
+  // the growth pumped in, and restart the clock at 0 (keeps times small and exact).
+  bool endEpoch() {
+    advanceAll(now_);
+    double sumV2 = 0;
+    for (const Sphere& a : s_) sumV2 += a.v[0] * a.v[0] + a.v[1] * a.v[1] + a.v[2] * a.v[2];
+    // Virial: PV = NkT + sum(r.J) / (3 dt), with NkT = sum(m v^2) / 3.
+    pressure_ = now_ > 0 && sumV2 > 0 ? 1.0 + virial_ / (now_ * sumV2) : kInfD;
+    virial_ = 0;
+    epochCollisions_ = 0;
+    normaliseKineticEnergy();
+    d0_ = diameter();
+    now_ = 0;
+    tStop_ = (dStop_ - d0_) / g_;
+    for (Sphere& a : s_) a.t = 0;
+    scheduleAll();
+    return !(pressure_ > kJamPressure);
+  }
+
+  int n_;
+  double dStop_;
+  double g_ = 0;       // diameter growth per unit time
+  double d0_ = 0;      // diameter at time 0 of the current epoch
+  double now_ = 0;
+  double tStop_ = 0;
+  int nc_ = 1;
+  std::vector<std::vector<int>> cells_;
+  std::vector<Sphere> s_;
+  std::priority_queue<Event, std::vector<Event>, LaterFirst> queue_;
+  uint64_t epochCollisions_ = 0;
+  double virial_ = 0;
+  double pressure_ = 1;
+};
+
+double minImage(double d) { return d - std::round(d); }
+
+double pairDistance(const Vec3& a, const Vec3& b) {
+  double dx = minImage(double(b.x) - a.x), dy = minImage(double(b.y) - a.y), dz = minImage(double(b.z) - a.z);
+  return std::sqrt(dx * dx + dy * dy + dz * dz);
+}
+
+// Same quantity as minPeriodicGap, with a cell grid so it is cheap enough to run on every tile.
+double minPeriodicGapFast(const Tile& t) {
+  int n = int(t.centers.size());
+  double D = 2.0 * t.radius;
+  int nc = D > 0 ? int(std::floor(1.0 / (D * (1.0 + 1e-9)))) : 1;
+  nc = std::min(nc, std::max(1, int(std::cbrt(2.0 * n))));
+  if (nc < 3) return minPeriodicGap(t);
+  std::vector<int> head(size_t(nc) * nc * nc, -1), next(n, -1);
+  auto cellOf = [nc](float x) { return std::min(nc - 1, std::max(0, int(double(x) * nc))); };
+  for (int i = 0; i < n; ++i) {
+    const Vec3& c = t.centers[i];
+    int idx = (cellOf(c.z) * nc + cellOf(c.y)) * nc + cellOf(c.x);
+    next[i] = head[idx];
+    head[idx] = i;
+  }
+  double best = 1.0 - D;  // own images
+  for (int i = 0; i < n; ++i) {
+    const Vec3& c = t.centers[i];
+    int cx = cellOf(c.x), cy = cellOf(c.y), cz = cellOf(c.z);
+    for (int dz = -1; dz <= 1; ++dz)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          int idx = (((cz + dz + nc) % nc) * nc + (cy + dy + nc) % nc) * nc + (cx + dx + nc) % nc;
+          for (int j = head[idx]; j >= 0; j = next[j])
+            if (j > i) best = std::min(best, pairDistance(c, t.centers[j]) - D);
+        }
+  }
+  return best;
+}
+
+// Cache entry layout (native endianness; a cache is per machine).
+constexpr char kMagic[8] = {'G', 'R', 'T', 'I', 'L', 'E', '\0', '\0'};
+constexpr uint32_t kTileFormatVersion = 1;
+
+uint64_t checksum(const char* data, size_t size) {
+  uint64_t h = mix64(size);
+  for (size_t i = 0; i < size; ++i) h = hashCombine(h, uint8_t(data[i]));
+  return h;
+}
+
+template <typename T>
+void put(std::vector<char>& out, const T& v) {
+  const char* p = reinterpret_cast<const char*>(&v);
+  out.insert(out.end(), p, p + sizeof(T));
+}
+
+template <typename T>
+bool get(const std::vector<char>& in, size_t& pos, T& v) {
+  if (in.size() - pos < sizeof(T)) return false;
+  std::memcpy(&v, in.data() + pos, sizeof(T));
+  pos += sizeof(T);
+  return true;
+}
+
+uint64_t bitsOf(double d) {
+  uint64_t b;
+  std::memcpy(&b, &d, sizeof b);
+  return b;
+}
+
+std::string cacheName(int n, double targetF, uint64_t seed) {
+  return str("tile-v", kTileFormatVersion, "-n", n, "-f", std::hex, bitsOf(targetF), "-s", seed, ".bin");
+}
+
+std::vector<char> serialise(const Tile& t, double targetF) {
+  std::vector<char> out(kMagic, kMagic + sizeof kMagic);
+  put(out, kTileFormatVersion);
+  put(out, int32_t(t.numSpheres));
+  put(out, targetF);
+  put(out, t.seed);
+  put(out, t.radius);
+  put(out, t.packingRate);
+  for (const Vec3& c : t.centers) {
+    put(out, c.x);
+    put(out, c.y);
+    put(out, c.z);
+  }
+  put(out, checksum(out.data(), out.size()));
+  return out;
+}
+
+bool deserialise(const std::vector<char>& in, int n, double targetF, uint64_t seed, Tile& t) {
+  size_t expected = sizeof kMagic + 4 + 4 + 8 + 8 + 8 + 8 + size_t(n) * 12 + 8;
+  if (in.size() != expected || std::memcmp(in.data(), kMagic, sizeof kMagic) != 0) return false;
+  uint64_t sum;
+  std::memcpy(&sum, in.data() + expected - 8, 8);
+  if (sum != checksum(in.data(), expected - 8)) return false;
+  size_t pos = sizeof kMagic;
+  uint32_t version;
+  int32_t count;
+  double f;
+  get(in, pos, version);
+  get(in, pos, count);
+  get(in, pos, f);
+  get(in, pos, t.seed);
+  get(in, pos, t.radius);
+  get(in, pos, t.packingRate);
+  if (version != kTileFormatVersion || count != n || bitsOf(f) != bitsOf(targetF) || t.seed != seed) return false;
+  if (!(t.radius > 0) || !(t.radius <= 0.5) || !(std::fabs(t.packingRate - targetF) <= 1e-6 * targetF)) return false;
+  t.numSpheres = n;
+  t.centers.resize(n);
+  for (Vec3& c : t.centers) {
+    get(in, pos, c.x);
+    get(in, pos, c.y);
+    get(in, pos, c.z);
+    for (int k = 0; k < 3; ++k)
+      if (!(c[k] >= 0.0f && c[k] < 1.0f)) return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+Tile generateTile(int n, double targetF, uint64_t seed) {
+  if (!(targetF > 0 && targetF <= kMaxPackingRate))
+    throw InputError("tile", "packingRate", str(targetF, " is outside (0, ", kMaxPackingRate, "]"));
+  if (n < 1 || n > kMaxSpheres)
+    throw InputError("tile", "numSpheres", str(n, " is outside [1, ", kMaxSpheres, "]"));
+
+  const double radius = std::cbrt(3.0 * targetF / (4.0 * kPiD * n));
+  // Grow a hair past 2r so that every gap at radius r is at least the float rounding of the
+  // stored centres; the reported radius is exactly the requested one.
+  const double D = 2.0 * radius;
+  const double dStop = D + std::max(1e-9 * D, 2.0 * kFloatRoundingGap);
+  if (dStop > 1.0)
+    throw InputError("tile", "numSpheres",
+                     str(n, " sphere(s) cannot reach packing rate ", targetF, ": a sphere would not fit in the tile"));
+
+  double gamma = kGrowthRate, jammedAt = 0;
+  for (int attempt = 0; attempt < kAttempts; ++attempt, gamma /= kSlowdown) {
+    LsSystem sys(n, dStop, gamma, seed);
+    if (!sys.run()) {
+      jammedAt = std::max(jammedAt, packingRateOf(n, 0.5 * sys.diameter()));
+      continue;
+    }
+    Tile tile;
+    tile.numSpheres = n;
+    tile.radius = radius;
+    tile.seed = seed;
+    tile.centers.reserve(n);
+    for (const Sphere& a : sys.spheres()) {
+      Vec3 c;
+      for (int k = 0; k < 3; ++k) {
+        double x = a.x[k] - std::floor(a.x[k]);
+        float xf = float(x);
+        c[k] = xf >= 1.0f ? 0.0f : xf;  // 1 - 2^-26 rounds up to 1
+      }
+      tile.centers.push_back(c);
+    }
+    // Safety net: the margin above makes this a no-op; shrink rather than hand out overlaps.
+    double gap = minPeriodicGapFast(tile);
+    if (gap < 0) {
+      tile.radius = std::nextafter(radius + 0.5 * gap, 0.0);
+      if (!(std::fabs(packingRateOf(n, tile.radius) - targetF) <= 1e-6 * targetF))
+        throw std::runtime_error(str("tile: spheres overlap by ", -gap, " after growth (a bug)"));
+    }
+    tile.packingRate = packingRateOf(n, tile.radius);
+    return tile;
+  }
+  throw InputError("tile", "packingRate",
+                   str(targetF, " cannot be reached with ", n, " spheres: they jam at f=", jammedAt,
+                       " (random close packing is about 0.64); use a lower packing rate or more spheres"));
+}
+
+Tile loadOrGenerateTile(int n, double targetF, uint64_t seed) {
+  // Validate first so that bad input never touches the cache.
+  if (!(targetF > 0 && targetF <= kMaxPackingRate))
+    throw InputError("tile", "packingRate", str(targetF, " is outside (0, ", kMaxPackingRate, "]"));
+  if (n < 1 || n > kMaxSpheres)
+    throw InputError("tile", "numSpheres", str(n, " is outside [1, ", kMaxSpheres, "]"));
+  const std::string name = cacheName(n, targetF, seed);
+  std::vector<char> bytes;
+  Tile tile;
+  if (readCacheFile(name, bytes) && deserialise(bytes, n, targetF, seed, tile)) return tile;
+  tile = generateTile(n, targetF, seed);
+  writeCacheFile(name, serialise(tile, targetF));
+  return tile;
+}
+
+double minPeriodicGap(const Tile& t) {
+  size_t n = t.centers.size();
+  if (n == 0) return kInfD;
+  double D = 2.0 * t.radius;
+  double best = 1.0 - D;  // each sphere against its own images one tile away
+  for (size_t i = 0; i < n; ++i)
+    for (size_t j = i + 1; j < n; ++j) best = std::min(best, pairDistance(t.centers[i], t.centers[j]) - D);
+  return best;
+}
+
+}  // namespace granular

@@ -1,0 +1,83 @@
+// sampling.h — warps from uniform numbers to directions and discrete choices.
+//
+// Contract: every sample function states the density (pdf) of what it returns, with
+// respect to solid angle for directions and to the unit square for 2-D maps, so the
+// integrators can weight samples and combine strategies by MIS.
+#pragma once
+
+#include <cmath>
+#include <vector>
+
+#include "math.h"
+
+namespace granular {
+
+// Cosine-weighted hemisphere around +Z (Malley). pdf = cos(theta) / pi.
+inline Vec3 sampleCosineHemisphere(float u1, float u2) {
+  float r = std::sqrt(u1), phi = 2.0f * kPi * u2;
+  return {r * std::cos(phi), r * std::sin(phi), std::sqrt(std::max(0.0f, 1.0f - u1))};
+}
+inline float cosineHemispherePdf(float cosTheta) { return cosTheta > 0 ? cosTheta * kInvPi : 0.0f; }
+
+// Uniform direction on the sphere. pdf = 1 / (4 pi).
+inline Vec3 sampleUniformSphere(float u1, float u2) {
+  float z = 1.0f - 2.0f * u1, r = std::sqrt(std::max(0.0f, 1.0f - z * z)), phi = 2.0f * kPi * u2;
+  return {r * std::cos(phi), r * std::sin(phi), z};
+}
+constexpr float kUniformSpherePdf = 1.0f / (4.0f * kPi);
+
+// Uniform direction in the cone of half-angle acos(cosMax) around +Z.
+// pdf = 1 / (2 pi (1 - cosMax)).
+inline Vec3 sampleUniformCone(float u1, float u2, float cosMax) {
+  float z = 1.0f - u1 * (1.0f - cosMax), r = std::sqrt(std::max(0.0f, 1.0f - z * z)), phi = 2.0f * kPi * u2;
+  return {r * std::cos(phi), r * std::sin(phi), z};
+}
+inline float uniformConePdf(float cosMax) { return 1.0f / (2.0f * kPi * (1.0f - cosMax)); }
+
+// Uniform random rotation (Shoemake 1992, "Uniform random rotations"): a unit quaternion
+// uniform on S^3, returned as a rotation matrix.
+inline Mat3 sampleUniformRotation(float u1, float u2, float u3) {
+  float a = std::sqrt(1.0f - u1), b = std::sqrt(u1);
+  float t1 = 2.0f * kPi * u2, t2 = 2.0f * kPi * u3;
+  return quatToMat3(b * std::cos(t2), a * std::sin(t1), a * std::cos(t1), b * std::sin(t2));
+}
+
+// Veach's power heuristic with beta = 2.
+inline float powerHeuristic(float pdfA, float pdfB) {
+  float a = pdfA * pdfA, b = pdfB * pdfB;
+  return a + b > 0 ? a / (a + b) : 0.0f;
+}
+
+// Piecewise-constant density on [0, 1) with n bins. sampleContinuous returns x with
+// pdf(x) = f(bin) / integral(f); sampleDiscrete returns bin i with probability f_i / sum f.
+class Distribution1D {
+ public:
+  Distribution1D() = default;
+  explicit Distribution1D(const std::vector<float>& f);
+  int size() const { return int(func_.size()); }
+  float integral() const { return integral_; }
+  float sampleContinuous(float u, float* pdf, int* bin = nullptr) const;
+  int sampleDiscrete(float u, float* prob = nullptr) const;
+  float pdfContinuous(float x) const;
+  float discreteProb(int i) const { return integral_ > 0 ? func_[i] / (integral_ * size()) : 0.0f; }
+
+ private:
+  std::vector<float> func_, cdf_;
+  float integral_ = 0;
+};
+
+// Piecewise-constant density on the unit square, sampled by marginal (v) then
+// conditional (u). pdf is with respect to (u, v) area.
+class Distribution2D {
+ public:
+  Distribution2D() = default;
+  Distribution2D(const std::vector<float>& f, int nu, int nv);
+  void sample(float u1, float u2, float& u, float& v, float* pdf) const;
+  float pdf(float u, float v) const;
+
+ private:
+  std::vector<Distribution1D> conditional_;
+  Distribution1D marginal_;
+};
+
+}  // namespace granular

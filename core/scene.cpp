@@ -1,0 +1,129 @@
+#include "scene.h"
+
+#include <chrono>
+
+#include "error.h"
+
+namespace granular {
+
+std::unique_ptr<Scene> Scene::build(const SceneDesc& desc) {
+  auto t0 = std::chrono::steady_clock::now();
+  validateSceneDesc(desc);
+  auto s = std::unique_ptr<Scene>(new Scene());
+  s->settings_ = desc.settings;
+  s->camera_ = Camera(desc.camera, desc.settings.width, desc.settings.height);
+  for (const auto& m : desc.materials) s->materials_.push_back(Material::fromDesc(m));
+  // Defaults for unassigned surfaces and grains.
+  MaterialDesc grey;
+  grey.name = "default_surface";
+  int defaultSurface = int(s->materials_.size());
+  s->materials_.push_back(Material::fromDesc(grey));
+  MaterialDesc glass;
+  glass.name = "default_grain";
+  glass.type = MaterialType::Dielectric;
+  int defaultGrain = int(s->materials_.size());
+  s->materials_.push_back(Material::fromDesc(glass));
+
+  s->device_ = makeEmbreeDevice();
+  s->surfaces_ = makeEmbreeScene(s->device_);
+  Bounds3 all;
+  for (const auto& m : desc.meshes) {
+    if (!m.visible) continue;
+    TriangleMesh w = m.mesh.transformed(m.xf);
+    all.extend(w.bounds());
+    attachTriangleMesh(s->device_.get(), s->surfaces_.get(), w);
+    s->worldMeshes_.push_back(std::move(w));
+    s->meshMaterial_.push_back(m.material >= 0 ? m.material : defaultSurface);
+  }
+  rtcCommitScene(s->surfaces_.get());
+
+  for (const auto& a : desc.aggregates) {
+    std::vector<int> mats;
+    for (const auto& p : a.prototypes) mats.push_back(p.material >= 0 ? p.material : defaultGrain);
+    auto agg = std::make_unique<Aggregate>();
+    agg->build(a, s->device_, mats);
+    all.extend(agg->bounds());
+    s->aggregates_.push_back(std::move(agg));
+  }
+  s->sceneScale_ = all.empty() ? 1.0f : std::max(1e-6f, maxComponent(vmax(vabs(all.lo), vabs(all.hi))));
+
+  for (const auto& l : desc.lights) {
+    int idx = int(s->lights_.size());
+    s->lights_.push_back(Light::fromDesc(l));
+    (s->lights_.back().isInfinite() ? s->infiniteLights_ : s->areaLights_).push_back(idx);
+  }
+  s->buildSeconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return s;
+}
+
+bool Scene::intersect(const Ray& ray, Hit& hit) const {
+  float tmax = ray.tmax;
+  bool found = false;
+  RTCIntersectContext ctx;
+  rtcInitIntersectContext(&ctx);
+  RTCRayHit rh = makeRayHit(ray.o, ray.d, ray.tmin, ray.tmax);
+  rtcIntersect1(surfaces_.get(), &ctx, &rh);
+  if (rh.hit.geomID != RTC_INVALID_GEOMETRY_ID) {
+    found = true;
+    tmax = rh.ray.tfar;
+    hit.kind = Hit::Surface;
+    hit.t = tmax;
+    hit.ng = triangleNormal(worldMeshes_[rh.hit.geomID], rh.hit.primID);
+    hit.material = meshMaterial_[rh.hit.geomID];
+    hit.lengthScale = 1.0f;
+    hit.eps = 0;
+  }
+  for (size_t a = 0; a < aggregates_.size(); ++a) {
+    GrainHit g;
+    if (aggregates_[a]->intersect(ray.o, ray.d, ray.tmin, tmax, g) && g.t < tmax) {
+      found = true;
+      tmax = g.t;
+      hit.kind = Hit::Grain;
+      hit.t = g.t;
+      hit.ng = g.ng;
+      hit.aggregate = int(a);
+      const Aggregate& agg = *aggregates_[a];
+      hit.material = agg.prototypes()[g.prototype].material;
+      hit.lengthScale = agg.grainRadius();
+      hit.eps = 2e-4f * agg.grainRadius();
+    }
+  }
+  for (int li : areaLights_) {
+    float t;
+    Ray r = ray;
+    r.tmax = tmax;
+    if (lights_[li].intersect(r, t) && t < tmax) {
+      found = true;
+      tmax = t;
+      hit.kind = Hit::AreaLight;
+      hit.t = t;
+      hit.light = li;
+    }
+  }
+  if (!found) return false;
+  hit.p = ray.o + ray.d * hit.t;
+  // Position error grows with the coordinates' magnitude (float): keep the offset above it.
+  float coordScale = std::max(maxComponent(vabs(hit.p)), 1e-3f * sceneScale_);
+  hit.eps = std::max(hit.eps, 4e-7f * coordScale);
+  if (hit.kind == Hit::Surface) hit.eps = std::max(hit.eps, 1e-5f * coordScale);
+  return true;
+}
+
+bool Scene::occluded(const Vec3& p, const Vec3& dir, float dist) const {
+  RTCIntersectContext ctx;
+  rtcInitIntersectContext(&ctx);
+  RTCRay r;
+  r.org_x = p.x; r.org_y = p.y; r.org_z = p.z;
+  r.dir_x = dir.x; r.dir_y = dir.y; r.dir_z = dir.z;
+  r.tnear = 0; r.tfar = dist; r.time = 0; r.mask = 0xffffffffu; r.id = 0; r.flags = 0;
+  rtcOccluded1(surfaces_.get(), &ctx, &r);
+  if (r.tfar < 0) return true;
+  for (const auto& a : aggregates_) {
+    GrainHit g;
+    if (a->intersect(p, dir, 0.0f, dist, g)) return true;
+  }
+  // Area lights do not block each other's light: they are emitters, not occluders.
+  return false;
+}
+
+}  // namespace granular

@@ -1,0 +1,140 @@
+// scene_desc.cpp — validateSceneDesc: every user-settable value checked once, here,
+// so that each front end reports bad input the same way and the renderer can trust
+// what it is given. Attribute names follow the USD schema (camelCase).
+#include "scene_desc.h"
+
+#include "error.h"
+
+namespace granular {
+
+namespace {
+
+std::string fmt(const Vec3& v) { return str("(", v.x, ", ", v.y, ", ", v.z, ")"); }
+
+std::string label(const std::string& name, const char* list, size_t i) {
+  return name.empty() ? str(list, "[", i, "]") : name;
+}
+
+void checkInt(long long v, long long lo, long long hi, const std::string& obj, const char* attr) {
+  if (v < lo || v > hi) throw InputError(obj, attr, str(v, " is outside [", lo, ", ", hi, "]"));
+}
+
+void checkPositive(float v, const std::string& obj, const char* attr) {
+  if (!std::isfinite(v) || !(v > 0)) throw InputError(obj, attr, str(v, " must be finite and > 0"));
+}
+
+void checkFinite(float v, const std::string& obj, const char* attr) {
+  if (!std::isfinite(v)) throw InputError(obj, attr, str(v, " is not finite"));
+}
+
+void checkNonNegative(const Vec3& v, const std::string& obj, const char* attr) {
+  if (!isFinite(v)) throw InputError(obj, attr, str(fmt(v), " is not finite"));
+  if (minComponent(v) < 0) throw InputError(obj, attr, str(fmt(v), " has a negative component"));
+}
+
+void checkTransform(const Transform& xf, const std::string& obj, const char* attr) {
+  if (!xf.isFinite()) throw InputError(obj, attr, "is not finite");
+  Transform inv;
+  if (xf.determinant3() == 0 || !xf.inverse(inv)) throw InputError(obj, attr, "is singular (not invertible)");
+}
+
+void checkMaterialIndex(int m, size_t count, const std::string& obj) {
+  if (m < -1 || m >= int(count))
+    throw InputError(obj, "material", str("index ", m, " is out of range [-1, ", count, ")"));
+}
+
+}  // namespace
+
+void validateSceneDesc(const SceneDesc& desc) {
+  const RenderSettings& s = desc.settings;
+  checkInt(s.width, 1, 32768, "render", "width");
+  checkInt(s.height, 1, 32768, "render", "height");
+  checkInt(s.spp, 1, 1000000, "render", "spp");
+  if (s.maxDepth < 1) throw InputError("render", "maxDepth", str(s.maxDepth, " must be >= 1"));
+  if (s.rrDepth < 0) throw InputError("render", "rrDepth", str(s.rrDepth, " must be >= 0"));
+  if (s.threads < 0) throw InputError("render", "threads", str(s.threads, " must be >= 0 (0: all cores)"));
+
+  const CameraDesc& c = desc.camera;
+  checkTransform(c.cameraToWorld, "camera", "transform");
+  checkPositive(c.focalLength, "camera", "focalLength");
+  checkPositive(c.horizontalAperture, "camera", "horizontalAperture");
+  checkPositive(c.verticalAperture, "camera", "verticalAperture");
+  checkFinite(c.horizontalApertureOffset, "camera", "horizontalApertureOffset");
+  checkFinite(c.verticalApertureOffset, "camera", "verticalApertureOffset");
+  if (!std::isfinite(c.clipNear) || !(c.clipNear > 0))
+    throw InputError("camera", "clippingRange", str("near ", c.clipNear, " must be finite and > 0"));
+  if (std::isnan(c.clipFar) || !(c.clipFar > c.clipNear))
+    throw InputError("camera", "clippingRange", str("far ", c.clipFar, " must exceed near ", c.clipNear));
+
+  for (size_t i = 0; i < desc.materials.size(); ++i) {
+    const MaterialDesc& m = desc.materials[i];
+    std::string obj = label(m.name, "materials", i);
+    if (!isFinite(m.albedo) || minComponent(m.albedo) < 0 || maxComponent(m.albedo) > 1)
+      throw InputError(obj, "albedo", str(fmt(m.albedo), " is outside [0, 1]"));
+    if (!std::isfinite(m.ior) || m.ior < 1 || m.ior > 4) throw InputError(obj, "ior", str(m.ior, " is outside [1, 4]"));
+    checkNonNegative(m.absorption, obj, "absorption");
+    checkNonNegative(m.emission, obj, "emission");
+  }
+
+  for (size_t i = 0; i < desc.meshes.size(); ++i) {
+    const MeshDesc& m = desc.meshes[i];
+    std::string obj = label(m.name, "meshes", i);
+    validateMesh(m.mesh, obj);
+    checkMaterialIndex(m.material, desc.materials.size(), obj);
+    checkTransform(m.xf, obj, "transform");
+  }
+
+  for (size_t i = 0; i < desc.lights.size(); ++i) {
+    const LightDesc& l = desc.lights[i];
+    std::string obj = label(l.name, "lights", i);
+    checkTransform(l.xf, obj, "transform");
+    checkNonNegative(l.color, obj, "color");
+    if (!std::isfinite(l.intensity) || l.intensity < 0)
+      throw InputError(obj, "intensity", str(l.intensity, " must be finite and >= 0"));
+    checkFinite(l.exposure, obj, "exposure");
+    // 2^exposure must stay a finite float.
+    if (std::fabs(l.exposure) > 100) throw InputError(obj, "exposure", str(l.exposure, " is outside [-100, 100]"));
+    switch (l.type) {
+      case LightType::Distant:
+        if (!std::isfinite(l.angle) || l.angle < 0 || l.angle >= 180)
+          throw InputError(obj, "angle", str(l.angle, " is outside [0, 180)"));
+        break;
+      case LightType::Sphere: checkPositive(l.radius, obj, "radius"); break;
+      case LightType::Rect:
+        checkPositive(l.width, obj, "width");
+        checkPositive(l.height, obj, "height");
+        break;
+      case LightType::Dome: break;
+    }
+  }
+
+  for (size_t i = 0; i < desc.aggregates.size(); ++i) {
+    const AggregateDesc& a = desc.aggregates[i];
+    std::string obj = label(a.name, "aggregates", i);
+    validateClosed(a.boundary, obj + ".boundary");
+    checkTransform(a.xf, obj, "transform");
+    checkPositive(a.grainRadius, obj, "grainRadius");
+    if (!std::isfinite(a.packingRate) || !(a.packingRate > 0) || a.packingRate > 0.64f)
+      throw InputError(obj, "packingRate", str(a.packingRate, " is outside (0, 0.64]"));
+    checkInt(a.tileSpheres, 8, 100000, obj, "tileSpheres");
+    if (a.prototypes.empty()) throw InputError(obj, "prototypes", "is empty (at least one grain prototype needed)");
+    if (a.weights.size() != a.prototypes.size())
+      throw InputError(obj, "weights",
+                       str("has ", a.weights.size(), " entries but there are ", a.prototypes.size(), " prototypes"));
+    bool anyPositive = false;
+    for (size_t k = 0; k < a.weights.size(); ++k) {
+      float w = a.weights[k];
+      if (!std::isfinite(w) || w < 0) throw InputError(obj, "weights", str("weight ", k, " = ", w, " must be finite and >= 0"));
+      anyPositive |= w > 0;
+    }
+    if (!anyPositive) throw InputError(obj, "weights", "are all zero");
+    for (size_t k = 0; k < a.prototypes.size(); ++k) {
+      const GrainPrototypeDesc& p = a.prototypes[k];
+      std::string pobj = p.name.empty() ? str(obj, ".prototypes[", k, "]") : p.name;
+      validateClosed(p.mesh, pobj);
+      checkMaterialIndex(p.material, desc.materials.size(), pobj);
+    }
+  }
+}
+
+}  // namespace granular

@@ -1,0 +1,107 @@
+// scene_desc.h — the plain scene description every front end produces.
+//
+// Contract: plain data, no renderer state. The JSON reader (io), the usd-core command
+// line and the Hydra delegate all fill a SceneDesc; Scene::build() turns it into BVHs,
+// distance fields, tiles and transport parameters. Units are the scene's own; angles in
+// degrees; colours linear Rec.709. Conventions follow USD: cameras look down local -Z
+// with +Y up, distant and rect lights emit along local -Z.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "math.h"
+#include "mesh.h"
+
+namespace granular {
+
+struct CameraDesc {
+  Transform cameraToWorld;            // local -Z is the view direction
+  float focalLength = 50.0f;          // same unit as the apertures (USD: tenths of scene unit / mm)
+  float horizontalAperture = 36.0f;
+  float verticalAperture = 24.0f;
+  float horizontalApertureOffset = 0.0f;
+  float verticalApertureOffset = 0.0f;
+  float clipNear = 1e-4f;
+  float clipFar = 1e30f;
+};
+
+enum class MaterialType { Lambert, Dielectric };
+
+struct MaterialDesc {
+  std::string name;
+  MaterialType type = MaterialType::Lambert;
+  Vec3 albedo{0.5f};       // Lambert reflectance (unused by Dielectric: colour comes from absorption)
+  float ior = 1.5f;        // Dielectric index of refraction (1 = index-matched)
+  // Dielectric Beer–Lambert absorption coefficient per unit length of the mesh's own
+  // space. Grain prototypes are normalised to a unit bounding sphere, so for grains it is
+  // the optical depth per grain radius, independent of the aggregate's grain size.
+  Vec3 absorption{0.0f};
+  Vec3 emission{0.0f};     // Lambert surfaces may emit (radiance)
+};
+
+enum class LightType { Distant, Sphere, Rect, Dome };
+
+struct LightDesc {
+  std::string name;
+  LightType type = LightType::Distant;
+  Transform xf;              // light-to-world
+  Vec3 color{1.0f};
+  float intensity = 1.0f;
+  float exposure = 0.0f;     // radiance = color * intensity * 2^exposure
+  bool normalize = false;    // divide by the light's area (or cone solid angle)
+  float angle = 0.53f;       // Distant: angular diameter in degrees
+  float radius = 0.5f;       // Sphere
+  float width = 1.0f, height = 1.0f;  // Rect, in its local XY plane
+  std::string textureFile;   // Dome: lat-long EXR (empty: constant)
+};
+
+struct MeshDesc {
+  std::string name;
+  TriangleMesh mesh;         // object space
+  Transform xf;              // object-to-world
+  int material = -1;         // index into SceneDesc::materials; -1: default grey Lambert
+  bool visible = true;
+};
+
+struct GrainPrototypeDesc {
+  std::string name;
+  TriangleMesh mesh;         // any placement/scale: normalised into its bounding sphere at build
+  int material = -1;         // index into SceneDesc::materials; -1: clear dielectric, IOR 1.5
+};
+
+struct AggregateDesc {
+  std::string name;
+  TriangleMesh boundary;     // closed, object space
+  Transform xf;              // object-to-world
+  std::vector<GrainPrototypeDesc> prototypes;
+  std::vector<float> weights;  // one per prototype, >= 0, not all zero
+  float grainRadius = 0.01f;   // bounding-sphere radius in world units
+  float packingRate = 0.6f;    // f in (0, 0.64]
+  uint64_t seed = 1;
+  int tileSpheres = 512;       // spheres per periodic tile
+};
+
+struct RenderSettings {
+  int width = 640, height = 480;
+  int spp = 16;
+  uint64_t seed = 0;
+  int maxDepth = 4096;         // paths in bright grains bounce hundreds of times
+  int rrDepth = 8;             // Russian roulette starts after this many bounces
+  int threads = 0;             // 0: all cores
+};
+
+struct SceneDesc {
+  CameraDesc camera;
+  std::vector<MaterialDesc> materials;
+  std::vector<MeshDesc> meshes;
+  std::vector<LightDesc> lights;
+  std::vector<AggregateDesc> aggregates;
+  RenderSettings settings;
+};
+
+// Checks every value a user can get wrong; throws InputError naming object and attribute.
+void validateSceneDesc(const SceneDesc& desc);
+
+}  // namespace granular

@@ -1,0 +1,717 @@
+// scene_io.cpp — JSON scene reader (format documented in scene_io.h).
+//
+// Every value goes through a checked converter that names the object and key, so a
+// wrong type becomes an InputError rather than a nlohmann exception; each JSON object
+// declares its allowed keys up front so a typo is reported before anything it causes.
+#include "scene_io.h"
+
+#include <algorithm>
+#include <cerrno>
+#include <climits>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <set>
+#include <sstream>
+#include <nlohmann/json.hpp>
+
+#include "error.h"
+#include "shapes.h"
+
+namespace granular {
+
+namespace {
+
+using json = nlohmann::json;
+namespace fs = std::filesystem;
+
+std::string preview(const json& v) {
+  std::string s = v.dump();
+  return s.size() > 40 ? s.substr(0, 37) + "..." : s;
+}
+std::string describe(const json& v) { return str(v.type_name(), " ", preview(v)); }
+
+std::string join(const std::vector<std::string>& items) {
+  std::string r;
+  for (const std::string& s : items) r += (r.empty() ? "" : ", ") + s;
+  return r;
+}
+
+// The message of an InputError without its "object.attribute: " prefix.
+std::string bareMessage(const InputError& e) {
+  std::string w = e.what();
+  size_t n = e.object().size() + (e.attribute().empty() ? 0 : e.attribute().size() + 1) + 2;
+  return w.size() >= n ? w.substr(n) : w;
+}
+
+// Desc fields are camelCase (USD names), JSON keys their snake_case spelling.
+std::string camelToSnake(const std::string& s) {
+  std::string r;
+  for (char c : s) {
+    if (c >= 'A' && c <= 'Z') {
+      r += '_';
+      r += char(c - 'A' + 'a');
+    } else {
+      r += c;
+    }
+  }
+  return r;
+}
+
+// Runs f, re-labelling an InputError from a layer that does not know the JSON names.
+template <typename F>
+auto relabel(const std::string& object, F&& f) -> decltype(f()) {
+  try {
+    return f();
+  } catch (const InputError& e) {
+    throw InputError(object, camelToSnake(e.attribute()), bareMessage(e));
+  }
+}
+
+// ---- checked scalar converters -------------------------------------------------
+
+double toNumber(const json& v, const std::string& obj, const std::string& key) {
+  if (!v.is_number()) throw InputError(obj, key, "expected a number, got " + describe(v));
+  return v.get<double>();
+}
+
+float toFloat(const json& v, const std::string& obj, const std::string& key) {
+  double d = toNumber(v, obj, key);
+  if (!std::isfinite(float(d))) throw InputError(obj, key, str(preview(v), " does not fit in a float"));
+  return float(d);
+}
+
+long long toInteger(const json& v, const std::string& obj, const std::string& key) {
+  if (v.is_number_unsigned()) {
+    uint64_t u = v.get<uint64_t>();
+    if (u > uint64_t(LLONG_MAX)) throw InputError(obj, key, str(u, " is out of range"));
+    return (long long)u;
+  }
+  if (v.is_number_integer()) return v.get<long long>();
+  if (v.is_number_float()) {
+    double d = v.get<double>();
+    if (d == std::floor(d) && std::fabs(d) < 9.0e18) return (long long)d;
+  }
+  throw InputError(obj, key, "expected an integer, got " + describe(v));
+}
+
+int toInt(const json& v, const std::string& obj, const std::string& key) {
+  long long x = toInteger(v, obj, key);
+  if (x < INT_MIN || x > INT_MAX) throw InputError(obj, key, str(x, " is out of range"));
+  return int(x);
+}
+
+uint64_t toU64(const json& v, const std::string& obj, const std::string& key) {
+  if (v.is_number_unsigned()) return v.get<uint64_t>();
+  long long x = toInteger(v, obj, key);
+  if (x < 0) throw InputError(obj, key, str(x, " must be >= 0"));
+  return uint64_t(x);
+}
+
+bool toBool(const json& v, const std::string& obj, const std::string& key) {
+  if (!v.is_boolean()) throw InputError(obj, key, "expected true or false, got " + describe(v));
+  return v.get<bool>();
+}
+
+std::string toString(const json& v, const std::string& obj, const std::string& key) {
+  if (!v.is_string()) throw InputError(obj, key, "expected a string, got " + describe(v));
+  return v.get<std::string>();
+}
+
+const json& toArray(const json& v, const std::string& obj, const std::string& key) {
+  if (!v.is_array()) throw InputError(obj, key, "expected an array, got " + describe(v));
+  return v;
+}
+
+// [x, y, z]; a single number s means (s, s, s) where allowScalar (colours, scale).
+Vec3 toVec3(const json& v, const std::string& obj, const std::string& key, bool allowScalar = false) {
+  if (allowScalar && v.is_number()) return Vec3(toFloat(v, obj, key));
+  if (!v.is_array() || v.size() != 3)
+    throw InputError(obj, key, str("expected an array of 3 numbers", allowScalar ? " or a number" : "", ", got ", describe(v)));
+  return {toFloat(v[0], obj, key), toFloat(v[1], obj, key), toFloat(v[2], obj, key)};
+}
+
+std::vector<float> toFloats(const json& v, const std::string& obj, const std::string& key) {
+  std::vector<float> r;
+  for (const json& e : toArray(v, obj, key)) r.push_back(toFloat(e, obj, key));
+  return r;
+}
+
+// ---- objects with a declared set of keys ----------------------------------------
+
+class Obj {
+ public:
+  // `v` is the value of `key` in `parent` (for messages); `label` names it as an object.
+  Obj(const json& v, const std::string& parent, const std::string& key, std::string label,
+      std::vector<std::string> allowed)
+      : j_(v), label_(std::move(label)) {
+    if (!v.is_object()) throw InputError(parent, key, "expected an object, got " + describe(v));
+    std::sort(allowed.begin(), allowed.end());
+    for (auto it = v.begin(); it != v.end(); ++it)
+      if (!std::binary_search(allowed.begin(), allowed.end(), it.key()))
+        throw InputError(label_, it.key(), "unknown key (allowed: " + join(allowed) + ")");
+  }
+  const std::string& label() const { return label_; }
+  const json* find(const std::string& k) const {
+    auto it = j_.find(k);
+    return it == j_.end() ? nullptr : &*it;
+  }
+  bool has(const std::string& k) const { return find(k) != nullptr; }
+  const json& required(const std::string& k) const {
+    const json* v = find(k);
+    if (!v) throw InputError(label_, k, "is required");
+    return *v;
+  }
+  float num(const std::string& k, float def) const { return has(k) ? toFloat(*find(k), label_, k) : def; }
+  int integer(const std::string& k, int def) const { return has(k) ? toInt(*find(k), label_, k) : def; }
+  uint64_t u64(const std::string& k, uint64_t def) const { return has(k) ? toU64(*find(k), label_, k) : def; }
+  bool flag(const std::string& k, bool def) const { return has(k) ? toBool(*find(k), label_, k) : def; }
+  std::string string(const std::string& k, const std::string& def) const {
+    return has(k) ? toString(*find(k), label_, k) : def;
+  }
+  Vec3 vec3(const std::string& k, Vec3 def, bool allowScalar = false) const {
+    return has(k) ? toVec3(*find(k), label_, k, allowScalar) : def;
+  }
+
+ private:
+  const json& j_;
+  std::string label_;
+};
+
+// ---- transforms --------------------------------------------------------------------
+
+Transform matrixFrom(const json& v, const std::string& obj, const std::string& key) {
+  if (!v.is_array() || v.size() != 16)
+    throw InputError(obj, key, "expected an array of 16 numbers (row-major), got " + describe(v));
+  Transform t;
+  for (int i = 0; i < 16; ++i) t.m[i / 4][i % 4] = toNumber(v[i], obj, key);
+  // A USD-style (row-vector) matrix has its translation in the bottom row; catch it.
+  if (t.m[3][0] != 0 || t.m[3][1] != 0 || t.m[3][2] != 0 || t.m[3][3] != 1)
+    throw InputError(obj, key,
+                     str("bottom row (", t.m[3][0], ", ", t.m[3][1], ", ", t.m[3][2], ", ", t.m[3][3],
+                         ") must be (0, 0, 0, 1): the matrix is row-major, acts on column vectors and keeps its "
+                         "translation in the last column"));
+  return t;
+}
+
+Transform rotation(double deg, double ax, double ay, double az) {
+  double l = std::sqrt(ax * ax + ay * ay + az * az);
+  ax /= l, ay /= l, az /= l;
+  double a = deg * 3.14159265358979323846 / 180.0, c = std::cos(a), s = std::sin(a), t = 1 - c;
+  Transform r;
+  r.m[0][0] = t * ax * ax + c;      r.m[0][1] = t * ax * ay - s * az; r.m[0][2] = t * ax * az + s * ay;
+  r.m[1][0] = t * ax * ay + s * az; r.m[1][1] = t * ay * ay + c;      r.m[1][2] = t * ay * az - s * ax;
+  r.m[2][0] = t * ax * az - s * ay; r.m[2][1] = t * ay * az + s * ax; r.m[2][2] = t * az * az + c;
+  return r;
+}
+
+Transform parseTransform(const json& v, const std::string& parent, const std::string& key) {
+  if (v.is_array()) return matrixFrom(v, parent, key);
+  Obj o(v, parent, key, parent + "." + key, {"matrix", "translate", "rotate", "scale"});
+  if (o.has("matrix")) {
+    if (o.has("translate") || o.has("rotate") || o.has("scale"))
+      throw InputError(o.label(), "matrix", "cannot be combined with translate, rotate or scale");
+    return matrixFrom(*o.find("matrix"), o.label(), "matrix");
+  }
+  Transform t = Transform::translate(o.vec3("translate", Vec3(0.0f)));
+  Transform r;
+  if (const json* rv = o.find("rotate")) {
+    if (!rv->is_array() || rv->size() != 4)
+      throw InputError(o.label(), "rotate", "expected [angle_degrees, axis_x, axis_y, axis_z], got " + describe(*rv));
+    double ang = toFloat((*rv)[0], o.label(), "rotate"), ax = toFloat((*rv)[1], o.label(), "rotate"),
+           ay = toFloat((*rv)[2], o.label(), "rotate"), az = toFloat((*rv)[3], o.label(), "rotate");
+    if (ax == 0 && ay == 0 && az == 0) throw InputError(o.label(), "rotate", "has a zero axis");
+    r = rotation(ang, ax, ay, az);
+  }
+  Transform s = Transform::scale(o.vec3("scale", Vec3(1.0f), true));
+  return t * r * s;
+}
+
+// ---- shapes ------------------------------------------------------------------------
+
+struct Context {
+  fs::path base;  // folder that relative paths are resolved against
+};
+
+std::string resolvePath(const Context& ctx, const std::string& p) {
+  fs::path path(p);
+  return (path.is_absolute() || ctx.base.empty()) ? path.string() : (ctx.base / path).string();
+}
+
+std::vector<Vec3> parsePoints(const json& v, const std::string& obj, const std::string& key) {
+  const json& a = toArray(v, obj, key);
+  std::vector<Vec3> pts;
+  if (!a.empty() && a[0].is_number()) {  // flat [x, y, z, x, y, z, ...]
+    if (a.size() % 3 != 0) throw InputError(obj, key, str("has ", a.size(), " numbers, not a multiple of 3"));
+    for (size_t i = 0; i < a.size(); i += 3)
+      pts.push_back({toFloat(a[i], obj, key), toFloat(a[i + 1], obj, key), toFloat(a[i + 2], obj, key)});
+  } else {
+    for (const json& p : a) pts.push_back(toVec3(p, obj, key));
+  }
+  return pts;
+}
+
+std::vector<int> parseInts(const json& v, const std::string& obj, const std::string& key) {
+  std::vector<int> r;
+  for (const json& e : toArray(v, obj, key)) r.push_back(toInt(e, obj, key));
+  return r;
+}
+
+TriangleMesh scaled(TriangleMesh m, float s) {
+  for (Vec3& p : m.points) p *= s;
+  return m;
+}
+
+// `v` is the value of `key` in `parent`, e.g. parent "castle", key "boundary".
+TriangleMesh parseShape(const json& v, const std::string& parent, const std::string& key, const Context& ctx) {
+  static const std::vector<std::string> kinds = {"box", "ellipsoid", "icosphere", "lathe", "mesh", "obj", "rock", "uvsphere"};
+  const std::string label = parent + "." + key;
+  if (!v.is_object() || v.size() != 1)
+    throw InputError(parent, key, "expected an object with exactly one of " + join(kinds) + ", got " + describe(v));
+  const std::string kind = v.begin().key();
+  const json& p = v.begin().value();
+  const std::string sub = label + "." + kind;
+  if (kind == "obj") return loadObj(resolvePath(ctx, toString(p, label, "obj")), label);
+  if (kind == "box") {
+    Obj o(p, label, kind, sub, {"lo", "hi"});
+    Vec3 lo = o.vec3("lo", Vec3(-1.0f)), hi = o.vec3("hi", Vec3(1.0f));
+    return relabel(sub, [&] { return makeBox(lo, hi); });
+  }
+  if (kind == "icosphere" || kind == "uvsphere") {
+    bool ico = kind == "icosphere";
+    Obj o(p, label, kind, sub, ico ? std::vector<std::string>{"subdivisions", "radius"}
+                                   : std::vector<std::string>{"segments", "rings", "radius"});
+    float radius = o.num("radius", 1.0f);
+    if (!(radius > 0)) throw InputError(sub, "radius", str(radius, " must be > 0"));
+    if (ico) {
+      int n = o.integer("subdivisions", 2);
+      return scaled(relabel(sub, [&] { return makeIcosphere(n); }), radius);
+    }
+    int segments = o.integer("segments", 32), rings = o.integer("rings", 16);
+    return scaled(relabel(sub, [&] { return makeUVSphere(segments, rings); }), radius);
+  }
+  if (kind == "lathe") {
+    Obj o(p, label, kind, sub, {"profile", "segments"});
+    std::vector<std::pair<float, float>> profile;
+    for (const json& e : toArray(o.required("profile"), sub, "profile")) {
+      if (!e.is_array() || e.size() != 2)
+        throw InputError(sub, "profile", "expected [radius, height] pairs, got " + describe(e));
+      profile.push_back({toFloat(e[0], sub, "profile"), toFloat(e[1], sub, "profile")});
+    }
+    int segments = o.integer("segments", 64);
+    return relabel(sub, [&] { return makeLathe(profile, segments); });
+  }
+  if (kind == "rock") {
+    Obj o(p, label, kind, sub, {"subdivisions", "roughness", "seed"});
+    int n = o.integer("subdivisions", 3);
+    float rough = o.num("roughness", 0.2f);
+    uint64_t seed = o.u64("seed", 0);
+    return relabel(sub, [&] { return makeRock(n, rough, seed); });
+  }
+  if (kind == "ellipsoid") {
+    Obj o(p, label, kind, sub, {"radii", "subdivisions"});
+    Vec3 radii = toVec3(o.required("radii"), sub, "radii");
+    int n = o.integer("subdivisions", 3);
+    return relabel(sub, [&] { return makeEllipsoid(radii, n); });
+  }
+  if (kind == "mesh") {
+    Obj o(p, label, kind, sub, {"points", "face_vertex_indices", "face_vertex_counts"});
+    std::vector<Vec3> pts = parsePoints(o.required("points"), sub, "points");
+    std::vector<int> idx = parseInts(o.required("face_vertex_indices"), sub, "face_vertex_indices");
+    std::vector<int> counts;
+    if (o.has("face_vertex_counts")) {
+      counts = parseInts(*o.find("face_vertex_counts"), sub, "face_vertex_counts");
+    } else {
+      if (idx.size() % 3 != 0)
+        throw InputError(sub, "face_vertex_indices",
+                         str("has ", idx.size(), " entries, not a multiple of 3 (give face_vertex_counts for polygons)"));
+      counts.assign(idx.size() / 3, 3);
+    }
+    return relabel(sub, [&] { return triangulate(pts, counts, idx, sub); });
+  }
+  throw InputError(parent, key, str("unknown shape \"", kind, "\" (expected one of ", join(kinds), ")"));
+}
+
+// ---- scene sections ----------------------------------------------------------------
+
+using MaterialIndex = std::map<std::string, int>;
+
+int lookupMaterial(const Obj& o, const MaterialIndex& mats, int def) {
+  if (!o.has("material")) return def;
+  std::string name = o.string("material", "");
+  auto it = mats.find(name);
+  if (it != mats.end()) return it->second;
+  std::vector<std::string> names;
+  for (auto& kv : mats) names.push_back("\"" + kv.first + "\"");
+  throw InputError(o.label(), "material",
+                   str("unknown material \"", name, "\"",
+                       names.empty() ? std::string(" (no materials are defined)") : " (defined: " + join(names) + ")"));
+}
+
+// An item's label: its "name" if it has one, else list[i].
+std::string itemLabel(const json& item, const std::string& list, size_t i) {
+  if (item.is_object()) {
+    auto it = item.find("name");
+    if (it != item.end()) return toString(*it, str(list, "[", i, "]"), "name");
+  }
+  return str(list, "[", i, "]");
+}
+
+void checkUnique(std::set<std::string>& seen, const std::string& name, const std::string& list, size_t i) {
+  if (!seen.insert(name).second)
+    throw InputError(str(list, "[", i, "]"), "name", str("\"", name, "\" is used by another entry of ", list));
+}
+
+void parseRender(const Obj& o, RenderSettings& s) {
+  s.width = o.integer("width", s.width);
+  s.height = o.integer("height", s.height);
+  s.spp = o.integer("spp", s.spp);
+  s.seed = o.u64("seed", s.seed);
+  s.maxDepth = o.integer("max_depth", s.maxDepth);
+  s.rrDepth = o.integer("rr_depth", s.rrDepth);
+  s.threads = o.integer("threads", s.threads);
+}
+
+void parseCamera(const Obj& o, CameraDesc& c) {
+  if (o.has("look_at") && o.has("transform"))
+    throw InputError(o.label(), "look_at", "give either look_at or transform, not both");
+  if (const json* la = o.find("look_at")) {
+    Obj l(*la, o.label(), "look_at", o.label() + ".look_at", {"eye", "target", "up"});
+    Vec3 eye = toVec3(l.required("eye"), l.label(), "eye");
+    Vec3 target = toVec3(l.required("target"), l.label(), "target");
+    Vec3 up = l.vec3("up", Vec3(0, 1, 0));
+    if (eye == target) throw InputError(l.label(), "target", "equals eye");
+    if (length(cross(up, normalize(target - eye))) < 1e-6f * length(up) || isBlack(up))
+      throw InputError(l.label(), "up", "is zero or parallel to the view direction");
+    c.cameraToWorld = Transform::lookAt(eye, target, up);
+  } else if (const json* t = o.find("transform")) {
+    c.cameraToWorld = parseTransform(*t, o.label(), "transform");
+  }
+  c.focalLength = o.num("focal_length", c.focalLength);
+  c.horizontalAperture = o.num("horizontal_aperture", c.horizontalAperture);
+  c.verticalAperture = o.num("vertical_aperture", c.verticalAperture);
+  c.horizontalApertureOffset = o.num("horizontal_aperture_offset", c.horizontalApertureOffset);
+  c.verticalApertureOffset = o.num("vertical_aperture_offset", c.verticalApertureOffset);
+  if (const json* cr = o.find("clipping_range")) {
+    if (!cr->is_array() || cr->size() != 2)
+      throw InputError(o.label(), "clipping_range", "expected [near, far], got " + describe(*cr));
+    c.clipNear = toFloat((*cr)[0], o.label(), "clipping_range");
+    c.clipFar = toFloat((*cr)[1], o.label(), "clipping_range");
+  }
+}
+
+void parseMaterials(const json& v, SceneDesc& desc, MaterialIndex& index) {
+  if (!v.is_object())
+    throw InputError("scene", "materials", "expected an object mapping names to materials, got " + describe(v));
+  for (auto it = v.begin(); it != v.end(); ++it) {
+    const std::string& name = it.key();
+    if (name.empty()) throw InputError("materials", "", "a material has an empty name");
+    const json& m = it.value();
+    std::string type = "lambert";
+    if (m.is_object() && m.contains("type")) type = toString(m.at("type"), name, "type");
+    MaterialDesc md;
+    md.name = name;
+    if (type == "lambert") {
+      Obj o(m, "materials", name, name, {"type", "albedo", "emission"});
+      md.type = MaterialType::Lambert;
+      md.albedo = o.vec3("albedo", md.albedo, true);
+      md.emission = o.vec3("emission", md.emission, true);
+    } else if (type == "dielectric") {
+      Obj o(m, "materials", name, name, {"type", "ior", "absorption"});
+      md.type = MaterialType::Dielectric;
+      md.ior = o.num("ior", md.ior);
+      md.absorption = o.vec3("absorption", md.absorption, true);
+    } else {
+      throw InputError(name, "type", str("unknown material type \"", type, "\" (expected lambert or dielectric)"));
+    }
+    index[name] = int(desc.materials.size());
+    desc.materials.push_back(md);
+  }
+}
+
+void parseMeshes(const json& v, SceneDesc& desc, const MaterialIndex& mats, const Context& ctx) {
+  std::set<std::string> seen;
+  const json& a = toArray(v, "scene", "meshes");
+  for (size_t i = 0; i < a.size(); ++i) {
+    std::string label = itemLabel(a[i], "meshes", i);
+    Obj o(a[i], "meshes", str("[", i, "]"), label, {"name", "shape", "material", "transform", "visible"});
+    checkUnique(seen, label, "meshes", i);
+    MeshDesc m;
+    m.name = label;
+    m.mesh = parseShape(o.required("shape"), label, "shape", ctx);
+    m.material = lookupMaterial(o, mats, -1);
+    if (const json* t = o.find("transform")) m.xf = parseTransform(*t, label, "transform");
+    m.visible = o.flag("visible", true);
+    desc.meshes.push_back(std::move(m));
+  }
+}
+
+void parseLights(const json& v, SceneDesc& desc, const Context& ctx) {
+  std::set<std::string> seen;
+  const json& a = toArray(v, "scene", "lights");
+  for (size_t i = 0; i < a.size(); ++i) {
+    std::string label = itemLabel(a[i], "lights", i);
+    if (!a[i].is_object()) throw InputError("lights", str("[", i, "]"), "expected an object, got " + describe(a[i]));
+    if (!a[i].contains("type")) throw InputError(label, "type", "is required (distant, sphere, rect or dome)");
+    std::string type = toString(a[i].at("type"), label, "type");
+    std::vector<std::string> keys = {"name", "type", "color", "intensity", "exposure", "normalize", "transform"};
+    LightDesc l;
+    if (type == "distant") {
+      l.type = LightType::Distant;
+      keys.insert(keys.end(), {"direction", "angle"});
+    } else if (type == "sphere") {
+      l.type = LightType::Sphere;
+      keys.insert(keys.end(), {"position", "radius"});
+    } else if (type == "rect") {
+      l.type = LightType::Rect;
+      keys.insert(keys.end(), {"width", "height"});
+    } else if (type == "dome") {
+      l.type = LightType::Dome;
+      keys.push_back("texture_file");
+    } else {
+      throw InputError(label, "type", str("unknown light type \"", type, "\" (expected distant, sphere, rect or dome)"));
+    }
+    Obj o(a[i], "lights", str("[", i, "]"), label, keys);
+    checkUnique(seen, label, "lights", i);
+    l.name = label;
+    const char* placement = l.type == LightType::Distant ? "direction" : "position";
+    if (o.has("transform") && o.has(placement))
+      throw InputError(label, placement, "give either transform or " + std::string(placement) + ", not both");
+    if (const json* t = o.find("transform")) l.xf = parseTransform(*t, label, "transform");
+    if (const json* d = o.find("direction")) {
+      Vec3 dir = toVec3(*d, label, "direction");
+      if (isBlack(dir)) throw InputError(label, "direction", "is zero");
+      // Local -Z (the USD emission axis) is mapped onto the travel direction.
+      l.xf = Transform::lookAt(Vec3(0.0f), dir, Vec3(0, 1, 0));
+    }
+    if (const json* p = o.find("position")) l.xf = Transform::translate(toVec3(*p, label, "position"));
+    l.color = o.vec3("color", l.color, true);
+    l.intensity = o.num("intensity", l.intensity);
+    l.exposure = o.num("exposure", l.exposure);
+    l.normalize = o.flag("normalize", l.normalize);
+    l.angle = o.num("angle", l.angle);
+    l.radius = o.num("radius", l.radius);
+    l.width = o.num("width", l.width);
+    l.height = o.num("height", l.height);
+    if (o.has("texture_file")) {
+      std::string file = toString(*o.find("texture_file"), label, "texture_file");
+      if (!file.empty()) {
+        l.textureFile = resolvePath(ctx, file);
+        std::error_code ec;
+        if (!fs::is_regular_file(l.textureFile, ec))
+          throw InputError(label, "texture_file", str("\"", l.textureFile, "\" does not exist"));
+      }
+    }
+    desc.lights.push_back(std::move(l));
+  }
+}
+
+void parseAggregates(const json& v, SceneDesc& desc, const MaterialIndex& mats, const Context& ctx) {
+  std::set<std::string> seen;
+  const json& a = toArray(v, "scene", "aggregates");
+  for (size_t i = 0; i < a.size(); ++i) {
+    std::string label = itemLabel(a[i], "aggregates", i);
+    Obj o(a[i], "aggregates", str("[", i, "]"), label,
+          {"name", "boundary", "transform", "grain_radius", "packing_rate", "seed", "tile_spheres", "prototypes",
+           "weights"});
+    checkUnique(seen, label, "aggregates", i);
+    AggregateDesc ag;
+    ag.name = label;
+    ag.boundary = parseShape(o.required("boundary"), label, "boundary", ctx);
+    if (const json* t = o.find("transform")) ag.xf = parseTransform(*t, label, "transform");
+    ag.grainRadius = o.num("grain_radius", ag.grainRadius);
+    ag.packingRate = o.num("packing_rate", ag.packingRate);
+    ag.seed = o.u64("seed", ag.seed);
+    ag.tileSpheres = o.integer("tile_spheres", ag.tileSpheres);
+    const json& protos = toArray(o.required("prototypes"), label, "prototypes");
+    std::set<std::string> protoNames;
+    for (size_t k = 0; k < protos.size(); ++k) {
+      // Named prototypes read like USD child prims: "castle/rock".
+      std::string indexed = str(label, ".prototypes[", k, "]");
+      GrainPrototypeDesc p;
+      p.name = indexed;
+      if (protos[k].is_object() && protos[k].contains("name")) {
+        std::string n = toString(protos[k].at("name"), indexed, "name");
+        if (!protoNames.insert(n).second)
+          throw InputError(indexed, "name", str("\"", n, "\" is used by another prototype of ", label));
+        p.name = label + "/" + n;
+      }
+      Obj po(protos[k], label, str("prototypes[", k, "]"), p.name, {"name", "shape", "material"});
+      p.mesh = parseShape(po.required("shape"), p.name, "shape", ctx);
+      p.material = lookupMaterial(po, mats, -1);
+      ag.prototypes.push_back(std::move(p));
+    }
+    if (const json* w = o.find("weights"))
+      ag.weights = toFloats(*w, label, "weights");
+    else
+      ag.weights.assign(ag.prototypes.size(), 1.0f);
+    desc.aggregates.push_back(std::move(ag));
+  }
+}
+
+// Nested object-key path of the parser's position, for duplicate-key messages.
+struct KeyTracker {
+  std::vector<std::set<std::string>> keys;
+  std::vector<std::string> current;
+  std::string path() const {
+    std::string p;
+    for (size_t i = 0; i + 1 < current.size(); ++i) p += (p.empty() ? "" : ".") + current[i];
+    return p.empty() ? "the top level" : p;
+  }
+};
+
+std::string parseErrorDetail(const std::string& what) {
+  // nlohmann: "[json.exception.parse_error.101] parse error at line 1, column 2: <detail>"
+  size_t p = what.find("parse error");
+  if (p == std::string::npos) return what;
+  size_t c = what.find(": ", p);
+  return c == std::string::npos ? what : what.substr(c + 2);
+}
+
+}  // namespace
+
+TriangleMesh loadObj(const std::string& path, const std::string& object) {
+  std::ifstream in(path);
+  if (!in) throw InputError(object, "obj", str("cannot open \"", path, "\""));
+  std::vector<Vec3> pts;
+  struct Face {
+    std::vector<long long> idx;
+    size_t line;
+  };
+  std::vector<Face> faces;
+  std::string line;
+  size_t lineNo = 0;
+  auto fail = [&](const std::string& msg) { throw InputError(object, "obj", str(path, ":", lineNo, ": ", msg)); };
+  while (std::getline(in, line)) {
+    ++lineNo;
+    std::istringstream ss(line);
+    std::string tag;
+    if (!(ss >> tag)) continue;
+    if (tag == "v") {
+      float c[3];
+      for (float& x : c) {
+        std::string tok;
+        if (!(ss >> tok)) fail("a vertex needs 3 coordinates");
+        char* end = nullptr;
+        errno = 0;
+        x = std::strtof(tok.c_str(), &end);
+        if (end == tok.c_str() || *end != '\0' || errno == ERANGE || !std::isfinite(x))
+          fail(str("\"", tok, "\" is not a finite number"));
+      }
+      pts.push_back({c[0], c[1], c[2]});
+    } else if (tag == "f") {
+      Face f{{}, lineNo};
+      std::string tok;
+      while (ss >> tok) {
+        // v, v/vt, v//vn, v/vt/vn: only the position index matters here.
+        std::string vs = tok.substr(0, tok.find('/'));
+        char* end = nullptr;
+        errno = 0;
+        long long k = std::strtoll(vs.c_str(), &end, 10);
+        if (vs.empty() || *end != '\0' || errno == ERANGE) fail(str("\"", tok, "\" is not a vertex index"));
+        if (k == 0) fail("vertex index 0 is invalid (OBJ indices start at 1)");
+        // Negative indices count back from the latest vertex defined so far.
+        f.idx.push_back(k > 0 ? k - 1 : (long long)pts.size() + k);
+        if (f.idx.back() < 0) fail(str("vertex index ", k, " refers before the first vertex"));
+      }
+      if (f.idx.size() < 3) fail(str("a face needs at least 3 vertices, got ", f.idx.size()));
+      faces.push_back(std::move(f));
+    }
+  }
+  if (faces.empty()) throw InputError(object, "obj", str("\"", path, "\" has no faces"));
+  TriangleMesh m;
+  m.points = pts;
+  for (const Face& f : faces) {
+    for (long long k : f.idx)
+      if (k >= (long long)pts.size()) {
+        lineNo = f.line;
+        fail(str("vertex index ", k + 1, " is out of range (", pts.size(), " vertices)"));
+      }
+    for (size_t k = 1; k + 1 < f.idx.size(); ++k)
+      for (long long v : {f.idx[0], f.idx[k], f.idx[k + 1]}) m.indices.push_back(uint32_t(v));
+  }
+  return m;
+}
+
+SceneDesc parseSceneJson(const std::string& text, const std::string& sourceName) {
+  json root;
+  KeyTracker tracker;
+  json::parser_callback_t onEvent = [&](int, json::parse_event_t ev, json& parsed) {
+    switch (ev) {
+      case json::parse_event_t::object_start:
+        tracker.keys.emplace_back();
+        tracker.current.emplace_back();
+        break;
+      case json::parse_event_t::object_end:
+        tracker.keys.pop_back();
+        tracker.current.pop_back();
+        break;
+      case json::parse_event_t::key: {
+        // nlohmann silently keeps the last of duplicate keys; a scene file that sets
+        // a value twice is almost certainly a mistake.
+        std::string k = parsed.get<std::string>();
+        tracker.current.back() = k;
+        if (!tracker.keys.back().insert(k).second)
+          throw InputError(sourceName, "", str("duplicate key \"", k, "\" in ", tracker.path()));
+        break;
+      }
+      default: break;
+    }
+    return true;
+  };
+  try {
+    root = json::parse(text, onEvent, /*allow_exceptions=*/true, /*ignore_comments=*/true);
+  } catch (const json::parse_error& e) {
+    size_t byte = e.byte, line = 1, col = 1;
+    for (size_t i = 0; i + 1 < byte && i < text.size(); ++i) {
+      if (text[i] == '\n') ++line, col = 1;
+      else ++col;
+    }
+    throw InputError(sourceName, "",
+                     str("JSON parse error at byte ", byte, " (line ", line, ", column ", col, "): ",
+                         parseErrorDetail(e.what())));
+  }
+
+  SceneDesc desc;
+  try {
+    Context ctx;
+    ctx.base = fs::path(sourceName).parent_path();
+    Obj top(root, sourceName, "", "scene", {"render", "camera", "materials", "meshes", "lights", "aggregates"});
+    if (const json* r = top.find("render"))
+      parseRender(Obj(*r, "scene", "render", "render", {"width", "height", "spp", "seed", "max_depth", "rr_depth", "threads"}),
+                  desc.settings);
+    if (const json* c = top.find("camera"))
+      parseCamera(Obj(*c, "scene", "camera", "camera",
+                      {"look_at", "transform", "focal_length", "horizontal_aperture", "vertical_aperture",
+                       "horizontal_aperture_offset", "vertical_aperture_offset", "clipping_range"}),
+                  desc.camera);
+    MaterialIndex mats;
+    if (const json* m = top.find("materials")) parseMaterials(*m, desc, mats);
+    if (const json* m = top.find("meshes")) parseMeshes(*m, desc, mats, ctx);
+    if (const json* l = top.find("lights")) parseLights(*l, desc, ctx);
+    if (const json* a = top.find("aggregates")) parseAggregates(*a, desc, mats, ctx);
+  } catch (const json::exception& e) {
+    // Converters check types before every get<>(), so this is a safety net only.
+    throw InputError(sourceName, "", str("unexpected JSON error: ", e.what()));
+  }
+  // The desc speaks USD attribute names; report them as the JSON keys the user wrote.
+  try {
+    validateSceneDesc(desc);
+  } catch (const InputError& e) {
+    throw InputError(e.object(), camelToSnake(e.attribute()), bareMessage(e));
+  }
+  return desc;
+}
+
+SceneDesc loadSceneJson(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw InputError(path, "", "cannot open the scene file");
+  std::ostringstream ss;
+  ss << in.rdbuf();
+  if (in.bad()) throw InputError(path, "", "cannot read the scene file");
+  return parseSceneJson(ss.str(), path);
+}
+
+}  // namespace granular

@@ -1,0 +1,161 @@
+// Aggregate: cell classification, grain instantiation and ray intersection against
+// brute-force references (tests mirror core/aggregate.*).
+#include <gtest/gtest.h>
+
+#include <map>
+#include <set>
+#include <tuple>
+
+#include "aggregate.h"
+#include "shapes.h"
+#include "test_helpers.h"
+
+using namespace granular;
+using granular::testing::pointInMesh;
+using granular::testing::rayTriangle;
+
+namespace {
+
+AggregateDesc smallAggregate(float R = 0.08f, float f = 0.55f) {
+  AggregateDesc a;
+  a.name = "test_sand";
+  a.boundary = makeIcosphere(2);
+  a.xf = Transform::translate(Vec3(0.1f, -0.2f, 0.3f)) * Transform::scale(Vec3(1.0f, 0.7f, 0.9f));
+  a.grainRadius = R;
+  a.packingRate = f;
+  a.seed = 7;
+  a.tileSpheres = 64;
+  GrainPrototypeDesc rock{"rock", makeRock(1, 0.25f, 3), 0};
+  GrainPrototypeDesc box{"box", makeBox(Vec3(-0.5f, -0.3f, -0.4f), Vec3(0.5f, 0.3f, 0.4f)), 0};
+  a.prototypes = {rock, box};
+  a.weights = {3.0f, 1.0f};
+  return a;
+}
+
+struct Built {
+  EmbreeDevice device = makeEmbreeDevice();
+  Aggregate agg;
+  explicit Built(const AggregateDesc& d) { agg.build(d, device, {0, 0}); }
+};
+
+}  // namespace
+
+TEST(Aggregate, CellClassificationAgreesWithPointInMesh) {
+  // Grains small enough that the object holds inside, partial and outside cells.
+  AggregateDesc d = smallAggregate(0.02f);
+  Built b(d);
+  const Aggregate& a = b.agg;
+  const TriangleMesh& mesh = a.boundary();
+  Rng rng(11);
+  int inside = 0, outside = 0;
+  float L = a.cellSize();
+  Vec3 lo = a.bounds().lo;
+  int64_t n[3];
+  for (int ax = 0; ax < 3; ++ax) n[ax] = int64_t(std::llround((a.bounds().hi[ax] - lo[ax]) / L));
+  for (int64_t k = 0; k < n[2]; ++k)
+    for (int64_t j = 0; j < n[1]; ++j)
+      for (int64_t i = 0; i < n[0]; ++i) {
+        CellClass c = a.cellClass(i, j, k);
+        if (c == CellClass::Partial) continue;
+        for (int s = 0; s < 8; ++s) {
+          Vec3 p = lo + Vec3(i + rng.next1D(), j + rng.next1D(), k + rng.next1D()) * L;
+          bool in = pointInMesh(mesh, p);
+          if (c == CellClass::Inside) { EXPECT_TRUE(in) << "cell " << i << "," << j << "," << k; ++inside; }
+          else { EXPECT_FALSE(in) << "cell " << i << "," << j << "," << k; ++outside; }
+        }
+      }
+  EXPECT_GT(inside, 0);
+  EXPECT_GT(outside, 0);
+  EXPECT_GT(a.stats().partialCells, 0);
+}
+
+TEST(Aggregate, GrainsAreExactlyTheSpheresCentredInside) {
+  AggregateDesc d = smallAggregate();
+  Built b(d);
+  const Aggregate& a = b.agg;
+  std::set<std::tuple<int64_t, int64_t, int64_t, int>> produced;
+  int counts[2] = {0, 0};
+  a.forEachGrain(a.bounds(), [&](const GrainInstance& g) {
+    produced.insert({g.cell[0], g.cell[1], g.cell[2], g.sphere});
+    ++counts[g.prototype];
+  });
+  // Brute force: every sphere of every tile copy, tested against the mesh itself.
+  std::set<std::tuple<int64_t, int64_t, int64_t, int>> expected;
+  float L = a.cellSize();
+  Vec3 lo = a.bounds().lo;
+  int64_t n[3];
+  for (int ax = 0; ax < 3; ++ax) n[ax] = int64_t(std::llround((a.bounds().hi[ax] - lo[ax]) / L));
+  for (int64_t k = 0; k < n[2]; ++k)
+    for (int64_t j = 0; j < n[1]; ++j)
+      for (int64_t i = 0; i < n[0]; ++i)
+        for (int s = 0; s < a.tile().numSpheres; ++s) {
+          Vec3 c = lo + Vec3(float(i), float(j), float(k)) * L + a.tile().centers[s] * L;
+          if (pointInMesh(a.boundary(), c)) expected.insert({i, j, k, s});
+        }
+  EXPECT_EQ(produced, expected);
+  ASSERT_GT(expected.size(), 200u);
+  // Mixing weights 3:1 — binomial standard error of the fraction.
+  double total = counts[0] + counts[1];
+  double p = 0.75, se = std::sqrt(p * (1 - p) / total);
+  EXPECT_NEAR(counts[0] / total, p, 4 * se);
+}
+
+TEST(Aggregate, RayIntersectionMatchesBruteForceOverEveryGrain) {
+  AggregateDesc d = smallAggregate(0.1f, 0.5f);
+  Built b(d);
+  const Aggregate& a = b.agg;
+  // Every grain instantiated explicitly, in world space.
+  struct WorldGrain { std::vector<Vec3> pts; const TriangleMesh* mesh; int64_t cell[3]; int sphere; };
+  std::vector<WorldGrain> grains;
+  a.forEachGrain(a.bounds(), [&](const GrainInstance& g) {
+    WorldGrain w;
+    w.mesh = &a.prototypes()[g.prototype].mesh;
+    for (const Vec3& q : w.mesh->points) w.pts.push_back(g.center + (g.rotation * q) * g.radius);
+    std::copy(g.cell, g.cell + 3, w.cell);
+    w.sphere = g.sphere;
+    grains.push_back(std::move(w));
+  });
+  ASSERT_GT(grains.size(), 100u);
+  Rng rng(5);
+  Bounds3 bb = a.bounds();
+  int hits = 0, misses = 0;
+  for (int r = 0; r < 300; ++r) {
+    Vec3 target = bb.lo + Vec3(rng.next1D(), rng.next1D(), rng.next1D()) * bb.extent();
+    Vec3 dir = sampleUniformSphere(rng.next1D(), rng.next1D());
+    // Half the rays start outside, half inside the aggregate (as scattered paths do).
+    Vec3 o = (r % 2) ? target - dir * (2.0f * length(bb.extent())) : target;
+    float best = kInf;
+    const WorldGrain* bg = nullptr;
+    for (const auto& g : grains)
+      for (size_t t = 0; t < g.mesh->numTriangles(); ++t) {
+        float th = rayTriangle(o, dir, g.pts[g.mesh->indices[3 * t]], g.pts[g.mesh->indices[3 * t + 1]],
+                               g.pts[g.mesh->indices[3 * t + 2]]);
+        if (th < best) { best = th; bg = &g; }
+      }
+    GrainHit h;
+    bool hit = a.intersect(o, dir, 0.0f, kInf, h);
+    ASSERT_EQ(hit, std::isfinite(best)) << "ray " << r;
+    if (!hit) { ++misses; continue; }
+    ++hits;
+    EXPECT_NEAR(h.t, best, 1e-4f * (1.0f + best)) << "ray " << r;
+    EXPECT_EQ(h.sphere, bg->sphere) << "ray " << r;
+    EXPECT_EQ(h.cell[0], bg->cell[0]);
+    EXPECT_EQ(h.cell[1], bg->cell[1]);
+    EXPECT_EQ(h.cell[2], bg->cell[2]);
+    EXPECT_NEAR(length(h.ng), 1.0f, 1e-4f);
+  }
+  EXPECT_GT(hits, 100);
+  EXPECT_GT(misses, 5);
+}
+
+TEST(Aggregate, MemoryDoesNotGrowWithGrainsPerTile) {
+  // The same object with 8x the grains per tile costs tile-sized memory only.
+  AggregateDesc d = smallAggregate(0.08f, 0.55f);
+  d.tileSpheres = 64;
+  Built small(d);
+  d.tileSpheres = 512;
+  d.grainRadius = 0.04f;  // 8x the grains in the same tile volume
+  Built big(d);
+  EXPECT_NEAR(big.agg.stats().cells, small.agg.stats().cells, 0.5 * small.agg.stats().cells);
+  EXPECT_GT(big.agg.stats().approxGrains, 6.0 * small.agg.stats().approxGrains);
+}

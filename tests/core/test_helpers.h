@@ -1,0 +1,43 @@
+// test_helpers.h — brute-force references shared by the core tests.
+#pragma once
+
+#include <cmath>
+
+#include "math.h"
+#include "mesh.h"
+
+namespace granular::testing {
+
+// Möller–Trumbore; returns t > 0 of the hit or +inf.
+inline float rayTriangle(const Vec3& o, const Vec3& d, const Vec3& a, const Vec3& b, const Vec3& c) {
+  Vec3 e1 = b - a, e2 = c - a, p = cross(d, e2);
+  double det = dot(e1, p);
+  if (std::fabs(det) < 1e-20) return kInf;
+  double inv = 1.0 / det;
+  Vec3 s = o - a;
+  double u = dot(s, p) * inv;
+  if (u < 0 || u > 1) return kInf;
+  Vec3 q = cross(s, e1);
+  double v = dot(d, q) * inv;
+  if (v < 0 || u + v > 1) return kInf;
+  double t = dot(e2, q) * inv;
+  return t > 0 ? float(t) : kInf;
+}
+
+// Point in closed mesh by crossing parity along three directions (majority vote).
+inline bool pointInMesh(const TriangleMesh& m, const Vec3& p) {
+  const Vec3 dirs[3] = {normalize(Vec3(0.31f, 0.73f, 0.61f)), normalize(Vec3(-0.57f, 0.19f, 0.8f)),
+                        normalize(Vec3(0.11f, -0.93f, 0.35f))};
+  int votes = 0;
+  for (const Vec3& d : dirs) {
+    int crossings = 0;
+    for (size_t t = 0; t < m.numTriangles(); ++t)
+      if (std::isfinite(rayTriangle(p, d, m.points[m.indices[3 * t]], m.points[m.indices[3 * t + 1]],
+                                    m.points[m.indices[3 * t + 2]])))
+        ++crossings;
+    votes += crossings & 1;
+  }
+  return votes >= 2;
+}
+
+}  // namespace granular::testing

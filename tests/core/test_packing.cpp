@@ -1,0 +1,93 @@
+// Packing: Lubachevsky–Stillinger tiles reach the requested rate, do not overlap, are
+// periodic and deterministic, and round-trip through the cache (tests mirror
+// core/packing.*).
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "error.h"
+#include "packing.h"
+
+using namespace granular;
+
+namespace {
+
+// f = N (4/3) pi r^3 from the tile's own radius, independently of Tile::packingRate.
+double rateOf(const Tile& t) { return t.numSpheres * (4.0 / 3.0) * 3.14159265358979323846 * std::pow(t.radius, 3); }
+
+void expectValidTile(const Tile& t, int n, double f) {
+  ASSERT_EQ(t.numSpheres, n);
+  ASSERT_EQ(int(t.centers.size()), n);
+  EXPECT_NEAR(rateOf(t), f, 0.01 * f);
+  EXPECT_NEAR(t.packingRate, rateOf(t), 1e-12);
+  for (const Vec3& c : t.centers)
+    for (int a = 0; a < 3; ++a) {
+      EXPECT_GE(c[a], 0.0f);
+      EXPECT_LT(c[a], 1.0f);
+    }
+  // No overlap beyond 1e-6 R, measured with minimum-image (periodic) distances.
+  EXPECT_GE(minPeriodicGap(t), -1e-6 * t.radius);
+}
+
+}  // namespace
+
+TEST(Packing, DenseTileReachesRandomClosePacking) {
+  Tile t = generateTile(256, 0.63, 1);
+  expectValidTile(t, 256, 0.63);
+}
+
+TEST(Packing, SparseAndMediumRates) {
+  for (double f : {0.05, 0.3, 0.55}) {
+    SCOPED_TRACE(f);
+    expectValidTile(generateTile(128, f, 4), 128, f);
+  }
+}
+
+TEST(Packing, PeriodicImagesDoNotOverlap) {
+  // A brute-force check over all 27 images, independent of minPeriodicGap.
+  Tile t = generateTile(64, 0.6, 9);
+  double minGap = 1e9;
+  for (int i = 0; i < t.numSpheres; ++i)
+    for (int j = 0; j < t.numSpheres; ++j)
+      for (int dz = -1; dz <= 1; ++dz)
+        for (int dy = -1; dy <= 1; ++dy)
+          for (int dx = -1; dx <= 1; ++dx) {
+            if (i == j && dx == 0 && dy == 0 && dz == 0) continue;
+            double d[3] = {double(t.centers[j].x) + dx - t.centers[i].x, double(t.centers[j].y) + dy - t.centers[i].y,
+                           double(t.centers[j].z) + dz - t.centers[i].z};
+            minGap = std::min(minGap, std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) - 2 * t.radius);
+          }
+  EXPECT_GE(minGap, -1e-6 * t.radius);
+  EXPECT_NEAR(minGap, minPeriodicGap(t), 1e-7);
+  // Jammed-ish: some pair is nearly in contact (the packing is not a loose lattice).
+  EXPECT_LT(minGap, 0.05 * t.radius);
+}
+
+TEST(Packing, DeterministicForASeedAndDifferentAcrossSeeds) {
+  Tile a = generateTile(64, 0.5, 3), b = generateTile(64, 0.5, 3), c = generateTile(64, 0.5, 4);
+  ASSERT_EQ(a.centers.size(), b.centers.size());
+  for (size_t i = 0; i < a.centers.size(); ++i) EXPECT_EQ(a.centers[i], b.centers[i]);
+  int same = 0;
+  for (size_t i = 0; i < a.centers.size(); ++i) same += a.centers[i] == c.centers[i];
+  EXPECT_LT(same, 2);
+}
+
+TEST(Packing, CacheRoundTripGivesTheSameTile) {
+  Tile g = generateTile(64, 0.45, 17);
+  Tile first = loadOrGenerateTile(64, 0.45, 17);   // generates or reads
+  Tile second = loadOrGenerateTile(64, 0.45, 17);  // reads (or regenerates if no cache dir)
+  ASSERT_EQ(first.centers.size(), g.centers.size());
+  for (size_t i = 0; i < g.centers.size(); ++i) {
+    EXPECT_EQ(first.centers[i], g.centers[i]);
+    EXPECT_EQ(second.centers[i], g.centers[i]);
+  }
+  EXPECT_EQ(second.radius, g.radius);
+}
+
+TEST(Packing, BadRequestsAreInputErrors) {
+  EXPECT_THROW(generateTile(64, 0.0, 1), InputError);
+  EXPECT_THROW(generateTile(64, 0.7, 1), InputError);
+  EXPECT_THROW(generateTile(64, std::nan(""), 1), InputError);
+  EXPECT_THROW(generateTile(0, 0.5, 1), InputError);
+  EXPECT_THROW(generateTile(1000000, 0.5, 1), InputError);
+}

@@ -1,0 +1,351 @@
+// test_scene_io.cpp — the JSON scene format: a full scene, and every kind of bad input
+// reported as an InputError naming the object and the key.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <unistd.h>
+#include <nlohmann/json.hpp>
+
+#include "error.h"
+#include "scene_io.h"
+#include "shapes.h"
+
+using namespace granular;
+using nlohmann::json;
+
+namespace {
+
+const char* kScene = R"({
+  // comments are allowed
+  "render": {"width": 320, "height": 240, "spp": 4, "seed": 9, "max_depth": 512, "rr_depth": 5, "threads": 2},
+  "camera": {"look_at": {"eye": [0, 1, 5], "target": [0, 1, 0], "up": [0, 1, 0]},
+             "focal_length": 35, "horizontal_aperture": 36, "vertical_aperture": 27,
+             "clipping_range": [0.01, 1000]},
+  "materials": {
+    "sand": {"type": "dielectric", "ior": 1.5, "absorption": [0.1, 0.2, 0.4]},
+    "floor": {"type": "lambert", "albedo": 0.5},
+    "lamp": {"albedo": [0, 0, 0], "emission": [2, 2, 1]}
+  },
+  "meshes": [
+    {"name": "floor", "shape": {"box": {"lo": [-5, -0.1, -5], "hi": [5, 0, 5]}}, "material": "floor"},
+    {"shape": {"mesh": {"points": [[0,0,0],[1,0,0],[1,1,0],[0,1,0]],
+                        "face_vertex_counts": [4], "face_vertex_indices": [0,1,2,3]}},
+     "transform": {"translate": [0, 2, 0], "rotate": [90, 0, 1, 0], "scale": 2}, "visible": false}
+  ],
+  "lights": [
+    {"name": "sun", "type": "distant", "direction": [0, -1, -1], "angle": 0.53, "color": [1, 0.9, 0.8],
+     "intensity": 3, "exposure": 1},
+    {"type": "sphere", "position": [1, 2, 3], "radius": 0.25},
+    {"type": "rect", "transform": [1,0,0,0, 0,1,0,4, 0,0,1,0, 0,0,0,1], "width": 2, "height": 0.5, "normalize": true},
+    {"type": "dome", "intensity": 0.5}
+  ],
+  "aggregates": [
+    {"name": "castle",
+     "boundary": {"lathe": {"profile": [[1, 0], [0.8, 1], [0, 1.5]], "segments": 32}},
+     "transform": {"translate": [0, 0, 0]},
+     "grain_radius": 0.01, "packing_rate": 0.6, "seed": 1, "tile_spheres": 256,
+     "prototypes": [
+       {"name": "rock", "shape": {"rock": {"subdivisions": 2, "roughness": 0.2, "seed": 3}}, "material": "sand"},
+       {"shape": {"ellipsoid": {"radii": [1, 0.6, 0.4], "subdivisions": 1}}}
+     ],
+     "weights": [3, 1]}
+  ]
+})";
+
+json base() { return json::parse(kScene, nullptr, true, /*ignore_comments=*/true); }
+
+// The InputError message a scene produces, or a marker saying what went wrong instead.
+std::string errorOf(const std::string& text) {
+  try {
+    parseSceneJson(text, "scenes/test.json");
+  } catch (const InputError& e) {
+    return e.what();
+  } catch (const std::exception& e) {
+    return std::string("WRONG EXCEPTION TYPE: ") + e.what();
+  }
+  return "NO ERROR";
+}
+std::string errorOf(const json& j) { return errorOf(j.dump()); }
+
+std::string errorAfter(const std::function<void(json&)>& edit) {
+  json j = base();
+  edit(j);
+  return errorOf(j);
+}
+
+#define EXPECT_CONTAINS(hay, needle) EXPECT_NE((hay).find(needle), std::string::npos) << "message: " << (hay)
+
+void expectNear(const Vec3& a, const Vec3& b, float eps = 1e-5f) {
+  EXPECT_NEAR(a.x, b.x, eps);
+  EXPECT_NEAR(a.y, b.y, eps);
+  EXPECT_NEAR(a.z, b.z, eps);
+}
+
+}  // namespace
+
+TEST(SceneIo, FullSceneParses) {
+  SceneDesc d = parseSceneJson(kScene, "scenes/test.json");
+  EXPECT_EQ(d.settings.width, 320);
+  EXPECT_EQ(d.settings.height, 240);
+  EXPECT_EQ(d.settings.spp, 4);
+  EXPECT_EQ(d.settings.seed, 9u);
+  EXPECT_EQ(d.settings.maxDepth, 512);
+  EXPECT_EQ(d.settings.rrDepth, 5);
+  EXPECT_EQ(d.settings.threads, 2);
+
+  expectNear(d.camera.cameraToWorld.point({0, 0, 0}), {0, 1, 5});
+  expectNear(d.camera.cameraToWorld.vector({0, 0, -1}), {0, 0, -1});
+  expectNear(d.camera.cameraToWorld.vector({0, 1, 0}), {0, 1, 0});
+  EXPECT_FLOAT_EQ(d.camera.focalLength, 35);
+  EXPECT_FLOAT_EQ(d.camera.verticalAperture, 27);
+  EXPECT_FLOAT_EQ(d.camera.clipNear, 0.01f);
+  EXPECT_FLOAT_EQ(d.camera.clipFar, 1000);
+
+  ASSERT_EQ(d.materials.size(), 3u);
+  auto mat = [&](const std::string& n) -> const MaterialDesc& {
+    for (auto& m : d.materials)
+      if (m.name == n) return m;
+    throw std::runtime_error("no material " + n);
+  };
+  EXPECT_EQ(mat("sand").type, MaterialType::Dielectric);
+  EXPECT_FLOAT_EQ(mat("sand").ior, 1.5f);
+  EXPECT_EQ(mat("sand").absorption, Vec3(0.1f, 0.2f, 0.4f));
+  EXPECT_EQ(mat("floor").type, MaterialType::Lambert);
+  EXPECT_EQ(mat("floor").albedo, Vec3(0.5f));
+  EXPECT_EQ(mat("lamp").emission, Vec3(2, 2, 1));
+
+  ASSERT_EQ(d.meshes.size(), 2u);
+  EXPECT_EQ(d.meshes[0].name, "floor");
+  EXPECT_EQ(d.materials[d.meshes[0].material].name, "floor");
+  EXPECT_NEAR(d.meshes[0].mesh.signedVolume(), 10.0, 1e-5);
+  EXPECT_EQ(d.meshes[1].name, "meshes[1]");
+  EXPECT_EQ(d.meshes[1].material, -1);
+  EXPECT_FALSE(d.meshes[1].visible);
+  EXPECT_EQ(d.meshes[1].mesh.numTriangles(), 2u);
+  // T * R * S: x -> (rotate 90 about y) -> -z, scaled by 2, moved up 2.
+  expectNear(d.meshes[1].xf.point({1, 0, 0}), {0, 2, -2});
+
+  ASSERT_EQ(d.lights.size(), 4u);
+  const LightDesc& sun = d.lights[0];
+  EXPECT_EQ(sun.name, "sun");
+  EXPECT_EQ(sun.type, LightType::Distant);
+  expectNear(sun.xf.vector({0, 0, -1}), normalize(Vec3(0, -1, -1)));
+  EXPECT_FLOAT_EQ(sun.angle, 0.53f);
+  EXPECT_FLOAT_EQ(sun.intensity, 3);
+  EXPECT_FLOAT_EQ(sun.exposure, 1);
+  EXPECT_EQ(sun.color, Vec3(1, 0.9f, 0.8f));
+  EXPECT_EQ(d.lights[1].type, LightType::Sphere);
+  EXPECT_EQ(d.lights[1].name, "lights[1]");
+  expectNear(d.lights[1].xf.point({0, 0, 0}), {1, 2, 3});
+  EXPECT_FLOAT_EQ(d.lights[1].radius, 0.25f);
+  EXPECT_EQ(d.lights[2].type, LightType::Rect);
+  expectNear(d.lights[2].xf.point({0, 0, 0}), {0, 4, 0});
+  EXPECT_FLOAT_EQ(d.lights[2].width, 2);
+  EXPECT_FLOAT_EQ(d.lights[2].height, 0.5f);
+  EXPECT_TRUE(d.lights[2].normalize);
+  EXPECT_EQ(d.lights[3].type, LightType::Dome);
+  EXPECT_TRUE(d.lights[3].textureFile.empty());
+
+  ASSERT_EQ(d.aggregates.size(), 1u);
+  const AggregateDesc& a = d.aggregates[0];
+  EXPECT_EQ(a.name, "castle");
+  EXPECT_GT(validateClosed(a.boundary, "b"), 0);
+  EXPECT_FLOAT_EQ(a.grainRadius, 0.01f);
+  EXPECT_FLOAT_EQ(a.packingRate, 0.6f);
+  EXPECT_EQ(a.seed, 1u);
+  EXPECT_EQ(a.tileSpheres, 256);
+  ASSERT_EQ(a.prototypes.size(), 2u);
+  EXPECT_EQ(a.prototypes[0].name, "castle/rock");
+  EXPECT_EQ(d.materials[a.prototypes[0].material].name, "sand");
+  EXPECT_EQ(a.prototypes[0].mesh.points, makeRock(2, 0.2f, 3).points);
+  EXPECT_EQ(a.prototypes[1].name, "castle.prototypes[1]");
+  EXPECT_EQ(a.prototypes[1].material, -1);
+  EXPECT_EQ(a.weights, (std::vector<float>{3, 1}));
+}
+
+TEST(SceneIo, MinimalSceneUsesDefaults) {
+  SceneDesc d = parseSceneJson("{}", "empty.json");
+  EXPECT_EQ(d.settings.width, 640);
+  EXPECT_TRUE(d.meshes.empty());
+  json j = base();
+  j["aggregates"][0].erase("weights");
+  d = parseSceneJson(j.dump(), "x.json");
+  EXPECT_EQ(d.aggregates[0].weights, (std::vector<float>{1, 1}));
+}
+
+TEST(SceneIo, PackingRateOutOfRange) {
+  std::string e = errorAfter([](json& j) { j["aggregates"][0]["packing_rate"] = 0.9; });
+  EXPECT_CONTAINS(e, "castle.packing_rate: 0.9 is outside (0, 0.64]");
+  e = errorAfter([](json& j) { j["aggregates"][0]["packing_rate"] = 0; });
+  EXPECT_CONTAINS(e, "castle.packing_rate: 0 is outside (0, 0.64]");
+  EXPECT_EQ(errorAfter([](json& j) { j["aggregates"][0]["packing_rate"] = 0.64; }), "NO ERROR");
+}
+
+TEST(SceneIo, WeightErrors) {
+  std::string e = errorAfter([](json& j) { j["aggregates"][0]["weights"] = {0, 0}; });
+  EXPECT_CONTAINS(e, "castle.weights");
+  EXPECT_CONTAINS(e, "all zero");
+  e = errorAfter([](json& j) { j["aggregates"][0]["weights"] = {-1, 1}; });
+  EXPECT_CONTAINS(e, "castle.weights");
+  EXPECT_CONTAINS(e, "weight 0 = -1");
+  e = errorAfter([](json& j) { j["aggregates"][0]["weights"] = {1, 1, 1}; });
+  EXPECT_CONTAINS(e, "castle.weights: has 3 entries but there are 2 prototypes");
+  e = errorAfter([](json& j) { j["aggregates"][0]["prototypes"] = json::array(); j["aggregates"][0].erase("weights"); });
+  EXPECT_CONTAINS(e, "castle.prototypes");
+}
+
+TEST(SceneIo, NanPointThroughTheCppApi) {
+  SceneDesc d = parseSceneJson(kScene, "x.json");
+  EXPECT_NO_THROW(validateSceneDesc(d));
+  d.aggregates[0].prototypes[0].mesh.points[3].y = std::nanf("");
+  try {
+    validateSceneDesc(d);
+    FAIL() << "no error";
+  } catch (const InputError& e) {
+    EXPECT_EQ(e.object(), "castle/rock");
+    EXPECT_EQ(e.attribute(), "points");
+    EXPECT_CONTAINS(std::string(e.what()), "point 3 is not finite");
+  }
+  d = parseSceneJson(kScene, "x.json");
+  d.materials[0].albedo.x = std::nanf("");
+  try {
+    validateSceneDesc(d);
+    FAIL() << "no error";
+  } catch (const InputError& e) {
+    EXPECT_EQ(e.attribute(), "albedo");
+  }
+}
+
+TEST(SceneIo, OpenBoundaryMesh) {
+  std::string e = errorAfter([](json& j) {
+    // A box missing its last triangle.
+    j["aggregates"][0]["boundary"] = {
+        {"mesh",
+         {{"points", {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {1, 1, 0}, {0, 0, 1}, {1, 0, 1}, {0, 1, 1}, {1, 1, 1}}},
+          {"face_vertex_indices", {0, 4, 6, 0, 6, 2, 1, 3, 7, 1, 7, 5, 0, 1, 5, 0, 5, 4,
+                                   2, 6, 7, 2, 7, 3, 0, 2, 3, 0, 3, 1, 4, 5, 7}}}}};
+  });
+  EXPECT_CONTAINS(e, "castle.boundary");
+  EXPECT_CONTAINS(e, "open boundary: edge (");
+}
+
+TEST(SceneIo, UnknownKeyIsReported) {
+  std::string e = errorAfter([](json& j) { j["aggregates"][0]["packing_rat"] = 0.5; });
+  EXPECT_CONTAINS(e, "castle.packing_rat: unknown key");
+  EXPECT_CONTAINS(e, "packing_rate");  // the allowed keys are listed
+  e = errorAfter([](json& j) { j["rendr"] = json::object(); });
+  EXPECT_CONTAINS(e, "scene.rendr: unknown key");
+  e = errorAfter([](json& j) { j["materials"]["sand"]["albedo"] = 0.5; });  // not a dielectric key
+  EXPECT_CONTAINS(e, "sand.albedo: unknown key");
+  e = errorAfter([](json& j) { j["aggregates"][0]["boundary"]["lathe"]["segmnts"] = 8; });
+  EXPECT_CONTAINS(e, "castle.boundary.lathe.segmnts: unknown key");
+}
+
+TEST(SceneIo, WrongTypeIsReported) {
+  std::string e = errorAfter([](json& j) { j["aggregates"][0]["grain_radius"] = "big"; });
+  EXPECT_CONTAINS(e, "castle.grain_radius: expected a number, got string \"big\"");
+  e = errorAfter([](json& j) { j["render"]["spp"] = 1.5; });
+  EXPECT_CONTAINS(e, "render.spp: expected an integer");
+  e = errorAfter([](json& j) { j["camera"]["look_at"]["eye"] = {1, 2}; });
+  EXPECT_CONTAINS(e, "camera.look_at.eye: expected an array of 3 numbers");
+  e = errorAfter([](json& j) { j["meshes"] = json::object(); });
+  EXPECT_CONTAINS(e, "scene.meshes: expected an array");
+  e = errorAfter([](json& j) { j["meshes"][0]["visible"] = 1; });
+  EXPECT_CONTAINS(e, "floor.visible: expected true or false");
+  e = errorAfter([](json& j) { j["aggregates"][0]["seed"] = -1; });
+  EXPECT_CONTAINS(e, "castle.seed: -1 must be >= 0");
+  e = errorOf(std::string("[1, 2]"));
+  EXPECT_CONTAINS(e, "scenes/test.json: expected an object");
+}
+
+TEST(SceneIo, SyntaxError) {
+  std::string e = errorOf(std::string("{\n  \"render\": {\"width\": 10,}\n}"));
+  EXPECT_CONTAINS(e, "scenes/test.json: JSON parse error at byte ");
+  EXPECT_CONTAINS(e, "line 2");
+  e = errorOf(std::string("{\"render\": {\"spp\": 1, \"spp\": 2}}"));
+  EXPECT_CONTAINS(e, "duplicate key \"spp\" in render");
+}
+
+TEST(SceneIo, ReferenceAndRangeErrors) {
+  std::string e = errorAfter([](json& j) { j["meshes"][0]["material"] = "flor"; });
+  EXPECT_CONTAINS(e, "floor.material: unknown material \"flor\"");
+  e = errorAfter([](json& j) { j["aggregates"][0]["prototypes"][0]["material"] = "glass"; });
+  EXPECT_CONTAINS(e, "castle/rock.material: unknown material");
+  e = errorAfter([](json& j) { j["materials"]["sand"]["ior"] = 5; });
+  EXPECT_CONTAINS(e, "sand.ior: 5 is outside [1, 4]");
+  EXPECT_EQ(errorAfter([](json& j) { j["materials"]["sand"]["ior"] = 1; }), "NO ERROR");
+  e = errorAfter([](json& j) { j["materials"]["floor"]["albedo"] = {0.5, 1.5, 0}; });
+  EXPECT_CONTAINS(e, "floor.albedo");
+  e = errorAfter([](json& j) { j["render"]["width"] = 0; });
+  EXPECT_CONTAINS(e, "render.width: 0 is outside [1, 32768]");
+  e = errorAfter([](json& j) { j["render"]["max_depth"] = 0; });
+  EXPECT_CONTAINS(e, "render.max_depth");
+  e = errorAfter([](json& j) { j["camera"]["clipping_range"] = {1, 0.5}; });
+  EXPECT_CONTAINS(e, "camera.clipping_range");
+  e = errorAfter([](json& j) { j["camera"]["focal_length"] = 0; });
+  EXPECT_CONTAINS(e, "camera.focal_length");
+  e = errorAfter([](json& j) { j["lights"][1]["radius"] = 0; });
+  EXPECT_CONTAINS(e, "lights[1].radius");
+  e = errorAfter([](json& j) { j["lights"][0]["angle"] = 180; });
+  EXPECT_CONTAINS(e, "sun.angle: 180 is outside [0, 180)");
+  e = errorAfter([](json& j) { j["lights"][0]["type"] = "spot"; });
+  EXPECT_CONTAINS(e, "sun.type: unknown light type \"spot\"");
+  e = errorAfter([](json& j) { j["aggregates"][0]["tile_spheres"] = 4; });
+  EXPECT_CONTAINS(e, "castle.tile_spheres: 4 is outside [8, 100000]");
+  e = errorAfter([](json& j) { j["aggregates"][0]["grain_radius"] = -0.1; });
+  EXPECT_CONTAINS(e, "castle.grain_radius");
+  e = errorAfter([](json& j) { j["aggregates"][0]["prototypes"][0]["shape"]["rock"]["roughness"] = 0.7; });
+  EXPECT_CONTAINS(e, "castle/rock.shape.rock.roughness: 0.7 is outside [0, 0.5)");
+  e = errorAfter([](json& j) { j["aggregates"][0]["boundary"] = {{"sphere", json::object()}}; });
+  EXPECT_CONTAINS(e, "castle.boundary: unknown shape \"sphere\"");
+  e = errorAfter([](json& j) { j["meshes"][0]["transform"] = {1,0,0,0, 0,1,0,0, 0,0,1,0, 5,0,0,1}; });
+  EXPECT_CONTAINS(e, "floor.transform: bottom row");
+  e = errorAfter([](json& j) { j["meshes"][0]["transform"] = {{"scale", {1, 0, 1}}}; });
+  EXPECT_CONTAINS(e, "floor.transform: is singular");
+  e = errorAfter([](json& j) { j["meshes"][1]["name"] = "floor"; });
+  EXPECT_CONTAINS(e, "meshes[1].name: \"floor\" is used by another entry");
+  e = errorAfter([](json& j) { j["lights"][3]["texture_file"] = "missing_sky.exr"; });
+  EXPECT_CONTAINS(e, "lights[3].texture_file");
+  EXPECT_CONTAINS(e, "does not exist");
+}
+
+TEST(SceneIo, ObjShapesAndFiles) {
+  namespace fs = std::filesystem;
+  fs::path dir = fs::temp_directory_path() / ("granular_scene_io_" + std::to_string(::getpid()));
+  fs::create_directories(dir / "models");
+  {
+    // Unit cube as quads, with slash forms and negative (relative) indices.
+    std::ofstream obj(dir / "models" / "cube.obj");
+    obj << "# cube\no cube\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nv 0 0 1\nv 1 0 1\nv 0 1 1\nv 1 1 1\n"
+           "vn 0 0 1\nf 1/1/1 5/2/1 7//1 3\nf 2 4 8 6\nf 1 2 6 5\nf 3 7 8 4\nf -8 -6 -5 -7\nf 5 6 8 7\n";
+    std::ofstream bad(dir / "models" / "bad.obj");
+    bad << "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n";
+  }
+  json j = base();
+  j["aggregates"][0]["boundary"] = {{"obj", "models/cube.obj"}};
+  std::ofstream(dir / "scene.json") << j.dump(2);
+  SceneDesc d = loadSceneJson((dir / "scene.json").string());
+  EXPECT_EQ(d.aggregates[0].boundary.numTriangles(), 12u);
+  EXPECT_DOUBLE_EQ(d.aggregates[0].boundary.signedVolume(), 1.0);
+
+  j["aggregates"][0]["boundary"] = {{"obj", "models/bad.obj"}};
+  std::ofstream(dir / "scene.json") << j.dump(2);
+  try {
+    loadSceneJson((dir / "scene.json").string());
+    ADD_FAILURE() << "no error";
+  } catch (const InputError& e) {
+    std::string w = e.what();
+    EXPECT_CONTAINS(w, "castle.boundary.obj");
+    EXPECT_CONTAINS(w, "bad.obj:4: vertex index 4 is out of range");
+  }
+  EXPECT_CONTAINS(errorAfter([](json& jj) { jj["meshes"][0]["shape"] = {{"obj", "nope.obj"}}; }), "cannot open");
+  try {
+    loadSceneJson((dir / "no_such.json").string());
+    ADD_FAILURE() << "no error";
+  } catch (const InputError& e) {
+    EXPECT_CONTAINS(std::string(e.what()), "cannot open");
+  }
+  fs::remove_all(dir);
+}
