@@ -1,0 +1,96 @@
+// tt.h — teleportation transport (TT): RTE parameters of the homogeneous medium that is
+// equivalent to an aggregate of grains (seed §2; NOTES.md items 1–3, 5, 6).
+//
+// Contract. estimateGrainTransport() characterises one grain prototype, once, by tracing
+// random rays that enter its unit bounding sphere (uniform over the sphere's projected
+// area, i.e. cosine-weighted entry) and following each through the grain exactly as EPT
+// does (same Material::sample, Fresnel, total internal reflection, Beer–Lambert with the
+// absorption per unit bounding radius) until it leaves the bounding sphere. All lengths
+// are in units of the bounding radius; every estimate carries its Monte Carlo standard
+// error. The result is a pure function of (mesh, material, options) and is cached on disk
+// under a hash of them (cache.h), so a second render reads it back.
+//
+// deriveMedium() combines per-prototype results by the mixing weights and scales them by
+// the aggregate's grain radius R and packing rate f into world-space RTE parameters:
+//   σ_b = 3/(4R) · f/(1−f)                         (Dixmier; NOTES item 2), λ_b = 1/σ_b
+//   λ_β = λ_b + (λ_b + λ_δ)(1−β)/β                 (NOTES item 1)
+//   λ_t = λ_β + α_s λ_s,  σ_t = 1/λ_t             (seed §2.2)
+//   σ'_s = (1−g) α_s σ_t,  σ'_t = σ'_s + (1−α_s) σ_t,  α'_s = σ'_s/σ'_t   (Jensen 2001)
+//   σ_tr = sqrt(3 σ_a σ'_t),  σ_a = (1−α_s) σ_t   (NOTES item 6)
+// Quantities that depend on absorption (α_s, λ_s, the phase function, g) are per RGB
+// channel, so σ_t is per channel too (a chromatic medium).
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <vector>
+
+#include "material.h"
+#include "math.h"
+#include "mesh.h"
+
+namespace granular {
+
+// A phase function tabulated over μ = cos θ = ω_i·ω_o in [-1, 1] with equal-width bins,
+// piecewise constant in μ, normalised so that 2π ∫ p dμ = 1 (pdf per steradian).
+struct PhaseTable {
+  std::vector<float> density;  // p(μ) per bin, per steradian
+  std::vector<float> cdf;      // size bins+1, cdf[0] = 0, cdf[bins] = 1
+  float g = 0;                 // mean cosine
+
+  int bins() const { return int(density.size()); }
+  // p(ω_i·ω_o), per steradian.
+  float eval(float mu) const;
+  // Samples ω_o around ω_i (unit): μ by inverting the cdf, azimuth uniform.
+  // Returns ω_o; pdf (per steradian) = eval(dot(wi, ωo)).
+  Vec3 sample(const Vec3& wi, float u1, float u2) const;
+  // Isotropic table (every bin 1/(4π)).
+  static PhaseTable isotropic(int bins = 1);
+  // From unnormalised per-bin weights (energy exiting into each μ bin).
+  static PhaseTable fromHistogram(const std::vector<double>& weights);
+};
+
+// One prototype's intra-grain statistics, in units of the bounding radius.
+struct GrainTransport {
+  double beta = 1, betaSE = 0;                // P(ray entering the bounding sphere hits the grain)
+  double lambdaDelta = 0, lambdaDeltaSE = 0;  // mean chord in the sphere of rays that miss
+  std::array<double, 3> lambdaS{}, lambdaSSE{};  // mean |x_o − x_i| of hits that exit, energy-weighted
+  std::array<double, 3> albedo{}, albedoSE{};    // α_s: exiting fraction of the energy of a hit
+  std::array<PhaseTable, 3> phase;               // exit distribution over cos θ, per channel
+  std::array<double, 3> g{}, gSE{};              // mean cosine of phase
+  int64_t rays = 0;                              // rays traced
+};
+
+struct TTOptions {
+  int64_t rays = 1 << 18;   // rays entering the bounding sphere
+  int phaseBins = 64;
+  int maxBounces = 1000;    // inside one grain (TIR in clear grains bounces a lot)
+  uint64_t seed = 1;
+  bool useCache = true;
+};
+
+// prototypeMesh must already be normalised into the unit bounding sphere (GrainPrototype).
+GrainTransport estimateGrainTransport(const TriangleMesh& prototypeMesh, const Material& material,
+                                      const TTOptions& options = TTOptions());
+
+// World-space RTE and diffusion parameters of one aggregate (seed §2.2).
+struct MediumParams {
+  float grainRadius = 0, packingRate = 0;
+  float sigmaB = 0;                       // Dixmier, 1/world length
+  GrainTransport combined;                // the mixture's intra-grain statistics (unit radius)
+  Vec3 lambdaBeta, lambdaT;               // world lengths
+  Vec3 sigmaT, albedo;                    // σ_t, α_s
+  std::array<PhaseTable, 3> phase;
+  Vec3 g;
+  Vec3 sigmaSReduced, sigmaTReduced, albedoReduced;  // σ'_s, σ'_t, α'_s
+  Vec3 sigmaA, sigmaTr;                   // σ_a = (1−α_s)σ_t, σ_tr = sqrt(3 σ_a σ'_t)
+  Vec3 meanFreePath() const { return lambdaT; }
+};
+
+// Mixture: a sphere's grain is prototype i with probability w_i (normalised weights), so
+//   β = Σ w_i β_i;  λ_δ averages over misses (weights w_i(1−β_i));
+//   α_s = Σ w_i β_i α_i / β;  λ_s, phase and g average over exiting energy (w_i β_i α_i).
+MediumParams deriveMedium(const std::vector<GrainTransport>& prototypes, const std::vector<float>& weights,
+                          float grainRadius, float packingRate);
+
+}  // namespace granular
