@@ -67,6 +67,12 @@ class Aggregate {
   // Exact inside test of a world point against the boundary mesh (ray parity by the
   // orientation of the first hit).
   bool insideBoundary(const Vec3& p) const;
+  // Nearest crossing of the boundary mesh in (tmin, tmax): its t and outward unit normal.
+  // The medium of VPT/DA is bounded by it (an index-matched interface).
+  bool intersectBoundary(const Vec3& o, const Vec3& d, float tmin, float tmax, float& t, Vec3& ng) const;
+  // Exact distance from p to the boundary mesh and the closest point on it (Embree
+  // point query), for DA, which needs depths beyond the distance field's narrow band.
+  float closestBoundaryPoint(const Vec3& p, Vec3& closest) const;
   // Signed distance to the boundary (negative inside), from the distance field.
   float boundaryDistance(const Vec3& p) const { return sdf_.distance(p); }
 
