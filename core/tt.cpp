@@ -79,12 +79,14 @@ double ratioSE(double sw, double sw2, double swx, double swx2, double sw2x, int6
 // One ray through the grain's bounding sphere, scattered exactly as EPT does (ept.cpp).
 void traceChunk(RTCScene bvh, const TriangleMesh& mesh, const Material& m, const TTOptions& opt, int64_t chunk,
                 Sums& s) {
-  Rng rng(hashInts(opt.seed, 0x5454 /* "TT" */, uint64_t(chunk)), uint64_t(chunk));
   int64_t first = chunk * kChunk, count = std::min(kChunk, opt.rays - first);
   const bool absorbs = m.type == MaterialType::Dielectric && !isBlack(m.absorption);
   RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
   for (int64_t k = 0; k < count; ++k) {
+    // One generator per ray: ray k enters at the same place for every material (common
+    // random numbers), however many numbers the rays before it used.
+    Rng rng(hashInts(opt.seed, 0x5454 /* "TT" */, uint64_t(first + k)));
     // Uniform over the projected area: a uniform point on the sphere, entering along an
     // inward cosine-weighted direction.
     Vec3 xi = sampleUniformSphere(rng.next1D(), rng.next1D());
@@ -139,7 +141,7 @@ void traceChunk(RTCScene bvh, const TriangleMesh& mesh, const Material& m, const
 
 // --- cache -------------------------------------------------------------------------------
 constexpr char kMagic[8] = {'G', 'R', 'T', 'T', '\0', '\0', '\0', '\0'};
-constexpr uint32_t kTTFormatVersion = 1;
+constexpr uint32_t kTTFormatVersion = 2;  // 2: one generator per ray
 
 uint64_t hashBytes(uint64_t h, const void* data, size_t size) {
   const char* p = static_cast<const char*>(data);

@@ -83,7 +83,8 @@ struct GrainTransport {
 struct TTOptions {
   int64_t rays = 1 << 18;   // rays entering the bounding sphere
   int phaseBins = 64;
-  int maxBounces = 1000;    // inside one grain (TIR in clear grains bounces a lot)
+  int maxBounces = 4096;    // inside one grain, as EPT's default maxDepth: faceted spheres trap
+                            // TIR paths for 1000+ bounces before they escape
   uint64_t seed = 1;
   bool useCache = true;
 };

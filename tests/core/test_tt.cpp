@@ -264,6 +264,11 @@ TEST(TTEstimate, AbsorptionLowersTheAlbedo) {
   // A separate, more absorbing grain: lower again.
   GrainTransport h = estimateGrainTransport(rock, dielectric(1.5f, Vec3(6.0f)), opts(1 << 14, 6));
   EXPECT_LT(h.albedo[0], g.albedo[2]);
+  // One generator per ray: every material sees the same entries, hence the same misses.
+  GrainTransport clear = estimateGrainTransport(rock, dielectric(1.5f), opts(1 << 14, 6));
+  EXPECT_EQ(clear.beta, g.beta);
+  EXPECT_EQ(clear.lambdaDelta, g.lambdaDelta);
+  EXPECT_EQ(h.lambdaDelta, g.lambdaDelta);
 }
 
 TEST(TTEstimate, BlackAndNeverHitGrainsStayFinite) {
