@@ -160,6 +160,8 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
   classes_.assign(size_t(cells), CellClass::Outside);
   stats_.cells = int64_t(cells);
   double insideFractionSum = 0;
+  float deepest = 0;
+  std::vector<Vec3> clampedCells;  // centres deeper than the field's band
   for (int64_t k = 0; k < n_[2]; ++k)
     for (int64_t j = 0; j < n_[1]; ++j)
       for (int64_t i = 0; i < n_[0]; ++i) {
@@ -168,6 +170,8 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
         CellClass cls = dist > margin ? CellClass::Outside : (dist < -margin ? CellClass::Inside : CellClass::Partial);
         classes_[size_t((k * n_[1] + j) * n_[0] + i)] = cls;
         if (cls == CellClass::Inside) ++stats_.insideCells;
+        if (-dist > deepest) deepest = -dist;
+        if (-dist >= 0.99f * sdf_.bandWidth()) clampedCells.push_back(c);
         if (cls == CellClass::Partial) {
           ++stats_.partialCells;
           insideFractionSum += std::min(1.0, std::max(0.0, 0.5 - double(dist) / L_));
@@ -176,6 +180,16 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
   stats_.approxGrains = double(tile_.numSpheres) * (double(stats_.insideCells) + insideFractionSum);
 
   boundaryBvh_ = buildTriangleScene(device, boundary_);
+  // The field is clamped at its band: beyond it, measure up to 4096 of the deep cell
+  // centres exactly (evenly strided).
+  stats_.maxInteriorDepth = deepest;
+  if (!clampedCells.empty()) {
+    size_t stride = std::max<size_t>(1, clampedCells.size() / 4096);
+    for (size_t i = 0; i < clampedCells.size(); i += stride) {
+      Vec3 closest;
+      stats_.maxInteriorDepth = std::max(stats_.maxInteriorDepth, closestBoundaryPoint(clampedCells[i], closest));
+    }
+  }
 
   prototypes_.clear();
   for (size_t i = 0; i < desc.prototypes.size(); ++i) {

@@ -52,6 +52,9 @@ struct AggregateStats {
   size_t memoryBytes = 0;        // classes + distance field + tile BVH + prototypes
   double setupSeconds = 0;
   double tileSeconds = 0, sdfSeconds = 0;
+  // Largest depth below the boundary of a cell centre (a lower bound of the object's
+  // half thickness, exact to about a cell): decides whether VPT and DA can pay off.
+  float maxInteriorDepth = 0;
 };
 
 class Aggregate {

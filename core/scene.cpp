@@ -56,10 +56,21 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc) {
         gts.push_back(estimateGrainTransport(agg->prototypes()[i].mesh, s->materials_[mats[i]]));
       s->mediumParams_.push_back(deriveMedium(gts, a.weights, a.grainRadius, a.packingRate));
       s->media_.emplace_back(s->mediumParams_.back());
-      s->diffusionDepth_.push_back(granular::diffusionDepth(s->mediumParams_.back()));
+      // No DA where the object is too thin for it: its depth criterion is never met.
+      float daDepth = granular::diffusionDepth(s->mediumParams_.back());
+      s->diffusionDepth_.push_back(agg->stats().maxInteriorDepth > daDepth ? daDepth : kInf);
       s->diffusionProfiles_.emplace_back(s->mediumParams_.back());
+      // VPT pays off only where paths scatter many times: an object thinner than its
+      // mean free path is left to EPT alone (no bundles, no pre-render).
+      if (2.0f * agg->stats().maxInteriorDepth > maxComponent(s->mediumParams_.back().lambdaT)) s->mediaNeeded_ = true;
     }
     s->aggregates_.push_back(std::move(agg));
+  }
+  if (!s->mediaNeeded_) {
+    s->mediumParams_.clear();
+    s->media_.clear();
+    s->diffusionDepth_.clear();
+    s->diffusionProfiles_.clear();
   }
   s->sceneScale_ = all.empty() ? 1.0f : std::max(1e-6f, maxComponent(vmax(vabs(all.lo), vabs(all.hi))));
 
@@ -126,10 +137,11 @@ bool Scene::intersect(const Ray& ray, Hit& hit) const {
 }
 
 void Scene::setMedium(int aggregate, const MediumParams& params) {
-  if (media_.empty()) return;  // technique Ept: no media to replace
+  if (media_.empty()) return;  // technique Ept, or no aggregate thick enough: no media
   mediumParams_[aggregate] = params;
   media_[aggregate] = HomogeneousMedium(params);
-  diffusionDepth_[aggregate] = granular::diffusionDepth(params);
+  float daDepth = granular::diffusionDepth(params);
+  diffusionDepth_[aggregate] = aggregates_[aggregate]->stats().maxInteriorDepth > daDepth ? daDepth : kInf;
   diffusionProfiles_[aggregate] = DiffusionProfile(params);
 }
 

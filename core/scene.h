@@ -51,7 +51,8 @@ class Scene {
   Vec3 transmittance(const Vec3& p, const Vec3& dir, float dist) const;
   // Index of the aggregate whose boundary contains p, or -1.
   int mediumAt(const Vec3& p) const;
-  // Media exist (one per aggregate) when the technique uses them.
+  // Media exist (one per aggregate) when the technique uses them and some aggregate is
+  // thicker than its mean free path (else EPT alone renders it: nothing to gain).
   bool hasMedia() const { return !media_.empty(); }
   const HomogeneousMedium& medium(int aggregate) const { return media_[aggregate]; }
   const MediumParams& mediumParams(int aggregate) const { return mediumParams_[aggregate]; }
@@ -59,7 +60,8 @@ class Scene {
   // Replaces an aggregate's TT-derived medium by given RTE parameters, before rendering
   // (validation against other renderers, closed-form tests). Not thread-safe.
   void setMedium(int aggregate, const MediumParams& params);
-  // DA: the depth below the boundary where it takes over, its profile, and the exit
+  // DA: the depth below the boundary where it takes over (inf: the object is too thin
+  // for DA), its profile, and the exit
   // lobe (MaterialType::DiffusionExit) of the points where diffused light leaves.
   float diffusionDepth(int aggregate) const { return diffusionDepth_[aggregate]; }
   const DiffusionProfile& diffusionProfile(int aggregate) const { return diffusionProfiles_[aggregate]; }
@@ -85,6 +87,7 @@ class Scene {
   std::vector<float> diffusionDepth_;
   std::vector<DiffusionProfile> diffusionProfiles_;
   int diffusionExitMaterial_ = -1;
+  bool mediaNeeded_ = false;
   float maxGrainRadius_ = 0;
   std::vector<TriangleMesh> worldMeshes_;   // per Embree geometry id
   std::vector<int> meshMaterial_;

@@ -82,6 +82,16 @@ float diffusionDepth(const MediumParams& p) {
 
 namespace {
 
+// Is p more than depth below the boundary? The distance field answers within its band;
+// beyond the band (where it is clamped) the exact point query does.
+bool deeperThan(const Aggregate& agg, const Vec3& p, float depth) {
+  float d = -agg.boundaryDistance(p);
+  if (d > depth) return true;
+  if (d < 0.99f * agg.distanceField().bandWidth()) return false;
+  Vec3 closest;
+  return agg.closestBoundaryPoint(p, closest) > depth;
+}
+
 // Scattering at p inside medium med: NEE through the media, then a phase-sampled direction.
 void scatterInMedium(const Scene& scene, PathState& path, const HomogeneousMedium& med, const Vec3& p) {
   const auto& lights = scene.lights();
@@ -143,8 +153,9 @@ void vptStep(const Scene& scene, PathState& path) {
         // Scattering at t: weight α σ_t T(t) / p(t) per channel (vpt.h).
         Vec3 p = path.ray.o + path.ray.d * t;
         path.beta *= med.transmittance(t) * med.sigmaT() * med.albedo() / med.distancePdf(t);
-        if (scene.settings().technique == Technique::Hybrid &&
-            -scene.aggregates()[path.medium]->boundaryDistance(p) > scene.diffusionDepth(path.medium)) {
+        float daDepth = scene.diffusionDepth(path.medium);
+        if (scene.settings().technique == Technique::Hybrid && std::isfinite(daDepth) &&
+            deeperThan(*scene.aggregates()[path.medium], p, daDepth)) {
           diffusionStep(scene, path, p);
           return;
         }

@@ -213,3 +213,18 @@ TEST(Hybrid, EptTechiqueNeverUsesTheMedia) {
       EXPECT_EQ(img.at(x, y)[img.channelIndex("da.G")], 0.0f);
     }
 }
+
+TEST(Hybrid, AnAggregateThinnerThanItsMeanFreePathIsLeftToEpt) {
+  SceneDesc d = ballScene(Technique::Hybrid, 4);
+  // A sheet two grains thick: paths cross it without scattering much.
+  d.aggregates[0].boundary = makeBox(Vec3(-1, -1, -0.04f), Vec3(1, 1, 0.04f));
+  auto thin = Scene::build(d);
+  EXPECT_FALSE(thin->hasMedia());
+  Renderer r(*thin);
+  EXPECT_EQ(r.bundleSize(), 1);
+  // The ball itself is thick enough for VPT and for DA.
+  auto ball = Scene::build(ballScene(Technique::Hybrid, 4));
+  ASSERT_TRUE(ball->hasMedia());
+  EXPECT_TRUE(std::isfinite(ball->diffusionDepth(0)));
+  EXPECT_NEAR(ball->aggregates()[0]->stats().maxInteriorDepth, 1.0f, 0.1f);
+}
