@@ -158,6 +158,32 @@ TEST(Hybrid, MatchesTheEptReferenceWithinNoise) {
   EXPECT_LE(outliers, n / 50 + 1);
 }
 
+TEST(Hybrid, MixtureWithGlassGrainsMatchesTheEptReference) {
+  // Mixtures combine the prototypes' TT statistics by the mixing weights (tt.h).
+  auto withGlass = [](Technique t) {
+    SceneDesc d = ballScene(t, 192);
+    MaterialDesc glass;
+    glass.name = "glass";
+    glass.type = MaterialType::Dielectric;
+    glass.ior = 1.5f;
+    d.materials.push_back(glass);
+    d.aggregates[0].prototypes.push_back(GrainPrototypeDesc{"bead", makeEllipsoid(Vec3(1.0f, 0.8f, 0.9f), 2), 1});
+    d.aggregates[0].weights = {0.6f, 0.4f};
+    return d;
+  };
+  PixelStats ref = renderStats(withGlass(Technique::Ept));
+  PixelStats hyb = renderStats(withGlass(Technique::Hybrid));
+  double sr = 0, sh = 0, v = 0;
+  for (size_t i = 0; i < ref.mean.size(); ++i) {
+    sr += ref.mean[i];
+    sh += hyb.mean[i];
+    v += ref.se[i] * ref.se[i] + hyb.se[i] * hyb.se[i];
+  }
+  double rel = (sh - sr) / sr;
+  std::printf("mixture: hybrid vs EPT mean relative difference %.4f (noise %.4f)\n", rel, std::sqrt(v) / sr);
+  EXPECT_LE(std::fabs(rel), 0.03);
+}
+
 TEST(Hybrid, RouletteKeepsTheImageUnbiased) {
   SceneDesc d = ballScene(Technique::Hybrid, 64);
   d.settings.tau = 0.5f;
