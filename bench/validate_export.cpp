@@ -3,6 +3,7 @@
 //   granular-validate export SCENE.json OUTDIR
 //     Writes OUTDIR/scene.json and binary PLY meshes describing the scene exactly as our
 //     renderer sees it, for an independent renderer to rebuild:
+//       * width, height and the maximum number of scattering events of a path;
 //       * the camera: camera-to-world matrix (row-major, USD convention: looks down local
 //         -Z, +Y up), the horizontal field of view after the aperture is fitted to the
 //         image, the clipping range; width and height;
@@ -110,7 +111,8 @@ int exportScene(const std::string& scenePath, const std::string& dir) {
   double fovX = 2.0 * std::atan2(double(edge.x), double(-edge.z)) * 180.0 / 3.14159265358979323846;
 
   std::string j = "{\n";
-  j += "  \"width\": " + std::to_string(W) + ", \"height\": " + std::to_string(H) + ",\n";
+  j += "  \"width\": " + std::to_string(W) + ", \"height\": " + std::to_string(H) +
+       ", \"max_depth\": " + std::to_string(desc.settings.maxDepth) + ",\n";
   j += "  \"camera\": {\"to_world\": " + matrix(desc.camera.cameraToWorld) + ", \"fov_x_deg\": " + num(fovX) +
        ", \"near\": " + num(desc.camera.clipNear) + ", \"far\": " + num(std::min(desc.camera.clipFar, 1e30f)) + "},\n";
 
