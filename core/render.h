@@ -9,7 +9,8 @@
 // not on the thread count nor on how samples were split into passes. P_a comes from
 // settings.roulette or, when that is negative and the scene has media, from the
 // pre-render (tuneRoulette) run once before the first pass. A pass checks the cancel
-// flag between tiles and returns false when it was set.
+// flag between tiles and returns false when it was set. A sample whose estimate is not
+// finite is dropped as a whole (the pixel keeps its count) and counted.
 #pragma once
 
 #include <atomic>
@@ -40,6 +41,9 @@ class Renderer {
   int bundleSize() const { return bundle_; }
   // The roulette used (after the first pass): P_a and, when tuned, the pre-render's numbers.
   const RouletteTuning& roulette() const { return roulette_; }
+  // Samples whose estimate was not finite (NaN or Inf in some AOV) and were dropped from
+  // the film: a numerical failure somewhere, never expected (the stress suite checks it).
+  long nonFiniteSamples() const { return nonFinite_.load(); }
 
  private:
   void prepare();
@@ -49,6 +53,7 @@ class Renderer {
   int bundle_ = 1;
   bool prepared_ = false;
   RouletteTuning roulette_;
+  std::atomic<long> nonFinite_{0};
 };
 
 }  // namespace granular

@@ -6,6 +6,7 @@
 //
 // Exit status: 0 on success, 2 on bad input (one line naming object and attribute),
 // 1 on any other failure. No partial output file is left behind.
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -100,6 +101,15 @@ int main(int argc, char** argv) {
       if (p.samplesDone == p.samplesTarget) std::fprintf(stderr, "\n");
     });
     Image img = renderer.film().toImage();
+    Vec3 meanRgb(0.0f);
+    {
+      double sum[3] = {0, 0, 0};
+      for (int y = 0; y < img.height; ++y)
+        for (int x = 0; x < img.width; ++x)
+          for (int c = 0; c < 3; ++c) sum[c] += img.at(x, y)[c];
+      double n = double(img.width) * img.height;
+      meanRgb = Vec3(float(sum[0] / n), float(sum[1] / n), float(sum[2] / n));
+    }
     if (!quiet && scene->hasMedia()) {
       const RouletteTuning& rt = renderer.roulette();
       std::fprintf(stderr, "  technique %s, bundles of %d, P_a %.3f", techniqueName(scene->settings().technique),
@@ -122,9 +132,19 @@ int main(int argc, char** argv) {
       // Timings for benchmarks: scene build (BVHs, tiles, TT) and rendering (pre-render included).
       FILE* f = std::fopen(statsPath.c_str(), "w");
       if (!f) throw std::runtime_error("cannot write " + statsPath);
-      std::fprintf(f, "{\"build_s\": %.6f, \"render_s\": %.6f, \"spp\": %ld, \"technique\": \"%s\", \"pa\": %.6f}\n",
+      // Robustness counters: samples dropped as non-finite, and non-finite values in the
+      // colour and AOV channels of the image (Z is +inf where nothing was hit, by design).
+      long nonFiniteValues = 0;
+      for (int y = 0; y < img.height; ++y)
+        for (int x = 0; x < img.width; ++x)
+          for (int c = 0; c < img.numChannels(); ++c)
+            if (img.channels[c] != "Z" && !std::isfinite(img.at(x, y)[c])) ++nonFiniteValues;
+      std::fprintf(f,
+                   "{\"build_s\": %.6f, \"render_s\": %.6f, \"spp\": %ld, \"technique\": \"%s\", \"pa\": %.6f, "
+                   "\"has_media\": %s, \"nonfinite_samples\": %ld, \"nonfinite_values\": %ld, \"mean\": [%.6g, %.6g, %.6g]}\n",
                    scene->buildSeconds(), renderSeconds, renderer.samplesPerPixel(),
-                   techniqueName(scene->settings().technique), renderer.roulette().pa);
+                   techniqueName(scene->settings().technique), renderer.roulette().pa, scene->hasMedia() ? "true" : "false",
+                   renderer.nonFiniteSamples(), nonFiniteValues, meanRgb.x, meanRgb.y, meanRgb.z);
       std::fclose(f);
     }
     return 0;
