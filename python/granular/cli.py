@@ -293,12 +293,6 @@ def cmd_export_vdb(args):
     from .usd_reader import read_stage, translate_core_error, validate
 
     _check_output(args.output, "-o", (".vdb",))
-    if not core.has_tt:
-        # sigma_t comes from the teleportation-transport model; without it there is no
-        # honest value to export.
-        print("error: export-vdb needs the teleportation-transport model (core/tt.cpp), "
-              "which this build does not have yet", file=sys.stderr)
-        return EXIT_FAILURE
     scene = read_stage(args.scene, surfaces=False, need_camera=False)
     validate(scene)
     ok, _ = Sdf.Path.IsValidPathString(args.prim)
@@ -309,6 +303,12 @@ def cmd_export_vdb(args):
             raise UserError("command line", "--prim", f'"{args.prim}" is not a prim of the stage')
         raise UserError(args.prim, "", "is not a visible Mesh with GranularAggregateAPI")
     k = matches[0]
+    if not core.has_tt:
+        # sigma_t comes from the teleportation-transport model; without it there is no
+        # honest value to export.
+        print("error: export-vdb needs the teleportation-transport model (core/tt.cpp), "
+              "which this build does not have yet", file=sys.stderr)
+        return EXIT_FAILURE
     single = core.SceneDesc()
     single.materials = scene.desc.materials
     single.aggregates = [scene.desc.aggregates[k]]

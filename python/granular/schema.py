@@ -132,10 +132,20 @@ def _find(prim, base):
 _SCALAR_TYPES = {"float": ("float", "double", "half"), "int": ("int", "int64", "uint", "uint64", "uchar")}
 
 
+def _authored_type(attr):
+    """The type a layer authored (a file may contradict the schema's type, which
+    UsdAttribute.GetTypeName reports instead)."""
+    for spec in attr.GetPropertyStack(Usd.TimeCode.Default()):
+        tn = getattr(spec, "typeName", None)
+        if tn:
+            return str(tn)
+    return str(attr.GetTypeName())
+
+
 def _check_type(pv, expected):
     name = pv.GetAttr().GetName()
     src = pv.GetAttr().GetPrim().GetPath()
-    actual = str(pv.GetTypeName())
+    actual = _authored_type(pv.GetAttr())
     if expected in _SCALAR_TYPES:
         if actual not in _SCALAR_TYPES[expected]:
             raise UserError(src, name, f"has type {actual}, expected {expected}")
@@ -164,17 +174,30 @@ def read_property(prim, base, table, time=Usd.TimeCode.Default()):
     name = pv.GetAttr().GetName()
     if v is None:
         return Value(fallback, str(prim.GetPath()), attr_name(base), False)
-    if type_name == "float":
-        v = float(v)
-    elif type_name == "int":
-        v = int(v)
-    elif type_name == "float[]":
-        v = tuple(float(x) for x in v)
-    elif type_name == "string[]":
-        v = tuple(str(x) for x in v)
-    elif type_name == "color3f":
-        v = (float(v[0]), float(v[1]), float(v[2]))
+    try:
+        if type_name == "float":
+            v = float(v)
+        elif type_name == "int":
+            if isinstance(v, float) or isinstance(v, bool):
+                raise TypeError
+            v = int(v)
+        elif type_name == "float[]":
+            v = tuple(float(x) for x in v)
+        elif type_name == "string[]":
+            if isinstance(v, str):
+                raise TypeError
+            v = tuple(x if isinstance(x, str) else _fail() for x in v)
+        elif type_name == "color3f":
+            if len(v) != 3:
+                raise TypeError
+            v = (float(v[0]), float(v[1]), float(v[2]))
+    except (TypeError, ValueError):
+        raise UserError(src, name, f"has value {v!r}, expected a {type_name}") from None
     return Value(v, src, name, True)
+
+
+def _fail():
+    raise TypeError
 
 
 def read_aggregate(prim, time=Usd.TimeCode.Default()):

@@ -18,6 +18,7 @@ Every problem a user can cause raises UserError naming the prim and the attribut
 """
 import math
 import os
+import re
 
 import numpy as np
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdRender, UsdShade
@@ -79,7 +80,7 @@ def describe_tf_error(e):
         # "Error in 'Func' at line N in file F : 'message'"
         if " : '" in line:
             line = line.split(" : '", 1)[1].rstrip("'")
-        msgs.append(line)
+        msgs.append(re.sub(r"pxrInternal_v\w+?__pxrReserved__::", "", line))
     return " ".join(msgs[:1]) if msgs else str(e).strip()
 
 
