@@ -5,6 +5,10 @@
 //     rate on the same prototype mesh, single thread, in the same run. One JSON line.
 //   granular-bench setup --grains N
 //     Set-up time and memory of an aggregate of about N grains. One JSON line.
+//   granular-bench tt [--rays N]
+//     Teleportation-transport parameters (tt.h) of a few prototypes and materials, the
+//     medium they give at R = 0.01, f = 0.6, and the (uncached) estimation time. One
+//     JSON line per prototype and material.
 #include <sys/resource.h>
 
 #include <chrono>
@@ -14,6 +18,7 @@
 
 #include "aggregate.h"
 #include "shapes.h"
+#include "tt.h"
 
 using namespace granular;
 using Clock = std::chrono::steady_clock;
@@ -109,25 +114,76 @@ int setup(double grains) {
   return 0;
 }
 
+std::string triple(const std::array<double, 3>& v) {
+  char b[96];
+  std::snprintf(b, sizeof b, "[%.6g, %.6g, %.6g]", v[0], v[1], v[2]);
+  return b;
+}
+std::string triple(const Vec3& v) { return triple(std::array<double, 3>{v.x, v.y, v.z}); }
+
+int ttParams(long rays) {
+  EmbreeDevice dev = makeEmbreeDevice();
+  struct Proto { const char* name; TriangleMesh mesh; };
+  const Proto protos[] = {{"sphere", makeIcosphere(4)},
+                          {"rock", makeRock(3, 0.3f, 1)},
+                          {"ellipsoid", makeEllipsoid(Vec3(1.0f, 0.6f, 0.4f), 4)}};
+  struct Mat { const char* name; Vec3 absorption; };
+  const Mat mats[] = {{"clear", Vec3(0.0f)}, {"absorbing", Vec3(0.1f, 0.3f, 1.0f)}};
+  for (const Proto& p : protos) {
+    // Normalised into the unit bounding sphere exactly as an aggregate does.
+    TriangleMesh unit = makeGrainPrototype(dev, GrainPrototypeDesc{p.name, p.mesh, 0}).mesh;
+    for (const Mat& mm : mats) {
+      Material m;
+      m.type = MaterialType::Dielectric;
+      m.ior = 1.5f;
+      m.absorption = mm.absorption;
+      TTOptions o;
+      o.rays = rays;
+      o.useCache = false;
+      auto t0 = Clock::now();
+      GrainTransport g = estimateGrainTransport(unit, m, o);
+      double t = seconds(t0);
+      MediumParams med = deriveMedium({g}, {1.0f}, 0.01f, 0.6f);
+      std::printf(
+          "{\"prototype\": \"%s\", \"material\": \"%s\", \"absorption\": %s, \"rays\": %lld, \"seconds\": %.3f, "
+          "\"beta\": %.6g, \"beta_se\": %.3g, \"lambda_delta\": %.6g, \"lambda_delta_se\": %.3g, "
+          "\"lambda_s\": %s, \"lambda_s_se\": %s, \"albedo\": %s, \"albedo_se\": %s, \"g\": %s, \"g_se\": %s, "
+          "\"truncated\": %lld, \"sigma_t\": %s, \"mean_free_path\": %s, \"lambda_beta\": %.6g, "
+          "\"albedo_reduced\": %s, \"sigma_tr\": %s}\n",
+          p.name, mm.name, triple(mm.absorption).c_str(), (long long)g.rays, t, g.beta, g.betaSE, g.lambdaDelta,
+          g.lambdaDeltaSE, triple(g.lambdaS).c_str(), triple(g.lambdaSSE).c_str(), triple(g.albedo).c_str(),
+          triple(g.albedoSE).c_str(), triple(g.g).c_str(), triple(g.gSE).c_str(), (long long)g.truncated,
+          triple(med.sigmaT).c_str(), triple(med.meanFreePath()).c_str(), med.lambdaBeta.x,
+          triple(med.albedoReduced).c_str(), triple(med.sigmaTr).c_str());
+      std::fflush(stdout);
+    }
+  }
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   if (argc < 2) {
-    std::fprintf(stderr, "usage: granular-bench throughput [--grain-radius R] [--seconds S] | setup --grains N\n");
+    std::fprintf(stderr,
+                 "usage: granular-bench throughput [--grain-radius R] [--seconds S] | setup --grains N | tt [--rays N]\n");
     return 2;
   }
   std::string mode = argv[1];
   float R = 0.01f;
   double secs = 2.0, grains = 1e6;
+  long rays = 1L << 18;
   for (int i = 2; i + 1 < argc; i += 2) {
     std::string a = argv[i];
     if (a == "--grain-radius") R = std::strtof(argv[i + 1], nullptr);
     else if (a == "--seconds") secs = std::strtod(argv[i + 1], nullptr);
     else if (a == "--grains") grains = std::strtod(argv[i + 1], nullptr);
+    else if (a == "--rays") rays = std::strtol(argv[i + 1], nullptr, 10);
   }
   try {
     if (mode == "throughput") return throughput(R, secs);
     if (mode == "setup") return setup(grains);
+    if (mode == "tt") return ttParams(rays);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "error: %s\n", e.what());
     return 1;

@@ -21,6 +21,47 @@ struct TileQuery {
 // A direction unlikely to run along mesh edges, for the parity inside test.
 const Vec3 kInsideProbeDir = normalize(Vec3(0.5773f, 0.5774f, 0.5775f) + Vec3(0.0123f, -0.0311f, 0.0207f));
 
+// Closest point on triangle abc to p (Ericson, Real-Time Collision Detection §5.1.5).
+Vec3 closestOnTriangle(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c) {
+  Vec3 ab = b - a, ac = c - a, ap = p - a;
+  float d1 = dot(ab, ap), d2 = dot(ac, ap);
+  if (d1 <= 0 && d2 <= 0) return a;
+  Vec3 bp = p - b;
+  float d3 = dot(ab, bp), d4 = dot(ac, bp);
+  if (d3 >= 0 && d4 <= d3) return b;
+  float vc = d1 * d4 - d3 * d2;
+  if (vc <= 0 && d1 >= 0 && d3 <= 0) return a + ab * (d1 / (d1 - d3));
+  Vec3 cp = p - c;
+  float d5 = dot(ab, cp), d6 = dot(ac, cp);
+  if (d6 >= 0 && d5 <= d6) return c;
+  float vb = d5 * d2 - d1 * d6;
+  if (vb <= 0 && d2 >= 0 && d6 <= 0) return a + ac * (d2 / (d2 - d6));
+  float va = d3 * d6 - d5 * d4;
+  if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+  float denom = 1.0f / (va + vb + vc);
+  return a + ab * (vb * denom) + ac * (vc * denom);
+}
+
+struct ClosestQuery {
+  const TriangleMesh* mesh;
+  Vec3 closest;
+};
+
+bool closestPointCallback(RTCPointQueryFunctionArguments* args) {
+  auto* q = static_cast<ClosestQuery*>(args->userPtr);
+  const TriangleMesh& m = *q->mesh;
+  unsigned t = args->primID;
+  Vec3 p(args->query->x, args->query->y, args->query->z);
+  Vec3 c = closestOnTriangle(p, m.points[m.indices[3 * t]], m.points[m.indices[3 * t + 1]], m.points[m.indices[3 * t + 2]]);
+  float d = length(c - p);
+  if (d < args->query->radius) {
+    args->query->radius = d;  // shrink the search
+    q->closest = c;
+    return true;
+  }
+  return false;
+}
+
 }  // namespace
 
 struct AggregateCallbacks {
@@ -119,6 +160,8 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
   classes_.assign(size_t(cells), CellClass::Outside);
   stats_.cells = int64_t(cells);
   double insideFractionSum = 0;
+  float deepest = 0;
+  std::vector<Vec3> clampedCells;  // centres deeper than the field's band
   for (int64_t k = 0; k < n_[2]; ++k)
     for (int64_t j = 0; j < n_[1]; ++j)
       for (int64_t i = 0; i < n_[0]; ++i) {
@@ -127,6 +170,8 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
         CellClass cls = dist > margin ? CellClass::Outside : (dist < -margin ? CellClass::Inside : CellClass::Partial);
         classes_[size_t((k * n_[1] + j) * n_[0] + i)] = cls;
         if (cls == CellClass::Inside) ++stats_.insideCells;
+        if (-dist > deepest) deepest = -dist;
+        if (-dist >= 0.99f * sdf_.bandWidth()) clampedCells.push_back(c);
         if (cls == CellClass::Partial) {
           ++stats_.partialCells;
           insideFractionSum += std::min(1.0, std::max(0.0, 0.5 - double(dist) / L_));
@@ -135,6 +180,16 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
   stats_.approxGrains = double(tile_.numSpheres) * (double(stats_.insideCells) + insideFractionSum);
 
   boundaryBvh_ = buildTriangleScene(device, boundary_);
+  // The field is clamped at its band: beyond it, measure up to 4096 of the deep cell
+  // centres exactly (evenly strided).
+  stats_.maxInteriorDepth = deepest;
+  if (!clampedCells.empty()) {
+    size_t stride = std::max<size_t>(1, clampedCells.size() / 4096);
+    for (size_t i = 0; i < clampedCells.size(); i += stride) {
+      Vec3 closest;
+      stats_.maxInteriorDepth = std::max(stats_.maxInteriorDepth, closestBoundaryPoint(clampedCells[i], closest));
+    }
+  }
 
   prototypes_.clear();
   for (size_t i = 0; i < desc.prototypes.size(); ++i) {
@@ -194,6 +249,30 @@ bool Aggregate::insideBoundary(const Vec3& p) const {
   rtcIntersect1(boundaryBvh_.get(), &ctx, &rh);
   if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
   return dot(triangleNormal(boundary_, rh.hit.primID), kInsideProbeDir) > 0;
+}
+
+bool Aggregate::intersectBoundary(const Vec3& o, const Vec3& d, float tmin, float tmax, float& t, Vec3& ng) const {
+  RTCIntersectContext ctx;
+  rtcInitIntersectContext(&ctx);
+  RTCRayHit rh = makeRayHit(o, d, tmin, tmax);
+  rtcIntersect1(boundaryBvh_.get(), &ctx, &rh);
+  if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
+  t = rh.ray.tfar;
+  ng = triangleNormal(boundary_, rh.hit.primID);
+  return true;
+}
+
+float Aggregate::closestBoundaryPoint(const Vec3& p, Vec3& closest) const {
+  RTCPointQuery q;
+  q.x = p.x; q.y = p.y; q.z = p.z;
+  q.time = 0;
+  q.radius = kInf;
+  RTCPointQueryContext ctx;
+  rtcInitPointQueryContext(&ctx);
+  ClosestQuery cq{&boundary_, p};
+  rtcPointQuery(boundaryBvh_.get(), &q, &ctx, closestPointCallback, &cq);
+  closest = cq.closest;
+  return length(closest - p);
 }
 
 bool Aggregate::sphereIsInside(const int64_t home[3], const Vec3& worldCenter) const {

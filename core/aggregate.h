@@ -52,6 +52,9 @@ struct AggregateStats {
   size_t memoryBytes = 0;        // classes + distance field + tile BVH + prototypes
   double setupSeconds = 0;
   double tileSeconds = 0, sdfSeconds = 0;
+  // Largest depth below the boundary of a cell centre (a lower bound of the object's
+  // half thickness, exact to about a cell): decides whether VPT and DA can pay off.
+  float maxInteriorDepth = 0;
 };
 
 class Aggregate {
@@ -67,6 +70,12 @@ class Aggregate {
   // Exact inside test of a world point against the boundary mesh (ray parity by the
   // orientation of the first hit).
   bool insideBoundary(const Vec3& p) const;
+  // Nearest crossing of the boundary mesh in (tmin, tmax): its t and outward unit normal.
+  // The medium of VPT/DA is bounded by it (an index-matched interface).
+  bool intersectBoundary(const Vec3& o, const Vec3& d, float tmin, float tmax, float& t, Vec3& ng) const;
+  // Exact distance from p to the boundary mesh and the closest point on it (Embree
+  // point query), for DA, which needs depths beyond the distance field's narrow band.
+  float closestBoundaryPoint(const Vec3& p, Vec3& closest) const;
   // Signed distance to the boundary (negative inside), from the distance field.
   float boundaryDistance(const Vec3& p) const { return sdf_.distance(p); }
 

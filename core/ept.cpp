@@ -4,109 +4,159 @@ namespace granular {
 
 namespace {
 
-// Radiance of the infinite lights along an escaping direction, MIS-weighted against
-// light sampling when the previous bounce could have sampled them.
-Vec3 escapedRadiance(const Scene& scene, const Vec3& p, const Vec3& dir, bool misOn, float bsdfPdf, float lightPick) {
+float lightPickProb(const Scene& scene) {
+  return scene.lights().empty() ? 0.0f : 1.0f / float(scene.lights().size());
+}
+
+}  // namespace
+
+void addAreaLightHit(const Scene& scene, PathState& path, const Hit& hit) {
+  const Vec3& dir = path.ray.d;
+  const Light& light = scene.lights()[hit.light];
+  float w = 1.0f;
+  if (!path.lastDelta)
+    w = powerHeuristic(path.lastPdf, light.pdfLi(path.lastP, dir, length(hit.p - path.lastP)) * lightPickProb(scene));
+  path.L[path.credit] += path.beta * light.areaLe(dir) * w;
+}
+
+PathState startPath(const Ray& ray, uint64_t rngSeed) {
+  PathState p;
+  p.ray = ray;
+  p.rng = Rng(rngSeed, 0);
+  p.lastP = ray.o;
+  return p;
+}
+
+Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir) {
+  const float lightPick = lightPickProb(scene);
   Vec3 L(0.0f);
   for (int li : scene.infiniteLights()) {
     const Light& light = scene.lights()[li];
     Vec3 Le = light.escapedLe(dir);
     if (isBlack(Le)) continue;
     float w = 1.0f;
-    if (misOn) w = powerHeuristic(bsdfPdf, light.pdfLi(p, dir, kInf) * lightPick);
+    if (!path.lastDelta) w = powerHeuristic(path.lastPdf, light.pdfLi(path.lastP, dir, kInf) * lightPick);
     L += Le * w;
   }
   return L;
 }
 
-}  // namespace
+bool russianRoulette(const Scene& scene, PathState& path) {
+  if (path.depth < scene.settings().rrDepth) return true;
+  // Survive with probability min(1, max throughput): bright paths are never cut.
+  float q = 1.0f - maxComponent(path.beta);
+  if (q > 0) {
+    if (path.rng.next1D() < q) return false;
+    path.beta /= (1.0f - q);
+  }
+  return true;
+}
 
-Vec3 tracePath(const Scene& scene, Ray ray, Rng& rng, PrimaryInfo* primary, PathStats* stats) {
-  const RenderSettings& rs = scene.settings();
+void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool mediaMode) {
   const auto& lights = scene.lights();
-  const float lightPick = lights.empty() ? 0.0f : 1.0f / float(lights.size());
-  Vec3 L(0.0f), beta(1.0f);
-  bool lastDelta = true;  // camera rays and delta bounces see emitters unweighted
-  float lastPdf = 0;
-  Vec3 lastP = ray.o;
-  int depth = 0;
-  for (; depth < rs.maxDepth; ++depth) {
-    Hit hit;
-    if (!scene.intersect(ray, hit)) {
-      L += beta * escapedRadiance(scene, lastP, ray.d, !lastDelta, lastPdf, lightPick);
-      break;
-    }
-    if (depth == 0 && primary) {
-      primary->hit = true;
-      primary->depth = scene.camera().viewDepth(hit.p);
-      primary->normal = dot(hit.ng, ray.d) > 0 ? -hit.ng : hit.ng;
-      primary->kind = int(hit.kind);
-    }
-    if (hit.kind == Hit::AreaLight) {
-      const Light& light = lights[hit.light];
-      float w = lastDelta ? 1.0f : powerHeuristic(lastPdf, light.pdfLi(lastP, ray.d, hit.t) * lightPick);
-      L += beta * light.areaLe(ray.d) * w;
-      break;
-    }
-    const Material& m = scene.material(hit.material);
-    bool inside = dot(ray.d, hit.ng) > 0;
-    if (inside && m.type == MaterialType::Dielectric && !isBlack(m.absorption)) {
-      // Beer–Lambert over the segment just travelled inside (object units -> world).
-      beta *= vexp(m.absorption * (-hit.t / hit.lengthScale));
-    }
-    if (!isBlack(m.emission) && !inside) L += beta * m.emission;
+  const float lightPick = lightPickProb(scene);
+  const Ray& ray = path.ray;
+  const Material& m = scene.material(hit.material);
+  bool inside = dot(ray.d, hit.ng) > 0;
+  if (inside && m.type == MaterialType::Dielectric && !isBlack(m.absorption)) {
+    // Beer–Lambert over the segment just travelled inside (object units -> world).
+    path.beta *= vexp(m.absorption * (-hit.t / hit.lengthScale));
+  }
+  if (!isBlack(m.emission) && !inside) path.L[path.credit] += path.beta * m.emission;
 
-    Frame frame(hit.ng);
-    Vec3 wo = frame.toLocal(-ray.d);
+  Frame frame(hit.ng);
+  Vec3 wo = frame.toLocal(-ray.d);
+  double& cost = path.cost[path.mode == kEpt ? 0 : 1];
 
-    if (!m.isDelta() && !lights.empty() && wo.z > 0) {
-      // Next-event estimation: one light, chosen uniformly.
-      int li = std::min(int(rng.next1D() * lights.size()), int(lights.size()) - 1);
-      LightSample ls;
-      float u1 = rng.next1D(), u2 = rng.next1D();
-      if (lights[li].sampleLi(hit.p, u1, u2, ls) && !isBlack(ls.Li)) {
-        Vec3 wiLocal = frame.toLocal(ls.wi);
-        Vec3 f = m.eval(wo, wiLocal);
-        if (!isBlack(f)) {
-          Vec3 origin = offsetRayOrigin(hit.p, hit.ng, ls.wi, hit.eps);
-          float dist = std::isfinite(ls.dist) ? ls.dist * (1.0f - 1e-4f) : kInf;
-          if (!scene.occluded(origin, ls.wi, dist)) {
-            if (ls.delta) {
-              L += beta * f * ls.Li / lightPick;
-            } else {
-              float lp = ls.pdf * lightPick;
-              float w = powerHeuristic(lp, m.pdf(wo, wiLocal));
-              L += beta * f * ls.Li * (w / lp);
-            }
+  if (!m.isDelta() && !lights.empty() && wo.z > 0) {
+    // Next-event estimation: one light, chosen uniformly.
+    int li = std::min(int(path.rng.next1D() * lights.size()), int(lights.size()) - 1);
+    LightSample ls;
+    float u1 = path.rng.next1D(), u2 = path.rng.next1D();
+    if (lights[li].sampleLi(hit.p, u1, u2, ls) && !isBlack(ls.Li)) {
+      Vec3 wiLocal = frame.toLocal(ls.wi);
+      Vec3 f = m.eval(wo, wiLocal);
+      if (!isBlack(f)) {
+        Vec3 origin = offsetRayOrigin(hit.p, hit.ng, ls.wi, hit.eps);
+        float dist = std::isfinite(ls.dist) ? ls.dist * (1.0f - 1e-4f) : kInf;
+        Vec3 Tr(1.0f);
+        if (mediaMode) {
+          Tr = scene.transmittance(origin, ls.wi, dist);
+          cost += 1;
+        } else {
+          Tr = Vec3(scene.occluded(origin, ls.wi, dist) ? 0.0f : 1.0f);
+          cost += scene.aggregates().empty() ? 1 : kGrainCastCost;
+        }
+        if (!isBlack(Tr)) {
+          if (ls.delta) {
+            path.L[path.credit] += path.beta * f * Tr * ls.Li / lightPick;
+          } else {
+            float lp = ls.pdf * lightPick;
+            float w = powerHeuristic(lp, m.pdf(wo, wiLocal));
+            path.L[path.credit] += path.beta * f * Tr * ls.Li * (w / lp);
           }
         }
       }
     }
-
-    BsdfSample bs;
-    float uLobe = rng.next1D(), u1 = rng.next1D(), u2 = rng.next1D();
-    if (!m.sample(wo, uLobe, u1, u2, bs)) break;
-    beta *= bs.weight;
-    Vec3 wi = frame.toWorld(bs.wi);
-    lastDelta = bs.delta;
-    lastPdf = bs.pdf;
-    lastP = hit.p;
-    ray.o = offsetRayOrigin(hit.p, hit.ng, wi, hit.eps);
-    ray.d = wi;
-    ray.tmin = 0;
-    ray.tmax = kInf;
-
-    if (depth + 1 >= rs.rrDepth) {
-      // Survive with probability min(1, max throughput): bright paths are never cut.
-      float q = 1.0f - maxComponent(beta);
-      if (q > 0) {
-        if (rng.next1D() < q) break;
-        beta /= (1.0f - q);
-      }
-    }
-    if (!isFinite(beta) || isBlack(beta)) break;
   }
-  if (stats) stats->bounces = depth;
+
+  BsdfSample bs;
+  float uLobe = path.rng.next1D(), u1 = path.rng.next1D(), u2 = path.rng.next1D();
+  if (!m.sample(wo, uLobe, u1, u2, bs)) {
+    path.alive = false;
+    return;
+  }
+  path.beta *= bs.weight;
+  Vec3 wi = frame.toWorld(bs.wi);
+  path.lastDelta = bs.delta;
+  path.lastPdf = bs.pdf;
+  path.lastP = hit.p;
+  // Inside a grain after this bounce when the new direction heads into it.
+  path.inGrain = hit.kind == Hit::Grain && dot(wi, hit.ng) < 0;
+  path.ray.o = offsetRayOrigin(hit.p, hit.ng, wi, hit.eps);
+  path.ray.d = wi;
+  path.ray.tmin = 0;
+  path.ray.tmax = kInf;
+  ++path.depth;
+  if (!russianRoulette(scene, path) || !isFinite(path.beta) || isBlack(path.beta)) path.alive = false;
+}
+
+void eptStep(const Scene& scene, PathState& path) {
+  if (path.depth >= scene.settings().maxDepth) {
+    path.alive = false;
+    return;
+  }
+  Hit hit;
+  bool found = scene.intersect(path.ray, hit);
+  path.cost[0] += scene.aggregates().empty() ? 1 : kGrainCastCost;
+  if (!found) {
+    path.L[path.credit] += path.beta * escapedRadiance(scene, path, path.ray.d);
+    path.alive = false;
+    return;
+  }
+  if (path.depth == 0) {
+    path.primary.hit = true;
+    path.primary.depth = scene.camera().viewDepth(hit.p);
+    path.primary.normal = dot(hit.ng, path.ray.d) > 0 ? -hit.ng : hit.ng;
+    path.primary.kind = int(hit.kind);
+  }
+  if (hit.kind == Hit::AreaLight) {
+    addAreaLightHit(scene, path, hit);
+    path.alive = false;
+    return;
+  }
+  shadeSurface(scene, path, hit, false);
+}
+
+Vec3 tracePath(const Scene& scene, Ray ray, Rng& rng, PrimaryInfo* primary) {
+  PathState path;
+  path.ray = ray;
+  path.rng = rng;
+  path.lastP = ray.o;
+  while (path.alive) eptStep(scene, path);
+  rng = path.rng;
+  if (primary) *primary = path.primary;
+  Vec3 L = path.radiance();
   return isFinite(L) ? L : Vec3(0.0f);
 }
 

@@ -1,10 +1,14 @@
-// ept.h — explicit path tracing (EPT) of surfaces and individual grains (seed §1.2).
+// ept.h — explicit path tracing (EPT) of surfaces and individual grains (seed §1.2), and
+// the path state that the hybrid integrator (hybrid.h) advances one bounce at a time.
 //
-// Contract: tracePath() returns the radiance arriving along a camera ray, estimated by
+// Contract: eptStep() advances a path by one interaction with the explicit scene:
 // unidirectional path tracing with next-event estimation and MIS (power heuristic) at
 // non-delta surfaces, delta scattering at grain interfaces, Beer–Lambert absorption
-// inside grains and Russian roulette on the throughput after rrDepth bounces. All
-// randomness comes from the given Rng, so a path is a pure function of its seed.
+// inside grains and Russian roulette on the throughput after rrDepth bounces. Radiance
+// is added to PathState::L[technique that produced it], so the EPT, VPT and DA parts of
+// an image are separate AOVs that sum to the beauty. All randomness comes from the
+// path's Rng, so a path is a pure function of its seed. tracePath() is the EPT-only
+// reference: eptStep() until the path ends.
 #pragma once
 
 #include "rng.h"
@@ -20,10 +24,56 @@ struct PrimaryInfo {
   int kind = -1;        // Hit::Kind of the first hit
 };
 
-struct PathStats {
-  int bounces = 0;
+// Index of a contribution in PathState::L (the AOVs), and the transport a path is in.
+enum Transport : int { kEpt = 0, kVpt = 1, kDa = 2 };
+
+struct PathState {
+  Ray ray;
+  Rng rng;
+  Vec3 beta{1.0f};
+  Vec3 L[3];               // radiance gathered by EPT, VPT and DA
+  int depth = 0;           // scattering events so far
+  bool alive = true;
+  bool lastDelta = true;   // camera rays and delta bounces see emitters unweighted
+  float lastPdf = 0;       // solid-angle pdf of the last sampled direction
+  Vec3 lastP;              // where that direction was sampled (for area-light MIS)
+  bool inGrain = false;    // between entering and leaving a grain (EPT)
+  Transport mode = kEpt;   // kEpt: explicit grains; kVpt: equivalent media
+  Transport credit = kEpt; // which AOV the path's radiance goes to (kDa after a DA step)
+  int medium = -1;         // aggregate whose medium holds the path (kVpt), or -1
+  bool switchPending = false;  // switch to kVpt once out of the current grain
+  PrimaryInfo primary;
+  // Deterministic cost (ray casts, a grain traversal counted kGrainCastCost) spent in
+  // the low-order (EPT) and high-order (VPT, DA) parts: the t_L and t_H of NOTES item 7.
+  double cost[2] = {0, 0};
+
+  Vec3 radiance() const { return L[0] + L[1] + L[2]; }
 };
 
-Vec3 tracePath(const Scene& scene, Ray ray, Rng& rng, PrimaryInfo* primary = nullptr, PathStats* stats = nullptr);
+// Relative cost of one ray cast through aggregates (cells, sphere tests, grain BVHs)
+// against one cast through plain meshes; measured by bench/ept_throughput.py.
+constexpr double kGrainCastCost = 4.0;
+
+PathState startPath(const Ray& ray, uint64_t rngSeed);
+
+// One bounce with explicit grains. Sets alive = false when the path ends.
+void eptStep(const Scene& scene, PathState& path);
+
+// Shared by EPT and VPT: emission, next-event estimation and BSDF sampling at a surface
+// hit. In media mode, shadow rays see the media (transmittance), not grains.
+void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool mediaMode);
+
+// Emission of an area light that the path's last sampled direction reached, MIS-weighted.
+void addAreaLightHit(const Scene& scene, PathState& path, const Hit& hit);
+
+// Radiance of the infinite lights along an escaping direction, MIS-weighted against
+// light sampling when the last bounce could have sampled them.
+Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir);
+
+// Throughput Russian roulette after rrDepth events; false: the path ends.
+bool russianRoulette(const Scene& scene, PathState& path);
+
+// EPT-only reference estimate of the radiance along a camera ray.
+Vec3 tracePath(const Scene& scene, Ray ray, Rng& rng, PrimaryInfo* primary = nullptr);
 
 }  // namespace granular

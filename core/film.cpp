@@ -13,6 +13,8 @@ void Film::add(int x, int y, const PixelSample& s) {
   p.sum[0] += s.L.x; p.sum[1] += s.L.y; p.sum[2] += s.L.z;
   double lum = luminance(s.L);
   p.sumLum2 += lum * lum;
+  for (int t = 0; t < 3; ++t)
+    for (int c = 0; c < 3; ++c) p.part[t][c] += s.byTechnique[t][c];
   ++p.n;
   if (s.hit) {
     ++p.hits;
@@ -39,7 +41,8 @@ Image Film::toImage() const {
   Image img;
   img.width = width_;
   img.height = height_;
-  img.channels = {"R", "G", "B", "A", "Z", "N.X", "N.Y", "N.Z"};
+  img.channels = {"R", "G", "B", "A", "Z", "N.X", "N.Y", "N.Z",
+                  "ept.R", "ept.G", "ept.B", "vpt.R", "vpt.G", "vpt.B", "da.R", "da.G", "da.B"};
   img.pixels.assign(size_t(width_) * height_ * img.channels.size(), 0.0f);
   for (int y = 0; y < height_; ++y)
     for (int x = 0; x < width_; ++x) {
@@ -52,6 +55,8 @@ Image Film::toImage() const {
       Vec3 n(float(p.normal[0]), float(p.normal[1]), float(p.normal[2]));
       n = p.hits ? normalize(n) : Vec3(0.0f);
       o[5] = n.x; o[6] = n.y; o[7] = n.z;
+      for (int t = 0; t < 3; ++t)
+        for (int c = 0; c < 3; ++c) o[8 + 3 * t + c] = p.n ? float(p.part[t][c] / p.n) : 0.0f;
     }
   return img;
 }

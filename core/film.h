@@ -4,7 +4,8 @@
 // by one thread at a time, in sample order, so the result does not depend on the
 // thread count. toImage() averages into channels R,G,B,A (coverage), Z (depth along the
 // view axis, of the covered samples; +inf where nothing was hit), N.X,N.Y,N.Z (mean
-// normal of the first hits).
+// normal of the first hits), and ept.R.. vpt.R.. da.R.. (the radiance each transport
+// gathered; the three add up to R,G,B).
 #pragma once
 
 #include <vector>
@@ -16,6 +17,7 @@ namespace granular {
 
 struct PixelSample {
   Vec3 L;
+  Vec3 byTechnique[3];  // EPT, VPT, DA parts of L
   bool hit = false;
   float depth = 0;
   Vec3 normal;
@@ -40,6 +42,7 @@ class Film {
     double sum[3] = {0, 0, 0};
     double sumLum2 = 0;
     double depth = 0, normal[3] = {0, 0, 0};
+    double part[3][3] = {{0, 0, 0}, {0, 0, 0}, {0, 0, 0}};
     long n = 0, hits = 0;
   };
   size_t idx(int x, int y) const { return size_t(y) * width_ + x; }

@@ -25,17 +25,42 @@ Material Material::fromDesc(const MaterialDesc& d) {
   return m;
 }
 
+namespace {
+// DiffusionExit: f μ = (2μ + 3μ²)/(4π), sampled as an equal mixture of μ/π (cosine) and
+// 3μ²/(2π) (μ = u^{1/3}); the mixture's pdf is exactly f μ, so the weight is 1.
+float diffusionExitPdf(float mu) { return mu > 0 ? (2.0f * mu + 3.0f * mu * mu) / (4.0f * kPi) : 0.0f; }
+}  // namespace
+
 Vec3 Material::eval(const Vec3& wo, const Vec3& wi) const {
-  if (type != MaterialType::Lambert || wo.z <= 0 || wi.z <= 0) return Vec3(0.0f);
-  return albedo * (kInvPi * wi.z);
+  if (wo.z <= 0 || wi.z <= 0) return Vec3(0.0f);
+  if (type == MaterialType::Lambert) return albedo * (kInvPi * wi.z);
+  if (type == MaterialType::DiffusionExit) return Vec3(diffusionExitPdf(wi.z));
+  return Vec3(0.0f);
 }
 
 float Material::pdf(const Vec3& wo, const Vec3& wi) const {
-  if (type != MaterialType::Lambert || wo.z <= 0) return 0.0f;
-  return cosineHemispherePdf(wi.z);
+  if (wo.z <= 0) return 0.0f;
+  if (type == MaterialType::Lambert) return cosineHemispherePdf(wi.z);
+  if (type == MaterialType::DiffusionExit) return diffusionExitPdf(wi.z);
+  return 0.0f;
 }
 
 bool Material::sample(const Vec3& wo, float uLobe, float u1, float u2, BsdfSample& s) const {
+  if (type == MaterialType::DiffusionExit) {
+    if (wo.z <= 0) return false;
+    if (uLobe < 0.5f) {
+      s.wi = sampleCosineHemisphere(u1, u2);
+    } else {
+      float mu = std::cbrt(u1), r = std::sqrt(std::max(0.0f, 1.0f - mu * mu)), phi = 2.0f * kPi * u2;
+      s.wi = Vec3(r * std::cos(phi), r * std::sin(phi), mu);
+    }
+    s.pdf = diffusionExitPdf(s.wi.z);
+    if (s.pdf <= 0) return false;
+    s.weight = Vec3(1.0f);
+    s.delta = false;
+    s.transmitted = false;
+    return true;
+  }
   if (type == MaterialType::Lambert) {
     if (wo.z <= 0) return false;  // seen from behind: opaque and black
     s.wi = sampleCosineHemisphere(u1, u2);

@@ -9,7 +9,10 @@
 // 1/eta^2 of refraction (Veach 1997 §5.2) is left out on purpose: cameras and lights
 // sit outside every grain, so each entry is undone by an exit, and leaving it out keeps
 // throughput at 1 inside clear grains (no Russian-roulette noise there). Absorption is
-// applied by the integrator along the path inside (Beer–Lambert).
+// applied by the integrator along the path inside (Beer–Lambert). DiffusionExit is the
+// angular distribution of light leaving a diffusing half space through an index-matched
+// boundary, in the P1 approximation: L(μ) ∝ φ + 3Eμ with φ = 2E at the boundary
+// (d'Eon & Irving 2011, η = 1), i.e. f = (2 + 3μ_i)/(4π), normalised so ∫ f μ dω = 1.
 #pragma once
 
 #include "math.h"

@@ -162,6 +162,9 @@ struct Bounds3 {
   bool empty() const { return lo.x > hi.x || lo.y > hi.y || lo.z > hi.z; }
   Vec3 extent() const { return hi - lo; }
   Vec3 center() const { return (lo + hi) * 0.5f; }
+  bool contains(const Vec3& p) const {
+    return p.x >= lo.x && p.x <= hi.x && p.y >= lo.y && p.y <= hi.y && p.z >= lo.z && p.z <= hi.z;
+  }
   // Slab test; returns the parametric overlap [t0, t1] with [tmin, tmax].
   bool intersect(const Vec3& o, const Vec3& invDir, float tmin, float tmax, float& t0, float& t1) const {
     for (int a = 0; a < 3; ++a) {

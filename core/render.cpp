@@ -10,27 +10,54 @@
 namespace granular {
 
 Renderer::Renderer(const Scene& scene)
-    : scene_(scene), film_(scene.settings().width, scene.settings().height) {}
+    : scene_(scene), film_(scene.settings().width, scene.settings().height) {
+  const RenderSettings& rs = scene.settings();
+  // Bundles matter only where paths can switch to the media.
+  bool hybrid = rs.technique != Technique::Ept && scene.hasMedia();
+  bundle_ = hybrid ? std::max(1, std::min(rs.bundleSize, rs.spp)) : 1;
+}
+
+void Renderer::prepare() {
+  prepared_ = true;
+  const RenderSettings& rs = scene_.settings();
+  if (rs.technique == Technique::Ept || !scene_.hasMedia()) return;
+  if (rs.roulette > 0) roulette_.pa = rs.roulette;
+  else roulette_ = tuneRoulette(scene_);
+}
 
 bool Renderer::renderPass(int samples, const std::atomic<bool>* cancel) {
+  if (!prepared_) prepare();
   const RenderSettings& rs = scene_.settings();
   const Camera& cam = scene_.camera();
+  const float pa = roulette_.pa;
   std::atomic<bool> cancelled{false};
   auto body = [&](const tbb::blocked_range2d<int>& r) {
+    std::vector<PathState> paths;
     for (int y = r.rows().begin(); y < r.rows().end(); ++y)
       for (int x = r.cols().begin(); x < r.cols().end(); ++x) {
         if (cancel && cancel->load(std::memory_order_relaxed)) { cancelled = true; return; }
-        for (int s = 0; s < samples; ++s) {
-          long index = done_ + s;
-          Rng rng(hashInts(rs.seed, uint64_t(x), uint64_t(y), uint64_t(index)), 0);
-          Ray ray = cam.generateRay(float(x) + rng.next1D(), float(y) + rng.next1D());
-          PrimaryInfo info;
-          PixelSample ps;
-          ps.L = tracePath(scene_, ray, rng, &info);
-          ps.hit = info.hit;
-          ps.depth = info.depth;
-          ps.normal = info.normal;
-          film_.add(x, y, ps);
+        for (int b = 0; b < samples; b += bundle_) {
+          paths.clear();
+          for (int s = b; s < std::min(b + bundle_, samples); ++s) {
+            long index = done_ + s;
+            Rng rng(hashInts(rs.seed, uint64_t(x), uint64_t(y), uint64_t(index)), 0);
+            Ray ray = cam.generateRay(float(x) + rng.next1D(), float(y) + rng.next1D());
+            PathState p = startPath(ray, 0);
+            p.rng = rng;
+            paths.push_back(p);
+          }
+          traceBundle(scene_, paths, pa);
+          for (const PathState& p : paths) {
+            PixelSample ps;
+            // A non-finite estimate (a numerical failure) is dropped as a whole sample.
+            bool finite = isFinite(p.L[0]) && isFinite(p.L[1]) && isFinite(p.L[2]);
+            for (int t = 0; t < 3; ++t) ps.byTechnique[t] = finite ? p.L[t] : Vec3(0.0f);
+            ps.L = ps.byTechnique[0] + ps.byTechnique[1] + ps.byTechnique[2];
+            ps.hit = p.primary.hit;
+            ps.depth = p.primary.depth;
+            ps.normal = p.primary.normal;
+            film_.add(x, y, ps);
+          }
         }
       }
   };
@@ -51,7 +78,8 @@ bool Renderer::render(int passSamples, const std::function<void(const RenderProg
   auto t0 = std::chrono::steady_clock::now();
   const long target = scene_.settings().spp;
   while (done_ < target) {
-    int n = int(std::min<long>(passSamples, target - done_));
+    int pass = ((std::max(passSamples, 1) + bundle_ - 1) / bundle_) * bundle_;  // whole bundles
+    int n = int(std::min<long>(pass, target - done_));
     if (!renderPass(n, cancel)) return false;
     if (progress) {
       RenderProgress p;

@@ -1,10 +1,15 @@
 // render.h — the progressive renderer: passes of samples over the film with TBB.
 //
 // Contract: renderPass(n) adds samples [k, k+n) to every pixel, where k is the count
-// so far; sample s of pixel (x, y) draws all its randomness from a generator seeded by
+// so far, as bundles (hybrid.h) of N = min(bundleSize, spp) paths of a pixel traced in
+// lock-step, the last one partial if N does not divide n; render() makes passes of whole
+// bundles, so that bundle b always holds sample indices [bN, bN+N). Sample
+// s of pixel (x, y) draws all its randomness from a generator seeded by
 // hash(seed, x, y, s), so an image depends on the seed and the sample count only —
-// not on the thread count nor on how samples were split into passes. A pass checks
-// the cancel flag between tiles and returns false when it was set.
+// not on the thread count nor on how samples were split into passes. P_a comes from
+// settings.roulette or, when that is negative and the scene has media, from the
+// pre-render (tuneRoulette) run once before the first pass. A pass checks the cancel
+// flag between tiles and returns false when it was set.
 #pragma once
 
 #include <atomic>
@@ -12,6 +17,7 @@
 
 #include "ept.h"
 #include "film.h"
+#include "hybrid.h"
 #include "scene.h"
 
 namespace granular {
@@ -31,11 +37,18 @@ class Renderer {
               const std::atomic<bool>* cancel = nullptr);
   const Film& film() const { return film_; }
   long samplesPerPixel() const { return done_; }
+  int bundleSize() const { return bundle_; }
+  // The roulette used (after the first pass): P_a and, when tuned, the pre-render's numbers.
+  const RouletteTuning& roulette() const { return roulette_; }
 
  private:
+  void prepare();
   const Scene& scene_;
   Film film_;
   long done_ = 0;
+  int bundle_ = 1;
+  bool prepared_ = false;
+  RouletteTuning roulette_;
 };
 
 }  // namespace granular

@@ -23,6 +23,11 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc) {
   glass.type = MaterialType::Dielectric;
   int defaultGrain = int(s->materials_.size());
   s->materials_.push_back(Material::fromDesc(glass));
+  MaterialDesc white;
+  white.name = "diffusion_exit";
+  white.type = MaterialType::DiffusionExit;
+  s->diffusionExitMaterial_ = int(s->materials_.size());
+  s->materials_.push_back(Material::fromDesc(white));
 
   s->device_ = makeEmbreeDevice();
   s->surfaces_ = makeEmbreeScene(s->device_);
@@ -43,7 +48,29 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc) {
     auto agg = std::make_unique<Aggregate>();
     agg->build(a, s->device_, mats);
     all.extend(agg->bounds());
+    s->maxGrainRadius_ = std::max(s->maxGrainRadius_, agg->grainRadius());
+    if (desc.settings.technique != Technique::Ept) {
+      // TT parameters per prototype (cached on disk), combined per aggregate (seed §2.2).
+      std::vector<GrainTransport> gts;
+      for (size_t i = 0; i < agg->prototypes().size(); ++i)
+        gts.push_back(estimateGrainTransport(agg->prototypes()[i].mesh, s->materials_[mats[i]]));
+      s->mediumParams_.push_back(deriveMedium(gts, a.weights, a.grainRadius, a.packingRate));
+      s->media_.emplace_back(s->mediumParams_.back());
+      // No DA where the object is too thin for it: its depth criterion is never met.
+      float daDepth = granular::diffusionDepth(s->mediumParams_.back());
+      s->diffusionDepth_.push_back(agg->stats().maxInteriorDepth > daDepth ? daDepth : kInf);
+      s->diffusionProfiles_.emplace_back(s->mediumParams_.back());
+      // VPT pays off only where paths scatter many times: an object thinner than its
+      // mean free path is left to EPT alone (no bundles, no pre-render).
+      if (2.0f * agg->stats().maxInteriorDepth > maxComponent(s->mediumParams_.back().lambdaT)) s->mediaNeeded_ = true;
+    }
     s->aggregates_.push_back(std::move(agg));
+  }
+  if (!s->mediaNeeded_) {
+    s->mediumParams_.clear();
+    s->media_.clear();
+    s->diffusionDepth_.clear();
+    s->diffusionProfiles_.clear();
   }
   s->sceneScale_ = all.empty() ? 1.0f : std::max(1e-6f, maxComponent(vmax(vabs(all.lo), vabs(all.hi))));
 
@@ -107,6 +134,101 @@ bool Scene::intersect(const Ray& ray, Hit& hit) const {
   hit.eps = std::max(hit.eps, 4e-7f * coordScale);
   if (hit.kind == Hit::Surface) hit.eps = std::max(hit.eps, 1e-5f * coordScale);
   return true;
+}
+
+void Scene::setMedium(int aggregate, const MediumParams& params) {
+  if (media_.empty()) return;  // technique Ept, or no aggregate thick enough: no media
+  mediumParams_[aggregate] = params;
+  media_[aggregate] = HomogeneousMedium(params);
+  float daDepth = granular::diffusionDepth(params);
+  diffusionDepth_[aggregate] = aggregates_[aggregate]->stats().maxInteriorDepth > daDepth ? daDepth : kInf;
+  diffusionProfiles_[aggregate] = DiffusionProfile(params);
+}
+
+bool Scene::intersectMedium(const Ray& ray, Hit& hit) const {
+  float tmax = ray.tmax;
+  bool found = false;
+  RTCIntersectContext ctx;
+  rtcInitIntersectContext(&ctx);
+  RTCRayHit rh = makeRayHit(ray.o, ray.d, ray.tmin, ray.tmax);
+  rtcIntersect1(surfaces_.get(), &ctx, &rh);
+  if (rh.hit.geomID != RTC_INVALID_GEOMETRY_ID) {
+    found = true;
+    tmax = rh.ray.tfar;
+    hit.kind = Hit::Surface;
+    hit.t = tmax;
+    hit.ng = triangleNormal(worldMeshes_[rh.hit.geomID], rh.hit.primID);
+    hit.material = meshMaterial_[rh.hit.geomID];
+    hit.lengthScale = 1.0f;
+  }
+  for (size_t a = 0; a < aggregates_.size(); ++a) {
+    float t;
+    Vec3 ng;
+    if (aggregates_[a]->intersectBoundary(ray.o, ray.d, ray.tmin, tmax, t, ng) && t < tmax) {
+      found = true;
+      tmax = t;
+      hit.kind = Hit::Boundary;
+      hit.t = t;
+      hit.ng = ng;
+      hit.aggregate = int(a);
+      hit.material = -1;
+    }
+  }
+  for (int li : areaLights_) {
+    float t;
+    Ray r = ray;
+    r.tmax = tmax;
+    if (lights_[li].intersect(r, t) && t < tmax) {
+      found = true;
+      tmax = t;
+      hit.kind = Hit::AreaLight;
+      hit.t = t;
+      hit.light = li;
+    }
+  }
+  if (!found) return false;
+  hit.p = ray.o + ray.d * hit.t;
+  float coordScale = std::max(maxComponent(vabs(hit.p)), 1e-3f * sceneScale_);
+  hit.eps = std::max(4e-7f * coordScale, hit.kind == Hit::Surface ? 1e-5f * coordScale : 0.0f);
+  return true;
+}
+
+Vec3 Scene::transmittance(const Vec3& p, const Vec3& dir, float dist) const {
+  RTCIntersectContext ctx;
+  rtcInitIntersectContext(&ctx);
+  RTCRay r;
+  r.org_x = p.x; r.org_y = p.y; r.org_z = p.z;
+  r.dir_x = dir.x; r.dir_y = dir.y; r.dir_z = dir.z;
+  r.tnear = 0; r.tfar = dist; r.time = 0; r.mask = 0xffffffffu; r.id = 0; r.flags = 0;
+  rtcOccluded1(surfaces_.get(), &ctx, &r);
+  if (r.tfar < 0) return Vec3(0.0f);
+  Vec3 opticalDepth(0.0f);
+  for (size_t a = 0; a < aggregates_.size(); ++a) {
+    // Walk the boundary crossings; a crossing whose normal faces along the ray leaves
+    // the medium, so the segment before it was inside.
+    const Aggregate& agg = *aggregates_[a];
+    float t0 = 0, t;
+    Vec3 ng;
+    float inside = 0;
+    float eps = 1e-5f * std::max(1.0f, maxComponent(vabs(p)));
+    for (int crossings = 0; crossings < 1024; ++crossings) {
+      if (!agg.intersectBoundary(p, dir, t0, dist, t, ng)) {
+        if (crossings == 0 && agg.bounds().contains(p) && agg.insideBoundary(p)) inside += dist;  // never leaves
+        else if (crossings > 0 && dot(ng, dir) < 0) inside += dist - t0;                          // entered, never left
+        break;
+      }
+      if (dot(ng, dir) > 0) inside += t - t0;
+      t0 = t + eps;
+    }
+    if (inside > 0) opticalDepth += media_[a].sigmaT() * inside;
+  }
+  return vexp(-opticalDepth);
+}
+
+int Scene::mediumAt(const Vec3& p) const {
+  for (size_t a = 0; a < aggregates_.size(); ++a)
+    if (aggregates_[a]->bounds().contains(p) && aggregates_[a]->insideBoundary(p)) return int(a);
+  return -1;
 }
 
 bool Scene::occluded(const Vec3& p, const Vec3& dir, float dist) const {

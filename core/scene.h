@@ -13,21 +13,24 @@
 
 #include "aggregate.h"
 #include "camera.h"
+#include "diffusion.h"
 #include "embree_util.h"
 #include "light.h"
 #include "material.h"
 #include "scene_desc.h"
+#include "tt.h"
+#include "vpt.h"
 
 namespace granular {
 
 struct Hit {
-  enum Kind { Surface, Grain, AreaLight } kind = Surface;
+  enum Kind { Surface, Grain, AreaLight, Boundary } kind = Surface;
   float t = kInf;
   Vec3 p;
   Vec3 ng;                  // unit, outward from the surface or grain
   int material = -1;
   int light = -1;           // AreaLight
-  int aggregate = -1;       // Grain
+  int aggregate = -1;       // Grain, Boundary
   float eps = 0;            // ray-offset scale at this hit
   float lengthScale = 1;    // world length of one unit of the object's own space (absorption)
 };
@@ -36,8 +39,33 @@ class Scene {
  public:
   static std::unique_ptr<Scene> build(const SceneDesc& desc);
 
+  // Explicit grains (EPT): nearest surface, grain or area light.
   bool intersect(const Ray& ray, Hit& hit) const;
   bool occluded(const Vec3& p, const Vec3& dir, float dist) const;
+
+  // The equivalent media (VPT, DA): nearest surface, area light or aggregate boundary
+  // (Hit::Boundary, ng outward); grains are not seen.
+  bool intersectMedium(const Ray& ray, Hit& hit) const;
+  // Transmittance of a shadow ray through the media: 0 if a surface blocks it, else the
+  // product of exp(−σ_t ℓ) over the lengths ℓ it runs inside each aggregate's boundary.
+  Vec3 transmittance(const Vec3& p, const Vec3& dir, float dist) const;
+  // Index of the aggregate whose boundary contains p, or -1.
+  int mediumAt(const Vec3& p) const;
+  // Media exist (one per aggregate) when the technique uses them and some aggregate is
+  // thicker than its mean free path (else EPT alone renders it: nothing to gain).
+  bool hasMedia() const { return !media_.empty(); }
+  const HomogeneousMedium& medium(int aggregate) const { return media_[aggregate]; }
+  const MediumParams& mediumParams(int aggregate) const { return mediumParams_[aggregate]; }
+  float maxGrainRadius() const { return maxGrainRadius_; }
+  // Replaces an aggregate's TT-derived medium by given RTE parameters, before rendering
+  // (validation against other renderers, closed-form tests). Not thread-safe.
+  void setMedium(int aggregate, const MediumParams& params);
+  // DA: the depth below the boundary where it takes over (inf: the object is too thin
+  // for DA), its profile, and the exit
+  // lobe (MaterialType::DiffusionExit) of the points where diffused light leaves.
+  float diffusionDepth(int aggregate) const { return diffusionDepth_[aggregate]; }
+  const DiffusionProfile& diffusionProfile(int aggregate) const { return diffusionProfiles_[aggregate]; }
+  int diffusionExitMaterial() const { return diffusionExitMaterial_; }
 
   const Camera& camera() const { return camera_; }
   const RenderSettings& settings() const { return settings_; }
@@ -54,6 +82,13 @@ class Scene {
   std::vector<Light> lights_;
   std::vector<int> infiniteLights_, areaLights_;
   std::vector<std::unique_ptr<Aggregate>> aggregates_;
+  std::vector<MediumParams> mediumParams_;
+  std::vector<HomogeneousMedium> media_;
+  std::vector<float> diffusionDepth_;
+  std::vector<DiffusionProfile> diffusionProfiles_;
+  int diffusionExitMaterial_ = -1;
+  bool mediaNeeded_ = false;
+  float maxGrainRadius_ = 0;
   std::vector<TriangleMesh> worldMeshes_;   // per Embree geometry id
   std::vector<int> meshMaterial_;
   EmbreeDevice device_;

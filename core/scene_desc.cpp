@@ -53,6 +53,10 @@ void validateSceneDesc(const SceneDesc& desc) {
   if (s.maxDepth < 1) throw InputError("render", "maxDepth", str(s.maxDepth, " must be >= 1"));
   if (s.rrDepth < 0) throw InputError("render", "rrDepth", str(s.rrDepth, " must be >= 0"));
   if (s.threads < 0) throw InputError("render", "threads", str(s.threads, " must be >= 0 (0: all cores)"));
+  checkInt(s.bundleSize, 1, 256, "render", "bundleSize");
+  if (!std::isfinite(s.tau) || !(s.tau > 0)) throw InputError("render", "tau", str(s.tau, " must be finite and > 0"));
+  if (std::isnan(s.roulette) || s.roulette == 0 || s.roulette > 1)
+    throw InputError("render", "roulette", str(s.roulette, " must be in (0, 1], or negative for automatic"));
 
   const CameraDesc& c = desc.camera;
   checkTransform(c.cameraToWorld, "camera", "transform");
@@ -135,6 +139,22 @@ void validateSceneDesc(const SceneDesc& desc) {
       checkMaterialIndex(p.material, desc.materials.size(), pobj);
     }
   }
+}
+
+Technique techniqueFromName(const std::string& name, const std::string& obj) {
+  if (name == "ept") return Technique::Ept;
+  if (name == "ept+vpt") return Technique::EptVpt;
+  if (name == "hybrid") return Technique::Hybrid;
+  throw InputError(obj, "technique", str("\"", name, "\" is not one of ept, ept+vpt, hybrid"));
+}
+
+const char* techniqueName(Technique t) {
+  switch (t) {
+    case Technique::Ept: return "ept";
+    case Technique::EptVpt: return "ept+vpt";
+    case Technique::Hybrid: return "hybrid";
+  }
+  return "?";
 }
 
 }  // namespace granular

@@ -27,7 +27,8 @@ struct CameraDesc {
   float clipFar = 1e30f;
 };
 
-enum class MaterialType { Lambert, Dielectric };
+// DiffusionExit is internal: the lobe of light leaving a diffusing medium (diffusion.h).
+enum class MaterialType { Lambert, Dielectric, DiffusionExit };
 
 struct MaterialDesc {
   std::string name;
@@ -83,6 +84,9 @@ struct AggregateDesc {
   int tileSpheres = 512;       // spheres per periodic tile
 };
 
+// Which transports the integrator may use (seed §3). Ept is the reference.
+enum class Technique { Ept, EptVpt, Hybrid };
+
 struct RenderSettings {
   int width = 640, height = 480;
   int spp = 16;
@@ -90,6 +94,10 @@ struct RenderSettings {
   int maxDepth = 4096;         // paths in bright grains bounce hundreds of times
   int rrDepth = 8;             // Russian roulette starts after this many bounces
   int threads = 0;             // 0: all cores
+  Technique technique = Technique::Hybrid;  // EPT, EPT+VPT or EPT+VPT+DA
+  int bundleSize = 16;         // N: paths of a pixel traced in lock-step (seed §3)
+  float tau = 4.0f;            // switch EPT->VPT when σ_k > τ R_max N_k/N (NOTES item 8)
+  float roulette = -1.0f;      // P_a in (0, 1]; negative: tuned by a pre-render (NOTES item 7)
 };
 
 struct SceneDesc {
@@ -100,6 +108,10 @@ struct SceneDesc {
   std::vector<AggregateDesc> aggregates;
   RenderSettings settings;
 };
+
+// "ept", "ept+vpt", "hybrid"; anything else is an InputError on obj.technique.
+Technique techniqueFromName(const std::string& name, const std::string& obj);
+const char* techniqueName(Technique t);
 
 // Checks every value a user can get wrong; throws InputError naming object and attribute.
 void validateSceneDesc(const SceneDesc& desc);

@@ -372,6 +372,10 @@ void parseRender(const Obj& o, RenderSettings& s) {
   s.maxDepth = o.integer("max_depth", s.maxDepth);
   s.rrDepth = o.integer("rr_depth", s.rrDepth);
   s.threads = o.integer("threads", s.threads);
+  s.bundleSize = o.integer("bundle_size", s.bundleSize);
+  s.tau = o.num("tau", s.tau);
+  s.roulette = o.num("roulette", s.roulette);
+  if (o.has("technique")) s.technique = techniqueFromName(o.string("technique", ""), o.label());
 }
 
 void parseCamera(const Obj& o, CameraDesc& c) {
@@ -680,7 +684,7 @@ SceneDesc parseSceneJson(const std::string& text, const std::string& sourceName)
     ctx.base = fs::path(sourceName).parent_path();
     Obj top(root, sourceName, "", "scene", {"render", "camera", "materials", "meshes", "lights", "aggregates"});
     if (const json* r = top.find("render"))
-      parseRender(Obj(*r, "scene", "render", "render", {"width", "height", "spp", "seed", "max_depth", "rr_depth", "threads"}),
+      parseRender(Obj(*r, "scene", "render", "render", {"width", "height", "spp", "seed", "max_depth", "rr_depth", "threads", "technique", "bundle_size", "tau", "roulette"}),
                   desc.settings);
     if (const json* c = top.find("camera"))
       parseCamera(Obj(*c, "scene", "camera", "camera",

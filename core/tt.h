@@ -19,10 +19,21 @@
 //   σ_tr = sqrt(3 σ_a σ'_t),  σ_a = (1−α_s) σ_t   (NOTES item 6)
 // Quantities that depend on absorption (α_s, λ_s, the phase function, g) are per RGB
 // channel, so σ_t is per channel too (a chromatic medium).
+//
+// Degenerate inputs never give NaN or Inf:
+//  * no ray hits the grain (β = 0): α_s, λ_s, g = 0 with an isotropic phase table; the
+//    medium is empty: σ_t = σ_a = σ'_s = σ'_t = σ_tr = 0, α_s = α'_s = 1 and λ_β, λ_t
+//    are FLT_MAX (standing for "never").
+//  * black grains (α_s = 0): λ_s = 0, g = 0, isotropic phase; σ_t = 1/λ_β, α'_s = 0.
+//  * no absorption (α_s = 1): σ_a = 0, so σ_tr = 0; when also g = 1 (index-matched
+//    grains) σ'_t = 0 and α'_s is reported as α_s (1).
+//  * f → 0: λ_b grows without bound; every length is clamped to FLT_MAX, σ's to ≥ 0.
+//    f near 0.64 needs no guard (1 − f ≥ 0.36); f outside (0, 0.64] is an InputError.
 #pragma once
 
 #include <array>
 #include <cstdint>
+#include <string>
 #include <vector>
 
 #include "material.h"
@@ -42,11 +53,17 @@ struct PhaseTable {
   // p(ω_i·ω_o), per steradian.
   float eval(float mu) const;
   // Samples ω_o around ω_i (unit): μ by inverting the cdf, azimuth uniform.
-  // Returns ω_o; pdf (per steradian) = eval(dot(wi, ωo)).
-  Vec3 sample(const Vec3& wi, float u1, float u2) const;
+  // Returns ω_o; pdf (per steradian) = eval(dot(wi, ωo)), also written to *pdf. μ is
+  // kept 1e-4 of a bin away from the bin's edges so that rounding of dot(wi, ωo) never
+  // moves it into a neighbouring (possibly empty) bin.
+  Vec3 sample(const Vec3& wi, float u1, float u2, float* pdf = nullptr) const;
+  // Probability mass of μ in [a, b] (exact for the piecewise-constant table).
+  double mass(double a, double b) const;
   // Isotropic table (every bin 1/(4π)).
   static PhaseTable isotropic(int bins = 1);
-  // From unnormalised per-bin weights (energy exiting into each μ bin).
+  // From unnormalised per-bin weights (energy exiting into each μ bin); g is the table's
+  // own mean cosine (bin centres), i.e. what sampling it reproduces. Negative or
+  // non-finite weights count as 0; all-zero weights give the isotropic table.
   static PhaseTable fromHistogram(const std::vector<double>& weights);
 };
 
@@ -57,21 +74,31 @@ struct GrainTransport {
   std::array<double, 3> lambdaS{}, lambdaSSE{};  // mean |x_o − x_i| of hits that exit, energy-weighted
   std::array<double, 3> albedo{}, albedoSE{};    // α_s: exiting fraction of the energy of a hit
   std::array<PhaseTable, 3> phase;               // exit distribution over cos θ, per channel
-  std::array<double, 3> g{}, gSE{};              // mean cosine of phase
+  std::array<double, 3> g{}, gSE{};              // mean cosine of the exits (exact μ, not bin centres)
   int64_t rays = 0;                              // rays traced
+  int64_t truncated = 0;   // hits still inside after maxBounces (their energy counts as absorbed)
+  bool fromCache = false;  // read back from the disk cache rather than traced
 };
 
 struct TTOptions {
   int64_t rays = 1 << 18;   // rays entering the bounding sphere
   int phaseBins = 64;
-  int maxBounces = 1000;    // inside one grain (TIR in clear grains bounces a lot)
+  int maxBounces = 4096;    // inside one grain, as EPT's default maxDepth: faceted spheres trap
+                            // TIR paths for 1000+ bounces before they escape
   uint64_t seed = 1;
   bool useCache = true;
 };
 
 // prototypeMesh must already be normalised into the unit bounding sphere (GrainPrototype).
+// Rays are traced in fixed chunks of 4096 with per-chunk seeds and reduced in order, so
+// the result does not depend on the number of threads. Throws InputError for options
+// out of range (rays < 1, phaseBins outside [1, 65536], maxBounces < 1) or an empty mesh.
 GrainTransport estimateGrainTransport(const TriangleMesh& prototypeMesh, const Material& material,
                                       const TTOptions& options = TTOptions());
+
+// File name (inside cacheDirectory()) of the cache entry of these inputs.
+std::string grainTransportCacheName(const TriangleMesh& prototypeMesh, const Material& material,
+                                    const TTOptions& options);
 
 // World-space RTE and diffusion parameters of one aggregate (seed §2.2).
 struct MediumParams {
@@ -90,6 +117,10 @@ struct MediumParams {
 // Mixture: a sphere's grain is prototype i with probability w_i (normalised weights), so
 //   β = Σ w_i β_i;  λ_δ averages over misses (weights w_i(1−β_i));
 //   α_s = Σ w_i β_i α_i / β;  λ_s, phase and g average over exiting energy (w_i β_i α_i).
+// Phase tables with different bin counts are rebinned exactly (by mass) onto the finest;
+// an empty table counts as isotropic. Standard errors combine in quadrature, treating
+// the weights as exact. Throws InputError for mismatched or negative weights, grain
+// radius ≤ 0 or packing rate outside (0, 0.64].
 MediumParams deriveMedium(const std::vector<GrainTransport>& prototypes, const std::vector<float>& weights,
                           float grainRadius, float packingRate);
 

@@ -2,6 +2,7 @@
 //
 //   granular-render SCENE.json -o OUT.exr [--png OUT.png] [--spp N] [--width W]
 //                   [--height H] [--seed S] [--threads T] [--exposure E] [--quiet]
+//                   [--technique ept|ept+vpt|hybrid] [--roulette P_a]
 //
 // Exit status: 0 on success, 2 on bad input (one line naming object and attribute),
 // 1 on any other failure. No partial output file is left behind.
@@ -23,7 +24,8 @@ namespace {
 void usage() {
   std::fprintf(stderr,
                "usage: granular-render SCENE.json -o OUT.exr [--png OUT.png] [--spp N] [--width W] [--height H]\n"
-               "                       [--seed S] [--threads T] [--exposure E] [--quiet]\n");
+               "                       [--seed S] [--threads T] [--exposure E] [--quiet]\n"
+               "                       [--technique ept|ept+vpt|hybrid] [--roulette P_a (negative: tuned)]\n");
 }
 
 long parseInt(const char* flag, const char* v, long lo, long hi) {
@@ -41,6 +43,8 @@ int main(int argc, char** argv) {
   long long seed = -1;
   float exposure = 0;
   bool quiet = false;
+  std::string technique;
+  float roulette = 0;
   try {
     for (int i = 1; i < argc; ++i) {
       std::string a = argv[i];
@@ -57,6 +61,8 @@ int main(int argc, char** argv) {
       else if (a == "--threads") threads = parseInt("--threads", next(), 0, 1024);
       else if (a == "--exposure") exposure = std::strtof(next(), nullptr);
       else if (a == "--quiet") quiet = true;
+      else if (a == "--technique") technique = next();
+      else if (a == "--roulette") roulette = std::strtof(next(), nullptr);
       else if (a == "-h" || a == "--help") { usage(); return 0; }
       else if (!a.empty() && a[0] == '-') throw InputError("command line", a, "unknown option");
       else if (scenePath.empty()) scenePath = a;
@@ -70,6 +76,8 @@ int main(int argc, char** argv) {
     if (height > 0) desc.settings.height = int(height);
     if (seed >= 0) desc.settings.seed = uint64_t(seed);
     if (threads >= 0) desc.settings.threads = int(threads);
+    if (!technique.empty()) desc.settings.technique = techniqueFromName(technique, "command line --technique");
+    if (roulette != 0) desc.settings.roulette = roulette;
 
     auto scene = Scene::build(desc);
     if (!quiet) {
@@ -88,6 +96,21 @@ int main(int argc, char** argv) {
       if (p.samplesDone == p.samplesTarget) std::fprintf(stderr, "\n");
     });
     Image img = renderer.film().toImage();
+    if (!quiet && scene->hasMedia()) {
+      const RouletteTuning& rt = renderer.roulette();
+      std::fprintf(stderr, "  technique %s, bundles of %d, P_a %.3f", techniqueName(scene->settings().technique),
+                   renderer.bundleSize(), rt.pa);
+      if (rt.pixels) std::fprintf(stderr, " (pre-render of %d pixels: V_L %.3g, V_H %.3g, t_L %.3g, t_H %.3g)", rt.pixels, rt.VL, rt.VH, rt.tL, rt.tH);
+      // Mean of each transport's AOV over the image: what each part contributes.
+      double part[3] = {0, 0, 0};
+      for (int t = 0; t < 3; ++t) {
+        int c0 = img.channelIndex(t == 0 ? "ept.R" : t == 1 ? "vpt.R" : "da.R");
+        for (int y = 0; y < img.height; ++y)
+          for (int x = 0; x < img.width; ++x) part[t] += luminance(Vec3(img.at(x, y)[c0], img.at(x, y)[c0 + 1], img.at(x, y)[c0 + 2]));
+      }
+      double n = double(img.width) * img.height;
+      std::fprintf(stderr, "\n  mean luminance by transport: EPT %.4g, VPT %.4g, DA %.4g\n", part[0] / n, part[1] / n, part[2] / n);
+    }
     writeImage(out, img);
     if (!png.empty()) writePngSrgb(png, img, exposure);
     if (!quiet) std::fprintf(stderr, "wrote %s%s%s\n", out.c_str(), png.empty() ? "" : " and ", png.c_str());

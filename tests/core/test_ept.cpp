@@ -19,6 +19,7 @@ SceneDesc furnaceScene(MaterialType grainType) {
   s.settings.spp = 4;
   s.settings.maxDepth = 1 << 20;
   s.settings.seed = 3;
+  s.settings.technique = Technique::Ept;  // the explicit reference alone
   s.camera.cameraToWorld = Transform::lookAt(Vec3(0, 0, 4), Vec3(0, 0, 0), Vec3(0, 1, 0));
   s.camera.focalLength = 50;
   s.camera.horizontalAperture = 24;

@@ -1,0 +1,518 @@
+// tt.cpp — teleportation-transport parameters of a grain prototype and of an aggregate
+// (seed §2.1–2.2; NOTES items 1–3, 5, 6). See tt.h for the contract.
+#include "tt.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <cfloat>
+#include <cmath>
+#include <cstring>
+
+#include "cache.h"
+#include "embree_util.h"
+#include "error.h"
+#include "rng.h"
+#include "sampling.h"
+
+namespace granular {
+
+namespace {
+
+constexpr double kFourPi = 4.0 * 3.14159265358979323846;
+constexpr double kTwoPi = 2.0 * 3.14159265358979323846;
+constexpr int64_t kChunk = 4096;  // rays per chunk: fixed, so results ignore the thread count
+// EPT offsets grain hits by 2e-4 grain radii (scene.cpp); the same here, in unit-sphere units.
+constexpr float kGrainEps = 2e-4f;
+constexpr int kMaxBins = 1 << 16;
+
+int binOf(double mu, int bins) {
+  int b = int((mu + 1.0) * 0.5 * bins);
+  return std::min(std::max(b, 0), bins - 1);
+}
+
+// Far root of |o + t d| = 1 (d unit), clamped to ≥ 0: where a ray leaves the bounding sphere.
+double sphereExit(const Vec3& o, const Vec3& d) {
+  double b = double(o.x) * d.x + double(o.y) * d.y + double(o.z) * d.z;
+  double c = double(o.x) * o.x + double(o.y) * o.y + double(o.z) * o.z - 1.0;
+  double disc = std::max(0.0, b * b - c);
+  return std::max(0.0, -b + std::sqrt(disc));
+}
+
+// Running sums of one chunk; reduced in chunk order so the totals are reproducible.
+struct Sums {
+  int64_t rays = 0, hits = 0, truncated = 0;
+  double missChord = 0, missChord2 = 0;
+  // Per channel, over hits: w (exit energy), w², w d, (w d)², w² d, and the same for μ.
+  double w[3] = {}, w2[3] = {}, wd[3] = {}, wd2[3] = {}, w2d[3] = {}, wm[3] = {}, wm2[3] = {}, w2m[3] = {};
+  std::vector<double> hist[3];
+
+  void add(const Sums& o) {
+    rays += o.rays; hits += o.hits; truncated += o.truncated;
+    missChord += o.missChord; missChord2 += o.missChord2;
+    for (int c = 0; c < 3; ++c) {
+      w[c] += o.w[c]; w2[c] += o.w2[c]; wd[c] += o.wd[c]; wd2[c] += o.wd2[c]; w2d[c] += o.w2d[c];
+      wm[c] += o.wm[c]; wm2[c] += o.wm2[c]; w2m[c] += o.w2m[c];
+      for (size_t i = 0; i < hist[c].size(); ++i) hist[c][i] += o.hist[c][i];
+    }
+  }
+};
+
+// Standard error of a plain mean from n samples with sums s, s2.
+double meanSE(double s, double s2, int64_t n) {
+  if (n < 2) return n == 1 ? std::fabs(s) : 0.0;  // one sample: its own size as the uncertainty
+  double m = s / double(n);
+  double var = std::max(0.0, (s2 - double(n) * m * m) / double(n - 1));
+  return std::sqrt(var / double(n));
+}
+
+// Standard error of the ratio estimator r = Σ w x / Σ w (delta method): the sample variance
+// of w x − r w, over n hits, divided by n and by the mean weight squared.
+double ratioSE(double sw, double sw2, double swx, double swx2, double sw2x, int64_t n) {
+  if (n < 2 || !(sw > 0)) return 0.0;
+  double r = swx / sw;
+  double var = std::max(0.0, (swx2 - 2.0 * r * sw2x + r * r * sw2) / double(n - 1));
+  double wbar = sw / double(n);
+  return std::sqrt(var / double(n)) / wbar;
+}
+
+// One ray through the grain's bounding sphere, scattered exactly as EPT does (ept.cpp).
+void traceChunk(RTCScene bvh, const TriangleMesh& mesh, const Material& m, const TTOptions& opt, int64_t chunk,
+                Sums& s) {
+  int64_t first = chunk * kChunk, count = std::min(kChunk, opt.rays - first);
+  const bool absorbs = m.type == MaterialType::Dielectric && !isBlack(m.absorption);
+  RTCIntersectContext ctx;
+  rtcInitIntersectContext(&ctx);
+  for (int64_t k = 0; k < count; ++k) {
+    // One generator per ray: ray k enters at the same place for every material (common
+    // random numbers), however many numbers the rays before it used.
+    Rng rng(hashInts(opt.seed, 0x5454 /* "TT" */, uint64_t(first + k)));
+    // Uniform over the projected area: a uniform point on the sphere, entering along an
+    // inward cosine-weighted direction.
+    Vec3 xi = sampleUniformSphere(rng.next1D(), rng.next1D());
+    float u1 = rng.next1D(), u2 = rng.next1D();
+    Vec3 wi = Frame(-xi).toWorld(sampleCosineHemisphere(u1, u2));
+    Vec3 o = xi, d = wi, w(1.0f);
+    bool hit = false, truncated = false;
+    int bounces = 0;
+    ++s.rays;
+    for (;;) {
+      RTCRayHit rh = makeRayHit(o, d, 0.0f, kInf);
+      rtcIntersect1(bvh, &ctx, &rh);
+      if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) break;
+      hit = true;
+      if (++bounces > opt.maxBounces) { truncated = true; w = Vec3(0.0f); break; }
+      float t = rh.ray.tfar;
+      Vec3 p = o + d * t;
+      Vec3 ng = triangleNormal(mesh, rh.hit.primID);
+      // Beer–Lambert over the segment just travelled inside (absorption per grain radius).
+      if (absorbs && dot(d, ng) > 0) w *= vexp(m.absorption * -t);
+      Frame frame(ng);
+      BsdfSample bs;
+      float uLobe = rng.next1D(), v1 = rng.next1D(), v2 = rng.next1D();
+      if (!m.sample(frame.toLocal(-d), uLobe, v1, v2, bs)) { w = Vec3(0.0f); break; }
+      w *= bs.weight;
+      d = normalize(frame.toWorld(bs.wi));
+      o = offsetRayOrigin(p, ng, d, kGrainEps);
+      if (isBlack(w)) break;  // all energy absorbed: where it would leave no longer matters
+    }
+    double tOut = sphereExit(o, d);
+    if (!hit) {
+      s.missChord += tOut;
+      s.missChord2 += tOut * tOut;
+      continue;
+    }
+    ++s.hits;
+    if (truncated) ++s.truncated;
+    if (isBlack(w)) continue;
+    Vec3 xo = o + d * float(tOut);
+    double dist = length(xo - xi);
+    double mu = std::min(1.0, std::max(-1.0, double(dot(wi, d))));
+    int bin = binOf(mu, opt.phaseBins);
+    for (int c = 0; c < 3; ++c) {
+      double wc = w[c];
+      s.w[c] += wc; s.w2[c] += wc * wc;
+      s.wd[c] += wc * dist; s.wd2[c] += wc * dist * wc * dist; s.w2d[c] += wc * wc * dist;
+      s.wm[c] += wc * mu; s.wm2[c] += wc * mu * wc * mu; s.w2m[c] += wc * wc * mu;
+      s.hist[c][bin] += wc;
+    }
+  }
+}
+
+// --- cache -------------------------------------------------------------------------------
+constexpr char kMagic[8] = {'G', 'R', 'T', 'T', '\0', '\0', '\0', '\0'};
+constexpr uint32_t kTTFormatVersion = 2;  // 2: one generator per ray
+
+uint64_t hashBytes(uint64_t h, const void* data, size_t size) {
+  const char* p = static_cast<const char*>(data);
+  size_t i = 0;
+  for (; i + 8 <= size; i += 8) {
+    uint64_t v;
+    std::memcpy(&v, p + i, 8);
+    h = hashCombine(h, v);
+  }
+  uint64_t tail = 0;
+  std::memcpy(&tail, p + i, size - i);
+  return hashCombine(hashCombine(h, tail), size);
+}
+
+template <typename T>
+uint64_t hashValue(uint64_t h, const T& v) { return hashBytes(h, &v, sizeof v); }
+
+uint64_t cacheKey(const TriangleMesh& mesh, const Material& m, const TTOptions& o) {
+  uint64_t h = hashInts(0x47525454 /* "GRTT" */, kTTFormatVersion);
+  h = hashBytes(h, mesh.points.data(), mesh.points.size() * sizeof(Vec3));
+  h = hashBytes(h, mesh.indices.data(), mesh.indices.size() * sizeof(uint32_t));
+  h = hashValue(h, int32_t(m.type));
+  h = hashValue(h, m.albedo);
+  h = hashValue(h, m.ior);
+  h = hashValue(h, m.absorption);
+  h = hashValue(h, o.rays);
+  h = hashValue(h, int32_t(o.phaseBins));
+  h = hashValue(h, int32_t(o.maxBounces));
+  return hashValue(h, o.seed);
+}
+
+uint64_t checksum(const char* data, size_t size) { return hashBytes(mix64(size), data, size); }
+
+template <typename T>
+void put(std::vector<char>& out, const T& v) {
+  const char* p = reinterpret_cast<const char*>(&v);
+  out.insert(out.end(), p, p + sizeof(T));
+}
+
+template <typename T>
+bool get(const std::vector<char>& in, size_t& pos, T& v) {
+  if (in.size() - pos < sizeof(T)) return false;
+  std::memcpy(&v, in.data() + pos, sizeof(T));
+  pos += sizeof(T);
+  return true;
+}
+
+std::vector<char> serialise(const GrainTransport& g, uint64_t key) {
+  std::vector<char> out(kMagic, kMagic + sizeof kMagic);
+  put(out, kTTFormatVersion);
+  put(out, key);
+  put(out, g.beta); put(out, g.betaSE); put(out, g.lambdaDelta); put(out, g.lambdaDeltaSE);
+  for (const auto* a : {&g.lambdaS, &g.lambdaSSE, &g.albedo, &g.albedoSE, &g.g, &g.gSE})
+    for (double v : *a) put(out, v);
+  put(out, g.rays);
+  put(out, g.truncated);
+  put(out, int32_t(g.phase[0].bins()));
+  for (const PhaseTable& p : g.phase) {
+    for (float v : p.density) put(out, v);
+    for (float v : p.cdf) put(out, v);
+    put(out, p.g);
+  }
+  put(out, checksum(out.data(), out.size()));
+  return out;
+}
+
+bool deserialise(const std::vector<char>& in, uint64_t key, const TTOptions& opt, GrainTransport& g) {
+  const int bins = opt.phaseBins;
+  size_t expected = sizeof kMagic + 4 + 8 + 4 * 8 + 6 * 3 * 8 + 8 + 8 + 4 + 3 * (size_t(2 * bins + 1) * 4 + 4) + 8;
+  if (in.size() != expected || std::memcmp(in.data(), kMagic, sizeof kMagic) != 0) return false;
+  uint64_t sum;
+  std::memcpy(&sum, in.data() + expected - 8, 8);
+  if (sum != checksum(in.data(), expected - 8)) return false;
+  size_t pos = sizeof kMagic;
+  uint32_t version = 0;
+  uint64_t storedKey = 0;
+  int32_t storedBins = 0;
+  get(in, pos, version);
+  get(in, pos, storedKey);
+  if (version != kTTFormatVersion || storedKey != key) return false;
+  get(in, pos, g.beta); get(in, pos, g.betaSE); get(in, pos, g.lambdaDelta); get(in, pos, g.lambdaDeltaSE);
+  for (auto* a : {&g.lambdaS, &g.lambdaSSE, &g.albedo, &g.albedoSE, &g.g, &g.gSE})
+    for (double& v : *a) get(in, pos, v);
+  get(in, pos, g.rays);
+  get(in, pos, g.truncated);
+  get(in, pos, storedBins);
+  if (storedBins != bins || g.rays != opt.rays) return false;
+  for (PhaseTable& p : g.phase) {
+    p.density.resize(bins);
+    p.cdf.resize(bins + 1);
+    for (float& v : p.density) get(in, pos, v);
+    for (float& v : p.cdf) get(in, pos, v);
+    get(in, pos, p.g);
+    for (float v : p.density)
+      if (!std::isfinite(v) || v < 0) return false;
+    if (p.cdf.front() != 0.0f || p.cdf.back() != 1.0f || !std::isfinite(p.g)) return false;
+  }
+  for (double v : {g.beta, g.betaSE, g.lambdaDelta, g.lambdaDeltaSE})
+    if (!std::isfinite(v)) return false;
+  for (const auto* a : {&g.lambdaS, &g.lambdaSSE, &g.albedo, &g.albedoSE, &g.g, &g.gSE})
+    for (double v : *a)
+      if (!std::isfinite(v)) return false;
+  return pos == expected - 8;
+}
+
+void validateOptions(const TriangleMesh& mesh, const TTOptions& o) {
+  if (o.rays < 1) throw InputError("grain transport", "rays", str(o.rays, " is < 1"));
+  if (o.phaseBins < 1 || o.phaseBins > kMaxBins)
+    throw InputError("grain transport", "phaseBins", str(o.phaseBins, " is outside [1, ", kMaxBins, "]"));
+  if (o.maxBounces < 1) throw InputError("grain transport", "maxBounces", str(o.maxBounces, " is < 1"));
+  if (mesh.numTriangles() == 0) throw InputError("grain transport", "mesh", "has no triangles");
+}
+
+GrainTransport trace(const TriangleMesh& mesh, const Material& m, const TTOptions& opt) {
+  EmbreeDevice device = makeEmbreeDevice();
+  EmbreeScene bvh = buildTriangleScene(device, mesh);
+  const int64_t chunks = (opt.rays + kChunk - 1) / kChunk;
+  std::vector<Sums> parts{size_t(chunks)};
+  tbb::parallel_for(tbb::blocked_range<int64_t>(0, chunks, 1), [&](const tbb::blocked_range<int64_t>& r) {
+    for (int64_t c = r.begin(); c < r.end(); ++c) {
+      Sums& s = parts[size_t(c)];
+      for (auto& h : s.hist) h.assign(size_t(opt.phaseBins), 0.0);
+      traceChunk(bvh.get(), mesh, m, opt, c, s);
+    }
+  });
+  Sums t;
+  for (auto& h : t.hist) h.assign(size_t(opt.phaseBins), 0.0);
+  for (const Sums& s : parts) t.add(s);
+
+  GrainTransport g;
+  g.rays = t.rays;
+  g.truncated = t.truncated;
+  const int64_t n = t.rays, hits = t.hits, misses = t.rays - t.hits;
+  g.beta = double(hits) / double(n);
+  g.betaSE = std::sqrt(g.beta * (1.0 - g.beta) / double(n));
+  g.lambdaDelta = misses > 0 ? t.missChord / double(misses) : 0.0;
+  g.lambdaDeltaSE = meanSE(t.missChord, t.missChord2, misses);
+  for (int c = 0; c < 3; ++c) {
+    g.albedo[c] = hits > 0 ? t.w[c] / double(hits) : 0.0;
+    g.albedoSE[c] = meanSE(t.w[c], t.w2[c], hits);
+    if (t.w[c] > 0) {
+      g.lambdaS[c] = t.wd[c] / t.w[c];
+      g.lambdaSSE[c] = ratioSE(t.w[c], t.w2[c], t.wd[c], t.wd2[c], t.w2d[c], hits);
+      g.g[c] = std::min(1.0, std::max(-1.0, t.wm[c] / t.w[c]));
+      g.gSE[c] = ratioSE(t.w[c], t.w2[c], t.wm[c], t.wm2[c], t.w2m[c], hits);
+    }  // else no energy exits: λ_s = g = 0 and the table is isotropic (tt.h)
+    g.phase[c] = PhaseTable::fromHistogram(t.hist[c]);
+  }
+  return g;
+}
+
+float clampToFloat(double v) { return float(std::min(std::max(v, 0.0), double(FLT_MAX))); }
+
+}  // namespace
+
+// --- PhaseTable -------------------------------------------------------------------------
+
+float PhaseTable::eval(float mu) const {
+  if (density.empty()) return float(1.0 / kFourPi);
+  return density[size_t(binOf(mu, bins()))];
+}
+
+double PhaseTable::mass(double a, double b) const {
+  if (density.empty()) return std::max(0.0, std::min(b, 1.0) - std::max(a, -1.0)) * 0.5;
+  // The cdf is piecewise linear in μ: interpolate it at both ends.
+  auto cdfAt = [&](double mu) {
+    double x = (std::min(std::max(mu, -1.0), 1.0) + 1.0) * 0.5 * bins();
+    int i = std::min(int(x), bins() - 1);
+    return double(cdf[i]) + (x - i) * (double(cdf[i + 1]) - double(cdf[i]));
+  };
+  return b > a ? cdfAt(b) - cdfAt(a) : 0.0;
+}
+
+Vec3 PhaseTable::sample(const Vec3& wi, float u1, float u2, float* pdf) const {
+  float mu;
+  if (density.empty()) {
+    mu = 1.0f - 2.0f * u1;
+    if (pdf) *pdf = float(1.0 / kFourPi);
+  } else {
+    // Largest i with cdf[i] <= u1: a bin of non-zero mass (u1 < 1 = cdf[bins]).
+    int lo = 0, hi = bins() - 1;
+    while (lo < hi) {
+      int mid = (lo + hi + 1) / 2;
+      if (cdf[mid] <= u1) lo = mid; else hi = mid - 1;
+    }
+    float width = cdf[lo + 1] - cdf[lo];
+    float du = width > 0 ? (u1 - cdf[lo]) / width : 0.5f;
+    du = std::min(std::max(du, 1e-4f), 1.0f - 1e-4f);
+    mu = -1.0f + 2.0f * (float(lo) + du) / float(bins());
+    if (pdf) *pdf = density[lo];
+  }
+  float sinT = std::sqrt(std::max(0.0f, 1.0f - mu * mu)), phi = 2.0f * kPi * u2;
+  return normalize(Frame(wi).toWorld(Vec3(sinT * std::cos(phi), sinT * std::sin(phi), mu)));
+}
+
+PhaseTable PhaseTable::isotropic(int bins) {
+  return fromHistogram(std::vector<double>(size_t(std::max(bins, 1)), 1.0));
+}
+
+PhaseTable PhaseTable::fromHistogram(const std::vector<double>& weights) {
+  const int n = std::max(int(weights.size()), 1);
+  std::vector<double> w(size_t(n), 0.0);
+  double total = 0;
+  for (size_t i = 0; i < weights.size(); ++i) {
+    w[i] = std::isfinite(weights[i]) && weights[i] > 0 ? weights[i] : 0.0;
+    total += w[i];
+  }
+  if (!(total > 0)) {
+    std::fill(w.begin(), w.end(), 1.0);
+    total = n;
+  }
+  PhaseTable p;
+  p.density.resize(size_t(n));
+  p.cdf.resize(size_t(n) + 1);
+  const double dmu = 2.0 / n;
+  double acc = 0, g = 0;
+  p.cdf[0] = 0;
+  for (int i = 0; i < n; ++i) {
+    double pi = w[size_t(i)] / total;
+    p.density[size_t(i)] = float(pi / (kTwoPi * dmu));  // 2π ∫ p dμ = 1 (NOTES item 3)
+    acc += pi;
+    p.cdf[size_t(i) + 1] = float(std::min(acc, 1.0));
+    g += pi * (-1.0 + (i + 0.5) * dmu);
+  }
+  p.cdf[size_t(n)] = 1.0f;
+  p.g = float(std::min(1.0, std::max(-1.0, g)));
+  return p;
+}
+
+// --- estimation -------------------------------------------------------------------------
+
+std::string grainTransportCacheName(const TriangleMesh& mesh, const Material& material, const TTOptions& options) {
+  return str("tt-v", kTTFormatVersion, "-", std::hex, cacheKey(mesh, material, options), ".bin");
+}
+
+GrainTransport estimateGrainTransport(const TriangleMesh& mesh, const Material& material, const TTOptions& options) {
+  validateOptions(mesh, options);
+  if (!options.useCache) return trace(mesh, material, options);
+  const uint64_t key = cacheKey(mesh, material, options);
+  const std::string name = grainTransportCacheName(mesh, material, options);
+  std::vector<char> bytes;
+  GrainTransport g;
+  if (readCacheFile(name, bytes) && deserialise(bytes, key, options, g)) {
+    g.fromCache = true;
+    return g;
+  }
+  g = trace(mesh, material, options);  // absent or corrupt: recompute and rewrite
+  writeCacheFile(name, serialise(g, key));
+  return g;
+}
+
+// --- medium -----------------------------------------------------------------------------
+
+MediumParams deriveMedium(const std::vector<GrainTransport>& prototypes, const std::vector<float>& weights,
+                          float grainRadius, float packingRate) {
+  const char* obj = "medium";
+  if (prototypes.empty()) throw InputError(obj, "prototypes", "no grain prototypes");
+  if (weights.size() != prototypes.size())
+    throw InputError(obj, "weights", str(weights.size(), " weights for ", prototypes.size(), " prototypes"));
+  double wsum = 0;
+  for (float w : weights) {
+    if (!(std::isfinite(w) && w >= 0)) throw InputError(obj, "weights", str(w, " is not a finite weight >= 0"));
+    wsum += w;
+  }
+  if (!(wsum > 0)) throw InputError(obj, "weights", "all weights are zero");
+  if (!(std::isfinite(grainRadius) && grainRadius > 0))
+    throw InputError(obj, "grainRadius", str(grainRadius, " is not > 0"));
+  if (!(packingRate > 0 && packingRate <= 0.64f))
+    throw InputError(obj, "packingRate", str(packingRate, " is outside (0, 0.64]"));
+
+  // Mixture rules of tt.h (a sphere holds prototype i with probability w_i).
+  const size_t np = prototypes.size();
+  std::vector<double> w(np);
+  for (size_t i = 0; i < np; ++i) w[i] = weights[i] / wsum;
+  GrainTransport mix;
+  double missW = 0, betaVar = 0, deltaVar = 0;
+  mix.beta = 0;
+  for (size_t i = 0; i < np; ++i) {
+    const GrainTransport& p = prototypes[i];
+    double b = std::min(1.0, std::max(0.0, p.beta));
+    mix.beta += w[i] * b;
+    betaVar += std::pow(w[i] * p.betaSE, 2);
+    missW += w[i] * (1.0 - b);
+    mix.lambdaDelta += w[i] * (1.0 - b) * p.lambdaDelta;
+    deltaVar += std::pow(w[i] * (1.0 - b) * p.lambdaDeltaSE, 2);
+    mix.rays += p.rays;
+    mix.truncated += p.truncated;
+  }
+  mix.betaSE = std::sqrt(betaVar);
+  if (missW > 0) {
+    mix.lambdaDelta /= missW;
+    mix.lambdaDeltaSE = std::sqrt(deltaVar) / missW;
+  } else {
+    mix.lambdaDelta = 0;  // every ray hits: no misses to average
+  }
+  int bins = 1;
+  for (const GrainTransport& p : prototypes)
+    for (const PhaseTable& t : p.phase) bins = std::max(bins, t.bins());
+  for (int c = 0; c < 3; ++c) {
+    double hitW = 0, exitW = 0, aVar = 0, sVar = 0, gVar = 0;
+    double a = 0, ls = 0, g = 0;
+    std::vector<double> hist(size_t(bins), 0.0);
+    for (size_t i = 0; i < np; ++i) {
+      const GrainTransport& p = prototypes[i];
+      double b = std::min(1.0, std::max(0.0, p.beta));
+      double alpha = std::min(1.0, std::max(0.0, p.albedo[c]));
+      double hw = w[i] * b, ew = hw * alpha;
+      hitW += hw;
+      a += hw * alpha;
+      aVar += std::pow(hw * p.albedoSE[c], 2);
+      exitW += ew;
+      ls += ew * p.lambdaS[c];
+      sVar += std::pow(ew * p.lambdaSSE[c], 2);
+      g += ew * p.g[c];
+      gVar += std::pow(ew * p.gSE[c], 2);
+      if (ew > 0)
+        for (int j = 0; j < bins; ++j)
+          hist[size_t(j)] += ew * p.phase[c].mass(-1.0 + 2.0 * j / bins, -1.0 + 2.0 * (j + 1) / bins);
+    }
+    if (hitW > 0) {
+      mix.albedo[c] = a / hitW;
+      mix.albedoSE[c] = std::sqrt(aVar) / hitW;
+    }
+    if (exitW > 0) {
+      mix.lambdaS[c] = ls / exitW;
+      mix.lambdaSSE[c] = std::sqrt(sVar) / exitW;
+      mix.g[c] = std::min(1.0, std::max(-1.0, g / exitW));
+      mix.gSE[c] = std::sqrt(gVar) / exitW;
+    }
+    mix.phase[c] = PhaseTable::fromHistogram(hist);  // all zero → isotropic
+  }
+
+  MediumParams mp;
+  mp.grainRadius = grainRadius;
+  mp.packingRate = packingRate;
+  const double R = grainRadius, f = packingRate;
+  const double sigmaB = 3.0 / (4.0 * R) * f / (1.0 - f);  // Dixmier (seed §2.1.1, NOTES item 2)
+  const double lambdaB = 1.0 / sigmaB;
+  mp.sigmaB = float(sigmaB);
+  // λ_β = λ_b + (λ_b + λ_δ)(1−β)/β (NOTES item 1); "never" (FLT_MAX) when no ray hits.
+  const double lambdaBeta = mix.beta > 0 ? lambdaB + (lambdaB + R * mix.lambdaDelta) * (1.0 - mix.beta) / mix.beta
+                                         : double(FLT_MAX);
+  const bool empty = !(mix.beta > 0);  // f → 0 needs no branch: the lengths clamp to FLT_MAX
+  for (int c = 0; c < 3; ++c) {
+    double alpha = mix.albedo[c], g = mix.g[c];
+    if (empty) {
+      mp.lambdaBeta[c] = mp.lambdaT[c] = FLT_MAX;
+      mp.sigmaT[c] = mp.sigmaA[c] = mp.sigmaSReduced[c] = mp.sigmaTReduced[c] = mp.sigmaTr[c] = 0;
+      mp.albedo[c] = mp.albedoReduced[c] = 1;
+      mp.g[c] = float(g);
+      continue;
+    }
+    double lambdaT = lambdaBeta + alpha * R * mix.lambdaS[c];  // λ_t = λ_β + α_s λ_s (seed §2.2)
+    double sigmaT = 1.0 / lambdaT;
+    double sigmaSr = (1.0 - g) * alpha * sigmaT;               // Jensen et al. 2001
+    double sigmaA = (1.0 - alpha) * sigmaT;
+    double sigmaTr = sigmaSr + sigmaA;
+    mp.lambdaBeta[c] = clampToFloat(lambdaBeta);
+    mp.lambdaT[c] = clampToFloat(lambdaT);
+    mp.sigmaT[c] = clampToFloat(sigmaT);
+    mp.albedo[c] = float(alpha);
+    mp.g[c] = float(g);
+    mp.sigmaSReduced[c] = clampToFloat(sigmaSr);
+    mp.sigmaTReduced[c] = clampToFloat(sigmaTr);
+    mp.albedoReduced[c] = sigmaTr > 0 ? float(sigmaSr / sigmaTr) : float(alpha);  // tt.h: σ'_t = 0 → α_s
+    mp.sigmaA[c] = clampToFloat(sigmaA);
+    mp.sigmaTr[c] = clampToFloat(std::sqrt(3.0 * sigmaA * sigmaTr));  // NOTES item 6
+  }
+  mp.phase = mix.phase;
+  mp.combined = mix;
+  return mp;
+}
+
+}  // namespace granular

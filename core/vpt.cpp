@@ -1,0 +1,200 @@
+#include "vpt.h"
+
+#include <cmath>
+
+#include "diffusion.h"
+#include "ept.h"
+#include "scene.h"
+
+namespace granular {
+
+MediumParams mediumFromRte(const Vec3& sigmaT, const Vec3& albedo, const PhaseTable& phase) {
+  MediumParams m;
+  m.sigmaT = sigmaT;
+  m.albedo = albedo;
+  m.phase = {phase, phase, phase};
+  m.g = Vec3(phase.g);
+  for (int c = 0; c < 3; ++c) {
+    m.lambdaT[c] = sigmaT[c] > 0 ? 1.0f / sigmaT[c] : kInf;
+    m.sigmaSReduced[c] = (1.0f - phase.g) * albedo[c] * sigmaT[c];
+    m.sigmaA[c] = (1.0f - albedo[c]) * sigmaT[c];
+    m.sigmaTReduced[c] = m.sigmaSReduced[c] + m.sigmaA[c];
+    m.albedoReduced[c] = m.sigmaTReduced[c] > 0 ? m.sigmaSReduced[c] / m.sigmaTReduced[c] : albedo[c];
+    m.sigmaTr[c] = std::sqrt(3.0f * m.sigmaA[c] * m.sigmaTReduced[c]);
+  }
+  return m;
+}
+
+HomogeneousMedium::HomogeneousMedium(const MediumParams& p)
+    : sigmaT_(p.sigmaT), albedo_(p.albedo), phase_(p.phase) {
+  samePhase_ = phase_[0].density == phase_[1].density && phase_[0].density == phase_[2].density;
+}
+
+HomogeneousMedium::HomogeneousMedium(const Vec3& sigmaT, const Vec3& albedo, const PhaseTable& phase)
+    : sigmaT_(sigmaT), albedo_(albedo), phase_{phase, phase, phase}, samePhase_(true) {}
+
+float HomogeneousMedium::sampleDistance(float uChannel, float u) const {
+  int c = std::min(int(uChannel * 3.0f), 2);
+  float s = sigmaT_[c];
+  if (s <= 0) return kInf;
+  return -std::log1p(-u) / s;
+}
+
+float HomogeneousMedium::distancePdf(float t) const {
+  float p = 0;
+  for (int c = 0; c < 3; ++c) p += sigmaT_[c] * std::exp(-sigmaT_[c] * t);
+  return p * (1.0f / 3.0f);
+}
+
+float HomogeneousMedium::survivalProbability(float s) const {
+  float p = 0;
+  for (int c = 0; c < 3; ++c) p += std::exp(-sigmaT_[c] * s);
+  return p * (1.0f / 3.0f);
+}
+
+Vec3 HomogeneousMedium::phase(const Vec3& wi, const Vec3& wo) const {
+  float mu = dot(wi, wo);
+  if (samePhase_) return Vec3(phase_[0].eval(mu));
+  return {phase_[0].eval(mu), phase_[1].eval(mu), phase_[2].eval(mu)};
+}
+
+float HomogeneousMedium::phasePdf(const Vec3& wi, const Vec3& wo) const { return average(phase(wi, wo)); }
+
+Vec3 HomogeneousMedium::samplePhase(const Vec3& wi, float uChannel, float u1, float u2, Vec3& weight,
+                                    float& pdf) const {
+  int c = samePhase_ ? 0 : std::min(int(uChannel * 3.0f), 2);
+  Vec3 wo = phase_[c].sample(wi, u1, u2);
+  Vec3 p = phase(wi, wo);
+  pdf = average(p);
+  weight = pdf > 0 ? p / pdf : Vec3(0.0f);
+  return wo;
+}
+
+float diffusionDepth(const MediumParams& p) {
+  float depth = 0;
+  for (int c = 0; c < 3; ++c) {
+    float a = p.sigmaTReduced[c] > 0 ? 1.0f / p.sigmaTReduced[c] : kInf;
+    float b = p.sigmaTr[c] > 0 ? 0.5f / p.sigmaTr[c] : kInf;
+    depth = std::max(depth, std::min(a, b));
+  }
+  return depth;
+}
+
+namespace {
+
+// Is p more than depth below the boundary? The distance field answers within its band;
+// beyond the band (where it is clamped) the exact point query does.
+bool deeperThan(const Aggregate& agg, const Vec3& p, float depth) {
+  float d = -agg.boundaryDistance(p);
+  if (d > depth) return true;
+  if (d < 0.99f * agg.distanceField().bandWidth()) return false;
+  Vec3 closest;
+  return agg.closestBoundaryPoint(p, closest) > depth;
+}
+
+// Scattering at p inside medium med: NEE through the media, then a phase-sampled direction.
+void scatterInMedium(const Scene& scene, PathState& path, const HomogeneousMedium& med, const Vec3& p) {
+  const auto& lights = scene.lights();
+  const Vec3 wi = path.ray.d;
+  if (!lights.empty()) {
+    const float lightPick = 1.0f / float(lights.size());
+    int li = std::min(int(path.rng.next1D() * lights.size()), int(lights.size()) - 1);
+    LightSample ls;
+    float u1 = path.rng.next1D(), u2 = path.rng.next1D();
+    if (lights[li].sampleLi(p, u1, u2, ls) && !isBlack(ls.Li)) {
+      Vec3 f = med.phase(wi, ls.wi);
+      float dist = std::isfinite(ls.dist) ? ls.dist * (1.0f - 1e-4f) : kInf;
+      Vec3 Tr = scene.transmittance(p, ls.wi, dist);
+      path.cost[1] += 1;
+      if (!isBlack(Tr) && !isBlack(f)) {
+        if (ls.delta) {
+          path.L[path.credit] += path.beta * f * Tr * ls.Li / lightPick;
+        } else {
+          float lp = ls.pdf * lightPick;
+          float w = powerHeuristic(lp, med.phasePdf(wi, ls.wi));
+          path.L[path.credit] += path.beta * f * Tr * ls.Li * (w / lp);
+        }
+      }
+    }
+  }
+  Vec3 weight;
+  float pdf;
+  float uc = path.rng.next1D(), u1 = path.rng.next1D(), u2 = path.rng.next1D();
+  Vec3 wo = med.samplePhase(wi, uc, u1, u2, weight, pdf);
+  path.beta *= weight;
+  path.lastDelta = false;
+  path.lastPdf = pdf;
+  path.lastP = p;
+  path.ray.o = p;
+  path.ray.d = wo;
+  path.ray.tmin = 0;
+  path.ray.tmax = kInf;
+  ++path.depth;
+  if (!russianRoulette(scene, path) || !isFinite(path.beta) || isBlack(path.beta) || pdf <= 0) path.alive = false;
+}
+
+}  // namespace
+
+void vptStep(const Scene& scene, PathState& path) {
+  if (path.depth >= scene.settings().maxDepth) {
+    path.alive = false;
+    return;
+  }
+  // Boundary crossings are null events (index-matched interface): loop over them.
+  for (int crossing = 0; crossing < 256; ++crossing) {
+    Hit hit;
+    bool found = scene.intersectMedium(path.ray, hit);
+    path.cost[1] += 1;
+    if (path.medium >= 0) {
+      const HomogeneousMedium& med = scene.medium(path.medium);
+      float tHit = found ? hit.t : kInf;
+      float t = med.sampleDistance(path.rng.next1D(), path.rng.next1D());
+      if (t < tHit) {
+        // Scattering at t: weight α σ_t T(t) / p(t) per channel (vpt.h).
+        Vec3 p = path.ray.o + path.ray.d * t;
+        path.beta *= med.transmittance(t) * med.sigmaT() * med.albedo() / med.distancePdf(t);
+        float daDepth = scene.diffusionDepth(path.medium);
+        if (scene.settings().technique == Technique::Hybrid && std::isfinite(daDepth) &&
+            deeperThan(*scene.aggregates()[path.medium], p, daDepth)) {
+          diffusionStep(scene, path, p);
+          return;
+        }
+        scatterInMedium(scene, path, med, p);
+        return;
+      }
+      if (!std::isfinite(tHit)) {  // a leak through the boundary (open by rounding): end the path
+        path.alive = false;
+        return;
+      }
+      // Passing to the hit: weight T(s) / P(flight >= s).
+      path.beta *= med.transmittance(tHit) / med.survivalProbability(tHit);
+    }
+    if (!found) {
+      path.L[path.credit] += path.beta * escapedRadiance(scene, path, path.ray.d);
+      path.alive = false;
+      return;
+    }
+    if (hit.kind == Hit::AreaLight) {
+      addAreaLightHit(scene, path, hit);
+      path.alive = false;
+      return;
+    }
+    if (hit.kind == Hit::Boundary) {
+      path.medium = dot(path.ray.d, hit.ng) < 0 ? hit.aggregate : -1;
+      path.ray.o = offsetRayOrigin(hit.p, hit.ng, path.ray.d, hit.eps);
+      path.ray.tmin = 0;
+      continue;
+    }
+    if (path.depth == 0) {
+      path.primary.hit = true;
+      path.primary.depth = scene.camera().viewDepth(hit.p);
+      path.primary.normal = dot(hit.ng, path.ray.d) > 0 ? -hit.ng : hit.ng;
+      path.primary.kind = int(hit.kind);
+    }
+    shadeSurface(scene, path, hit, true);
+    return;
+  }
+  path.alive = false;
+}
+
+}  // namespace granular

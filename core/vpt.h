@@ -1,0 +1,71 @@
+// vpt.h — volumetric path tracing (VPT) of the homogeneous medium equivalent to an
+// aggregate (seed §1.3), bounded by the aggregate's boundary mesh, which acts as an
+// index-matched interface (no refraction, no reflection).
+//
+// Contract: a HomogeneousMedium holds world-space σ_t and α_s per RGB channel and a
+// phase function per channel (tt.h's PhaseTable). Free flights in a chromatic medium are
+// sampled by one-sample MIS over the channels (a channel chosen uniformly, then an
+// exponential flight in it), so the pdf of a flight t is
+//   p(t) = (1/3) Σ_c σ_c exp(−σ_c t)        and   P(flight ≥ s) = (1/3) Σ_c exp(−σ_c s),
+// and the path weight of a scattering at t is α σ_t exp(−σ_t t) / p(t) (per channel), of
+// passing the boundary at s it is exp(−σ_t s) / P(flight ≥ s). Phase directions are drawn
+// likewise from one channel's table, with pdf the mean of the three tables' pdfs.
+#pragma once
+
+#include <array>
+
+#include "math.h"
+#include "tt.h"
+
+namespace granular {
+
+// RTE parameters given directly (σ_t, α_s, phase), with the reduced and diffusion
+// parameters derived as deriveMedium() does (seed §2.2, NOTES item 6): for closed-form
+// tests and validation against other renderers.
+MediumParams mediumFromRte(const Vec3& sigmaT, const Vec3& albedo, const PhaseTable& phase);
+
+class HomogeneousMedium {
+ public:
+  HomogeneousMedium() = default;
+  explicit HomogeneousMedium(const MediumParams& p);
+  // For tests and hand-made media: σ_t, α_s and one phase table for all channels.
+  HomogeneousMedium(const Vec3& sigmaT, const Vec3& albedo, const PhaseTable& phase);
+
+  const Vec3& sigmaT() const { return sigmaT_; }
+  const Vec3& albedo() const { return albedo_; }
+  bool empty() const { return maxComponent(sigmaT_) <= 0; }
+
+  Vec3 transmittance(float t) const { return vexp(sigmaT_ * -t); }
+
+  // Samples a flight distance (may be +inf for a channel with σ = 0); pdf as above.
+  float sampleDistance(float uChannel, float u) const;
+  float distancePdf(float t) const;
+  float survivalProbability(float s) const;
+
+  // Phase function value per channel for ω_i (direction of travel in) → ω_o (out).
+  Vec3 phase(const Vec3& wi, const Vec3& wo) const;
+  float phasePdf(const Vec3& wi, const Vec3& wo) const;
+  // Returns ω_o; pdf = phasePdf(wi, ω_o); weight = phase / pdf per channel.
+  Vec3 samplePhase(const Vec3& wi, float uChannel, float u1, float u2, Vec3& weight, float& pdf) const;
+
+ private:
+  Vec3 sigmaT_, albedo_;
+  std::array<PhaseTable, 3> phase_;
+  bool samePhase_ = true;  // one table serves all channels (cheaper evaluation)
+};
+
+struct PathState;
+class Scene;
+
+// One event of a path in the media (VPT): flights through boundaries (null crossings),
+// then a scattering in a medium (next-event estimation with transmittance, phase
+// sampling, MIS), a surface bounce, an emitter or an escape. Sets alive = false when
+// the path ends. With technique Hybrid, a scattering deeper than the DA criterion
+// (seed §3: min(1/σ'_t, 0.5/σ_tr) from the boundary) hands the path to diffusion.h.
+void vptStep(const Scene& scene, PathState& path);
+
+// Depth below the boundary beyond which DA replaces VPT, per seed §3, taken for the
+// channel with the longest such depth (DA must be valid in every channel).
+float diffusionDepth(const MediumParams& p);
+
+}  // namespace granular

@@ -1,0 +1,230 @@
+// Hybrid: switching EPT -> VPT -> DA against the EPT reference, energy conservation,
+// the AOV split, roulette and determinism (tests mirror core/hybrid.*).
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+
+#include "render.h"
+#include "scene.h"
+#include "shapes.h"
+
+using namespace granular;
+
+namespace {
+
+// A ball of bright sand grains under a sun and a sky, filling most of a small frame.
+SceneDesc ballScene(Technique t, int spp) {
+  SceneDesc s;
+  s.settings.technique = t;
+  s.settings.width = 20;
+  s.settings.height = 20;
+  s.settings.spp = spp;
+  s.settings.seed = 11;
+  s.camera.cameraToWorld = Transform::lookAt(Vec3(0.3f, 0.4f, 3.2f), Vec3(0, 0, 0), Vec3(0, 1, 0));
+  s.camera.focalLength = 50;
+  s.camera.horizontalAperture = s.camera.verticalAperture = 30;
+  MaterialDesc sand;
+  sand.name = "sand";
+  sand.type = MaterialType::Dielectric;
+  sand.ior = 1.5f;
+  sand.absorption = Vec3(0.02f, 0.04f, 0.1f);
+  s.materials.push_back(sand);
+  LightDesc sun;
+  sun.name = "sun";
+  sun.type = LightType::Distant;
+  sun.angle = 5;
+  sun.intensity = 3;
+  sun.xf = Transform::lookAt(Vec3(0.0f), Vec3(-0.4f, -1.0f, -0.5f), Vec3(0, 0, 1));
+  s.lights.push_back(sun);
+  LightDesc sky;
+  sky.name = "sky";
+  sky.type = LightType::Dome;
+  sky.color = Vec3(0.5f, 0.6f, 0.8f);
+  s.lights.push_back(sky);
+  AggregateDesc a;
+  a.name = "ball";
+  a.boundary = makeIcosphere(3);
+  // 50 grains per object radius: DA assumes a boundary flat on the scale of its depth
+  // (a few mean free paths); much smaller objects show its curvature bias (about 4% at 25).
+  a.grainRadius = 0.02f;
+  a.packingRate = 0.6f;
+  a.tileSpheres = 128;
+  a.seed = 3;
+  a.prototypes = {GrainPrototypeDesc{"rock", makeRock(1, 0.2f, 2), 0}};
+  a.weights = {1.0f};
+  s.aggregates.push_back(a);
+  return s;
+}
+
+Image renderImage(const SceneDesc& d) {
+  auto scene = Scene::build(d);
+  Renderer r(*scene);
+  EXPECT_TRUE(r.render(d.settings.spp));
+  return r.film().toImage();
+}
+
+// Per-pixel luminance mean and its standard error from the film.
+struct PixelStats {
+  std::vector<double> mean, se;
+};
+
+PixelStats renderStats(const SceneDesc& d) {
+  auto scene = Scene::build(d);
+  Renderer r(*scene);
+  EXPECT_TRUE(r.render(d.settings.spp));
+  PixelStats ps;
+  for (int y = 0; y < d.settings.height; ++y)
+    for (int x = 0; x < d.settings.width; ++x) {
+      ps.mean.push_back(luminance(r.film().mean(x, y)));
+      ps.se.push_back(r.film().stdError(x, y));
+    }
+  return ps;
+}
+
+}  // namespace
+
+TEST(Hybrid, AovsAddUpToTheBeauty) {
+  SceneDesc d = ballScene(Technique::Hybrid, 16);
+  d.settings.tau = 0.5f;  // switch early, so that all three transports contribute
+  Image img = renderImage(d);
+  double parts[3] = {0, 0, 0};
+  const char* names[3] = {"ept.R", "vpt.R", "da.R"};
+  for (int y = 0; y < img.height; ++y)
+    for (int x = 0; x < img.width; ++x)
+      for (int c = 0; c < 3; ++c) {
+        float sum = 0;
+        for (int t = 0; t < 3; ++t) {
+          float v = img.at(x, y)[img.channelIndex(names[t]) + c];
+          sum += v;
+          parts[t] += v;
+        }
+        EXPECT_NEAR(sum, img.at(x, y)[c], 1e-5f * (1.0f + img.at(x, y)[c]));
+      }
+  EXPECT_GT(parts[0], 0);
+  EXPECT_GT(parts[1], 0);
+}
+
+TEST(Hybrid, ClearGrainsInAWhiteFurnaceReturnTheEnvironment) {
+  // Non-absorbing grains: α_s = 1, so VPT and DA must conserve energy as EPT does.
+  SceneDesc d = ballScene(Technique::Hybrid, 16);
+  d.materials[0].absorption = Vec3(0.0f);
+  d.lights.clear();
+  LightDesc dome;
+  dome.name = "white";
+  dome.type = LightType::Dome;
+  d.lights.push_back(dome);
+  d.settings.tau = 0.5f;
+  d.settings.maxDepth = 1 << 20;
+  auto scene = Scene::build(d);
+  Renderer r(*scene);
+  ASSERT_TRUE(r.render(16));
+  Image img = r.film().toImage();
+  double s = 0, s2 = 0, high = 0;
+  int n = 0;
+  for (int y = 0; y < img.height; ++y)
+    for (int x = 0; x < img.width; ++x) {
+      double v = luminance(r.film().mean(x, y));
+      s += v; s2 += v * v; ++n;
+      high += img.at(x, y)[img.channelIndex("vpt.G")] + img.at(x, y)[img.channelIndex("da.G")];
+    }
+  double mean = s / n, se = std::sqrt(std::max(0.0, s2 / n - mean * mean) / (n - 1));
+  std::printf("furnace: mean %.4f ± %.4f, high-order share %.2f\n", mean, se, high / s);
+  EXPECT_GT(high / s, 0.2);
+  EXPECT_NEAR(mean, 1.0, 4 * se + 1e-4);
+}
+
+TEST(Hybrid, MatchesTheEptReferenceWithinNoise) {
+  PixelStats ref = renderStats(ballScene(Technique::Ept, 256));
+  PixelStats hyb = renderStats(ballScene(Technique::Hybrid, 256));
+  double sr = 0, sh = 0, chi2 = 0;
+  int n = 0, outliers = 0;
+  for (size_t i = 0; i < ref.mean.size(); ++i) {
+    sr += ref.mean[i];
+    sh += hyb.mean[i];
+    double s2 = ref.se[i] * ref.se[i] + hyb.se[i] * hyb.se[i];
+    if (!(s2 > 0)) continue;
+    double z2 = (hyb.mean[i] - ref.mean[i]) * (hyb.mean[i] - ref.mean[i]) / s2;
+    chi2 += z2;
+    outliers += z2 > 16;
+    ++n;
+  }
+  double rel = (sh - sr) / sr;
+  std::printf("hybrid vs EPT: mean relative difference %.4f, mean z^2 %.3f over %d pixels, %d beyond 4 sigma\n", rel,
+              chi2 / n, n, outliers);
+  EXPECT_LE(std::fabs(rel), 0.03);
+  // Differences consistent with noise: E[z²] = 1 without bias (allow for the SEs' own noise).
+  EXPECT_LT(chi2 / n, 1.5);
+  EXPECT_LE(outliers, n / 50 + 1);
+}
+
+TEST(Hybrid, RouletteKeepsTheImageUnbiased) {
+  SceneDesc d = ballScene(Technique::Hybrid, 64);
+  d.settings.tau = 0.5f;
+  d.settings.roulette = 1.0f;
+  PixelStats full = renderStats(d);
+  d.settings.roulette = 0.3f;
+  d.settings.seed = 12;
+  PixelStats cut = renderStats(d);
+  double sf = 0, sc = 0, vf = 0, vc = 0;
+  for (size_t i = 0; i < full.mean.size(); ++i) {
+    sf += full.mean[i]; sc += cut.mean[i];
+    vf += full.se[i] * full.se[i]; vc += cut.se[i] * cut.se[i];
+  }
+  double se = std::sqrt(vf + vc);
+  EXPECT_NEAR(sc, sf, 4 * se);
+}
+
+TEST(Hybrid, TunedRouletteIsInRangeAndDeterministic) {
+  SceneDesc d = ballScene(Technique::Hybrid, 16);
+  auto scene = Scene::build(d);
+  RouletteTuning a = tuneRoulette(*scene), b = tuneRoulette(*scene);
+  EXPECT_GT(a.pa, 0.0f);
+  EXPECT_LE(a.pa, 1.0f);
+  EXPECT_EQ(a.pa, b.pa);
+  EXPECT_EQ(a.VL, b.VL);
+  EXPECT_GE(a.pixels, 64);
+  EXPECT_GT(a.tL, 0);
+}
+
+TEST(Hybrid, SameSeedSameImageForOneAndTwoThreads) {
+  SceneDesc d = ballScene(Technique::Hybrid, 16);
+  d.settings.tau = 0.5f;
+  d.settings.threads = 1;
+  Image a = renderImage(d);
+  d.settings.threads = 2;
+  Image b = renderImage(d);
+  ASSERT_EQ(a.pixels.size(), b.pixels.size());
+  for (size_t i = 0; i < a.pixels.size(); ++i)
+    if (!(std::isinf(a.pixels[i]) && std::isinf(b.pixels[i]))) ASSERT_EQ(a.pixels[i], b.pixels[i]) << i;
+}
+
+TEST(Hybrid, EptTechiqueNeverUsesTheMedia) {
+  SceneDesc d = ballScene(Technique::Ept, 4);
+  auto scene = Scene::build(d);
+  EXPECT_FALSE(scene->hasMedia());  // and no TT work was done for it
+  Renderer r(*scene);
+  ASSERT_TRUE(r.render(4));
+  EXPECT_EQ(r.bundleSize(), 1);
+  Image img = r.film().toImage();
+  for (int y = 0; y < img.height; ++y)
+    for (int x = 0; x < img.width; ++x) {
+      EXPECT_EQ(img.at(x, y)[img.channelIndex("vpt.G")], 0.0f);
+      EXPECT_EQ(img.at(x, y)[img.channelIndex("da.G")], 0.0f);
+    }
+}
+
+TEST(Hybrid, AnAggregateThinnerThanItsMeanFreePathIsLeftToEpt) {
+  SceneDesc d = ballScene(Technique::Hybrid, 4);
+  // A sheet two grains thick: paths cross it without scattering much.
+  d.aggregates[0].boundary = makeBox(Vec3(-1, -1, -0.04f), Vec3(1, 1, 0.04f));
+  auto thin = Scene::build(d);
+  EXPECT_FALSE(thin->hasMedia());
+  Renderer r(*thin);
+  EXPECT_EQ(r.bundleSize(), 1);
+  // The ball itself is thick enough for VPT and for DA.
+  auto ball = Scene::build(ballScene(Technique::Hybrid, 4));
+  ASSERT_TRUE(ball->hasMedia());
+  EXPECT_TRUE(std::isfinite(ball->diffusionDepth(0)));
+  EXPECT_NEAR(ball->aggregates()[0]->stats().maxInteriorDepth, 1.0f, 0.1f);
+}

@@ -1,0 +1,134 @@
+// VPT: free-flight sampling, transmittance and single scattering of a homogeneous slab
+// against closed forms (tests mirror core/vpt.*).
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "ept.h"
+#include "scene.h"
+#include "shapes.h"
+#include "vpt.h"
+
+using namespace granular;
+
+namespace {
+
+constexpr float kSlab = 1.0f;  // thickness along z, top face at z = kSlab
+
+// A wide slab aggregate [-10,10]^2 x [0,1]; its grains are never seen by VPT.
+SceneDesc slabScene() {
+  SceneDesc s;
+  s.settings.technique = Technique::EptVpt;
+  s.settings.width = s.settings.height = 4;
+  MaterialDesc glass;
+  glass.name = "glass";
+  glass.type = MaterialType::Dielectric;
+  s.materials.push_back(glass);
+  AggregateDesc a;
+  a.name = "slab";
+  a.boundary = makeBox(Vec3(-10, -10, 0), Vec3(10, 10, kSlab));
+  a.grainRadius = 0.1f;
+  a.packingRate = 0.3f;
+  a.tileSpheres = 64;
+  a.prototypes = {GrainPrototypeDesc{"ball", makeIcosphere(1), 0}};
+  a.weights = {1.0f};
+  s.aggregates.push_back(a);
+  return s;
+}
+
+// Mean and standard error of n independent estimates of the radiance along a ray that
+// starts above the slab in the media (VPT) mode.
+void estimate(const Scene& scene, const Ray& ray, int n, Vec3& mean, Vec3& se) {
+  Vec3 s(0.0f), s2(0.0f);
+  for (int i = 0; i < n; ++i) {
+    PathState p = startPath(ray, hashInts(42, uint64_t(i)));
+    p.mode = p.credit = kVpt;
+    p.lastDelta = true;
+    while (p.alive) vptStep(scene, p);
+    Vec3 L = p.radiance();
+    s += L;
+    s2 += L * L;
+  }
+  mean = s / float(n);
+  for (int c = 0; c < 3; ++c) se[c] = std::sqrt(std::max(0.0f, s2[c] / n - mean[c] * mean[c]) / (n - 1));
+}
+
+}  // namespace
+
+TEST(Vpt, DistanceSamplingPdfIntegratesToOneAndMatchesHistogram) {
+  HomogeneousMedium m(Vec3(0.5f, 1.0f, 3.0f), Vec3(1.0f), PhaseTable::isotropic());
+  // ∫ p(t) dt over [0, 40] by the midpoint rule.
+  double integral = 0;
+  for (int i = 0; i < 400000; ++i) integral += m.distancePdf((i + 0.5f) * 1e-4f) * 1e-4;
+  EXPECT_NEAR(integral, 1.0, 1e-3);
+  // The fraction of samples below s is 1 − P(flight ≥ s).
+  Rng rng(3);
+  const int n = 200000;
+  int below = 0;
+  for (int i = 0; i < n; ++i) below += m.sampleDistance(rng.next1D(), rng.next1D()) < 0.7f;
+  double p = 1.0 - m.survivalProbability(0.7f);
+  EXPECT_NEAR(double(below) / n, p, 4 * std::sqrt(p * (1 - p) / n));
+}
+
+TEST(Vpt, SceneTransmittanceIsBeerLambertThroughTheSlab) {
+  SceneDesc d = slabScene();
+  auto scene = Scene::build(d);
+  scene->setMedium(0, mediumFromRte(Vec3(0.5f, 1.0f, 2.0f), Vec3(0.3f), PhaseTable::isotropic()));
+  Vec3 dir = normalize(Vec3(0.3f, 0.1f, -1.0f));
+  float len = kSlab / -dir.z;  // path length inside
+  Vec3 T = scene->transmittance(Vec3(0, 0, 3), dir, 10.0f);
+  for (int c = 0; c < 3; ++c) EXPECT_NEAR(T[c], std::exp(-scene->medium(0).sigmaT()[c] * len), 1e-4f);
+  // From inside: only the part to the boundary counts.
+  Vec3 Tin = scene->transmittance(Vec3(0, 0, 0.25f), Vec3(0, 0, 1), 10.0f);
+  EXPECT_NEAR(Tin.y, std::exp(-1.0f * 0.75f), 1e-4f);
+  EXPECT_EQ(scene->mediumAt(Vec3(0, 0, 0.5f)), 0);
+  EXPECT_EQ(scene->mediumAt(Vec3(0, 0, 1.5f)), -1);
+}
+
+TEST(Vpt, ChromaticTransmittanceOfAnAbsorbingSlab) {
+  // Albedo 0: a path passes with weight T/P or is absorbed, so E[L] = exp(−σ_c d).
+  SceneDesc d = slabScene();
+  LightDesc dome;
+  dome.name = "dome";
+  dome.type = LightType::Dome;
+  d.lights.push_back(dome);
+  auto scene = Scene::build(d);
+  Vec3 sigma(0.5f, 1.0f, 2.0f);
+  scene->setMedium(0, mediumFromRte(sigma, Vec3(0.0f), PhaseTable::isotropic()));
+  Ray ray{Vec3(0, 0, 3), Vec3(0, 0, -1)};
+  Vec3 mean, se;
+  estimate(*scene, ray, 40000, mean, se);
+  for (int c = 0; c < 3; ++c) {
+    EXPECT_GT(se[c], 0.0f);
+    EXPECT_NEAR(mean[c], std::exp(-sigma[c] * kSlab), 4 * se[c]) << c;
+  }
+}
+
+TEST(Vpt, SingleScatteringOfASlabUnderASun) {
+  // One scattering (maxDepth 1), isotropic phase, a delta sun of irradiance E at cosine μ
+  // above the slab, viewed straight down: L = α σ E/(4π) (1 − e^{−σd(1+1/μ)}) / (σ(1+1/μ)).
+  SceneDesc d = slabScene();
+  d.settings.maxDepth = 1;
+  LightDesc sun;
+  sun.name = "sun";
+  sun.type = LightType::Distant;
+  sun.angle = 0;
+  Vec3 toSun = normalize(Vec3(0.5f, 0.0f, 1.0f));
+  sun.xf = Transform::lookAt(Vec3(0.0f), -toSun, Vec3(0, 1, 0));  // emits along local −Z
+  sun.intensity = 2.0f;
+  d.lights.push_back(sun);
+  auto scene = Scene::build(d);
+  LightSample ls;
+  ASSERT_TRUE(scene->lights()[0].sampleLi(Vec3(0.0f), 0.5f, 0.5f, ls));
+  ASSERT_TRUE(ls.delta);
+  ASSERT_NEAR(dot(ls.wi, toSun), 1.0f, 1e-5f);
+  const float sigma = 1.5f, albedo = 0.8f;
+  scene->setMedium(0, mediumFromRte(Vec3(sigma), Vec3(albedo), PhaseTable::isotropic()));
+  Ray ray{Vec3(0, 0, 3), Vec3(0, 0, -1)};
+  Vec3 mean, se;
+  estimate(*scene, ray, 40000, mean, se);
+  float mu = toSun.z, k = sigma * (1.0f + 1.0f / mu);
+  float expected = albedo * sigma * 2.0f / (4.0f * kPi) * (1.0f - std::exp(-k * kSlab)) / k;
+  EXPECT_GT(se.x, 0.0f);
+  EXPECT_NEAR(mean.x, expected, 4 * se.x) << "se " << se.x;
+}
