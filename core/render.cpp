@@ -31,6 +31,9 @@ bool Renderer::renderPass(int samples, const std::atomic<bool>* cancel) {
   const Camera& cam = scene_.camera();
   const float pa = roulette_.pa;
   std::atomic<bool> cancelled{false};
+  passPixels_ = 0;
+  passBase_ = done_;
+  passSamples_ = samples;
   auto body = [&](const tbb::blocked_range2d<int>& r) {
     std::vector<PathState> paths;
     for (int y = r.rows().begin(); y < r.rows().end(); ++y)
@@ -59,6 +62,7 @@ bool Renderer::renderPass(int samples, const std::atomic<bool>* cancel) {
             film_.add(x, y, ps);
           }
         }
+        passPixels_.fetch_add(1, std::memory_order_relaxed);
       }
   };
   tbb::blocked_range2d<int> range(0, rs.height, 8, 0, rs.width, 8);
@@ -70,7 +74,17 @@ bool Renderer::renderPass(int samples, const std::atomic<bool>* cancel) {
   }
   if (cancelled) return false;
   done_ += samples;
+  passBase_ = done_;
+  passSamples_ = 0;
   return true;
+}
+
+double Renderer::progressSamples() const {
+  const double pixels = double(film_.width()) * film_.height();
+  const int n = passSamples_.load(std::memory_order_relaxed);
+  const long base = passBase_.load(std::memory_order_relaxed);
+  if (n == 0 || pixels <= 0) return double(base);
+  return double(base) + n * std::min(1.0, double(passPixels_.load(std::memory_order_relaxed)) / pixels);
 }
 
 bool Renderer::render(int passSamples, const std::function<void(const RenderProgress&)>& progress,

@@ -38,6 +38,10 @@ class Renderer {
   const Film& film() const { return film_; }
   long samplesPerPixel() const { return done_; }
   int bundleSize() const { return bundle_; }
+  // Samples per pixel done so far, counting the finished pixels of the pass under way as
+  // fractions of it (passes of whole bundles can be long); safe to read from any thread
+  // while render() runs, for progress bars.
+  double progressSamples() const;
   // The roulette used (after the first pass): P_a and, when tuned, the pre-render's numbers.
   const RouletteTuning& roulette() const { return roulette_; }
 
@@ -48,6 +52,8 @@ class Renderer {
   long done_ = 0;
   int bundle_ = 1;
   bool prepared_ = false;
+  std::atomic<long> passBase_{0}, passPixels_{0};
+  std::atomic<int> passSamples_{0};
   RouletteTuning roulette_;
 };
 

@@ -1,10 +1,12 @@
 // bindings.cpp — the granular_core Python module: core/ for the usd-core front end.
 //
 // Contract: exposes the plain scene description (SceneDesc and its parts) for a front
-// end to fill, validation, scene building and progressive rendering with the GIL
-// released (a progress callback runs under the GIL after each pass; if it raises, the
-// render is cancelled and the exception propagates), image output, and the coarse
-// density export / VDB read-back. Vec3 values are 3-sequences (returned as tuples);
+// end to fill, validation, scene building and progressive rendering on a worker thread
+// with the GIL released (a progress callback runs under the GIL every fraction of a
+// second; if it raises, or Ctrl-C arrives, the render is cancelled and the exception
+// propagates), image output, and the coarse
+// density export / VDB read-back, and the teleportation-transport media of a built
+// scene (Scene.media). Vec3 values are 3-sequences (returned as tuples);
 // transforms are 4x4 nested sequences in core's convention (row-major, acting on
 // column vectors: a USD GfMatrix4d is its transpose). Point and index arrays are numpy
 // arrays. core's InputError surfaces as granular_core.InputError (a ValueError) with
@@ -15,9 +17,14 @@
 #include <pybind11/stl.h>
 
 #include <atomic>
+#include <chrono>
 #include <cmath>
+#include <condition_variable>
+#include <exception>
 #include <memory>
+#include <mutex>
 #include <optional>
+#include <thread>
 
 #include "density_export.h"
 #include "error.h"
@@ -28,10 +35,7 @@
 #include "scene_desc.h"
 #include "scene_io.h"
 #include "shapes.h"
-#ifdef GRANULAR_HAVE_TT
-#include "grain.h"
 #include "tt.h"
-#endif
 
 namespace py = pybind11;
 using namespace granular;
@@ -183,7 +187,6 @@ struct PyRenderer {
   std::unique_ptr<Renderer> renderer;
 };
 
-#ifdef GRANULAR_HAVE_TT
 py::dict mediumDict(const MediumParams& m) {
   py::dict d;
   d["grain_radius"] = m.grainRadius;
@@ -205,9 +208,9 @@ py::dict mediumDict(const MediumParams& m) {
   d["sigma_tr"] = m.sigmaTr;
   d["mean_free_path"] = m.meanFreePath();
   d["rays"] = m.combined.rays;
+  d["truncated"] = m.combined.truncated;
   return d;
 }
-#endif
 
 }  // namespace
 
@@ -340,6 +343,14 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("seed", &AggregateDesc::seed)
       .def_readwrite("tile_spheres", &AggregateDesc::tileSpheres);
 
+  py::enum_<Technique>(m, "Technique")
+      .value("Ept", Technique::Ept)
+      .value("EptVpt", Technique::EptVpt)
+      .value("Hybrid", Technique::Hybrid);
+  m.def("technique_from_name", &techniqueFromName, py::arg("name"), py::arg("object"),
+        "\"ept\", \"ept+vpt\" or \"hybrid\"; else InputError on object.technique");
+  m.def("technique_name", &techniqueName, py::arg("technique"));
+
   py::class_<RenderSettings>(m, "RenderSettings")
       .def(py::init<>())
       .def_readwrite("width", &RenderSettings::width)
@@ -348,7 +359,11 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("seed", &RenderSettings::seed)
       .def_readwrite("max_depth", &RenderSettings::maxDepth)
       .def_readwrite("rr_depth", &RenderSettings::rrDepth)
-      .def_readwrite("threads", &RenderSettings::threads);
+      .def_readwrite("threads", &RenderSettings::threads)
+      .def_readwrite("technique", &RenderSettings::technique)
+      .def_readwrite("bundle_size", &RenderSettings::bundleSize)
+      .def_readwrite("tau", &RenderSettings::tau)
+      .def_readwrite("roulette", &RenderSettings::roulette);
 
   py::class_<SceneDesc>(m, "SceneDesc")
       .def(py::init<>())
@@ -368,7 +383,8 @@ PYBIND11_MODULE(granular_core, m) {
   m.def("load_scene_json", &loadSceneJson, py::arg("path"), py::call_guard<py::gil_scoped_release>());
 
   // ---- scene building and rendering --------------------------------------------------
-  py::class_<PyScene, std::shared_ptr<PyScene>>(m, "Scene")
+  py::class_<PyScene, std::shared_ptr<PyScene>> scene(m, "Scene");
+  scene
       .def_static(
           "build",
           [](const SceneDesc& desc) {
@@ -380,6 +396,8 @@ PYBIND11_MODULE(granular_core, m) {
           },
           py::arg("desc"), "Validates and builds (BVHs, tiles, distance fields); the GIL is released.")
       .def_property_readonly("build_seconds", [](const PyScene& s) { return s.scene->buildSeconds(); })
+      .def_property_readonly("has_media", [](const PyScene& s) { return s.scene->hasMedia(); },
+                             "whether the integrator uses the equivalent media (VPT, DA) in this scene")
       .def_property_readonly("aggregates", [](const PyScene& s) {
         py::list out;
         const auto& aggs = s.scene->aggregates();
@@ -410,35 +428,88 @@ PYBIND11_MODULE(granular_core, m) {
            py::arg("scene"))
       .def(
           "render",
-          [](PyRenderer& r, int passSamples, const std::optional<py::function>& progress) {
+          [](PyRenderer& r, int passSamples, const std::optional<py::function>& progress, double interval) {
             if (passSamples < 1) throw py::value_error("pass_samples must be >= 1");
+            if (!(interval > 0)) throw py::value_error("interval must be > 0");
+            // The render runs on a worker thread; this (the calling, usually main) thread
+            // waits with the GIL released, and every `interval` seconds takes it to call
+            // progress and to let Python handle signals (Ctrl-C), which only the main
+            // thread can. Either raising cancels the render; the exception propagates.
+            Renderer& renderer = *r.renderer;
+            const long target = r.scene->desc.settings.spp;
             std::atomic<bool> cancel{false};
+            std::mutex mu;
+            std::condition_variable cv;
+            bool finished = false, completed = false;
+            std::exception_ptr failure;
+            const auto t0 = std::chrono::steady_clock::now();
+            auto seconds = [&] { return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(); };
             std::optional<py::error_already_set> pending;
-            std::function<void(const RenderProgress&)> cb;
-            if (progress) {
-              cb = [&](const RenderProgress& p) {
-                py::gil_scoped_acquire acquire;
-                try {
-                  if (PyErr_CheckSignals() != 0) throw py::error_already_set();
-                  (*progress)(p.samplesDone, p.samplesTarget, p.seconds);
-                } catch (py::error_already_set& e) {
-                  if (!pending) pending.emplace(std::move(e));
-                  cancel = true;
-                }
-              };
+            auto poll = [&](double done) {
+              try {
+                if (PyErr_CheckSignals() != 0) throw py::error_already_set();
+                if (progress) (*progress)(done, target, seconds());
+              } catch (py::error_already_set& e) {
+                if (!pending) pending.emplace(std::move(e));
+                cancel = true;
+              }
+            };
+            std::thread worker([&] {
+              bool ok = false;
+              std::exception_ptr err;
+              try {
+                ok = renderer.render(passSamples, nullptr, &cancel);
+              } catch (...) {
+                err = std::current_exception();
+              }
+              std::lock_guard<std::mutex> lock(mu);
+              finished = true;
+              completed = ok;
+              failure = err;
+              cv.notify_all();
+            });
+            for (;;) {
+              bool done;
+              {
+                py::gil_scoped_release release;
+                std::unique_lock<std::mutex> lock(mu);
+                done = cv.wait_for(lock, std::chrono::duration<double>(interval), [&] { return finished; });
+              }
+              if (done) break;
+              if (!pending) poll(renderer.progressSamples());
             }
-            bool done;
             {
               py::gil_scoped_release release;
-              done = r.renderer->render(passSamples, cb, &cancel);
+              worker.join();
             }
+            if (failure) std::rethrow_exception(failure);
             if (pending) throw std::move(*pending);
-            return done;
+            if (completed) {
+              poll(double(renderer.samplesPerPixel()));  // the final 100%
+              if (pending) throw std::move(*pending);
+            }
+            return completed;
           },
-          py::arg("pass_samples") = 1, py::arg("progress") = py::none(),
-          "Renders settings.spp samples per pixel in passes, the GIL released; calls progress(done, target, "
-          "seconds) after each pass. Returns False if cancelled.")
+          py::arg("pass_samples") = 1, py::arg("progress") = py::none(), py::arg("interval") = 0.25,
+          "Renders settings.spp samples per pixel (passes of pass_samples, rounded up to whole bundles) "
+          "on a worker thread, the GIL released; calls progress(samples_done: float, target, seconds) "
+          "every `interval` seconds and at the end. Returns False if cancelled.")
       .def_property_readonly("samples_per_pixel", [](const PyRenderer& r) { return r.renderer->samplesPerPixel(); })
+      .def_property_readonly("bundle_size", [](const PyRenderer& r) { return r.renderer->bundleSize(); })
+      .def_property_readonly(
+          "roulette",
+          [](const PyRenderer& r) {
+            const RouletteTuning& t = r.renderer->roulette();
+            py::dict d;
+            d["pa"] = t.pa;
+            d["pixels"] = t.pixels;
+            d["VL"] = t.VL;
+            d["VH"] = t.VH;
+            d["tL"] = t.tL;
+            d["tH"] = t.tH;
+            return d;
+          },
+          "P_a used (after the first pass) and, when tuned, the pre-render's numbers")
       .def("image", [](const PyRenderer& r) { return r.renderer->film().toImage(); });
 
   m.def("write_exr", &writeExr, py::arg("path"), py::arg("image"), py::call_guard<py::gil_scoped_release>());
@@ -498,41 +569,32 @@ PYBIND11_MODULE(granular_core, m) {
       },
       py::arg("path"), py::arg("grid"), py::arg("points"), "World-space values of a float grid (nearest voxel).");
 
-  // ---- teleportation transport (when core has it) ----------------------------------------
-#ifdef GRANULAR_HAVE_TT
-  m.attr("has_tt") = true;
-  m.def(
-      "derive_media",
-      [](const SceneDesc& desc, int64_t rays, uint64_t seed) {
-        // Per aggregate: each prototype normalised as the renderer does, its transport
-        // estimated (cached on disk), then combined by the mixing weights.
-        validateSceneDesc(desc);
+  // ---- teleportation transport -------------------------------------------------------------
+  scene.def(
+      "media",
+      [](const PyScene& s) {
+        // The renderer's own media when it built them; else the same derivation
+        // (Scene::build's): each normalised prototype with its scene material through
+        // estimateGrainTransport (cached on disk), combined by deriveMedium.
         std::vector<MediumParams> media;
         {
           py::gil_scoped_release release;
-          EmbreeDevice device;
-          for (const AggregateDesc& a : desc.aggregates) {
-            std::vector<GrainTransport> per;
-            for (const GrainPrototypeDesc& p : a.prototypes) {
-              GrainPrototype proto = makeGrainPrototype(device, p);
-              MaterialDesc md;
-              md.type = MaterialType::Dielectric;  // core's default grain: clear, IOR 1.5
-              if (p.material >= 0) md = desc.materials[size_t(p.material)];
-              TTOptions o;
-              if (rays > 0) o.rays = rays;
-              o.seed = seed;
-              per.push_back(estimateGrainTransport(proto.mesh, Material::fromDesc(md), o));
+          const Scene& sc = *s.scene;
+          for (size_t i = 0; i < sc.aggregates().size(); ++i) {
+            if (sc.hasMedia()) {
+              media.push_back(sc.mediumParams(int(i)));
+              continue;
             }
-            media.push_back(deriveMedium(per, a.weights, a.grainRadius, a.packingRate));
+            const Aggregate& a = *sc.aggregates()[i];
+            std::vector<GrainTransport> gts;
+            for (const GrainPrototype& p : a.prototypes()) gts.push_back(estimateGrainTransport(p.mesh, sc.material(p.material)));
+            const AggregateDesc& ad = s.desc.aggregates[i];
+            media.push_back(deriveMedium(gts, ad.weights, ad.grainRadius, ad.packingRate));
           }
         }
         py::list out;
         for (const MediumParams& mp : media) out.append(mediumDict(mp));
         return out;
       },
-      py::arg("desc"), py::arg("rays") = 0, py::arg("seed") = 1,
-      "TT and RTE parameters of every aggregate of desc (world space), as dicts.");
-#else
-  m.attr("has_tt") = false;
-#endif
+      "TT and RTE parameters of every aggregate (world space), as dicts; the GIL is released.");
 }

@@ -2,6 +2,7 @@
 
     granular render SCENE.usda -o OUT.exr [--png OUT.png] [--width W --height H] [--spp N]
                     [--camera /path] [--seed S] [--threads T] [--exposure E] [--quiet]
+                    [--technique ept|ept+vpt|hybrid] [--roulette P_a]
     granular info SCENE.usda [--json]
     granular export-vdb SCENE.usda --prim /path -o OUT.vdb [--voxel-size S]
 
@@ -64,6 +65,16 @@ def _finite_float(flag):
     return parse
 
 
+def _roulette(text):
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
+    if math.isnan(v) or v == 0 or v > 1:
+        raise argparse.ArgumentTypeError(f"{text} must be in (0, 1], or negative for automatic")
+    return v
+
+
 def build_parser():
     p = _Parser(prog="granular", description="hdGranular: render granular materials from USD stages.")
     p.add_argument("--version", action="version", version=f"granular {__version__}")
@@ -84,6 +95,12 @@ def build_parser():
     r.add_argument("--threads", type=_int_in(0, 1024, "--threads"), default=0, help="threads (0: all cores)")
     r.add_argument("--exposure", type=_finite_float("--exposure"), default=0.0,
                    help="exposure of the PNG in stops (0)")
+    r.add_argument("--technique", choices=["ept", "ept+vpt", "hybrid"], default="hybrid",
+                   help="transports of the multi-scale integrator: explicit grains only (the reference), "
+                        "plus volumetric path tracing in the equivalent media, plus diffusion (default)")
+    r.add_argument("--roulette", type=_roulette, default=-1.0, metavar="P_a",
+                   help="survival probability of a path at the switch from EPT to the media, in (0, 1]; "
+                        "negative (default): tuned by a pre-render")
     r.add_argument("--quiet", action="store_true", help="no progress or statistics on stderr")
 
     i = sub.add_parser("info", help="grain counts, tiles and transport parameters of each aggregate")
@@ -122,6 +139,7 @@ class _Progress:
         self.stream = stream
         self.tty = enabled and stream.isatty()
         self.last_quarter = -1
+        self.last_len = 0
 
     def __call__(self, done, target, seconds):
         if not self.enabled:
@@ -130,9 +148,11 @@ class _Progress:
         eta = seconds / frac - seconds if frac > 0 else 0.0
         width = 30
         bar = "#" * int(frac * width) + "-" * (width - int(frac * width))
-        line = f"  [{bar}] {done}/{target} spp  {seconds:.1f} s  eta {eta:.0f} s"
+        line = f"  [{bar}] {done:.1f}/{target} spp  {seconds:.1f} s  eta {eta:.0f} s"
         if self.tty:
-            self.stream.write("\r" + line + ("\n" if done >= target else ""))
+            pad = " " * max(0, self.last_len - len(line))  # wipe the rest of a longer previous line
+            self.last_len = len(line)
+            self.stream.write("\r" + line + pad + ("\n" if done >= target else ""))
             self.stream.flush()
         else:
             quarter = int(frac * 4)
@@ -187,6 +207,8 @@ def cmd_render(args):
     s.spp = args.spp
     s.seed = args.seed
     s.threads = args.threads
+    s.technique = core.technique_from_name(args.technique, "command line")
+    s.roulette = args.roulette
     _warnings(args, scene)
     built = _build(scene)
     _log(args, f"{args.scene}: camera {scene.camera_path}, {s.width}x{s.height}, {s.spp} spp; "
@@ -196,8 +218,20 @@ def cmd_render(args):
                    f"({a['inside_cells']} inside, {a['partial_cells']} partial)")
     renderer = core.Renderer(built)
     t1 = time.monotonic()
-    renderer.render(1, _Progress(not args.quiet))
+    renderer.render(1, _Progress(not args.quiet), 0.5)
     image = renderer.image()
+    if built.has_media:
+        rt = renderer.roulette
+        tuned = f" (tuned on {rt['pixels']} pixels)" if rt["pixels"] else ""
+        means = []
+        for part in ("ept", "vpt", "da"):
+            c = image.channels.index(part + ".R")
+            means.append(float((image.pixels[..., c:c + 3] @ [0.2126, 0.7152, 0.0722]).mean()))
+        _log(args, f"  technique {args.technique}, bundles of {renderer.bundle_size}, P_a {rt['pa']:.3f}{tuned}; "
+                   f"mean luminance by transport: EPT {means[0]:.4g}, VPT {means[1]:.4g}, DA {means[2]:.4g}")
+    elif args.technique != "ept":
+        _log(args, f"  technique {args.technique}: every aggregate is thinner than its mean free path, "
+                   f"so explicit grains (EPT) render it all")
     written = []
     try:
         core.write_exr(args.output, image)
@@ -213,6 +247,15 @@ def cmd_render(args):
     return EXIT_OK
 
 
+def _fmt3(v):
+    return "(" + ", ".join(f"{x:.4g}" for x in v) + ")"
+
+
+def _f32(x):
+    """A float32 value (core's) as the shortest decimal that round-trips it."""
+    return float(f"{x:.7g}")
+
+
 def _aggregate_report(scene, built, media):
     out = []
     for k, (src, info) in enumerate(zip(scene.aggregates, built.aggregates)):
@@ -220,36 +263,34 @@ def _aggregate_report(scene, built, media):
         r = {
             "prim": src["prim"],
             "prototypes": src["prototypes"],
-            "weights": list(scene.desc.aggregates[k].weights),
-            "grain_radius": v["grainRadius"].value,
-            "packing_rate": v["packingRate"].value,
+            "weights": [_f32(w) for w in scene.desc.aggregates[k].weights],
+            "grain_radius": _f32(v["grainRadius"].value),
+            "packing_rate": _f32(v["packingRate"].value),
             "seed": v["seed"].value,
             "tile_spheres": v["tileSpheres"].value,
             "grains": info["approx_grains"],
-            "tiles": {"edge": info["cell_size"], "cells": info["cells"], "inside": info["inside_cells"],
+            "tiles": {"edge": _f32(info["cell_size"]), "cells": info["cells"], "inside": info["inside_cells"],
                       "partial": info["partial_cells"]},
             "tile_packing_rate": info["tile_packing_rate"],
             "memory_bytes": info["memory_bytes"],
             "setup_seconds": info["setup_seconds"],
         }
-        if media is not None:
-            m = media[k]
-            r["tt"] = {"beta": m["beta"], "beta_se": m["beta_se"], "lambda_delta": m["lambda_delta"],
-                       "lambda_s": list(m["lambda_s"]), "sigma_b": m["sigma_b"], "rays": m["rays"]}
-            r["rte"] = {key: list(m[key]) for key in ("sigma_t", "albedo", "g", "sigma_t_reduced", "albedo_reduced",
-                                                      "sigma_a", "sigma_tr")}
-            r["mean_free_path"] = list(m["mean_free_path"])
+        m = media[k]
+        r["media_used_by_renderer"] = bool(built.has_media)
+        r["tt"] = {"beta": m["beta"], "beta_se": m["beta_se"], "lambda_delta": m["lambda_delta"],
+                   "lambda_s": list(m["lambda_s"]), "sigma_b": _f32(m["sigma_b"]), "rays": m["rays"]}
+        r["rte"] = {key: [_f32(x) for x in m[key]] for key in ("sigma_t", "albedo", "g", "sigma_t_reduced", "albedo_reduced",
+                                                  "sigma_a", "sigma_tr")}
+        r["mean_free_path"] = [_f32(x) for x in m["mean_free_path"]]
         out.append(r)
     return out
 
 
-def _media(scene):
+def _media(scene, built):
     import granular_core as core
-    if not core.has_tt:
-        return None
     from .usd_reader import translate_core_error
     try:
-        return core.derive_media(scene.desc)
+        return built.media()
     except core.InputError as e:
         raise translate_core_error(e, scene) from None
 
@@ -258,7 +299,7 @@ def cmd_info(args):
     from .usd_reader import read_stage
     scene = read_stage(args.scene, surfaces=False, need_camera=False)
     built = _build(scene)
-    report = _aggregate_report(scene, built, _media(scene))
+    report = _aggregate_report(scene, built, _media(scene, built))
     if args.json:
         print(json.dumps({"scene": args.scene, "aggregates": report}, indent=2))
         return EXIT_OK
@@ -273,17 +314,16 @@ def cmd_info(args):
               f"seed {r['seed']})")
         print(f"  tiles         {t['cells']} of edge {t['edge']:.4g}: {t['inside']} inside, {t['partial']} partial "
               f"({r['tile_spheres']} spheres each, f = {r['tile_packing_rate']:.3f})")
-        if "rte" in r:
-            tt, rte = r["tt"], r["rte"]
-            fmt3 = lambda v: "(" + ", ".join(f"{x:.4g}" for x in v) + ")"  # noqa: E731
-            print(f"  TT            beta {tt['beta']:.4f} ± {tt['beta_se']:.4f}, lambda_delta {tt['lambda_delta']:.4g} R, "
-                  f"lambda_s {fmt3(tt['lambda_s'])} R, sigma_b {tt['sigma_b']:.4g}")
-            print(f"  RTE           sigma_t {fmt3(rte['sigma_t'])}, albedo {fmt3(rte['albedo'])}, g {fmt3(rte['g'])}")
-            print(f"  diffusion     sigma'_t {fmt3(rte['sigma_t_reduced'])}, albedo' {fmt3(rte['albedo_reduced'])}, "
-                  f"sigma_tr {fmt3(rte['sigma_tr'])}")
-            print(f"  mean free path {fmt3(r['mean_free_path'])}")
-        else:
-            print("  TT/RTE        not available: this build has no teleportation transport (core/tt.cpp)")
+        tt, rte = r["tt"], r["rte"]
+        print(f"  TT            beta {tt['beta']:.4f} ± {tt['beta_se']:.4f}, lambda_delta {tt['lambda_delta']:.4g} R, "
+              f"lambda_s {_fmt3(tt['lambda_s'])} R, sigma_b {tt['sigma_b']:.4g}")
+        print(f"  RTE           sigma_t {_fmt3(rte['sigma_t'])}, albedo {_fmt3(rte['albedo'])}, g {_fmt3(rte['g'])}")
+        print(f"  diffusion     sigma'_t {_fmt3(rte['sigma_t_reduced'])}, albedo' {_fmt3(rte['albedo_reduced'])}, "
+              f"sigma_tr {_fmt3(rte['sigma_tr'])}")
+        print(f"  mean free path {_fmt3(r['mean_free_path'])} (world units, per RGB channel)")
+        print("  hybrid        " + ("switches to these media (VPT, DA)" if r["media_used_by_renderer"] else
+                                   "does not use media here: the scene's aggregates are thinner than their mean "
+                                   "free paths, so EPT renders them"))
     return EXIT_OK
 
 
@@ -303,19 +343,8 @@ def cmd_export_vdb(args):
             raise UserError("command line", "--prim", f'"{args.prim}" is not a prim of the stage')
         raise UserError(args.prim, "", "is not a visible Mesh with GranularAggregateAPI")
     k = matches[0]
-    if not core.has_tt:
-        # sigma_t comes from the teleportation-transport model; without it there is no
-        # honest value to export.
-        print("error: export-vdb needs the teleportation-transport model (core/tt.cpp), "
-              "which this build does not have yet", file=sys.stderr)
-        return EXIT_FAILURE
-    single = core.SceneDesc()
-    single.materials = scene.desc.materials
-    single.aggregates = [scene.desc.aggregates[k]]
-    try:
-        medium = core.derive_media(single)[0]
-    except core.InputError as e:
-        raise translate_core_error(e, scene) from None
+    built = _build(scene)
+    medium = _media(scene, built)[k]
     sigma = medium["sigma_t"]
     sigma_mean = sum(sigma) / 3.0
     try:

@@ -14,6 +14,9 @@ BUILD = Path(os.environ.get("GRANULAR_BUILD_DIR", ROOT / "build"))
 for p in (ROOT / "python", BUILD / "python"):
     if str(p) not in sys.path:
         sys.path.insert(0, str(p))
+# Tiles and grain transport are cached on disk: keep the tests' cache in the build tree
+# (as ctest does), so that a second run is quick and nothing is written to ~/.cache.
+os.environ.setdefault("GRANULAR_CACHE_DIR", str(BUILD / "cache"))
 
 import granular  # noqa: E402  (registers the schema plugin before pxr builds its registry)
 import granular_core as core  # noqa: E402,F401  (fails loudly if the module is not built)

@@ -34,26 +34,36 @@ def test_density_of_an_example_aggregate_reads_back(tmp_path):
     assert 79 * 14 * 79 <= g["active_voxels"] <= 81 * 16 * 81
 
 
-def test_export_vdb_command(tmp_path, capsys):
-    out = tmp_path / "castle.vdb"
-    rc = None
-    argv = ["export-vdb", str(EXAMPLES / "snowslab.usda"), "--prim", "/World/Snow", "-o", str(out),
-            "--voxel-size", "0.05"]
+def test_export_vdb_command_writes_the_tt_sigma_t(tmp_path, capsys):
     from granular.cli import main
-    rc = main(argv)
-    err = capsys.readouterr().err
-    if not core.has_tt:
-        assert rc == 1
-        assert err.strip() == ("error: export-vdb needs the teleportation-transport model (core/tt.cpp), "
-                               "which this build does not have yet")
-        assert not out.exists()
-        return
-    assert rc == 0, err
+    out = tmp_path / "snow.vdb"
+    rc = main(["export-vdb", str(EXAMPLES / "snowslab.usda"), "--prim", "/World/Snow", "-o", str(out),
+               "--voxel-size", "0.05", "--quiet"])
+    assert rc == 0, capsys.readouterr().err
+    # sigma_t as the teleportation-transport model derives it for this aggregate.
+    scene = read_stage(str(EXAMPLES / "snowslab.usda"), surfaces=False, need_camera=False)
+    medium = core.Scene.build(scene.desc).media()[0]
+    sigma = medium["sigma_t"]
+    assert min(sigma) > 0
     g = core.read_vdb_grids(str(out))[0]
-    sigma = json.loads(g["metadata"]["granular:sigmaT"])
-    inside = core.sample_vdb_grid(str(out), "density", np.array([[0, 0.15, 0]], dtype=np.float32))
-    assert inside[0] == pytest.approx(sum(sigma) / 3, rel=1e-5) and inside[0] > 0
-    assert core.sample_vdb_grid(str(out), "density", np.array([[0, 1, 0]], dtype=np.float32))[0] == 0
+    assert g["name"] == "density" and g["voxel_size"] == pytest.approx((0.05, 0.05, 0.05))
+    assert json.loads(g["metadata"]["granular:sigmaT"]) == pytest.approx(list(sigma), rel=1e-5)  # printed to 6 digits
+    # The slab is the box [-0.9, 0.9] x [0, 0.3] x [-0.55, 0.55].
+    inside = core.sample_vdb_grid(str(out), "density", np.array([[0, 0.15, 0], [0.8, 0.1, -0.45]], dtype=np.float32))
+    assert inside == pytest.approx([sum(sigma) / 3] * 2, rel=1e-6)
+    outside = core.sample_vdb_grid(str(out), "density", np.array([[0, 0.4, 0], [1.0, 0.1, 0]], dtype=np.float32))
+    assert list(outside) == [0.0, 0.0]
+
+
+def test_export_vdb_leaves_nothing_on_error(tmp_path, capsys):
+    from granular.cli import main
+    out = tmp_path / "snow.vdb"
+    rc = main(["export-vdb", str(EXAMPLES / "snowslab.usda"), "--prim", "/World/Snow", "-o", str(out),
+               "--voxel-size", "0.00001"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2
+    assert err.startswith("error: command line.--voxel-size: 1e-05 is too small for the boundary's extent")
+    assert not out.exists() and not list(tmp_path.iterdir())
 
 
 def test_export_vdb_of_a_prim_that_is_not_an_aggregate(tmp_path, capsys):
