@@ -31,9 +31,8 @@ bool Renderer::renderPass(int samples, const std::atomic<bool>* cancel) {
   const Camera& cam = scene_.camera();
   const float pa = roulette_.pa;
   std::atomic<bool> cancelled{false};
-  passPixels_ = 0;
-  passBase_ = done_;
-  passSamples_ = samples;
+  passPixels_ = 0;  // before the state names the new pass (progressSamples relies on it)
+  passState_ = (uint64_t(done_) << 24) | uint64_t(samples);
   auto body = [&](const tbb::blocked_range2d<int>& r) {
     std::vector<PathState> paths;
     for (int y = r.rows().begin(); y < r.rows().end(); ++y)
@@ -74,17 +73,22 @@ bool Renderer::renderPass(int samples, const std::atomic<bool>* cancel) {
   }
   if (cancelled) return false;
   done_ += samples;
-  passBase_ = done_;
-  passSamples_ = 0;
+  passState_ = uint64_t(done_) << 24;
   return true;
 }
 
 double Renderer::progressSamples() const {
+  // The state before and after reading the pixel count must agree, so that the count
+  // belongs to the pass the state names; this keeps the result non-decreasing.
   const double pixels = double(film_.width()) * film_.height();
-  const int n = passSamples_.load(std::memory_order_relaxed);
-  const long base = passBase_.load(std::memory_order_relaxed);
-  if (n == 0 || pixels <= 0) return double(base);
-  return double(base) + n * std::min(1.0, double(passPixels_.load(std::memory_order_relaxed)) / pixels);
+  for (;;) {
+    const uint64_t s1 = passState_.load();
+    const long done = passPixels_.load();
+    if (passState_.load() != s1) continue;
+    const double base = double(s1 >> 24), n = double(s1 & 0xFFFFFF);
+    if (n == 0 || pixels <= 0) return base;
+    return base + n * std::min(1.0, double(done) / pixels);
+  }
 }
 
 bool Renderer::render(int passSamples, const std::function<void(const RenderProgress&)>& progress,

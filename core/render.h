@@ -52,8 +52,10 @@ class Renderer {
   long done_ = 0;
   int bundle_ = 1;
   bool prepared_ = false;
-  std::atomic<long> passBase_{0}, passPixels_{0};
-  std::atomic<int> passSamples_{0};
+  // Progress of the pass under way: (samples done before it << 24 | its samples), and
+  // its finished pixels; the pair is read consistently (see progressSamples()).
+  std::atomic<uint64_t> passState_{0};
+  std::atomic<long> passPixels_{0};
   RouletteTuning roulette_;
 };
 
