@@ -113,8 +113,96 @@ def _finite(v):
     return all(math.isfinite(x) for x in (v if isinstance(v, (tuple, list)) else (v,)))
 
 
-def _vec3(v):
-    return (float(v[0]), float(v[1]), float(v[2]))
+# ---- typed attribute values ---------------------------------------------------------------
+# A layer may author any type for any attribute (the schema's type is not enforced when a
+# file is read); every value is checked before it reaches core.
+
+def _where(attr):
+    return str(attr.GetPrim().GetPath()), attr.GetName()
+
+
+def _bad(attr, v, expected):
+    prim, name = _where(attr)
+    text = repr(v)
+    return UserError(prim, name, f"has value {text if len(text) < 60 else text[:57] + '...'}, expected {expected}")
+
+
+def get_number(attr, time, default=None):
+    """A finite-or-not float (None -> default); anything but a number is a UserError."""
+    v = attr.Get(time) if attr else None
+    if v is None:
+        return default
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise _bad(attr, v, "a number")
+    return float(v)
+
+
+def get_bool(attr, time, default=False):
+    v = attr.Get(time) if attr else None
+    if v is None:
+        return default
+    if not isinstance(v, bool):
+        raise _bad(attr, v, "a bool")
+    return v
+
+
+def get_token(attr, time, default=None):
+    v = attr.Get(time) if attr else None
+    if v is None:
+        return default
+    if not isinstance(v, str):
+        raise _bad(attr, v, "a token")
+    return v
+
+
+def get_vec(attr, time, n, default=None):
+    """A tuple of n numbers (colors, Vec2/Vec3 values)."""
+    v = attr.Get(time) if attr else None
+    if v is None:
+        return default
+    try:
+        if isinstance(v, str) or len(v) != n:
+            raise TypeError
+        out = tuple(float(x) for x in v)
+        if any(isinstance(x, bool) for x in v):
+            raise TypeError
+    except (TypeError, ValueError):
+        raise _bad(attr, v, f"{n} numbers") from None
+    return out
+
+
+def get_array(attr, time, columns, dtype, expected):
+    """An array attribute as a numpy array of shape (N, columns) or (N,); None if unset."""
+    v = attr.Get(time) if attr else None
+    if v is None:
+        return None
+    if isinstance(v, (str, int, float, bool)):
+        raise _bad(attr, v, expected)
+    try:
+        a = np.asarray(v)
+        if a.dtype.kind not in ("f", "i", "u") or (dtype == np.int64 and a.dtype.kind == "f"):
+            raise TypeError
+        a = a.astype(dtype)
+        if columns:
+            if a.size == 0:
+                return a.reshape(0, columns)
+            if a.ndim != 2 or a.shape[1] != columns:
+                raise TypeError
+        elif a.ndim != 1:
+            raise TypeError
+    except (TypeError, ValueError):
+        prim, name = _where(attr)
+        raise UserError(prim, name, f"has a {type(v).__name__} value, expected {expected}") from None
+    return a
+
+
+def get_asset(attr, time):
+    v = attr.Get(time) if attr else None
+    if v is None:
+        return None
+    if not isinstance(v, Sdf.AssetPath):
+        raise _bad(attr, v, "an asset path")
+    return v
 
 
 # ---- geometry -----------------------------------------------------------------------------
@@ -123,24 +211,22 @@ def read_mesh(prim, time):
     """The Mesh's triangles in its own space (core.TriangleMesh); UserError on bad data."""
     path = str(prim.GetPath())
     mesh = UsdGeom.Mesh(prim)
-    pts = mesh.GetPointsAttr().Get(time)
-    counts = mesh.GetFaceVertexCountsAttr().Get(time)
-    indices = mesh.GetFaceVertexIndicesAttr().Get(time)
-    if pts is None or len(pts) == 0:
+    P = get_array(mesh.GetPointsAttr(), time, 3, np.float64, "point3f[]")
+    counts = get_array(mesh.GetFaceVertexCountsAttr(), time, 0, np.int64, "int[]")
+    indices = get_array(mesh.GetFaceVertexIndicesAttr(), time, 0, np.int64, "int[]")
+    if P is None or len(P) == 0:
         raise UserError(path, "points", "has no points")
     if counts is None or len(counts) == 0:
         raise UserError(path, "faceVertexCounts", "has no faces")
     if indices is None:
         raise UserError(path, "faceVertexIndices", "has no value")
-    P = np.asarray(pts, dtype=np.float64).reshape(-1, 3)
     if P.size and np.abs(P[np.isfinite(P)]).max(initial=0.0) > 3.0e38:
         raise UserError(path, "points", "has values that do not fit in a float")
     try:
-        tri = core.triangulate(P.astype(np.float32), np.asarray(counts, dtype=np.int64),
-                               np.asarray(indices, dtype=np.int64), path)
+        tri = core.triangulate(P.astype(np.float32), counts, indices, path)
     except core.InputError as e:
         raise translate_core_error(e) from None
-    if mesh.GetOrientationAttr().Get(time) == UsdGeom.Tokens.leftHanded:
+    if get_token(mesh.GetOrientationAttr(), time) == UsdGeom.Tokens.leftHanded:
         tri.flip()
     return tri
 
@@ -148,12 +234,12 @@ def read_mesh(prim, time):
 def _tessellated(prim, time):
     """UsdGeomCube / UsdGeomSphere as triangles in their own space."""
     if prim.IsA(UsdGeom.Cube):
-        size = UsdGeom.Cube(prim).GetSizeAttr().Get(time)
+        size = get_number(UsdGeom.Cube(prim).GetSizeAttr(), time)
         if size is None or not _finite(size) or size <= 0:
             raise UserError(prim.GetPath(), "size", f"{size} must be finite and > 0")
         h = 0.5 * float(size)
         return core.make_box((-h, -h, -h), (h, h, h))
-    radius = UsdGeom.Sphere(prim).GetRadiusAttr().Get(time)
+    radius = get_number(UsdGeom.Sphere(prim).GetRadiusAttr(), time)
     if radius is None or not _finite(radius) or radius <= 0:
         raise UserError(prim.GetPath(), "radius", f"{radius} must be finite and > 0")
     m = core.make_uv_sphere(64, 32)
@@ -170,10 +256,10 @@ def _input_value(scene, shader, name, time):
     if inp.HasConnectedSource():
         scene.warn(f"{shader.GetPath()}.inputs:{name}: connections (textures) are not supported; "
                    f"using its own value or the fallback")
-    v = inp.Get(time)
-    if v is None:
-        return _PREVIEW_DEFAULTS[name], f"inputs:{name}"
-    return (_vec3(v) if isinstance(_PREVIEW_DEFAULTS[name], tuple) else float(v)), f"inputs:{name}"
+    default = _PREVIEW_DEFAULTS[name]
+    attr = inp.GetAttr()
+    v = get_vec(attr, time, 3, default) if isinstance(default, tuple) else get_number(attr, time, default)
+    return v, f"inputs:{name}"
 
 
 def _preview_surface(scene, prim, time, cache):
@@ -222,7 +308,11 @@ def _surface_material(scene, prim, time, cache):
     if pv and pv.HasAuthoredValue():
         v = pv.ComputeFlattened(time)
         if v is not None and len(v) > 0:
-            c = np.asarray(v, dtype=np.float64).reshape(-1, 3).mean(axis=0)
+            try:
+                c = np.asarray(v, dtype=np.float64).reshape(-1, 3).mean(axis=0)
+            except (TypeError, ValueError):
+                prim_path, name = _where(pv.GetAttr())
+                raise UserError(prim_path, name, f"has a {type(v).__name__} value, expected color3f[]") from None
             md = core.MaterialDesc()
             md.name = str(prim.GetPath()) + ".displayColor"
             md.type = core.MaterialType.Lambert
@@ -367,23 +457,25 @@ def _settings_prim(stage):
     return None
 
 
-def read_camera(scene, prim):
+def read_camera(scene, prim, xf_cache):
     path = str(prim.GetPath())
     cam = UsdGeom.Camera(prim)
-    if cam.GetProjectionAttr().Get(scene.time) == UsdGeom.Tokens.orthographic:
+    t = scene.time
+    if get_token(cam.GetProjectionAttr(), t) == UsdGeom.Tokens.orthographic:
         raise UserError(path, "projection", "orthographic cameras are not supported (use perspective)")
-    gc = cam.GetCamera(scene.time)
     c = scene.desc.camera
-    c.camera_to_world = to_core_matrix(gc.transform)
-    c.focal_length = gc.focalLength
-    c.horizontal_aperture = gc.horizontalAperture
-    c.vertical_aperture = gc.verticalAperture
-    c.horizontal_aperture_offset = gc.horizontalApertureOffset
-    c.vertical_aperture_offset = gc.verticalApertureOffset
-    c.clip_near = gc.clippingRange.min
-    c.clip_far = gc.clippingRange.max
+    c.camera_to_world = to_core_matrix(xf_cache.GetLocalToWorldTransform(prim))
+    c.focal_length = get_number(cam.GetFocalLengthAttr(), t, 50.0)
+    c.horizontal_aperture = get_number(cam.GetHorizontalApertureAttr(), t, 20.955)
+    c.vertical_aperture = get_number(cam.GetVerticalApertureAttr(), t, 15.2908)
+    c.horizontal_aperture_offset = get_number(cam.GetHorizontalApertureOffsetAttr(), t, 0.0)
+    c.vertical_aperture_offset = get_number(cam.GetVerticalApertureOffsetAttr(), t, 0.0)
+    c.clip_near, c.clip_far = get_vec(cam.GetClippingRangeAttr(), t, 2, (1.0, 1000000.0))
     scene.camera_path = path
-    scene.name("camera", path, {"transform": (path, "transform")})
+    attrs = {k: (path, k) for k in ("focalLength", "horizontalAperture", "verticalAperture",
+                                    "horizontalApertureOffset", "verticalApertureOffset", "clippingRange")}
+    attrs["transform"] = (path, "transform")
+    scene.name("camera", path, attrs)
 
 
 _LIGHT_ATTRS = {k: "inputs:" + k for k in ("intensity", "exposure", "color", "normalize", "angle", "radius",
@@ -397,13 +489,13 @@ def read_light(scene, prim, xf_cache):
     ld.name = path
     if prim.IsA(UsdLux.DistantLight):
         ld.type = core.LightType.Distant
-        ld.angle = UsdLux.DistantLight(prim).GetAngleAttr().Get(time)
+        ld.angle = get_number(UsdLux.DistantLight(prim).GetAngleAttr(), time, 0.53)
     elif prim.IsA(UsdLux.DomeLight) or (hasattr(UsdLux, "DomeLight_1") and prim.IsA(UsdLux.DomeLight_1)):
         ld.type = core.LightType.Dome
-        fmt = prim.GetAttribute("inputs:texture:format").Get(time)
+        fmt = get_token(prim.GetAttribute("inputs:texture:format"), time)
         if fmt not in (None, "automatic", "latlong"):
             raise UserError(path, "inputs:texture:format", f'"{fmt}" is not supported (use latlong)')
-        asset = prim.GetAttribute("inputs:texture:file").Get(time)
+        asset = get_asset(prim.GetAttribute("inputs:texture:file"), time)
         if asset is not None and asset.path:
             resolved = asset.resolvedPath
             if not resolved or not os.path.isfile(resolved):
@@ -413,32 +505,32 @@ def read_light(scene, prim, xf_cache):
     elif prim.IsA(UsdLux.RectLight):
         ld.type = core.LightType.Rect
         rl = UsdLux.RectLight(prim)
-        ld.width = rl.GetWidthAttr().Get(time)
-        ld.height = rl.GetHeightAttr().Get(time)
-        tex = rl.GetTextureFileAttr().Get(time)
+        ld.width = get_number(rl.GetWidthAttr(), time, 1.0)
+        ld.height = get_number(rl.GetHeightAttr(), time, 1.0)
+        tex = get_asset(rl.GetTextureFileAttr(), time)
         if tex is not None and tex.path:
             scene.warn(f"{path}.inputs:texture:file: rect light textures are not supported; ignored")
     elif prim.IsA(UsdLux.SphereLight):
         ld.type = core.LightType.Sphere
         sl = UsdLux.SphereLight(prim)
-        ld.radius = sl.GetRadiusAttr().Get(time)
-        if sl.GetTreatAsPointAttr().Get(time):
+        ld.radius = get_number(sl.GetRadiusAttr(), time, 0.5)
+        if get_bool(sl.GetTreatAsPointAttr(), time):
             scene.warn(f"{path}.treatAsPoint: not supported; rendered as a sphere of inputs:radius")
     else:
         scene.warn(f"{path}: {prim.GetTypeName()} lights are not supported; skipped")
         return
     light = UsdLux.LightAPI(prim)
-    ld.intensity = light.GetIntensityAttr().Get(time)
-    ld.exposure = light.GetExposureAttr().Get(time)
-    color = _vec3(light.GetColorAttr().Get(time))
-    if light.GetEnableColorTemperatureAttr().Get(time):
-        t = light.GetColorTemperatureAttr().Get(time)
+    ld.intensity = get_number(light.GetIntensityAttr(), time, 1.0)
+    ld.exposure = get_number(light.GetExposureAttr(), time, 0.0)
+    color = get_vec(light.GetColorAttr(), time, 3, (1.0, 1.0, 1.0))
+    if get_bool(light.GetEnableColorTemperatureAttr(), time):
+        t = get_number(light.GetColorTemperatureAttr(), time, 6500.0)
         if not _finite(t) or t <= 0:
             raise UserError(path, "inputs:colorTemperature", f"{t} must be finite and > 0")
         rgb = UsdLux.BlackbodyTemperatureAsRgb(t)
         color = tuple(c * float(k) for c, k in zip(color, rgb))
     ld.color = color
-    ld.normalize = bool(light.GetNormalizeAttr().Get(time))
+    ld.normalize = get_bool(light.GetNormalizeAttr(), time)
     ld.xf = to_core_matrix(xf_cache.GetLocalToWorldTransform(prim))
     scene.desc.add_light(ld)
     attrs = {k: (path, v) for k, v in _LIGHT_ATTRS.items()}
@@ -469,8 +561,8 @@ def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_c
     for prim in it:
         if prim.IsA(UsdGeom.Imageable):
             img = UsdGeom.Imageable(prim)
-            vis = img.GetVisibilityAttr().Get(time)
-            purpose = img.GetPurposeAttr().Get(time)
+            vis = get_token(img.GetVisibilityAttr(), time)
+            purpose = get_token(img.GetPurposeAttr(), time)
             if vis == UsdGeom.Tokens.invisible or purpose in (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy):
                 it.PruneChildren()
                 continue
@@ -509,8 +601,8 @@ def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_c
         rs = UsdRender.Settings(settings)
         attr = rs.GetResolutionAttr()
         if attr.HasAuthoredValue():
-            res = attr.Get(time)
-            if res is None or res[0] < 1 or res[1] < 1 or res[0] > 32768 or res[1] > 32768:
+            res = get_vec(attr, time, 2)
+            if res is None or not all(_finite(x) and x == int(x) and 1 <= x <= 32768 for x in res):
                 raise UserError(settings.GetPath(), "resolution", f"{res} is outside [1, 32768] x [1, 32768]")
             res = (int(res[0]), int(res[1]))
         targets = rs.GetCameraRel().GetForwardedTargets()
@@ -534,7 +626,7 @@ def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_c
     elif cameras:
         cam_prim = cameras[0]
     if cam_prim is not None:
-        read_camera(scene, cam_prim)
+        read_camera(scene, cam_prim, xf_cache)
     elif need_camera:
         raise UserError(path, "", "the stage has no UsdGeomCamera (add one, or pass --camera)")
 

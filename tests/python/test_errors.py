@@ -197,3 +197,42 @@ def test_installed_script_reports_one_line_and_status_2(scene_file, tmp_path):
     assert r.returncode == 2
     assert r.stderr.strip().splitlines() == ["error: /World/Castle.primvars:granular:packingRate: 0.9 is outside (0, 0.64]"]
     assert not out.exists()
+
+
+def _retype(path, name, type_name, value):
+    """Authors `name` on `path` with a type the schema does not have (a file can; the
+    Usd API cannot)."""
+    def mutate(stage):
+        layer = stage.GetRootLayer()
+        spec = layer.GetPrimAtPath(path)
+        if name in spec.attributes:
+            spec.RemoveProperty(spec.attributes[name])
+        attr = Sdf.AttributeSpec(spec, name, Sdf.ValueTypeNames.Find(type_name))
+        attr.default = value
+    return mutate
+
+
+RETYPED = [
+    ("/World/Sun", "inputs:intensity", "string", "bright"),
+    ("/World/Sun", "inputs:angle", "bool", True),
+    ("/World/Sun", "inputs:color", "float", 1.0),
+    ("/World/Sun", "inputs:normalize", "float", 1.0),
+    ("/World/Camera", "focalLength", "string", "long"),
+    ("/World/Camera", "clippingRange", "float", 1.0),
+    ("/World/Camera", "projection", "float", 1.0),
+    ("/World/Castle", "points", "string[]", ["a", "b", "c"]),
+    ("/World/Castle", "points", "float[]", [0.0, 1.0]),
+    ("/World/Castle", "faceVertexIndices", "float[]", [0.5, 1.0, 2.0]),
+    ("/World/Castle", "visibility", "int", 3),
+    ("/World/Grains/A", "points", "int", 3),
+    ("/World/Castle", "primvars:granular:prototypes", "string", "../Grains/A"),
+    ("/World/Castle", "primvars:granular:weights", "string[]", ["1", "2"]),
+]
+
+
+@pytest.mark.parametrize("path,name,type_name,value", RETYPED, ids=[f"{p}.{n}:{t}" for p, n, t, _ in RETYPED])
+def test_a_wrongly_typed_attribute_is_a_user_error(path, name, type_name, value, scene_file, tmp_path, capsys):
+    scene = scene_file(_retype(path, name, type_name, value))
+    out = tmp_path / "out.exr"
+    rc, _, err = run_cli(["render", scene, "-o", out, "--width", 16, "--height", 16, "--spp", 1], capsys)
+    _check(rc, err, [f"error: {path}.{name}: has "], [out])

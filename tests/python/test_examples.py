@@ -69,3 +69,15 @@ def test_info_reports_grains_tiles_and_transport(capsys):
     text = capsys.readouterr().out
     for word in ("/World/Heap", "grains", "tiles", "inside", "partial", "TT", "RTE", "mean free path"):
         assert word in text
+
+
+def test_examples_are_what_make_examples_writes(tmp_path):
+    """The .usda files are generated: examples/make_examples.py is their source."""
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("make_examples", EXAMPLES / "make_examples.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    assert mod.main(["make_examples.py", str(tmp_path)]) == 0
+    for name in USD_EXAMPLES:
+        assert (tmp_path / name).read_text() == (EXAMPLES / name).read_text(), \
+            f"examples/{name} differs from what make_examples.py writes: rerun it"
