@@ -29,7 +29,7 @@ class _Parser(argparse.ArgumentParser):
         raise UserError("command line", "", message)
 
 
-def _int_in(lo, hi, flag):
+def _int_in(lo, hi):
     def parse(text):
         try:
             v = int(text, 10)
@@ -41,7 +41,7 @@ def _int_in(lo, hi, flag):
     return parse
 
 
-def _positive_float(flag):
+def _positive_float():
     def parse(text):
         try:
             v = float(text)
@@ -53,7 +53,7 @@ def _positive_float(flag):
     return parse
 
 
-def _finite_float(flag):
+def _finite_float():
     def parse(text):
         try:
             v = float(text)
@@ -85,15 +85,15 @@ def build_parser():
     r.add_argument("scene", metavar="SCENE", help="USD stage (.usda, .usdc, .usd)")
     r.add_argument("-o", "--output", required=True, metavar="OUT.exr", help="OpenEXR image (RGBA, Z, N)")
     r.add_argument("--png", metavar="OUT.png", help="also an 8-bit sRGB PNG")
-    r.add_argument("--width", type=_int_in(1, 32768, "--width"), help="image width (default: the render "
+    r.add_argument("--width", type=_int_in(1, 32768), help="image width (default: the render "
                    "settings' resolution, else 640; with only --height, the camera's aspect)")
-    r.add_argument("--height", type=_int_in(1, 32768, "--height"), help="image height (default: as --width)")
-    r.add_argument("--spp", type=_int_in(1, 1000000, "--spp"), default=16, help="samples per pixel (16)")
+    r.add_argument("--height", type=_int_in(1, 32768), help="image height (default: as --width)")
+    r.add_argument("--spp", type=_int_in(1, 1000000), default=16, help="samples per pixel (16)")
     r.add_argument("--camera", metavar="PATH", help="camera prim (default: the render settings' camera, "
                    "else the first camera)")
-    r.add_argument("--seed", type=_int_in(0, 2**31 - 1, "--seed"), default=0, help="sampling seed (0)")
-    r.add_argument("--threads", type=_int_in(0, 1024, "--threads"), default=0, help="threads (0: all cores)")
-    r.add_argument("--exposure", type=_finite_float("--exposure"), default=0.0,
+    r.add_argument("--seed", type=_int_in(0, 2**31 - 1), default=0, help="sampling seed (0)")
+    r.add_argument("--threads", type=_int_in(0, 1024), default=0, help="threads (0: all cores)")
+    r.add_argument("--exposure", type=_finite_float(), default=0.0,
                    help="exposure of the PNG in stops (0)")
     r.add_argument("--technique", choices=["ept", "ept+vpt", "hybrid"], default="hybrid",
                    help="transports of the multi-scale integrator: explicit grains only (the reference), "
@@ -111,7 +111,7 @@ def build_parser():
     e.add_argument("scene", metavar="SCENE")
     e.add_argument("--prim", required=True, metavar="PATH", help="the aggregate's boundary mesh")
     e.add_argument("-o", "--output", required=True, metavar="OUT.vdb")
-    e.add_argument("--voxel-size", type=_positive_float("--voxel-size"), default=0.0,
+    e.add_argument("--voxel-size", type=_positive_float(), default=0.0,
                    help="world units (default: the boundary's largest extent / 128)")
     e.add_argument("--quiet", action="store_true")
     return p
@@ -372,8 +372,7 @@ def main(argv=None):
     try:
         args = build_parser().parse_args(argv)
     except UserError as e:
-        print(f"error: {e.message}", file=sys.stderr)
-        print("usage: granular {render,info,export-vdb} ... (granular COMMAND --help)", file=sys.stderr)
+        print(f"error: {e.message} (see granular --help)", file=sys.stderr)
         return EXIT_USER
     try:
         import granular_core as core
