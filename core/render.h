@@ -40,6 +40,8 @@ class Renderer {
   int bundleSize() const { return bundle_; }
   // The roulette used (after the first pass): P_a and, when tuned, the pre-render's numbers.
   const RouletteTuning& roulette() const { return roulette_; }
+  // Fraction of the paths so far that entered a medium directly by level of detail.
+  double shortcutFraction() const { return paths_ ? double(shortcuts_) / double(paths_) : 0.0; }
 
  private:
   void prepare();
@@ -49,6 +51,7 @@ class Renderer {
   int bundle_ = 1;
   bool prepared_ = false;
   RouletteTuning roulette_;
+  std::atomic<long> shortcuts_{0}, paths_{0};
 };
 
 }  // namespace granular

@@ -26,7 +26,7 @@ void usage() {
                "usage: granular-render SCENE.json -o OUT.exr [--png OUT.png] [--spp N] [--width W] [--height H]\n"
                "                       [--seed S] [--threads T] [--exposure E] [--quiet]\n"
                "                       [--technique ept|ept+vpt|hybrid] [--roulette P_a (negative: tuned)]\n"
-               "                       [--stats-json FILE]\n");
+               "                       [--lod L (0: off)] [--stats-json FILE]\n");
 }
 
 long parseInt(const char* flag, const char* v, long lo, long hi) {
@@ -45,7 +45,7 @@ int main(int argc, char** argv) {
   float exposure = 0;
   bool quiet = false;
   std::string technique, statsPath;
-  float roulette = 0;
+  float roulette = 0, lod = -1;
   try {
     for (int i = 1; i < argc; ++i) {
       std::string a = argv[i];
@@ -63,6 +63,7 @@ int main(int argc, char** argv) {
       else if (a == "--exposure") exposure = std::strtof(next(), nullptr);
       else if (a == "--quiet") quiet = true;
       else if (a == "--technique") technique = next();
+      else if (a == "--lod") lod = std::strtof(next(), nullptr);
       else if (a == "--stats-json") statsPath = next();
       else if (a == "--roulette") roulette = std::strtof(next(), nullptr);
       else if (a == "-h" || a == "--help") { usage(); return 0; }
@@ -80,6 +81,7 @@ int main(int argc, char** argv) {
     if (threads >= 0) desc.settings.threads = int(threads);
     if (!technique.empty()) desc.settings.technique = techniqueFromName(technique, "command line --technique");
     if (roulette != 0) desc.settings.roulette = roulette;
+    if (lod >= 0) desc.settings.lod = lod;
 
     auto scene = Scene::build(desc);
     if (!quiet) {
@@ -113,7 +115,8 @@ int main(int argc, char** argv) {
           for (int x = 0; x < img.width; ++x) part[t] += luminance(Vec3(img.at(x, y)[c0], img.at(x, y)[c0 + 1], img.at(x, y)[c0 + 2]));
       }
       double n = double(img.width) * img.height;
-      std::fprintf(stderr, "\n  mean luminance by transport: EPT %.4g, VPT %.4g, DA %.4g\n", part[0] / n, part[1] / n, part[2] / n);
+      std::fprintf(stderr, "\n  mean luminance by transport: EPT %.4g, VPT %.4g, DA %.4g; level of detail: %.1f%% of paths entered a medium directly\n",
+                   part[0] / n, part[1] / n, part[2] / n, 100.0 * renderer.shortcutFraction());
     }
     writeImage(out, img);
     if (!png.empty()) writePngSrgb(png, img, exposure);
@@ -122,9 +125,9 @@ int main(int argc, char** argv) {
       // Timings for benchmarks: scene build (BVHs, tiles, TT) and rendering (pre-render included).
       FILE* f = std::fopen(statsPath.c_str(), "w");
       if (!f) throw std::runtime_error("cannot write " + statsPath);
-      std::fprintf(f, "{\"build_s\": %.6f, \"render_s\": %.6f, \"spp\": %ld, \"technique\": \"%s\", \"pa\": %.6f}\n",
+      std::fprintf(f, "{\"build_s\": %.6f, \"render_s\": %.6f, \"spp\": %ld, \"technique\": \"%s\", \"pa\": %.6f, \"lod_fraction\": %.6f}\n",
                    scene->buildSeconds(), renderSeconds, renderer.samplesPerPixel(),
-                   techniqueName(scene->settings().technique), renderer.roulette().pa);
+                   techniqueName(scene->settings().technique), renderer.roulette().pa, renderer.shortcutFraction());
       std::fclose(f);
     }
     return 0;
