@@ -40,8 +40,10 @@ bool DistanceField::empty() const { return !impl_ || !impl_->grid; }
 
 float DistanceField::distance(const Vec3& p) const {
   // A local accessor per query: the shared tree is read-only, accessors are not thread-safe.
+  // It must outlive the sampler, which keeps only a pointer to it.
+  openvdb::FloatGrid::ConstAccessor accessor = impl_->grid->getConstAccessor();
   openvdb::tools::GridSampler<openvdb::FloatGrid::ConstAccessor, openvdb::tools::BoxSampler> sampler(
-      impl_->grid->getConstAccessor(), impl_->grid->transform());
+      accessor, impl_->grid->transform());
   return sampler.wsSample(openvdb::Vec3d(p.x, p.y, p.z));
 }
 

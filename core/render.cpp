@@ -44,12 +44,14 @@ bool Renderer::renderPass(int samples, const std::atomic<bool>* cancel) {
             long index = done_ + s;
             Rng rng(hashInts(rs.seed, uint64_t(x), uint64_t(y), uint64_t(index)), 0);
             Ray ray = cam.generateRay(float(x) + rng.next1D(), float(y) + rng.next1D());
-            PathState p = startPath(ray, 0);
+            PathState p = startPath(ray, 0, cam.pixelSpreadAngle());
             p.rng = rng;
             paths.push_back(p);
           }
           traceBundle(scene_, paths, pa);
+          long shortcuts = 0;
           for (const PathState& p : paths) {
+            shortcuts += p.shortcut;
             PixelSample ps;
             // A non-finite estimate (a numerical failure) is dropped as a whole sample.
             bool finite = isFinite(p.L[0]) && isFinite(p.L[1]) && isFinite(p.L[2]);
@@ -60,6 +62,8 @@ bool Renderer::renderPass(int samples, const std::atomic<bool>* cancel) {
             ps.normal = p.primary.normal;
             film_.add(x, y, ps);
           }
+          shortcuts_ += shortcuts;
+          paths_ += long(paths.size());
         }
         passPixels_.fetch_add(1, std::memory_order_relaxed);
       }

@@ -44,6 +44,8 @@ class Renderer {
   double progressSamples() const;
   // The roulette used (after the first pass): P_a and, when tuned, the pre-render's numbers.
   const RouletteTuning& roulette() const { return roulette_; }
+  // Fraction of the paths so far that entered a medium directly by level of detail.
+  double shortcutFraction() const { return paths_ ? double(shortcuts_) / double(paths_) : 0.0; }
 
  private:
   void prepare();
@@ -57,6 +59,7 @@ class Renderer {
   std::atomic<uint64_t> passState_{0};
   std::atomic<long> passPixels_{0};
   RouletteTuning roulette_;
+  std::atomic<long> shortcuts_{0}, paths_{0};
 };
 
 }  // namespace granular

@@ -27,6 +27,7 @@ constexpr float kGrainEps = 2e-4f;
 constexpr int kMaxBins = 1 << 16;
 
 int binOf(double mu, int bins) {
+  if (!(mu > -1.0)) return 0;  // also NaN
   int b = int((mu + 1.0) * 0.5 * bins);
   return std::min(std::max(b, 0), bins - 1);
 }
@@ -152,7 +153,7 @@ uint64_t hashBytes(uint64_t h, const void* data, size_t size) {
     h = hashCombine(h, v);
   }
   uint64_t tail = 0;
-  std::memcpy(&tail, p + i, size - i);
+  if (size > i) std::memcpy(&tail, p + i, size - i);
   return hashCombine(hashCombine(h, tail), size);
 }
 

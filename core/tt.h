@@ -7,8 +7,11 @@
 // does (same Material::sample, Fresnel, total internal reflection, Beer–Lambert with the
 // absorption per unit bounding radius) until it leaves the bounding sphere. All lengths
 // are in units of the bounding radius; every estimate carries its Monte Carlo standard
-// error. The result is a pure function of (mesh, material, options) and is cached on disk
-// under a hash of them (cache.h), so a second render reads it back.
+// error. A path still inside after maxBounces counts as absorbed (GrainTransport::
+// truncated). Each ray has its own generator seeded by (seed, ray index), so results do
+// not depend on threads, and different materials see the same entries (common random
+// numbers). The result is a pure function of (mesh, material, options) and is cached on
+// disk under a hash of them (cache.h), so a second render reads it back.
 //
 // deriveMedium() combines per-prototype results by the mixing weights and scales them by
 // the aggregate's grain radius R and packing rate f into world-space RTE parameters:
@@ -17,6 +20,9 @@
 //   λ_t = λ_β + α_s λ_s,  σ_t = 1/λ_t             (seed §2.2)
 //   σ'_s = (1−g) α_s σ_t,  σ'_t = σ'_s + (1−α_s) σ_t,  α'_s = σ'_s/σ'_t   (Jensen 2001)
 //   σ_tr = sqrt(3 σ_a σ'_t),  σ_a = (1−α_s) σ_t   (NOTES item 6)
+// (λ_δ and λ_s, in grain radii, are scaled by R.) Followed explicitly through aggregates
+// of clear grains (test_tt.cpp, TTAggregate), EPT's mean λ_β and λ_t agree with these
+// within about 1% for spheres, rocks and ellipsoids at f = 0.3–0.64.
 // Quantities that depend on absorption (α_s, λ_s, the phase function, g) are per RGB
 // channel, so σ_t is per channel too (a chromatic medium).
 //

@@ -21,6 +21,7 @@ SceneDesc ballScene(Technique t, int spp) {
   s.settings.height = 20;
   s.settings.spp = spp;
   s.settings.seed = 11;
+  s.settings.lod = 0;  // grains are sub-pixel here: test the switching alone (LOD: test_lod.cpp)
   s.camera.cameraToWorld = Transform::lookAt(Vec3(0.3f, 0.4f, 3.2f), Vec3(0, 0, 0), Vec3(0, 1, 0));
   s.camera.focalLength = 50;
   s.camera.horizontalAperture = s.camera.verticalAperture = 30;
@@ -156,6 +157,32 @@ TEST(Hybrid, MatchesTheEptReferenceWithinNoise) {
   // Differences consistent with noise: E[z²] = 1 without bias (allow for the SEs' own noise).
   EXPECT_LT(chi2 / n, 1.5);
   EXPECT_LE(outliers, n / 50 + 1);
+}
+
+TEST(Hybrid, MixtureWithGlassGrainsMatchesTheEptReference) {
+  // Mixtures combine the prototypes' TT statistics by the mixing weights (tt.h).
+  auto withGlass = [](Technique t) {
+    SceneDesc d = ballScene(t, 192);
+    MaterialDesc glass;
+    glass.name = "glass";
+    glass.type = MaterialType::Dielectric;
+    glass.ior = 1.5f;
+    d.materials.push_back(glass);
+    d.aggregates[0].prototypes.push_back(GrainPrototypeDesc{"bead", makeEllipsoid(Vec3(1.0f, 0.8f, 0.9f), 2), 1});
+    d.aggregates[0].weights = {0.6f, 0.4f};
+    return d;
+  };
+  PixelStats ref = renderStats(withGlass(Technique::Ept));
+  PixelStats hyb = renderStats(withGlass(Technique::Hybrid));
+  double sr = 0, sh = 0, v = 0;
+  for (size_t i = 0; i < ref.mean.size(); ++i) {
+    sr += ref.mean[i];
+    sh += hyb.mean[i];
+    v += ref.se[i] * ref.se[i] + hyb.se[i] * hyb.se[i];
+  }
+  double rel = (sh - sr) / sr;
+  std::printf("mixture: hybrid vs EPT mean relative difference %.4f (noise %.4f)\n", rel, std::sqrt(v) / sr);
+  EXPECT_LE(std::fabs(rel), 0.03);
 }
 
 TEST(Hybrid, RouletteKeepsTheImageUnbiased) {

@@ -1,0 +1,143 @@
+#!/usr/bin/env python3
+"""Hybrid benchmark: relative MSE against a converged EPT reference versus render time,
+for EPT, EPT+VPT and EPT+VPT+DA (hybrid), on three scenes — bright sand, dark grains
+and a mixture with glass-like grains — and the equal-error speedup of each over EPT.
+
+Each technique renders the scene at a ladder of sample counts; relMSE (mean over
+pixels and channels of (x − ref)² / (ref² + 0.01), bench/image_compare.cpp) and the
+bias of the image mean are measured against an EPT render with --ref-spp samples.
+For an unbiased estimator relMSE × time is constant; the equal-error speedup over EPT
+is the ratio of those products (median over the ladder's upper half). The reference's
+own noise adds (EPT's relMSE at the reference count) to every entry, which is reported
+so that a floor is not mistaken for bias.
+
+Usage: python3 bench/hybrid_speedup.py [--build build] [--out out/bench] [--ref-spp 1024]
+Prints markdown tables; writes OUT/hybrid_speedup.png when matplotlib is available.
+"""
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+
+
+def scenes():
+    base = json.load(open(os.path.join(ROOT, "examples", "bright_sand.json")))
+    base["render"].update(width=96, height=72, spp=4)
+    base["aggregates"][0]["grain_radius"] = 0.006
+    out = {}
+    bright = json.loads(json.dumps(base))
+    bright["materials"]["sand"]["absorption"] = [0.004, 0.007, 0.015]
+    out["bright sand"] = bright
+    dark = json.loads(json.dumps(base))
+    dark["materials"]["sand"]["absorption"] = [0.9, 1.2, 2.0]
+    out["dark grains"] = dark
+    mix = json.loads(json.dumps(base))
+    mix["materials"]["sand"]["absorption"] = [0.02, 0.035, 0.08]
+    mix["materials"]["glass"] = {"type": "dielectric", "ior": 1.5, "absorption": [0.0, 0.0, 0.0]}
+    protos = mix["aggregates"][0]["prototypes"]
+    protos.append({"name": "glass_bead", "shape": {"ellipsoid": {"radii": [1.0, 0.9, 0.95], "subdivisions": 2}},
+                   "material": "glass"})
+    mix["aggregates"][0]["weights"] = [0.35, 0.25, 0.4]
+    out["mixture with glass"] = mix
+    return out
+
+
+def render(exe, scene_path, out_exr, spp, technique, seed):
+    stats = out_exr + ".json"
+    subprocess.run([exe, scene_path, "-o", out_exr, "--spp", str(spp), "--technique", technique, "--seed", str(seed),
+                    "--quiet", "--stats-json", stats], check=True)
+    return json.load(open(stats))
+
+
+def compare(exe, a, b):
+    r = subprocess.run([exe, a, b], check=True, capture_output=True, text=True)
+    return json.loads(r.stdout)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--build", default="build")
+    ap.add_argument("--out", default="out/bench")
+    ap.add_argument("--ref-spp", type=int, default=1024)
+    ap.add_argument("--ladder", default="4,8,16,32,64")
+    ap.add_argument("--scenes", default="", help="comma-separated subset of scene names")
+    a = ap.parse_args()
+    render_exe = os.path.join(a.build, "core", "granular-render")
+    compare_exe = os.path.join(a.build, "bench", "granular-compare")
+    for e in (render_exe, compare_exe):
+        if not os.path.exists(e):
+            sys.exit(f"{e} not found: build first (make build)")
+    os.makedirs(a.out, exist_ok=True)
+    ladder = [int(s) for s in a.ladder.split(",")]
+    techniques = ["ept", "ept+vpt", "hybrid"]
+    results = {}
+    for name, desc in scenes().items():
+        if a.scenes and name not in a.scenes.split(","):
+            continue
+        tag = name.replace(" ", "_")
+        path = os.path.join(a.out, tag + ".json")
+        json.dump(desc, open(path, "w"), indent=1)
+        ref = os.path.join(a.out, tag + "_ref.exr")
+        if not os.path.exists(ref):
+            st = render(render_exe, path, ref, a.ref_spp, "ept", 1000)
+            print(f"# {name}: reference EPT {a.ref_spp} spp in {st['render_s']:.1f} s", file=sys.stderr)
+        rows = []
+        for t in techniques:
+            for spp in ladder:
+                img = os.path.join(a.out, f"{tag}_{t.replace('+', '_')}_{spp}.exr")
+                st = render(render_exe, path, img, spp, t, 1)
+                c = compare(compare_exe, img, ref)
+                rows.append({"technique": t, "spp": spp, "time": st["render_s"], "build": st["build_s"],
+                             "relmse": c["relmse"], "bias": c["bias"], "pa": st["pa"]})
+        results[name] = rows
+
+    print("## Hybrid against a converged EPT reference\n")
+    print(f"Reference: EPT, {a.ref_spp} spp. relMSE = mean((x − ref)² / (ref² + 0.01)); bias = relative "
+          "difference of the image means.\n")
+    print("| scene | technique | spp | render time (s) | relMSE | bias | P_a |")
+    print("|---|---|---|---|---|---|---|")
+    for name, rows in results.items():
+        for r in rows:
+            print(f"| {name} | {r['technique']} | {r['spp']} | {r['time']:.2f} | {r['relmse']:.4g} | "
+                  f"{r['bias']:+.4f} | {r['pa']:.2f} |")
+    print("\n## Equal-error speedup over EPT (median of relMSE × time over the ladder's upper half)\n")
+    print("| scene | EPT relMSE×s | EPT+VPT speedup | EPT+VPT+DA speedup | hybrid bias at top spp |")
+    print("|---|---|---|---|---|")
+    for name, rows in results.items():
+        eff = {}
+        for t in techniques:
+            rs = [r for r in rows if r["technique"] == t][len(ladder) // 2:]
+            eff[t] = statistics.median(r["relmse"] * r["time"] for r in rs)
+        top = [r for r in rows if r["technique"] == "hybrid"][-1]
+        print(f"| {name} | {eff['ept']:.4g} | {eff['ept'] / eff['ept+vpt']:.2f}× | {eff['ept'] / eff['hybrid']:.2f}× | "
+              f"{top['bias']:+.4f} |")
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        print("\n(matplotlib not installed: no plot; apt-get install python3-matplotlib)", file=sys.stderr)
+        return
+    fig, axes = plt.subplots(1, len(results), figsize=(5 * len(results), 4), squeeze=False)
+    for ax, (name, rows) in zip(axes[0], results.items()):
+        for t in techniques:
+            rs = [r for r in rows if r["technique"] == t]
+            ax.loglog([r["time"] for r in rs], [r["relmse"] for r in rs], "o-", label=t)
+        ax.set_title(name)
+        ax.set_xlabel("render time (s)")
+        ax.set_ylabel("relMSE vs EPT reference")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend()
+    fig.tight_layout()
+    png = os.path.join(a.out, "hybrid_speedup.png")
+    fig.savefig(png, dpi=110)
+    print(f"\nplot: {png}", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()
