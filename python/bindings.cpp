@@ -363,7 +363,8 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("technique", &RenderSettings::technique)
       .def_readwrite("bundle_size", &RenderSettings::bundleSize)
       .def_readwrite("tau", &RenderSettings::tau)
-      .def_readwrite("roulette", &RenderSettings::roulette);
+      .def_readwrite("roulette", &RenderSettings::roulette)
+      .def_readwrite("lod", &RenderSettings::lod);
 
   py::class_<SceneDesc>(m, "SceneDesc")
       .def(py::init<>())
@@ -496,6 +497,8 @@ PYBIND11_MODULE(granular_core, m) {
           "every `interval` seconds and at the end. Returns False if cancelled.")
       .def_property_readonly("samples_per_pixel", [](const PyRenderer& r) { return r.renderer->samplesPerPixel(); })
       .def_property_readonly("bundle_size", [](const PyRenderer& r) { return r.renderer->bundleSize(); })
+      .def_property_readonly("shortcut_fraction", [](const PyRenderer& r) { return r.renderer->shortcutFraction(); },
+                             "fraction of the paths that entered a medium directly by level of detail")
       .def_property_readonly(
           "roulette",
           [](const PyRenderer& r) {

@@ -2,7 +2,7 @@
 
     granular render SCENE.usda -o OUT.exr [--png OUT.png] [--width W --height H] [--spp N]
                     [--camera /path] [--seed S] [--threads T] [--exposure E] [--quiet]
-                    [--technique ept|ept+vpt|hybrid] [--roulette P_a]
+                    [--technique ept|ept+vpt|hybrid] [--roulette P_a] [--lod L]
     granular info SCENE.usda [--json]
     granular export-vdb SCENE.usda --prim /path -o OUT.vdb [--voxel-size S]
 
@@ -49,6 +49,18 @@ def _positive_float():
             raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
         if not math.isfinite(v) or v <= 0:
             raise argparse.ArgumentTypeError(f"{text} must be finite and > 0")
+        return v
+    return parse
+
+
+def _non_negative_float():
+    def parse(text):
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
+        if not math.isfinite(v) or v < 0:
+            raise argparse.ArgumentTypeError(f"{text} must be finite and >= 0")
         return v
     return parse
 
@@ -101,6 +113,9 @@ def build_parser():
     r.add_argument("--roulette", type=_roulette, default=-1.0, metavar="P_a",
                    help="survival probability of a path at the switch from EPT to the media, in (0, 1]; "
                         "negative (default): tuned by a pre-render")
+    r.add_argument("--lod", type=_non_negative_float(), default=0.0, metavar="L",
+                   help="level of detail: enter an aggregate's medium at first contact where a grain is "
+                        "smaller than L times the ray footprint (0, the default: off)")
     r.add_argument("--quiet", action="store_true", help="no progress or statistics on stderr")
 
     i = sub.add_parser("info", help="grain counts, tiles and transport parameters of each aggregate")
@@ -209,6 +224,7 @@ def cmd_render(args):
     s.threads = args.threads
     s.technique = core.technique_from_name(args.technique, "command line")
     s.roulette = args.roulette
+    s.lod = args.lod
     _warnings(args, scene)
     built = _build(scene)
     _log(args, f"{args.scene}: camera {scene.camera_path}, {s.width}x{s.height}, {s.spp} spp; "
@@ -227,8 +243,10 @@ def cmd_render(args):
         for part in ("ept", "vpt", "da"):
             c = image.channels.index(part + ".R")
             means.append(float((image.pixels[..., c:c + 3] @ [0.2126, 0.7152, 0.0722]).mean()))
+        lod = f"; level of detail: {100 * renderer.shortcut_fraction:.1f}% of paths entered a medium directly" \
+            if args.lod > 0 else ""
         _log(args, f"  technique {args.technique}, bundles of {renderer.bundle_size}, P_a {rt['pa']:.3f}{tuned}; "
-                   f"mean luminance by transport: EPT {means[0]:.4g}, VPT {means[1]:.4g}, DA {means[2]:.4g}")
+                   f"mean luminance by transport: EPT {means[0]:.4g}, VPT {means[1]:.4g}, DA {means[2]:.4g}{lod}")
     elif args.technique != "ept":
         _log(args, f"  technique {args.technique}: every aggregate is thinner than its mean free path, "
                    f"so explicit grains (EPT) render it all")

@@ -113,13 +113,14 @@ def test_media_follow_the_tt_relations(tmp_path):
     assert all(0 <= a <= 1 for a in m["albedo"])
 
 
-@pytest.mark.parametrize("technique", ["ept", "ept+vpt", "hybrid"])
-def test_every_technique_renders(tmp_path, technique):
+@pytest.mark.parametrize("technique,lod", [("ept", 0), ("ept+vpt", 0), ("hybrid", 0), ("hybrid", 4)])
+def test_every_technique_renders(tmp_path, technique, lod):
     scene = read_stage(str(small_scene(tmp_path / "s.usda")), width=32)
     s = scene.desc.settings
-    s.spp, s.technique, s.roulette = 2, core.technique_from_name(technique, "test"), 0.5
+    s.spp, s.technique, s.roulette, s.lod = 2, core.technique_from_name(technique, "test"), 0.5, lod
     r = core.Renderer(core.Scene.build(scene.desc))
     assert r.render()
     assert np.isfinite(r.image().pixels[..., :3]).all()
+    assert 0 <= r.shortcut_fraction <= 1 and (lod > 0 or r.shortcut_fraction == 0)
     with pytest.raises(core.InputError, match="technique"):
         core.technique_from_name("dpt", "test")

@@ -170,6 +170,7 @@ def test_command_line_errors(scene_file, tmp_path, capsys):
         (["render", scene, "-o", tmp_path / "o.exr", "--width", "x"], "error: argument --width: 'x' is not an integer"),
         (["render", scene], ["error: the following arguments are required: -o/--output"]),
         (["render", scene, "-o", tmp_path / "o.exr", "--technique", "dpt"], ["argument --technique: invalid choice"]),
+        (["render", scene, "-o", tmp_path / "o.exr", "--lod", "-1"], "error: argument --lod: -1 must be finite and >= 0"),
         (["render", scene, "-o", tmp_path / "o.exr", "--roulette", "2"],
          "error: argument --roulette: 2 must be in (0, 1], or negative for automatic"),
         (["render", scene, "-o", tmp_path / "o.exr", "--frobnicate"], ["unrecognized arguments: --frobnicate"]),
