@@ -20,6 +20,8 @@ class Camera {
   // Distance along the view axis (-Z in camera space) of a world point: the depth AOV.
   float viewDepth(const Vec3& worldPoint) const;
   Vec3 position() const { return position_; }
+  // Angle a pixel subtends (at the image centre): the spread of a camera ray cone.
+  float pixelSpreadAngle() const { return 2.0f * halfH_ / float(height_); }
 
  private:
   Transform toWorld_, toCamera_;

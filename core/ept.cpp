@@ -1,5 +1,7 @@
 #include "ept.h"
 
+#include "vpt.h"
+
 namespace granular {
 
 namespace {
@@ -19,11 +21,12 @@ void addAreaLightHit(const Scene& scene, PathState& path, const Hit& hit) {
   path.L[path.credit] += path.beta * light.areaLe(dir) * w;
 }
 
-PathState startPath(const Ray& ray, uint64_t rngSeed) {
+PathState startPath(const Ray& ray, uint64_t rngSeed, float spread) {
   PathState p;
   p.ray = ray;
   p.rng = Rng(rngSeed, 0);
   p.lastP = ray.o;
+  p.coneSpread = spread;
   return p;
 }
 
@@ -108,6 +111,10 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
   }
   path.beta *= bs.weight;
   Vec3 wi = frame.toWorld(bs.wi);
+  // Ray cone: the footprint grows along the segment; delta bounces keep the spread
+  // (flat-interface approximation), others widen it.
+  path.coneWidth += path.coneSpread * hit.t;
+  if (!bs.delta) path.coneSpread = std::max(path.coneSpread, kDiffuseConeSpread);
   path.lastDelta = bs.delta;
   path.lastPdf = bs.pdf;
   path.lastP = hit.p;
@@ -144,6 +151,19 @@ void eptStep(const Scene& scene, PathState& path) {
     addAreaLightHit(scene, path, hit);
     path.alive = false;
     return;
+  }
+  if (hit.kind == Hit::Grain && !path.touchedAggregate) {
+    path.touchedAggregate = true;
+    // Level of detail: grains well below the footprint here look like their medium.
+    float lod = scene.settings().lod;
+    float footprint = path.coneWidth + path.coneSpread * hit.t;
+    if (lod > 0 && scene.hasMedia() && scene.aggregates()[hit.aggregate]->grainRadius() < lod * footprint) {
+      path.shortcut = true;
+      path.mode = path.credit = kVpt;
+      path.medium = scene.mediumAt(path.ray.o);  // usually -1: the medium starts at the boundary
+      vptStep(scene, path);
+      return;
+    }
   }
   shadeSurface(scene, path, hit, false);
 }

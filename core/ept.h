@@ -43,6 +43,11 @@ struct PathState {
   int medium = -1;         // aggregate whose medium holds the path (kVpt), or -1
   bool switchPending = false;  // switch to kVpt once out of the current grain
   PrimaryInfo primary;
+  // Ray cone (Akenine-Möller et al. 2019): footprint width at the ray origin and its
+  // spread angle; for the level-of-detail shortcut (RenderSettings::lod).
+  float coneWidth = 0, coneSpread = 0;
+  bool touchedAggregate = false;  // a grain has been hit (the LOD test is at first contact)
+  bool shortcut = false;          // entered a medium directly by LOD
   // Deterministic cost (ray casts, a grain traversal counted kGrainCastCost) spent in
   // the low-order (EPT) and high-order (VPT, DA) parts: the t_L and t_H of NOTES item 7.
   double cost[2] = {0, 0};
@@ -54,7 +59,12 @@ struct PathState {
 // against one cast through plain meshes; measured by bench/ept_throughput.py.
 constexpr double kGrainCastCost = 4.0;
 
-PathState startPath(const Ray& ray, uint64_t rngSeed);
+// spread: the ray cone's spread angle (Camera::pixelSpreadAngle for camera rays).
+PathState startPath(const Ray& ray, uint64_t rngSeed, float spread = 0);
+
+// Spread angle of a ray cone after a non-delta bounce: a diffuse lobe blurs the
+// footprint at once (a conservative stand-in for the lobe's width).
+constexpr float kDiffuseConeSpread = 0.35f;
 
 // One bounce with explicit grains. Sets alive = false when the path ends.
 void eptStep(const Scene& scene, PathState& path);

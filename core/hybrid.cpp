@@ -88,7 +88,7 @@ RouletteTuning tuneRoulette(const Scene& scene) {
       for (int s = 0; s < N; ++s) {
         Rng rng(hashInts(rs.seed, uint64_t(x), uint64_t(y), uint64_t(s), 0x9a11ULL), 0);
         Ray ray = cam.generateRay(float(x) + rng.next1D(), float(y) + rng.next1D());
-        PathState p = startPath(ray, 0);
+        PathState p = startPath(ray, 0, cam.pixelSpreadAngle());
         p.rng = rng;
         paths.push_back(p);
       }

@@ -31,6 +31,8 @@ bool Renderer::renderPass(int samples, const std::atomic<bool>* cancel) {
   const Camera& cam = scene_.camera();
   const float pa = roulette_.pa;
   std::atomic<bool> cancelled{false};
+  passPixels_ = 0;  // before the state names the new pass (progressSamples relies on it)
+  passState_ = (uint64_t(done_) << 24) | uint64_t(samples);
   auto body = [&](const tbb::blocked_range2d<int>& r) {
     std::vector<PathState> paths;
     for (int y = r.rows().begin(); y < r.rows().end(); ++y)
@@ -42,12 +44,14 @@ bool Renderer::renderPass(int samples, const std::atomic<bool>* cancel) {
             long index = done_ + s;
             Rng rng(hashInts(rs.seed, uint64_t(x), uint64_t(y), uint64_t(index)), 0);
             Ray ray = cam.generateRay(float(x) + rng.next1D(), float(y) + rng.next1D());
-            PathState p = startPath(ray, 0);
+            PathState p = startPath(ray, 0, cam.pixelSpreadAngle());
             p.rng = rng;
             paths.push_back(p);
           }
           traceBundle(scene_, paths, pa);
+          long shortcuts = 0;
           for (const PathState& p : paths) {
+            shortcuts += p.shortcut;
             PixelSample ps;
             // A non-finite estimate (a numerical failure) is dropped as a whole sample.
             bool finite = isFinite(p.L[0]) && isFinite(p.L[1]) && isFinite(p.L[2]);
@@ -59,7 +63,10 @@ bool Renderer::renderPass(int samples, const std::atomic<bool>* cancel) {
             ps.normal = p.primary.normal;
             film_.add(x, y, ps);
           }
+          shortcuts_ += shortcuts;
+          paths_ += long(paths.size());
         }
+        passPixels_.fetch_add(1, std::memory_order_relaxed);
       }
   };
   tbb::blocked_range2d<int> range(0, rs.height, 8, 0, rs.width, 8);
@@ -71,7 +78,22 @@ bool Renderer::renderPass(int samples, const std::atomic<bool>* cancel) {
   }
   if (cancelled) return false;
   done_ += samples;
+  passState_ = uint64_t(done_) << 24;
   return true;
+}
+
+double Renderer::progressSamples() const {
+  // The state before and after reading the pixel count must agree, so that the count
+  // belongs to the pass the state names; this keeps the result non-decreasing.
+  const double pixels = double(film_.width()) * film_.height();
+  for (;;) {
+    const uint64_t s1 = passState_.load();
+    const long done = passPixels_.load();
+    if (passState_.load() != s1) continue;
+    const double base = double(s1 >> 24), n = double(s1 & 0xFFFFFF);
+    if (n == 0 || pixels <= 0) return base;
+    return base + n * std::min(1.0, double(done) / pixels);
+  }
 }
 
 bool Renderer::render(int passSamples, const std::function<void(const RenderProgress&)>& progress,

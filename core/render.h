@@ -39,11 +39,17 @@ class Renderer {
   const Film& film() const { return film_; }
   long samplesPerPixel() const { return done_; }
   int bundleSize() const { return bundle_; }
+  // Samples per pixel done so far, counting the finished pixels of the pass under way as
+  // fractions of it (passes of whole bundles can be long); safe to read from any thread
+  // while render() runs, for progress bars.
+  double progressSamples() const;
   // The roulette used (after the first pass): P_a and, when tuned, the pre-render's numbers.
   const RouletteTuning& roulette() const { return roulette_; }
   // Samples whose estimate was not finite (NaN or Inf in some AOV) and were dropped from
   // the film: a numerical failure somewhere, never expected (the stress suite checks it).
   long nonFiniteSamples() const { return nonFinite_.load(); }
+  // Fraction of the paths so far that entered a medium directly by level of detail.
+  double shortcutFraction() const { return paths_ ? double(shortcuts_) / double(paths_) : 0.0; }
 
  private:
   void prepare();
@@ -52,8 +58,13 @@ class Renderer {
   long done_ = 0;
   int bundle_ = 1;
   bool prepared_ = false;
+  // Progress of the pass under way: (samples done before it << 24 | its samples), and
+  // its finished pixels; the pair is read consistently (see progressSamples()).
+  std::atomic<uint64_t> passState_{0};
+  std::atomic<long> passPixels_{0};
   RouletteTuning roulette_;
   std::atomic<long> nonFinite_{0};
+  std::atomic<long> shortcuts_{0}, paths_{0};
 };
 
 }  // namespace granular

@@ -7,6 +7,7 @@ DEB_PACKAGES=(
   build-essential cmake ninja-build pkg-config
   libembree-dev libopenimageio-dev libopencolorio-dev libopenvdb-dev libtbb-dev
   libboost-iostreams-dev libgtest-dev nlohmann-json3-dev
+  python3 python3-venv python3-dev
 )
 
 missing=()

@@ -27,7 +27,7 @@ void usage() {
                "usage: granular-render SCENE.json -o OUT.exr [--png OUT.png] [--spp N] [--width W] [--height H]\n"
                "                       [--seed S] [--threads T] [--exposure E] [--quiet]\n"
                "                       [--technique ept|ept+vpt|hybrid] [--roulette P_a (negative: tuned)]\n"
-               "                       [--stats-json FILE]\n");
+               "                       [--lod L (0: off)] [--stats-json FILE]\n");
 }
 
 long parseInt(const char* flag, const char* v, long lo, long hi) {
@@ -46,7 +46,7 @@ int main(int argc, char** argv) {
   float exposure = 0;
   bool quiet = false;
   std::string technique, statsPath;
-  float roulette = 0;
+  float roulette = 0, lod = -1;
   try {
     for (int i = 1; i < argc; ++i) {
       std::string a = argv[i];
@@ -64,6 +64,7 @@ int main(int argc, char** argv) {
       else if (a == "--exposure") exposure = std::strtof(next(), nullptr);
       else if (a == "--quiet") quiet = true;
       else if (a == "--technique") technique = next();
+      else if (a == "--lod") lod = std::strtof(next(), nullptr);
       else if (a == "--stats-json") statsPath = next();
       else if (a == "--roulette") roulette = std::strtof(next(), nullptr);
       else if (a == "-h" || a == "--help") { usage(); return 0; }
@@ -81,6 +82,7 @@ int main(int argc, char** argv) {
     if (threads >= 0) desc.settings.threads = int(threads);
     if (!technique.empty()) desc.settings.technique = techniqueFromName(technique, "command line --technique");
     if (roulette != 0) desc.settings.roulette = roulette;
+    if (lod >= 0) desc.settings.lod = lod;
 
     auto scene = Scene::build(desc);
     if (!quiet) {
@@ -123,7 +125,8 @@ int main(int argc, char** argv) {
           for (int x = 0; x < img.width; ++x) part[t] += luminance(Vec3(img.at(x, y)[c0], img.at(x, y)[c0 + 1], img.at(x, y)[c0 + 2]));
       }
       double n = double(img.width) * img.height;
-      std::fprintf(stderr, "\n  mean luminance by transport: EPT %.4g, VPT %.4g, DA %.4g\n", part[0] / n, part[1] / n, part[2] / n);
+      std::fprintf(stderr, "\n  mean luminance by transport: EPT %.4g, VPT %.4g, DA %.4g; level of detail: %.1f%% of paths entered a medium directly\n",
+                   part[0] / n, part[1] / n, part[2] / n, 100.0 * renderer.shortcutFraction());
     }
     writeImage(out, img);
     if (!png.empty()) writePngSrgb(png, img, exposure);
@@ -141,9 +144,10 @@ int main(int argc, char** argv) {
             if (img.channels[c] != "Z" && !std::isfinite(img.at(x, y)[c])) ++nonFiniteValues;
       std::fprintf(f,
                    "{\"build_s\": %.6f, \"render_s\": %.6f, \"spp\": %ld, \"technique\": \"%s\", \"pa\": %.6f, "
-                   "\"has_media\": %s, \"nonfinite_samples\": %ld, \"nonfinite_values\": %ld, \"mean\": [%.6g, %.6g, %.6g]}\n",
+                   "\"lod_fraction\": %.6f, \"has_media\": %s, \"nonfinite_samples\": %ld, \"nonfinite_values\": %ld, "
+                   "\"mean\": [%.6g, %.6g, %.6g]}\n",
                    scene->buildSeconds(), renderSeconds, renderer.samplesPerPixel(),
-                   techniqueName(scene->settings().technique), renderer.roulette().pa, scene->hasMedia() ? "true" : "false",
+                   techniqueName(scene->settings().technique), renderer.roulette().pa, renderer.shortcutFraction(), scene->hasMedia() ? "true" : "false",
                    renderer.nonFiniteSamples(), nonFiniteValues, meanRgb.x, meanRgb.y, meanRgb.z);
       std::fclose(f);
     }

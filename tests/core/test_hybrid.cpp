@@ -21,6 +21,7 @@ SceneDesc ballScene(Technique t, int spp) {
   s.settings.height = 20;
   s.settings.spp = spp;
   s.settings.seed = 11;
+  s.settings.lod = 0;  // grains are sub-pixel here: test the switching alone (LOD: test_lod.cpp)
   s.camera.cameraToWorld = Transform::lookAt(Vec3(0.3f, 0.4f, 3.2f), Vec3(0, 0, 0), Vec3(0, 1, 0));
   s.camera.focalLength = 50;
   s.camera.horizontalAperture = s.camera.verticalAperture = 30;

@@ -1,0 +1,178 @@
+// density_export.cpp — coarse density export through OpenVDB (contract in the header).
+//
+// The boundary is turned into a narrow-band level set (mesh-to-level-set, whose sign is
+// right throughout, interior tiles included), its interior (d <= 0 at voxel centres) into
+// a mask, and the mask's topology into a float grid whose every active value, voxel or
+// tile, is sigmaT.
+#include "density_export.h"
+
+#include <cerrno>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <mutex>
+
+#include <openvdb/openvdb.h>
+#include <openvdb/io/File.h>
+#include <openvdb/tools/Interpolation.h>
+#include <openvdb/tools/LevelSetUtil.h>
+#include <openvdb/tools/MeshToVolume.h>
+
+#include "error.h"
+
+namespace granular {
+
+namespace {
+
+void initVdb() {
+  static std::once_flag once;
+  std::call_once(once, [] { openvdb::initialize(); });
+}
+
+std::string className(openvdb::GridClass c) {
+  switch (c) {
+    case openvdb::GRID_LEVEL_SET: return "level set";
+    case openvdb::GRID_FOG_VOLUME: return "fog volume";
+    case openvdb::GRID_STAGGERED: return "staggered";
+    default: return "unknown";
+  }
+}
+
+openvdb::GridPtrVecPtr readAll(const std::string& path) {
+  initVdb();
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(path, ec)) throw InputError(path, "", "does not exist");
+  try {
+    openvdb::io::File file(path);
+    file.open();
+    openvdb::GridPtrVecPtr grids = file.getGrids();
+    file.close();
+    return grids;
+  } catch (const openvdb::Exception& e) {
+    throw InputError(path, "", str("cannot read the VDB file: ", e.what()));
+  }
+}
+
+}  // namespace
+
+DensityExportResult writeDensityVdb(const std::string& path, const TriangleMesh& worldBoundary, float sigmaT,
+                                    const DensityExportOptions& options, const std::string& object) {
+  initVdb();
+  validateClosed(worldBoundary, object);
+  if (!std::isfinite(sigmaT) || sigmaT < 0)
+    throw InputError(object, "sigmaT", str(sigmaT, " must be finite and >= 0"));
+  if (options.gridName.empty()) throw InputError(object, "gridName", "is empty");
+  if (options.defaultVoxelsAcross < 1 || options.maxVoxelsAcross < 1)
+    throw InputError(object, "voxelSize", "voxel counts must be >= 1");
+
+  const Bounds3 mb = worldBoundary.bounds();
+  const float extent = maxComponent(mb.extent());
+  float voxel = options.voxelSize;
+  if (!(voxel > 0)) {
+    if (std::isnan(voxel)) throw InputError(object, "voxelSize", "is not a number");
+    voxel = extent / float(options.defaultVoxelsAcross);
+  }
+  if (!std::isfinite(voxel) || !(voxel > 0)) throw InputError(object, "voxelSize", str(voxel, " must be finite and > 0"));
+  const double across = double(extent) / voxel;
+  if (across > options.maxVoxelsAcross)
+    throw InputError(object, "voxelSize",
+                     str(voxel, " is too small for the boundary's extent ", extent, ": ", std::ceil(across),
+                         " voxels across exceed the limit of ", options.maxVoxelsAcross));
+
+  openvdb::math::Transform::Ptr xform = openvdb::math::Transform::createLinearTransform(voxel);
+  std::vector<openvdb::Vec3s> pts;
+  pts.reserve(worldBoundary.points.size());
+  for (const Vec3& p : worldBoundary.points) pts.emplace_back(p.x, p.y, p.z);
+  std::vector<openvdb::Vec3I> tris;
+  tris.reserve(worldBoundary.numTriangles());
+  for (size_t i = 0; i < worldBoundary.numTriangles(); ++i)
+    tris.emplace_back(worldBoundary.indices[3 * i], worldBoundary.indices[3 * i + 1], worldBoundary.indices[3 * i + 2]);
+
+  openvdb::FloatGrid::Ptr sdf = openvdb::tools::meshToLevelSet<openvdb::FloatGrid>(*xform, pts, tris, 3.0f);
+  openvdb::BoolGrid::Ptr interior = openvdb::tools::sdfInteriorMask(*sdf, 0.0f);
+
+  openvdb::FloatGrid::Ptr density = openvdb::FloatGrid::create(0.0f);
+  density->setTransform(xform->copy());
+  density->tree().topologyUnion(interior->tree());
+  for (auto it = density->beginValueOn(); it; ++it) it.setValue(sigmaT);
+  density->setName(options.gridName);
+  density->setGridClass(openvdb::GRID_FOG_VOLUME);
+  density->setSaveFloatAsHalf(false);
+  density->insertMeta("granular:object", openvdb::StringMetadata(object));
+  for (const auto& kv : options.floatMetadata) density->insertMeta(kv.first, openvdb::FloatMetadata(kv.second));
+  for (const auto& kv : options.vec3Metadata)
+    density->insertMeta(kv.first, openvdb::Vec3SMetadata(openvdb::Vec3s(kv.second.x, kv.second.y, kv.second.z)));
+  for (const auto& kv : options.stringMetadata) density->insertMeta(kv.first, openvdb::StringMetadata(kv.second));
+
+  DensityExportResult result;
+  result.voxelSize = voxel;
+  result.activeVoxels = int64_t(density->activeVoxelCount());
+  openvdb::CoordBBox bbox = density->evalActiveVoxelBoundingBox();
+  if (!bbox.empty()) {
+    openvdb::Vec3d lo = xform->indexToWorld(bbox.min()), hi = xform->indexToWorld(bbox.max());
+    result.worldBounds.extend(Vec3(float(lo.x()), float(lo.y()), float(lo.z())));
+    result.worldBounds.extend(Vec3(float(hi.x()), float(hi.y()), float(hi.z())));
+  }
+
+  const std::string tmp = path + ".tmp";
+  try {
+    openvdb::io::File file(tmp);
+    file.write({density});
+    file.close();
+  } catch (const openvdb::Exception& e) {
+    std::remove(tmp.c_str());
+    throw std::runtime_error(str("cannot write \"", path, "\": ", e.what()));
+  }
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
+    int err = errno;
+    std::remove(tmp.c_str());
+    throw std::runtime_error(str("cannot write \"", path, "\": ", std::strerror(err)));
+  }
+  return result;
+}
+
+std::vector<VdbGridInfo> readVdbGrids(const std::string& path) {
+  std::vector<VdbGridInfo> infos;
+  const openvdb::GridPtrVecPtr grids = readAll(path);  // kept alive across the loop
+  for (const openvdb::GridBase::Ptr& g : *grids) {
+    VdbGridInfo info;
+    info.name = g->getName();
+    info.valueType = g->valueType();
+    info.gridClass = className(g->getGridClass());
+    openvdb::Vec3d v = g->voxelSize();
+    info.voxelSize = Vec3(float(v.x()), float(v.y()), float(v.z()));
+    info.activeVoxels = int64_t(g->activeVoxelCount());
+    for (auto it = g->beginMeta(); it != g->endMeta(); ++it) info.metadata[it->first] = it->second->str();
+    infos.push_back(std::move(info));
+  }
+  return infos;
+}
+
+std::vector<float> sampleVdbGrid(const std::string& path, const std::string& gridName,
+                                 const std::vector<Vec3>& worldPoints) {
+  openvdb::FloatGrid::Ptr grid;
+  std::vector<std::string> names;
+  const openvdb::GridPtrVecPtr grids = readAll(path);
+  for (const openvdb::GridBase::Ptr& g : *grids) {
+    names.push_back(g->getName());
+    if (g->getName() == gridName) {
+      grid = openvdb::gridPtrCast<openvdb::FloatGrid>(g);
+      if (!grid) throw InputError(path, gridName, str("is a ", g->valueType(), " grid, not a float grid"));
+      break;
+    }
+  }
+  if (!grid) {
+    std::string list;
+    for (const std::string& n : names) list += (list.empty() ? "" : ", ") + n;
+    throw InputError(path, gridName, str("no such grid (the file has: ", list.empty() ? "none" : list, ")"));
+  }
+  openvdb::tools::GridSampler<openvdb::FloatGrid::ConstAccessor, openvdb::tools::PointSampler> sampler(
+      grid->getConstAccessor(), grid->transform());
+  std::vector<float> values;
+  values.reserve(worldPoints.size());
+  for (const Vec3& p : worldPoints) values.push_back(sampler.wsSample(openvdb::Vec3d(p.x, p.y, p.z)));
+  return values;
+}
+
+}  // namespace granular

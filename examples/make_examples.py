@@ -1,0 +1,253 @@
+#!/usr/bin/env python3
+"""Writes the bundled USD examples (sandcastle, snowslab, sugarcube, mixture) with usd-core
+and the granular schema helpers:
+
+    .venv/bin/python examples/make_examples.py [OUT_DIR]
+
+Each scene: a /World with a camera, UsdLux lights, a ground with a UsdPreviewSurface,
+aggregates (Meshes with GranularAggregateAPI) and their grain prototypes (invisible Meshes
+with GranularGrainAPI under the /World/Grains scope), and render settings with the
+resolution. Shapes come from core's procedural meshes, so the files are deterministic.
+"""
+import math
+import os
+import sys
+
+import numpy as np
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdRender, UsdShade, Vt
+
+import granular  # noqa: F401  (registers the schema)
+import granular_core as core
+from granular import schema
+
+
+def new_stage(path, resolution):
+    stage = Usd.Stage.CreateNew(path)
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    world = UsdGeom.Xform.Define(stage, "/World")
+    stage.SetDefaultPrim(world.GetPrim())
+    UsdGeom.Scope.Define(stage, "/World/Grains")
+    UsdGeom.Scope.Define(stage, "/World/Looks")
+    UsdGeom.Scope.Define(stage, "/Render")
+    settings = UsdRender.Settings.Define(stage, "/Render/Settings")
+    settings.CreateResolutionAttr(Gf.Vec2i(*resolution))
+    stage.SetMetadata("renderSettingsPrimPath", "/Render/Settings")
+    return stage, settings
+
+
+def _round(a, digits=5):
+    return [round(float(x), digits) for x in a]
+
+
+def mesh_from(stage, path, tri, translate=None, rotate_y=None, scale=None):
+    """A UsdGeomMesh of a core.TriangleMesh (points rounded for readable, stable files)."""
+    m = UsdGeom.Mesh.Define(stage, path)
+    pts = np.asarray(tri.points, dtype=np.float64)
+    m.CreatePointsAttr(Vt.Vec3fArray([Gf.Vec3f(*_round(p)) for p in pts]))
+    idx = [int(i) for i in tri.indices]
+    m.CreateFaceVertexIndicesAttr(Vt.IntArray(idx))
+    m.CreateFaceVertexCountsAttr(Vt.IntArray([3] * (len(idx) // 3)))
+    m.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    m.CreateExtentAttr(Vt.Vec3fArray([Gf.Vec3f(*_round(lo)), Gf.Vec3f(*_round(hi))]))
+    xf = UsdGeom.Xformable(m)
+    if translate is not None:
+        xf.AddTranslateOp().Set(Gf.Vec3d(*translate))
+    if rotate_y is not None:
+        xf.AddRotateYOp().Set(rotate_y)
+    if scale is not None:
+        xf.AddScaleOp().Set(Gf.Vec3f(*scale))
+    return m
+
+
+def quad(stage, path, size, y=0.0):
+    m = UsdGeom.Mesh.Define(stage, path)
+    h = size / 2
+    m.CreatePointsAttr(Vt.Vec3fArray([Gf.Vec3f(-h, y, -h), Gf.Vec3f(-h, y, h), Gf.Vec3f(h, y, h), Gf.Vec3f(h, y, -h)]))
+    m.CreateFaceVertexCountsAttr(Vt.IntArray([4]))
+    m.CreateFaceVertexIndicesAttr(Vt.IntArray([0, 1, 2, 3]))
+    m.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    m.CreateExtentAttr(Vt.Vec3fArray([Gf.Vec3f(-h, y, -h), Gf.Vec3f(h, y, h)]))
+    return m
+
+
+def preview_material(stage, name, diffuse=None, opacity=None, ior=None):
+    mat = UsdShade.Material.Define(stage, f"/World/Looks/{name}")
+    sh = UsdShade.Shader.Define(stage, f"/World/Looks/{name}/Surface")
+    sh.CreateIdAttr("UsdPreviewSurface")
+    if diffuse is not None:
+        sh.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*diffuse))
+    if opacity is not None:
+        sh.CreateInput("opacity", Sdf.ValueTypeNames.Float).Set(opacity)
+    if ior is not None:
+        sh.CreateInput("ior", Sdf.ValueTypeNames.Float).Set(ior)
+    sh.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.8)
+    mat.CreateSurfaceOutput().ConnectToSource(sh.ConnectableAPI(), "surface")
+    return mat
+
+
+def bind(prim, mat):
+    UsdShade.MaterialBindingAPI.Apply(prim.GetPrim()).Bind(mat)
+
+
+def camera(stage, eye, target, focal=35.0, aperture=(36.0, 24.0)):
+    cam = UsdGeom.Camera.Define(stage, "/World/Camera")
+    cam.CreateFocalLengthAttr(focal)
+    cam.CreateHorizontalApertureAttr(aperture[0])
+    cam.CreateVerticalApertureAttr(aperture[1])
+    cam.CreateClippingRangeAttr(Gf.Vec2f(0.01, 100.0))
+    # Gf.Matrix4d.SetLookAt gives world-to-camera; the camera's transform is its inverse.
+    m = Gf.Matrix4d().SetLookAt(Gf.Vec3d(*eye), Gf.Vec3d(*target), Gf.Vec3d(0, 1, 0)).GetInverse()
+    UsdGeom.Xformable(cam).AddTransformOp().Set(m)
+    return cam
+
+
+def sun(stage, direction, intensity, color=(1.0, 0.93, 0.82), angle=20.0):
+    """A distant light travelling along `direction`."""
+    light = UsdLux.DistantLight.Define(stage, "/World/Sun")
+    light.CreateIntensityAttr(intensity)
+    light.CreateAngleAttr(angle)
+    light.CreateColorAttr(Gf.Vec3f(*color))
+    d = Gf.Vec3d(*direction).GetNormalized()
+    # Rotate local -Z onto d.
+    rot = Gf.Rotation(Gf.Vec3d(0, 0, -1), d)
+    UsdGeom.Xformable(light).AddTransformOp().Set(Gf.Matrix4d().SetRotate(rot))
+    return light
+
+
+def sky(stage, color, intensity):
+    light = UsdLux.DomeLight.Define(stage, "/World/Sky")
+    light.CreateColorAttr(Gf.Vec3f(*color))
+    light.CreateIntensityAttr(intensity)
+    return light
+
+
+def grain(stage, name, tri, ior, absorption):
+    m = mesh_from(stage, f"/World/Grains/{name}", tri)
+    schema.apply_grain(m, ior=ior, absorption=absorption, roughness=0.0)
+    return m
+
+
+def cylinder(radius, height, segments=48):
+    return core.make_lathe([(radius, 0.0), (radius, height)], segments)
+
+
+def cone(radius, height, segments=48):
+    return core.make_lathe([(radius, 0.0), (0.0, height)], segments)
+
+
+# ---- scenes ----------------------------------------------------------------------------------
+
+def sandcastle(path):
+    stage, _ = new_stage(path, (480, 320))
+    camera(stage, eye=(2.5, 1.75, 3.1), target=(0.0, 0.5, 0.0))
+    sun(stage, direction=(-0.45, -0.8, -0.35), intensity=14.0)
+    sky(stage, (0.6, 0.75, 1.0), 0.8)
+    ground = quad(stage, "/World/Ground", 12.0)
+    bind(ground, preview_material(stage, "Beach", diffuse=(0.42, 0.36, 0.28)))
+
+    # Quartz sand: index 1.55, absorbing more blue than red (a yellow-brown tint).
+    round_ = grain(stage, "Round", core.make_rock(2, 0.2, 1), 1.55, (0.12, 0.24, 0.65))
+    flat = grain(stage, "Flat", core.make_ellipsoid((1.0, 0.55, 0.8), 2), 1.55, (0.12, 0.24, 0.65))
+    dark = grain(stage, "Dark", core.make_rock(2, 0.3, 5), 1.55, (0.7, 0.9, 1.5))
+    protos = [round_, flat, dark]
+
+    # Shared values are constant primvars on the castle Xform, inherited by its parts
+    # (as Hydra inherits them); the prototypes are named on each part, relative to it.
+    castle = UsdGeom.Xform.Define(stage, "/World/Castle")
+    api = UsdGeom.PrimvarsAPI(castle)
+    api.CreatePrimvar("granular:grainRadius", Sdf.ValueTypeNames.Float, UsdGeom.Tokens.constant).Set(0.012)
+    api.CreatePrimvar("granular:packingRate", Sdf.ValueTypeNames.Float, UsdGeom.Tokens.constant).Set(0.6)
+    api.CreatePrimvar("granular:weights", Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.constant).Set(
+        Vt.FloatArray([0.6, 0.3, 0.1]))
+
+    def part(name, tri, translate, seed):
+        m = mesh_from(stage, f"/World/Castle/{name}", tri, translate=translate)
+        schema.apply_aggregate(m, protos, seed=seed, tile_spheres=512, author_fallbacks=False)
+        return m
+
+    part("Base", core.make_box((-0.8, 0.0, -0.8), (0.8, 0.3, 0.8)), None, 1)
+    part("Keep", core.make_box((-0.42, 0.3, -0.42), (0.42, 0.85, 0.42)), None, 2)
+    part("KeepRoof", cone(0.36, 0.4), (0.0, 0.85, 0.0), 3)
+    for k, (x, z) in enumerate([(-0.6, -0.6), (0.6, -0.6), (-0.6, 0.6), (0.6, 0.6)]):
+        part(f"Tower{k + 1}", cylinder(0.17, 0.55), (x, 0.3, z), 10 + k)
+        part(f"TowerRoof{k + 1}", cone(0.21, 0.28), (x, 0.85, z), 20 + k)
+    stage.GetRootLayer().Save()
+
+
+def snowslab(path):
+    stage, _ = new_stage(path, (400, 260))
+    camera(stage, eye=(1.7, 1.05, 2.2), target=(0.0, 0.12, 0.0))
+    sun(stage, direction=(-0.3, -0.55, -0.75), intensity=10.0, color=(1.0, 0.97, 0.92), angle=5.0)
+    sky(stage, (0.55, 0.7, 1.0), 0.8)
+    ground = quad(stage, "/World/Ground", 12.0)
+    bind(ground, preview_material(stage, "Rock", diffuse=(0.08, 0.08, 0.09)))
+    # Ice: index 1.31, almost no absorption (a faint blue with depth).
+    flake = grain(stage, "Flake", core.make_ellipsoid((1.0, 0.35, 0.9), 2), 1.31, (0.004, 0.0015, 0.0006))
+    pellet = grain(stage, "Pellet", core.make_rock(2, 0.25, 11), 1.31, (0.004, 0.0015, 0.0006))
+    slab = mesh_from(stage, "/World/Snow", core.make_box((-0.9, 0.0, -0.55), (0.9, 0.3, 0.55)))
+    schema.apply_aggregate(slab, [flake, pellet], grain_radius=0.014, packing_rate=0.45, weights=[0.5, 0.5],
+                           seed=4, tile_spheres=512)
+    stage.GetRootLayer().Save()
+
+
+def sugarcube(path):
+    stage, _ = new_stage(path, (360, 270))
+    camera(stage, eye=(0.75, 0.62, 0.95), target=(0.0, 0.11, 0.0), aperture=(36.0, 27.0))
+    sun(stage, direction=(-0.5, -0.7, -0.3), intensity=8.0, angle=10.0)
+    sky(stage, (0.8, 0.85, 1.0), 0.7)
+    # A table from a UsdGeomCube (tessellated by the reader).
+    table = UsdGeom.Cube.Define(stage, "/World/Table")
+    table.CreateSizeAttr(1.0)
+    UsdGeom.Xformable(table).AddTranslateOp().Set(Gf.Vec3d(0, -0.05, 0))
+    UsdGeom.Xformable(table).AddScaleOp().Set(Gf.Vec3f(4.0, 0.1, 4.0))
+    bind(table, preview_material(stage, "Wood", diffuse=(0.25, 0.13, 0.06)))
+    # Sucrose crystals: clear, index 1.54, box-like.
+    crystal = grain(stage, "Crystal", core.make_box((-1.0, -0.7, -0.55), (1.0, 0.7, 0.55)), 1.54, (0.0, 0.0, 0.0))
+    chip = grain(stage, "Chip", core.make_box((-0.8, -0.8, -0.4), (0.8, 0.8, 0.4)), 1.54, (0.0, 0.0, 0.0))
+    cube = mesh_from(stage, "/World/SugarCube", core.make_box((-0.11, 0.0, -0.11), (0.11, 0.22, 0.11)),
+                     rotate_y=25.0)
+    schema.apply_aggregate(cube, [crystal, chip], grain_radius=0.004, packing_rate=0.55, weights=[0.7, 0.3],
+                           seed=9, tile_spheres=512)
+    stage.GetRootLayer().Save()
+
+
+def mixture(path):
+    stage, _ = new_stage(path, (400, 300))
+    camera(stage, eye=(1.25, 0.95, 1.55), target=(0.0, 0.18, 0.0), aperture=(36.0, 27.0))
+    sun(stage, direction=(-0.4, -0.75, -0.45), intensity=10.0)
+    sky(stage, (0.7, 0.8, 1.0), 0.8)
+    ground = quad(stage, "/World/Ground", 12.0)
+    bind(ground, preview_material(stage, "Slate", diffuse=(0.3, 0.3, 0.32)))
+    # Glass beads in three colours, and opaque pepper grains through a UsdPreviewSurface
+    # binding (no GranularGrainAPI: Lambert grains).
+    red = grain(stage, "Red", core.make_icosphere(2), 1.5, (0.15, 1.6, 1.8))
+    green = grain(stage, "Green", core.make_icosphere(2), 1.5, (1.4, 0.2, 1.2))
+    white = grain(stage, "White", core.make_rock(2, 0.15, 3), 1.5, (0.05, 0.05, 0.05))
+    pepper = mesh_from(stage, "/World/Grains/Pepper", core.make_rock(2, 0.35, 8))
+    UsdGeom.Imageable(pepper).MakeInvisible()
+    bind(pepper, preview_material(stage, "Pepper", diffuse=(0.05, 0.04, 0.03)))
+    heap = mesh_from(stage, "/World/Heap", core.make_lathe(
+        [(0.55, 0.0), (0.5, 0.06), (0.38, 0.2), (0.22, 0.33), (0.0, 0.4)], 48))
+    schema.apply_aggregate(heap, [red, green, white, pepper], grain_radius=0.009, packing_rate=0.58,
+                           weights=[0.25, 0.25, 0.4, 0.1], seed=5, tile_spheres=512)
+    stage.GetRootLayer().Save()
+
+
+SCENES = {"sandcastle": sandcastle, "snowslab": snowslab, "sugarcube": sugarcube, "mixture": mixture}
+
+
+def main(argv):
+    out = argv[1] if len(argv) > 1 else os.path.dirname(os.path.abspath(__file__))
+    for name, make in SCENES.items():
+        path = os.path.join(out, f"{name}.usda")
+        if os.path.exists(path):
+            os.remove(path)
+        make(path)
+        print(path)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv))

@@ -1,0 +1,603 @@
+// bindings.cpp — the granular_core Python module: core/ for the usd-core front end.
+//
+// Contract: exposes the plain scene description (SceneDesc and its parts) for a front
+// end to fill, validation, scene building and progressive rendering on a worker thread
+// with the GIL released (a progress callback runs under the GIL every fraction of a
+// second; if it raises, or Ctrl-C arrives, the render is cancelled and the exception
+// propagates), image output, and the coarse
+// density export / VDB read-back, and the teleportation-transport media of a built
+// scene (Scene.media). Vec3 values are 3-sequences (returned as tuples);
+// transforms are 4x4 nested sequences in core's convention (row-major, acting on
+// column vectors: a USD GfMatrix4d is its transpose). Point and index arrays are numpy
+// arrays. core's InputError surfaces as granular_core.InputError (a ValueError) with
+// .object, .attribute and .detail; nothing a caller passes can crash the process.
+#include <pybind11/functional.h>
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <condition_variable>
+#include <exception>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <thread>
+
+#include "density_export.h"
+#include "error.h"
+#include "image_io.h"
+#include "mesh.h"
+#include "render.h"
+#include "scene.h"
+#include "scene_desc.h"
+#include "scene_io.h"
+#include "shapes.h"
+#include "tt.h"
+
+namespace py = pybind11;
+using namespace granular;
+
+// ---- Vec3 and Transform as plain Python sequences ------------------------------------
+namespace pybind11::detail {
+
+template <>
+struct type_caster<Vec3> {
+  PYBIND11_TYPE_CASTER(Vec3, const_name("tuple[float, float, float]"));
+  bool load(handle src, bool convert) {
+    if (!src || !PySequence_Check(src.ptr()) || PyUnicode_Check(src.ptr()) || PyBytes_Check(src.ptr())) return false;
+    sequence seq = reinterpret_borrow<sequence>(src);
+    if (seq.size() != 3) return false;
+    for (size_t i = 0; i < 3; ++i) {
+      make_caster<float> c;
+      if (!c.load(seq[i], convert)) return false;
+      value[int(i)] = cast_op<float>(c);
+    }
+    return true;
+  }
+  static handle cast(const Vec3& v, return_value_policy, handle) { return make_tuple(v.x, v.y, v.z).release(); }
+};
+
+template <>
+struct type_caster<Transform> {
+  PYBIND11_TYPE_CASTER(Transform, const_name("list[list[float]]"));
+  bool load(handle src, bool convert) {
+    if (!src || !PySequence_Check(src.ptr()) || PyUnicode_Check(src.ptr())) return false;
+    sequence rows = reinterpret_borrow<sequence>(src);
+    if (rows.size() != 4) return false;
+    for (size_t i = 0; i < 4; ++i) {
+      object row = rows[i];
+      if (!PySequence_Check(row.ptr()) || PyUnicode_Check(row.ptr())) return false;
+      sequence r = reinterpret_borrow<sequence>(row);
+      if (r.size() != 4) return false;
+      for (size_t j = 0; j < 4; ++j) {
+        make_caster<double> c;
+        if (!c.load(r[j], convert)) return false;
+        value.m[i][j] = cast_op<double>(c);
+      }
+    }
+    return true;
+  }
+  static handle cast(const Transform& t, return_value_policy, handle) {
+    list rows;
+    for (int i = 0; i < 4; ++i) rows.append(make_tuple(t.m[i][0], t.m[i][1], t.m[i][2], t.m[i][3]));
+    return rows.release();
+  }
+};
+
+}  // namespace pybind11::detail
+
+namespace {
+
+using FloatArray = py::array_t<float, py::array::c_style | py::array::forcecast>;
+using IntArray = py::array_t<int64_t, py::array::c_style | py::array::forcecast>;
+
+std::vector<Vec3> toPoints(const FloatArray& a, const std::string& what) {
+  if (a.ndim() != 2 || a.shape(1) != 3) throw py::value_error(what + " must be an array of shape (N, 3)");
+  std::vector<Vec3> pts(size_t(a.shape(0)));
+  auto r = a.unchecked<2>();
+  for (py::ssize_t i = 0; i < a.shape(0); ++i) pts[size_t(i)] = Vec3(r(i, 0), r(i, 1), r(i, 2));
+  return pts;
+}
+
+std::vector<int64_t> toInts(const IntArray& a, const std::string& what) {
+  if (a.ndim() != 1) throw py::value_error(what + " must be a 1-D array");
+  auto r = a.unchecked<1>();
+  std::vector<int64_t> v(size_t(a.shape(0)));
+  for (py::ssize_t i = 0; i < a.shape(0); ++i) v[size_t(i)] = r(i);
+  return v;
+}
+
+// Narrowing to int: values outside int's range become -1, which every consumer rejects
+// as out of range (an index) or as too few vertices (a count).
+std::vector<int> toInt32(const std::vector<int64_t>& v) {
+  std::vector<int> r(v.size());
+  for (size_t i = 0; i < v.size(); ++i) r[i] = (v[i] < INT32_MIN || v[i] > INT32_MAX) ? -1 : int(v[i]);
+  return r;
+}
+
+py::array_t<float> pointsToArray(const std::vector<Vec3>& pts) {
+  py::array_t<float> a({py::ssize_t(pts.size()), py::ssize_t(3)});
+  auto w = a.mutable_unchecked<2>();
+  for (size_t i = 0; i < pts.size(); ++i)
+    for (int k = 0; k < 3; ++k) w(py::ssize_t(i), k) = pts[i][k];
+  return a;
+}
+
+TriangleMesh makeMesh(const FloatArray& points, const IntArray& indices) {
+  TriangleMesh m;
+  m.points = toPoints(points, "points");
+  std::vector<int64_t> idx = toInts(indices, "indices");
+  m.indices.resize(idx.size());
+  for (size_t i = 0; i < idx.size(); ++i)
+    // Out-of-range values map to an index no mesh has, which validation reports.
+    m.indices[i] = (idx[i] < 0 || idx[i] > int64_t(UINT32_MAX)) ? UINT32_MAX : uint32_t(idx[i]);
+  return m;
+}
+
+py::dict boundsDict(const Bounds3& b) {
+  py::dict d;
+  d["lo"] = b.lo;
+  d["hi"] = b.hi;
+  return d;
+}
+
+// The Python exception type; a plain handle holding a reference that is never dropped,
+// so that nothing touches it after the interpreter has shut down.
+py::handle gInputError;
+
+// The message of an InputError without its "object.attribute: " prefix.
+std::string detailOf(const InputError& e) {
+  std::string w = e.what();
+  size_t n = e.object().size() + (e.attribute().empty() ? 0 : e.attribute().size() + 1) + 2;
+  return w.size() >= n ? w.substr(n) : w;
+}
+
+py::dict aggregateInfo(const Aggregate& a, int tileSpheres) {
+  const AggregateStats& s = a.stats();
+  py::dict d;
+  d["name"] = a.name();
+  d["approx_grains"] = s.approxGrains;
+  d["cells"] = s.cells;
+  d["inside_cells"] = s.insideCells;
+  d["partial_cells"] = s.partialCells;
+  d["memory_bytes"] = s.memoryBytes;
+  d["setup_seconds"] = s.setupSeconds;
+  d["tile_seconds"] = s.tileSeconds;
+  d["sdf_seconds"] = s.sdfSeconds;
+  d["grain_radius"] = a.grainRadius();
+  d["cell_size"] = a.cellSize();
+  d["packing_rate"] = a.packingRate();
+  d["tile_spheres"] = tileSpheres;
+  d["tile_packing_rate"] = a.tile().packingRate;
+  d["bounds"] = boundsDict(a.bounds());
+  return d;
+}
+
+// Python-owned scene: the desc it was built from and the built scene.
+struct PyScene {
+  SceneDesc desc;
+  std::unique_ptr<Scene> scene;
+};
+
+struct PyRenderer {
+  std::shared_ptr<PyScene> scene;
+  std::unique_ptr<Renderer> renderer;
+};
+
+py::dict mediumDict(const MediumParams& m) {
+  py::dict d;
+  d["grain_radius"] = m.grainRadius;
+  d["packing_rate"] = m.packingRate;
+  d["sigma_b"] = m.sigmaB;
+  d["beta"] = m.combined.beta;
+  d["beta_se"] = m.combined.betaSE;
+  d["lambda_delta"] = m.combined.lambdaDelta;
+  d["lambda_s"] = py::make_tuple(m.combined.lambdaS[0], m.combined.lambdaS[1], m.combined.lambdaS[2]);
+  d["lambda_beta"] = m.lambdaBeta;
+  d["lambda_t"] = m.lambdaT;
+  d["sigma_t"] = m.sigmaT;
+  d["albedo"] = m.albedo;
+  d["g"] = m.g;
+  d["sigma_s_reduced"] = m.sigmaSReduced;
+  d["sigma_t_reduced"] = m.sigmaTReduced;
+  d["albedo_reduced"] = m.albedoReduced;
+  d["sigma_a"] = m.sigmaA;
+  d["sigma_tr"] = m.sigmaTr;
+  d["mean_free_path"] = m.meanFreePath();
+  d["rays"] = m.combined.rays;
+  d["truncated"] = m.combined.truncated;
+  return d;
+}
+
+}  // namespace
+
+PYBIND11_MODULE(granular_core, m) {
+  m.doc() = "hdGranular core renderer (Meng et al. 2015) for the usd-core front end";
+
+  // ---- errors ----------------------------------------------------------------------
+  gInputError = PyErr_NewException("granular_core.InputError", PyExc_ValueError, nullptr);
+  if (!gInputError) throw py::error_already_set();
+  m.attr("InputError") = gInputError;
+  py::register_exception_translator([](std::exception_ptr p) {
+    try {
+      if (p) std::rethrow_exception(p);
+    } catch (const InputError& e) {
+      py::object inst = gInputError(py::str(e.what()));
+      inst.attr("object") = e.object();
+      inst.attr("attribute") = e.attribute();
+      inst.attr("detail") = detailOf(e);
+      PyErr_SetObject(gInputError.ptr(), inst.ptr());
+    }
+  });
+
+  // ---- meshes ----------------------------------------------------------------------
+  py::class_<TriangleMesh>(m, "TriangleMesh")
+      .def(py::init<>())
+      .def(py::init(&makeMesh), py::arg("points"), py::arg("indices"),
+           "points: (N, 3) floats; indices: 3 per triangle")
+      .def_property(
+          "points", [](const TriangleMesh& t) { return pointsToArray(t.points); },
+          [](TriangleMesh& t, const FloatArray& a) { t.points = toPoints(a, "points"); })
+      .def_property(
+          "indices",
+          [](const TriangleMesh& t) {
+            py::array_t<uint32_t> a(py::ssize_t(t.indices.size()));
+            std::copy(t.indices.begin(), t.indices.end(), a.mutable_data());
+            return a;
+          },
+          [](TriangleMesh& t, const IntArray& a) { t = makeMesh(pointsToArray(t.points), a); })
+      .def_property_readonly("num_triangles", &TriangleMesh::numTriangles)
+      .def("bounds", [](const TriangleMesh& t) { return boundsDict(t.bounds()); })
+      .def("signed_volume", &TriangleMesh::signedVolume)
+      .def("transformed", &TriangleMesh::transformed, py::arg("xf"))
+      .def("flip", &TriangleMesh::flip);
+
+  m.def(
+      "triangulate",
+      [](const FloatArray& points, const IntArray& counts, const IntArray& indices, const std::string& object) {
+        return triangulate(toPoints(points, "points"), toInt32(toInts(counts, "faceVertexCounts")),
+                           toInt32(toInts(indices, "faceVertexIndices")), object);
+      },
+      py::arg("points"), py::arg("face_vertex_counts"), py::arg("face_vertex_indices"), py::arg("object"),
+      "Polygons (USD faceVertexCounts/Indices) to triangles by fans; InputError naming object.");
+  m.def("validate_mesh", &validateMesh, py::arg("mesh"), py::arg("object"), py::arg("attribute") = "points");
+  m.def("validate_closed", &validateClosed, py::arg("mesh"), py::arg("object"),
+        "Closed, 2-manifold, consistently wound, non-zero volume; returns the signed volume.");
+  m.def("make_icosphere", &makeIcosphere, py::arg("subdivisions"));
+  m.def("make_box", &makeBox, py::arg("lo"), py::arg("hi"));
+  m.def("make_rock", &makeRock, py::arg("subdivisions"), py::arg("roughness"), py::arg("seed"));
+  m.def("make_ellipsoid", &makeEllipsoid, py::arg("radii"), py::arg("subdivisions"));
+  m.def("make_uv_sphere", &makeUVSphere, py::arg("segments"), py::arg("rings"));
+  m.def("make_lathe", &makeLathe, py::arg("profile"), py::arg("segments"));
+
+  // ---- scene description -------------------------------------------------------------
+  py::class_<CameraDesc>(m, "CameraDesc")
+      .def(py::init<>())
+      .def_readwrite("camera_to_world", &CameraDesc::cameraToWorld)
+      .def_readwrite("focal_length", &CameraDesc::focalLength)
+      .def_readwrite("horizontal_aperture", &CameraDesc::horizontalAperture)
+      .def_readwrite("vertical_aperture", &CameraDesc::verticalAperture)
+      .def_readwrite("horizontal_aperture_offset", &CameraDesc::horizontalApertureOffset)
+      .def_readwrite("vertical_aperture_offset", &CameraDesc::verticalApertureOffset)
+      .def_readwrite("clip_near", &CameraDesc::clipNear)
+      .def_readwrite("clip_far", &CameraDesc::clipFar);
+
+  py::enum_<MaterialType>(m, "MaterialType")
+      .value("Lambert", MaterialType::Lambert)
+      .value("Dielectric", MaterialType::Dielectric);
+  py::class_<MaterialDesc>(m, "MaterialDesc")
+      .def(py::init<>())
+      .def_readwrite("name", &MaterialDesc::name)
+      .def_readwrite("type", &MaterialDesc::type)
+      .def_readwrite("albedo", &MaterialDesc::albedo)
+      .def_readwrite("ior", &MaterialDesc::ior)
+      .def_readwrite("absorption", &MaterialDesc::absorption)
+      .def_readwrite("emission", &MaterialDesc::emission);
+
+  py::enum_<LightType>(m, "LightType")
+      .value("Distant", LightType::Distant)
+      .value("Sphere", LightType::Sphere)
+      .value("Rect", LightType::Rect)
+      .value("Dome", LightType::Dome);
+  py::class_<LightDesc>(m, "LightDesc")
+      .def(py::init<>())
+      .def_readwrite("name", &LightDesc::name)
+      .def_readwrite("type", &LightDesc::type)
+      .def_readwrite("xf", &LightDesc::xf)
+      .def_readwrite("color", &LightDesc::color)
+      .def_readwrite("intensity", &LightDesc::intensity)
+      .def_readwrite("exposure", &LightDesc::exposure)
+      .def_readwrite("normalize", &LightDesc::normalize)
+      .def_readwrite("angle", &LightDesc::angle)
+      .def_readwrite("radius", &LightDesc::radius)
+      .def_readwrite("width", &LightDesc::width)
+      .def_readwrite("height", &LightDesc::height)
+      .def_readwrite("texture_file", &LightDesc::textureFile);
+
+  py::class_<MeshDesc>(m, "MeshDesc")
+      .def(py::init<>())
+      .def_readwrite("name", &MeshDesc::name)
+      .def_readwrite("mesh", &MeshDesc::mesh)
+      .def_readwrite("xf", &MeshDesc::xf)
+      .def_readwrite("material", &MeshDesc::material)
+      .def_readwrite("visible", &MeshDesc::visible);
+
+  py::class_<GrainPrototypeDesc>(m, "GrainPrototypeDesc")
+      .def(py::init<>())
+      .def_readwrite("name", &GrainPrototypeDesc::name)
+      .def_readwrite("mesh", &GrainPrototypeDesc::mesh)
+      .def_readwrite("material", &GrainPrototypeDesc::material);
+
+  py::class_<AggregateDesc>(m, "AggregateDesc")
+      .def(py::init<>())
+      .def_readwrite("name", &AggregateDesc::name)
+      .def_readwrite("boundary", &AggregateDesc::boundary)
+      .def_readwrite("xf", &AggregateDesc::xf)
+      .def_readwrite("prototypes", &AggregateDesc::prototypes, "a copy: assign a whole list")
+      .def_readwrite("weights", &AggregateDesc::weights)
+      .def_readwrite("grain_radius", &AggregateDesc::grainRadius)
+      .def_readwrite("packing_rate", &AggregateDesc::packingRate)
+      .def_readwrite("seed", &AggregateDesc::seed)
+      .def_readwrite("tile_spheres", &AggregateDesc::tileSpheres);
+
+  py::enum_<Technique>(m, "Technique")
+      .value("Ept", Technique::Ept)
+      .value("EptVpt", Technique::EptVpt)
+      .value("Hybrid", Technique::Hybrid);
+  m.def("technique_from_name", &techniqueFromName, py::arg("name"), py::arg("object"),
+        "\"ept\", \"ept+vpt\" or \"hybrid\"; else InputError on object.technique");
+  m.def("technique_name", &techniqueName, py::arg("technique"));
+
+  py::class_<RenderSettings>(m, "RenderSettings")
+      .def(py::init<>())
+      .def_readwrite("width", &RenderSettings::width)
+      .def_readwrite("height", &RenderSettings::height)
+      .def_readwrite("spp", &RenderSettings::spp)
+      .def_readwrite("seed", &RenderSettings::seed)
+      .def_readwrite("max_depth", &RenderSettings::maxDepth)
+      .def_readwrite("rr_depth", &RenderSettings::rrDepth)
+      .def_readwrite("threads", &RenderSettings::threads)
+      .def_readwrite("technique", &RenderSettings::technique)
+      .def_readwrite("bundle_size", &RenderSettings::bundleSize)
+      .def_readwrite("tau", &RenderSettings::tau)
+      .def_readwrite("roulette", &RenderSettings::roulette)
+      .def_readwrite("lod", &RenderSettings::lod);
+
+  py::class_<SceneDesc>(m, "SceneDesc")
+      .def(py::init<>())
+      .def_readwrite("camera", &SceneDesc::camera)
+      .def_readwrite("settings", &SceneDesc::settings)
+      // Lists are copies (assign a whole list, or use add_*, which return the index).
+      .def_readwrite("materials", &SceneDesc::materials)
+      .def_readwrite("meshes", &SceneDesc::meshes)
+      .def_readwrite("lights", &SceneDesc::lights)
+      .def_readwrite("aggregates", &SceneDesc::aggregates)
+      .def("add_material", [](SceneDesc& d, const MaterialDesc& x) { d.materials.push_back(x); return int(d.materials.size()) - 1; })
+      .def("add_mesh", [](SceneDesc& d, const MeshDesc& x) { d.meshes.push_back(x); return int(d.meshes.size()) - 1; })
+      .def("add_light", [](SceneDesc& d, const LightDesc& x) { d.lights.push_back(x); return int(d.lights.size()) - 1; })
+      .def("add_aggregate", [](SceneDesc& d, const AggregateDesc& x) { d.aggregates.push_back(x); return int(d.aggregates.size()) - 1; });
+
+  m.def("validate_scene_desc", &validateSceneDesc, py::arg("desc"));
+  m.def("load_scene_json", &loadSceneJson, py::arg("path"), py::call_guard<py::gil_scoped_release>());
+
+  // ---- scene building and rendering --------------------------------------------------
+  py::class_<PyScene, std::shared_ptr<PyScene>> scene(m, "Scene");
+  scene
+      .def_static(
+          "build",
+          [](const SceneDesc& desc) {
+            auto s = std::make_shared<PyScene>();
+            s->desc = desc;
+            py::gil_scoped_release release;
+            s->scene = Scene::build(s->desc);
+            return s;
+          },
+          py::arg("desc"), "Validates and builds (BVHs, tiles, distance fields); the GIL is released.")
+      .def_property_readonly("build_seconds", [](const PyScene& s) { return s.scene->buildSeconds(); })
+      .def_property_readonly("has_media", [](const PyScene& s) { return s.scene->hasMedia(); },
+                             "whether the integrator uses the equivalent media (VPT, DA) in this scene")
+      .def_property_readonly("aggregates", [](const PyScene& s) {
+        py::list out;
+        const auto& aggs = s.scene->aggregates();
+        for (size_t i = 0; i < aggs.size(); ++i) out.append(aggregateInfo(*aggs[i], s.desc.aggregates[i].tileSpheres));
+        return out;
+      });
+
+  py::class_<Image>(m, "Image")
+      .def_readonly("width", &Image::width)
+      .def_readonly("height", &Image::height)
+      .def_readonly("channels", &Image::channels)
+      .def_property_readonly(
+          "pixels",
+          [](const Image& img) {
+            py::array_t<float> a({py::ssize_t(img.height), py::ssize_t(img.width), py::ssize_t(img.channels.size())});
+            std::copy(img.pixels.begin(), img.pixels.end(), a.mutable_data());
+            return a;
+          },
+          "a (height, width, channels) float32 copy, top row first");
+
+  py::class_<PyRenderer>(m, "Renderer")
+      .def(py::init([](std::shared_ptr<PyScene> s) {
+             auto r = std::make_unique<PyRenderer>();
+             r->scene = std::move(s);
+             r->renderer = std::make_unique<Renderer>(*r->scene->scene);
+             return r;
+           }),
+           py::arg("scene"))
+      .def(
+          "render",
+          [](PyRenderer& r, int passSamples, const std::optional<py::function>& progress, double interval) {
+            if (passSamples < 1) throw py::value_error("pass_samples must be >= 1");
+            if (!(interval > 0)) throw py::value_error("interval must be > 0");
+            // The render runs on a worker thread; this (the calling, usually main) thread
+            // waits with the GIL released, and every `interval` seconds takes it to call
+            // progress and to let Python handle signals (Ctrl-C), which only the main
+            // thread can. Either raising cancels the render; the exception propagates.
+            Renderer& renderer = *r.renderer;
+            const long target = r.scene->desc.settings.spp;
+            std::atomic<bool> cancel{false};
+            std::mutex mu;
+            std::condition_variable cv;
+            bool finished = false, completed = false;
+            std::exception_ptr failure;
+            const auto t0 = std::chrono::steady_clock::now();
+            auto seconds = [&] { return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(); };
+            std::optional<py::error_already_set> pending;
+            auto poll = [&](double done) {
+              try {
+                if (PyErr_CheckSignals() != 0) throw py::error_already_set();
+                if (progress) (*progress)(done, target, seconds());
+              } catch (py::error_already_set& e) {
+                if (!pending) pending.emplace(std::move(e));
+                cancel = true;
+              }
+            };
+            std::thread worker([&] {
+              bool ok = false;
+              std::exception_ptr err;
+              try {
+                ok = renderer.render(passSamples, nullptr, &cancel);
+              } catch (...) {
+                err = std::current_exception();
+              }
+              std::lock_guard<std::mutex> lock(mu);
+              finished = true;
+              completed = ok;
+              failure = err;
+              cv.notify_all();
+            });
+            for (;;) {
+              bool done;
+              {
+                py::gil_scoped_release release;
+                std::unique_lock<std::mutex> lock(mu);
+                done = cv.wait_for(lock, std::chrono::duration<double>(interval), [&] { return finished; });
+              }
+              if (done) break;
+              if (!pending) poll(renderer.progressSamples());
+            }
+            {
+              py::gil_scoped_release release;
+              worker.join();
+            }
+            if (failure) std::rethrow_exception(failure);
+            if (pending) throw std::move(*pending);
+            if (completed) {
+              poll(double(renderer.samplesPerPixel()));  // the final 100%
+              if (pending) throw std::move(*pending);
+            }
+            return completed;
+          },
+          py::arg("pass_samples") = 1, py::arg("progress") = py::none(), py::arg("interval") = 0.25,
+          "Renders settings.spp samples per pixel (passes of pass_samples, rounded up to whole bundles) "
+          "on a worker thread, the GIL released; calls progress(samples_done: float, target, seconds) "
+          "every `interval` seconds and at the end. Returns False if cancelled.")
+      .def_property_readonly("samples_per_pixel", [](const PyRenderer& r) { return r.renderer->samplesPerPixel(); })
+      .def_property_readonly("bundle_size", [](const PyRenderer& r) { return r.renderer->bundleSize(); })
+      .def_property_readonly("shortcut_fraction", [](const PyRenderer& r) { return r.renderer->shortcutFraction(); },
+                             "fraction of the paths that entered a medium directly by level of detail")
+      .def_property_readonly(
+          "roulette",
+          [](const PyRenderer& r) {
+            const RouletteTuning& t = r.renderer->roulette();
+            py::dict d;
+            d["pa"] = t.pa;
+            d["pixels"] = t.pixels;
+            d["VL"] = t.VL;
+            d["VH"] = t.VH;
+            d["tL"] = t.tL;
+            d["tH"] = t.tH;
+            return d;
+          },
+          "P_a used (after the first pass) and, when tuned, the pre-render's numbers")
+      .def("image", [](const PyRenderer& r) { return r.renderer->film().toImage(); });
+
+  m.def("write_exr", &writeExr, py::arg("path"), py::arg("image"), py::call_guard<py::gil_scoped_release>());
+  m.def("write_png", &writePngSrgb, py::arg("path"), py::arg("image"), py::arg("exposure") = 0.0f,
+        py::call_guard<py::gil_scoped_release>());
+  m.def("write_image", &writeImage, py::arg("path"), py::arg("image"), py::call_guard<py::gil_scoped_release>());
+  m.def("read_image_rgb", &readImageRGB, py::arg("path"), py::call_guard<py::gil_scoped_release>());
+
+  // ---- coarse density ------------------------------------------------------------------
+  m.def(
+      "write_density_vdb",
+      [](const std::string& path, const TriangleMesh& worldBoundary, float sigmaT, float voxelSize,
+         const std::string& object, const std::map<std::string, float>& floatMeta,
+         const std::map<std::string, Vec3>& vec3Meta, const std::map<std::string, std::string>& stringMeta) {
+        DensityExportOptions o;
+        o.voxelSize = voxelSize;
+        o.floatMetadata = floatMeta;
+        o.vec3Metadata = vec3Meta;
+        o.stringMetadata = stringMeta;
+        DensityExportResult r;
+        {
+          py::gil_scoped_release release;
+          r = writeDensityVdb(path, worldBoundary, sigmaT, o, object);
+        }
+        py::dict d;
+        d["voxel_size"] = r.voxelSize;
+        d["active_voxels"] = r.activeVoxels;
+        d["bounds"] = boundsDict(r.worldBounds);
+        return d;
+      },
+      py::arg("path"), py::arg("world_boundary"), py::arg("sigma_t"), py::arg("voxel_size") = 0.0f,
+      py::arg("object") = "", py::arg("float_metadata") = std::map<std::string, float>(),
+      py::arg("vec3_metadata") = std::map<std::string, Vec3>(),
+      py::arg("string_metadata") = std::map<std::string, std::string>(),
+      "Float grid 'density': sigma_t at voxel centres inside the closed world-space boundary, 0 outside.");
+  m.def("read_vdb_grids", [](const std::string& path) {
+    py::list out;
+    for (const VdbGridInfo& g : readVdbGrids(path)) {
+      py::dict d;
+      d["name"] = g.name;
+      d["value_type"] = g.valueType;
+      d["grid_class"] = g.gridClass;
+      d["voxel_size"] = g.voxelSize;
+      d["active_voxels"] = g.activeVoxels;
+      d["metadata"] = g.metadata;
+      out.append(d);
+    }
+    return out;
+  }, py::arg("path"));
+  m.def(
+      "sample_vdb_grid",
+      [](const std::string& path, const std::string& grid, const FloatArray& points) {
+        std::vector<float> v = sampleVdbGrid(path, grid, toPoints(points, "points"));
+        py::array_t<float> a(py::ssize_t(v.size()));
+        std::copy(v.begin(), v.end(), a.mutable_data());
+        return a;
+      },
+      py::arg("path"), py::arg("grid"), py::arg("points"), "World-space values of a float grid (nearest voxel).");
+
+  // ---- teleportation transport -------------------------------------------------------------
+  scene.def(
+      "media",
+      [](const PyScene& s) {
+        // The renderer's own media when it built them; else the same derivation
+        // (Scene::build's): each normalised prototype with its scene material through
+        // estimateGrainTransport (cached on disk), combined by deriveMedium.
+        std::vector<MediumParams> media;
+        {
+          py::gil_scoped_release release;
+          const Scene& sc = *s.scene;
+          for (size_t i = 0; i < sc.aggregates().size(); ++i) {
+            if (sc.hasMedia()) {
+              media.push_back(sc.mediumParams(int(i)));
+              continue;
+            }
+            const Aggregate& a = *sc.aggregates()[i];
+            std::vector<GrainTransport> gts;
+            for (const GrainPrototype& p : a.prototypes()) gts.push_back(estimateGrainTransport(p.mesh, sc.material(p.material)));
+            const AggregateDesc& ad = s.desc.aggregates[i];
+            media.push_back(deriveMedium(gts, ad.weights, ad.grainRadius, ad.packingRate));
+          }
+        }
+        py::list out;
+        for (const MediumParams& mp : media) out.append(mediumDict(mp));
+        return out;
+      },
+      "TT and RTE parameters of every aggregate (world space), as dicts; the GIL is released.");
+}

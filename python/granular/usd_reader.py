@@ -1,0 +1,654 @@
+"""Reads a USD stage (usd-core) into core's plain SceneDesc.
+
+What is read, at the stage's start time code (or the earliest time sample):
+- UsdGeomMesh prims (polygons triangulated by fans, world transforms, orientation),
+  UsdGeomCube and UsdGeomSphere (tessellated), skipping invisible prims and the guide and
+  proxy purposes;
+- meshes with GranularAggregateAPI as aggregates, their grain prototypes (by the
+  primvars:granular:prototypes paths) with GranularGrainAPI materials; prototypes never
+  render as ordinary geometry;
+- one UsdGeomCamera (--camera, else the render settings' camera, else the first one);
+- UsdLux distant (angle), dome (lat-long texture file), rect and sphere lights with
+  intensity, exposure, color, color temperature and normalize;
+- a UsdPreviewSurface subset: diffuseColor -> Lambert, opacity < 1 -> dielectric of
+  inputs:ior, emissiveColor -> emission; without a material, displayColor -> Lambert;
+- the render settings prim's resolution and camera.
+Every problem a user can cause raises UserError naming the prim and the attribute;
+`translate_core_error` turns core's InputError (named after SceneDesc fields) into the same.
+"""
+import math
+import os
+import re
+
+import numpy as np
+from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdRender, UsdShade
+
+import granular_core as core
+
+from . import schema
+from .errors import UserError
+
+DEFAULT_WIDTH, DEFAULT_HEIGHT = 640, 480
+
+# UsdPreviewSurface fallbacks (its specification).
+_PREVIEW_DEFAULTS = {"diffuseColor": (0.18, 0.18, 0.18), "emissiveColor": (0.0, 0.0, 0.0), "opacity": 1.0, "ior": 1.5}
+
+
+class StageScene:
+    """A stage read into a SceneDesc, with what is needed to report errors in USD terms."""
+
+    def __init__(self, path, stage, time):
+        self.path = path
+        self.stage = stage
+        self.time = time
+        self.desc = core.SceneDesc()
+        self.camera_path = None
+        self.aggregates = []     # per desc.aggregates entry: {"prim", "world_boundary", "values"}
+        self.warnings = []
+        # core object name -> {core attribute: (prim path, USD attribute)}, "*": prim path
+        self.names = {}
+
+    def warn(self, message):
+        if message not in self.warnings:
+            self.warnings.append(message)
+
+    def name(self, obj, prim_path, attrs):
+        entry = {"*": (str(prim_path), "")}
+        entry.update(attrs)
+        self.names[obj] = entry
+
+
+def translate_core_error(err, scene=None):
+    """core.InputError (object/attribute in SceneDesc terms) -> UserError in USD terms."""
+    obj, attr, detail = getattr(err, "object", ""), getattr(err, "attribute", ""), getattr(err, "detail", str(err))
+    if scene is not None and obj in scene.names:
+        entry = scene.names[obj]
+        if attr in entry:
+            prim, usd_attr = entry[attr]
+            return UserError(prim, usd_attr, detail)
+        return UserError(entry["*"][0], attr, detail)
+    return UserError(obj, attr, detail)
+
+
+def describe_tf_error(e):
+    """The messages of a Tf.ErrorException on one line (without source locations)."""
+    msgs = []
+    for line in str(e).splitlines():
+        line = line.strip()
+        if not line:
+            continue
+        # "Error in 'Func' at line N in file F : 'message'"
+        if " : '" in line:
+            line = line.split(" : '", 1)[1].rstrip("'")
+        msgs.append(re.sub(r"pxrInternal_v\w+?__pxrReserved__::", "", line))
+    return " ".join(msgs[:1]) if msgs else str(e).strip()
+
+
+def open_stage(path):
+    if not os.path.exists(path):
+        raise UserError(path, "", "no such file")
+    if os.path.isdir(path):
+        raise UserError(path, "", "is a directory, not a USD file")
+    try:
+        stage = Usd.Stage.Open(path)
+    except Tf.ErrorException as e:
+        raise UserError(path, "", "cannot open the stage: " + " ".join(describe_tf_error(e).split())) from None
+    if stage is None:
+        raise UserError(path, "", "cannot open the stage")
+    return stage
+
+
+def stage_time(stage):
+    if stage.HasAuthoredTimeCodeRange():
+        return Usd.TimeCode(stage.GetStartTimeCode())
+    return Usd.TimeCode.EarliestTime()
+
+
+def to_core_matrix(m):
+    """Gf.Matrix4d (USD: row vectors, translation in the last row) -> core's column form."""
+    return [[float(m[j][i]) for j in range(4)] for i in range(4)]
+
+
+def _finite(v):
+    return all(math.isfinite(x) for x in (v if isinstance(v, (tuple, list)) else (v,)))
+
+
+# ---- typed attribute values ---------------------------------------------------------------
+# A layer may author any type for any attribute (the schema's type is not enforced when a
+# file is read); every value is checked before it reaches core.
+
+def _where(attr):
+    return str(attr.GetPrim().GetPath()), attr.GetName()
+
+
+def _bad(attr, v, expected):
+    prim, name = _where(attr)
+    text = repr(v)
+    return UserError(prim, name, f"has value {text if len(text) < 60 else text[:57] + '...'}, expected {expected}")
+
+
+def get_number(attr, time, default=None):
+    """A finite-or-not float (None -> default); anything but a number is a UserError."""
+    v = attr.Get(time) if attr else None
+    if v is None:
+        return default
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise _bad(attr, v, "a number")
+    return float(v)
+
+
+def get_bool(attr, time, default=False):
+    v = attr.Get(time) if attr else None
+    if v is None:
+        return default
+    if not isinstance(v, bool):
+        raise _bad(attr, v, "a bool")
+    return v
+
+
+def get_token(attr, time, default=None):
+    v = attr.Get(time) if attr else None
+    if v is None:
+        return default
+    if not isinstance(v, str):
+        raise _bad(attr, v, "a token")
+    return v
+
+
+def get_vec(attr, time, n, default=None):
+    """A tuple of n numbers (colors, Vec2/Vec3 values)."""
+    v = attr.Get(time) if attr else None
+    if v is None:
+        return default
+    try:
+        if isinstance(v, str) or len(v) != n:
+            raise TypeError
+        out = tuple(float(x) for x in v)
+        if any(isinstance(x, bool) for x in v):
+            raise TypeError
+    except (TypeError, ValueError):
+        raise _bad(attr, v, f"{n} numbers") from None
+    return out
+
+
+def get_array(attr, time, columns, dtype, expected):
+    """An array attribute as a numpy array of shape (N, columns) or (N,); None if unset."""
+    v = attr.Get(time) if attr else None
+    if v is None:
+        return None
+    if isinstance(v, (str, int, float, bool)):
+        raise _bad(attr, v, expected)
+    try:
+        a = np.asarray(v)
+        if a.dtype.kind not in ("f", "i", "u") or (dtype == np.int64 and a.dtype.kind == "f"):
+            raise TypeError
+        a = a.astype(dtype)
+        if columns:
+            if a.size == 0:
+                return a.reshape(0, columns)
+            if a.ndim != 2 or a.shape[1] != columns:
+                raise TypeError
+        elif a.ndim != 1:
+            raise TypeError
+    except (TypeError, ValueError):
+        prim, name = _where(attr)
+        raise UserError(prim, name, f"has a {type(v).__name__} value, expected {expected}") from None
+    return a
+
+
+def get_asset(attr, time):
+    v = attr.Get(time) if attr else None
+    if v is None:
+        return None
+    if not isinstance(v, Sdf.AssetPath):
+        raise _bad(attr, v, "an asset path")
+    return v
+
+
+# ---- geometry -----------------------------------------------------------------------------
+
+def read_mesh(prim, time):
+    """The Mesh's triangles in its own space (core.TriangleMesh); UserError on bad data."""
+    path = str(prim.GetPath())
+    mesh = UsdGeom.Mesh(prim)
+    P = get_array(mesh.GetPointsAttr(), time, 3, np.float64, "point3f[]")
+    counts = get_array(mesh.GetFaceVertexCountsAttr(), time, 0, np.int64, "int[]")
+    indices = get_array(mesh.GetFaceVertexIndicesAttr(), time, 0, np.int64, "int[]")
+    if P is None or len(P) == 0:
+        raise UserError(path, "points", "has no points")
+    if counts is None or len(counts) == 0:
+        raise UserError(path, "faceVertexCounts", "has no faces")
+    if indices is None:
+        raise UserError(path, "faceVertexIndices", "has no value")
+    if P.size and np.abs(P[np.isfinite(P)]).max(initial=0.0) > 3.0e38:
+        raise UserError(path, "points", "has values that do not fit in a float")
+    try:
+        tri = core.triangulate(P.astype(np.float32), counts, indices, path)
+    except core.InputError as e:
+        raise translate_core_error(e) from None
+    if get_token(mesh.GetOrientationAttr(), time) == UsdGeom.Tokens.leftHanded:
+        tri.flip()
+    return tri
+
+
+def _tessellated(prim, time):
+    """UsdGeomCube / UsdGeomSphere as triangles in their own space."""
+    if prim.IsA(UsdGeom.Cube):
+        size = get_number(UsdGeom.Cube(prim).GetSizeAttr(), time)
+        if size is None or not _finite(size) or size <= 0:
+            raise UserError(prim.GetPath(), "size", f"{size} must be finite and > 0")
+        h = 0.5 * float(size)
+        return core.make_box((-h, -h, -h), (h, h, h))
+    radius = get_number(UsdGeom.Sphere(prim).GetRadiusAttr(), time)
+    if radius is None or not _finite(radius) or radius <= 0:
+        raise UserError(prim.GetPath(), "radius", f"{radius} must be finite and > 0")
+    m = core.make_uv_sphere(64, 32)
+    m.points = m.points * float(radius)
+    return m
+
+
+# ---- materials ------------------------------------------------------------------------------
+
+def _input_value(scene, shader, name, time):
+    inp = shader.GetInput(name)
+    if not inp:
+        return _PREVIEW_DEFAULTS[name], f"inputs:{name}"
+    if inp.HasConnectedSource():
+        scene.warn(f"{shader.GetPath()}.inputs:{name}: connections (textures) are not supported; "
+                   f"using its own value or the fallback")
+    default = _PREVIEW_DEFAULTS[name]
+    attr = inp.GetAttr()
+    v = get_vec(attr, time, 3, default) if isinstance(default, tuple) else get_number(attr, time, default)
+    return v, f"inputs:{name}"
+
+
+def _preview_surface(scene, prim, time, cache):
+    """Index of the MaterialDesc of prim's bound UsdPreviewSurface, or None if there is none."""
+    mat, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
+    if not mat:
+        return None
+    shader, _, _ = mat.ComputeSurfaceSource()
+    if not shader:
+        scene.warn(f"{mat.GetPath()}: no surface shader; using the default material")
+        return -1
+    sid = shader.GetIdAttr().Get()
+    if sid != "UsdPreviewSurface":
+        scene.warn(f"{shader.GetPath()}: shader {sid!r} is not supported (only UsdPreviewSurface); using the default material")
+        return -1
+    key = str(shader.GetPath())
+    if key in cache:
+        return cache[key]
+    diffuse, _ = _input_value(scene, shader, "diffuseColor", time)
+    emissive, _ = _input_value(scene, shader, "emissiveColor", time)
+    opacity, _ = _input_value(scene, shader, "opacity", time)
+    ior, _ = _input_value(scene, shader, "ior", time)
+    if not _finite(opacity) or not 0 <= opacity <= 1:
+        raise UserError(key, "inputs:opacity", f"{opacity} is outside [0, 1]")
+    md = core.MaterialDesc()
+    md.name = key
+    if opacity < 1:
+        md.type = core.MaterialType.Dielectric
+        md.ior = ior
+    else:
+        md.type = core.MaterialType.Lambert
+        md.albedo = diffuse
+        md.emission = emissive
+    idx = scene.desc.add_material(md)
+    scene.name(key, key, {"albedo": (key, "inputs:diffuseColor"), "ior": (key, "inputs:ior"),
+                          "emission": (key, "inputs:emissiveColor")})
+    cache[key] = idx
+    return idx
+
+
+def _surface_material(scene, prim, time, cache):
+    idx = _preview_surface(scene, prim, time, cache)
+    if idx is not None:
+        return idx
+    pv = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance("displayColor")
+    if pv and pv.HasAuthoredValue():
+        v = pv.ComputeFlattened(time)
+        if v is not None and len(v) > 0:
+            try:
+                c = np.asarray(v, dtype=np.float64).reshape(-1, 3).mean(axis=0)
+            except (TypeError, ValueError):
+                prim_path, name = _where(pv.GetAttr())
+                raise UserError(prim_path, name, f"has a {type(v).__name__} value, expected color3f[]") from None
+            md = core.MaterialDesc()
+            md.name = str(prim.GetPath()) + ".displayColor"
+            md.type = core.MaterialType.Lambert
+            md.albedo = tuple(float(x) for x in c)
+            src = str(pv.GetAttr().GetPrim().GetPath())
+            scene.name(md.name, src, {"albedo": (src, "primvars:displayColor")})
+            return scene.desc.add_material(md)
+    return -1
+
+
+def _grain_material(scene, proto, time, cache):
+    """Material index of a grain prototype: GranularGrainAPI values, else its bound
+    UsdPreviewSurface, else -1 (core's clear dielectric of IOR 1.5)."""
+    key = "grain:" + str(proto.GetPath())
+    if key in cache:
+        return cache[key]
+    vals = schema.read_grain(proto, time)
+    if proto.HasAPI(schema.GRAIN_API) or any(v.authored for v in vals.values()):
+        rough = vals["roughness"]
+        if not _finite(rough.value) or not 0 <= rough.value <= 1:
+            raise UserError(rough.source, rough.name, f"{rough.value} is outside [0, 1]")
+        if rough.value > 0:
+            raise UserError(rough.source, rough.name,
+                            f"{rough.value}: rough grains are not supported by this renderer yet (use 0)")
+        md = core.MaterialDesc()
+        md.name = str(proto.GetPath())
+        md.type = core.MaterialType.Dielectric
+        md.ior = vals["ior"].value
+        md.absorption = vals["absorption"].value
+        idx = scene.desc.add_material(md)
+        scene.name(md.name, proto.GetPath(), {"ior": (vals["ior"].source, vals["ior"].name),
+                                              "absorption": (vals["absorption"].source, vals["absorption"].name)})
+    else:
+        idx = _preview_surface(scene, proto, time, cache)
+        if idx is None:
+            idx = -1
+    cache[key] = idx
+    return idx
+
+
+# ---- aggregates -----------------------------------------------------------------------------
+
+def _prototype_prims(stage, prim, values):
+    out = []
+    for text in values["prototypes"].value:
+        path = schema.resolve_prototype_path(prim, text)
+        src, name = values["prototypes"].source, values["prototypes"].name
+        p = stage.GetPrimAtPath(path)
+        if not p:
+            raise UserError(src, name, f'prototype "{text}" ({path}) does not exist')
+        if not p.IsActive():
+            raise UserError(src, name, f'prototype "{text}" ({path}) is inactive')
+        if not p.IsA(UsdGeom.Mesh):
+            raise UserError(src, name, f'prototype "{text}" ({path}) is a {p.GetTypeName() or "typeless prim"}, not a Mesh')
+        out.append(p)
+    return out
+
+
+def prototype_paths(stage, time=None):
+    """Absolute paths of every prim named as a prototype by an aggregate of the stage
+    (errors in the lists are left to the aggregate reader)."""
+    found = set()
+    for prim in stage.Traverse(Usd.TraverseInstanceProxies()):
+        if prim.HasAPI(schema.AGGREGATE_API):
+            try:
+                v = schema.read_property(prim, "prototypes", schema.AGGREGATE_PROPERTIES,
+                                         time or Usd.TimeCode.Default())
+                for text in v.value:
+                    found.add(schema.resolve_prototype_path(prim, text))
+            except UserError:
+                pass
+    return found
+
+
+def read_aggregate(scene, prim, xf_cache, material_cache):
+    time = scene.time
+    path = str(prim.GetPath())
+    if not prim.IsA(UsdGeom.Mesh):
+        raise UserError(path, "", f"{schema.AGGREGATE_API} applies to a Mesh, not a {prim.GetTypeName() or 'typeless prim'}")
+    values = schema.read_aggregate(prim, time)
+    boundary = read_mesh(prim, time)
+    try:
+        core.validate_closed(boundary, path)
+    except core.InputError as e:
+        raise translate_core_error(e) from None
+    xf = to_core_matrix(xf_cache.GetLocalToWorldTransform(prim))
+
+    protos = _prototype_prims(scene.stage, prim, values)
+    if not protos:
+        v = values["prototypes"]
+        raise UserError(v.source, v.name, "is empty (at least one grain prototype mesh is needed)")
+    weights = values["weights"].value
+    if len(weights) == 0:
+        weights = (1.0,) * len(protos)
+    elif len(weights) != len(protos):
+        v = values["weights"]
+        raise UserError(v.source, v.name, f"has {len(weights)} entries but there are {len(protos)} prototypes")
+    seed = values["seed"]
+    if seed.value < 0:
+        raise UserError(seed.source, seed.name, f"{seed.value} must be >= 0")
+
+    ad = core.AggregateDesc()
+    ad.name = path
+    ad.boundary = boundary
+    ad.xf = xf
+    ad.grain_radius = values["grainRadius"].value
+    ad.packing_rate = values["packingRate"].value
+    ad.seed = seed.value
+    ad.tile_spheres = values["tileSpheres"].value
+    ad.weights = list(weights)
+    plist = []
+    for p in protos:
+        mesh = read_mesh(p, time)
+        try:
+            core.validate_closed(mesh, str(p.GetPath()))
+        except core.InputError as e:
+            raise translate_core_error(e) from None
+        gp = core.GrainPrototypeDesc()
+        gp.name = str(p.GetPath())
+        gp.mesh = mesh
+        gp.material = _grain_material(scene, p, time, material_cache)
+        plist.append(gp)
+    ad.prototypes = plist
+    scene.desc.add_aggregate(ad)
+    attrs = {base: (v.source, v.name) for base, v in values.items()}
+    attrs["transform"] = (path, "transform")
+    scene.name(path, path, attrs)
+    world = boundary.transformed(xf)
+    scene.aggregates.append({"prim": path, "world_boundary": world, "values": values,
+                             "prototypes": [str(p.GetPath()) for p in protos]})
+
+
+# ---- camera, lights, settings --------------------------------------------------------------
+
+def _settings_prim(stage):
+    s = UsdRender.Settings.GetStageRenderSettings(stage)
+    if s:
+        return s.GetPrim()
+    for prim in stage.Traverse():
+        if prim.IsA(UsdRender.Settings):
+            return prim
+    return None
+
+
+def read_camera(scene, prim, xf_cache):
+    path = str(prim.GetPath())
+    cam = UsdGeom.Camera(prim)
+    t = scene.time
+    if get_token(cam.GetProjectionAttr(), t) == UsdGeom.Tokens.orthographic:
+        raise UserError(path, "projection", "orthographic cameras are not supported (use perspective)")
+    c = scene.desc.camera
+    c.camera_to_world = to_core_matrix(xf_cache.GetLocalToWorldTransform(prim))
+    c.focal_length = get_number(cam.GetFocalLengthAttr(), t, 50.0)
+    c.horizontal_aperture = get_number(cam.GetHorizontalApertureAttr(), t, 20.955)
+    c.vertical_aperture = get_number(cam.GetVerticalApertureAttr(), t, 15.2908)
+    c.horizontal_aperture_offset = get_number(cam.GetHorizontalApertureOffsetAttr(), t, 0.0)
+    c.vertical_aperture_offset = get_number(cam.GetVerticalApertureOffsetAttr(), t, 0.0)
+    c.clip_near, c.clip_far = get_vec(cam.GetClippingRangeAttr(), t, 2, (1.0, 1000000.0))
+    scene.camera_path = path
+    attrs = {k: (path, k) for k in ("focalLength", "horizontalAperture", "verticalAperture",
+                                    "horizontalApertureOffset", "verticalApertureOffset", "clippingRange")}
+    attrs["transform"] = (path, "transform")
+    scene.name("camera", path, attrs)
+
+
+_LIGHT_ATTRS = {k: "inputs:" + k for k in ("intensity", "exposure", "color", "normalize", "angle", "radius",
+                                            "width", "height")}
+
+
+def read_light(scene, prim, xf_cache):
+    path = str(prim.GetPath())
+    time = scene.time
+    ld = core.LightDesc()
+    ld.name = path
+    if prim.IsA(UsdLux.DistantLight):
+        ld.type = core.LightType.Distant
+        ld.angle = get_number(UsdLux.DistantLight(prim).GetAngleAttr(), time, 0.53)
+    elif prim.IsA(UsdLux.DomeLight) or (hasattr(UsdLux, "DomeLight_1") and prim.IsA(UsdLux.DomeLight_1)):
+        ld.type = core.LightType.Dome
+        fmt = get_token(prim.GetAttribute("inputs:texture:format"), time)
+        if fmt not in (None, "automatic", "latlong"):
+            raise UserError(path, "inputs:texture:format", f'"{fmt}" is not supported (use latlong)')
+        asset = get_asset(prim.GetAttribute("inputs:texture:file"), time)
+        if asset is not None and asset.path:
+            resolved = asset.resolvedPath
+            if not resolved or not os.path.isfile(resolved):
+                raise UserError(path, "inputs:texture:file", f'"{asset.path}" cannot be found')
+            ld.texture_file = resolved
+            scene.names[resolved] = {"*": (path, ""), "": (path, "inputs:texture:file")}
+    elif prim.IsA(UsdLux.RectLight):
+        ld.type = core.LightType.Rect
+        rl = UsdLux.RectLight(prim)
+        ld.width = get_number(rl.GetWidthAttr(), time, 1.0)
+        ld.height = get_number(rl.GetHeightAttr(), time, 1.0)
+        tex = get_asset(rl.GetTextureFileAttr(), time)
+        if tex is not None and tex.path:
+            scene.warn(f"{path}.inputs:texture:file: rect light textures are not supported; ignored")
+    elif prim.IsA(UsdLux.SphereLight):
+        ld.type = core.LightType.Sphere
+        sl = UsdLux.SphereLight(prim)
+        ld.radius = get_number(sl.GetRadiusAttr(), time, 0.5)
+        if get_bool(sl.GetTreatAsPointAttr(), time):
+            scene.warn(f"{path}.treatAsPoint: not supported; rendered as a sphere of inputs:radius")
+    else:
+        scene.warn(f"{path}: {prim.GetTypeName()} lights are not supported; skipped")
+        return
+    light = UsdLux.LightAPI(prim)
+    ld.intensity = get_number(light.GetIntensityAttr(), time, 1.0)
+    ld.exposure = get_number(light.GetExposureAttr(), time, 0.0)
+    color = get_vec(light.GetColorAttr(), time, 3, (1.0, 1.0, 1.0))
+    if get_bool(light.GetEnableColorTemperatureAttr(), time):
+        t = get_number(light.GetColorTemperatureAttr(), time, 6500.0)
+        if not _finite(t) or t <= 0:
+            raise UserError(path, "inputs:colorTemperature", f"{t} must be finite and > 0")
+        rgb = UsdLux.BlackbodyTemperatureAsRgb(t)
+        color = tuple(c * float(k) for c, k in zip(color, rgb))
+    ld.color = color
+    ld.normalize = get_bool(light.GetNormalizeAttr(), time)
+    ld.xf = to_core_matrix(xf_cache.GetLocalToWorldTransform(prim))
+    scene.desc.add_light(ld)
+    attrs = {k: (path, v) for k, v in _LIGHT_ATTRS.items()}
+    attrs["transform"] = (path, "transform")
+    scene.name(path, path, attrs)
+
+
+def _is_light(prim):
+    return prim.HasAPI(UsdLux.LightAPI)
+
+
+# ---- the stage ---------------------------------------------------------------------------------
+
+def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_camera=True, stage=None):
+    """Reads the stage at `path` into a StageScene. With surfaces=False only aggregates are
+    read (for info and export); without need_camera a missing camera is no error."""
+    stage = stage or open_stage(path)
+    time = stage_time(stage)
+    scene = StageScene(path, stage, time)
+    scene.name("render", path, {})
+    xf_cache = UsdGeom.XformCache(time)
+    material_cache = {}
+    protos = prototype_paths(stage, time)
+    cameras = []
+    unsupported = {}
+
+    it = iter(Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)))
+    for prim in it:
+        if prim.IsA(UsdGeom.Imageable):
+            img = UsdGeom.Imageable(prim)
+            vis = get_token(img.GetVisibilityAttr(), time)
+            purpose = get_token(img.GetPurposeAttr(), time)
+            if vis == UsdGeom.Tokens.invisible or purpose in (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy):
+                it.PruneChildren()
+                continue
+        if prim.HasAPI(schema.AGGREGATE_API):
+            read_aggregate(scene, prim, xf_cache, material_cache)
+            continue
+        if prim.IsA(UsdGeom.Camera):
+            cameras.append(prim)
+            continue
+        if not surfaces:
+            continue
+        if _is_light(prim):
+            read_light(scene, prim, xf_cache)
+            continue
+        if prim.GetPath() in protos or prim.HasAPI(schema.GRAIN_API):
+            continue  # a grain prototype: never ordinary geometry
+        if prim.IsA(UsdGeom.Mesh) or prim.IsA(UsdGeom.Cube) or prim.IsA(UsdGeom.Sphere):
+            mesh = read_mesh(prim, time) if prim.IsA(UsdGeom.Mesh) else _tessellated(prim, time)
+            md = core.MeshDesc()
+            md.name = str(prim.GetPath())
+            md.mesh = mesh
+            md.xf = to_core_matrix(xf_cache.GetLocalToWorldTransform(prim))
+            md.material = _surface_material(scene, prim, time, material_cache)
+            scene.desc.add_mesh(md)
+            scene.name(md.name, md.name, {"transform": (md.name, "transform")})
+        elif prim.IsA(UsdGeom.Gprim) or prim.IsA(UsdGeom.PointInstancer):
+            unsupported.setdefault(prim.GetTypeName(), str(prim.GetPath()))
+    for type_name, example in unsupported.items():
+        scene.warn(f"{example}: {type_name} prims are not supported; skipped")
+
+    # Resolution and camera: command line, else the render settings prim, else defaults.
+    settings = _settings_prim(stage)
+    res = None
+    settings_camera = None
+    if settings is not None:
+        rs = UsdRender.Settings(settings)
+        attr = rs.GetResolutionAttr()
+        if attr.HasAuthoredValue():
+            res = get_vec(attr, time, 2)
+            if res is None or not all(_finite(x) and x == int(x) and 1 <= x <= 32768 for x in res):
+                raise UserError(settings.GetPath(), "resolution", f"{res} is outside [1, 32768] x [1, 32768]")
+            res = (int(res[0]), int(res[1]))
+        targets = rs.GetCameraRel().GetForwardedTargets()
+        if targets:
+            settings_camera = (targets[0], settings.GetPath())
+
+    cam_prim = None
+    if camera:
+        ok, _ = Sdf.Path.IsValidPathString(camera)
+        p = stage.GetPrimAtPath(camera) if ok and Sdf.Path(camera).IsAbsolutePath() else None
+        if not p:
+            raise UserError("command line", "--camera", f'"{camera}" is not a prim of the stage')
+        if not p.IsA(UsdGeom.Camera):
+            raise UserError(camera, "", f"is a {p.GetTypeName() or 'typeless prim'}, not a Camera")
+        cam_prim = p
+    elif settings_camera:
+        p = stage.GetPrimAtPath(settings_camera[0])
+        if not p or not p.IsA(UsdGeom.Camera):
+            raise UserError(settings_camera[1], "camera", f"target {settings_camera[0]} is not a Camera")
+        cam_prim = p
+    elif cameras:
+        cam_prim = cameras[0]
+    if cam_prim is not None:
+        read_camera(scene, cam_prim, xf_cache)
+    elif need_camera:
+        raise UserError(path, "", "the stage has no UsdGeomCamera (add one, or pass --camera)")
+
+    s = scene.desc.settings
+    c = scene.desc.camera
+    aspect = c.horizontal_aperture / c.vertical_aperture if c.vertical_aperture > 0 else 4 / 3
+    if width and height:
+        s.width, s.height = width, height
+    elif width:
+        s.width, s.height = width, max(1, round(width / aspect))
+    elif height:
+        s.width, s.height = max(1, round(height * aspect)), height
+    elif res:
+        s.width, s.height = res
+    else:
+        s.width, s.height = DEFAULT_WIDTH, DEFAULT_HEIGHT
+    return scene
+
+
+def validate(scene):
+    """core's validation of the whole description, errors in USD terms."""
+    try:
+        core.validate_scene_desc(scene.desc)
+    except core.InputError as e:
+        raise translate_core_error(e, scene) from None

@@ -1,0 +1,63 @@
+#!/usr/bin/env bash
+# Sets up the Python virtual environment of the usd-core front end, only what is missing:
+#   scripts/setup-venv.sh VENV BUILD_DIR
+# - creates VENV with Debian's /usr/bin/python3 (python3-venv, python3-dev from
+#   install-deps.sh) if it has no interpreter yet;
+# - installs from PyPI, into VENV only, the packages it lacks (asks the venv, not the
+#   network, so a second run is quick);
+# - points the venv at the sources (python/) and at the built granular_core module
+#   (BUILD_DIR/python) with a .pth file, and writes the `granular` console script.
+set -euo pipefail
+
+VENV=${1:?usage: setup-venv.sh VENV BUILD_DIR}
+BUILD_DIR=${2:?usage: setup-venv.sh VENV BUILD_DIR}
+ROOT=$(cd "$(dirname "$0")/.." && pwd)
+# usd-core: USD reading and the schema; numpy: arrays for the bindings; pytest: tests;
+# pybind11: the bindings' build; jinja2: usdGenSchema (make schemas, schema up-to-date test).
+PY_PACKAGES=(usd-core numpy pytest pybind11 jinja2)
+
+# A venv made while python3-venv was missing has no pip: start it again.
+if [ -x "$VENV/bin/python" ] && ! "$VENV/bin/python" -c 'import pip' >/dev/null 2>&1; then
+  echo "setup-venv: $VENV has no pip; recreating it"
+  rm -rf "$VENV"
+fi
+if [ ! -x "$VENV/bin/python" ]; then
+  echo "setup-venv: creating $VENV"
+  /usr/bin/python3 -m venv "$VENV"
+fi
+PY="$VENV/bin/python"
+
+missing=$("$PY" -c '
+import sys
+from importlib import metadata
+out = []
+for p in sys.argv[1:]:
+    try:
+        metadata.version(p)
+    except metadata.PackageNotFoundError:
+        out.append(p)
+print(" ".join(out))
+' "${PY_PACKAGES[@]}")
+if [ -n "$missing" ]; then
+  echo "setup-venv: installing $missing into $VENV"
+  "$PY" -m pip install -q $missing
+fi
+
+# Write a file only when its content changes (keeps the second run quiet and quick).
+put() {
+  local path=$1 content=$2
+  if [ ! -f "$path" ] || [ "$(cat "$path")" != "$content" ]; then
+    printf '%s\n' "$content" > "$path"
+  fi
+}
+SITE=$("$PY" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')
+BUILD_ABS=$(mkdir -p "$BUILD_DIR" && cd "$BUILD_DIR" && pwd)
+put "$SITE/hdgranular.pth" "$ROOT/python
+$BUILD_ABS/python"
+VENV_ABS=$(cd "$VENV" && pwd)
+put "$VENV/bin/granular" "#!$VENV_ABS/bin/python
+# granular: the usd-core front end of hdGranular (python/granular/cli.py).
+import sys
+from granular.cli import main
+sys.exit(main())"
+chmod +x "$VENV/bin/granular"

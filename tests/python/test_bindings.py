@@ -1,0 +1,126 @@
+"""The granular_core module: errors, GIL release, progress and cancellation, images."""
+import threading
+import time
+
+import numpy as np
+import pytest
+from conftest import small_scene
+
+import granular_core as core
+from granular.usd_reader import read_stage
+
+
+def test_input_error_carries_object_attribute_and_detail():
+    with pytest.raises(core.InputError) as e:
+        core.triangulate(np.zeros((3, 3)), [3], [0, 1, 7], "/World/M")
+    assert isinstance(e.value, ValueError)
+    assert (e.value.object, e.value.attribute) == ("/World/M", "faceVertexIndices")
+    assert e.value.detail == "index 2 = 7 is out of range [0, 3)"
+    assert str(e.value) == "/World/M.faceVertexIndices: index 2 = 7 is out of range [0, 3)"
+
+
+def test_bad_arrays_are_errors_not_crashes():
+    with pytest.raises(ValueError):
+        core.TriangleMesh(np.zeros((4, 2)), [0, 1, 2])
+    with pytest.raises(core.InputError):
+        core.validate_closed(core.TriangleMesh(np.zeros((3, 3)), [0, 1, 5]), "m")
+    with pytest.raises(core.InputError):  # negative and huge indices
+        core.validate_mesh(core.TriangleMesh(np.zeros((3, 3)), [0, -1, 2**40]), "m")
+    with pytest.raises(core.InputError):
+        core.triangulate(np.zeros((3, 3)), [2**40], [0, 1, 2], "m")
+    with pytest.raises(TypeError):
+        core.make_box((0, 0), (1, 1, 1))
+    d = core.SceneDesc()
+    d.settings.width = 0
+    with pytest.raises(core.InputError, match="render.width"):
+        core.Scene.build(d)
+
+
+def _small(tmp_path, width=64, spp=4):
+    scene = read_stage(str(small_scene(tmp_path / "s.usda")), width=width)
+    scene.desc.settings.spp = spp
+    return core.Scene.build(scene.desc)
+
+
+def test_render_releases_the_gil_and_reports_progress(tmp_path):
+    built = _small(tmp_path, width=96, spp=6)
+    calls = []
+    ticks = []
+    stop = threading.Event()
+
+    def ticker():  # Python code that can only run while render() has released the GIL
+        while not stop.is_set():
+            ticks.append(time.monotonic())
+            time.sleep(0.001)
+
+    t = threading.Thread(target=ticker)
+    t.start()
+    r = core.Renderer(built)
+    start = time.monotonic()
+    try:
+        assert r.render(1, lambda done, target, seconds: calls.append((done, target, seconds)), 0.005)
+    finally:
+        stop.set()
+        t.join()
+    end = time.monotonic()
+    assert r.samples_per_pixel == 6
+    # Called during the render with growing (fractional) sample counts, and at the end.
+    assert len(calls) >= 2 and calls[-1][:2] == (6.0, 6)
+    done = [c[0] for c in calls]
+    assert done == sorted(done) and all(0 <= d <= 6 for d in done)
+    assert all(c[1] == 6 for c in calls)
+    during = [x for x in ticks if start < x < end]
+    assert len(during) >= 5, "the ticker thread did not run during the render"
+
+
+def test_an_exception_in_progress_cancels_and_propagates(tmp_path):
+    r = core.Renderer(_small(tmp_path, width=96, spp=64))
+
+    def progress(done, target, seconds):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        r.render(1, progress, 0.001)
+    assert r.samples_per_pixel < 64
+
+
+def test_images_are_written_and_read_back(tmp_path):
+    r = core.Renderer(_small(tmp_path, width=32, spp=1))
+    r.render()
+    img = r.image()
+    assert img.channels[:8] == ["R", "G", "B", "A", "Z", "N.X", "N.Y", "N.Z"]
+    assert {"ept.R", "vpt.R", "da.R"} <= set(img.channels)
+    core.write_exr(str(tmp_path / "a.exr"), img)
+    back = core.read_image_rgb(str(tmp_path / "a.exr"))
+    assert np.allclose(back.pixels.reshape(-1, 3), img.pixels[..., :3].reshape(-1, 3), atol=1e-6)
+    with pytest.raises(core.InputError):
+        core.write_image(str(tmp_path / "a.tiff"), img)
+    with pytest.raises(RuntimeError):
+        core.write_exr(str(tmp_path / "missing" / "a.exr"), img)
+    assert not (tmp_path / "missing").exists()
+
+
+def test_media_follow_the_tt_relations(tmp_path):
+    built = _small(tmp_path)
+    (m,) = built.media()
+    sigma_t = np.array(m["sigma_t"])
+    assert (sigma_t > 0).all()
+    # lambda_t = 1 / sigma_t, the mean free path; sigma_b from Dixmier (NOTES item 2).
+    assert np.array(m["mean_free_path"]) == pytest.approx(1 / sigma_t, rel=1e-5)
+    R, f = m["grain_radius"], m["packing_rate"]
+    assert m["sigma_b"] == pytest.approx(3 / (4 * R) * f / (1 - f), rel=1e-5)
+    assert 0 < m["beta"] <= 1
+    assert all(0 <= a <= 1 for a in m["albedo"])
+
+
+@pytest.mark.parametrize("technique,lod", [("ept", 0), ("ept+vpt", 0), ("hybrid", 0), ("hybrid", 4)])
+def test_every_technique_renders(tmp_path, technique, lod):
+    scene = read_stage(str(small_scene(tmp_path / "s.usda")), width=32)
+    s = scene.desc.settings
+    s.spp, s.technique, s.roulette, s.lod = 2, core.technique_from_name(technique, "test"), 0.5, lod
+    r = core.Renderer(core.Scene.build(scene.desc))
+    assert r.render()
+    assert np.isfinite(r.image().pixels[..., :3]).all()
+    assert 0 <= r.shortcut_fraction <= 1 and (lod > 0 or r.shortcut_fraction == 0)
+    with pytest.raises(core.InputError, match="technique"):
+        core.technique_from_name("dpt", "test")

@@ -1,0 +1,183 @@
+"""The USD reader: what a stage becomes in core's SceneDesc."""
+import math
+
+import numpy as np
+import pytest
+from conftest import add_mesh, small_scene
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdRender, UsdShade, Vt
+
+import granular_core as core
+from granular import schema
+from granular.usd_reader import read_stage, validate
+
+
+def _preview(stage, path, **inputs):
+    mat = UsdShade.Material.Define(stage, path)
+    sh = UsdShade.Shader.Define(stage, path + "/Surface")
+    sh.CreateIdAttr("UsdPreviewSurface")
+    for k, (t, v) in inputs.items():
+        sh.CreateInput(k, t).Set(v)
+    mat.CreateSurfaceOutput().ConnectToSource(sh.ConnectableAPI(), "surface")
+    return mat
+
+
+def test_small_scene_reads_into_one_aggregate_with_two_prototypes(tmp_path):
+    scene = read_stage(str(small_scene(tmp_path / "s.usda")))
+    validate(scene)
+    d = scene.desc
+    assert [a.name for a in d.aggregates] == ["/World/Castle"]
+    agg = d.aggregates[0]
+    assert [p.name for p in agg.prototypes] == ["/World/Grains/A", "/World/Grains/B"]
+    assert agg.weights == pytest.approx([0.7, 0.3])
+    assert (agg.grain_radius, agg.packing_rate, agg.seed, agg.tile_spheres) == (pytest.approx(0.03), pytest.approx(0.5), 3, 64)
+    mats = [d.materials[p.material] for p in agg.prototypes]
+    assert all(m.type == core.MaterialType.Dielectric for m in mats)
+    assert mats[0].ior == pytest.approx(1.5) and mats[0].absorption == pytest.approx((0.2, 0.3, 0.5))
+    assert mats[1].ior == pytest.approx(1.31) and mats[1].absorption == pytest.approx((0, 0, 0))
+    # Prototypes are not ordinary geometry, and neither is the aggregate's boundary.
+    assert d.meshes == []
+    assert scene.camera_path == "/World/Camera"
+    assert [l.type for l in d.lights] == [core.LightType.Distant]
+
+
+def test_meshes_polygons_transforms_orientation_and_materials(tmp_path):
+    def mutate(stage):
+        quad = UsdGeom.Mesh.Define(stage, "/World/Ground")
+        quad.CreatePointsAttr(Vt.Vec3fArray([(-1, 0, -1), (-1, 0, 1), (1, 0, 1), (1, 0, -1)]))
+        quad.CreateFaceVertexCountsAttr([4])
+        quad.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+        xf = UsdGeom.Xformable(quad)
+        xf.AddTranslateOp().Set(Gf.Vec3d(1, 2, 3))
+        xf.AddScaleOp().Set(Gf.Vec3f(2, 2, 2))
+        UsdShade.MaterialBindingAPI.Apply(quad.GetPrim()).Bind(
+            _preview(stage, "/World/Looks/Sand", diffuseColor=(Sdf.ValueTypeNames.Color3f, (0.5, 0.4, 0.3))))
+        glass = UsdGeom.Mesh.Define(stage, "/World/Glass")
+        tri = core.make_icosphere(1)
+        glass.CreatePointsAttr(Vt.Vec3fArray([Gf.Vec3f(*map(float, p)) for p in tri.points]))
+        glass.CreateFaceVertexCountsAttr([3] * tri.num_triangles)
+        glass.CreateFaceVertexIndicesAttr([int(i) for i in tri.indices])
+        glass.CreateOrientationAttr(UsdGeom.Tokens.leftHanded)
+        UsdShade.MaterialBindingAPI.Apply(glass.GetPrim()).Bind(
+            _preview(stage, "/World/Looks/Glass", opacity=(Sdf.ValueTypeNames.Float, 0.2),
+                     ior=(Sdf.ValueTypeNames.Float, 1.45)))
+        red = UsdGeom.Cube.Define(stage, "/World/Red")
+        red.CreateSizeAttr(0.5)
+        red.CreateDisplayColorAttr([(0.8, 0.1, 0.1)])
+        # Not rendered: invisible, guide purpose, a grain prototype not named by anyone.
+        hidden = UsdGeom.Sphere.Define(stage, "/World/Hidden")
+        hidden.CreateVisibilityAttr(UsdGeom.Tokens.invisible)
+        guide = UsdGeom.Sphere.Define(stage, "/World/Guide")
+        guide.CreatePurposeAttr(UsdGeom.Tokens.guide)
+        spare = add_mesh(stage, "/World/Spare", core.make_icosphere(1))
+        schema.apply_grain(spare, invisible=False)
+
+    scene = read_stage(str(small_scene(tmp_path / "s.usda", mutate)))
+    validate(scene)
+    d = scene.desc
+    meshes = {m.name: m for m in d.meshes}
+    assert sorted(meshes) == ["/World/Glass", "/World/Ground", "/World/Red"]
+    ground = meshes["/World/Ground"]
+    assert ground.mesh.num_triangles == 2
+    # USD row-vector matrix -> core's column form: translation in the last column.
+    xf = np.array(ground.xf)
+    assert xf[:3, 3] == pytest.approx([1, 2, 3]) and np.diag(xf)[:3] == pytest.approx([2, 2, 2])
+    sand = d.materials[ground.material]
+    assert sand.type == core.MaterialType.Lambert and sand.albedo == pytest.approx((0.5, 0.4, 0.3))
+    glass = meshes["/World/Glass"]
+    gm = d.materials[glass.material]
+    assert gm.type == core.MaterialType.Dielectric and gm.ior == pytest.approx(1.45)
+    # leftHanded: the reader flips the triangles into core's right-handed winding (the
+    # points were authored counter-clockwise, so the flipped sphere turns inside out).
+    assert glass.mesh.signed_volume() < 0
+    red = meshes["/World/Red"]
+    assert red.mesh.num_triangles == 12
+    assert d.materials[red.material].albedo == pytest.approx((0.8, 0.1, 0.1))
+
+
+def test_camera_lights_and_render_settings(tmp_path):
+    sky_file = tmp_path / "sky.png"
+    empty = core.SceneDesc()
+    empty.settings.width, empty.settings.height, empty.settings.spp = 8, 4, 1
+    core.write_png(str(sky_file), core.Renderer(core.Scene.build(empty)).image())  # a black image
+
+    def mutate(stage):
+        cam = UsdGeom.Camera(stage.GetPrimAtPath("/World/Camera"))
+        cam.CreateHorizontalApertureAttr(30.0)
+        cam.CreateVerticalApertureAttr(15.0)
+        cam.CreateClippingRangeAttr(Gf.Vec2f(0.5, 50))
+        second = UsdGeom.Camera.Define(stage, "/World/Second")
+        second.CreateFocalLengthAttr(80.0)
+        sun = UsdLux.DistantLight(stage.GetPrimAtPath("/World/Sun"))
+        sun.CreateAngleAttr(12.0)
+        sun.CreateExposureAttr(1.0)
+        sun.CreateEnableColorTemperatureAttr(True)
+        sun.CreateColorTemperatureAttr(3000.0)
+        dome = UsdLux.DomeLight.Define(stage, "/World/Sky")
+        dome.CreateTextureFileAttr(Sdf.AssetPath("sky.png"))
+        rect = UsdLux.RectLight.Define(stage, "/World/Panel")
+        rect.CreateWidthAttr(2.0)
+        rect.CreateHeightAttr(0.5)
+        rect.CreateNormalizeAttr(True)
+        ball = UsdLux.SphereLight.Define(stage, "/World/Bulb")
+        ball.CreateRadiusAttr(0.25)
+        ball.CreateColorAttr((1.0, 0.5, 0.25))
+        UsdLux.DiskLight.Define(stage, "/World/Disk")
+        UsdGeom.Scope.Define(stage, "/Render")
+        rs = UsdRender.Settings.Define(stage, "/Render/Settings")
+        rs.CreateResolutionAttr(Gf.Vec2i(320, 100))
+        rs.CreateCameraRel().SetTargets(["/World/Second"])
+
+    path = str(small_scene(tmp_path / "s.usda", mutate))
+    scene = read_stage(path)
+    validate(scene)
+    d = scene.desc
+    # The render settings' camera and resolution.
+    assert scene.camera_path == "/World/Second"
+    assert d.camera.focal_length == pytest.approx(80.0)
+    assert (d.settings.width, d.settings.height) == (320, 100)
+    # --camera wins; --width alone keeps the camera's aperture aspect.
+    scene = read_stage(path, camera="/World/Camera", width=300)
+    c = scene.desc.camera
+    assert (c.horizontal_aperture, c.vertical_aperture, c.clip_near, c.clip_far) == pytest.approx((30, 15, 0.5, 50))
+    assert (scene.desc.settings.width, scene.desc.settings.height) == (300, 150)
+    lights = {l.name: l for l in scene.desc.lights}
+    assert sorted(lights) == ["/World/Bulb", "/World/Panel", "/World/Sky", "/World/Sun"]
+    sun = lights["/World/Sun"]
+    assert sun.type == core.LightType.Distant and sun.angle == pytest.approx(12) and sun.exposure == pytest.approx(1)
+    assert sun.color[2] < sun.color[0]  # 3000 K is reddish
+    assert lights["/World/Sky"].texture_file == str(sky_file)
+    panel = lights["/World/Panel"]
+    assert (panel.type, panel.width, panel.height, panel.normalize) == (core.LightType.Rect, 2.0, 0.5, True)
+    bulb = lights["/World/Bulb"]
+    assert bulb.type == core.LightType.Sphere and bulb.radius == pytest.approx(0.25)
+    assert bulb.color == pytest.approx((1.0, 0.5, 0.25))
+    assert any("DiskLight lights are not supported" in w for w in scene.warnings)
+
+
+def test_info_mode_needs_no_camera_and_reads_no_surfaces(tmp_path):
+    def mutate(stage):
+        stage.RemovePrim("/World/Camera")
+        UsdGeom.Cube.Define(stage, "/World/Box")
+    scene = read_stage(str(small_scene(tmp_path / "s.usda", mutate)), surfaces=False, need_camera=False)
+    assert len(scene.desc.aggregates) == 1 and scene.desc.meshes == [] and scene.desc.lights == []
+
+
+def test_prototypes_inside_an_instanceable_asset_and_relative_paths_survive_referencing(tmp_path):
+    asset = small_scene(tmp_path / "asset.usda")
+
+    stage = Usd.Stage.CreateNew(str(tmp_path / "shot.usda"))
+    UsdGeom.Xform.Define(stage, "/Shot")
+    ref = stage.DefinePrim("/Shot/CastleA")
+    ref.GetReferences().AddReference(str(asset), "/World")
+    ref.SetInstanceable(True)
+    ref2 = stage.DefinePrim("/Shot/CastleB")
+    ref2.GetReferences().AddReference(str(asset), "/World")
+    UsdGeom.Xformable(ref2).AddTranslateOp().Set(Gf.Vec3d(2, 0, 0))
+    stage.GetRootLayer().Save()
+    scene = read_stage(str(tmp_path / "shot.usda"))
+    validate(scene)
+    names = sorted(a.name for a in scene.desc.aggregates)
+    assert names == ["/Shot/CastleA/Castle", "/Shot/CastleB/Castle"]
+    b = [a for a in scene.desc.aggregates if a.name == "/Shot/CastleB/Castle"][0]
+    assert [p.name for p in b.prototypes] == ["/Shot/CastleB/Grains/A", "/Shot/CastleB/Grains/B"]
+    assert np.array(b.xf)[0, 3] == pytest.approx(2.0)
