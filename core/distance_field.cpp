@@ -20,10 +20,14 @@ DistanceField& DistanceField::operator=(DistanceField&&) noexcept = default;
 void DistanceField::build(const TriangleMesh& mesh, float voxelSize, float minBand) {
   static std::once_flag once;
   std::call_once(once, [] { openvdb::initialize(); });
-  openvdb::math::Transform::Ptr xform = openvdb::math::Transform::createLinearTransform(voxelSize);
+  // The grid lives in index space (voxel size 1) and the mesh is handed over divided by
+  // the voxel size: OpenVDB refuses linear transforms whose determinant is ~0 (voxels
+  // below about 1e-5, i.e. scenes in tiny units), and distances scale back exactly.
+  openvdb::math::Transform::Ptr xform = openvdb::math::Transform::createLinearTransform(1.0);
+  const double inv = 1.0 / double(voxelSize);
   std::vector<openvdb::Vec3s> pts;
   pts.reserve(mesh.points.size());
-  for (const Vec3& p : mesh.points) pts.emplace_back(p.x, p.y, p.z);  // world space: OpenVDB applies xform
+  for (const Vec3& p : mesh.points) pts.emplace_back(float(p.x * inv), float(p.y * inv), float(p.z * inv));
   std::vector<openvdb::Vec3I> tris;
   tris.reserve(mesh.numTriangles());
   for (size_t i = 0; i < mesh.numTriangles(); ++i)
@@ -44,7 +48,8 @@ float DistanceField::distance(const Vec3& p) const {
   openvdb::FloatGrid::ConstAccessor accessor = impl_->grid->getConstAccessor();
   openvdb::tools::GridSampler<openvdb::FloatGrid::ConstAccessor, openvdb::tools::BoxSampler> sampler(
       accessor, impl_->grid->transform());
-  return sampler.wsSample(openvdb::Vec3d(p.x, p.y, p.z));
+  const double inv = 1.0 / double(voxel_);
+  return float(sampler.wsSample(openvdb::Vec3d(p.x * inv, p.y * inv, p.z * inv)) * voxel_);
 }
 
 Vec3 DistanceField::gradient(const Vec3& p) const {
