@@ -34,6 +34,13 @@ void checkNonNegative(const Vec3& v, const std::string& obj, const char* attr) {
 
 void checkTransform(const Transform& xf, const std::string& obj, const char* attr) {
   if (!xf.isFinite()) throw InputError(obj, attr, "is not finite");
+  // Everything downstream applies transforms as affine maps (Transform::point ignores the
+  // bottom row); a projective matrix (a USD matrix whose last column is not (0, 0, 0, 1))
+  // would be silently misread.
+  if (xf.m[3][0] != 0 || xf.m[3][1] != 0 || xf.m[3][2] != 0 || xf.m[3][3] != 1)
+    throw InputError(obj, attr,
+                     str("is not affine: its row-vector (USD) form has last column (", xf.m[3][0], ", ", xf.m[3][1],
+                         ", ", xf.m[3][2], ", ", xf.m[3][3], "), not (0, 0, 0, 1)"));
   Transform inv;
   if (xf.determinant3() == 0 || !xf.inverse(inv)) throw InputError(obj, attr, "is singular (not invertible)");
 }
@@ -70,6 +77,22 @@ void validateSceneDesc(const SceneDesc& desc) {
     throw InputError("camera", "clippingRange", str("near ", c.clipNear, " must be finite and > 0"));
   if (std::isnan(c.clipFar) || !(c.clipFar > c.clipNear))
     throw InputError("camera", "clippingRange", str("far ", c.clipFar, " must exceed near ", c.clipNear));
+  {
+    // The film window at unit distance, as Camera fits the aperture into the image: it
+    // must stay finite through normalisation, i.e. the field of view must stay short of
+    // 180 degrees (a focal length of 1e-37 gave NaN camera rays).
+    double hAp = c.horizontalAperture, vAp = c.verticalAperture;
+    double imAspect = double(s.width) / s.height;
+    if (imAspect > hAp / vAp) hAp = vAp * imAspect; else vAp = hAp / imAspect;
+    double f = c.focalLength;
+    double wx = 0.5 * hAp / f + std::fabs(c.horizontalApertureOffset) / f;
+    double wy = 0.5 * vAp / f + std::fabs(c.verticalApertureOffset) / f;
+    if (!(wx <= 1e6 && wy <= 1e6))
+      throw InputError("camera", "focalLength",
+                       str(c.focalLength, " is too short for the aperture (", c.horizontalAperture, " x ",
+                           c.verticalAperture, ", offsets ", c.horizontalApertureOffset, ", ",
+                           c.verticalApertureOffset, "): the field of view reaches 180 degrees"));
+  }
 
   for (size_t i = 0; i < desc.materials.size(); ++i) {
     const MaterialDesc& m = desc.materials[i];
@@ -99,6 +122,15 @@ void validateSceneDesc(const SceneDesc& desc) {
     checkFinite(l.exposure, obj, "exposure");
     // 2^exposure must stay a finite float.
     if (std::fabs(l.exposure) > 100) throw InputError(obj, "exposure", str(l.exposure, " is outside [-100, 100]"));
+    {
+      // The radiance color * intensity * 2^exposure must be a finite float too (1e38 x
+      // 2^100 gave an all-black image of non-finite samples).
+      double peak = double(maxComponent(l.color)) * l.intensity * std::exp2(double(l.exposure));
+      if (!(peak <= 1e30))
+        throw InputError(obj, "intensity",
+                         str("color ", fmt(l.color), " x intensity ", l.intensity, " x 2^exposure ", l.exposure,
+                             " = ", peak, " exceeds 1e30"));
+    }
     switch (l.type) {
       case LightType::Distant:
         if (!std::isfinite(l.angle) || l.angle < 0 || l.angle >= 180)

@@ -180,3 +180,13 @@ TEST(Aggregate, TinyAndHugeScenesClassifyLikeUnitScene) {
     EXPECT_NEAR(b.agg.boundaryDistance(Vec3(0.0f, 0.0f, 0.95f * s)) / s, -0.05f, 0.02f) << s;
   }
 }
+
+TEST(Aggregate, NonFiniteRaysHitNothing) {
+  Built b(smallAggregate());
+  GrainHit h;
+  const float nan = std::nanf("");
+  EXPECT_FALSE(b.agg.intersect(Vec3(0, 0, 3), Vec3(nan, 0, -1), 0.0f, kInf, h));
+  EXPECT_FALSE(b.agg.intersect(Vec3(nan, 0, 3), Vec3(0, 0, -1), 0.0f, kInf, h));
+  EXPECT_FALSE(b.agg.intersect(Vec3(0, 0, 3), Vec3(kInf, 0, -1), 0.0f, kInf, h));
+  EXPECT_TRUE(b.agg.intersect(Vec3(0.1f, -0.2f, 3), Vec3(0, 0, -1), 0.0f, kInf, h));  // the same ray, finite
+}

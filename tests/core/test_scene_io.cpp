@@ -349,3 +349,28 @@ TEST(SceneIo, ObjShapesAndFiles) {
   }
   fs::remove_all(dir);
 }
+
+TEST(SceneIo, ValuesThatWouldRenderNonFiniteAreInputErrors) {
+  // Found by fuzz/fuzz_usd_attributes and checked here through both front ends' gate:
+  // each value is finite and in its own range, yet the render would not be.
+  EXPECT_NE(errorAfter([](json& j) { j["camera"]["focal_length"] = 1e-37; }).find("camera.focal_length"),
+            std::string::npos);
+  EXPECT_NE(errorAfter([](json& j) {
+              j["lights"][0]["intensity"] = 1e38;
+              j["lights"][0]["exposure"] = 100;
+            }).find("sun.intensity"),
+            std::string::npos);
+  // A projective matrix cannot come from JSON (the reader checks the bottom row), but the
+  // USD front end hands core any 4x4: validateSceneDesc refuses it.
+  SceneDesc d = parseSceneJson(kScene, "scenes/test.json");
+  d.camera.cameraToWorld.m[3][3] = 0.5;
+  try {
+    validateSceneDesc(d);
+    ADD_FAILURE() << "a projective camera matrix was accepted";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("camera.transform: is not affine"), std::string::npos) << e.what();
+  }
+  d = parseSceneJson(kScene, "scenes/test.json");
+  d.aggregates[0].xf.m[3][1] = 1e-3;
+  EXPECT_THROW(validateSceneDesc(d), InputError);
+}
