@@ -45,6 +45,36 @@ void checkTransform(const Transform& xf, const std::string& obj, const char* att
   if (xf.determinant3() == 0 || !xf.inverse(inv)) throw InputError(obj, attr, "is singular (not invertible)");
 }
 
+// Scene coordinates are floats, and squared distances must not overflow: every world
+// position (mesh and boundary points, the camera, lights) and size stays within ±1e15
+// units. (A transform scaling a boundary by 1e38 passed every other check and made the
+// aggregate's grid NaN: found by the USD fuzzer.)
+constexpr double kMaxCoordinate = 1e15;
+
+void checkWorldPoints(const TriangleMesh& m, const Transform& xf, const std::string& obj) {
+  for (size_t i = 0; i < m.points.size(); ++i) {
+    const Vec3& p = m.points[i];
+    for (int r = 0; r < 3; ++r) {
+      double w = xf.m[r][0] * p.x + xf.m[r][1] * p.y + xf.m[r][2] * p.z + xf.m[r][3];
+      if (!(std::fabs(w) <= kMaxCoordinate))
+        throw InputError(obj, "transform",
+                         str("places point ", i, " ", fmt(p), " at world coordinate ", w, ", beyond +-",
+                             kMaxCoordinate));
+    }
+  }
+}
+
+void checkWorldPosition(const Transform& xf, const std::string& obj) {
+  for (int r = 0; r < 3; ++r)
+    if (!(std::fabs(xf.m[r][3]) <= kMaxCoordinate))
+      throw InputError(obj, "transform", str("translation ", xf.m[r][3], " is beyond +-", kMaxCoordinate));
+}
+
+void checkSize(float v, const std::string& obj, const char* attr) {
+  checkPositive(v, obj, attr);
+  if (v > kMaxCoordinate) throw InputError(obj, attr, str(v, " is beyond ", kMaxCoordinate));
+}
+
 void checkMaterialIndex(int m, size_t count, const std::string& obj) {
   if (m < -1 || m >= int(count))
     throw InputError(obj, "material", str("index ", m, " is out of range [-1, ", count, ")"));
@@ -68,6 +98,7 @@ void validateSceneDesc(const SceneDesc& desc) {
 
   const CameraDesc& c = desc.camera;
   checkTransform(c.cameraToWorld, "camera", "transform");
+  checkWorldPosition(c.cameraToWorld, "camera");
   checkPositive(c.focalLength, "camera", "focalLength");
   checkPositive(c.horizontalAperture, "camera", "horizontalAperture");
   checkPositive(c.verticalAperture, "camera", "verticalAperture");
@@ -110,12 +141,14 @@ void validateSceneDesc(const SceneDesc& desc) {
     validateMesh(m.mesh, obj);
     checkMaterialIndex(m.material, desc.materials.size(), obj);
     checkTransform(m.xf, obj, "transform");
+    checkWorldPoints(m.mesh, m.xf, obj);
   }
 
   for (size_t i = 0; i < desc.lights.size(); ++i) {
     const LightDesc& l = desc.lights[i];
     std::string obj = label(l.name, "lights", i);
     checkTransform(l.xf, obj, "transform");
+    checkWorldPosition(l.xf, obj);
     checkNonNegative(l.color, obj, "color");
     if (!std::isfinite(l.intensity) || l.intensity < 0)
       throw InputError(obj, "intensity", str(l.intensity, " must be finite and >= 0"));
@@ -136,10 +169,15 @@ void validateSceneDesc(const SceneDesc& desc) {
         if (!std::isfinite(l.angle) || l.angle < 0 || l.angle >= 180)
           throw InputError(obj, "angle", str(l.angle, " is outside [0, 180)"));
         break;
-      case LightType::Sphere: checkPositive(l.radius, obj, "radius"); break;
+      case LightType::Sphere:
+        checkSize(l.radius, obj, "radius");
+        checkSize(l.radius * length(l.xf.vector(Vec3(1, 0, 0))), obj, "radius");  // in world units
+        break;
       case LightType::Rect:
-        checkPositive(l.width, obj, "width");
-        checkPositive(l.height, obj, "height");
+        checkSize(l.width, obj, "width");
+        checkSize(l.height, obj, "height");
+        checkSize(length(l.xf.vector(Vec3(l.width, 0, 0))), obj, "width");  // in world units
+        checkSize(length(l.xf.vector(Vec3(0, l.height, 0))), obj, "height");
         break;
       case LightType::Dome: break;
     }
@@ -150,7 +188,8 @@ void validateSceneDesc(const SceneDesc& desc) {
     std::string obj = label(a.name, "aggregates", i);
     validateClosed(a.boundary, obj + ".boundary");
     checkTransform(a.xf, obj, "transform");
-    checkPositive(a.grainRadius, obj, "grainRadius");
+    checkWorldPoints(a.boundary, a.xf, obj);
+    checkSize(a.grainRadius, obj, "grainRadius");
     if (!std::isfinite(a.packingRate) || !(a.packingRate > 0) || a.packingRate > 0.64f)
       throw InputError(obj, "packingRate", str(a.packingRate, " is outside (0, 0.64]"));
     checkInt(a.tileSpheres, 8, 100000, obj, "tileSpheres");

@@ -5,6 +5,8 @@ OUT/fuzz_scene_json/      examples/*.json, bench/scenes/*.json, the full scene o
                           tests/core/test_scene_io.cpp and bench/stress.py's base case
 OUT/fuzz_usd_attributes/  a few well-formed inputs in fuzz_usd_attributes.cpp's layout:
                           a box and a tetrahedron with sane attributes, each light type
+fuzz/regressions/         inputs that once crashed a target (*.json: the JSON target,
+                          *.bin: the USD target), kept so that every run replays them
 """
 import glob
 import json
@@ -31,6 +33,10 @@ def json_seeds(out):
     for k, m in enumerate(re.finditer(r'R"\((.*?)\)"', src, re.S)):
         with open(os.path.join(out, f"test_scene_io_{k}.json"), "w") as f:
             f.write(m.group(1))
+        n += 1
+    for path in sorted(glob.glob(os.path.join(ROOT, "fuzz/regressions/*.json"))):
+        with open(path, "rb") as f, open(os.path.join(out, "regression_" + os.path.basename(path)), "wb") as g:
+            g.write(f.read())
         n += 1
     sys.path.insert(0, os.path.join(ROOT, "bench"))
     import stress  # noqa: E402
@@ -78,6 +84,10 @@ def usd_seeds(out):
         with open(os.path.join(out, f"tet_light{lt}.bin"), "wb") as f:
             f.write(usd_seed(tet, [3] * 4, tris, lt, dielectric=lt % 2 == 0))
         n += 2
+    for path in sorted(glob.glob(os.path.join(ROOT, "fuzz/regressions/*.bin"))):
+        with open(path, "rb") as f, open(os.path.join(out, "regression_" + os.path.basename(path)), "wb") as g:
+            g.write(f.read())
+        n += 1
     return n
 
 

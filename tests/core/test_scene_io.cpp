@@ -374,3 +374,18 @@ TEST(SceneIo, ValuesThatWouldRenderNonFiniteAreInputErrors) {
   d.aggregates[0].xf.m[3][1] = 1e-3;
   EXPECT_THROW(validateSceneDesc(d), InputError);
 }
+
+TEST(SceneIo, WorldCoordinatesStayWithin1e15) {
+  // A transform that scales a boundary by 1e38 is finite and invertible, but its world
+  // points overflow float (the aggregate's grid became NaN: found by the USD fuzzer).
+  EXPECT_NE(errorAfter([](json& j) { j["aggregates"][0]["transform"] = {{"scale", 1e38}}; }).find("transform"),
+            std::string::npos);
+  EXPECT_NE(errorAfter([](json& j) { j["meshes"][0]["transform"] = {{"translate", {0, 2e15, 0}}}; })
+                .find("floor.transform"),
+            std::string::npos);
+  EXPECT_NE(errorAfter([](json& j) { j["lights"][1]["radius"] = 1e20; }).find("radius"), std::string::npos);
+  EXPECT_NE(errorAfter([](json& j) { j["camera"]["look_at"]["eye"] = {0, 1, 1e16}; }).find("camera.transform"),
+            std::string::npos);
+  // 1e6-unit scenes (bench/stress.py) are well inside.
+  EXPECT_EQ(errorAfter([](json& j) { j["aggregates"][0]["transform"] = {{"scale", 1e6}}; }), "NO ERROR");
+}
