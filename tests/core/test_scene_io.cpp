@@ -389,3 +389,14 @@ TEST(SceneIo, WorldCoordinatesStayWithin1e15) {
   // 1e6-unit scenes (bench/stress.py) are well inside.
   EXPECT_EQ(errorAfter([](json& j) { j["aggregates"][0]["transform"] = {{"scale", 1e6}}; }), "NO ERROR");
 }
+
+TEST(SceneIo, NumberBeyondDoubleIsAnInputError) {
+  // nlohmann reports 1e400 as out_of_range while reading the value, not as a parse error;
+  // it escaped as a nlohmann exception (exit 1) until the JSON fuzzer found it.
+  std::string e = errorOf(std::string(R"({"render": {"width": 1e400}})"));
+  EXPECT_NE(e.find("render.width: number overflow"), std::string::npos) << e;
+  e = errorOf(std::string(R"({"aggregates": [{"grain_radius": -1e999}]})"));
+  EXPECT_NE(e.find("aggregates.grain_radius"), std::string::npos) << e;
+  e = errorOf(std::string("[1e999]"));
+  EXPECT_EQ(e.find("WRONG EXCEPTION TYPE"), std::string::npos) << e;
+}
