@@ -110,15 +110,16 @@ bool Light::sampleLi(const Vec3& p, float u1, float u2, LightSample& s) const {
       float r2 = radius_ * radius_;
       if (d2 <= r2 * 1.0001f) return false;  // inside the emitter: it faces away
       float d = std::sqrt(d2);
-      float sin2 = r2 / d2;
-      float cosMax = std::sqrt(std::max(0.0f, 1.0f - sin2));
+      // sin² of the cone in double: a small sphere far away (d > ~4000 r) has a cone too
+      // narrow for cosMax in float (it gave pdf = 1/0 and NaN samples).
+      double sin2 = double(r2) / double(d2);
       Frame f(toC / d);
-      s.wi = f.toWorld(sampleUniformCone(u1, u2, cosMax));
+      s.wi = f.toWorld(sampleUniformConeSin2(u1, u2, sin2));
       Ray r{p, s.wi, 0.0f, kInf};
       float t;
-      if (!intersect(r, t)) t = d * cosMax;  // grazing the silhouette
+      if (!intersect(r, t)) t = d * float(std::sqrt(std::max(0.0, 1.0 - sin2)));  // grazing the silhouette
       s.dist = t;
-      s.pdf = uniformConePdf(cosMax);
+      s.pdf = uniformConePdfSin2(sin2);
       s.Li = radiance_;
       s.delta = false;
       return true;
@@ -175,7 +176,7 @@ float Light::pdfLi(const Vec3& p, const Vec3& wi, float dist) const {
     case LightType::Sphere: {
       float d2 = length2(center_ - p), r2 = radius_ * radius_;
       if (d2 <= r2 * 1.0001f) return 0.0f;
-      return uniformConePdf(std::sqrt(std::max(0.0f, 1.0f - r2 / d2)));
+      return uniformConePdfSin2(double(r2) / double(d2));
     }
     case LightType::Rect: {
       float cosL = -dot(wi, normal_);

@@ -1,0 +1,48 @@
+// Lights: numerical robustness of sampling and MIS for extreme geometry (tests mirror
+// core/light.* and the MIS helper in core/sampling.h).
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "light.h"
+#include "render.h"
+#include "sampling.h"
+#include "scene.h"
+#include "shapes.h"
+
+using namespace granular;
+
+TEST(Light, PowerHeuristicSurvivesHugePdfs) {
+  EXPECT_FLOAT_EQ(powerHeuristic(1.0f, 1.0f), 0.5f);
+  EXPECT_NEAR(powerHeuristic(3.0f, 1.0f), 0.9f, 1e-6f);
+  EXPECT_NEAR(powerHeuristic(1.0f, 3.0f), 0.1f, 1e-6f);
+  // Squares of 1e20 overflowed to inf / inf = NaN.
+  EXPECT_FLOAT_EQ(powerHeuristic(1e20f, 1.0f), 1.0f);
+  EXPECT_NEAR(powerHeuristic(1.0f, 1e20f), 0.0f, 1e-30f);
+  EXPECT_FLOAT_EQ(powerHeuristic(1e30f, 1e30f), 0.5f);
+  EXPECT_FLOAT_EQ(powerHeuristic(kInf, 2.0f), 1.0f);
+  EXPECT_FLOAT_EQ(powerHeuristic(0.0f, 0.0f), 0.0f);
+  EXPECT_FLOAT_EQ(powerHeuristic(2.0f, 0.0f), 1.0f);
+}
+
+TEST(Light, SmallSphereFarAwaySamplesFiniteAndConsistent) {
+  // radius 0.5 at distance 5000: sin² = 1e-8, below float's resolution around 1, so
+  // cosMax rounded to 1 and the cone pdf was 1/0 (every sample NaN: a black image).
+  LightDesc d;
+  d.type = LightType::Sphere;
+  d.radius = 0.5f;
+  d.xf = Transform::translate(Vec3(0, 5000, 0));
+  Light l = Light::fromDesc(d);
+  const double sin2 = 0.25 / (5000.0 * 5000.0);
+  const double solidAngle = 2 * 3.14159265358979 * sin2 / (1 + std::sqrt(1 - sin2));
+  Rng rng(1);
+  for (int i = 0; i < 100; ++i) {
+    LightSample s;
+    ASSERT_TRUE(l.sampleLi(Vec3(0.0f), rng.next1D(), rng.next1D(), s));
+    ASSERT_TRUE(isFinite(s.wi) && std::isfinite(s.pdf) && s.pdf > 0);
+    EXPECT_NEAR(s.pdf * solidAngle, 1.0, 1e-4);
+    EXPECT_NEAR(l.pdfLi(Vec3(0.0f), s.wi, s.dist) * solidAngle, 1.0, 1e-4);
+    EXPECT_GT(s.wi.y, 0.999999f);
+    EXPECT_NEAR(s.dist, 4999.5f, 0.5f);
+  }
+}
