@@ -46,3 +46,31 @@ TEST(Light, SmallSphereFarAwaySamplesFiniteAndConsistent) {
     EXPECT_NEAR(s.dist, 4999.5f, 0.5f);
   }
 }
+
+TEST(Light, FloorUnderASmallSphereFarAwayHasTheAnalyticRadiance) {
+  // A Lambert floor (albedo ρ) straight under a sphere of radiance L, radius r, at
+  // height h: E = L π r²/h², so the floor's radiance is ρ L r²/h² (here 0.5 x 1e8 x 1e-8).
+  SceneDesc s;
+  s.settings.width = s.settings.height = 8;
+  s.settings.spp = 16;
+  s.settings.technique = Technique::Ept;
+  s.camera.cameraToWorld = Transform::lookAt(Vec3(0, 2, 0), Vec3(0.0f), Vec3(0, 0, -1));
+  s.camera.horizontalAperture = s.camera.verticalAperture = 10;
+  MeshDesc floor;
+  floor.name = "floor";
+  floor.mesh = makeBox(Vec3(-5, -0.1f, -5), Vec3(5, 0, 5));
+  s.meshes.push_back(floor);
+  LightDesc bulb;
+  bulb.name = "far bulb";
+  bulb.type = LightType::Sphere;
+  bulb.radius = 0.5f;
+  bulb.intensity = 1e8f;
+  bulb.xf = Transform::translate(Vec3(0, 5000, 0));
+  s.lights.push_back(bulb);
+  auto scene = Scene::build(s);
+  Renderer r(*scene);
+  ASSERT_TRUE(r.render(16));
+  EXPECT_EQ(r.nonFiniteSamples(), 0);
+  for (int y = 0; y < 8; ++y)
+    for (int x = 0; x < 8; ++x) EXPECT_NEAR(r.film().mean(x, y).x, 0.5f, 2e-3f) << x << "," << y;
+}
