@@ -400,3 +400,22 @@ TEST(SceneIo, NumberBeyondDoubleIsAnInputError) {
   e = errorOf(std::string("[1e999]"));
   EXPECT_EQ(e.find("WRONG EXCEPTION TYPE"), std::string::npos) << e;
 }
+
+TEST(SceneIo, NormalisedLightsMustKeepAFiniteRadiance) {
+  // normalize divides by the area: a sphere of radius 6e-39 has an area that underflows
+  // to 0, and the radiance became +inf (NaN samples; found by the USD fuzzer).
+  std::string e = errorAfter([](json& j) {
+    j["lights"][1]["radius"] = 6e-39;
+    j["lights"][1]["normalize"] = true;
+  });
+  EXPECT_NE(e.find("intensity"), std::string::npos) << e;
+  EXPECT_NE(e.find("/ area"), std::string::npos) << e;
+  // The same light without normalize is fine (it just adds almost nothing).
+  EXPECT_EQ(errorAfter([](json& j) { j["lights"][1]["radius"] = 6e-39; }), "NO ERROR");
+  // A radius <= 0 is still reported as such, not as an infinite radiance.
+  e = errorAfter([](json& j) {
+    j["lights"][1]["radius"] = 0;
+    j["lights"][1]["normalize"] = true;
+  });
+  EXPECT_NE(e.find("radius"), std::string::npos) << e;
+}
