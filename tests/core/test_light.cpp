@@ -74,3 +74,27 @@ TEST(Light, FloorUnderASmallSphereFarAwayHasTheAnalyticRadiance) {
   for (int y = 0; y < 8; ++y)
     for (int x = 0; x < 8; ++x) EXPECT_NEAR(r.film().mean(x, y).x, 0.5f, 2e-3f) << x << "," << y;
 }
+
+TEST(Light, NormalisedTinyLightsOfZeroIntensityAreBlackNotNaN) {
+  // The area of a sphere of radius 6e-37 underflows a float: 0 / 0 was NaN (USD fuzzer).
+  LightDesc d;
+  d.type = LightType::Sphere;
+  d.radius = 5.7e-37f;
+  d.intensity = 0;
+  d.normalize = true;
+  d.xf = Transform::translate(Vec3(0, 2, 0));
+  LightSample s;
+  Light sphere = Light::fromDesc(d);
+  ASSERT_TRUE(sphere.sampleLi(Vec3(0.0f), 0.5f, 0.5f, s));
+  EXPECT_TRUE(isFinite(s.Li)) << s.Li.x;
+  d.type = LightType::Rect;
+  d.width = d.height = 1e-25f;
+  Light rect = Light::fromDesc(d);
+  EXPECT_TRUE(isFinite(rect.areaLe(Vec3(0, -1, 0))));
+  // A finite normalised light keeps its meaning: intensity is the power per area.
+  d.type = LightType::Sphere;
+  d.radius = 0.5f;
+  d.intensity = kPi;
+  Light unit = Light::fromDesc(d);
+  EXPECT_NEAR(unit.areaLe(Vec3(0, -1, 0)).x, 1.0f, 1e-6f);  // π / (4π 0.25)
+}
