@@ -15,7 +15,7 @@ packing rate 0.01–0.64, absorption 0 … 1e30 (exactly 0 included), IOR 1.0–
 accepted range; 2.4 is diamond), grain radius 1e-5–0.5 of the object, the camera and
 lights (sphere, rect) inside the aggregate, grazing rays (camera in the plane of a box
 aggregate's face, axis-aligned rays along the tile grid, a sun 0.006° above the face),
-the whole scene scaled to 1e6 and 1e-6 units.
+a sphere light of radius 0.5 at 5000 units, the whole scene scaled to 1e6 and 1e-6 units.
 
 Usage: python3 bench/stress.py [--build build] [--quick] [--timeout 300] [--only SUBSTR]
        [--techniques ept,ept+vpt,hybrid] [--out out/stress]
@@ -104,6 +104,13 @@ def rect_light_inside(d):
     return d
 
 
+def far_small_sphere_light(d):
+    # A lamp of radius 0.5 at 5000 units: its cone is too narrow for cos in float.
+    d["lights"].append({"name": "far lamp", "type": "sphere", "position": [0, 5000, 0], "radius": 0.5,
+                        "intensity": 1e7})
+    return d
+
+
 def camera_and_light_inside(d):
     return sphere_light_inside(camera_inside(d))
 
@@ -143,6 +150,7 @@ def cases(quick):
     if not quick:
         out.append(case("rect light inside", fn=rect_light_inside))
         out.append(case("camera + light inside", fn=camera_and_light_inside))
+    out.append(case("small sphere light 5000 away", fn=far_small_sphere_light))
     out.append(case("grazing face", fn=grazing_box))
     out.append(case("axis-aligned rays", fn=axis_aligned))
     for s in [1e6, 1e-6]:

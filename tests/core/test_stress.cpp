@@ -121,6 +121,16 @@ const StressCase kCases[] = {
     {"grain radius 0.5", [](SceneDesc& s) { s.aggregates[0].grainRadius = 0.5f; }},
     {"camera inside", cameraInside},
     {"sphere light inside", lightInside},
+    {"small sphere light 5000 away",
+     [](SceneDesc& s) {
+       LightDesc lamp;
+       lamp.name = "far lamp";
+       lamp.type = LightType::Sphere;
+       lamp.radius = 0.5f;
+       lamp.intensity = 1e7f;
+       lamp.xf = Transform::translate(Vec3(0, 5000, 0));
+       s.lights.push_back(lamp);
+     }},
     {"grazing face",
      [](SceneDesc& s) {
        s.aggregates[0].boundary = makeBox(Vec3(-1, -0.25f, -1), Vec3(1, 0.25f, 1));
