@@ -195,10 +195,25 @@ def main():
     print("|---|---|---|---|---|---|")
     for name, tech, outcome, elapsed, rss, note in rows:
         print(f"| {name} | {tech} | {outcome} | {elapsed:.2f} | {rss / 1024:.0f} | {note} |")
+    print("\n| sweep | cases | runs | ok | input-error | FAIL | longest (s) | largest peak RSS (MiB) |")
+    print("|---|---|---|---|---|---|---|---|")
+    for fam, members in families(rows).items():
+        print(f"| {fam} | {len({r[0] for r in members})} | {len(members)} | {sum(r[2] == 'ok' for r in members)} | "
+              f"{sum(r[2] == 'input-error' for r in members)} | {sum(r[2] == 'FAIL' for r in members)} | "
+              f"{max(r[3] for r in members):.1f} | {max(r[4] for r in members) / 1024:.0f} |")
     print(f"\n{len(rows)} runs, {sum(r[2] == 'ok' for r in rows)} ok, "
           f"{sum(r[2] == 'input-error' for r in rows)} clear input errors, {failures} failures; "
           f"longest {max(r[3] for r in rows):.1f} s, largest peak RSS {max(r[4] for r in rows) / 1024:.0f} MiB")
     return 1 if failures else 0
+
+
+def families(rows):
+    """Rows grouped by sweep (the case name's first words), in order."""
+    out = {}
+    for r in rows:
+        fam = next((k for k in ("packing", "absorption", "ior", "grain radius", "scale") if r[0].startswith(k)), r[0])
+        out.setdefault(fam, []).append(r)
+    return out
 
 
 def run_one(exe, path, technique, timeout, env):
