@@ -39,6 +39,7 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc) {
     attachTriangleMesh(s->device_.get(), s->surfaces_.get(), w);
     s->worldMeshes_.push_back(std::move(w));
     s->meshMaterial_.push_back(m.material >= 0 ? m.material : defaultSurface);
+    s->meshId_.push_back(m.id);
   }
   rtcCommitScene(s->surfaces_.get());
 
@@ -47,6 +48,7 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc) {
     for (const auto& p : a.prototypes) mats.push_back(p.material >= 0 ? p.material : defaultGrain);
     auto agg = std::make_unique<Aggregate>();
     agg->build(a, s->device_, mats);
+    s->aggregateId_.push_back(a.id);
     all.extend(agg->bounds());
     s->maxGrainRadius_ = std::max(s->maxGrainRadius_, agg->grainRadius());
     if (desc.settings.technique != Technique::Ept) {
@@ -97,6 +99,7 @@ bool Scene::intersect(const Ray& ray, Hit& hit) const {
     hit.t = tmax;
     hit.ng = triangleNormal(worldMeshes_[rh.hit.geomID], rh.hit.primID);
     hit.material = meshMaterial_[rh.hit.geomID];
+    hit.primId = meshId_[rh.hit.geomID];
     hit.lengthScale = 1.0f;
     hit.eps = 0;
   }
@@ -112,6 +115,7 @@ bool Scene::intersect(const Ray& ray, Hit& hit) const {
       const Aggregate& agg = *aggregates_[a];
       hit.material = agg.prototypes()[g.prototype].material;
       hit.lengthScale = agg.grainRadius();
+      hit.primId = aggregateId_[a];
       hit.eps = 2e-4f * agg.grainRadius();
     }
   }
@@ -159,6 +163,7 @@ bool Scene::intersectMedium(const Ray& ray, Hit& hit) const {
     hit.t = tmax;
     hit.ng = triangleNormal(worldMeshes_[rh.hit.geomID], rh.hit.primID);
     hit.material = meshMaterial_[rh.hit.geomID];
+    hit.primId = meshId_[rh.hit.geomID];
     hit.lengthScale = 1.0f;
   }
   for (size_t a = 0; a < aggregates_.size(); ++a) {
@@ -172,6 +177,7 @@ bool Scene::intersectMedium(const Ray& ray, Hit& hit) const {
       hit.ng = ng;
       hit.aggregate = int(a);
       hit.material = -1;
+      hit.primId = aggregateId_[a];
     }
   }
   for (int li : areaLights_) {

@@ -33,6 +33,7 @@ struct Hit {
   int aggregate = -1;       // Grain, Boundary
   float eps = 0;            // ray-offset scale at this hit
   float lengthScale = 1;    // world length of one unit of the object's own space (absorption)
+  int primId = -1;          // the front end's id of the mesh or aggregate (primId AOV)
 };
 
 class Scene {
@@ -90,7 +91,8 @@ class Scene {
   bool mediaNeeded_ = false;
   float maxGrainRadius_ = 0;
   std::vector<TriangleMesh> worldMeshes_;   // per Embree geometry id
-  std::vector<int> meshMaterial_;
+  std::vector<int> meshMaterial_, meshId_;
+  std::vector<int> aggregateId_;
   EmbreeDevice device_;
   EmbreeScene surfaces_;
   float sceneScale_ = 1;
