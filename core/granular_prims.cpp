@@ -210,7 +210,6 @@ class PathParser {
       while (at('{')) {
         variantSelection();
         if (!end() && identStart()) identifier();  // a child inside the variant
-        else break;
       }
       if (end()) {
         r.primPath = t_.back() != '}';  // "/A{v=x}" selects a variant: no prim path

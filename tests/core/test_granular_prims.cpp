@@ -367,7 +367,7 @@ TEST(GranularPrims, PrototypePathsResolveLikeSdfPaths) {
                                     "('}'): expected '=' after variant set name)");
   EXPECT_EQ(error("/A.b::c"), where + "\"/A.b::c\" is not a valid path (Ill-formed SdfPath </A.b::c> at character "
                                       "6 (':'): expected identifier after ':')");
-  for (const char* notPrim : {"/", "/A.b", "/A.b:c", "/A{v=x}", "/A.b[/C]", "/A.b[/C].d", "../..", "../../../X", "A.b"})
+  for (const char* notPrim : {"/", "/A.b", "/A.b:c", "/A{v=x}", "/A{v=x}{w=y}", "/A.b[/C]", "/A.b[/C].d", "../..", "../../../X", "A.b"})
     EXPECT_EQ(error(notPrim), where + "\"" + notPrim + "\" is not a prim path") << notPrim;
 }
 
