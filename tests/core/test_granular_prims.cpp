@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <functional>
+#include <ostream>
 #include <string>
 
 #include "error.h"
@@ -391,6 +392,9 @@ struct ErrorCase {
   std::function<void(Stage&)> mutate;
   std::string message;
 };
+
+// ctest lists a case by its name, not by its bytes.
+void PrintTo(const ErrorCase& c, std::ostream* os) { *os << c.name; }
 
 class GranularPrimsError : public ::testing::TestWithParam<ErrorCase> {};
 
