@@ -36,16 +36,17 @@ def _media(scene, built):
 
 def _report(scene, built, media):
     out = []
+    descs = scene.desc.aggregates
     for k, (src, info) in enumerate(zip(scene.aggregates, built.aggregates)):
-        v = src["values"]
+        a = descs[k]
         r = {
             "prim": src["prim"],
             "prototypes": src["prototypes"],
-            "weights": [_f32(w) for w in scene.desc.aggregates[k].weights],
-            "grain_radius": _f32(v["grainRadius"].value),
-            "packing_rate": _f32(v["packingRate"].value),
-            "seed": v["seed"].value,
-            "tile_spheres": v["tileSpheres"].value,
+            "weights": [_f32(w) for w in a.weights],
+            "grain_radius": _f32(a.grain_radius),
+            "packing_rate": _f32(a.packing_rate),
+            "seed": a.seed,
+            "tile_spheres": a.tile_spheres,
             "grains": info["approx_grains"],
             "tiles": {"edge": _f32(info["cell_size"]), "cells": info["cells"], "inside": info["inside_cells"],
                       "partial": info["partial_cells"]},

@@ -260,7 +260,6 @@ def _fmt3(v):
 
 
 def cmd_info(args):
-
     scene = api.read_aggregates(args.scene)
     report = api.aggregate_report(scene=scene)
     if args.json:
