@@ -140,6 +140,17 @@ bool Scene::intersect(const Ray& ray, Hit& hit) const {
   return true;
 }
 
+void Scene::setView(const CameraDesc& camera, const RenderSettings& settings) {
+  SceneDesc check;
+  check.camera = camera;
+  check.settings = settings;
+  validateSceneDesc(check);
+  if ((settings.technique == Technique::Ept) != (settings_.technique == Technique::Ept) && !aggregates_.empty())
+    throw InputError("render", "technique", "a change between ept and the hybrid needs the scene built anew");
+  settings_ = settings;
+  camera_ = Camera(camera, settings.width, settings.height);
+}
+
 void Scene::setMedium(int aggregate, const MediumParams& params) {
   if (media_.empty()) return;  // technique Ept, or no aggregate thick enough: no media
   mediumParams_[aggregate] = params;

@@ -58,6 +58,10 @@ class Scene {
   const HomogeneousMedium& medium(int aggregate) const { return media_[aggregate]; }
   const MediumParams& mediumParams(int aggregate) const { return mediumParams_[aggregate]; }
   float maxGrainRadius() const { return maxGrainRadius_; }
+  // A new view or new settings without rebuilding geometry, tiles, distance fields or TT
+  // (a camera move in an interactive host). Not thread-safe: no render may be running.
+  // The technique must keep needing media or not (else build anew); InputError on bad values.
+  void setView(const CameraDesc& camera, const RenderSettings& settings);
   // Replaces an aggregate's TT-derived medium by given RTE parameters, before rendering
   // (validation against other renderers, closed-form tests). Not thread-safe.
   void setMedium(int aggregate, const MediumParams& params);

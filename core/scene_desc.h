@@ -123,4 +123,10 @@ const char* techniqueName(Technique t);
 // Checks every value a user can get wrong; throws InputError naming object and attribute.
 void validateSceneDesc(const SceneDesc& desc);
 
+// Parts of validateSceneDesc, for front ends that check what they add as they go: one
+// material; an aggregate's transform, grain radius, packing rate, tile spheres, prototype
+// count and weights (not its meshes: validateClosed, nor its material indices).
+void validateMaterialDesc(const MaterialDesc& m, const std::string& object);
+void validateAggregateParameters(const AggregateDesc& a, const std::string& object);
+
 }  // namespace granular

@@ -4,6 +4,7 @@
 
 #include <cmath>
 
+#include "error.h"
 #include "render.h"
 #include "scene.h"
 #include "shapes.h"
@@ -151,4 +152,26 @@ TEST(EptAovs, PrimIdNamesWhatTheFirstSampleHit) {
     }
   EXPECT_GT(counts[0], 0);
   EXPECT_GT(counts[1], 0);
+}
+
+TEST(EptView, SetViewRendersTheSameAsABuildWithThatView) {
+  SceneDesc d = furnaceScene(MaterialType::Lambert);
+  d.materials[0].albedo = Vec3(0.6f, 0.5f, 0.4f);
+  auto moved = Scene::build(d);
+  SceneDesc d2 = d;
+  d2.camera.cameraToWorld = Transform::lookAt(Vec3(1, 0.5f, 3.5f), Vec3(0, 0, 0), Vec3(0, 1, 0));
+  d2.settings.width = 16;
+  d2.settings.height = 12;
+  moved->setView(d2.camera, d2.settings);
+  auto fresh = Scene::build(d2);
+  Renderer a(*moved), b(*fresh);
+  ASSERT_TRUE(a.render(4));
+  ASSERT_TRUE(b.render(4));
+  Image ia = a.film().toImage(), ib = b.film().toImage();
+  ASSERT_EQ(ia.width, 16);
+  ASSERT_EQ(ia.pixels.size(), ib.pixels.size());
+  for (size_t i = 0; i < ia.pixels.size(); ++i)
+    if (!(std::isinf(ia.pixels[i]) && std::isinf(ib.pixels[i]))) ASSERT_EQ(ia.pixels[i], ib.pixels[i]) << i;
+  d2.settings.spp = 0;
+  EXPECT_THROW(moved->setView(d2.camera, d2.settings), InputError);
 }
