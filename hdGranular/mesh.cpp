@@ -132,6 +132,17 @@ void HdGranularMesh::Sync(HdSceneDelegate* delegate, HdRenderParam* renderParam,
       m.prim.instances.push_back(toCore(xf * i));  // row vectors: mesh, then instance
   }
 
+  // Granular primvars of any interpolation: core rejects all but constant, by name.
+  static const std::pair<HdInterpolation, const char*> kInterpolations[] = {
+      {HdInterpolationUniform, "uniform"}, {HdInterpolationVarying, "varying"}, {HdInterpolationVertex, "vertex"},
+      {HdInterpolationFaceVarying, "faceVarying"}, {HdInterpolationInstance, "instance"}};
+  for (auto const& [interp, interpName] : kInterpolations)
+    for (HdPrimvarDescriptor const& pv : delegate->GetPrimvarDescriptors(id, interp))
+      if (pv.name.GetString().rfind("granular:", 0) == 0) {
+        granular::PrimvarValue v = toPrimvarValue(delegate->Get(id, pv.name));
+        v.interpolation = interpName;
+        m.prim.granular[pv.name.GetString().substr(9)] = v;
+      }
   for (HdPrimvarDescriptor const& pv : delegate->GetPrimvarDescriptors(id, HdInterpolationConstant)) {
     std::string name = pv.name.GetString();
     if (name.rfind("primvars:", 0) == 0) name = name.substr(9);

@@ -42,15 +42,9 @@ granular::SceneDesc HdGranularRenderParam::Assemble() const {
   for (auto const& [path, m] : _meshes) {
     granular::MeshPrim p = m.prim;
     auto it = materialIndex.find(m.materialId);
-    if (it != materialIndex.end()) {
-      p.material = it->second;
-    } else if (m.hasDisplayColor) {
-      granular::MaterialDesc md;
-      md.name = path.GetString() + ".primvars:displayColor";
-      md.albedo = granular::Vec3(m.displayColor[0], m.displayColor[1], m.displayColor[2]);
-      p.material = int(desc.materials.size());
-      desc.materials.push_back(md);
-    }
+    if (it != materialIndex.end()) p.material = it->second;
+    else if (m.hasDisplayColor)  // core makes it Lambert, for ordinary meshes only
+      p.displayColor = granular::Vec3(m.displayColor[0], m.displayColor[1], m.displayColor[2]);
     prims.push_back(std::move(p));
   }
   granular::assembleGranularScene(prims, desc);
