@@ -146,6 +146,7 @@ void eptStep(const Scene& scene, PathState& path) {
     path.primary.depth = scene.camera().viewDepth(hit.p);
     path.primary.normal = dot(hit.ng, path.ray.d) > 0 ? -hit.ng : hit.ng;
     path.primary.kind = int(hit.kind);
+    path.primary.primId = hit.primId;
   }
   if (hit.kind == Hit::AreaLight) {
     addAreaLightHit(scene, path, hit);

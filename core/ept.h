@@ -22,6 +22,7 @@ struct PrimaryInfo {
   float depth = kInf;   // along the camera's view axis
   Vec3 normal;          // world geometric normal, facing the camera
   int kind = -1;        // Hit::Kind of the first hit
+  int primId = -1;      // the front end's id of what was hit
 };
 
 // Index of a contribution in PathState::L (the AOVs), and the transport a path is in.

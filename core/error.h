@@ -17,12 +17,13 @@ class InputError : public std::runtime_error {
  public:
   InputError(const std::string& object, const std::string& attribute, const std::string& what)
       : std::runtime_error(object + (attribute.empty() ? "" : "." + attribute) + ": " + what),
-        object_(object), attribute_(attribute) {}
+        object_(object), attribute_(attribute), detail_(what) {}
   const std::string& object() const { return object_; }
   const std::string& attribute() const { return attribute_; }
+  const std::string& detail() const { return detail_; }  // the message without "object.attribute: "
 
  private:
-  std::string object_, attribute_;
+  std::string object_, attribute_, detail_;
 };
 
 template <typename... Ts>

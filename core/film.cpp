@@ -17,6 +17,7 @@ void Film::add(int x, int y, const PixelSample& s) {
     for (int c = 0; c < 3; ++c) p.part[t][c] += s.byTechnique[t][c];
   ++p.n;
   if (s.hit) {
+    if (p.hits == 0) p.primId = s.primId;
     ++p.hits;
     p.depth += s.depth;
     p.normal[0] += s.normal.x; p.normal[1] += s.normal.y; p.normal[2] += s.normal.z;
@@ -42,7 +43,7 @@ Image Film::toImage() const {
   img.width = width_;
   img.height = height_;
   img.channels = {"R", "G", "B", "A", "Z", "N.X", "N.Y", "N.Z",
-                  "ept.R", "ept.G", "ept.B", "vpt.R", "vpt.G", "vpt.B", "da.R", "da.G", "da.B"};
+                  "ept.R", "ept.G", "ept.B", "vpt.R", "vpt.G", "vpt.B", "da.R", "da.G", "da.B", "primId"};
   img.pixels.assign(size_t(width_) * height_ * img.channels.size(), 0.0f);
   for (int y = 0; y < height_; ++y)
     for (int x = 0; x < width_; ++x) {
@@ -57,6 +58,7 @@ Image Film::toImage() const {
       o[5] = n.x; o[6] = n.y; o[7] = n.z;
       for (int t = 0; t < 3; ++t)
         for (int c = 0; c < 3; ++c) o[8 + 3 * t + c] = p.n ? float(p.part[t][c] / p.n) : 0.0f;
+      o[17] = float(p.primId);
     }
   return img;
 }

@@ -5,7 +5,8 @@
 // thread count. toImage() averages into channels R,G,B,A (coverage), Z (depth along the
 // view axis, of the covered samples; +inf where nothing was hit), N.X,N.Y,N.Z (mean
 // normal of the first hits), and ept.R.. vpt.R.. da.R.. (the radiance each transport
-// gathered; the three add up to R,G,B).
+// gathered; the three add up to R,G,B) and primId (the front end's id of what the first
+// covering sample hit; -1 where nothing or an unnamed object was hit).
 #pragma once
 
 #include <vector>
@@ -18,6 +19,7 @@ namespace granular {
 struct PixelSample {
   Vec3 L;
   Vec3 byTechnique[3];  // EPT, VPT, DA parts of L
+  int primId = -1;
   bool hit = false;
   float depth = 0;
   Vec3 normal;
@@ -44,6 +46,7 @@ class Film {
     double depth = 0, normal[3] = {0, 0, 0};
     double part[3][3] = {{0, 0, 0}, {0, 0, 0}, {0, 0, 0}};
     long n = 0, hits = 0;
+    int primId = -1;     // of the first sample that hit something
   };
   size_t idx(int x, int y) const { return size_t(y) * width_ + x; }
   int width_ = 0, height_ = 0;

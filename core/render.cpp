@@ -61,6 +61,7 @@ bool Renderer::renderPass(int samples, const std::atomic<bool>* cancel) {
             ps.hit = p.primary.hit;
             ps.depth = p.primary.depth;
             ps.normal = p.primary.normal;
+            ps.primId = p.primary.primId;
             film_.add(x, y, ps);
           }
           shortcuts_ += shortcuts;

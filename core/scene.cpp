@@ -88,6 +88,7 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc) {
     attachTriangleMesh(s->device_.get(), s->surfaces_.get(), w);
     s->worldMeshes_.push_back(std::move(w));
     s->meshMaterial_.push_back(m.material >= 0 ? m.material : defaultSurface);
+    s->meshId_.push_back(m.id);
   }
   rtcCommitScene(s->surfaces_.get());
 
@@ -96,6 +97,7 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc) {
     for (const auto& p : a.prototypes) mats.push_back(p.material >= 0 ? p.material : defaultGrain);
     auto agg = std::make_unique<Aggregate>();
     agg->build(a, s->device_, mats);
+    s->aggregateId_.push_back(a.id);
     all.extend(agg->bounds());
     s->maxGrainRadius_ = std::max(s->maxGrainRadius_, agg->grainRadius());
     if (desc.settings.technique != Technique::Ept) {
@@ -168,6 +170,7 @@ bool Scene::intersect(const Ray& ray, Hit& hit) const {
     hit.t = tmax;
     hit.ng = triangleNormal(worldMeshes_[rh.hit.geomID], rh.hit.primID);
     hit.material = meshMaterial_[rh.hit.geomID];
+    hit.primId = meshId_[rh.hit.geomID];
     hit.lengthScale = 1.0f;
     hit.eps = 0;
   }
@@ -183,6 +186,7 @@ bool Scene::intersect(const Ray& ray, Hit& hit) const {
       const Aggregate& agg = *aggregates_[a];
       hit.material = agg.prototypes()[g.prototype].material;
       hit.lengthScale = agg.grainRadius();
+      hit.primId = aggregateId_[a];
       hit.eps = 2e-4f * agg.grainRadius();
     }
   }
@@ -210,6 +214,17 @@ bool Scene::intersect(const Ray& ray, Hit& hit) const {
   return true;
 }
 
+void Scene::setView(const CameraDesc& camera, const RenderSettings& settings) {
+  SceneDesc check;
+  check.camera = camera;
+  check.settings = settings;
+  validateSceneDesc(check);
+  if ((settings.technique == Technique::Ept) != (settings_.technique == Technique::Ept) && !aggregates_.empty())
+    throw InputError("render", "technique", "a change between ept and the hybrid needs the scene built anew");
+  settings_ = settings;
+  camera_ = Camera(camera, settings.width, settings.height);
+}
+
 void Scene::setMedium(int aggregate, const MediumParams& params) {
   if (media_.empty()) return;  // technique Ept, or no aggregate thick enough: no media
   mediumParams_[aggregate] = params;
@@ -234,6 +249,7 @@ bool Scene::intersectMedium(const Ray& ray, Hit& hit) const {
     hit.t = tmax;
     hit.ng = triangleNormal(worldMeshes_[rh.hit.geomID], rh.hit.primID);
     hit.material = meshMaterial_[rh.hit.geomID];
+    hit.primId = meshId_[rh.hit.geomID];
     hit.lengthScale = 1.0f;
   }
   for (size_t a = 0; a < aggregates_.size(); ++a) {
@@ -247,6 +263,7 @@ bool Scene::intersectMedium(const Ray& ray, Hit& hit) const {
       hit.ng = ng;
       hit.aggregate = int(a);
       hit.material = -1;
+      hit.primId = aggregateId_[a];
     }
   }
   for (int li : areaLights_) {

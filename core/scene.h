@@ -33,6 +33,7 @@ struct Hit {
   int aggregate = -1;       // Grain, Boundary
   float eps = 0;            // ray-offset scale at this hit
   float lengthScale = 1;    // world length of one unit of the object's own space (absorption)
+  int primId = -1;          // the front end's id of the mesh or aggregate (primId AOV)
 };
 
 class Scene {
@@ -57,6 +58,10 @@ class Scene {
   const HomogeneousMedium& medium(int aggregate) const { return media_[aggregate]; }
   const MediumParams& mediumParams(int aggregate) const { return mediumParams_[aggregate]; }
   float maxGrainRadius() const { return maxGrainRadius_; }
+  // A new view or new settings without rebuilding geometry, tiles, distance fields or TT
+  // (a camera move in an interactive host). Not thread-safe: no render may be running.
+  // The technique must keep needing media or not (else build anew); InputError on bad values.
+  void setView(const CameraDesc& camera, const RenderSettings& settings);
   // Replaces an aggregate's TT-derived medium by given RTE parameters, before rendering
   // (validation against other renderers, closed-form tests). Not thread-safe.
   void setMedium(int aggregate, const MediumParams& params);
@@ -92,7 +97,8 @@ class Scene {
   bool mediaNeeded_ = false;
   float maxGrainRadius_ = 0;
   std::vector<TriangleMesh> worldMeshes_;   // per Embree geometry id
-  std::vector<int> meshMaterial_;
+  std::vector<int> meshMaterial_, meshId_;
+  std::vector<int> aggregateId_;
   EmbreeDevice device_;
   EmbreeScene surfaces_;
   float sceneScale_ = 1;

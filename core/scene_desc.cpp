@@ -125,15 +125,8 @@ void validateSceneDesc(const SceneDesc& desc) {
                            c.verticalApertureOffset, "): the field of view reaches 180 degrees"));
   }
 
-  for (size_t i = 0; i < desc.materials.size(); ++i) {
-    const MaterialDesc& m = desc.materials[i];
-    std::string obj = label(m.name, "materials", i);
-    if (!isFinite(m.albedo) || minComponent(m.albedo) < 0 || maxComponent(m.albedo) > 1)
-      throw InputError(obj, "albedo", str(fmt(m.albedo), " is outside [0, 1]"));
-    if (!std::isfinite(m.ior) || m.ior < 1 || m.ior > 4) throw InputError(obj, "ior", str(m.ior, " is outside [1, 4]"));
-    checkNonNegative(m.absorption, obj, "absorption");
-    checkNonNegative(m.emission, obj, "emission");
-  }
+  for (size_t i = 0; i < desc.materials.size(); ++i)
+    validateMaterialDesc(desc.materials[i], label(desc.materials[i].name, "materials", i));
 
   for (size_t i = 0; i < desc.meshes.size(); ++i) {
     const MeshDesc& m = desc.meshes[i];
@@ -200,23 +193,7 @@ void validateSceneDesc(const SceneDesc& desc) {
     const AggregateDesc& a = desc.aggregates[i];
     std::string obj = label(a.name, "aggregates", i);
     validateClosed(a.boundary, obj + ".boundary");
-    checkTransform(a.xf, obj, "transform");
-    checkWorldPoints(a.boundary, a.xf, obj);
-    checkSize(a.grainRadius, obj, "grainRadius");
-    if (!std::isfinite(a.packingRate) || !(a.packingRate > 0) || a.packingRate > 0.64f)
-      throw InputError(obj, "packingRate", str(a.packingRate, " is outside (0, 0.64]"));
-    checkInt(a.tileSpheres, 8, 100000, obj, "tileSpheres");
-    if (a.prototypes.empty()) throw InputError(obj, "prototypes", "is empty (at least one grain prototype needed)");
-    if (a.weights.size() != a.prototypes.size())
-      throw InputError(obj, "weights",
-                       str("has ", a.weights.size(), " entries but there are ", a.prototypes.size(), " prototypes"));
-    bool anyPositive = false;
-    for (size_t k = 0; k < a.weights.size(); ++k) {
-      float w = a.weights[k];
-      if (!std::isfinite(w) || w < 0) throw InputError(obj, "weights", str("weight ", k, " = ", w, " must be finite and >= 0"));
-      anyPositive |= w > 0;
-    }
-    if (!anyPositive) throw InputError(obj, "weights", "are all zero");
+    validateAggregateParameters(a, obj);
     for (size_t k = 0; k < a.prototypes.size(); ++k) {
       const GrainPrototypeDesc& p = a.prototypes[k];
       std::string pobj = p.name.empty() ? str(obj, ".prototypes[", k, "]") : p.name;
@@ -224,6 +201,34 @@ void validateSceneDesc(const SceneDesc& desc) {
       checkMaterialIndex(p.material, desc.materials.size(), pobj);
     }
   }
+}
+
+void validateMaterialDesc(const MaterialDesc& m, const std::string& obj) {
+  if (!isFinite(m.albedo) || minComponent(m.albedo) < 0 || maxComponent(m.albedo) > 1)
+    throw InputError(obj, "albedo", str(fmt(m.albedo), " is outside [0, 1]"));
+  if (!std::isfinite(m.ior) || m.ior < 1 || m.ior > 4) throw InputError(obj, "ior", str(m.ior, " is outside [1, 4]"));
+  checkNonNegative(m.absorption, obj, "absorption");
+  checkNonNegative(m.emission, obj, "emission");
+}
+
+void validateAggregateParameters(const AggregateDesc& a, const std::string& obj) {
+  checkTransform(a.xf, obj, "transform");
+  checkWorldPoints(a.boundary, a.xf, obj);
+  checkSize(a.grainRadius, obj, "grainRadius");
+  if (!std::isfinite(a.packingRate) || !(a.packingRate > 0) || a.packingRate > 0.64f)
+    throw InputError(obj, "packingRate", str(a.packingRate, " is outside (0, 0.64]"));
+  checkInt(a.tileSpheres, 8, 100000, obj, "tileSpheres");
+  if (a.prototypes.empty()) throw InputError(obj, "prototypes", "is empty (at least one grain prototype needed)");
+  if (a.weights.size() != a.prototypes.size())
+    throw InputError(obj, "weights",
+                     str("has ", a.weights.size(), " entries but there are ", a.prototypes.size(), " prototypes"));
+  bool anyPositive = false;
+  for (size_t k = 0; k < a.weights.size(); ++k) {
+    float w = a.weights[k];
+    if (!std::isfinite(w) || w < 0) throw InputError(obj, "weights", str("weight ", k, " = ", w, " must be finite and >= 0"));
+    anyPositive |= w > 0;
+  }
+  if (!anyPositive) throw InputError(obj, "weights", "are all zero");
 }
 
 Technique techniqueFromName(const std::string& name, const std::string& obj) {

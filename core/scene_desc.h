@@ -64,6 +64,7 @@ struct MeshDesc {
   Transform xf;              // object-to-world
   int material = -1;         // index into SceneDesc::materials; -1: default grey Lambert
   bool visible = true;
+  int id = -1;               // the front end's id, reported by the primId AOV (Hydra: prim id)
 };
 
 struct GrainPrototypeDesc {
@@ -82,6 +83,7 @@ struct AggregateDesc {
   float packingRate = 0.6f;    // f in (0, 0.64]
   uint64_t seed = 1;
   int tileSpheres = 512;       // spheres per periodic tile
+  int id = -1;                 // the front end's id, reported by the primId AOV
 };
 
 // Which transports the integrator may use (seed §3). Ept is the reference.
@@ -120,5 +122,11 @@ const char* techniqueName(Technique t);
 
 // Checks every value a user can get wrong; throws InputError naming object and attribute.
 void validateSceneDesc(const SceneDesc& desc);
+
+// Parts of validateSceneDesc, for front ends that check what they add as they go: one
+// material; an aggregate's transform, grain radius, packing rate, tile spheres, prototype
+// count and weights (not its meshes: validateClosed, nor its material indices).
+void validateMaterialDesc(const MaterialDesc& m, const std::string& object);
+void validateAggregateParameters(const AggregateDesc& a, const std::string& object);
 
 }  // namespace granular

@@ -185,6 +185,7 @@ void vptStep(const Scene& scene, PathState& path) {
         path.primary.depth = scene.camera().viewDepth(hit.p);
         path.primary.normal = dot(hit.ng, path.ray.d) > 0 ? -hit.ng : hit.ng;
         path.primary.kind = int(hit.kind);
+        path.primary.primId = hit.primId;
       }
       path.medium = dot(path.ray.d, hit.ng) < 0 ? hit.aggregate : -1;
       path.ray.o = offsetRayOrigin(hit.p, hit.ng, path.ray.d, hit.eps);
@@ -196,6 +197,7 @@ void vptStep(const Scene& scene, PathState& path) {
       path.primary.depth = scene.camera().viewDepth(hit.p);
       path.primary.normal = dot(hit.ng, path.ray.d) > 0 ? -hit.ng : hit.ng;
       path.primary.kind = int(hit.kind);
+        path.primary.primId = hit.primId;
     }
     shadeSurface(scene, path, hit, true);
     return;

@@ -1,7 +1,7 @@
 // bindings.cpp — the granular_core Python module: core/ for the usd-core front end.
 //
 // Contract: exposes the plain scene description (SceneDesc and its parts) for a front
-// end to fill, validation, scene building and progressive rendering on a worker thread
+// end to fill, the granular schema's meaning on prims (MeshPrim -> SceneDesc), validation, scene building and progressive rendering on a worker thread
 // with the GIL released (a progress callback runs under the GIL every fraction of a
 // second; if it raises, or Ctrl-C arrives, the render is cancelled and the exception
 // propagates), image output, and the coarse
@@ -28,6 +28,7 @@
 
 #include "density_export.h"
 #include "error.h"
+#include "granular_prims.h"
 #include "image_io.h"
 #include "mesh.h"
 #include "render.h"
@@ -148,13 +149,6 @@ py::dict boundsDict(const Bounds3& b) {
 // so that nothing touches it after the interpreter has shut down.
 py::handle gInputError;
 
-// The message of an InputError without its "object.attribute: " prefix.
-std::string detailOf(const InputError& e) {
-  std::string w = e.what();
-  size_t n = e.object().size() + (e.attribute().empty() ? 0 : e.attribute().size() + 1) + 2;
-  return w.size() >= n ? w.substr(n) : w;
-}
-
 py::dict aggregateInfo(const Aggregate& a, int tileSpheres) {
   const AggregateStats& s = a.stats();
   py::dict d;
@@ -228,7 +222,7 @@ PYBIND11_MODULE(granular_core, m) {
       py::object inst = gInputError(py::str(e.what()));
       inst.attr("object") = e.object();
       inst.attr("attribute") = e.attribute();
-      inst.attr("detail") = detailOf(e);
+      inst.attr("detail") = e.detail();
       PyErr_SetObject(gInputError.ptr(), inst.ptr());
     }
   });
@@ -323,7 +317,8 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("mesh", &MeshDesc::mesh)
       .def_readwrite("xf", &MeshDesc::xf)
       .def_readwrite("material", &MeshDesc::material)
-      .def_readwrite("visible", &MeshDesc::visible);
+      .def_readwrite("visible", &MeshDesc::visible)
+      .def_readwrite("id", &MeshDesc::id);
 
   py::class_<GrainPrototypeDesc>(m, "GrainPrototypeDesc")
       .def(py::init<>())
@@ -341,7 +336,8 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("grain_radius", &AggregateDesc::grainRadius)
       .def_readwrite("packing_rate", &AggregateDesc::packingRate)
       .def_readwrite("seed", &AggregateDesc::seed)
-      .def_readwrite("tile_spheres", &AggregateDesc::tileSpheres);
+      .def_readwrite("tile_spheres", &AggregateDesc::tileSpheres)
+      .def_readwrite("id", &AggregateDesc::id);
 
   py::enum_<Technique>(m, "Technique")
       .value("Ept", Technique::Ept)
@@ -381,6 +377,67 @@ PYBIND11_MODULE(granular_core, m) {
       .def("add_aggregate", [](SceneDesc& d, const AggregateDesc& x) { d.aggregates.push_back(x); return int(d.aggregates.size()) - 1; });
 
   m.def("validate_scene_desc", &validateSceneDesc, py::arg("desc"));
+
+  // ---- the granular schema's meaning (granular_prims.h) ------------------------------------
+  py::class_<PrimvarValue>(m, "PrimvarValue")
+      .def(py::init<>())
+      .def_readwrite("type_name", &PrimvarValue::typeName)
+      .def_readwrite("numbers", &PrimvarValue::numbers)
+      .def_readwrite("strings", &PrimvarValue::strings)
+      .def_readwrite("is_array", &PrimvarValue::isArray)
+      .def_readwrite("is_string", &PrimvarValue::isString)
+      .def_readwrite("interpolation", &PrimvarValue::interpolation)
+      .def_readwrite("source", &PrimvarValue::source);
+
+  py::class_<MeshPrim>(m, "MeshPrim")
+      .def(py::init<>())
+      .def_readwrite("path", &MeshPrim::path)
+      .def_readwrite("type_name", &MeshPrim::typeName)
+      .def_readwrite("active", &MeshPrim::active)
+      .def_readwrite("mesh", &MeshPrim::mesh)
+      .def_readwrite("instances", &MeshPrim::instances)
+      .def_readwrite("visible", &MeshPrim::visible)
+      .def_readwrite("material", &MeshPrim::material)
+      .def_readwrite("display_color", &MeshPrim::displayColor)
+      .def_readwrite("granular", &MeshPrim::granular, "a copy: assign a whole dict {name: PrimvarValue}")
+      .def_readwrite("api_schemas", &MeshPrim::apiSchemas)
+      .def_readwrite("id", &MeshPrim::id);
+
+  py::class_<AggregateValues>(m, "AggregateValues")
+      .def_readonly("grain_radius", &AggregateValues::grainRadius)
+      .def_readonly("packing_rate", &AggregateValues::packingRate)
+      .def_readonly("prototypes", &AggregateValues::prototypes)
+      .def_readonly("weights", &AggregateValues::weights)
+      .def_readonly("seed", &AggregateValues::seed)
+      .def_readonly("tile_spheres", &AggregateValues::tileSpheres);
+  py::class_<GrainValues>(m, "GrainValues")
+      .def_readonly("ior", &GrainValues::ior)
+      .def_readonly("absorption", &GrainValues::absorption)
+      .def_readonly("roughness", &GrainValues::roughness);
+
+  m.def("is_aggregate_primvar", &isAggregatePrimvar, py::arg("name"));
+  m.def("is_grain_primvar", &isGrainPrimvar, py::arg("name"));
+  m.def("resolve_prototype_path", &resolvePrototypePath, py::arg("aggregate_path"), py::arg("text"),
+        "A prototypes entry made absolute against the aggregate; InputError when it is no prim path.");
+  m.def("read_aggregate_values", &readAggregateValues, py::arg("prim"),
+        "GranularAggregateAPI values of a MeshPrim: type-checked, fallbacks where absent.");
+  m.def("read_grain_values", &readGrainValues, py::arg("prim"));
+  m.def(
+      "assemble_granular_scene",
+      [](const std::vector<MeshPrim>& prims, SceneDesc& desc, const std::optional<py::function>& lookup) {
+        PrimLookup find;
+        if (lookup)
+          find = [&lookup](const std::string& path, MeshPrim& out) {
+            py::object r = (*lookup)(path);
+            if (r.is_none()) return false;
+            out = r.cast<MeshPrim>();
+            return true;
+          };
+        assembleGranularScene(prims, desc, find);
+      },
+      py::arg("prims"), py::arg("desc"), py::arg("lookup") = py::none(),
+      "Appends the prims' meshes, aggregates and grain materials to desc; lookup(path) returns the "
+      "MeshPrim of a prototype that is not listed, or None when there is no such prim.");
   m.def("load_scene_json", &loadSceneJson, py::arg("path"), py::call_guard<py::gil_scoped_release>());
 
   // ---- scene building and rendering --------------------------------------------------

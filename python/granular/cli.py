@@ -16,7 +16,7 @@ import os
 import sys
 import time
 
-from . import __version__
+from . import __version__, api
 from .errors import UserError
 
 EXIT_OK, EXIT_FAILURE, EXIT_USER, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -187,16 +187,6 @@ def _warnings(args, scene):
         _log(args, "warning: " + w)
 
 
-def _build(scene):
-    import granular_core as core
-    from .usd_reader import translate_core_error, validate
-    validate(scene)
-    try:
-        return core.Scene.build(scene.desc)
-    except core.InputError as e:
-        raise translate_core_error(e, scene) from None
-
-
 def _remove(paths):
     for p in paths:
         try:
@@ -226,7 +216,7 @@ def cmd_render(args):
     s.roulette = args.roulette
     s.lod = args.lod
     _warnings(args, scene)
-    built = _build(scene)
+    built = api.build_scene(scene)
     _log(args, f"{args.scene}: camera {scene.camera_path}, {s.width}x{s.height}, {s.spp} spp; "
                f"scene read and built in {time.monotonic() - t0:.2f} s")
     for a in built.aggregates:
@@ -269,55 +259,9 @@ def _fmt3(v):
     return "(" + ", ".join(f"{x:.4g}" for x in v) + ")"
 
 
-def _f32(x):
-    """A float32 value (core's) as the shortest decimal that round-trips it."""
-    return float(f"{x:.7g}")
-
-
-def _aggregate_report(scene, built, media):
-    out = []
-    for k, (src, info) in enumerate(zip(scene.aggregates, built.aggregates)):
-        v = src["values"]
-        r = {
-            "prim": src["prim"],
-            "prototypes": src["prototypes"],
-            "weights": [_f32(w) for w in scene.desc.aggregates[k].weights],
-            "grain_radius": _f32(v["grainRadius"].value),
-            "packing_rate": _f32(v["packingRate"].value),
-            "seed": v["seed"].value,
-            "tile_spheres": v["tileSpheres"].value,
-            "grains": info["approx_grains"],
-            "tiles": {"edge": _f32(info["cell_size"]), "cells": info["cells"], "inside": info["inside_cells"],
-                      "partial": info["partial_cells"]},
-            "tile_packing_rate": info["tile_packing_rate"],
-            "memory_bytes": info["memory_bytes"],
-            "setup_seconds": info["setup_seconds"],
-        }
-        m = media[k]
-        r["media_used_by_renderer"] = bool(built.has_media)
-        r["tt"] = {"beta": m["beta"], "beta_se": m["beta_se"], "lambda_delta": m["lambda_delta"],
-                   "lambda_s": list(m["lambda_s"]), "sigma_b": _f32(m["sigma_b"]), "rays": m["rays"]}
-        r["rte"] = {key: [_f32(x) for x in m[key]] for key in ("sigma_t", "albedo", "g", "sigma_t_reduced", "albedo_reduced",
-                                                  "sigma_a", "sigma_tr")}
-        r["mean_free_path"] = [_f32(x) for x in m["mean_free_path"]]
-        out.append(r)
-    return out
-
-
-def _media(scene, built):
-    import granular_core as core
-    from .usd_reader import translate_core_error
-    try:
-        return built.media()
-    except core.InputError as e:
-        raise translate_core_error(e, scene) from None
-
-
 def cmd_info(args):
-    from .usd_reader import read_stage
-    scene = read_stage(args.scene, surfaces=False, need_camera=False)
-    built = _build(scene)
-    report = _aggregate_report(scene, built, _media(scene, built))
+    scene = api.read_aggregates(args.scene)
+    report = api.aggregate_report(scene=scene)
     if args.json:
         print(json.dumps({"scene": args.scene, "aggregates": report}, indent=2))
         return EXIT_OK
@@ -346,39 +290,10 @@ def cmd_info(args):
 
 
 def cmd_export_vdb(args):
-    import granular_core as core
-    from pxr import Sdf
-    from .usd_reader import read_stage, translate_core_error, validate
 
     _check_output(args.output, "-o", (".vdb",))
-    scene = read_stage(args.scene, surfaces=False, need_camera=False)
-    validate(scene)
-    ok, _ = Sdf.Path.IsValidPathString(args.prim)
-    matches = [k for k, a in enumerate(scene.aggregates) if ok and a["prim"] == str(Sdf.Path(args.prim))]
-    if not matches:
-        prim = scene.stage.GetPrimAtPath(args.prim) if ok and Sdf.Path(args.prim).IsAbsolutePath() else None
-        if not prim:
-            raise UserError("command line", "--prim", f'"{args.prim}" is not a prim of the stage')
-        raise UserError(args.prim, "", "is not a visible Mesh with GranularAggregateAPI")
-    k = matches[0]
-    built = _build(scene)
-    medium = _media(scene, built)[k]
-    sigma = medium["sigma_t"]
-    sigma_mean = sum(sigma) / 3.0
-    try:
-        r = core.write_density_vdb(
-            args.output, scene.aggregates[k]["world_boundary"], sigma_mean, args.voxel_size, args.prim,
-            float_metadata={"granular:grainRadius": medium["grain_radius"],
-                            "granular:packingRate": medium["packing_rate"]},
-            vec3_metadata={"granular:sigmaT": tuple(sigma), "granular:albedo": tuple(medium["albedo"]),
-                           "granular:g": tuple(medium["g"]), "granular:meanFreePath": tuple(medium["mean_free_path"])},
-            string_metadata={"granular:stage": os.path.abspath(args.scene),
-                             "granular:density": "mean over RGB of sigma_t (1/world unit); per channel in granular:sigmaT"})
-    except core.InputError as e:
-        if e.attribute == "voxelSize":
-            raise UserError("command line", "--voxel-size", e.detail) from None
-        raise translate_core_error(e, scene) from None
-    _log(args, f"wrote {args.output}: grid 'density' = {sigma_mean:.6g} inside {args.prim}, 0 outside; "
+    r = api.export_density(args.prim, args.output, args.voxel_size, path=args.scene)
+    _log(args, f"wrote {args.output}: grid 'density' = {r['sigma_t']:.6g} inside {args.prim}, 0 outside; "
                f"voxel {r['voxel_size']:.4g}, {r['active_voxels']} active voxels")
     return EXIT_OK
 

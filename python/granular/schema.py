@@ -3,9 +3,12 @@
 GranularAggregateAPI (on the boundary Mesh) and GranularGrainAPI (on each grain
 prototype Mesh) keep every property as a constant primvar in the primvars:granular:
 namespace (see schemas/README.md for why). The fallbacks here are the schema's
-(schemas/schema.usda); a test checks that they agree. Readers apply them when a primvar
-is not authored, exactly as a Hydra delegate must (Hydra delivers authored primvars only).
+(schemas/schema.usda), for authoring; a test checks that they agree with it and with
+core, which applies them when a primvar is not authored (Hydra delivers authored
+primvars only) and gives the values their meaning (core/granular_prims.h).
 """
+import re
+
 from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
 from .errors import UserError
@@ -108,6 +111,9 @@ def apply_grain(mesh, ior=None, absorption=None, roughness=None, invisible=True,
 
 
 # ---- reading --------------------------------------------------------------------------
+# What the primvars mean (types, fallbacks, ranges, which prims are aggregates and
+# prototypes) is core's, shared with the Hydra delegate (core/granular_prims.h); here they
+# are only read from USD.
 
 class Value:
     """A resolved primvar: its value, where it came from (prim path) and its attribute name."""
@@ -129,9 +135,6 @@ def _find(prim, base):
     return None
 
 
-_SCALAR_TYPES = {"float": ("float", "double", "half"), "int": ("int", "int64", "uint", "uint64", "uchar")}
-
-
 def _authored_type(attr):
     """The type a layer authored (a file may contradict the schema's type, which
     UsdAttribute.GetTypeName reports instead)."""
@@ -142,86 +145,99 @@ def _authored_type(attr):
     return str(attr.GetTypeName())
 
 
-def _check_type(pv, expected):
-    name = pv.GetAttr().GetName()
-    src = pv.GetAttr().GetPrim().GetPath()
-    actual = _authored_type(pv.GetAttr())
-    if expected in _SCALAR_TYPES:
-        if actual not in _SCALAR_TYPES[expected]:
-            raise UserError(src, name, f"has type {actual}, expected {expected}")
-    elif expected == "float[]":
-        if actual not in ("float[]", "double[]", "half[]"):
-            raise UserError(src, name, f"has type {actual}, expected float[]")
-    elif expected == "color3f":
-        if actual not in ("color3f", "color3d", "color3h", "float3", "double3", "half3", "vector3f"):
-            raise UserError(src, name, f"has type {actual}, expected color3f")
-    elif actual != expected:
-        raise UserError(src, name, f"has type {actual}, expected {expected}")
-    interp = pv.GetInterpolation()
-    if interp != UsdGeom.Tokens.constant:
-        raise UserError(src, name, f"has interpolation {interp}, expected constant")
-
-
-def read_property(prim, base, table, time=Usd.TimeCode.Default()):
-    """Value of a granular primvar of prim (inherited like Hydra does), else the fallback."""
-    type_name, fallback = table[base]
-    pv = _find(prim, base)
-    if pv is None:
-        return Value(fallback, str(prim.GetPath()), attr_name(base), False)
-    _check_type(pv, type_name)
-    v = pv.ComputeFlattened(time)
-    src = str(pv.GetAttr().GetPrim().GetPath())
-    name = pv.GetAttr().GetName()
-    if v is None:
-        return Value(fallback, str(prim.GetPath()), attr_name(base), False)
+def _numbers(v):
+    """Numbers of a scalar, vector or array value, flattened; [] when there are none."""
+    if isinstance(v, (bool, int, float)):
+        return [float(v)]
+    out = []
     try:
-        if type_name == "float":
-            v = float(v)
-        elif type_name == "int":
-            if isinstance(v, float) or isinstance(v, bool):
-                raise TypeError
-            v = int(v)
-        elif type_name == "float[]":
-            v = tuple(float(x) for x in v)
-        elif type_name == "string[]":
-            if isinstance(v, str):
-                raise TypeError
-            v = tuple(x if isinstance(x, str) else _fail() for x in v)
-        elif type_name == "color3f":
-            if len(v) != 3:
-                raise TypeError
-            v = (float(v[0]), float(v[1]), float(v[2]))
-    except (TypeError, ValueError):
-        raise UserError(src, name, f"has value {v!r}, expected a {type_name}") from None
-    return Value(v, src, name, True)
+        for x in v:
+            out.extend(_numbers(x) if not isinstance(x, (bool, int, float)) else [float(x)])
+    except TypeError:
+        return []
+    return out
 
 
-def _fail():
-    raise TypeError
+def primvar_value(pv, time=Usd.TimeCode.Default()):
+    """A primvar as core.PrimvarValue (authored type, interpolation, the prim it was
+    authored on, values as found), or None without a value."""
+    import granular_core as core
+    attr = pv.GetAttr()
+    v = pv.ComputeFlattened(time)
+    authored_type = _authored_type(attr)
+    # USD reads no value of a type that contradicts the schema's: core still gets the type
+    # to report it.
+    if v is None and authored_type == str(attr.GetTypeName()):
+        return None
+    out = core.PrimvarValue()
+    out.type_name = authored_type
+    out.interpolation = pv.GetInterpolation()
+    out.source = str(attr.GetPrim().GetPath())
+    out.is_array = out.type_name.endswith("[]")
+    out.is_string = out.type_name.replace("[]", "") in ("string", "token")
+    if v is None:
+        pass
+    elif out.is_string:
+        out.strings = [v] if isinstance(v, str) else [str(x) for x in v]
+    elif not isinstance(v, str):
+        out.numbers = _numbers(v)
+    return out
+
+
+def primvar_values(prim, names=None, time=Usd.TimeCode.Default()):
+    """The granular primvars of prim that have a value, inherited as Hydra sees them:
+    {base name: core.PrimvarValue} (names: default every property of both APIs)."""
+    out = {}
+    for base in names or (*AGGREGATE_PROPERTIES, *GRAIN_PROPERTIES):
+        pv = _find(prim, base)
+        value = primvar_value(pv, time) if pv is not None else None
+        if value is not None:
+            out[base] = value
+    return out
+
+
+def _snake(base):
+    return re.sub(r"([A-Z])", r"_\1", base).lower()
+
+
+def _read(prim, table, read, time):
+    import granular_core as core
+    path = str(prim.GetPath())
+    found = primvar_values(prim, table, time)
+    mp = core.MeshPrim()
+    mp.path = path
+    mp.granular = found
+    try:
+        values = read(mp)
+    except core.InputError as e:
+        raise UserError(e.object, e.attribute, e.detail) from None
+    out = {}
+    for base in table:
+        value = getattr(values, _snake(base))
+        value = tuple(value) if isinstance(value, list) else value
+        pv = found.get(base)
+        out[base] = Value(value, pv.source if pv else path, attr_name(base), pv is not None)
+    return out
 
 
 def read_aggregate(prim, time=Usd.TimeCode.Default()):
-    """All GranularAggregateAPI values of prim as {base name: Value}."""
-    return {k: read_property(prim, k, AGGREGATE_PROPERTIES, time) for k in AGGREGATE_PROPERTIES}
+    """All GranularAggregateAPI values of prim as {base name: Value} (fallbacks where
+    unauthored); a wrongly typed value is a UserError naming it."""
+    import granular_core as core
+    return _read(prim, AGGREGATE_PROPERTIES, core.read_aggregate_values, time)
 
 
 def read_grain(prim, time=Usd.TimeCode.Default()):
     """All GranularGrainAPI values of prim as {base name: Value}."""
-    return {k: read_property(prim, k, GRAIN_PROPERTIES, time) for k in GRAIN_PROPERTIES}
+    import granular_core as core
+    return _read(prim, GRAIN_PROPERTIES, core.read_grain_values, time)
 
 
 def resolve_prototype_path(aggregate_prim, text):
     """A prototypes entry (absolute, or relative to the aggregate) as an absolute Sdf.Path,
     or raises UserError naming the aggregate's prototypes attribute."""
-    obj = aggregate_prim.GetPath()
-    if not text:
-        raise UserError(obj, attr_name("prototypes"), "has an empty path")
-    ok, why = Sdf.Path.IsValidPathString(text)
-    if not ok:
-        raise UserError(obj, attr_name("prototypes"), f'"{text}" is not a valid path ({why})')
-    path = Sdf.Path(text)
-    if not path.IsAbsolutePath():
-        path = path.MakeAbsolutePath(obj)
-    if path.isEmpty or not path.IsPrimPath():
-        raise UserError(obj, attr_name("prototypes"), f'"{text}" is not a prim path')
-    return path
+    import granular_core as core
+    try:
+        return Sdf.Path(core.resolve_prototype_path(str(aggregate_prim.GetPath()), text))
+    except core.InputError as e:
+        raise UserError(e.object, e.attribute, e.detail) from None

@@ -4,9 +4,10 @@ What is read, at the stage's start time code (or the earliest time sample):
 - UsdGeomMesh prims (polygons triangulated by fans, world transforms, orientation),
   UsdGeomCube and UsdGeomSphere (tessellated), skipping invisible prims and the guide and
   proxy purposes;
-- meshes with GranularAggregateAPI as aggregates, their grain prototypes (by the
-  primvars:granular:prototypes paths) with GranularGrainAPI materials; prototypes never
-  render as ordinary geometry;
+- the granular schema: each mesh is handed to core (assemble_granular_scene, shared with
+  the Hydra delegate) with its granular primvars, applied API schemas and bound material,
+  and core decides what is an aggregate, a prototype or ordinary geometry; prototypes that
+  are not drawn (invisible) are read when core asks for them;
 - one UsdGeomCamera (--camera, else the render settings' camera, else the first one);
 - UsdLux distant (angle), dome (lat-long texture file), rect and sphere lights with
   intensity, exposure, color, color temperature and normalize;
@@ -43,7 +44,7 @@ class StageScene:
         self.time = time
         self.desc = core.SceneDesc()
         self.camera_path = None
-        self.aggregates = []     # per desc.aggregates entry: {"prim", "world_boundary", "values"}
+        self.aggregates = []     # per desc.aggregates entry: {"prim", "world_boundary", "prototypes"}
         self.warnings = []
         # core object name -> {core attribute: (prim path, USD attribute)}, "*": prim path
         self.names = {}
@@ -300,149 +301,77 @@ def _preview_surface(scene, prim, time, cache):
     return idx
 
 
-def _surface_material(scene, prim, time, cache):
-    idx = _preview_surface(scene, prim, time, cache)
-    if idx is not None:
-        return idx
+def _display_color(scene, prim, time):
+    """The mean of prim's displayColor (inherited), or None; core makes it a Lambert for an
+    ordinary mesh without a material."""
     pv = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance("displayColor")
-    if pv and pv.HasAuthoredValue():
-        v = pv.ComputeFlattened(time)
-        if v is not None and len(v) > 0:
-            try:
-                c = np.asarray(v, dtype=np.float64).reshape(-1, 3).mean(axis=0)
-            except (TypeError, ValueError):
-                prim_path, name = _where(pv.GetAttr())
-                raise UserError(prim_path, name, f"has a {type(v).__name__} value, expected color3f[]") from None
-            md = core.MaterialDesc()
-            md.name = str(prim.GetPath()) + ".displayColor"
-            md.type = core.MaterialType.Lambert
-            md.albedo = tuple(float(x) for x in c)
-            src = str(pv.GetAttr().GetPrim().GetPath())
-            scene.name(md.name, src, {"albedo": (src, "primvars:displayColor")})
-            return scene.desc.add_material(md)
-    return -1
-
-
-def _grain_material(scene, proto, time, cache):
-    """Material index of a grain prototype: GranularGrainAPI values, else its bound
-    UsdPreviewSurface, else -1 (core's clear dielectric of IOR 1.5)."""
-    key = "grain:" + str(proto.GetPath())
-    if key in cache:
-        return cache[key]
-    vals = schema.read_grain(proto, time)
-    if proto.HasAPI(schema.GRAIN_API) or any(v.authored for v in vals.values()):
-        rough = vals["roughness"]
-        if not _finite(rough.value) or not 0 <= rough.value <= 1:
-            raise UserError(rough.source, rough.name, f"{rough.value} is outside [0, 1]")
-        if rough.value > 0:
-            raise UserError(rough.source, rough.name,
-                            f"{rough.value}: rough grains are not supported by this renderer yet (use 0)")
-        md = core.MaterialDesc()
-        md.name = str(proto.GetPath())
-        md.type = core.MaterialType.Dielectric
-        md.ior = vals["ior"].value
-        md.absorption = vals["absorption"].value
-        idx = scene.desc.add_material(md)
-        scene.name(md.name, proto.GetPath(), {"ior": (vals["ior"].source, vals["ior"].name),
-                                              "absorption": (vals["absorption"].source, vals["absorption"].name)})
-    else:
-        idx = _preview_surface(scene, proto, time, cache)
-        if idx is None:
-            idx = -1
-    cache[key] = idx
-    return idx
-
-
-# ---- aggregates -----------------------------------------------------------------------------
-
-def _prototype_prims(stage, prim, values):
-    out = []
-    for text in values["prototypes"].value:
-        path = schema.resolve_prototype_path(prim, text)
-        src, name = values["prototypes"].source, values["prototypes"].name
-        p = stage.GetPrimAtPath(path)
-        if not p:
-            raise UserError(src, name, f'prototype "{text}" ({path}) does not exist')
-        if not p.IsActive():
-            raise UserError(src, name, f'prototype "{text}" ({path}) is inactive')
-        if not p.IsA(UsdGeom.Mesh):
-            raise UserError(src, name, f'prototype "{text}" ({path}) is a {p.GetTypeName() or "typeless prim"}, not a Mesh')
-        out.append(p)
-    return out
-
-
-def prototype_paths(stage, time=None):
-    """Absolute paths of every prim named as a prototype by an aggregate of the stage
-    (errors in the lists are left to the aggregate reader)."""
-    found = set()
-    for prim in stage.Traverse(Usd.TraverseInstanceProxies()):
-        if prim.HasAPI(schema.AGGREGATE_API):
-            try:
-                v = schema.read_property(prim, "prototypes", schema.AGGREGATE_PROPERTIES,
-                                         time or Usd.TimeCode.Default())
-                for text in v.value:
-                    found.add(schema.resolve_prototype_path(prim, text))
-            except UserError:
-                pass
-    return found
-
-
-def read_aggregate(scene, prim, xf_cache, material_cache):
-    time = scene.time
-    path = str(prim.GetPath())
-    if not prim.IsA(UsdGeom.Mesh):
-        raise UserError(path, "", f"{schema.AGGREGATE_API} applies to a Mesh, not a {prim.GetTypeName() or 'typeless prim'}")
-    values = schema.read_aggregate(prim, time)
-    boundary = read_mesh(prim, time)
+    if not (pv and pv.HasAuthoredValue()):
+        return None
+    v = pv.ComputeFlattened(time)
+    if v is None or len(v) == 0:
+        return None
     try:
-        core.validate_closed(boundary, path)
+        c = np.asarray(v, dtype=np.float64).reshape(-1, 3).mean(axis=0)
+    except (TypeError, ValueError):
+        prim_path, name = _where(pv.GetAttr())
+        raise UserError(prim_path, name, f"has a {type(v).__name__} value, expected color3f[]") from None
+    src = str(pv.GetAttr().GetPrim().GetPath())
+    scene.name(str(prim.GetPath()) + ".displayColor", src, {"albedo": (src, "primvars:displayColor")})
+    return tuple(float(x) for x in c)
+
+
+# ---- prims for core's granular schema ----------------------------------------------------------
+
+def _mesh_prim(scene, prim, xf_cache, material_cache, drawn):
+    """prim as core.MeshPrim: its type, applied schemas and granular primvars; for a Mesh
+    (and, when drawn, a Cube or Sphere) its triangles, world transform and material."""
+    time = scene.time
+    mp = core.MeshPrim()
+    mp.path = str(prim.GetPath())
+    is_mesh = prim.IsA(UsdGeom.Mesh)
+    mp.type_name = "Mesh" if is_mesh else prim.GetTypeName()
+    mp.active = prim.IsActive()
+    mp.api_schemas = list(prim.GetAppliedSchemas())
+    mp.visible = drawn
+    has_api = prim.HasAPI(schema.AGGREGATE_API) or prim.HasAPI(schema.GRAIN_API)
+    shape = is_mesh or (drawn and not has_api and (prim.IsA(UsdGeom.Cube) or prim.IsA(UsdGeom.Sphere)))
+    if not mp.active or not shape:
+        return mp  # listed for core's error message only
+    mp.granular = schema.primvar_values(prim, time=time)
+    mp.mesh = read_mesh(prim, time) if is_mesh else _tessellated(prim, time)
+    mp.instances = [to_core_matrix(xf_cache.GetLocalToWorldTransform(prim))]
+    scene.name(mp.path, mp.path, {"transform": (mp.path, "transform")})
+    # A boundary or grain with its API applied never uses a bound material: not read.
+    if not has_api:
+        idx = _preview_surface(scene, prim, time, material_cache)
+        if idx is None and drawn:
+            mp.display_color = _display_color(scene, prim, time)
+        mp.material = -1 if idx is None else idx
+    return mp
+
+
+def _assemble(scene, prims, xf_cache, material_cache):
+    """core's granular schema on the listed prims; the prototypes core asks for that are
+    not listed (not drawn) are read from the stage."""
+    def lookup(path):
+        prim = scene.stage.GetPrimAtPath(path)
+        return _mesh_prim(scene, prim, xf_cache, material_cache, drawn=False) if prim else None
+
+    try:
+        core.assemble_granular_scene(prims, scene.desc, lookup)
     except core.InputError as e:
         raise translate_core_error(e) from None
-    xf = to_core_matrix(xf_cache.GetLocalToWorldTransform(prim))
-
-    protos = _prototype_prims(scene.stage, prim, values)
-    if not protos:
-        v = values["prototypes"]
-        raise UserError(v.source, v.name, "is empty (at least one grain prototype mesh is needed)")
-    weights = values["weights"].value
-    if len(weights) == 0:
-        weights = (1.0,) * len(protos)
-    elif len(weights) != len(protos):
-        v = values["weights"]
-        raise UserError(v.source, v.name, f"has {len(weights)} entries but there are {len(protos)} prototypes")
-    seed = values["seed"]
-    if seed.value < 0:
-        raise UserError(seed.source, seed.name, f"{seed.value} must be >= 0")
-
-    ad = core.AggregateDesc()
-    ad.name = path
-    ad.boundary = boundary
-    ad.xf = xf
-    ad.grain_radius = values["grainRadius"].value
-    ad.packing_rate = values["packingRate"].value
-    ad.seed = seed.value
-    ad.tile_spheres = values["tileSpheres"].value
-    ad.weights = list(weights)
-    plist = []
-    for p in protos:
-        mesh = read_mesh(p, time)
-        try:
-            core.validate_closed(mesh, str(p.GetPath()))
-        except core.InputError as e:
-            raise translate_core_error(e) from None
-        gp = core.GrainPrototypeDesc()
-        gp.name = str(p.GetPath())
-        gp.mesh = mesh
-        gp.material = _grain_material(scene, p, time, material_cache)
-        plist.append(gp)
-    ad.prototypes = plist
-    scene.desc.add_aggregate(ad)
-    attrs = {base: (v.source, v.name) for base, v in values.items()}
-    attrs["transform"] = (path, "transform")
-    scene.name(path, path, attrs)
-    world = boundary.transformed(xf)
-    scene.aggregates.append({"prim": path, "world_boundary": world, "values": values,
-                             "prototypes": [str(p.GetPath()) for p in protos]})
+    # Later errors about an aggregate (scene building) name its primvars where authored.
+    granular = {mp.path: mp.granular for mp in prims}
+    for a in scene.desc.aggregates:
+        path = a.name
+        found = granular.get(path, {})
+        attrs = {base: (found[base].source if base in found else path, schema.attr_name(base))
+                 for base in schema.AGGREGATE_PROPERTIES}
+        attrs["transform"] = (path, "transform")
+        scene.name(path, path, attrs)
+        scene.aggregates.append({"prim": path, "world_boundary": a.boundary.transformed(a.xf),
+                                 "prototypes": [p.name for p in a.prototypes]})
 
 
 # ---- camera, lights, settings --------------------------------------------------------------
@@ -553,7 +482,7 @@ def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_c
     scene.name("render", path, {})
     xf_cache = UsdGeom.XformCache(time)
     material_cache = {}
-    protos = prototype_paths(stage, time)
+    prims = []  # core.MeshPrim of every drawn mesh and every prim with GranularAggregateAPI
     cameras = []
     unsupported = {}
 
@@ -567,7 +496,7 @@ def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_c
                 it.PruneChildren()
                 continue
         if prim.HasAPI(schema.AGGREGATE_API):
-            read_aggregate(scene, prim, xf_cache, material_cache)
+            prims.append(_mesh_prim(scene, prim, xf_cache, material_cache, drawn=True))
             continue
         if prim.IsA(UsdGeom.Camera):
             cameras.append(prim)
@@ -577,21 +506,13 @@ def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_c
         if _is_light(prim):
             read_light(scene, prim, xf_cache)
             continue
-        if prim.GetPath() in protos or prim.HasAPI(schema.GRAIN_API):
-            continue  # a grain prototype: never ordinary geometry
         if prim.IsA(UsdGeom.Mesh) or prim.IsA(UsdGeom.Cube) or prim.IsA(UsdGeom.Sphere):
-            mesh = read_mesh(prim, time) if prim.IsA(UsdGeom.Mesh) else _tessellated(prim, time)
-            md = core.MeshDesc()
-            md.name = str(prim.GetPath())
-            md.mesh = mesh
-            md.xf = to_core_matrix(xf_cache.GetLocalToWorldTransform(prim))
-            md.material = _surface_material(scene, prim, time, material_cache)
-            scene.desc.add_mesh(md)
-            scene.name(md.name, md.name, {"transform": (md.name, "transform")})
+            prims.append(_mesh_prim(scene, prim, xf_cache, material_cache, drawn=True))
         elif prim.IsA(UsdGeom.Gprim) or prim.IsA(UsdGeom.PointInstancer):
             unsupported.setdefault(prim.GetTypeName(), str(prim.GetPath()))
     for type_name, example in unsupported.items():
         scene.warn(f"{example}: {type_name} prims are not supported; skipped")
+    _assemble(scene, prims, xf_cache, material_cache)
 
     # Resolution and camera: command line, else the render settings prim, else defaults.
     settings = _settings_prim(stage)

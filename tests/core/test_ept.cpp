@@ -4,6 +4,7 @@
 
 #include <cmath>
 
+#include "error.h"
 #include "render.h"
 #include "scene.h"
 #include "shapes.h"
@@ -118,4 +119,59 @@ TEST(EptDeterminism, SameSeedSameImageForOneAndTwoThreadsAndAnyPassSplit) {
   size_t differ = 0;
   for (size_t i = 0; i < a.pixels.size(); ++i) differ += a.pixels[i] != c.pixels[i] && std::isfinite(a.pixels[i]);
   EXPECT_GT(differ, 100u);
+}
+
+TEST(EptAovs, PrimIdNamesWhatTheFirstSampleHit) {
+  SceneDesc d = furnaceScene(MaterialType::Lambert);
+  d.settings.spp = 1;
+  d.aggregates[0].id = 9;
+  MeshDesc floor;
+  floor.name = "floor";
+  floor.mesh = makeBox(Vec3(-3, -3, -3), Vec3(3, -2.5f, 3));
+  floor.id = 7;
+  d.meshes.push_back(floor);
+  d.camera.cameraToWorld = Transform::lookAt(Vec3(0, 1, 4), Vec3(0, -1.5f, 0), Vec3(0, 1, 0));
+  auto scene = Scene::build(d);
+  Renderer r(*scene);
+  ASSERT_TRUE(r.render(1));
+  Image img = r.film().toImage();
+  int c = img.channelIndex("primId");
+  ASSERT_GE(c, 0);
+  int counts[3] = {0, 0, 0};  // floor, aggregate, nothing
+  for (int y = 0; y < img.height; ++y)
+    for (int x = 0; x < img.width; ++x) {
+      float id = img.at(x, y)[c];
+      bool covered = img.at(x, y)[img.channelIndex("A")] > 0;
+      if (id == 7.0f) ++counts[0];
+      else if (id == 9.0f) ++counts[1];
+      else {
+        EXPECT_EQ(id, -1.0f);
+        EXPECT_FALSE(covered);
+        ++counts[2];
+      }
+    }
+  EXPECT_GT(counts[0], 0);
+  EXPECT_GT(counts[1], 0);
+}
+
+TEST(EptView, SetViewRendersTheSameAsABuildWithThatView) {
+  SceneDesc d = furnaceScene(MaterialType::Lambert);
+  d.materials[0].albedo = Vec3(0.6f, 0.5f, 0.4f);
+  auto moved = Scene::build(d);
+  SceneDesc d2 = d;
+  d2.camera.cameraToWorld = Transform::lookAt(Vec3(1, 0.5f, 3.5f), Vec3(0, 0, 0), Vec3(0, 1, 0));
+  d2.settings.width = 16;
+  d2.settings.height = 12;
+  moved->setView(d2.camera, d2.settings);
+  auto fresh = Scene::build(d2);
+  Renderer a(*moved), b(*fresh);
+  ASSERT_TRUE(a.render(4));
+  ASSERT_TRUE(b.render(4));
+  Image ia = a.film().toImage(), ib = b.film().toImage();
+  ASSERT_EQ(ia.width, 16);
+  ASSERT_EQ(ia.pixels.size(), ib.pixels.size());
+  for (size_t i = 0; i < ia.pixels.size(); ++i)
+    if (!(std::isinf(ia.pixels[i]) && std::isinf(ib.pixels[i]))) ASSERT_EQ(ia.pixels[i], ib.pixels[i]) << i;
+  d2.settings.spp = 0;
+  EXPECT_THROW(moved->setView(d2.camera, d2.settings), InputError);
 }

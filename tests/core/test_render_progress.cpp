@@ -29,14 +29,17 @@ TEST(RenderProgress, GrowsWithinPassesAndEndsAtTheSampleCount) {
   Renderer r(*scene);
   EXPECT_EQ(r.progressSamples(), 0.0);
 
-  std::atomic<bool> stop{false};
+  std::atomic<bool> stop{false}, polling{false};
   std::vector<double> seen;
   std::thread poller([&] {
     while (!stop) {
       seen.push_back(r.progressSamples());
+      polling = true;
       std::this_thread::yield();
     }
   });
+  // On a loaded machine the render could end before the poller first runs.
+  while (!polling) std::this_thread::yield();
   std::vector<long> atPass;
   std::vector<double> progressAtPass;
   ASSERT_TRUE(r.render(2, [&](const RenderProgress& p) {

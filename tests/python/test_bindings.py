@@ -124,3 +124,45 @@ def test_every_technique_renders(tmp_path, technique, lod):
     assert 0 <= r.shortcut_fraction <= 1 and (lod > 0 or r.shortcut_fraction == 0)
     with pytest.raises(core.InputError, match="technique"):
         core.technique_from_name("dpt", "test")
+
+
+def test_assembling_prims_from_python_with_a_lookup():
+    def prim(path, mesh, apis):
+        p = core.MeshPrim()
+        p.path, p.mesh, p.api_schemas = path, mesh, apis
+        return p
+
+    def value(type_name, numbers=(), strings=()):
+        v = core.PrimvarValue()
+        v.type_name, v.numbers, v.strings = type_name, list(numbers), list(strings)
+        v.is_array, v.is_string = type_name.endswith("[]"), bool(strings)
+        return v
+
+    box = prim("/W/Box", core.make_box((0, 0, 0), (1, 1, 1)), ["GranularAggregateAPI"])
+    box.granular = {"prototypes": value("string[]", strings=["../G"]), "seed": value("int", [4])}
+    box.instances = [[[1, 0, 0, 2], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]]
+    grain = prim("/W/G", core.make_icosphere(1), ["GranularGrainAPI"])
+    grain.granular = {"ior": value("float", [1.4])}
+    asked = []
+
+    def lookup(path):
+        asked.append(path)
+        return grain if path == "/W/G" else None
+
+    desc = core.SceneDesc()
+    core.assemble_granular_scene([box], desc, lookup)
+    assert asked == ["/W/G"]
+    (a,) = desc.aggregates
+    assert (a.name, a.seed, a.grain_radius, a.xf[0][3]) == ("/W/Box", 4, pytest.approx(0.01), 2.0)
+    assert [p.name for p in a.prototypes] == ["/W/G"] and desc.materials[a.prototypes[0].material].ior == pytest.approx(1.4)
+    assert desc.meshes == []
+
+    # No such prim, and an error raised by the lookup itself, which passes through unchanged.
+    with pytest.raises(core.InputError, match=r'^/W/Box.primvars:granular:prototypes: prototype "../G" \(/W/G\) does not exist$'):
+        core.assemble_granular_scene([box], core.SceneDesc(), lambda path: None)
+
+    def broken(path):
+        raise KeyError(path)
+
+    with pytest.raises(KeyError):
+        core.assemble_granular_scene([box], core.SceneDesc(), broken)

@@ -162,3 +162,30 @@ def Mesh "Castle" (prepend apiSchemas = ["GranularAggregateAPI"])
 }
 """)
     assert schema.read_aggregate(stage.GetPrimAtPath("/Castle"))["packingRate"].value == pytest.approx(0.5)
+
+
+# Entries of `prototypes` as users write them, well and badly: core resolves them without
+# USD, with SdfPath's syntax and words ("../" alone is left out: Sdf names no expectation).
+PATHS = ["/", ".", "..", "/A/", "//A", "A//B", "../Grains/A", "A", "Grains/A", "../../../X", "../../..", "../..",
+         "/A/../B", "A/../B", "a b", "/A.b", "/A.b:c", "/A{v=x}", "/A{v=x}B", "/A{v=x}{w=y}", "/A[/B]", "/A.b[/C]",
+         "1A", "/A/1B", "é", "/Wörld", "./A", "A/.", "../.", "A.", "/A.b.c", "/A.b:", "-", "A-B", "/A/B.rel[/T].attr",
+         "/A{v=}", "/A.expression", "/A.b.mapper[/T]", "/A{v}", "/A{v=x", "/A{=x}", "/A.b[/C]x", "/A.b[/C",
+         "/A.b.mapper", "..A", "...", "/A:b", "/A.b::c", "/A.1b", "/ A", "/A{v=x.y}", ".b", "../A.b", "A/B{v=x}C/D"]
+
+
+@pytest.mark.parametrize("text", PATHS)
+def test_prototype_paths_resolve_as_sdf_resolves_them(text):
+    anchor = Sdf.Path("/World/Castle")
+    ok, why = Sdf.Path.IsValidPathString(text)
+    if ok:
+        p = Sdf.Path(text)
+        a = p if p.IsAbsolutePath() else p.MakeAbsolutePath(anchor)
+        expected = str(a) if p.IsPrimPath() and a.IsPrimPath() else f'"{text}" is not a prim path'
+    else:
+        expected = f'"{text}" is not a valid path ({why.strip()})'
+    try:
+        got = core.resolve_prototype_path(str(anchor), text)
+    except core.InputError as e:
+        assert (e.object, e.attribute) == ("/World/Castle", "primvars:granular:prototypes")
+        got = e.detail
+    assert got == expected

@@ -1,0 +1,561 @@
+// granular_prims.cpp — the granular schema's meaning (granular_prims.h): which prims are
+// aggregates, prototypes and ordinary meshes, the schema's fallbacks and every check, with
+// errors in USD terms. Ranges are checked by scene_desc.cpp's validators, so that the JSON
+// and USD front ends agree; only their names are translated here.
+#include "granular_prims.h"
+
+#include <algorithm>
+#include <cctype>
+#include <climits>
+#include <cmath>
+#include <set>
+
+#include "error.h"
+
+namespace granular {
+
+namespace {
+
+const char* const kAggregatePrimvars[] = {"grainRadius", "packingRate", "prototypes", "weights", "seed", "tileSpheres"};
+const char* const kGrainPrimvars[] = {"ior", "absorption", "roughness"};
+
+std::string usdName(const std::string& base) { return kGranularNamespace + base; }
+
+// The prim a value's error names: where it was authored (an ancestor, when inherited),
+// else the prim itself (a fallback).
+const std::string& sourceOf(const MeshPrim& prim, const std::string& base) {
+  auto it = prim.granular.find(base);
+  return it != prim.granular.end() && !it->second.source.empty() ? it->second.source : prim.path;
+}
+
+// ---- typed values -------------------------------------------------------------------------
+
+enum class Kind { Float, Int, FloatArray, StringArray, Color3 };
+
+const char* kindName(Kind k) {
+  switch (k) {
+    case Kind::Float: return "float";
+    case Kind::Int: return "int";
+    case Kind::FloatArray: return "float[]";
+    case Kind::StringArray: return "string[]";
+    case Kind::Color3: return "color3f";
+  }
+  return "?";
+}
+
+// The schema's types and the authored types that stand for them (schemas/README.md).
+bool typeAccepted(Kind k, const std::string& t) {
+  auto among = [&t](std::initializer_list<const char*> names) {
+    return std::any_of(names.begin(), names.end(), [&t](const char* n) { return t == n; });
+  };
+  switch (k) {
+    case Kind::Float: return among({"float", "double", "half"});
+    case Kind::Int: return among({"int", "int64", "uint", "uint64", "uchar"});
+    case Kind::FloatArray: return among({"float[]", "double[]", "half[]"});
+    case Kind::StringArray: return t == "string[]";
+    case Kind::Color3: return among({"color3f", "color3d", "color3h", "float3", "double3", "half3", "vector3f"});
+  }
+  return false;
+}
+
+std::string describe(const PrimvarValue& v) {
+  std::string s;
+  if (v.isString) {
+    for (size_t i = 0; i < v.strings.size(); ++i) s += (i ? ", '" : "'") + v.strings[i] + "'";
+  } else {
+    for (size_t i = 0; i < v.numbers.size(); ++i) s += (i ? ", " : "") + str(v.numbers[i]);
+  }
+  if (v.isArray) return "[" + s + "]";
+  if (!v.isString && v.numbers.size() == 1) return s;
+  if (v.isString && v.strings.size() == 1) return s;
+  return "(" + s + ")";
+}
+
+bool shapeFits(Kind k, const PrimvarValue& v) {
+  switch (k) {
+    case Kind::Float: return !v.isString && !v.isArray && v.numbers.size() == 1;
+    case Kind::Int:
+      return !v.isString && !v.isArray && v.numbers.size() == 1 && std::isfinite(v.numbers[0]) &&
+             std::floor(v.numbers[0]) == v.numbers[0];
+    case Kind::FloatArray: return !v.isString && v.isArray && v.strings.empty();
+    case Kind::StringArray: return v.isString && v.isArray && v.numbers.empty();
+    case Kind::Color3: return !v.isString && !v.isArray && v.numbers.size() == 3;
+  }
+  return false;
+}
+
+// The prim's value of a granular primvar, checked to be of kind k; null when absent.
+const PrimvarValue* typed(const MeshPrim& prim, const std::string& base, Kind k) {
+  auto it = prim.granular.find(base);
+  if (it == prim.granular.end()) return nullptr;
+  const PrimvarValue& v = it->second;
+  const std::string& src = sourceOf(prim, base);
+  if (!typeAccepted(k, v.typeName))
+    throw InputError(src, usdName(base), str("has type ", v.typeName, ", expected ", kindName(k)));
+  if (v.interpolation != "constant")
+    throw InputError(src, usdName(base), str("has interpolation ", v.interpolation, ", expected constant"));
+  if (!shapeFits(k, v)) throw InputError(src, usdName(base), str("has value ", describe(v), ", expected a ", kindName(k)));
+  return &v;
+}
+
+int64_t toInt64(double v) {
+  // Integral by now; clamped so that out-of-range values stay out of range, not undefined.
+  if (v >= 9.2e18) return INT64_MAX;
+  if (v <= -9.2e18) return INT64_MIN;
+  return int64_t(v);
+}
+
+bool hasApi(const MeshPrim& prim, const char* api) {
+  return prim.apiSchemas && std::find(prim.apiSchemas->begin(), prim.apiSchemas->end(), api) != prim.apiSchemas->end();
+}
+
+template <size_t N>
+bool hasAnyOf(const MeshPrim& prim, const char* const (&names)[N]) {
+  return std::any_of(std::begin(names), std::end(names), [&](const char* n) { return prim.granular.count(n) > 0; });
+}
+
+bool anyGrainPrimvar(const MeshPrim& prim) { return hasAnyOf(prim, kGrainPrimvars); }
+
+// ---- SdfPath syntax -----------------------------------------------------------------------
+// Enough of SdfPath's grammar to tell a prim path from any other path and to say, in
+// SdfPath's words, where a malformed one goes wrong (core has no USD to ask).
+
+struct ParsedPath {
+  bool absolute = false;
+  bool primPath = false;
+  int up = 0;            // leading ".." of a relative path
+  std::string elements;  // the prim elements after the leading "/" or "../", e.g. "Grains/Round"
+};
+
+struct PathSyntaxError {
+  std::string why;
+};
+
+class PathParser {
+ public:
+  explicit PathParser(const std::string& text) : t_(text) {}
+
+  ParsedPath parse() {
+    ParsedPath r;
+    if (at('/')) {
+      r.absolute = true;
+      ++i_;
+      if (end()) return r;  // the absolute root: not a prim
+      if (!identStart()) fail("expected end of path");
+      primElements(r);
+    } else if (at('.')) {
+      if (t_.compare(i_, 2, "..") == 0) {
+        while (t_.compare(i_, 2, "..") == 0) {
+          i_ += 2;
+          ++r.up;
+          if (end()) {
+            r.primPath = true;
+            return r;
+          }
+          if (!at('/')) fail("expected end of path");
+          ++i_;
+          if (end()) fail("expected prim name");
+        }
+        if (at('.')) return property(r);
+        if (!identStart()) fail("expected prim name");
+        primElements(r);
+      } else {
+        ++i_;
+        if (end()) {
+          r.primPath = true;  // "." is the anchor itself
+          return r;
+        }
+        if (!identStart()) fail("expected property name after '.'");
+        --i_;
+        return property(r);
+      }
+    } else if (!end() && identStart()) {
+      primElements(r);
+    } else {
+      fail("expected a path beginning with '/', '.', or a prim name");
+    }
+    return r;
+  }
+
+ private:
+  bool end() const { return i_ >= t_.size(); }
+  bool at(char c) const { return !end() && t_[i_] == c; }
+  bool identStart() const {
+    unsigned char c = static_cast<unsigned char>(t_[i_]);
+    return std::isalpha(c) || c == '_' || c >= 0x80;  // UTF-8 identifiers, as USD allows
+  }
+  bool identChar() const {
+    unsigned char c = static_cast<unsigned char>(t_[i_]);
+    return std::isalnum(c) || c == '_' || c >= 0x80;
+  }
+  bool variantChar() const {
+    unsigned char c = static_cast<unsigned char>(t_[i_]);
+    return std::isalnum(c) || c == '_' || c == '|' || c == '-';
+  }
+  void identifier() {
+    while (!end() && identChar()) ++i_;
+  }
+
+  [[noreturn]] void fail(const std::string& expected) const {
+    std::string where = str("at character ", i_ + 1);
+    if (!end()) where += str(" ('", t_[i_], "')");
+    throw PathSyntaxError{str("Ill-formed SdfPath <", t_, "> ", where, ": ", expected)};
+  }
+
+  void primElements(ParsedPath& r) {
+    size_t start = i_;
+    for (;;) {
+      if (end() || !identStart()) fail("expected prim name");
+      identifier();
+      while (at('{')) {
+        variantSelection();
+        if (!end() && identStart()) identifier();  // a child inside the variant
+      }
+      if (end()) {
+        r.primPath = t_.back() != '}';  // "/A{v=x}" selects a variant: no prim path
+        r.elements = t_.substr(start);
+        return;
+      }
+      if (at('/')) {
+        ++i_;
+        continue;
+      }
+      if (at('.')) {
+        r.elements = t_.substr(start, i_ - start);
+        property(r);
+        return;
+      }
+      fail("expected end of path");
+    }
+  }
+
+  void variantSelection() {
+    ++i_;  // '{'
+    size_t s = i_;
+    while (!end() && variantChar()) ++i_;
+    if (i_ == s) fail("expected variant set name after '{'");
+    if (!at('=')) fail("expected '=' after variant set name");
+    ++i_;
+    if (at('.')) ++i_;
+    while (!end() && variantChar()) ++i_;
+    if (!at('}')) fail("expected variant set name or '}' to close variant selection");
+    ++i_;
+  }
+
+  void namespacedName() {
+    if (end() || !identStart()) fail("expected property name after '.'");
+    identifier();
+    while (at(':')) {
+      ++i_;
+      if (end() || !identStart()) fail("expected identifier after ':'");
+      identifier();
+    }
+  }
+
+  void targetPath() {
+    int depth = 0;
+    for (; !end(); ++i_) {
+      if (t_[i_] == '[') ++depth;
+      if (t_[i_] == ']' && --depth == 0) {
+        ++i_;
+        return;
+      }
+    }
+    fail("expected ']' to close target path");
+  }
+
+  // A property path (never a prim path): ".name", then "[target]" and ".name",
+  // ".mapper[target]" or ".expression".
+  ParsedPath property(ParsedPath& r) {
+    r.primPath = false;
+    ++i_;  // '.'
+    namespacedName();
+    if (end()) return r;
+    if (at('[')) {
+      targetPath();
+      if (end()) return r;
+      if (!at('.')) fail("expected end of path");
+      ++i_;
+      namespacedName();
+    } else if (at('.')) {
+      ++i_;
+      if (t_.compare(i_, 6, "mapper") == 0) {
+        i_ += 6;
+        if (!at('[')) fail("expected target path after 'mapper'");
+        targetPath();
+      } else if (t_.compare(i_, 10, "expression") == 0) {
+        i_ += 10;
+      } else {
+        fail("expected 'mapper' or 'expression' after '.'");
+      }
+    }
+    if (!end()) fail("expected end of path");
+    return r;
+  }
+
+  const std::string& t_;
+  size_t i_ = 0;
+};
+
+std::vector<std::string> splitPrimPath(const std::string& path) {
+  std::vector<std::string> out;
+  size_t i = 0;
+  while (i < path.size()) {
+    size_t j = path.find('/', i);
+    if (j == std::string::npos) j = path.size();
+    if (j > i) out.push_back(path.substr(i, j - i));
+    i = j + 1;
+  }
+  return out;
+}
+
+// ---- assembly ----------------------------------------------------------------------------
+
+// Runs check (core's validation of what was built from prim) and renames the attributes
+// that came from granular primvars to theirs, at the prim they were authored on.
+template <typename F>
+void inUsdTerms(const MeshPrim& prim, F&& check) {
+  try {
+    check();
+  } catch (const InputError& e) {
+    if (e.object() == prim.path && (isAggregatePrimvar(e.attribute()) || isGrainPrimvar(e.attribute())))
+      throw InputError(sourceOf(prim, e.attribute()), usdName(e.attribute()), e.detail());
+    throw;
+  }
+}
+
+class Assembler {
+ public:
+  Assembler(const std::vector<MeshPrim>& prims, SceneDesc& desc, const PrimLookup& lookup)
+      : prims_(prims), desc_(desc), lookup_(lookup) {
+    for (size_t i = 0; i < prims.size(); ++i) byPath_.emplace(prims[i].path, i);
+  }
+
+  void run() {
+    std::vector<size_t> aggregates = findAggregates();
+    std::set<size_t> isAggregate(aggregates.begin(), aggregates.end());
+    for (size_t i : aggregates) addAggregate(prims_[i]);
+    for (size_t i = 0; i < prims_.size(); ++i) {
+      const MeshPrim& p = prims_[i];
+      if (!p.visible || isAggregate.count(i) || prototypes_.count(p.path)) continue;
+      if (p.apiSchemas ? hasApi(p, kGrainApi) : anyGrainPrimvar(p)) continue;  // a grain, never drawn
+      addMesh(p);
+    }
+  }
+
+ private:
+  std::vector<size_t> findAggregates() const {
+    std::vector<size_t> candidates;
+    std::set<std::string> named;
+    for (size_t i = 0; i < prims_.size(); ++i) {
+      const MeshPrim& p = prims_[i];
+      if (!p.visible) continue;
+      if (p.apiSchemas) {
+        if (hasApi(p, kAggregateApi)) candidates.push_back(i);
+        continue;
+      }
+      // Without API schemas an inherited aggregate primvar may reach a grain: a mesh named
+      // as a prototype is not an aggregate. Unreadable entries are reported later.
+      if (p.typeName != "Mesh" || !hasAnyOf(p, kAggregatePrimvars) || anyGrainPrimvar(p)) continue;
+      candidates.push_back(i);
+      try {
+        if (const PrimvarValue* v = typed(p, "prototypes", Kind::StringArray))
+          for (const std::string& s : v->strings) named.insert(resolvePrototypePath(p.path, s));
+      } catch (const InputError&) {
+      }
+    }
+    std::vector<size_t> out;
+    for (size_t i : candidates)
+      if (prims_[i].apiSchemas || !named.count(prims_[i].path)) out.push_back(i);
+    return out;
+  }
+
+  // The prim at an absolute path: listed, else looked up (once); null when there is none.
+  const MeshPrim* find(const std::string& path) {
+    auto it = byPath_.find(path);
+    if (it != byPath_.end()) return &prims_[it->second];
+    auto lt = lookedUp_.find(path);
+    if (lt == lookedUp_.end()) {
+      std::optional<MeshPrim> found;
+      MeshPrim p;
+      if (lookup_ && lookup_(path, p)) found = std::move(p);
+      lt = lookedUp_.emplace(path, std::move(found)).first;
+    }
+    return lt->second ? &*lt->second : nullptr;
+  }
+
+  void addAggregate(const MeshPrim& prim) {
+    const std::string& path = prim.path;
+    if (prim.typeName != "Mesh")
+      throw InputError(path, "", str(kAggregateApi, " applies to a Mesh, not a ",
+                                     prim.typeName.empty() ? "typeless prim" : prim.typeName));
+    AggregateValues v = readAggregateValues(prim);
+    validateClosed(prim.mesh, path);
+
+    const std::string& protoSrc = sourceOf(prim, "prototypes");
+    const std::string protoAttr = usdName("prototypes");
+    std::vector<const MeshPrim*> protos;
+    for (const std::string& text : v.prototypes) {
+      std::string p = resolvePrototypePath(path, text);
+      std::string what = str("prototype \"", text, "\" (", p, ")");
+      const MeshPrim* proto = find(p);
+      if (!proto) throw InputError(protoSrc, protoAttr, what + " does not exist");
+      if (!proto->active) throw InputError(protoSrc, protoAttr, what + " is inactive");
+      if (proto->typeName != "Mesh")
+        throw InputError(protoSrc, protoAttr,
+                         str(what, " is a ", proto->typeName.empty() ? "typeless prim" : proto->typeName, ", not a Mesh"));
+      protos.push_back(proto);
+    }
+    if (protos.empty()) throw InputError(protoSrc, protoAttr, "is empty (at least one grain prototype mesh is needed)");
+    std::vector<float> weights = v.weights.empty() ? std::vector<float>(protos.size(), 1.0f) : v.weights;
+    if (weights.size() != protos.size())
+      throw InputError(sourceOf(prim, "weights"), usdName("weights"),
+                       str("has ", weights.size(), " entries but there are ", protos.size(), " prototypes"));
+    if (v.seed < 0) throw InputError(sourceOf(prim, "seed"), usdName("seed"), str(v.seed, " must be >= 0"));
+
+    std::vector<GrainPrototypeDesc> grains;
+    for (const MeshPrim* proto : protos) {
+      prototypes_.insert(proto->path);
+      validateClosed(proto->mesh, proto->path);
+      GrainPrototypeDesc g;
+      g.name = proto->path;
+      g.mesh = proto->mesh;
+      g.material = grainMaterial(*proto);
+      grains.push_back(std::move(g));
+    }
+
+    AggregateDesc a;
+    a.name = path;
+    a.boundary = prim.mesh;
+    a.prototypes = std::move(grains);
+    a.weights = std::move(weights);
+    a.grainRadius = v.grainRadius;
+    a.packingRate = v.packingRate;
+    a.seed = uint64_t(v.seed);
+    a.tileSpheres = int(std::clamp<int64_t>(v.tileSpheres, INT_MIN, INT_MAX));
+    a.id = prim.id;
+    std::vector<Transform> xfs = prim.instances.empty() ? std::vector<Transform>(1) : prim.instances;
+    for (const Transform& xf : xfs) {
+      a.xf = xf;
+      inUsdTerms(prim, [&] { validateAggregateParameters(a, path); });
+      desc_.aggregates.push_back(a);
+    }
+  }
+
+  // The material of a grain prototype (grain values, else the front end's), once per prim.
+  int grainMaterial(const MeshPrim& proto) {
+    auto it = grainMaterials_.find(proto.path);
+    if (it != grainMaterials_.end()) return it->second;
+    int index = proto.material;
+    if (hasApi(proto, kGrainApi) || anyGrainPrimvar(proto)) {
+      GrainValues g = readGrainValues(proto);
+      const std::string& src = sourceOf(proto, "roughness");
+      if (!std::isfinite(g.roughness) || g.roughness < 0 || g.roughness > 1)
+        throw InputError(src, usdName("roughness"), str(g.roughness, " is outside [0, 1]"));
+      if (g.roughness > 0)
+        throw InputError(src, usdName("roughness"),
+                         str(g.roughness, ": rough grains are not supported by this renderer yet (use 0)"));
+      MaterialDesc m;
+      m.name = proto.path;
+      m.type = MaterialType::Dielectric;
+      m.ior = g.ior;
+      m.absorption = g.absorption;
+      inUsdTerms(proto, [&] { validateMaterialDesc(m, proto.path); });
+      desc_.materials.push_back(m);
+      index = int(desc_.materials.size()) - 1;
+    }
+    grainMaterials_.emplace(proto.path, index);
+    return index;
+  }
+
+  void addMesh(const MeshPrim& prim) {
+    int material = prim.material;
+    if (material < 0 && prim.displayColor) {
+      MaterialDesc m;
+      m.name = prim.path + ".displayColor";
+      m.type = MaterialType::Lambert;
+      m.albedo = *prim.displayColor;
+      desc_.materials.push_back(m);
+      material = int(desc_.materials.size()) - 1;
+    }
+    std::vector<Transform> xfs = prim.instances.empty() ? std::vector<Transform>(1) : prim.instances;
+    for (const Transform& xf : xfs) {
+      MeshDesc d;
+      d.name = prim.path;
+      d.mesh = prim.mesh;
+      d.xf = xf;
+      d.material = material;
+      d.id = prim.id;
+      desc_.meshes.push_back(std::move(d));
+    }
+  }
+
+  const std::vector<MeshPrim>& prims_;
+  SceneDesc& desc_;
+  const PrimLookup& lookup_;
+  std::map<std::string, size_t> byPath_;
+  std::map<std::string, std::optional<MeshPrim>> lookedUp_;
+  std::map<std::string, int> grainMaterials_;
+  std::set<std::string> prototypes_;
+};
+
+}  // namespace
+
+bool isAggregatePrimvar(const std::string& name) {
+  return std::any_of(std::begin(kAggregatePrimvars), std::end(kAggregatePrimvars),
+                     [&](const char* n) { return name == n; });
+}
+
+bool isGrainPrimvar(const std::string& name) {
+  return std::any_of(std::begin(kGrainPrimvars), std::end(kGrainPrimvars), [&](const char* n) { return name == n; });
+}
+
+std::string resolvePrototypePath(const std::string& aggregatePath, const std::string& text) {
+  const std::string attr = usdName("prototypes");
+  if (text.empty()) throw InputError(aggregatePath, attr, "has an empty path");
+  ParsedPath p;
+  try {
+    p = PathParser(text).parse();
+  } catch (const PathSyntaxError& e) {
+    throw InputError(aggregatePath, attr, str("\"", text, "\" is not a valid path (", e.why, ")"));
+  }
+  const std::string notPrim = str("\"", text, "\" is not a prim path");
+  if (!p.primPath) throw InputError(aggregatePath, attr, notPrim);
+  if (p.absolute) return text;
+  std::vector<std::string> base = splitPrimPath(aggregatePath);
+  // Climbing above the root leaves no path at all (SdfPath: the empty path).
+  if (p.up > int(base.size())) throw InputError(aggregatePath, attr, notPrim);
+  base.resize(base.size() - size_t(p.up));
+  std::string out;
+  for (const std::string& e : base) out += "/" + e;
+  if (!p.elements.empty()) out += "/" + p.elements;
+  if (out.empty()) throw InputError(aggregatePath, attr, notPrim);  // the root is no prim
+  return out;
+}
+
+AggregateValues readAggregateValues(const MeshPrim& prim) {
+  AggregateValues v;
+  if (const PrimvarValue* x = typed(prim, "grainRadius", Kind::Float)) v.grainRadius = float(x->numbers[0]);
+  if (const PrimvarValue* x = typed(prim, "packingRate", Kind::Float)) v.packingRate = float(x->numbers[0]);
+  if (const PrimvarValue* x = typed(prim, "prototypes", Kind::StringArray)) v.prototypes = x->strings;
+  if (const PrimvarValue* x = typed(prim, "weights", Kind::FloatArray))
+    v.weights.assign(x->numbers.begin(), x->numbers.end());
+  if (const PrimvarValue* x = typed(prim, "seed", Kind::Int)) v.seed = toInt64(x->numbers[0]);
+  if (const PrimvarValue* x = typed(prim, "tileSpheres", Kind::Int)) v.tileSpheres = toInt64(x->numbers[0]);
+  return v;
+}
+
+GrainValues readGrainValues(const MeshPrim& prim) {
+  GrainValues v;
+  if (const PrimvarValue* x = typed(prim, "ior", Kind::Float)) v.ior = float(x->numbers[0]);
+  if (const PrimvarValue* x = typed(prim, "absorption", Kind::Color3))
+    v.absorption = Vec3(float(x->numbers[0]), float(x->numbers[1]), float(x->numbers[2]));
+  if (const PrimvarValue* x = typed(prim, "roughness", Kind::Float)) v.roughness = float(x->numbers[0]);
+  return v;
+}
+
+void assembleGranularScene(const std::vector<MeshPrim>& prims, SceneDesc& desc, const PrimLookup& lookup) {
+  Assembler(prims, desc, lookup).run();
+}
+
+}  // namespace granular

@@ -1,0 +1,119 @@
+// granular_prims.h — the granular USD schema's meaning on plain data (schemas/README.md),
+// shared by every USD front end: the usd-core command line (python/granular) and the
+// Hydra delegate (hdGranular/) hand over what they read per prim; this turns it into the
+// SceneDesc, so both front ends render the same scene from the same stage.
+//
+// Contract. A front end lists the mesh prims it sees (ordinary meshes, aggregate
+// boundaries, grain prototypes alike) with their granular constant primvars, by name
+// without the "primvars:granular:" prefix, as found (type name and values, unchecked).
+// assembleGranularScene():
+//  - treats a visible Mesh with GranularAggregateAPI as an aggregate: its mesh is the
+//    boundary (checked closed), one AggregateDesc per instance transform. Where the
+//    front end knows the applied API schemas (MeshPrim::apiSchemas) they decide, as in
+//    USD; where it does not (Hydra's scene delegate), a Mesh with any aggregate primvar
+//    (grainRadius, packingRate, prototypes, weights, seed, tileSpheres) and no grain
+//    primvar is one, unless another such mesh names it as a prototype;
+//  - resolves each entry of its `prototypes` (absolute, or relative to the aggregate's
+//    path) among the listed prims, else through the front end's lookup; a prototype is
+//    never drawn as an ordinary mesh, nor is a mesh with GranularGrainAPI (known) or, when
+//    the API schemas are unknown, carrying its primvars (ior, absorption, roughness);
+//  - gives a prototype the grain material of its GranularGrainAPI values (when it has the
+//    API or any of its primvars), else the material the front end resolved for it
+//    (MeshPrim::material), else clear glass (-1);
+//  - applies the schema's fallbacks to unauthored values (Hydra delivers authored
+//    primvars only) and checks every value, with core's own validation;
+//  - appends everything else that is visible as an ordinary MeshDesc, one per instance.
+// Every error is an InputError naming the prim path (where the value was authored, for
+// an inherited primvar) and the attribute "primvars:granular:<name>", e.g.
+//   /World/Castle.primvars:granular:packingRate: 0.9 is outside (0, 0.64]
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <map>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "scene_desc.h"
+
+namespace granular {
+
+// A constant primvar as a front end found it. Scalars and arrays of numbers (float,
+// double, half, int, color3f, ...) fill `numbers` (a color3f gives 3); string and token
+// arrays fill `strings`. `typeName` is the USD type name (e.g. "float[]"), as authored.
+struct PrimvarValue {
+  std::string typeName;
+  std::vector<double> numbers;
+  std::vector<std::string> strings;
+  bool isArray = false;
+  bool isString = false;
+  std::string interpolation = "constant";  // the schema's primvars must be constant
+  std::string source;  // prim it was authored on when inherited from an ancestor; empty: this prim
+};
+
+struct MeshPrim {
+  std::string path;                  // SdfPath as text, e.g. "/World/Castle"
+  // The prim's type as USD names it; "Mesh" for anything that is a UsdGeomMesh. Other
+  // types are drawn (a front end tessellates Cube, Sphere) but are neither aggregates nor
+  // prototypes: they are listed or looked up so that an error can name their type.
+  std::string typeName = "Mesh";
+  bool active = true;                // false: an inactive prim, looked up as a prototype
+  TriangleMesh mesh;                 // object space, triangulated
+  std::vector<Transform> instances;  // object-to-world, one per instance; empty: one identity
+  bool visible = true;               // drawn: visible and of a rendered purpose
+  int material = -1;                 // index into desc.materials resolved by the front end, or -1
+  // primvars:displayColor (averaged), given only when no material is bound: an ordinary
+  // mesh then is Lambert of it; a prototype ignores it.
+  std::optional<Vec3> displayColor;
+  std::map<std::string, PrimvarValue> granular;  // "grainRadius" -> value
+  // The applied API schemas, when the front end can see them (usd-core can); unset: the
+  // primvars decide (see above).
+  std::optional<std::vector<std::string>> apiSchemas;
+  int id = -1;                       // front end's id for the primId AOV (Hydra's prim id)
+};
+
+// A prim that is not among the listed ones, by absolute path (a front end may list only
+// what it draws and let the aggregates' prototypes be looked up): fills `prim` and returns
+// true, or returns false when the stage has no such prim.
+using PrimLookup = std::function<bool(const std::string& path, MeshPrim& prim)>;
+
+inline constexpr const char* kAggregateApi = "GranularAggregateAPI";
+inline constexpr const char* kGrainApi = "GranularGrainAPI";
+inline constexpr const char* kGranularNamespace = "primvars:granular:";
+
+// Names of the schema's properties (without the "primvars:granular:" prefix).
+bool isAggregatePrimvar(const std::string& name);
+bool isGrainPrimvar(const std::string& name);
+
+// A prototype path as written in `prototypes`, made absolute against the aggregate's path
+// ("../Grains/Round" on /World/Castle is /World/Grains/Round), with SdfPath's syntax.
+// InputError on aggregatePath.primvars:granular:prototypes when it is empty, not a
+// valid path, or not a prim path (also when it climbs above the root).
+std::string resolvePrototypePath(const std::string& aggregatePath, const std::string& text);
+
+// GranularAggregateAPI values of a prim: its primvars type-checked, the schema's
+// fallbacks where absent; ranges are checked by assembleGranularScene.
+struct AggregateValues {
+  float grainRadius = 0.01f;
+  float packingRate = 0.6f;
+  std::vector<std::string> prototypes;
+  std::vector<float> weights;  // as authored: [] = equal
+  int64_t seed = 1;
+  int64_t tileSpheres = 512;
+};
+AggregateValues readAggregateValues(const MeshPrim& prim);
+
+// GranularGrainAPI values, the same way.
+struct GrainValues {
+  float ior = 1.5f;
+  Vec3 absorption{0.0f};
+  float roughness = 0.0f;
+};
+GrainValues readGrainValues(const MeshPrim& prim);
+
+// Appends the prims' meshes, aggregates and grain materials to desc (see above); desc's
+// materials are those the prims' `material` indices refer to.
+void assembleGranularScene(const std::vector<MeshPrim>& prims, SceneDesc& desc, const PrimLookup& lookup = {});
+
+}  // namespace granular

@@ -1,0 +1,99 @@
+#include "instancer.h"
+
+#include "pxr/base/gf/matrix4d.h"
+#include "pxr/base/gf/quatd.h"
+#include "pxr/base/gf/quatf.h"
+#include "pxr/base/gf/quath.h"
+#include "pxr/base/gf/rotation.h"
+#include "pxr/base/gf/vec3f.h"
+#include "pxr/imaging/hd/renderIndex.h"
+#include "pxr/imaging/hd/sceneDelegate.h"
+#include "pxr/imaging/hd/tokens.h"
+
+PXR_NAMESPACE_OPEN_SCOPE
+
+namespace {
+
+// The i-th element of an instance primvar as a matrix applied before the others.
+bool translateAt(VtValue const& v, size_t i, GfMatrix4d& m) {
+  if (!v.IsHolding<VtVec3fArray>() || i >= v.GetArraySize()) return false;
+  m.SetTranslate(GfVec3d(v.UncheckedGet<VtVec3fArray>()[i]));
+  return true;
+}
+
+bool scaleAt(VtValue const& v, size_t i, GfMatrix4d& m) {
+  if (!v.IsHolding<VtVec3fArray>() || i >= v.GetArraySize()) return false;
+  m.SetScale(GfVec3d(v.UncheckedGet<VtVec3fArray>()[i]));
+  return true;
+}
+
+bool rotateAt(VtValue const& v, size_t i, GfMatrix4d& m) {
+  if (i >= v.GetArraySize()) return false;
+  GfQuatd q;
+  if (v.IsHolding<VtQuathArray>()) q = GfQuatd(v.UncheckedGet<VtQuathArray>()[i]);
+  else if (v.IsHolding<VtQuatfArray>()) q = GfQuatd(v.UncheckedGet<VtQuatfArray>()[i]);
+  else if (v.IsHolding<VtVec4fArray>()) {  // (w, x, y, z)
+    GfVec4f c = v.UncheckedGet<VtVec4fArray>()[i];
+    q = GfQuatd(c[0], c[1], c[2], c[3]);
+  } else {
+    return false;
+  }
+  m.SetRotate(q);
+  return true;
+}
+
+bool transformAt(VtValue const& v, size_t i, GfMatrix4d& m) {
+  if (!v.IsHolding<VtMatrix4dArray>() || i >= v.GetArraySize()) return false;
+  m = v.UncheckedGet<VtMatrix4dArray>()[i];
+  return true;
+}
+
+}  // namespace
+
+HdGranularInstancer::HdGranularInstancer(HdSceneDelegate* delegate, SdfPath const& id) : HdInstancer(delegate, id) {}
+
+void HdGranularInstancer::Sync(HdSceneDelegate* delegate, HdRenderParam*, HdDirtyBits* dirtyBits) {
+  _UpdateInstancer(delegate, dirtyBits);
+  if (HdChangeTracker::IsAnyPrimvarDirty(*dirtyBits, GetId())) {
+    std::lock_guard<std::mutex> lock(_mutex);
+    _primvars.clear();
+    for (HdPrimvarDescriptor const& pv : delegate->GetPrimvarDescriptors(GetId(), HdInterpolationInstance))
+      _primvars[pv.name] = delegate->Get(GetId(), pv.name);
+  }
+}
+
+VtMatrix4dArray HdGranularInstancer::ComputeInstanceTransforms(SdfPath const& prototypeId) {
+  HdSceneDelegate* d = GetDelegate();
+  const GfMatrix4d instancer = d->GetInstancerTransform(GetId());
+  const VtIntArray indices = d->GetInstanceIndices(GetId(), prototypeId);
+  VtMatrix4dArray out(indices.size());
+  std::lock_guard<std::mutex> lock(_mutex);
+  auto get = [&](TfToken const& t) {
+    auto it = _primvars.find(t);
+    return it == _primvars.end() ? VtValue() : it->second;
+  };
+  const VtValue tr = get(HdInstancerTokens->instanceTranslations), ro = get(HdInstancerTokens->instanceRotations),
+                sc = get(HdInstancerTokens->instanceScales), xf = get(HdInstancerTokens->instanceTransforms);
+  for (size_t k = 0; k < indices.size(); ++k) {
+    const size_t i = size_t(indices[k]);
+    GfMatrix4d m = instancer, t(1.0);
+    if (translateAt(tr, i, t)) m = t * m;
+    t.SetIdentity();
+    if (rotateAt(ro, i, t)) m = t * m;
+    t.SetIdentity();
+    if (scaleAt(sc, i, t)) m = t * m;
+    t.SetIdentity();
+    if (transformAt(xf, i, t)) m = t * m;
+    out[k] = m;
+  }
+  if (GetParentId().IsEmpty()) return out;
+  auto* parent = static_cast<HdGranularInstancer*>(d->GetRenderIndex().GetInstancer(GetParentId()));
+  if (!parent) return out;
+  const VtMatrix4dArray outer = parent->ComputeInstanceTransforms(GetId());
+  VtMatrix4dArray all(outer.size() * out.size());
+  for (size_t a = 0; a < outer.size(); ++a)
+    for (size_t b = 0; b < out.size(); ++b) all[a * out.size() + b] = out[b] * outer[a];
+  return all;
+}
+
+PXR_NAMESPACE_CLOSE_SCOPE

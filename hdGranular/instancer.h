@@ -1,0 +1,31 @@
+// instancer.h — Hydra instancers (UsdGeomPointInstancer, native instancing): the
+// world transforms of a prototype's instances, nested instancers included.
+#ifndef HDGRANULAR_INSTANCER_H
+#define HDGRANULAR_INSTANCER_H
+
+#include <map>
+#include <mutex>
+
+#include "pxr/base/vt/array.h"
+#include "pxr/base/vt/value.h"
+#include "pxr/imaging/hd/instancer.h"
+#include "pxr/pxr.h"
+
+PXR_NAMESPACE_OPEN_SCOPE
+
+class HdGranularInstancer final : public HdInstancer {
+ public:
+  HdGranularInstancer(HdSceneDelegate* delegate, SdfPath const& id);
+  void Sync(HdSceneDelegate* delegate, HdRenderParam* param, HdDirtyBits* dirtyBits) override;
+  // Row-vector matrices (USD's): instance transform, then scale, rotate, translate,
+  // then the instancer's own transform, then the parent instancer's instances.
+  VtMatrix4dArray ComputeInstanceTransforms(SdfPath const& prototypeId);
+
+ private:
+  std::mutex _mutex;
+  std::map<TfToken, VtValue> _primvars;  // per-instance primvars by name
+};
+
+PXR_NAMESPACE_CLOSE_SCOPE
+
+#endif

@@ -1,0 +1,117 @@
+#include "renderDelegate.h"
+
+#include "instancer.h"
+#include "light.h"
+#include "material.h"
+#include "mesh.h"
+#include "pxr/imaging/hd/camera.h"
+#include "pxr/imaging/hd/tokens.h"
+#include "renderBuffer.h"
+#include "renderParam.h"
+#include "renderPass.h"
+#include "renderer.h"
+
+PXR_NAMESPACE_OPEN_SCOPE
+
+TF_DEFINE_PUBLIC_TOKENS(HdGranularSettingsTokens, HDGRANULAR_SETTINGS_TOKENS);
+
+namespace {
+const TfTokenVector kRprimTypes = {HdPrimTypeTokens->mesh};
+const TfTokenVector kSprimTypes = {HdPrimTypeTokens->camera,      HdPrimTypeTokens->material,
+                                   HdPrimTypeTokens->distantLight, HdPrimTypeTokens->domeLight,
+                                   HdPrimTypeTokens->rectLight,    HdPrimTypeTokens->sphereLight};
+const TfTokenVector kBprimTypes = {HdPrimTypeTokens->renderBuffer};
+}  // namespace
+
+HdGranularRenderDelegate::HdGranularRenderDelegate() { _Initialize(); }
+
+HdGranularRenderDelegate::HdGranularRenderDelegate(HdRenderSettingsMap const& settings)
+    : HdRenderDelegate(settings) {
+  _Initialize();
+}
+
+void HdGranularRenderDelegate::_Initialize() {
+  _param = std::make_shared<HdGranularRenderParam>();
+  _renderer = std::make_unique<HdGranularRenderer>();
+  _registry = std::make_shared<HdResourceRegistry>();
+  _descriptors = {
+      {"Samples per pixel", HdRenderSettingsTokens->convergedSamplesPerPixel, VtValue(16)},
+      {"Noise threshold (relative standard error; 0: off)", HdRenderSettingsTokens->convergedVariance, VtValue(0.0f)},
+      {"Threads (0: all cores)", HdRenderSettingsTokens->threadLimit, VtValue(0)},
+      {"Seed", HdGranularSettingsTokens->seed, VtValue(0)},
+      {"Technique (ept, ept+vpt, hybrid)", HdGranularSettingsTokens->technique, VtValue(std::string("hybrid"))},
+      {"Switch spread tau (grain radii)", HdGranularSettingsTokens->tau, VtValue(4.0f)},
+      {"Level of detail (0: off)", HdGranularSettingsTokens->lod, VtValue(0.0f)},
+      {"Roulette P_a (negative: tuned)", HdGranularSettingsTokens->roulette, VtValue(-1.0f)},
+      {"Bundle size", HdGranularSettingsTokens->bundleSize, VtValue(16)},
+  };
+  _PopulateDefaultSettings(_descriptors);
+}
+
+HdGranularRenderDelegate::~HdGranularRenderDelegate() {
+  _renderer.reset();  // stops the render thread before the prims go
+}
+
+HdRenderParam* HdGranularRenderDelegate::GetRenderParam() const { return _param.get(); }
+const TfTokenVector& HdGranularRenderDelegate::GetSupportedRprimTypes() const { return kRprimTypes; }
+const TfTokenVector& HdGranularRenderDelegate::GetSupportedSprimTypes() const { return kSprimTypes; }
+const TfTokenVector& HdGranularRenderDelegate::GetSupportedBprimTypes() const { return kBprimTypes; }
+
+VtDictionary HdGranularRenderDelegate::GetRenderStats() const { return _renderer->GetStats(); }
+
+HdAovDescriptor HdGranularRenderDelegate::GetDefaultAovDescriptor(TfToken const& name) const {
+  if (name == HdAovTokens->color) return HdAovDescriptor(HdFormatFloat32Vec4, false, VtValue(GfVec4f(0.0f)));
+  if (name == HdAovTokens->depth) return HdAovDescriptor(HdFormatFloat32, false, VtValue(1.0f));
+  if (name == HdAovTokens->cameraDepth) return HdAovDescriptor(HdFormatFloat32, false, VtValue(0.0f));
+  if (name == HdAovTokens->primId) return HdAovDescriptor(HdFormatInt32, false, VtValue(-1));
+  if (name == HdAovTokens->normal || name == "ept" || name == "vpt" || name == "da")
+    return HdAovDescriptor(HdFormatFloat32Vec3, false, VtValue(GfVec3f(0.0f)));
+  return HdAovDescriptor();  // unsupported
+}
+
+HdRenderPassSharedPtr HdGranularRenderDelegate::CreateRenderPass(HdRenderIndex* index,
+                                                                 HdRprimCollection const& collection) {
+  return std::make_shared<HdGranularRenderPass>(index, collection, _param.get(), _renderer.get());
+}
+
+HdInstancer* HdGranularRenderDelegate::CreateInstancer(HdSceneDelegate* delegate, SdfPath const& id) {
+  return new HdGranularInstancer(delegate, id);
+}
+
+void HdGranularRenderDelegate::DestroyInstancer(HdInstancer* instancer) { delete instancer; }
+
+HdRprim* HdGranularRenderDelegate::CreateRprim(TfToken const& typeId, SdfPath const& rprimId) {
+  if (typeId == HdPrimTypeTokens->mesh) return new HdGranularMesh(rprimId);
+  TF_CODING_ERROR("hdGranular: unknown rprim type %s", typeId.GetText());
+  return nullptr;
+}
+
+void HdGranularRenderDelegate::DestroyRprim(HdRprim* rprim) { delete rprim; }
+
+HdSprim* HdGranularRenderDelegate::CreateSprim(TfToken const& typeId, SdfPath const& sprimId) {
+  if (typeId == HdPrimTypeTokens->camera) return new HdCamera(sprimId);
+  if (typeId == HdPrimTypeTokens->material) return new HdGranularMaterial(sprimId);
+  if (HdPrimTypeIsLight(typeId)) return new HdGranularLight(sprimId, typeId);
+  TF_CODING_ERROR("hdGranular: unknown sprim type %s", typeId.GetText());
+  return nullptr;
+}
+
+HdSprim* HdGranularRenderDelegate::CreateFallbackSprim(TfToken const& typeId) {
+  return CreateSprim(typeId, SdfPath::EmptyPath());
+}
+
+void HdGranularRenderDelegate::DestroySprim(HdSprim* sprim) { delete sprim; }
+
+HdBprim* HdGranularRenderDelegate::CreateBprim(TfToken const& typeId, SdfPath const& bprimId) {
+  if (typeId == HdPrimTypeTokens->renderBuffer) return new HdGranularRenderBuffer(bprimId);
+  TF_CODING_ERROR("hdGranular: unknown bprim type %s", typeId.GetText());
+  return nullptr;
+}
+
+HdBprim* HdGranularRenderDelegate::CreateFallbackBprim(TfToken const& typeId) {
+  return CreateBprim(typeId, SdfPath::EmptyPath());
+}
+
+void HdGranularRenderDelegate::DestroyBprim(HdBprim* bprim) { delete bprim; }
+
+PXR_NAMESPACE_CLOSE_SCOPE

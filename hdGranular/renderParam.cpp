@@ -1,0 +1,55 @@
+#include "renderParam.h"
+
+PXR_NAMESPACE_OPEN_SCOPE
+
+void HdGranularRenderParam::SetMesh(SdfPath const& id, Mesh mesh) {
+  std::lock_guard<std::mutex> lock(_mutex);
+  _meshes[id] = std::move(mesh);
+  ++_version;
+}
+
+void HdGranularRenderParam::SetLight(SdfPath const& id, granular::LightDesc light) {
+  std::lock_guard<std::mutex> lock(_mutex);
+  _lights[id] = std::move(light);
+  ++_version;
+}
+
+void HdGranularRenderParam::SetMaterial(SdfPath const& id, granular::MaterialDesc material) {
+  std::lock_guard<std::mutex> lock(_mutex);
+  _materials[id] = std::move(material);
+  ++_version;
+}
+
+void HdGranularRenderParam::Remove(SdfPath const& id) {
+  std::lock_guard<std::mutex> lock(_mutex);
+  _meshes.erase(id);
+  _lights.erase(id);
+  _materials.erase(id);
+  ++_version;
+}
+
+granular::SceneDesc HdGranularRenderParam::Assemble() const {
+  std::lock_guard<std::mutex> lock(_mutex);
+  granular::SceneDesc desc;
+  // Bound materials first (one entry each), then display colours as Lambert albedo.
+  std::map<SdfPath, int> materialIndex;
+  for (auto const& [path, m] : _materials) {
+    materialIndex[path] = int(desc.materials.size());
+    desc.materials.push_back(m);
+  }
+  std::vector<granular::MeshPrim> prims;
+  prims.reserve(_meshes.size());
+  for (auto const& [path, m] : _meshes) {
+    granular::MeshPrim p = m.prim;
+    auto it = materialIndex.find(m.materialId);
+    if (it != materialIndex.end()) p.material = it->second;
+    else if (m.hasDisplayColor)  // core makes it Lambert, for ordinary meshes only
+      p.displayColor = granular::Vec3(m.displayColor[0], m.displayColor[1], m.displayColor[2]);
+    prims.push_back(std::move(p));
+  }
+  granular::assembleGranularScene(prims, desc);
+  for (auto const& [path, l] : _lights) desc.lights.push_back(l);
+  return desc;
+}
+
+PXR_NAMESPACE_CLOSE_SCOPE

@@ -1,0 +1,54 @@
+// renderParam.h — what the Hydra prims of one render delegate share: the scene as plain
+// data (meshes with their granular primvars, lights, materials) and a version that every
+// edit bumps, so the render pass knows when to rebuild the core scene.
+//
+// Contract: the Sync methods of rprims and sprims write here (Hydra may run them in
+// parallel, hence the mutex); the render pass reads Assemble() between renders. The
+// meaning of the granular primvars is core/granular_prims.h's, shared with the usd-core
+// command line.
+#ifndef HDGRANULAR_RENDER_PARAM_H
+#define HDGRANULAR_RENDER_PARAM_H
+
+#include <atomic>
+#include <map>
+#include <mutex>
+
+#include "granular_prims.h"
+#include "pxr/base/gf/vec3f.h"
+#include "pxr/imaging/hd/renderDelegate.h"
+#include "pxr/pxr.h"
+#include "pxr/usd/sdf/path.h"
+#include "scene_desc.h"
+
+PXR_NAMESPACE_OPEN_SCOPE
+
+class HdGranularRenderParam final : public HdRenderParam {
+ public:
+  struct Mesh {
+    granular::MeshPrim prim;
+    SdfPath materialId;
+    bool hasDisplayColor = false;
+    GfVec3f displayColor{0.18f, 0.18f, 0.18f};
+  };
+
+  void SetMesh(SdfPath const& id, Mesh mesh);
+  void SetLight(SdfPath const& id, granular::LightDesc light);
+  void SetMaterial(SdfPath const& id, granular::MaterialDesc material);
+  void Remove(SdfPath const& id);  // any kind
+
+  // The scene as the core sees it; throws granular::InputError on bad granular data.
+  granular::SceneDesc Assemble() const;
+  // Bumped by every edit above.
+  int Version() const { return _version.load(); }
+
+ private:
+  mutable std::mutex _mutex;
+  std::map<SdfPath, Mesh> _meshes;
+  std::map<SdfPath, granular::LightDesc> _lights;
+  std::map<SdfPath, granular::MaterialDesc> _materials;
+  std::atomic<int> _version{0};
+};
+
+PXR_NAMESPACE_CLOSE_SCOPE
+
+#endif

@@ -1,0 +1,142 @@
+#include "renderPass.h"
+
+#include <exception>
+
+#include "error.h"
+#include "pxr/imaging/hd/renderDelegate.h"
+#include "pxr/imaging/hd/renderIndex.h"
+#include "pxr/imaging/hd/tokens.h"
+#include "renderBuffer.h"
+#include "renderDelegate.h"
+#include "renderParam.h"
+#include "renderer.h"
+
+PXR_NAMESPACE_OPEN_SCOPE
+
+namespace {
+
+granular::Transform toCore(GfMatrix4d const& m) {
+  granular::Transform t;  // USD's row-vector matrix, transposed into core's column form
+  for (int i = 0; i < 4; ++i)
+    for (int j = 0; j < 4; ++j) t.m[i][j] = m[j][i];
+  return t;
+}
+
+// The perspective camera equivalent to Hydra's view and projection matrices, with a
+// focal length of 1: the window at unit distance is [-1/P00, 1/P00] shifted by P20/P00
+// (x_ndc = P00 u − P20 for a point at film coordinate u), likewise in y; near and far
+// from P22 and P32.
+bool cameraFromMatrices(GfMatrix4d const& view, GfMatrix4d const& proj, granular::CameraDesc& cam) {
+  if (proj[2][3] != -1.0 || proj[0][0] == 0 || proj[1][1] == 0) return false;  // not a perspective frustum
+  cam.cameraToWorld = toCore(view.GetInverse());
+  cam.focalLength = 1.0f;
+  cam.horizontalAperture = float(2.0 / proj[0][0]);
+  cam.verticalAperture = float(2.0 / proj[1][1]);
+  cam.horizontalApertureOffset = float(proj[2][0] / proj[0][0]);
+  cam.verticalApertureOffset = float(proj[2][1] / proj[1][1]);
+  double n = proj[3][2] / (proj[2][2] - 1.0), f = proj[3][2] / (proj[2][2] + 1.0);
+  cam.clipNear = float(n > 0 ? n : 1e-4);
+  cam.clipFar = float(f > n ? f : 1e30);
+  return true;
+}
+
+// A setting of the type we want, whatever numeric type (or token) the host stored.
+template <typename T>
+T setting(HdRenderDelegate* d, TfToken const& key, T fallback) {
+  VtValue v = d->GetRenderSetting(key);
+  if (v.IsHolding<T>()) return v.UncheckedGet<T>();
+  if (v.CanCast<T>()) return v.Cast<T>().template UncheckedGet<T>();
+  return fallback;
+}
+
+template <>
+std::string setting<std::string>(HdRenderDelegate* d, TfToken const& key, std::string fallback) {
+  VtValue v = d->GetRenderSetting(key);
+  if (v.IsHolding<std::string>()) return v.UncheckedGet<std::string>();
+  if (v.IsHolding<TfToken>()) return v.UncheckedGet<TfToken>().GetString();
+  return fallback;
+}
+
+granular::RenderSettings renderSettings(HdRenderDelegate* d, int width, int height) {
+  granular::RenderSettings rs;
+  rs.width = width;
+  rs.height = height;
+  rs.spp = setting<int>(d, HdRenderSettingsTokens->convergedSamplesPerPixel, 16);
+  rs.threads = setting<int>(d, HdRenderSettingsTokens->threadLimit, 0);
+  rs.seed = uint64_t(std::max(0, setting<int>(d, HdGranularSettingsTokens->seed, 0)));
+  rs.technique = granular::techniqueFromName(setting<std::string>(d, HdGranularSettingsTokens->technique, "hybrid"),
+                                             "render settings granular:technique");
+  rs.tau = setting<float>(d, HdGranularSettingsTokens->tau, 4.0f);
+  rs.lod = setting<float>(d, HdGranularSettingsTokens->lod, 0.0f);
+  rs.roulette = setting<float>(d, HdGranularSettingsTokens->roulette, -1.0f);
+  rs.bundleSize = setting<int>(d, HdGranularSettingsTokens->bundleSize, 16);
+  return rs;
+}
+
+}  // namespace
+
+HdGranularRenderPass::HdGranularRenderPass(HdRenderIndex* index, HdRprimCollection const& collection,
+                                           HdGranularRenderParam* param, HdGranularRenderer* renderer)
+    : HdRenderPass(index, collection), _param(param), _renderer(renderer) {}
+
+HdGranularRenderPass::~HdGranularRenderPass() { _renderer->Stop(); }
+
+bool HdGranularRenderPass::IsConverged() const { return _renderer->IsConverged(); }
+
+void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfTokenVector const&) {
+  HdRenderDelegate* delegate = GetRenderIndex()->GetRenderDelegate();
+  HdRenderPassAovBindingVector bindings = state->GetAovBindings();
+  HdRenderBuffer* first = nullptr;
+  for (auto const& b : bindings)
+    if (b.renderBuffer) {
+      first = b.renderBuffer;
+      break;
+    }
+  if (!first) return;  // nothing bound: nothing to render into
+  const int width = int(first->GetWidth()), height = int(first->GetHeight());
+  const GfMatrix4d view = state->GetWorldToViewMatrix(), proj = state->GetProjectionMatrix();
+
+  const int sceneVersion = _param->Version(), settingsVersion = delegate->GetRenderSettingsVersion();
+  const std::string technique = setting<std::string>(delegate, HdGranularSettingsTokens->technique, "hybrid");
+  const bool rebuild = !_started || sceneVersion != _sceneVersion || technique != _technique;
+  const bool reframe = rebuild || settingsVersion != _settingsVersion || view != _view || proj != _projection ||
+                       width != _width || height != _height;
+  const bool rebind = reframe || bindings != _bindings;
+  if (!rebind) return;  // the loop goes on
+
+  _renderer->Stop();
+  _started = true;
+  _sceneVersion = sceneVersion;
+  _settingsVersion = settingsVersion;
+  _technique = technique;
+  _view = view;
+  _projection = proj;
+  _width = width;
+  _height = height;
+  _bindings = bindings;
+  try {
+    granular::CameraDesc cam;
+    if (!cameraFromMatrices(view, proj, cam))
+      throw granular::InputError("camera", "projection", "only perspective cameras are supported");
+    granular::RenderSettings rs = renderSettings(delegate, width, height);
+    if (rebuild) {
+      granular::SceneDesc desc = _param->Assemble();
+      desc.camera = cam;
+      desc.settings = rs;
+      _renderer->SetScene(granular::Scene::build(desc));
+    } else if (reframe && _renderer->GetScene()) {
+      _renderer->GetScene()->setView(cam, rs);
+    }
+  } catch (std::exception const& e) {
+    TF_RUNTIME_ERROR("hdGranular: %s", e.what());
+    _renderer->SetScene(nullptr);
+  }
+  for (auto const& b : bindings)
+    if (auto* rb = dynamic_cast<HdGranularRenderBuffer*>(b.renderBuffer)) rb->Clear(b.clearValue);
+  _renderer->SetAovBindings(bindings);
+  _renderer->SetProjection(proj);
+  _renderer->SetNoiseThreshold(setting<float>(delegate, HdRenderSettingsTokens->convergedVariance, 0.0f));
+  _renderer->Start();
+}
+
+PXR_NAMESPACE_CLOSE_SCOPE

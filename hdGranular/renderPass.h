@@ -1,0 +1,48 @@
+// renderPass.h — what a Hydra host executes every frame: it brings the core scene up
+// to date with the least work, then lets the render loop run progressively.
+//
+// Contract: an edit of the scene (meshes, lights, materials; the render param's
+// version) or of the technique rebuilds the core scene (tiles and TT parameters come
+// from their disk caches); a camera move, a resize or other settings only set a new
+// view (no re-voxelising, no re-estimation); new AOV bindings only restart the loop.
+// A scene that cannot be built is reported once (TF_RUNTIME_ERROR naming the prim and
+// attribute) and renders nothing, its buffers marked converged.
+#ifndef HDGRANULAR_RENDER_PASS_H
+#define HDGRANULAR_RENDER_PASS_H
+
+#include <string>
+
+#include "pxr/base/gf/matrix4d.h"
+#include "pxr/imaging/hd/renderPass.h"
+#include "pxr/imaging/hd/renderPassState.h"
+#include "pxr/pxr.h"
+
+PXR_NAMESPACE_OPEN_SCOPE
+
+class HdGranularRenderParam;
+class HdGranularRenderer;
+
+class HdGranularRenderPass final : public HdRenderPass {
+ public:
+  HdGranularRenderPass(HdRenderIndex* index, HdRprimCollection const& collection, HdGranularRenderParam* param,
+                       HdGranularRenderer* renderer);
+  ~HdGranularRenderPass() override;
+  bool IsConverged() const override;
+
+ protected:
+  void _Execute(HdRenderPassStateSharedPtr const& state, TfTokenVector const& renderTags) override;
+
+ private:
+  HdGranularRenderParam* _param;
+  HdGranularRenderer* _renderer;
+  int _sceneVersion = -1, _settingsVersion = -1;
+  std::string _technique;
+  GfMatrix4d _view{0.0}, _projection{0.0};
+  int _width = 0, _height = 0;
+  HdRenderPassAovBindingVector _bindings;
+  bool _started = false;
+};
+
+PXR_NAMESPACE_CLOSE_SCOPE
+
+#endif

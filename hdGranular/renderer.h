@@ -1,0 +1,65 @@
+// renderer.h — the progressive render loop of the delegate: core's Renderer on Hydra's
+// render thread, writing the film into the bound AOV buffers after every pass.
+//
+// Contract: the render pass (main thread) stops the loop, changes scene, view, settings
+// or AOV bindings, and starts it again; Stop() returns only when the loop has left (core
+// checks the cancel flag between tiles, so that is quick). The loop ends when the sample
+// count is reached or, with a noise threshold, when every covered pixel's standard error
+// is below threshold × (its value + 0.01); then, and also when the scene could not be
+// built, the buffers are marked converged, so hosts never wait forever.
+#ifndef HDGRANULAR_RENDERER_H
+#define HDGRANULAR_RENDERER_H
+
+#include <atomic>
+#include <memory>
+#include <mutex>
+#include <string>
+
+#include "pxr/base/gf/matrix4d.h"
+#include "pxr/base/vt/dictionary.h"
+#include "pxr/imaging/hd/renderPassState.h"
+#include "pxr/imaging/hd/renderThread.h"
+#include "pxr/pxr.h"
+#include "render.h"
+#include "scene.h"
+
+PXR_NAMESPACE_OPEN_SCOPE
+
+class HdGranularRenderer {
+ public:
+  HdGranularRenderer();
+  ~HdGranularRenderer();
+
+  // With the loop stopped. A null scene (it could not be built) renders nothing.
+  void SetScene(std::unique_ptr<granular::Scene> scene);
+  granular::Scene* GetScene() { return _scene.get(); }
+  void SetAovBindings(HdRenderPassAovBindingVector const& bindings) { _bindings = bindings; }
+  HdRenderPassAovBindingVector const& GetAovBindings() const { return _bindings; }
+  void SetProjection(GfMatrix4d const& projection) { _projection = projection; }
+  void SetNoiseThreshold(float t) { _noiseThreshold = t; }
+
+  void Start();
+  void Stop();
+  bool IsConverged() const { return _converged.load(); }
+  VtDictionary GetStats() const;
+
+ private:
+  void _Render();
+  void _WriteBuffers(bool converged);
+  void _MarkConverged();
+  float _DepthToClip(float viewDepth) const;
+
+  HdRenderThread _thread;
+  std::unique_ptr<granular::Scene> _scene;
+  std::unique_ptr<granular::Renderer> _renderer;
+  HdRenderPassAovBindingVector _bindings;
+  GfMatrix4d _projection{1.0};
+  float _noiseThreshold = 0;
+  std::atomic<bool> _cancel{false}, _converged{false};
+  std::atomic<long> _samplesDone{0}, _samplesTarget{1};
+  std::atomic<double> _lodFraction{0};
+};
+
+PXR_NAMESPACE_CLOSE_SCOPE
+
+#endif
