@@ -20,6 +20,12 @@ inline void setUpCache() {
   setenv("GRANULAR_CACHE_DIR", "/tmp/granular-fuzz-cache", /*overwrite=*/0);
 }
 
+// FUZZ_VERBOSE=1: say what became of an input (replaying seeds or a corpus by hand).
+inline void note(const char* what, const char* detail = "") {
+  static const bool verbose = std::getenv("FUZZ_VERBOSE") != nullptr;
+  if (verbose) std::fprintf(stderr, "fuzz: %s%s%s\n", what, *detail ? ": " : "", detail);
+}
+
 [[noreturn]] inline void bug(const char* what) {
   std::fprintf(stderr, "fuzz: %s\n", what);
   std::abort();
@@ -63,7 +69,10 @@ inline bool boundCost(SceneDesc& d) {
 }
 
 inline void buildAndRender(SceneDesc d) {
-  if (!boundCost(d)) return;
+  if (!boundCost(d)) {
+    note("valid, too costly to build here");
+    return;
+  }
   try {
     auto scene = Scene::build(d);
     Renderer r(*scene);
@@ -72,7 +81,9 @@ inline void buildAndRender(SceneDesc d) {
     for (int y = 0; y < d.settings.height; ++y)
       for (int x = 0; x < d.settings.width; ++x)
         if (!isFinite(r.film().mean(x, y))) bug("non-finite pixel");
-  } catch (const InputError&) {
+    note("built and rendered");
+  } catch (const InputError& e) {
+    note("refused by Scene::build", e.what());
     // A clear refusal (e.g. a tile that jams at this packing rate): fine.
   }
 }

@@ -23,7 +23,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     // The folder of the source name resolves "obj" and "texture_file" paths: the
     // current directory, where the fuzzer runs (nothing there to find by accident).
     desc = parseSceneJson(text, "fuzz.json");
-  } catch (const InputError&) {
+  } catch (const InputError& e) {
+    fuzz::note("refused", e.what());
     return 0;
   }
   fuzz::buildAndRender(std::move(desc));

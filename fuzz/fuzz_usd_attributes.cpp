@@ -129,7 +129,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
 
   try {
     validateSceneDesc(d);
-  } catch (const InputError&) {
+  } catch (const InputError& e) {
+    fuzz::note("refused", e.what());
     return 0;
   }
   fuzz::buildAndRender(std::move(d));
