@@ -2,7 +2,12 @@
 //
 //   granular-render SCENE.json -o OUT.exr [--png OUT.png] [--spp N] [--width W]
 //                   [--height H] [--seed S] [--threads T] [--exposure E] [--quiet]
-//                   [--technique ept|ept+vpt|hybrid] [--roulette P_a]
+//                   [--technique ept|ept+vpt|hybrid] [--roulette P_a] [--stats-json FILE]
+//
+// --stats-json writes one JSON object: build_s, render_s, spp, technique, pa,
+// lod_fraction, has_media, nonfinite_samples (samples dropped as NaN/Inf), nonfinite_values
+// (NaN/Inf in the image's colour and AOV channels; Z is +inf where nothing was hit, by
+// design, and not counted) and mean (the image's mean RGB).
 //
 // Exit status: 0 on success, 2 on bad input (one line naming object and attribute),
 // 1 on any other failure. No partial output file is left behind.
