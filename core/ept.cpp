@@ -33,8 +33,10 @@ PathState startPath(const Ray& ray, uint64_t rngSeed, float spread) {
 Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir) {
   const float lightPick = lightPickProb(scene);
   Vec3 L(0.0f);
+  const bool camera = path.depth == 0;
   for (int li : scene.infiniteLights()) {
     const Light& light = scene.lights()[li];
+    if (camera && light.type() == LightType::Dome && !scene.settings().domeCameraVisible) continue;
     Vec3 Le = light.escapedLe(dir);
     if (isBlack(Le)) continue;
     float w = 1.0f;
