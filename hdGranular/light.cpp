@@ -28,7 +28,9 @@ void HdGranularLight::Sync(HdSceneDelegate* delegate, HdRenderParam* renderParam
   const SdfPath& id = GetId();
   *dirtyBits = Clean;
   if (id.IsEmpty()) return;  // a fallback prim
-  if (!delegate->GetVisible(id)) {
+  // A light described by a GlfSimpleLight ("params") is the host's viewer light (usdview's
+  // and usdrecord's camera light), not the scene's: a path tracer renders UsdLux lights only.
+  if (!delegate->GetVisible(id) || !delegate->GetLightParamValue(id, HdLightTokens->params).IsEmpty()) {
     store->Remove(id);
     return;
   }

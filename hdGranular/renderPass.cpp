@@ -70,6 +70,7 @@ granular::RenderSettings renderSettings(HdRenderDelegate* d, int width, int heig
   rs.lod = setting<float>(d, HdGranularSettingsTokens->lod, 0.0f);
   rs.roulette = setting<float>(d, HdGranularSettingsTokens->roulette, -1.0f);
   rs.bundleSize = setting<int>(d, HdGranularSettingsTokens->bundleSize, 16);
+  rs.domeCameraVisible = setting<bool>(d, HdRenderSettingsTokens->domeLightCameraVisibility, true);
   return rs;
 }
 

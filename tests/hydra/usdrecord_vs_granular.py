@@ -30,7 +30,8 @@ def main():
         env = dict(os.environ)
         # usdrecord runs on the OpenUSD build's Python: its pxr, not this venv's usd-core.
         env["PYTHONPATH"] = os.environ.get("GRANULAR_USD_PYTHONPATH", "")
-        subprocess.run([usdrecord, "--disableGpu", "--renderer", "Granular", "--imageWidth", str(width),
+        subprocess.run([usdrecord, "--disableGpu", "--renderer", "Granular", "--enableDomeLightVisibility",
+                        "--imageWidth", str(width),
                         "--camera", "/World/Camera", scene, hydra], check=True, env=env)
         subprocess.run([granular, "render", scene, "-o", ours, "--width", str(width), "--height", str(height),
                         "--spp", str(spp), "--seed", "0", "--camera", "/World/Camera", "--quiet"], check=True)
