@@ -3,6 +3,7 @@
 #include <exception>
 
 #include "error.h"
+#include "pxr/base/tf/getenv.h"
 #include "pxr/imaging/hd/renderDelegate.h"
 #include "pxr/imaging/hd/renderIndex.h"
 #include "pxr/imaging/hd/tokens.h"
@@ -122,6 +123,12 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
     granular::RenderSettings rs = renderSettings(delegate, width, height);
     if (rebuild) {
       granular::SceneDesc desc = _param->Assemble();
+      if (TfGetenvBool("GRANULAR_HD_DEBUG", false)) {  // what the core is given, for users' bug reports
+        for (auto const& l : desc.lights)
+          fprintf(stderr, "hdGranular: light %s type %d intensity %g\n", l.name.c_str(), int(l.type), l.intensity);
+        for (auto const& m : desc.meshes) fprintf(stderr, "hdGranular: mesh %s\n", m.name.c_str());
+        for (auto const& a : desc.aggregates) fprintf(stderr, "hdGranular: aggregate %s\n", a.name.c_str());
+      }
       desc.camera = cam;
       desc.settings = rs;
       _renderer->SetScene(granular::Scene::build(desc));
