@@ -15,7 +15,7 @@ PXR_ARGS := $(if $(PXR_DIR),-Dpxr_DIR=$(PXR_DIR) -DPython3_EXECUTABLE=$(PXR_PYTH
   -DPython3_INCLUDE_DIR=$(shell $(PXR_PYTHON) -c 'import sysconfig; print(sysconfig.get_paths()["include"])' 2>/dev/null) \
   -DPython3_LIBRARY=$(shell $(PXR_PYTHON) -c 'import sysconfig as s; print(s.get_config_var("LIBDIR") + "/" + s.get_config_var("LDLIBRARY"))' 2>/dev/null),)
 
-.PHONY: demo demo-json test deps venv build schemas bench clean
+.PHONY: demo demo-json test deps venv build schemas bench clean sanitize fuzz
 
 deps:
 	@scripts/install-deps.sh
@@ -44,6 +44,39 @@ test: build
 	@cd $(BUILD) && ctest --output-on-failure --no-tests=error -j $(JOBS)
 	@GRANULAR_BUILD_DIR=$(abspath $(BUILD)) $(PY) -m pytest -q -p no:cacheprovider tests/python; rc=$$?; \
 	  if [ $$rc -eq 5 ]; then echo "pytest: no tests were collected" >&2; fi; exit $$rc
+
+# The C++ core and its tests under AddressSanitizer + UndefinedBehaviorSanitizer
+# (GRANULAR_SANITIZE) in $(ASAN_BUILD), then ctest there: any report fails the run (UBSan
+# does not recover, ASan stops at the first error, LeakSanitizer checks at exit). The
+# Python bindings are not built there (the interpreter is not instrumented).
+ASAN_BUILD ?= build-asan
+SANITIZER_ENV = ASAN_OPTIONS=detect_leaks=1:abort_on_error=1:strict_string_checks=1:detect_stack_use_after_return=1 \
+  UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1
+sanitize: deps
+	@cmake -S . -B $(ASAN_BUILD) -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DGRANULAR_SANITIZE=ON -DGRANULAR_PYTHON=OFF $(CMAKE_ARGS) > $(ASAN_BUILD).configure.log 2>&1 || { cat $(ASAN_BUILD).configure.log; exit 1; }
+	@cmake --build $(ASAN_BUILD) -j $(JOBS)
+	@cd $(ASAN_BUILD) && $(SANITIZER_ENV) ctest --output-on-failure --no-tests=error -j $(JOBS)
+
+# libFuzzer targets (fuzz/README.md), built with clang in $(FUZZ_BUILD), each run for
+# FUZZ_SECONDS on a corpus seeded from examples/, bench/scenes/ and the tests; crashes,
+# leaks, timeouts and out-of-memory inputs land in $(FUZZ_BUILD)/artifacts/.
+FUZZ_BUILD ?= build-fuzz
+FUZZ_SECONDS ?= 60
+FUZZ_CXX ?= $(shell command -v clang++-14 || command -v clang++)
+FUZZ_CC ?= $(shell command -v clang-14 || command -v clang)
+fuzz: deps
+	@test -n "$(FUZZ_CXX)" || { echo "fuzz: needs clang (apt-get install clang-14 libclang-rt-14-dev)" >&2; exit 1; }
+	@CC=$(FUZZ_CC) CXX=$(FUZZ_CXX) cmake -S . -B $(FUZZ_BUILD) -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DGRANULAR_FUZZ=ON -DGRANULAR_BUILD_TESTS=OFF -DGRANULAR_PYTHON=OFF > $(FUZZ_BUILD).configure.log 2>&1 || { cat $(FUZZ_BUILD).configure.log; exit 1; }
+	@cmake --build $(FUZZ_BUILD) -j $(JOBS) --target fuzz_scene_json fuzz_usd_attributes fuzz_usd_prims
+	@python3 fuzz/seed_corpus.py $(FUZZ_BUILD)/corpus
+	@mkdir -p $(FUZZ_BUILD)/artifacts
+	@for t in fuzz_scene_json fuzz_usd_attributes fuzz_usd_prims; do \
+	  echo "== $$t, $(FUZZ_SECONDS) s"; \
+	  mkdir -p $(FUZZ_BUILD)/corpus/$$t.run && cd $(FUZZ_BUILD) && \
+	  GRANULAR_CACHE_DIR=$(abspath $(FUZZ_BUILD))/cache ./fuzz/$$t -max_total_time=$(FUZZ_SECONDS) -timeout=30 -rss_limit_mb=3072 \
+	    -max_len=16384 -print_final_stats=1 -artifact_prefix=artifacts/$$t- corpus/$$t.run corpus/$$t || exit 1; \
+	  cd - > /dev/null; \
+	done
 
 # Regenerates schemas/generatedSchema.usda and plugInfo.json from schemas/schema.usda.
 schemas: venv

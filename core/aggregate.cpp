@@ -288,6 +288,9 @@ bool Aggregate::sphereIsInside(const int64_t home[3], const Vec3& worldCenter) c
 }
 
 bool Aggregate::intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, GrainHit& hit) const {
+  // A non-finite ray (a numerical failure upstream) hits nothing: the cell walk below
+  // would convert NaN to an integer (undefined behaviour; found by the USD fuzzer).
+  if (!isFinite(o) || !isFinite(d)) return false;
   Vec3 invD(1.0f / d.x, 1.0f / d.y, 1.0f / d.z);
   float t0, t1;
   if (!bounds_.intersect(o, invD, tmin, tmax, t0, t1)) return false;

@@ -167,8 +167,11 @@ std::vector<float> sampleVdbGrid(const std::string& path, const std::string& gri
     for (const std::string& n : names) list += (list.empty() ? "" : ", ") + n;
     throw InputError(path, gridName, str("no such grid (the file has: ", list.empty() ? "none" : list, ")"));
   }
+  // The sampler keeps a reference to the accessor: it must be a named local that outlives
+  // it, not a temporary (ASan: stack-use-after-scope, as distance_field.cpp once had).
+  openvdb::FloatGrid::ConstAccessor accessor = grid->getConstAccessor();
   openvdb::tools::GridSampler<openvdb::FloatGrid::ConstAccessor, openvdb::tools::PointSampler> sampler(
-      grid->getConstAccessor(), grid->transform());
+      accessor, grid->transform());
   std::vector<float> values;
   values.reserve(worldPoints.size());
   for (const Vec3& p : worldPoints) values.push_back(sampler.wsSample(openvdb::Vec3d(p.x, p.y, p.z)));

@@ -14,24 +14,18 @@ constexpr double kPiD = 3.14159265358979323846;
 // half space) from a unit source at depth z: the exact solution of the 1-D diffusion
 // equation D Φ'' − σ_a Φ = −δ(ζ − z) with Φ = 0 on the extrapolated boundaries −z_b and
 // d + z_b, read out as Φ(0)/4 + (D/2) Φ'(0). With κ = σ_tr, a = κ(z + z_b), b = κ(d + z_b − z):
-//   Φ(ζ < z) = A sinh(κ(ζ + z_b)),  A = sinh b / (Dκ sinh(a + b)).
-double slabFaceTotal(double D, double kappa, double zb, double z, double d) {
-  if (kappa * (std::isfinite(d) ? d + 2 * zb : z + zb) < 1e-4) {
-    // κ → 0: linear fluence, escape probability (d + z_b − z)/(d + 2z_b) (1 for d = inf).
-    return std::isfinite(d) ? (d + zb - z) / (d + 2 * zb) : 1.0;
-  }
-  double a = kappa * (z + zb);
-  double A;  // A·e^{a}·Dκ, kept finite for large arguments
-  if (!std::isfinite(d)) {
-    A = 1.0;  // half space: sinh b / sinh(a + b) → e^{−a}
-  } else {
-    double b = kappa * (d + zb - z);
-    // sinh b / sinh(a + b) · e^{a} = (1 − e^{−2b}) / (1 − e^{−2(a+b)})
-    A = -std::expm1(-2 * b) / -std::expm1(-2 * (a + b));
-  }
-  double e = std::exp(-a) * A / (D * kappa);
-  double phi0 = e * std::sinh(kappa * zb), dphi0 = e * kappa * std::cosh(kappa * zb);
-  return 0.25 * phi0 + 0.5 * D * dphi0;
+//   Φ(ζ < z) = A sinh(κ(ζ + z_b)),  A = sinh b / (Dκ sinh(a + b)),
+// so the total is e^{−a} Â/(Dκ) · (sinh(κz_b)/4 + Dκ cosh(κz_b)/2) with
+//   Â = sinh b / sinh(a + b) · e^{a} = (1 − e^{−2b}) / (1 − e^{−2(a+b)})   (1 for d = inf).
+// The finite slab's total over the half space's is therefore Â: computed directly, not
+// as a quotient of the two totals, which both underflow to 0 for deep sources (a beyond
+// ~745: fine grains, large σ_tr) and gave 0/0 = NaN. For κ → 0 the fluence is linear and
+// the ratio is the escape probability (d + z_b − z)/(d + 2z_b).
+double slabToHalfSpace(double kappa, double zb, double z, double d) {
+  if (!std::isfinite(d)) return 1.0;
+  if (kappa * (d + 2 * zb) < 1e-4) return (d + zb - z) / (d + 2 * zb);
+  double a = kappa * (z + zb), b = kappa * (d + zb - z);
+  return -std::expm1(-2 * b) / -std::expm1(-2 * (a + b));
 }
 
 }  // namespace
@@ -65,7 +59,7 @@ Vec3 DiffusionProfile::exitance(float z, float rho, float d, bool farFace) const
     double J0 = std::max(0.0, 0.25 * phi + 0.5 * Dc * dphi);
     // Finite thickness: keep the dipole's lateral shape, scale its total to the slab's
     // exact 1-D total (a truncated multipole sum does not conserve energy as σ_a d → 0).
-    if (std::isfinite(d)) J0 *= slabFaceTotal(Dc, s, b, h, d) / slabFaceTotal(Dc, s, b, h, kInf);
+    if (std::isfinite(d)) J0 *= slabToHalfSpace(s, b, h, d);
     J[c] = float(J0);
   }
   return J;

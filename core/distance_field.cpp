@@ -27,10 +27,14 @@ DistanceField& DistanceField::operator=(DistanceField&&) noexcept = default;
 void DistanceField::build(const TriangleMesh& mesh, float voxelSize, float minBand) {
   static std::once_flag once;
   std::call_once(once, [] { openvdb::initialize(); });
-  openvdb::math::Transform::Ptr xform = openvdb::math::Transform::createLinearTransform(voxelSize);
+  // The grid lives in index space (voxel size 1) and the mesh is handed over divided by
+  // the voxel size: OpenVDB refuses linear transforms whose determinant is ~0 (voxels
+  // below about 1e-5, i.e. scenes in tiny units), and distances scale back exactly.
+  openvdb::math::Transform::Ptr xform = openvdb::math::Transform::createLinearTransform(1.0);
+  const double inv = 1.0 / double(voxelSize);
   std::vector<openvdb::Vec3s> pts;
   pts.reserve(mesh.points.size());
-  for (const Vec3& p : mesh.points) pts.emplace_back(p.x, p.y, p.z);  // world space: OpenVDB applies xform
+  for (const Vec3& p : mesh.points) pts.emplace_back(float(p.x * inv), float(p.y * inv), float(p.z * inv));
   std::vector<openvdb::Vec3I> tris;
   tris.reserve(mesh.numTriangles());
   for (size_t i = 0; i < mesh.numTriangles(); ++i)
@@ -61,10 +65,12 @@ float DistanceField::distance(const Vec3& p) const {
     cached.accessor.emplace(impl_->grid->getConstUnsafeAccessor());
     cached.id = impl_->id;
   }
-  openvdb::Vec3d ijk = impl_->grid->transform().worldToIndex(openvdb::Vec3d(p.x, p.y, p.z));
+  // The grid is in index space (build()): index = world / voxel, distance = value * voxel.
+  const double inv = 1.0 / double(voxel_);
+  openvdb::Vec3d ijk(p.x * inv, p.y * inv, p.z * inv);
   float value = 0;
   openvdb::tools::BoxSampler::sample(*cached.accessor, ijk, value);  // trilinear
-  return value;
+  return value * voxel_;
 }
 
 Vec3 DistanceField::gradient(const Vec3& p) const {

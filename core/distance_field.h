@@ -29,7 +29,7 @@ class DistanceField {
   float voxelSize() const { return voxel_; }
   float bandWidth() const { return band_; }
   size_t memoryBytes() const;
-  const void* grid() const;             // the openvdb::FloatGrid, for export
+  const void* grid() const;             // the openvdb::FloatGrid, in voxel units (index space)
 
  private:
   struct Impl;

@@ -19,6 +19,15 @@ Vec3 uvToDir(float u, float v) {
   return {s * std::sin(phi), std::cos(theta), -s * std::cos(phi)};
 }
 
+constexpr double kPiD = 3.14159265358979323846;
+
+// Radiance over an area (normalize), in double: the area of a tiny light underflows a
+// float to 0, and 0 / 0 made the radiance NaN (USD fuzzer). validateSceneDesc bounds the
+// quotient, so it fits a float.
+Vec3 divided(const Vec3& L, double area) {
+  return {float(double(L.x) / area), float(double(L.y) / area), float(double(L.z) / area)};
+}
+
 }  // namespace
 
 Light Light::fromDesc(const LightDesc& d) {
@@ -31,7 +40,7 @@ Light Light::fromDesc(const LightDesc& d) {
       float half = 0.5f * d.angle * kPi / 180.0f;
       l.cosMax_ = std::cos(half);
       if (l.cosMax_ > 1.0f - 1e-7f) l.cosMax_ = 1.0f;  // a point-like sun: delta light
-      if (d.normalize && l.cosMax_ < 1.0f) L /= (kPi * std::sin(half) * std::sin(half));  // irradiance = intensity
+      if (d.normalize && l.cosMax_ < 1.0f) L = divided(L, kPiD * std::sin(double(half)) * std::sin(double(half)));  // irradiance = intensity
       l.radiance_ = L;
       break;
     }
@@ -39,7 +48,7 @@ Light Light::fromDesc(const LightDesc& d) {
       l.center_ = d.xf.point(Vec3(0.0f));
       // Uniform scale of the transform scales the radius.
       l.radius_ = d.radius * length(d.xf.vector(Vec3(1, 0, 0)));
-      if (d.normalize) L /= (4.0f * kPi * l.radius_ * l.radius_);
+      if (d.normalize) L = divided(L, 4.0 * kPiD * double(l.radius_) * l.radius_);
       l.radiance_ = L;
       break;
     }
@@ -50,7 +59,12 @@ Light Light::fromDesc(const LightDesc& d) {
       Vec3 c = cross(l.edgeU_, l.edgeV_);
       l.area_ = length(c);
       l.normal_ = normalize(d.xf.vector(Vec3(0, 0, -1)));
-      if (d.normalize) L /= l.area_;
+      if (d.normalize) {
+        const Vec3 &u = l.edgeU_, &v = l.edgeV_;
+        double cx = double(u.y) * v.z - double(u.z) * v.y, cy = double(u.z) * v.x - double(u.x) * v.z,
+               cz = double(u.x) * v.y - double(u.y) * v.x;
+        L = divided(L, std::sqrt(cx * cx + cy * cy + cz * cz));
+      }
       l.radiance_ = L;
       break;
     }
@@ -110,15 +124,16 @@ bool Light::sampleLi(const Vec3& p, float u1, float u2, LightSample& s) const {
       float r2 = radius_ * radius_;
       if (d2 <= r2 * 1.0001f) return false;  // inside the emitter: it faces away
       float d = std::sqrt(d2);
-      float sin2 = r2 / d2;
-      float cosMax = std::sqrt(std::max(0.0f, 1.0f - sin2));
+      // sin² of the cone in double: a small sphere far away (d > ~4000 r) has a cone too
+      // narrow for cosMax in float (it gave pdf = 1/0 and NaN samples).
+      double sin2 = double(r2) / double(d2);
       Frame f(toC / d);
-      s.wi = f.toWorld(sampleUniformCone(u1, u2, cosMax));
+      s.wi = f.toWorld(sampleUniformConeSin2(u1, u2, sin2));
       Ray r{p, s.wi, 0.0f, kInf};
       float t;
-      if (!intersect(r, t)) t = d * cosMax;  // grazing the silhouette
+      if (!intersect(r, t)) t = d * float(std::sqrt(std::max(0.0, 1.0 - sin2)));  // grazing the silhouette
       s.dist = t;
-      s.pdf = uniformConePdf(cosMax);
+      s.pdf = uniformConePdfSin2(sin2);
       s.Li = radiance_;
       s.delta = false;
       return true;
@@ -175,7 +190,7 @@ float Light::pdfLi(const Vec3& p, const Vec3& wi, float dist) const {
     case LightType::Sphere: {
       float d2 = length2(center_ - p), r2 = radius_ * radius_;
       if (d2 <= r2 * 1.0001f) return 0.0f;
-      return uniformConePdf(std::sqrt(std::max(0.0f, 1.0f - r2 / d2)));
+      return uniformConePdfSin2(double(r2) / double(d2));
     }
     case LightType::Rect: {
       float cosL = -dot(wi, normal_);

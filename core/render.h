@@ -9,7 +9,8 @@
 // not on the thread count nor on how samples were split into passes. P_a comes from
 // settings.roulette or, when that is negative and the scene has media, from the
 // pre-render (tuneRoulette) run once before the first pass. A pass checks the cancel
-// flag between tiles and returns false when it was set.
+// flag between tiles and returns false when it was set. A sample whose estimate is not
+// finite is dropped as a whole (the pixel keeps its count) and counted.
 #pragma once
 
 #include <atomic>
@@ -44,6 +45,9 @@ class Renderer {
   double progressSamples() const;
   // The roulette used (after the first pass): P_a and, when tuned, the pre-render's numbers.
   const RouletteTuning& roulette() const { return roulette_; }
+  // Samples whose estimate was not finite (NaN or Inf in some AOV) and were dropped from
+  // the film: a numerical failure somewhere, never expected (the stress suite checks it).
+  long nonFiniteSamples() const { return nonFinite_.load(); }
   // Fraction of the paths so far that entered a medium directly by level of detail.
   double shortcutFraction() const { return paths_ ? double(shortcuts_) / double(paths_) : 0.0; }
 
@@ -59,6 +63,7 @@ class Renderer {
   std::atomic<uint64_t> passState_{0};
   std::atomic<long> passPixels_{0};
   RouletteTuning roulette_;
+  std::atomic<long> nonFinite_{0};
   std::atomic<long> shortcuts_{0}, paths_{0};
 };
 

@@ -34,6 +34,19 @@ inline Vec3 sampleUniformCone(float u1, float u2, float cosMax) {
 }
 inline float uniformConePdf(float cosMax) { return 1.0f / (2.0f * kPi * (1.0f - cosMax)); }
 
+// The same cone given by its sin² of the half-angle, for cones too narrow for cosMax in
+// float (a sphere light of radius r seen from distance d: sin² = r²/d²; below ~6e-8, i.e.
+// d > ~4000 r, cosMax rounds to 1 and the pdf above divides by 0). 1 − cos is formed
+// stably in double: sin² / (1 + sqrt(1 − sin²)).
+inline double coneOneMinusCos(double sin2) { return sin2 / (1.0 + std::sqrt(std::max(0.0, 1.0 - sin2))); }
+inline Vec3 sampleUniformConeSin2(float u1, float u2, double sin2) {
+  double w = u1 * coneOneMinusCos(sin2);  // 1 − z
+  float z = float(1.0 - w), r = float(std::sqrt(std::max(0.0, w * (2.0 - w)))), phi = 2.0f * kPi * u2;
+  return {r * std::cos(phi), r * std::sin(phi), z};
+}
+// May be +inf for a cone whose solid angle underflows a float: its light then adds 0.
+inline float uniformConePdfSin2(double sin2) { return float(1.0 / (2.0 * 3.14159265358979323846 * coneOneMinusCos(sin2))); }
+
 // Uniform random rotation (Shoemake 1992, "Uniform random rotations"): a unit quaternion
 // uniform on S^3, returned as a rotation matrix.
 inline Mat3 sampleUniformRotation(float u1, float u2, float u3) {
@@ -44,8 +57,17 @@ inline Mat3 sampleUniformRotation(float u1, float u2, float u3) {
 
 // Veach's power heuristic with beta = 2.
 inline float powerHeuristic(float pdfA, float pdfB) {
-  float a = pdfA * pdfA, b = pdfB * pdfB;
-  return a + b > 0 ? a / (a + b) : 0.0f;
+  // As a ratio: the squares of huge pdfs (a small light far away: 1e20 and beyond, or
+  // +inf) overflowed to inf / inf = NaN.
+  if (!(pdfA > 0)) return 0.0f;
+  if (!(pdfB > 0)) return 1.0f;
+  if (std::isinf(pdfA)) return std::isinf(pdfB) ? 0.5f : 1.0f;
+  if (pdfA >= pdfB) {
+    float r = pdfB / pdfA;
+    return 1.0f / (1.0f + r * r);
+  }
+  float r = pdfA / pdfB;
+  return r * r / (1.0f + r * r);
 }
 
 // Piecewise-constant density on [0, 1) with n bins. sampleContinuous returns x with

@@ -1,10 +1,59 @@
 #include "scene.h"
 
+#include <algorithm>
 #include <chrono>
 
 #include "error.h"
 
 namespace granular {
+
+namespace {
+
+// Does the segment a→b cross the aggregate's boundary, or does a lie inside it?
+bool segmentReachesInto(const Aggregate& agg, const Vec3& a, const Vec3& b) {
+  if (agg.bounds().contains(a) && agg.insideBoundary(a)) return true;
+  Vec3 d = b - a;
+  float len = length(d);
+  float t;
+  Vec3 ng;
+  return len > 0 && agg.intersectBoundary(a, d / len, 0.0f, len, t, ng);
+}
+
+// Does a mesh (world space) reach into the aggregate: a vertex inside, or an edge
+// crossing the boundary?
+bool meshReachesInto(const Aggregate& agg, const TriangleMesh& m) {
+  Bounds3 b = m.bounds(), ab = agg.bounds();
+  for (int k = 0; k < 3; ++k)
+    if (b.hi[k] < ab.lo[k] || b.lo[k] > ab.hi[k]) return false;
+  for (size_t t = 0; t < m.numTriangles(); ++t)
+    for (int e = 0; e < 3; ++e)
+      if (segmentReachesInto(agg, m.points[m.indices[3 * t + e]], m.points[m.indices[3 * t + (e + 1) % 3]]))
+        return true;
+  return false;
+}
+
+// Does an area light reach into the aggregate (sphere: centre inside or the boundary
+// closer than its radius; rect: a corner inside or an edge or diagonal crossing)?
+bool emitterReachesInto(const Aggregate& agg, const LightDesc& l) {
+  if (l.type == LightType::Sphere) {
+    Vec3 c = l.xf.point(Vec3(0.0f));
+    float r = l.radius * length(l.xf.vector(Vec3(1, 0, 0)));
+    if (agg.bounds().contains(c) && agg.insideBoundary(c)) return true;
+    Vec3 closest;
+    return agg.closestBoundaryPoint(c, closest) < r;
+  }
+  if (l.type == LightType::Rect) {
+    float w = 0.5f * l.width, h = 0.5f * l.height;
+    Vec3 p[4] = {l.xf.point(Vec3(-w, -h, 0)), l.xf.point(Vec3(w, -h, 0)), l.xf.point(Vec3(w, h, 0)),
+                 l.xf.point(Vec3(-w, h, 0))};
+    for (int i = 0; i < 4; ++i)
+      if (segmentReachesInto(agg, p[i], p[(i + 1) % 4])) return true;
+    return segmentReachesInto(agg, p[0], p[2]) || segmentReachesInto(agg, p[1], p[3]);
+  }
+  return false;  // distant and dome lights are outside everything
+}
+
+}  // namespace
 
 std::unique_ptr<Scene> Scene::build(const SceneDesc& desc) {
   auto t0 = std::chrono::steady_clock::now();
@@ -81,6 +130,28 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc) {
     s->lights_.push_back(Light::fromDesc(l));
     (s->lights_.back().isInfinite() ? s->infiniteLights_ : s->areaLights_).push_back(idx);
   }
+
+  // DA stands for light that entered an aggregate through its boundary from outside and
+  // leaves through it towards the outside (diffusion.h). An aggregate that holds an
+  // emitter or the camera gets no DA (VPT all the way down): DA cannot see an emitter
+  // inside (a sphere light inside a ball rendered 15x too dark) and a camera inside would
+  // see nothing but DA's planar-boundary model of the deep interior (60% too dark), both
+  // measured by bench/stress.py against EPT.
+  if (!s->diffusionDepth_.empty()) {
+    s->daBlocked_.assign(s->aggregates_.size(), false);
+    for (size_t a = 0; a < s->aggregates_.size(); ++a) {
+      const Aggregate& agg = *s->aggregates_[a];
+      bool blocked = s->mediumAt(s->camera_.position()) == int(a);
+      for (const auto& l : desc.lights) blocked = blocked || emitterReachesInto(agg, l);
+      for (const auto& m : desc.meshes)
+        if (m.visible && m.material >= 0 && !isBlack(desc.materials[m.material].emission))
+          blocked = blocked || meshReachesInto(agg, m.mesh.transformed(m.xf));
+      if (blocked) {
+        s->daBlocked_[a] = true;
+        s->diffusionDepth_[a] = kInf;
+      }
+    }
+  }
   s->buildSeconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return s;
 }
@@ -133,8 +204,11 @@ bool Scene::intersect(const Ray& ray, Hit& hit) const {
   }
   if (!found) return false;
   hit.p = ray.o + ray.d * hit.t;
-  // Position error grows with the coordinates' magnitude (float): keep the offset above it.
-  float coordScale = std::max(maxComponent(vabs(hit.p)), 1e-3f * sceneScale_);
+  // Position error grows with the coordinates' magnitude (float) and, for p = o + t d,
+  // with the distance t travelled: keep the offset above both. (With |p| alone, a floor
+  // at the world origin seen from 2 units away lost ~1 NEE sample in 16 near the origin
+  // to shadow rays starting below its surface: test_light.cpp.)
+  float coordScale = std::max({maxComponent(vabs(hit.p)), hit.t, 1e-3f * sceneScale_});
   hit.eps = std::max(hit.eps, 4e-7f * coordScale);
   if (hit.kind == Hit::Surface) hit.eps = std::max(hit.eps, 1e-5f * coordScale);
   return true;
@@ -156,7 +230,8 @@ void Scene::setMedium(int aggregate, const MediumParams& params) {
   mediumParams_[aggregate] = params;
   media_[aggregate] = HomogeneousMedium(params);
   float daDepth = granular::diffusionDepth(params);
-  diffusionDepth_[aggregate] = aggregates_[aggregate]->stats().maxInteriorDepth > daDepth ? daDepth : kInf;
+  diffusionDepth_[aggregate] =
+      !daBlocked_[aggregate] && aggregates_[aggregate]->stats().maxInteriorDepth > daDepth ? daDepth : kInf;
   diffusionProfiles_[aggregate] = DiffusionProfile(params);
 }
 
@@ -205,7 +280,7 @@ bool Scene::intersectMedium(const Ray& ray, Hit& hit) const {
   }
   if (!found) return false;
   hit.p = ray.o + ray.d * hit.t;
-  float coordScale = std::max(maxComponent(vabs(hit.p)), 1e-3f * sceneScale_);
+  float coordScale = std::max({maxComponent(vabs(hit.p)), hit.t, 1e-3f * sceneScale_});  // as intersect()
   hit.eps = std::max(4e-7f * coordScale, hit.kind == Hit::Surface ? 1e-5f * coordScale : 0.0f);
   return true;
 }

@@ -66,7 +66,8 @@ class Scene {
   // (validation against other renderers, closed-form tests). Not thread-safe.
   void setMedium(int aggregate, const MediumParams& params);
   // DA: the depth below the boundary where it takes over (inf: the object is too thin
-  // for DA), its profile, and the exit
+  // for DA, or it holds an emitter or the camera: DA models light entering from outside
+  // and leaving towards the outside), its profile, and the exit
   // lobe (MaterialType::DiffusionExit) of the points where diffused light leaves.
   float diffusionDepth(int aggregate) const { return diffusionDepth_[aggregate]; }
   const DiffusionProfile& diffusionProfile(int aggregate) const { return diffusionProfiles_[aggregate]; }
@@ -90,6 +91,7 @@ class Scene {
   std::vector<MediumParams> mediumParams_;
   std::vector<HomogeneousMedium> media_;
   std::vector<float> diffusionDepth_;
+  std::vector<bool> daBlocked_;            // no DA: the aggregate holds an emitter or the camera
   std::vector<DiffusionProfile> diffusionProfiles_;
   int diffusionExitMaterial_ = -1;
   bool mediaNeeded_ = false;

@@ -34,8 +34,45 @@ void checkNonNegative(const Vec3& v, const std::string& obj, const char* attr) {
 
 void checkTransform(const Transform& xf, const std::string& obj, const char* attr) {
   if (!xf.isFinite()) throw InputError(obj, attr, "is not finite");
+  // Everything downstream applies transforms as affine maps (Transform::point ignores the
+  // bottom row); a projective matrix (a USD matrix whose last column is not (0, 0, 0, 1))
+  // would be silently misread.
+  if (xf.m[3][0] != 0 || xf.m[3][1] != 0 || xf.m[3][2] != 0 || xf.m[3][3] != 1)
+    throw InputError(obj, attr,
+                     str("is not affine: its row-vector (USD) form has last column (", xf.m[3][0], ", ", xf.m[3][1],
+                         ", ", xf.m[3][2], ", ", xf.m[3][3], "), not (0, 0, 0, 1)"));
   Transform inv;
   if (xf.determinant3() == 0 || !xf.inverse(inv)) throw InputError(obj, attr, "is singular (not invertible)");
+}
+
+// Scene coordinates are floats, and squared distances must not overflow: every world
+// position (mesh and boundary points, the camera, lights) and size stays within ±1e15
+// units. (A transform scaling a boundary by 1e38 passed every other check and made the
+// aggregate's grid NaN: found by the USD fuzzer.)
+constexpr double kMaxCoordinate = 1e15;
+
+void checkWorldPoints(const TriangleMesh& m, const Transform& xf, const std::string& obj) {
+  for (size_t i = 0; i < m.points.size(); ++i) {
+    const Vec3& p = m.points[i];
+    for (int r = 0; r < 3; ++r) {
+      double w = xf.m[r][0] * p.x + xf.m[r][1] * p.y + xf.m[r][2] * p.z + xf.m[r][3];
+      if (!(std::fabs(w) <= kMaxCoordinate))
+        throw InputError(obj, "transform",
+                         str("places point ", i, " ", fmt(p), " at world coordinate ", w, ", beyond +-",
+                             kMaxCoordinate));
+    }
+  }
+}
+
+void checkWorldPosition(const Transform& xf, const std::string& obj) {
+  for (int r = 0; r < 3; ++r)
+    if (!(std::fabs(xf.m[r][3]) <= kMaxCoordinate))
+      throw InputError(obj, "transform", str("translation ", xf.m[r][3], " is beyond +-", kMaxCoordinate));
+}
+
+void checkSize(float v, const std::string& obj, const char* attr) {
+  checkPositive(v, obj, attr);
+  if (v > kMaxCoordinate) throw InputError(obj, attr, str(v, " is beyond ", kMaxCoordinate));
 }
 
 void checkMaterialIndex(int m, size_t count, const std::string& obj) {
@@ -61,6 +98,7 @@ void validateSceneDesc(const SceneDesc& desc) {
 
   const CameraDesc& c = desc.camera;
   checkTransform(c.cameraToWorld, "camera", "transform");
+  checkWorldPosition(c.cameraToWorld, "camera");
   checkPositive(c.focalLength, "camera", "focalLength");
   checkPositive(c.horizontalAperture, "camera", "horizontalAperture");
   checkPositive(c.verticalAperture, "camera", "verticalAperture");
@@ -70,6 +108,22 @@ void validateSceneDesc(const SceneDesc& desc) {
     throw InputError("camera", "clippingRange", str("near ", c.clipNear, " must be finite and > 0"));
   if (std::isnan(c.clipFar) || !(c.clipFar > c.clipNear))
     throw InputError("camera", "clippingRange", str("far ", c.clipFar, " must exceed near ", c.clipNear));
+  {
+    // The film window at unit distance, as Camera fits the aperture into the image: it
+    // must stay finite through normalisation, i.e. the field of view must stay short of
+    // 180 degrees (a focal length of 1e-37 gave NaN camera rays).
+    double hAp = c.horizontalAperture, vAp = c.verticalAperture;
+    double imAspect = double(s.width) / s.height;
+    if (imAspect > hAp / vAp) hAp = vAp * imAspect; else vAp = hAp / imAspect;
+    double f = c.focalLength;
+    double wx = 0.5 * hAp / f + std::fabs(c.horizontalApertureOffset) / f;
+    double wy = 0.5 * vAp / f + std::fabs(c.verticalApertureOffset) / f;
+    if (!(wx <= 1e6 && wy <= 1e6))
+      throw InputError("camera", "focalLength",
+                       str(c.focalLength, " is too short for the aperture (", c.horizontalAperture, " x ",
+                           c.verticalAperture, ", offsets ", c.horizontalApertureOffset, ", ",
+                           c.verticalApertureOffset, "): the field of view reaches 180 degrees"));
+  }
 
   for (size_t i = 0; i < desc.materials.size(); ++i)
     validateMaterialDesc(desc.materials[i], label(desc.materials[i].name, "materials", i));
@@ -80,12 +134,14 @@ void validateSceneDesc(const SceneDesc& desc) {
     validateMesh(m.mesh, obj);
     checkMaterialIndex(m.material, desc.materials.size(), obj);
     checkTransform(m.xf, obj, "transform");
+    checkWorldPoints(m.mesh, m.xf, obj);
   }
 
   for (size_t i = 0; i < desc.lights.size(); ++i) {
     const LightDesc& l = desc.lights[i];
     std::string obj = label(l.name, "lights", i);
     checkTransform(l.xf, obj, "transform");
+    checkWorldPosition(l.xf, obj);
     checkNonNegative(l.color, obj, "color");
     if (!std::isfinite(l.intensity) || l.intensity < 0)
       throw InputError(obj, "intensity", str(l.intensity, " must be finite and >= 0"));
@@ -97,12 +153,39 @@ void validateSceneDesc(const SceneDesc& desc) {
         if (!std::isfinite(l.angle) || l.angle < 0 || l.angle >= 180)
           throw InputError(obj, "angle", str(l.angle, " is outside [0, 180)"));
         break;
-      case LightType::Sphere: checkPositive(l.radius, obj, "radius"); break;
+      case LightType::Sphere:
+        checkSize(l.radius, obj, "radius");
+        checkSize(l.radius * length(l.xf.vector(Vec3(1, 0, 0))), obj, "radius");  // in world units
+        break;
       case LightType::Rect:
-        checkPositive(l.width, obj, "width");
-        checkPositive(l.height, obj, "height");
+        checkSize(l.width, obj, "width");
+        checkSize(l.height, obj, "height");
+        checkSize(length(l.xf.vector(Vec3(l.width, 0, 0))), obj, "width");  // in world units
+        checkSize(length(l.xf.vector(Vec3(0, l.height, 0))), obj, "height");
         break;
       case LightType::Dome: break;
+    }
+    {
+      // The radiance color * intensity * 2^exposure, divided by the light's area when it
+      // is normalised, must be a finite float too (1e38 x 2^100 gave an all-black image
+      // of non-finite samples; so did normalising a sphere of radius 6e-39, whose area
+      // underflows: the USD fuzzer's finding).
+      double peak = double(maxComponent(l.color)) * l.intensity * std::exp2(double(l.exposure));
+      if (l.normalize) {
+        if (l.type == LightType::Sphere) {
+          double r = double(l.radius) * length(l.xf.vector(Vec3(1, 0, 0)));
+          peak /= 4.0 * 3.14159265358979323846 * r * r;
+        } else if (l.type == LightType::Rect) {
+          peak /= double(length(cross(l.xf.vector(Vec3(l.width, 0, 0)), l.xf.vector(Vec3(0, l.height, 0)))));
+        } else if (l.type == LightType::Distant) {
+          double half = 0.5 * double(l.angle) * 3.14159265358979323846 / 180.0;
+          if (std::cos(float(half)) < 1.0f - 1e-7f) peak /= 3.14159265358979323846 * std::sin(half) * std::sin(half);
+        }
+      }
+      if (!(peak <= 1e30))
+        throw InputError(obj, "intensity",
+                         str("color ", fmt(l.color), " x intensity ", l.intensity, " x 2^exposure ", l.exposure,
+                             l.normalize ? " / area" : "", " = ", peak, " exceeds 1e30"));
     }
   }
 
@@ -130,7 +213,8 @@ void validateMaterialDesc(const MaterialDesc& m, const std::string& obj) {
 
 void validateAggregateParameters(const AggregateDesc& a, const std::string& obj) {
   checkTransform(a.xf, obj, "transform");
-  checkPositive(a.grainRadius, obj, "grainRadius");
+  checkWorldPoints(a.boundary, a.xf, obj);
+  checkSize(a.grainRadius, obj, "grainRadius");
   if (!std::isfinite(a.packingRate) || !(a.packingRate > 0) || a.packingRate > 0.64f)
     throw InputError(obj, "packingRate", str(a.packingRate, " is outside (0, 0.64]"));
   checkInt(a.tileSpheres, 8, 100000, obj, "tileSpheres");

@@ -678,6 +678,21 @@ SceneDesc parseSceneJson(const std::string& text, const std::string& sourceName)
                      str("JSON parse error at byte ", byte, " (line ", line, ", column ", col, "): ",
                          parseErrorDetail(e.what())));
   }
+  catch (const json::exception& e) {
+    // A number beyond the range of a double (1e400) is an out_of_range error, not a
+    // parse_error, raised while its value is read: name the key being read (the JSON
+    // fuzzer's finding; it escaped as a nlohmann exception, exit 1).
+    std::string w = e.what();
+    size_t b = w.find("] ");
+    std::string detail = b == std::string::npos ? w : w.substr(b + 2);
+    std::string object = "scene", attribute;
+    for (const std::string& k : tracker.current) {
+      if (k.empty()) continue;
+      if (!attribute.empty()) object = attribute;
+      attribute = k;
+    }
+    throw InputError(object, attribute, str(detail, " (beyond the range of a double)"));
+  }
 
   SceneDesc desc;
   try {

@@ -12,6 +12,10 @@ namespace {
 
 constexpr int kMaxSubdivisions = 8;  // 20 * 4^8 = 1.3M triangles
 constexpr int kMaxSegments = 65536;
+// Largest procedural mesh: 4 Mi vertices (about 8 Mi triangles, ~150 MB). Each factor's
+// own range is not enough: a 65536 x 65536 UV sphere is 4.3e9 vertices, beyond uint32
+// indices and any memory (seen as std::bad_alloc, exit 1, from a 72-byte JSON scene).
+constexpr int64_t kMaxShapeVertices = int64_t(1) << 22;
 
 void checkSubdivisions(const char* fn, int subdivisions) {
   if (subdivisions < 0 || subdivisions > kMaxSubdivisions)
@@ -98,6 +102,11 @@ TriangleMesh makeLathe(const std::vector<std::pair<float, float>>& profile, int 
   prof.insert(prof.end(), profile.begin(), profile.end());
   if (profile.back().first > 0) prof.push_back({0.0f, profile.back().second});
   if (prof.size() < 3) throw InputError("makeLathe", "profile", "has no point off the axis");
+  const int64_t vertices = int64_t(prof.size() - 2) * segments + 2;
+  if (vertices > kMaxShapeVertices)
+    throw InputError("makeLathe", "segments",
+                     str(segments, " segments x ", prof.size() - 2, " rings = ", vertices, " vertices exceed ",
+                         kMaxShapeVertices));
 
   TriangleMesh m;
   const size_t n = prof.size();
@@ -136,6 +145,11 @@ TriangleMesh makeUVSphere(int segments, int rings) {
     throw InputError("makeUVSphere", "rings", str(rings, " is outside [2, ", kMaxSegments, "]"));
   if (segments < 3 || segments > kMaxSegments)
     throw InputError("makeUVSphere", "segments", str(segments, " is outside [3, ", kMaxSegments, "]"));
+  const int64_t vertices = int64_t(segments) * (rings - 1) + 2;
+  if (vertices > kMaxShapeVertices)
+    throw InputError("makeUVSphere", "rings",
+                     str(segments, " segments x ", rings - 1, " rings = ", vertices, " vertices exceed ",
+                         kMaxShapeVertices));
   std::vector<std::pair<float, float>> profile;
   for (int i = 0; i <= rings; ++i) {
     double theta = 3.14159265358979323846 * (1.0 - double(i) / rings);  // from the south pole up

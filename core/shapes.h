@@ -23,13 +23,13 @@ TriangleMesh makeIcosphere(int subdivisions);
 TriangleMesh makeBox(Vec3 lo, Vec3 hi);
 
 // Unit-radius latitude/longitude sphere around +Y with pole vertices.
-// segments in [3, 65536], rings in [2, 65536].
+// segments in [3, 65536], rings in [2, 65536], at most 2^22 vertices in all.
 TriangleMesh makeUVSphere(int segments, int rings);
 
 // Surface of revolution around +Y. profile holds (radius, height) pairs from bottom
 // to top; interior radii must be > 0. An end with radius 0 becomes a pole vertex, an
 // end with radius > 0 is closed by a flat cap (a fan to a centre vertex).
-// segments in [3, 65536].
+// segments in [3, 65536], at most 2^22 vertices in all.
 TriangleMesh makeLathe(const std::vector<std::pair<float, float>>& profile, int segments);
 
 // A rounded rock: an icosphere whose radius is 1 + roughness * n(direction), with n a

@@ -159,3 +159,34 @@ TEST(Aggregate, MemoryDoesNotGrowWithGrainsPerTile) {
   EXPECT_NEAR(big.agg.stats().cells, small.agg.stats().cells, 0.5 * small.agg.stats().cells);
   EXPECT_GT(big.agg.stats().approxGrains, 6.0 * small.agg.stats().approxGrains);
 }
+
+TEST(Aggregate, TinyAndHugeScenesClassifyLikeUnitScene) {
+  // The same aggregate scaled to 1e-6 and 1e6 units: the distance field (OpenVDB refuses
+  // transforms with voxels below ~1e-5) must work in any unit, and the cells' classes
+  // must be those of the unit-scale aggregate.
+  AggregateDesc unit = smallAggregate(0.1f);
+  unit.xf = Transform();
+  Built ref(unit);
+  for (float s : {1e-6f, 1e6f}) {
+    AggregateDesc d = unit;
+    d.xf = Transform::scale(Vec3(s));
+    d.grainRadius = unit.grainRadius * s;
+    Built b(d);
+    ASSERT_EQ(b.agg.stats().cells, ref.agg.stats().cells) << s;
+    EXPECT_EQ(b.agg.stats().insideCells, ref.agg.stats().insideCells) << s;
+    EXPECT_EQ(b.agg.stats().partialCells, ref.agg.stats().partialCells) << s;
+    EXPECT_NEAR(b.agg.boundaryDistance(Vec3(0.0f)) / s, ref.agg.boundaryDistance(Vec3(0.0f)), 1e-3f) << s;
+    EXPECT_NEAR(b.agg.boundaryDistance(Vec3(0.0f, 0.0f, 1.05f * s)) / s, 0.05f, 0.02f) << s;
+    EXPECT_NEAR(b.agg.boundaryDistance(Vec3(0.0f, 0.0f, 0.95f * s)) / s, -0.05f, 0.02f) << s;
+  }
+}
+
+TEST(Aggregate, NonFiniteRaysHitNothing) {
+  Built b(smallAggregate());
+  GrainHit h;
+  const float nan = std::nanf("");
+  EXPECT_FALSE(b.agg.intersect(Vec3(0, 0, 3), Vec3(nan, 0, -1), 0.0f, kInf, h));
+  EXPECT_FALSE(b.agg.intersect(Vec3(nan, 0, 3), Vec3(0, 0, -1), 0.0f, kInf, h));
+  EXPECT_FALSE(b.agg.intersect(Vec3(0, 0, 3), Vec3(kInf, 0, -1), 0.0f, kInf, h));
+  EXPECT_TRUE(b.agg.intersect(Vec3(0.1f, -0.2f, 3), Vec3(0, 0, -1), 0.0f, kInf, h));  // the same ray, finite
+}

@@ -120,3 +120,21 @@ TEST(Diffusion, BrightSlabReflectanceMatchesVptWithinFivePercent) {
   // The criterion of the issue (5%), widened by the two estimates' noise.
   EXPECT_NEAR(mh, mv, 0.05 * mv + 3 * std::sqrt(sv * sv + sh * sh)) << "VPT " << mv << " DA " << mh;
 }
+
+TEST(Diffusion, ExitanceStaysFiniteManyDiffusionLengthsDeep) {
+  // Fine grains make σ_tr large: a source 2 units deep is then ~10^3 diffusion lengths
+  // from a face, where both the dipole and the slab's 1-D totals underflow. The exitance
+  // must be 0 there, not 0/0 (bench/stress.py found NaN samples with R = 0.001).
+  MediumParams p = mediumFromRte(Vec3(2000.0f), Vec3(0.9f), PhaseTable::isotropic());
+  DiffusionProfile prof(p);
+  ASSERT_GT(prof.sigmaTr.x * 2.0f, 800.0f);
+  for (float z : {0.01f, 0.5f, 2.0f})
+    for (float rho : {0.0f, 0.3f, 5.0f})
+      for (bool far : {false, true}) {
+        Vec3 J = prof.exitance(z, rho, 4.0f, far);
+        EXPECT_TRUE(isFinite(J) && minComponent(J) >= 0) << z << " " << rho << " " << far << ": " << J.x;
+      }
+  // Where it does not underflow, the finite slab is still scaled to its exact total.
+  Vec3 near = prof.totalExitance(0.01f, 4.0f, false), half = prof.totalExitance(0.01f, kInf, false);
+  EXPECT_NEAR(near.x, half.x, 1e-3f * half.x);  // the far face is 4 units away: no difference
+}

@@ -217,4 +217,18 @@ TEST(Mesh, ShapeParameterErrors) {
   EXPECT_NE(errorOf([] { makeLathe({{0, 0}, {0, 1}}, 8); }).find("no point off the axis"), std::string::npos);
   EXPECT_NE(errorOf([] { makeLathe({{1, 0}, {1, 1}}, 2); }).find("segments"), std::string::npos);
   EXPECT_NE(errorOf([] { makeEllipsoid({1, 0, 1}, 1); }).find("radii"), std::string::npos);
+  // Each factor in range, the product far beyond memory and uint32 indices: refused.
+  EXPECT_NE(errorOf([] { makeUVSphere(65536, 65536); }).find("makeUVSphere.rings"), std::string::npos);
+  EXPECT_NE(errorOf([] { makeLathe({{1, 0}, {1, 1}, {1, 2}, {1, 3}, {1, 4}, {1, 5}, {1, 6}, {1, 7}, {1, 8}, {1, 9},
+                                    {1, 10}, {1, 11}, {1, 12}, {1, 13}, {1, 14}, {1, 15}, {1, 16}, {1, 17}, {1, 18},
+                                    {1, 19}, {1, 20}, {1, 21}, {1, 22}, {1, 23}, {1, 24}, {1, 25}, {1, 26}, {1, 27},
+                                    {1, 28}, {1, 29}, {1, 30}, {1, 31}, {1, 32}, {1, 33}, {1, 34}, {1, 35}, {1, 36},
+                                    {1, 37}, {1, 38}, {1, 39}, {1, 40}, {1, 41}, {1, 42}, {1, 43}, {1, 44}, {1, 45},
+                                    {1, 46}, {1, 47}, {1, 48}, {1, 49}, {1, 50}, {1, 51}, {1, 52}, {1, 53}, {1, 54},
+                                    {1, 55}, {1, 56}, {1, 57}, {1, 58}, {1, 59}, {1, 60}, {1, 61}, {1, 62}, {1, 63},
+                                    {1, 64}},
+                                   65536); })
+                .find("vertices exceed"),
+            std::string::npos);
+  EXPECT_EQ(makeUVSphere(2048, 2048).points.size(), size_t(2048) * 2047 + 2);  // the largest sizes still work
 }

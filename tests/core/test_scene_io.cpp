@@ -349,3 +349,73 @@ TEST(SceneIo, ObjShapesAndFiles) {
   }
   fs::remove_all(dir);
 }
+
+TEST(SceneIo, ValuesThatWouldRenderNonFiniteAreInputErrors) {
+  // Found by fuzz/fuzz_usd_attributes and checked here through both front ends' gate:
+  // each value is finite and in its own range, yet the render would not be.
+  EXPECT_NE(errorAfter([](json& j) { j["camera"]["focal_length"] = 1e-37; }).find("camera.focal_length"),
+            std::string::npos);
+  EXPECT_NE(errorAfter([](json& j) {
+              j["lights"][0]["intensity"] = 1e38;
+              j["lights"][0]["exposure"] = 100;
+            }).find("sun.intensity"),
+            std::string::npos);
+  // A projective matrix cannot come from JSON (the reader checks the bottom row), but the
+  // USD front end hands core any 4x4: validateSceneDesc refuses it.
+  SceneDesc d = parseSceneJson(kScene, "scenes/test.json");
+  d.camera.cameraToWorld.m[3][3] = 0.5;
+  try {
+    validateSceneDesc(d);
+    ADD_FAILURE() << "a projective camera matrix was accepted";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("camera.transform: is not affine"), std::string::npos) << e.what();
+  }
+  d = parseSceneJson(kScene, "scenes/test.json");
+  d.aggregates[0].xf.m[3][1] = 1e-3;
+  EXPECT_THROW(validateSceneDesc(d), InputError);
+}
+
+TEST(SceneIo, WorldCoordinatesStayWithin1e15) {
+  // A transform that scales a boundary by 1e38 is finite and invertible, but its world
+  // points overflow float (the aggregate's grid became NaN: found by the USD fuzzer).
+  EXPECT_NE(errorAfter([](json& j) { j["aggregates"][0]["transform"] = {{"scale", 1e38}}; }).find("transform"),
+            std::string::npos);
+  EXPECT_NE(errorAfter([](json& j) { j["meshes"][0]["transform"] = {{"translate", {0, 2e15, 0}}}; })
+                .find("floor.transform"),
+            std::string::npos);
+  EXPECT_NE(errorAfter([](json& j) { j["lights"][1]["radius"] = 1e20; }).find("radius"), std::string::npos);
+  EXPECT_NE(errorAfter([](json& j) { j["camera"]["look_at"]["eye"] = {0, 1, 1e16}; }).find("camera.transform"),
+            std::string::npos);
+  // 1e6-unit scenes (bench/stress.py) are well inside.
+  EXPECT_EQ(errorAfter([](json& j) { j["aggregates"][0]["transform"] = {{"scale", 1e6}}; }), "NO ERROR");
+}
+
+TEST(SceneIo, NumberBeyondDoubleIsAnInputError) {
+  // nlohmann reports 1e400 as out_of_range while reading the value, not as a parse error;
+  // it escaped as a nlohmann exception (exit 1) until the JSON fuzzer found it.
+  std::string e = errorOf(std::string(R"({"render": {"width": 1e400}})"));
+  EXPECT_NE(e.find("render.width: number overflow"), std::string::npos) << e;
+  e = errorOf(std::string(R"({"aggregates": [{"grain_radius": -1e999}]})"));
+  EXPECT_NE(e.find("aggregates.grain_radius"), std::string::npos) << e;
+  e = errorOf(std::string("[1e999]"));
+  EXPECT_EQ(e.find("WRONG EXCEPTION TYPE"), std::string::npos) << e;
+}
+
+TEST(SceneIo, NormalisedLightsMustKeepAFiniteRadiance) {
+  // normalize divides by the area: a sphere of radius 6e-39 has an area that underflows
+  // to 0, and the radiance became +inf (NaN samples; found by the USD fuzzer).
+  std::string e = errorAfter([](json& j) {
+    j["lights"][1]["radius"] = 6e-39;
+    j["lights"][1]["normalize"] = true;
+  });
+  EXPECT_NE(e.find("intensity"), std::string::npos) << e;
+  EXPECT_NE(e.find("/ area"), std::string::npos) << e;
+  // The same light without normalize is fine (it just adds almost nothing).
+  EXPECT_EQ(errorAfter([](json& j) { j["lights"][1]["radius"] = 6e-39; }), "NO ERROR");
+  // A radius <= 0 is still reported as such, not as an infinite radiance.
+  e = errorAfter([](json& j) {
+    j["lights"][1]["radius"] = 0;
+    j["lights"][1]["normalize"] = true;
+  });
+  EXPECT_NE(e.find("radius"), std::string::npos) << e;
+}

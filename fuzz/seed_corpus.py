@@ -1,0 +1,182 @@
+#!/usr/bin/env python3
+"""Seed corpora for the fuzz targets: python3 fuzz/seed_corpus.py OUT
+
+OUT/fuzz_scene_json/      examples/*.json, bench/scenes/*.json, the full scene of
+                          tests/core/test_scene_io.cpp and bench/stress.py's base case
+OUT/fuzz_usd_attributes/  a few well-formed inputs in fuzz_usd_attributes.cpp's layout:
+                          a box and a tetrahedron with sane attributes, each light type
+OUT/fuzz_usd_prims/       well-formed inputs in fuzz_usd_prims.cpp's layout: an aggregate
+                          (box boundary, prototype by a relative path) with its grain
+                          prototype listed or found through the lookup, each light type
+fuzz/regressions/         inputs that once crashed a target (*.json: the JSON target,
+                          usd_attributes_*.bin, prims_*.bin: the USD targets), replayed by every run
+"""
+import glob
+import json
+import os
+import re
+import struct
+import sys
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def json_seeds(out):
+    os.makedirs(out, exist_ok=True)
+    n = 0
+    for pattern in ("examples/*.json", "bench/scenes/*.json"):
+        for path in sorted(glob.glob(os.path.join(ROOT, pattern))):
+            with open(path, "rb") as f:
+                data = f.read()
+            with open(os.path.join(out, os.path.basename(path)), "wb") as f:
+                f.write(data)
+            n += 1
+    with open(os.path.join(ROOT, "tests/core/test_scene_io.cpp")) as f:
+        src = f.read()
+    for k, m in enumerate(re.finditer(r'R"\((.*?)\)"', src, re.S)):
+        with open(os.path.join(out, f"test_scene_io_{k}.json"), "w") as f:
+            f.write(m.group(1))
+        n += 1
+    for path in sorted(glob.glob(os.path.join(ROOT, "fuzz/regressions/*.json"))):
+        with open(path, "rb") as f, open(os.path.join(out, "regression_" + os.path.basename(path)), "wb") as g:
+            g.write(f.read())
+        n += 1
+    sys.path.insert(0, os.path.join(ROOT, "bench"))
+    import stress  # noqa: E402
+    with open(os.path.join(out, "stress_base.json"), "w") as f:
+        json.dump(stress.BASE, f)
+    return n + 1
+
+
+def usd_seed(points, counts, indices, light_type, dielectric=True):
+    b = bytearray()
+    b += struct.pack("<B", len(points))
+    for p in points:
+        b += struct.pack("<3f", *p)
+    b += struct.pack("<B", len(counts))
+    b += struct.pack(f"<{len(counts)}b", *counts)
+    b += struct.pack("<H", len(indices))
+    b += struct.pack(f"<{len(indices)}h", *indices)
+    identity = [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]
+    b += struct.pack("<16f", *identity)                       # aggregate xf
+    b += struct.pack("<ffQi", 0.2, 0.5, 1, 16)                 # grainRadius, packingRate, seed, tileSpheres
+    b += struct.pack("<B2f", 2, 1.0, 0.5)                      # weights
+    b += struct.pack("<B", 1 if dielectric else 0)
+    b += struct.pack("<3ff3f3f", 0.5, 0.5, 0.5, 1.5, 0.1, 0.2, 0.4, 0, 0, 0)
+    camera = [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 4, 0, 0, 0, 1]  # at z = 4 looking down -z
+    b += struct.pack("<16f", *camera)
+    b += struct.pack("<7f", 35, 36, 24, 0, 0, 0.01, 100)
+    b += struct.pack("<B", light_type)
+    light = [1, 0, 0, 0, 0, 1, 0, 2, 0, 0, 1, 0, 0, 0, 0, 1]
+    b += struct.pack("<16f", *light)
+    b += struct.pack("<3f6fB", 1, 1, 1, 2, 0, 0.53, 0.5, 1, 1, 0)
+    b += struct.pack("<BBB", 5, 4, 0)
+    return bytes(b)
+
+
+def usd_seeds(out):
+    os.makedirs(out, exist_ok=True)
+    box = [(x, y, z) for z in (-1, 1) for y in (-1, 1) for x in (-1, 1)]
+    quads = [0, 4, 6, 2, 1, 3, 7, 5, 0, 1, 5, 4, 2, 6, 7, 3, 0, 2, 3, 1, 4, 5, 7, 6]
+    tet = [(1, 1, 1), (1, -1, -1), (-1, 1, -1), (-1, -1, 1)]
+    tris = [0, 1, 2, 0, 3, 1, 0, 2, 3, 1, 3, 2]
+    n = 0
+    for lt in range(4):
+        with open(os.path.join(out, f"box_light{lt}.bin"), "wb") as f:
+            f.write(usd_seed(box, [4] * 6, quads, lt))
+        with open(os.path.join(out, f"tet_light{lt}.bin"), "wb") as f:
+            f.write(usd_seed(tet, [3] * 4, tris, lt, dielectric=lt % 2 == 0))
+        n += 2
+    for path in sorted(glob.glob(os.path.join(ROOT, "fuzz/regressions/usd_attributes_*.bin"))):
+        with open(path, "rb") as f, open(os.path.join(out, "regression_" + os.path.basename(path)), "wb") as g:
+            g.write(f.read())
+        n += 1
+    return n
+
+
+# fuzz_usd_prims.cpp's pick lists: the index of an entry.
+PATHS = ["/World/Castle", "/World/Grains/Round", "/World/Grains/Flat", "/World/Floor", "../Grains/Round"]
+NAMES = ["grainRadius", "packingRate", "prototypes", "weights", "seed", "tileSpheres", "ior", "absorption",
+         "roughness", "unknownName", "Mesh", "Cube", "Sphere", "Xform", "GranularAggregateAPI", "GranularGrainAPI"]
+TYPES = ["float", "double", "half", "int", "int64", "uint", "uchar", "float[]", "double[]", "half[]", "string[]"]
+
+
+def prims_mesh(points, counts, indices):
+    b = bytearray(struct.pack("<B", len(points)))
+    for p in points:
+        b += struct.pack("<3f", *p)
+    b += struct.pack("<B", len(counts)) + struct.pack(f"<{len(counts)}b", *counts)
+    b += struct.pack("<B", len(indices)) + struct.pack(f"<{len(indices)}b", *indices)
+    return b
+
+
+def prims_primvar(name, typ, numbers=(), strings=(), is_array=False, is_string=False):
+    b = bytearray(struct.pack("<BBB", NAMES.index(name), TYPES.index(typ), (1 if is_array else 0) | (2 if is_string else 0)))
+    b += struct.pack("<B", 0)  # interpolation "constant"
+    b += struct.pack("<B", len(numbers)) + struct.pack(f"<{len(numbers)}f", *numbers)
+    b += struct.pack("<B", len(strings)) + bytes(PATHS.index(p) for p in strings)
+    return b
+
+
+def prims_prim(path, api, visible, material, mesh, primvars):
+    b = bytearray(struct.pack("<BB", PATHS.index(path), NAMES.index("Mesh")))
+    b += struct.pack("<B", 1 | (2 if visible else 0) | 4)
+    b += struct.pack("<BB", 1, NAMES.index(api))
+    b += struct.pack("<b", material) + mesh + struct.pack("<B", 0)  # no instances
+    b += struct.pack("<B", len(primvars)) + b"".join(primvars)
+    return b
+
+
+def prims_seed(light_type, lookup):
+    box = [(x, y, z) for z in (-1, 1) for y in (-1, 1) for x in (-1, 1)]
+    quads = [0, 4, 6, 2, 1, 3, 7, 5, 0, 1, 5, 4, 2, 6, 7, 3, 0, 2, 3, 1, 4, 5, 7, 6]
+    tet = [(1, 1, 1), (1, -1, -1), (-1, 1, -1), (-1, -1, 1)]
+    tris = [0, 1, 2, 0, 3, 1, 0, 2, 3, 1, 3, 2]
+    b = bytearray(struct.pack("<B", 1))  # one material: a dielectric
+    b += struct.pack("<B3ff3f3f", 1, 0.5, 0.5, 0.5, 1.5, 0.1, 0.2, 0.4, 0, 0, 0)
+    castle = prims_prim("/World/Castle", "GranularAggregateAPI", True, -1, prims_mesh(box, [4] * 6, quads), [
+        prims_primvar("grainRadius", "float", [0.2]),
+        prims_primvar("prototypes", "string[]", strings=["../Grains/Round"], is_array=True, is_string=True),
+        prims_primvar("tileSpheres", "int", [16])])
+    grain = prims_prim("/World/Grains/Round", "GranularGrainAPI", False, 0, prims_mesh(tet, [3] * 4, tris),
+                       [prims_primvar("ior", "float", [1.5])])
+    # The listed count is read as 1 + byte % 4, the looked-up count as byte % 3.
+    if lookup:
+        b += struct.pack("<B", 0) + castle + struct.pack("<B", 1) + grain
+    else:
+        b += struct.pack("<B", 1) + castle + grain + struct.pack("<B", 0)
+    b += struct.pack("<12f", 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 4)  # camera at z = 4
+    b += struct.pack("<5f", 35, 36, 24, 0.01, 100)
+    b += struct.pack("<B12f", light_type, 1, 0, 0, 0, 0, 1, 0, 2, 0, 0, 1, 0)
+    b += struct.pack("<3f6fB", 1, 1, 1, 2, 0, 0.53, 0.5, 1, 1, 0)
+    b += struct.pack("<BB", 5, 4)
+    return bytes(b)
+
+
+def prims_seeds(out):
+    os.makedirs(out, exist_ok=True)
+    n = 0
+    for lt in range(4):
+        for lookup in (False, True):
+            with open(os.path.join(out, f"castle_light{lt}{'_lookup' if lookup else ''}.bin"), "wb") as f:
+                f.write(prims_seed(lt, lookup))
+            n += 1
+    for path in sorted(glob.glob(os.path.join(ROOT, "fuzz/regressions/prims_*.bin"))):
+        with open(path, "rb") as f, open(os.path.join(out, "regression_" + os.path.basename(path)), "wb") as g:
+            g.write(f.read())
+        n += 1
+    return n
+
+
+def main():
+    if len(sys.argv) != 2:
+        sys.exit(__doc__)
+    out = sys.argv[1]
+    a = json_seeds(os.path.join(out, "fuzz_scene_json"))
+    b = usd_seeds(os.path.join(out, "fuzz_usd_attributes"))
+    c = prims_seeds(os.path.join(out, "fuzz_usd_prims"))
+    print(f"seed corpus: {a} JSON scenes, {b} USD attribute inputs, {c} USD prim inputs in {out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,100 @@
+// Lights: numerical robustness of sampling and MIS for extreme geometry (tests mirror
+// core/light.* and the MIS helper in core/sampling.h).
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "light.h"
+#include "render.h"
+#include "sampling.h"
+#include "scene.h"
+#include "shapes.h"
+
+using namespace granular;
+
+TEST(Light, PowerHeuristicSurvivesHugePdfs) {
+  EXPECT_FLOAT_EQ(powerHeuristic(1.0f, 1.0f), 0.5f);
+  EXPECT_NEAR(powerHeuristic(3.0f, 1.0f), 0.9f, 1e-6f);
+  EXPECT_NEAR(powerHeuristic(1.0f, 3.0f), 0.1f, 1e-6f);
+  // Squares of 1e20 overflowed to inf / inf = NaN.
+  EXPECT_FLOAT_EQ(powerHeuristic(1e20f, 1.0f), 1.0f);
+  EXPECT_NEAR(powerHeuristic(1.0f, 1e20f), 0.0f, 1e-30f);
+  EXPECT_FLOAT_EQ(powerHeuristic(1e30f, 1e30f), 0.5f);
+  EXPECT_FLOAT_EQ(powerHeuristic(kInf, 2.0f), 1.0f);
+  EXPECT_FLOAT_EQ(powerHeuristic(0.0f, 0.0f), 0.0f);
+  EXPECT_FLOAT_EQ(powerHeuristic(2.0f, 0.0f), 1.0f);
+}
+
+TEST(Light, SmallSphereFarAwaySamplesFiniteAndConsistent) {
+  // radius 0.5 at distance 5000: sin² = 1e-8, below float's resolution around 1, so
+  // cosMax rounded to 1 and the cone pdf was 1/0 (every sample NaN: a black image).
+  LightDesc d;
+  d.type = LightType::Sphere;
+  d.radius = 0.5f;
+  d.xf = Transform::translate(Vec3(0, 5000, 0));
+  Light l = Light::fromDesc(d);
+  const double sin2 = 0.25 / (5000.0 * 5000.0);
+  const double solidAngle = 2 * 3.14159265358979 * sin2 / (1 + std::sqrt(1 - sin2));
+  Rng rng(1);
+  for (int i = 0; i < 100; ++i) {
+    LightSample s;
+    ASSERT_TRUE(l.sampleLi(Vec3(0.0f), rng.next1D(), rng.next1D(), s));
+    ASSERT_TRUE(isFinite(s.wi) && std::isfinite(s.pdf) && s.pdf > 0);
+    EXPECT_NEAR(s.pdf * solidAngle, 1.0, 1e-4);
+    EXPECT_NEAR(l.pdfLi(Vec3(0.0f), s.wi, s.dist) * solidAngle, 1.0, 1e-4);
+    EXPECT_GT(s.wi.y, 0.999999f);
+    EXPECT_NEAR(s.dist, 4999.5f, 0.5f);
+  }
+}
+
+TEST(Light, FloorUnderASmallSphereFarAwayHasTheAnalyticRadiance) {
+  // A Lambert floor (albedo ρ) straight under a sphere of radiance L, radius r, at
+  // height h: E = L π r²/h², so the floor's radiance is ρ L r²/h² (here 0.5 x 1e8 x 1e-8).
+  SceneDesc s;
+  s.settings.width = s.settings.height = 8;
+  s.settings.spp = 16;
+  s.settings.technique = Technique::Ept;
+  s.camera.cameraToWorld = Transform::lookAt(Vec3(0, 2, 0), Vec3(0.0f), Vec3(0, 0, -1));
+  s.camera.horizontalAperture = s.camera.verticalAperture = 10;
+  MeshDesc floor;
+  floor.name = "floor";
+  floor.mesh = makeBox(Vec3(-5, -0.1f, -5), Vec3(5, 0, 5));
+  s.meshes.push_back(floor);
+  LightDesc bulb;
+  bulb.name = "far bulb";
+  bulb.type = LightType::Sphere;
+  bulb.radius = 0.5f;
+  bulb.intensity = 1e8f;
+  bulb.xf = Transform::translate(Vec3(0, 5000, 0));
+  s.lights.push_back(bulb);
+  auto scene = Scene::build(s);
+  Renderer r(*scene);
+  ASSERT_TRUE(r.render(16));
+  EXPECT_EQ(r.nonFiniteSamples(), 0);
+  for (int y = 0; y < 8; ++y)
+    for (int x = 0; x < 8; ++x) EXPECT_NEAR(r.film().mean(x, y).x, 0.5f, 2e-3f) << x << "," << y;
+}
+
+TEST(Light, NormalisedTinyLightsOfZeroIntensityAreBlackNotNaN) {
+  // The area of a sphere of radius 6e-37 underflows a float: 0 / 0 was NaN (USD fuzzer).
+  LightDesc d;
+  d.type = LightType::Sphere;
+  d.radius = 5.7e-37f;
+  d.intensity = 0;
+  d.normalize = true;
+  d.xf = Transform::translate(Vec3(0, 2, 0));
+  LightSample s;
+  Light sphere = Light::fromDesc(d);
+  ASSERT_TRUE(sphere.sampleLi(Vec3(0.0f), 0.5f, 0.5f, s));
+  EXPECT_TRUE(isFinite(s.Li)) << s.Li.x;
+  d.type = LightType::Rect;
+  d.width = d.height = 1e-25f;
+  Light rect = Light::fromDesc(d);
+  EXPECT_TRUE(isFinite(rect.areaLe(Vec3(0, -1, 0))));
+  // A finite normalised light keeps its meaning: intensity is the power per area.
+  d.type = LightType::Sphere;
+  d.radius = 0.5f;
+  d.intensity = kPi;
+  Light unit = Light::fromDesc(d);
+  EXPECT_NEAR(unit.areaLe(Vec3(0, -1, 0)).x, 1.0f, 1e-6f);  // π / (4π 0.25)
+}
