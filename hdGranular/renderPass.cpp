@@ -1,3 +1,5 @@
+#include <cmath>
+
 #include "renderPass.h"
 
 #include <exception>
@@ -16,12 +18,6 @@ PXR_NAMESPACE_OPEN_SCOPE
 
 namespace {
 
-granular::Transform toCore(GfMatrix4d const& m) {
-  granular::Transform t;  // USD's row-vector matrix, transposed into core's column form
-  for (int i = 0; i < 4; ++i)
-    for (int j = 0; j < 4; ++j) t.m[i][j] = m[j][i];
-  return t;
-}
 
 // The perspective camera equivalent to Hydra's view and projection matrices, with a
 // focal length of 1: the window at unit distance is [-1/P00, 1/P00] shifted by P20/P00
@@ -29,7 +25,7 @@ granular::Transform toCore(GfMatrix4d const& m) {
 // from P22 and P32.
 bool cameraFromMatrices(GfMatrix4d const& view, GfMatrix4d const& proj, granular::CameraDesc& cam) {
   if (proj[2][3] != -1.0 || proj[0][0] == 0 || proj[1][1] == 0) return false;  // not a perspective frustum
-  cam.cameraToWorld = toCore(view.GetInverse());
+  cam.cameraToWorld = HdGranularToCore(view.GetInverse());
   cam.focalLength = 1.0f;
   cam.horizontalAperture = float(2.0 / proj[0][0]);
   cam.verticalAperture = float(2.0 / proj[1][1]);
