@@ -160,3 +160,50 @@ TEST(HdGranular, StoppingMidRenderIsClean) {
     EXPECT_FALSE(engine->IsConverged());
   }
 }
+
+TEST(HdGranular, PointInstancerInstancesAreRendered) {
+  // A sun-lit ground seen from above with one instanced quad mesh: 3 instances cover
+  // 3x the pixels of 1 (the alpha channel counts coverage).
+  auto coverage = [](int instances) {
+    UsdStageRefPtr stage = UsdStage::CreateInMemory();
+    std::string text = R"(#usda 1.0
+def Xform "World" {
+  def Camera "Camera" {
+    double3 xformOp:translate = (0, 0, 10)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+    float focalLength = 50
+    float horizontalAperture = 40
+    float verticalAperture = 40
+  }
+  def DomeLight "Sky" {
+    float inputs:intensity = 1
+  }
+  def PointInstancer "Inst" {
+    rel prototypes = </World/Inst/Protos/Quad>
+    int[] protoIndices = [)";
+    std::string positions;
+    for (int i = 0; i < instances; ++i) {
+      text += std::string(i ? ", " : "") + "0";
+      positions += std::string(i ? ", " : "") + "(" + std::to_string(-2 + 2 * i) + ", 0, 0)";
+    }
+    text += "]\n    point3f[] positions = [" + positions + R"(]
+    def Scope "Protos" {
+      def Mesh "Quad" {
+        point3f[] points = [(-0.5, -0.5, 0), (0.5, -0.5, 0), (0.5, 0.5, 0), (-0.5, 0.5, 0)]
+        int[] faceVertexCounts = [4]
+        int[] faceVertexIndices = [0, 1, 2, 3]
+      }
+    }
+  }
+}
+)";
+    stage->GetRootLayer()->ImportFromString(text);
+    auto engine = makeEngine(4);
+    Frame f = render(*engine, stage, HdAovTokens->color, 40, 40);
+    EXPECT_TRUE(f.converged);
+    return mean(f, 3);
+  };
+  double one = coverage(1), three = coverage(3);
+  EXPECT_GT(one, 0.0);
+  EXPECT_NEAR(three, 3.0 * one, 0.15 * one);
+}
