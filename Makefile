@@ -6,6 +6,14 @@ VENV ?= .venv
 JOBS ?= $(shell nproc 2>/dev/null || echo 2)
 CMAKE_ARGS ?=
 PY := $(VENV)/bin/python
+# The Hydra delegate builds (and its tests run) when an OpenUSD install with imaging is
+# found: PXR_DIR, else /opt/openusd. pxrConfig.cmake wants the exact Python OpenUSD was
+# built with (PXR_PYTHON, Debian's by default), which another Python on PATH would shadow.
+PXR_DIR ?= $(if $(wildcard /opt/openusd/pxrConfig.cmake),/opt/openusd,)
+PXR_PYTHON ?= /usr/bin/python3
+PXR_ARGS := $(if $(PXR_DIR),-Dpxr_DIR=$(PXR_DIR) -DPython3_EXECUTABLE=$(PXR_PYTHON) \
+  -DPython3_INCLUDE_DIR=$(shell $(PXR_PYTHON) -c 'import sysconfig; print(sysconfig.get_paths()["include"])' 2>/dev/null) \
+  -DPython3_LIBRARY=$(shell $(PXR_PYTHON) -c 'import sysconfig as s; print(s.get_config_var("LIBDIR") + "/" + s.get_config_var("LDLIBRARY"))' 2>/dev/null),)
 
 .PHONY: demo demo-json test deps venv build schemas bench clean sanitize fuzz
 
@@ -18,7 +26,7 @@ venv: deps
 	@scripts/setup-venv.sh $(VENV) $(BUILD)
 
 build: venv
-	@cmake -S . -B $(BUILD) -G Ninja -DCMAKE_BUILD_TYPE=Release -DGRANULAR_PYTHON=$(abspath $(PY)) $(CMAKE_ARGS) > $(BUILD).configure.log 2>&1 || { cat $(BUILD).configure.log; exit 1; }
+	@cmake -S . -B $(BUILD) -G Ninja -DCMAKE_BUILD_TYPE=Release -DGRANULAR_PYTHON=$(abspath $(PY)) $(PXR_ARGS) $(CMAKE_ARGS) > $(BUILD).configure.log 2>&1 || { cat $(BUILD).configure.log; exit 1; }
 	@grep -E "hdGranular|granular Python" $(BUILD).configure.log || true
 	@cmake --build $(BUILD) -j $(JOBS)
 

@@ -6,6 +6,7 @@
 // name and renamed, so concurrent renders never read half a file.
 #pragma once
 
+#include <cstring>
 #include <string>
 #include <vector>
 
@@ -17,5 +18,21 @@ std::string cacheDirectory();
 bool readCacheFile(const std::string& name, std::vector<char>& bytes);
 // Writes a cache entry atomically; false (and no exception) on failure.
 bool writeCacheFile(const std::string& name, const std::vector<char>& bytes);
+
+// Serialisation of cache entries: appends a trivially copyable value; reads one back at
+// pos (false, and nothing read, when the entry is too short: a truncated file).
+template <typename T>
+void appendBytes(std::vector<char>& out, const T& v) {
+  const char* p = reinterpret_cast<const char*>(&v);
+  out.insert(out.end(), p, p + sizeof(T));
+}
+
+template <typename T>
+bool readBytes(const std::vector<char>& in, size_t& pos, T& v) {
+  if (in.size() < pos || in.size() - pos < sizeof(T)) return false;
+  std::memcpy(&v, in.data() + pos, sizeof(T));
+  pos += sizeof(T);
+  return true;
+}
 
 }  // namespace granular

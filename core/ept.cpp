@@ -21,6 +21,15 @@ void addAreaLightHit(const Scene& scene, PathState& path, const Hit& hit) {
   path.L[path.credit] += path.beta * light.areaLe(dir) * w;
 }
 
+void recordPrimary(const Scene& scene, PathState& path, const Hit& hit) {
+  if (path.primary.hit) return;
+  path.primary.hit = true;
+  path.primary.depth = scene.camera().viewDepth(hit.p);
+  path.primary.normal = dot(hit.ng, path.ray.d) > 0 ? -hit.ng : hit.ng;
+  path.primary.kind = int(hit.kind);
+  path.primary.primId = hit.primId;
+}
+
 PathState startPath(const Ray& ray, uint64_t rngSeed, float spread) {
   PathState p;
   p.ray = ray;
@@ -33,8 +42,10 @@ PathState startPath(const Ray& ray, uint64_t rngSeed, float spread) {
 Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir) {
   const float lightPick = lightPickProb(scene);
   Vec3 L(0.0f);
+  const bool camera = path.depth == 0;
   for (int li : scene.infiniteLights()) {
     const Light& light = scene.lights()[li];
+    if (camera && light.type() == LightType::Dome && !scene.settings().domeCameraVisible) continue;
     Vec3 Le = light.escapedLe(dir);
     if (isBlack(Le)) continue;
     float w = 1.0f;
@@ -141,13 +152,7 @@ void eptStep(const Scene& scene, PathState& path) {
     path.alive = false;
     return;
   }
-  if (path.depth == 0) {
-    path.primary.hit = true;
-    path.primary.depth = scene.camera().viewDepth(hit.p);
-    path.primary.normal = dot(hit.ng, path.ray.d) > 0 ? -hit.ng : hit.ng;
-    path.primary.kind = int(hit.kind);
-    path.primary.primId = hit.primId;
-  }
+  if (path.depth == 0) recordPrimary(scene, path, hit);
   if (hit.kind == Hit::AreaLight) {
     addAreaLightHit(scene, path, hit);
     path.alive = false;

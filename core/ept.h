@@ -74,6 +74,9 @@ void eptStep(const Scene& scene, PathState& path);
 // hit. In media mode, shadow rays see the media (transmittance), not grains.
 void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool mediaMode);
 
+// The first visible hit's AOVs (depth, normal, kind, primId), once per path.
+void recordPrimary(const Scene& scene, PathState& path, const Hit& hit);
+
 // Emission of an area light that the path's last sampled direction reached, MIS-weighted.
 void addAreaLightHit(const Scene& scene, PathState& path, const Hit& hit);
 

@@ -391,20 +391,6 @@ uint64_t checksum(const char* data, size_t size) {
   return h;
 }
 
-template <typename T>
-void put(std::vector<char>& out, const T& v) {
-  const char* p = reinterpret_cast<const char*>(&v);
-  out.insert(out.end(), p, p + sizeof(T));
-}
-
-template <typename T>
-bool get(const std::vector<char>& in, size_t& pos, T& v) {
-  if (in.size() - pos < sizeof(T)) return false;
-  std::memcpy(&v, in.data() + pos, sizeof(T));
-  pos += sizeof(T);
-  return true;
-}
-
 uint64_t bitsOf(double d) {
   uint64_t b;
   std::memcpy(&b, &d, sizeof b);
@@ -417,18 +403,18 @@ std::string cacheName(int n, double targetF, uint64_t seed) {
 
 std::vector<char> serialise(const Tile& t, double targetF) {
   std::vector<char> out(kMagic, kMagic + sizeof kMagic);
-  put(out, kTileFormatVersion);
-  put(out, int32_t(t.numSpheres));
-  put(out, targetF);
-  put(out, t.seed);
-  put(out, t.radius);
-  put(out, t.packingRate);
+  appendBytes(out, kTileFormatVersion);
+  appendBytes(out, int32_t(t.numSpheres));
+  appendBytes(out, targetF);
+  appendBytes(out, t.seed);
+  appendBytes(out, t.radius);
+  appendBytes(out, t.packingRate);
   for (const Vec3& c : t.centers) {
-    put(out, c.x);
-    put(out, c.y);
-    put(out, c.z);
+    appendBytes(out, c.x);
+    appendBytes(out, c.y);
+    appendBytes(out, c.z);
   }
-  put(out, checksum(out.data(), out.size()));
+  appendBytes(out, checksum(out.data(), out.size()));
   return out;
 }
 
@@ -442,20 +428,20 @@ bool deserialise(const std::vector<char>& in, int n, double targetF, uint64_t se
   uint32_t version;
   int32_t count;
   double f;
-  get(in, pos, version);
-  get(in, pos, count);
-  get(in, pos, f);
-  get(in, pos, t.seed);
-  get(in, pos, t.radius);
-  get(in, pos, t.packingRate);
+  readBytes(in, pos, version);
+  readBytes(in, pos, count);
+  readBytes(in, pos, f);
+  readBytes(in, pos, t.seed);
+  readBytes(in, pos, t.radius);
+  readBytes(in, pos, t.packingRate);
   if (version != kTileFormatVersion || count != n || bitsOf(f) != bitsOf(targetF) || t.seed != seed) return false;
   if (!(t.radius > 0) || !(t.radius <= 0.5) || !(std::fabs(t.packingRate - targetF) <= 1e-6 * targetF)) return false;
   t.numSpheres = n;
   t.centers.resize(n);
   for (Vec3& c : t.centers) {
-    get(in, pos, c.x);
-    get(in, pos, c.y);
-    get(in, pos, c.z);
+    readBytes(in, pos, c.x);
+    readBytes(in, pos, c.y);
+    readBytes(in, pos, c.z);
     for (int k = 0; k < 3; ++k)
       if (!(c[k] >= 0.0f && c[k] < 1.0f)) return false;
   }

@@ -156,24 +156,54 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc) {
   return s;
 }
 
-bool Scene::intersect(const Ray& ray, Hit& hit) const {
-  float tmax = ray.tmax;
-  bool found = false;
+bool Scene::intersectSurfaces(const Ray& ray, Hit& hit, float& tmax) const {
   RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
-  RTCRayHit rh = makeRayHit(ray.o, ray.d, ray.tmin, ray.tmax);
+  RTCRayHit rh = makeRayHit(ray.o, ray.d, ray.tmin, tmax);
   rtcIntersect1(surfaces_.get(), &ctx, &rh);
-  if (rh.hit.geomID != RTC_INVALID_GEOMETRY_ID) {
-    found = true;
-    tmax = rh.ray.tfar;
-    hit.kind = Hit::Surface;
-    hit.t = tmax;
-    hit.ng = triangleNormal(worldMeshes_[rh.hit.geomID], rh.hit.primID);
-    hit.material = meshMaterial_[rh.hit.geomID];
-    hit.primId = meshId_[rh.hit.geomID];
-    hit.lengthScale = 1.0f;
-    hit.eps = 0;
+  if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
+  tmax = rh.ray.tfar;
+  hit.kind = Hit::Surface;
+  hit.t = tmax;
+  hit.ng = triangleNormal(worldMeshes_[rh.hit.geomID], rh.hit.primID);
+  hit.material = meshMaterial_[rh.hit.geomID];
+  hit.primId = meshId_[rh.hit.geomID];
+  hit.lengthScale = 1.0f;
+  hit.eps = 0;
+  return true;
+}
+
+bool Scene::intersectAreaLights(const Ray& ray, Hit& hit, float& tmax) const {
+  bool found = false;
+  for (int li : areaLights_) {
+    float t;
+    Ray r = ray;
+    r.tmax = tmax;
+    if (lights_[li].intersect(r, t) && t < tmax) {
+      found = true;
+      tmax = t;
+      hit.kind = Hit::AreaLight;
+      hit.t = t;
+      hit.light = li;
+    }
   }
+  return found;
+}
+
+void Scene::finishHit(const Ray& ray, Hit& hit) const {
+  hit.p = ray.o + ray.d * hit.t;
+  // Position error grows with the coordinates' magnitude (float) and, for p = o + t d,
+  // with the distance t travelled: keep the offset above both. (With |p| alone, a floor
+  // at the world origin seen from 2 units away lost ~1 NEE sample in 16 near the origin
+  // to shadow rays starting below its surface: test_light.cpp.)
+  float coordScale = std::max({maxComponent(vabs(hit.p)), hit.t, 1e-3f * sceneScale_});
+  hit.eps = std::max(hit.eps, 4e-7f * coordScale);
+  if (hit.kind == Hit::Surface) hit.eps = std::max(hit.eps, 1e-5f * coordScale);
+}
+
+bool Scene::intersect(const Ray& ray, Hit& hit) const {
+  float tmax = ray.tmax;
+  bool found = intersectSurfaces(ray, hit, tmax);
   for (size_t a = 0; a < aggregates_.size(); ++a) {
     GrainHit g;
     if (aggregates_[a]->intersect(ray.o, ray.d, ray.tmin, tmax, g) && g.t < tmax) {
@@ -190,27 +220,9 @@ bool Scene::intersect(const Ray& ray, Hit& hit) const {
       hit.eps = 2e-4f * agg.grainRadius();
     }
   }
-  for (int li : areaLights_) {
-    float t;
-    Ray r = ray;
-    r.tmax = tmax;
-    if (lights_[li].intersect(r, t) && t < tmax) {
-      found = true;
-      tmax = t;
-      hit.kind = Hit::AreaLight;
-      hit.t = t;
-      hit.light = li;
-    }
-  }
+  found |= intersectAreaLights(ray, hit, tmax);
   if (!found) return false;
-  hit.p = ray.o + ray.d * hit.t;
-  // Position error grows with the coordinates' magnitude (float) and, for p = o + t d,
-  // with the distance t travelled: keep the offset above both. (With |p| alone, a floor
-  // at the world origin seen from 2 units away lost ~1 NEE sample in 16 near the origin
-  // to shadow rays starting below its surface: test_light.cpp.)
-  float coordScale = std::max({maxComponent(vabs(hit.p)), hit.t, 1e-3f * sceneScale_});
-  hit.eps = std::max(hit.eps, 4e-7f * coordScale);
-  if (hit.kind == Hit::Surface) hit.eps = std::max(hit.eps, 1e-5f * coordScale);
+  finishHit(ray, hit);
   return true;
 }
 
@@ -237,21 +249,7 @@ void Scene::setMedium(int aggregate, const MediumParams& params) {
 
 bool Scene::intersectMedium(const Ray& ray, Hit& hit) const {
   float tmax = ray.tmax;
-  bool found = false;
-  RTCIntersectContext ctx;
-  rtcInitIntersectContext(&ctx);
-  RTCRayHit rh = makeRayHit(ray.o, ray.d, ray.tmin, ray.tmax);
-  rtcIntersect1(surfaces_.get(), &ctx, &rh);
-  if (rh.hit.geomID != RTC_INVALID_GEOMETRY_ID) {
-    found = true;
-    tmax = rh.ray.tfar;
-    hit.kind = Hit::Surface;
-    hit.t = tmax;
-    hit.ng = triangleNormal(worldMeshes_[rh.hit.geomID], rh.hit.primID);
-    hit.material = meshMaterial_[rh.hit.geomID];
-    hit.primId = meshId_[rh.hit.geomID];
-    hit.lengthScale = 1.0f;
-  }
+  bool found = intersectSurfaces(ray, hit, tmax);
   for (size_t a = 0; a < aggregates_.size(); ++a) {
     float t;
     Vec3 ng;
@@ -264,24 +262,12 @@ bool Scene::intersectMedium(const Ray& ray, Hit& hit) const {
       hit.aggregate = int(a);
       hit.material = -1;
       hit.primId = aggregateId_[a];
+      hit.eps = 0;
     }
   }
-  for (int li : areaLights_) {
-    float t;
-    Ray r = ray;
-    r.tmax = tmax;
-    if (lights_[li].intersect(r, t) && t < tmax) {
-      found = true;
-      tmax = t;
-      hit.kind = Hit::AreaLight;
-      hit.t = t;
-      hit.light = li;
-    }
-  }
+  found |= intersectAreaLights(ray, hit, tmax);
   if (!found) return false;
-  hit.p = ray.o + ray.d * hit.t;
-  float coordScale = std::max({maxComponent(vabs(hit.p)), hit.t, 1e-3f * sceneScale_});  // as intersect()
-  hit.eps = std::max(4e-7f * coordScale, hit.kind == Hit::Surface ? 1e-5f * coordScale : 0.0f);
+  finishHit(ray, hit);
   return true;
 }
 

@@ -82,6 +82,11 @@ class Scene {
   double buildSeconds() const { return buildSeconds_; }
 
  private:
+  // Parts of intersect()/intersectMedium(): nearest hit below tmax (which they lower).
+  bool intersectSurfaces(const Ray& ray, Hit& hit, float& tmax) const;
+  bool intersectAreaLights(const Ray& ray, Hit& hit, float& tmax) const;
+  void finishHit(const Ray& ray, Hit& hit) const;  // position and ray-offset scale
+
   Camera camera_;
   RenderSettings settings_;
   std::vector<Material> materials_;

@@ -36,8 +36,10 @@ void checkTransform(const Transform& xf, const std::string& obj, const char* att
   if (!xf.isFinite()) throw InputError(obj, attr, "is not finite");
   // Everything downstream applies transforms as affine maps (Transform::point ignores the
   // bottom row); a projective matrix (a USD matrix whose last column is not (0, 0, 0, 1))
-  // would be silently misread.
-  if (xf.m[3][0] != 0 || xf.m[3][1] != 0 || xf.m[3][2] != 0 || xf.m[3][3] != 1)
+  // would be silently misread. Rounding (an inverted view matrix has 1e-17s there) is no error.
+  const double tol = 1e-9;
+  if (std::fabs(xf.m[3][0]) > tol || std::fabs(xf.m[3][1]) > tol || std::fabs(xf.m[3][2]) > tol ||
+      std::fabs(xf.m[3][3] - 1) > tol)
     throw InputError(obj, attr,
                      str("is not affine: its row-vector (USD) form has last column (", xf.m[3][0], ", ", xf.m[3][1],
                          ", ", xf.m[3][2], ", ", xf.m[3][3], "), not (0, 0, 0, 1)"));

@@ -105,6 +105,9 @@ struct RenderSettings {
   // (0: off, EPT always first). Off by default: on sub-pixel grains it measures about
   // +3% brighter than EPT-first (tests/core/test_lod.cpp), above the 3% we aim for.
   float lod = 0.0f;
+  // Whether camera rays see dome lights (Hydra hosts may hide the background while its
+  // light still illuminates the scene).
+  bool domeCameraVisible = true;
 };
 
 struct SceneDesc {

@@ -176,36 +176,22 @@ uint64_t cacheKey(const TriangleMesh& mesh, const Material& m, const TTOptions& 
 
 uint64_t checksum(const char* data, size_t size) { return hashBytes(mix64(size), data, size); }
 
-template <typename T>
-void put(std::vector<char>& out, const T& v) {
-  const char* p = reinterpret_cast<const char*>(&v);
-  out.insert(out.end(), p, p + sizeof(T));
-}
-
-template <typename T>
-bool get(const std::vector<char>& in, size_t& pos, T& v) {
-  if (in.size() - pos < sizeof(T)) return false;
-  std::memcpy(&v, in.data() + pos, sizeof(T));
-  pos += sizeof(T);
-  return true;
-}
-
 std::vector<char> serialise(const GrainTransport& g, uint64_t key) {
   std::vector<char> out(kMagic, kMagic + sizeof kMagic);
-  put(out, kTTFormatVersion);
-  put(out, key);
-  put(out, g.beta); put(out, g.betaSE); put(out, g.lambdaDelta); put(out, g.lambdaDeltaSE);
+  appendBytes(out, kTTFormatVersion);
+  appendBytes(out, key);
+  appendBytes(out, g.beta); appendBytes(out, g.betaSE); appendBytes(out, g.lambdaDelta); appendBytes(out, g.lambdaDeltaSE);
   for (const auto* a : {&g.lambdaS, &g.lambdaSSE, &g.albedo, &g.albedoSE, &g.g, &g.gSE})
-    for (double v : *a) put(out, v);
-  put(out, g.rays);
-  put(out, g.truncated);
-  put(out, int32_t(g.phase[0].bins()));
+    for (double v : *a) appendBytes(out, v);
+  appendBytes(out, g.rays);
+  appendBytes(out, g.truncated);
+  appendBytes(out, int32_t(g.phase[0].bins()));
   for (const PhaseTable& p : g.phase) {
-    for (float v : p.density) put(out, v);
-    for (float v : p.cdf) put(out, v);
-    put(out, p.g);
+    for (float v : p.density) appendBytes(out, v);
+    for (float v : p.cdf) appendBytes(out, v);
+    appendBytes(out, p.g);
   }
-  put(out, checksum(out.data(), out.size()));
+  appendBytes(out, checksum(out.data(), out.size()));
   return out;
 }
 
@@ -220,22 +206,22 @@ bool deserialise(const std::vector<char>& in, uint64_t key, const TTOptions& opt
   uint32_t version = 0;
   uint64_t storedKey = 0;
   int32_t storedBins = 0;
-  get(in, pos, version);
-  get(in, pos, storedKey);
+  readBytes(in, pos, version);
+  readBytes(in, pos, storedKey);
   if (version != kTTFormatVersion || storedKey != key) return false;
-  get(in, pos, g.beta); get(in, pos, g.betaSE); get(in, pos, g.lambdaDelta); get(in, pos, g.lambdaDeltaSE);
+  readBytes(in, pos, g.beta); readBytes(in, pos, g.betaSE); readBytes(in, pos, g.lambdaDelta); readBytes(in, pos, g.lambdaDeltaSE);
   for (auto* a : {&g.lambdaS, &g.lambdaSSE, &g.albedo, &g.albedoSE, &g.g, &g.gSE})
-    for (double& v : *a) get(in, pos, v);
-  get(in, pos, g.rays);
-  get(in, pos, g.truncated);
-  get(in, pos, storedBins);
+    for (double& v : *a) readBytes(in, pos, v);
+  readBytes(in, pos, g.rays);
+  readBytes(in, pos, g.truncated);
+  readBytes(in, pos, storedBins);
   if (storedBins != bins || g.rays != opt.rays) return false;
   for (PhaseTable& p : g.phase) {
     p.density.resize(bins);
     p.cdf.resize(bins + 1);
-    for (float& v : p.density) get(in, pos, v);
-    for (float& v : p.cdf) get(in, pos, v);
-    get(in, pos, p.g);
+    for (float& v : p.density) readBytes(in, pos, v);
+    for (float& v : p.cdf) readBytes(in, pos, v);
+    readBytes(in, pos, p.g);
     for (float v : p.density)
       if (!std::isfinite(v) || v < 0) return false;
     if (p.cdf.front() != 0.0f || p.cdf.back() != 1.0f || !std::isfinite(p.g)) return false;

@@ -180,25 +180,13 @@ void vptStep(const Scene& scene, PathState& path) {
       return;
     }
     if (hit.kind == Hit::Boundary) {
-      if (path.depth == 0 && !path.primary.hit) {  // a camera ray entering a medium (LOD)
-        path.primary.hit = true;
-        path.primary.depth = scene.camera().viewDepth(hit.p);
-        path.primary.normal = dot(hit.ng, path.ray.d) > 0 ? -hit.ng : hit.ng;
-        path.primary.kind = int(hit.kind);
-        path.primary.primId = hit.primId;
-      }
+      if (path.depth == 0) recordPrimary(scene, path, hit);  // a camera ray entering a medium (LOD)
       path.medium = dot(path.ray.d, hit.ng) < 0 ? hit.aggregate : -1;
       path.ray.o = offsetRayOrigin(hit.p, hit.ng, path.ray.d, hit.eps);
       path.ray.tmin = 0;
       continue;
     }
-    if (path.depth == 0) {
-      path.primary.hit = true;
-      path.primary.depth = scene.camera().viewDepth(hit.p);
-      path.primary.normal = dot(hit.ng, path.ray.d) > 0 ? -hit.ng : hit.ng;
-      path.primary.kind = int(hit.kind);
-        path.primary.primId = hit.primId;
-    }
+    if (path.depth == 0) recordPrimary(scene, path, hit);
     shadeSurface(scene, path, hit, true);
     return;
   }

@@ -28,7 +28,9 @@ void HdGranularLight::Sync(HdSceneDelegate* delegate, HdRenderParam* renderParam
   const SdfPath& id = GetId();
   *dirtyBits = Clean;
   if (id.IsEmpty()) return;  // a fallback prim
-  if (!delegate->GetVisible(id)) {
+  // A light described by a GlfSimpleLight ("params") is the host's viewer light (usdview's
+  // and usdrecord's camera light), not the scene's: a path tracer renders UsdLux lights only.
+  if (!delegate->GetVisible(id) || !delegate->GetLightParamValue(id, HdLightTokens->params).IsEmpty()) {
     store->Remove(id);
     return;
   }
@@ -59,9 +61,7 @@ void HdGranularLight::Sync(HdSceneDelegate* delegate, HdRenderParam* renderParam
     c = GfCompMult(c, UsdLuxBlackbodyTemperatureAsRgb(param<float>(delegate, id, HdLightTokens->colorTemperature, 6500.0f)));
   l.color = granular::Vec3(c[0], c[1], c[2]);
   l.normalize = param<bool>(delegate, id, HdLightTokens->normalize, false);
-  const GfMatrix4d m = delegate->GetTransform(id);
-  for (int i = 0; i < 4; ++i)
-    for (int j = 0; j < 4; ++j) l.xf.m[i][j] = m[j][i];
+  l.xf = HdGranularToCore(delegate->GetTransform(id));
   store->SetLight(id, std::move(l));
 }
 

@@ -1,3 +1,5 @@
+#include <cmath>
+
 #include "mesh.h"
 
 #include "instancer.h"
@@ -16,12 +18,6 @@ PXR_NAMESPACE_OPEN_SCOPE
 
 namespace {
 
-granular::Transform toCore(GfMatrix4d const& m) {
-  granular::Transform t;
-  for (int i = 0; i < 4; ++i)
-    for (int j = 0; j < 4; ++j) t.m[i][j] = m[j][i];
-  return t;
-}
 
 template <typename T>
 void appendNumbers(granular::PrimvarValue& out, VtArray<T> const& a) {
@@ -126,10 +122,10 @@ void HdGranularMesh::Sync(HdSceneDelegate* delegate, HdRenderParam* renderParam,
 
   const GfMatrix4d xf = delegate->GetTransform(id);
   if (GetInstancerId().IsEmpty()) {
-    m.prim.instances = {toCore(xf)};
+    m.prim.instances = {HdGranularToCore(xf)};
   } else if (HdInstancer* inst = delegate->GetRenderIndex().GetInstancer(GetInstancerId())) {
     for (GfMatrix4d const& i : static_cast<HdGranularInstancer*>(inst)->ComputeInstanceTransforms(id))
-      m.prim.instances.push_back(toCore(xf * i));  // row vectors: mesh, then instance
+      m.prim.instances.push_back(HdGranularToCore(xf * i));  // row vectors: mesh, then instance
   }
 
   // Granular primvars of any interpolation: core rejects all but constant, by name.

@@ -10,10 +10,12 @@
 #define HDGRANULAR_RENDER_PARAM_H
 
 #include <atomic>
+#include <cmath>
 #include <map>
 #include <mutex>
 
 #include "granular_prims.h"
+#include "pxr/base/gf/matrix4d.h"
 #include "pxr/base/gf/vec3f.h"
 #include "pxr/imaging/hd/renderDelegate.h"
 #include "pxr/pxr.h"
@@ -21,6 +23,19 @@
 #include "scene_desc.h"
 
 PXR_NAMESPACE_OPEN_SCOPE
+
+// USD's row-vector matrix as core's column-form Transform; the rounding an inverse leaves
+// in the projective row of an affine matrix is cleared.
+inline granular::Transform HdGranularToCore(GfMatrix4d const& m) {
+  granular::Transform t;
+  for (int i = 0; i < 4; ++i)
+    for (int j = 0; j < 4; ++j) t.m[i][j] = m[j][i];
+  if (std::fabs(t.m[3][0]) + std::fabs(t.m[3][1]) + std::fabs(t.m[3][2]) + std::fabs(t.m[3][3] - 1) < 1e-9) {
+    t.m[3][0] = t.m[3][1] = t.m[3][2] = 0;
+    t.m[3][3] = 1;
+  }
+  return t;
+}
 
 class HdGranularRenderParam final : public HdRenderParam {
  public:

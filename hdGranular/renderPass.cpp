@@ -1,8 +1,11 @@
+#include <cmath>
+
 #include "renderPass.h"
 
 #include <exception>
 
 #include "error.h"
+#include "pxr/base/tf/getenv.h"
 #include "pxr/imaging/hd/renderDelegate.h"
 #include "pxr/imaging/hd/renderIndex.h"
 #include "pxr/imaging/hd/tokens.h"
@@ -15,12 +18,6 @@ PXR_NAMESPACE_OPEN_SCOPE
 
 namespace {
 
-granular::Transform toCore(GfMatrix4d const& m) {
-  granular::Transform t;  // USD's row-vector matrix, transposed into core's column form
-  for (int i = 0; i < 4; ++i)
-    for (int j = 0; j < 4; ++j) t.m[i][j] = m[j][i];
-  return t;
-}
 
 // The perspective camera equivalent to Hydra's view and projection matrices, with a
 // focal length of 1: the window at unit distance is [-1/P00, 1/P00] shifted by P20/P00
@@ -28,7 +25,7 @@ granular::Transform toCore(GfMatrix4d const& m) {
 // from P22 and P32.
 bool cameraFromMatrices(GfMatrix4d const& view, GfMatrix4d const& proj, granular::CameraDesc& cam) {
   if (proj[2][3] != -1.0 || proj[0][0] == 0 || proj[1][1] == 0) return false;  // not a perspective frustum
-  cam.cameraToWorld = toCore(view.GetInverse());
+  cam.cameraToWorld = HdGranularToCore(view.GetInverse());
   cam.focalLength = 1.0f;
   cam.horizontalAperture = float(2.0 / proj[0][0]);
   cam.verticalAperture = float(2.0 / proj[1][1]);
@@ -70,6 +67,7 @@ granular::RenderSettings renderSettings(HdRenderDelegate* d, int width, int heig
   rs.lod = setting<float>(d, HdGranularSettingsTokens->lod, 0.0f);
   rs.roulette = setting<float>(d, HdGranularSettingsTokens->roulette, -1.0f);
   rs.bundleSize = setting<int>(d, HdGranularSettingsTokens->bundleSize, 16);
+  rs.domeCameraVisible = setting<bool>(d, HdRenderSettingsTokens->domeLightCameraVisibility, true);
   return rs;
 }
 
@@ -121,6 +119,12 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
     granular::RenderSettings rs = renderSettings(delegate, width, height);
     if (rebuild) {
       granular::SceneDesc desc = _param->Assemble();
+      if (TfGetenvBool("GRANULAR_HD_DEBUG", false)) {  // what the core is given, for users' bug reports
+        for (auto const& l : desc.lights)
+          fprintf(stderr, "hdGranular: light %s type %d intensity %g\n", l.name.c_str(), int(l.type), l.intensity);
+        for (auto const& m : desc.meshes) fprintf(stderr, "hdGranular: mesh %s\n", m.name.c_str());
+        for (auto const& a : desc.aggregates) fprintf(stderr, "hdGranular: aggregate %s\n", a.name.c_str());
+      }
       desc.camera = cam;
       desc.settings = rs;
       _renderer->SetScene(granular::Scene::build(desc));

@@ -175,3 +175,25 @@ TEST(EptView, SetViewRendersTheSameAsABuildWithThatView) {
   d2.settings.spp = 0;
   EXPECT_THROW(moved->setView(d2.camera, d2.settings), InputError);
 }
+
+TEST(EptView, HiddenDomeStillLightsTheScene) {
+  SceneDesc d = furnaceScene(MaterialType::Lambert);
+  d.settings.domeCameraVisible = false;
+  auto scene = Scene::build(d);
+  Renderer r(*scene);
+  ASSERT_TRUE(r.render(4));
+  Image img = r.film().toImage();
+  int a = img.channelIndex("A");
+  int background = 0, lit = 0;
+  for (int y = 0; y < img.height; ++y)
+    for (int x = 0; x < img.width; ++x) {
+      if (img.at(x, y)[a] == 0) {
+        EXPECT_EQ(img.at(x, y)[1], 0.0f);  // the camera sees no dome
+        ++background;
+      } else if (img.at(x, y)[1] > 0.5f) {
+        ++lit;  // but the grains are lit by it
+      }
+    }
+  EXPECT_GT(background, 0);
+  EXPECT_GT(lit, 0);
+}

@@ -1,0 +1,209 @@
+// hdGranular through a real Hydra host (UsdImagingGLEngine without a GPU, as usdrecord
+// --disableGpu runs it): plugin discovery, examples without NaN, AOVs that add up, an edit
+// that restarts the render, a bad stage that still converges, stopping mid-render.
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <cstdio>
+#include <cmath>
+#include <string>
+#include <vector>
+
+#include "pxr/base/gf/vec2i.h"
+#include "pxr/imaging/cameraUtil/framing.h"
+#include "pxr/imaging/hd/renderBuffer.h"
+#include "pxr/imaging/hd/tokens.h"
+#include "pxr/usd/usd/primRange.h"
+#include "pxr/usd/usd/stage.h"
+#include "pxr/usd/usdLux/lightAPI.h"
+#include "pxr/usdImaging/usdImagingGL/engine.h"
+
+PXR_NAMESPACE_USING_DIRECTIVE
+
+namespace {
+
+const TfToken kPlugin("HdGranularRendererPlugin");
+const std::string kExamples = GRANULAR_EXAMPLES_DIR;
+
+struct Frame {
+  int width = 0, height = 0, channels = 0;
+  std::vector<float> values;
+  bool converged = false;
+};
+
+std::unique_ptr<UsdImagingGLEngine> makeEngine(int spp) {
+  auto engine = std::make_unique<UsdImagingGLEngine>(HdDriver(), kPlugin, /*gpuEnabled=*/false);
+  engine->SetEnablePresentation(false);
+  engine->SetRendererSetting(HdRenderSettingsTokens->convergedSamplesPerPixel, VtValue(spp));
+  return engine;
+}
+
+// Renders `aov` of the stage's /World/Camera at w x h until converged (or 120 s).
+Frame render(UsdImagingGLEngine& engine, UsdStageRefPtr const& stage, TfToken const& aov, int w, int h) {
+  engine.SetCameraPath(SdfPath("/World/Camera"));
+  engine.SetRenderBufferSize(GfVec2i(w, h));
+  engine.SetFraming(CameraUtilFraming(GfRect2i(GfVec2i(0, 0), w, h)));
+  EXPECT_TRUE(engine.SetRendererAov(aov));
+  UsdImagingGLRenderParams params;
+  Frame f;
+  auto t0 = std::chrono::steady_clock::now();
+  do {
+    engine.Render(stage->GetPseudoRoot(), params);
+  } while (!engine.IsConverged() && std::chrono::steady_clock::now() - t0 < std::chrono::seconds(120));
+  f.converged = engine.IsConverged();
+  HdRenderBuffer* rb = engine.GetAovRenderBuffer(aov);
+  if (!rb) return f;
+  rb->Resolve();
+  f.width = int(rb->GetWidth());
+  f.height = int(rb->GetHeight());
+  HdFormat fmt = rb->GetFormat();
+  f.channels = int(HdGetComponentCount(fmt));
+  const void* data = rb->Map();
+  const size_t n = size_t(f.width) * f.height * f.channels;
+  f.values.resize(n);
+  for (size_t i = 0; i < n; ++i) {
+    switch (HdGetComponentFormat(fmt)) {
+      case HdFormatFloat32: f.values[i] = static_cast<const float*>(data)[i]; break;
+      case HdFormatFloat16: f.values[i] = float(static_cast<const GfHalf*>(data)[i]); break;
+      case HdFormatInt32: f.values[i] = float(static_cast<const int32_t*>(data)[i]); break;
+      case HdFormatUNorm8: f.values[i] = static_cast<const uint8_t*>(data)[i] / 255.0f; break;
+      default: f.values[i] = NAN; break;
+    }
+  }
+  rb->Unmap();
+  return f;
+}
+
+double mean(Frame const& f, int channel) {
+  double s = 0;
+  for (size_t i = channel; i < f.values.size(); i += f.channels) s += f.values[i];
+  return s / (double(f.values.size()) / f.channels);
+}
+
+}  // namespace
+
+TEST(HdGranular, PluginIsDiscoveredAsGranular) {
+  TfTokenVector plugins = UsdImagingGLEngine::GetRendererPlugins();
+  ASSERT_NE(std::find(plugins.begin(), plugins.end(), kPlugin), plugins.end());
+  EXPECT_EQ(UsdImagingGLEngine::GetRendererDisplayName(kPlugin), "Granular");
+}
+
+TEST(HdGranular, EveryExampleRendersWithoutNaN) {
+  for (const char* name : {"snowslab", "sugarcube", "sandcastle", "mixture"}) {
+    SCOPED_TRACE(name);
+    UsdStageRefPtr stage = UsdStage::Open(kExamples + "/" + name + ".usda");
+    ASSERT_TRUE(stage);
+    auto engine = makeEngine(2);
+    Frame f = render(*engine, stage, HdAovTokens->color, 48, 32);
+    ASSERT_TRUE(f.converged);
+    ASSERT_EQ(f.values.size(), size_t(48 * 32 * 4));
+    for (float v : f.values) ASSERT_TRUE(std::isfinite(v));
+    EXPECT_GT(mean(f, 0), 0.0);
+  }
+}
+
+TEST(HdGranular, TransportAovsAddUpToTheColor) {
+  UsdStageRefPtr stage = UsdStage::Open(kExamples + "/snowslab.usda");
+  auto engine = makeEngine(4);
+  Frame color = render(*engine, stage, HdAovTokens->color, 40, 26);
+  Frame parts[3] = {render(*engine, stage, TfToken("ept"), 40, 26), render(*engine, stage, TfToken("vpt"), 40, 26),
+                    render(*engine, stage, TfToken("da"), 40, 26)};
+  ASSERT_EQ(parts[0].channels, 3);
+  double high = 0;
+  for (int p = 0; p < 40 * 26; ++p)
+    for (int c = 0; c < 3; ++c) {
+      float sum = parts[0].values[3 * p + c] + parts[1].values[3 * p + c] + parts[2].values[3 * p + c];
+      high += parts[1].values[3 * p + c] + parts[2].values[3 * p + c];
+      EXPECT_NEAR(sum, color.values[4 * p + c], 1e-4f * (1 + color.values[4 * p + c]));
+    }
+  EXPECT_GT(high, 0.0);  // snow: the media carry light
+}
+
+TEST(HdGranular, AnEditRestartsTheRender) {
+  UsdStageRefPtr stage = UsdStage::Open(kExamples + "/snowslab.usda");
+  auto engine = makeEngine(2);
+  Frame before = render(*engine, stage, HdAovTokens->color, 32, 20);
+  ASSERT_TRUE(before.converged);
+  // Every light 4x as bright: radiance is linear in emission and the sampling does not
+  // depend on it, so the restarted render is 4x the first (same seed) if it restarted.
+  for (UsdPrim const& prim : stage->Traverse())
+    if (prim.HasAPI<UsdLuxLightAPI>()) {
+      UsdLuxLightAPI light(prim);
+      float intensity = 1;
+      light.GetIntensityAttr().Get(&intensity);
+      light.GetIntensityAttr().Set(intensity * 4.0f);
+    }
+  Frame after = render(*engine, stage, HdAovTokens->color, 32, 20);
+  ASSERT_TRUE(after.converged);
+  for (int c = 0; c < 3; ++c) EXPECT_NEAR(mean(after, c), 4.0 * mean(before, c), 0.01 * 4.0 * mean(before, c)) << c;
+}
+
+TEST(HdGranular, ABadStageStillConvergesWithNothingRendered) {
+  UsdStageRefPtr stage = UsdStage::Open(kExamples + "/snowslab.usda");
+  stage->GetPrimAtPath(SdfPath("/World/Snow")).GetAttribute(TfToken("primvars:granular:packingRate")).Set(0.9f);
+  auto engine = makeEngine(2);
+  Frame f = render(*engine, stage, HdAovTokens->color, 16, 10);
+  EXPECT_TRUE(f.converged);
+  for (float v : f.values) EXPECT_TRUE(std::isfinite(v));
+}
+
+TEST(HdGranular, StoppingMidRenderIsClean) {
+  UsdStageRefPtr stage = UsdStage::Open(kExamples + "/sandcastle.usda");
+  for (int i = 0; i < 3; ++i) {
+    auto engine = makeEngine(100000);  // never converges: destroyed while rendering
+    engine->SetCameraPath(SdfPath("/World/Camera"));
+    engine->SetRenderBufferSize(GfVec2i(64, 40));
+    engine->SetFraming(CameraUtilFraming(GfRect2i(GfVec2i(0, 0), 64, 40)));
+    engine->SetRendererAov(HdAovTokens->color);
+    UsdImagingGLRenderParams params;
+    engine->Render(stage->GetPseudoRoot(), params);
+    EXPECT_FALSE(engine->IsConverged());
+  }
+}
+
+TEST(HdGranular, PointInstancerInstancesAreRendered) {
+  // A sun-lit ground seen from above with one instanced quad mesh: 3 instances cover
+  // 3x the pixels of 1 (the alpha channel counts coverage).
+  auto coverage = [](int instances) {
+    UsdStageRefPtr stage = UsdStage::CreateInMemory();
+    std::string text = R"(#usda 1.0
+def Xform "World" {
+  def Camera "Camera" {
+    double3 xformOp:translate = (0, 0, 10)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+    float focalLength = 50
+    float horizontalAperture = 40
+    float verticalAperture = 40
+  }
+  def DomeLight "Sky" {
+    float inputs:intensity = 1
+  }
+  def PointInstancer "Inst" {
+    rel prototypes = </World/Inst/Protos/Quad>
+    int[] protoIndices = [)";
+    std::string positions;
+    for (int i = 0; i < instances; ++i) {
+      text += std::string(i ? ", " : "") + "0";
+      positions += std::string(i ? ", " : "") + "(" + std::to_string(-2 + 2 * i) + ", 0, 0)";
+    }
+    text += "]\n    point3f[] positions = [" + positions + R"(]
+    def Scope "Protos" {
+      def Mesh "Quad" {
+        point3f[] points = [(-0.5, -0.5, 0), (0.5, -0.5, 0), (0.5, 0.5, 0), (-0.5, 0.5, 0)]
+        int[] faceVertexCounts = [4]
+        int[] faceVertexIndices = [0, 1, 2, 3]
+      }
+    }
+  }
+}
+)";
+    stage->GetRootLayer()->ImportFromString(text);
+    auto engine = makeEngine(4);
+    Frame f = render(*engine, stage, HdAovTokens->color, 40, 40);
+    EXPECT_TRUE(f.converged);
+    return mean(f, 3);
+  };
+  double one = coverage(1), three = coverage(3);
+  EXPECT_GT(one, 0.0);
+  EXPECT_NEAR(three, 3.0 * one, 0.15 * one);
+}
