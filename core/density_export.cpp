@@ -80,7 +80,17 @@ DensityExportResult writeDensityVdb(const std::string& path, const TriangleMesh&
                      str(voxel, " is too small for the boundary's extent ", extent, ": ", std::ceil(across),
                          " voxels across exceed the limit of ", options.maxVoxelsAcross));
 
-  openvdb::math::Transform::Ptr xform = openvdb::math::Transform::createLinearTransform(voxel);
+  // The grid is in world space (the file's contract), and OpenVDB refuses linear
+  // transforms whose determinant is ~0: voxels below about 1e-5 world units (a scene in
+  // tiny units; bench/stress.py). Say so instead of letting ArithmeticError escape.
+  openvdb::math::Transform::Ptr xform;
+  try {
+    xform = openvdb::math::Transform::createLinearTransform(voxel);
+  } catch (const openvdb::Exception&) {
+    throw InputError(object, "voxelSize",
+                     str(voxel, " is below the smallest voxel of an OpenVDB world-space grid (about 1e-5 "
+                                "scene units): scale the scene up"));
+  }
   std::vector<openvdb::Vec3s> pts;
   pts.reserve(worldBoundary.points.size());
   for (const Vec3& p : worldBoundary.points) pts.emplace_back(p.x, p.y, p.z);

@@ -115,6 +115,11 @@ TEST(DensityExport, BadInputThrowsAndLeavesNoFile) {
   TriangleMesh open = worldSphere();
   open.indices.resize(open.indices.size() - 3);
   expectError(open, 1.0f, opt, "faceVertexIndices");
+  // A scene in tiny units: the default voxel (extent / 128) is below what OpenVDB's
+  // world-space transform accepts; it was an escaping ArithmeticError (bench/stress.py).
+  TriangleMesh micro = worldSphere();
+  for (Vec3& p : micro.points) p *= 1e-6f;
+  expectError(micro, 1.0f, DensityExportOptions(), "voxelSize");
 
   // An unwritable destination is an I/O error, not an InputError, and leaves nothing.
   const std::string noDir = (tempPath("missing") / "sub" / "x.vdb").string();
