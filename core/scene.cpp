@@ -271,7 +271,7 @@ bool Scene::intersectMedium(const Ray& ray, Hit& hit) const {
   return true;
 }
 
-Vec3 Scene::transmittance(const Vec3& p, const Vec3& dir, float dist) const {
+bool Scene::surfacesOccluded(const Vec3& p, const Vec3& dir, float dist) const {
   RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
   RTCRay r;
@@ -279,7 +279,11 @@ Vec3 Scene::transmittance(const Vec3& p, const Vec3& dir, float dist) const {
   r.dir_x = dir.x; r.dir_y = dir.y; r.dir_z = dir.z;
   r.tnear = 0; r.tfar = dist; r.time = 0; r.mask = 0xffffffffu; r.id = 0; r.flags = 0;
   rtcOccluded1(surfaces_.get(), &ctx, &r);
-  if (r.tfar < 0) return Vec3(0.0f);
+  return r.tfar < 0;  // Embree marks a hit by tfar = -inf
+}
+
+Vec3 Scene::transmittance(const Vec3& p, const Vec3& dir, float dist) const {
+  if (surfacesOccluded(p, dir, dist)) return Vec3(0.0f);
   Vec3 opticalDepth(0.0f);
   for (size_t a = 0; a < aggregates_.size(); ++a) {
     // Walk the boundary crossings; a crossing whose normal faces along the ray leaves
@@ -310,14 +314,7 @@ int Scene::mediumAt(const Vec3& p) const {
 }
 
 bool Scene::occluded(const Vec3& p, const Vec3& dir, float dist) const {
-  RTCIntersectContext ctx;
-  rtcInitIntersectContext(&ctx);
-  RTCRay r;
-  r.org_x = p.x; r.org_y = p.y; r.org_z = p.z;
-  r.dir_x = dir.x; r.dir_y = dir.y; r.dir_z = dir.z;
-  r.tnear = 0; r.tfar = dist; r.time = 0; r.mask = 0xffffffffu; r.id = 0; r.flags = 0;
-  rtcOccluded1(surfaces_.get(), &ctx, &r);
-  if (r.tfar < 0) return true;
+  if (surfacesOccluded(p, dir, dist)) return true;
   for (const auto& a : aggregates_) {
     GrainHit g;
     if (a->intersect(p, dir, 0.0f, dist, g)) return true;

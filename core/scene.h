@@ -86,6 +86,7 @@ class Scene {
   bool intersectSurfaces(const Ray& ray, Hit& hit, float& tmax) const;
   bool intersectAreaLights(const Ray& ray, Hit& hit, float& tmax) const;
   void finishHit(const Ray& ray, Hit& hit) const;  // position and ray-offset scale
+  bool surfacesOccluded(const Vec3& p, const Vec3& dir, float dist) const;  // meshes only
 
   Camera camera_;
   RenderSettings settings_;
