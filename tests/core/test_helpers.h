@@ -5,6 +5,8 @@
 
 #include "math.h"
 #include "mesh.h"
+#include "scene_desc.h"
+#include "shapes.h"
 
 namespace granular::testing {
 
@@ -38,6 +40,44 @@ inline bool pointInMesh(const TriangleMesh& m, const Vec3& p) {
     votes += crossings & 1;
   }
   return votes >= 2;
+}
+
+// A ball (radius 1) of bright sand grains of radius R under a sun and a sky, seen from
+// eye with square apertures (focal length 50): the scene of the hybrid and LOD tests.
+inline SceneDesc sandBallScene(const Vec3& eye, float aperture, float R, uint64_t aggregateSeed) {
+  SceneDesc s;
+  s.camera.cameraToWorld = Transform::lookAt(eye, Vec3(0, 0, 0), Vec3(0, 1, 0));
+  s.camera.focalLength = 50;
+  s.camera.horizontalAperture = s.camera.verticalAperture = aperture;
+  MaterialDesc sand;
+  sand.name = "sand";
+  sand.type = MaterialType::Dielectric;
+  sand.ior = 1.5f;
+  sand.absorption = Vec3(0.02f, 0.04f, 0.1f);
+  s.materials.push_back(sand);
+  LightDesc sun;
+  sun.name = "sun";
+  sun.type = LightType::Distant;
+  sun.angle = 5;
+  sun.intensity = 3;
+  sun.xf = Transform::lookAt(Vec3(0.0f), Vec3(-0.4f, -1.0f, -0.5f), Vec3(0, 0, 1));
+  s.lights.push_back(sun);
+  LightDesc sky;
+  sky.name = "sky";
+  sky.type = LightType::Dome;
+  sky.color = Vec3(0.5f, 0.6f, 0.8f);
+  s.lights.push_back(sky);
+  AggregateDesc a;
+  a.name = "ball";
+  a.boundary = makeIcosphere(3);
+  a.grainRadius = R;
+  a.packingRate = 0.6f;
+  a.tileSpheres = 128;
+  a.seed = aggregateSeed;
+  a.prototypes = {GrainPrototypeDesc{"rock", makeRock(1, 0.2f, 2), 0}};
+  a.weights = {1.0f};
+  s.aggregates.push_back(a);
+  return s;
 }
 
 }  // namespace granular::testing

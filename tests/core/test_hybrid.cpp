@@ -8,6 +8,7 @@
 #include "render.h"
 #include "scene.h"
 #include "shapes.h"
+#include "test_helpers.h"
 
 using namespace granular;
 
@@ -15,46 +16,15 @@ namespace {
 
 // A ball of bright sand grains under a sun and a sky, filling most of a small frame.
 SceneDesc ballScene(Technique t, int spp) {
-  SceneDesc s;
+  // 50 grains per object radius: DA assumes a boundary flat on the scale of its depth
+  // (a few mean free paths); much smaller objects show its curvature bias (about 4% at 25).
+  SceneDesc s = granular::testing::sandBallScene(Vec3(0.3f, 0.4f, 3.2f), 30.0f, 0.02f, 3);
   s.settings.technique = t;
   s.settings.width = 20;
   s.settings.height = 20;
   s.settings.spp = spp;
   s.settings.seed = 11;
   s.settings.lod = 0;  // grains are sub-pixel here: test the switching alone (LOD: test_lod.cpp)
-  s.camera.cameraToWorld = Transform::lookAt(Vec3(0.3f, 0.4f, 3.2f), Vec3(0, 0, 0), Vec3(0, 1, 0));
-  s.camera.focalLength = 50;
-  s.camera.horizontalAperture = s.camera.verticalAperture = 30;
-  MaterialDesc sand;
-  sand.name = "sand";
-  sand.type = MaterialType::Dielectric;
-  sand.ior = 1.5f;
-  sand.absorption = Vec3(0.02f, 0.04f, 0.1f);
-  s.materials.push_back(sand);
-  LightDesc sun;
-  sun.name = "sun";
-  sun.type = LightType::Distant;
-  sun.angle = 5;
-  sun.intensity = 3;
-  sun.xf = Transform::lookAt(Vec3(0.0f), Vec3(-0.4f, -1.0f, -0.5f), Vec3(0, 0, 1));
-  s.lights.push_back(sun);
-  LightDesc sky;
-  sky.name = "sky";
-  sky.type = LightType::Dome;
-  sky.color = Vec3(0.5f, 0.6f, 0.8f);
-  s.lights.push_back(sky);
-  AggregateDesc a;
-  a.name = "ball";
-  a.boundary = makeIcosphere(3);
-  // 50 grains per object radius: DA assumes a boundary flat on the scale of its depth
-  // (a few mean free paths); much smaller objects show its curvature bias (about 4% at 25).
-  a.grainRadius = 0.02f;
-  a.packingRate = 0.6f;
-  a.tileSpheres = 128;
-  a.seed = 3;
-  a.prototypes = {GrainPrototypeDesc{"rock", makeRock(1, 0.2f, 2), 0}};
-  a.weights = {1.0f};
-  s.aggregates.push_back(a);
   return s;
 }
 

@@ -8,6 +8,7 @@
 #include "render.h"
 #include "scene.h"
 #include "shapes.h"
+#include "test_helpers.h"
 
 using namespace granular;
 
@@ -16,42 +17,12 @@ namespace {
 // A ball of bright sand grains (radius 1, grain radius R) seen from `distance`, under a
 // sun and a sky; no diffuse surfaces, so ray cones spread only with distance.
 SceneDesc sandBall(float distance, float R, float lod, int spp, float zoom = 1.0f) {
-  SceneDesc s;
+  // Aperture so that the ball spans about 80% of the image (before zooming in).
+  SceneDesc s = granular::testing::sandBallScene(Vec3(0.2f, 0.3f, distance), 50.0f * 2.5f / distance / zoom, R, 1);
   s.settings.width = s.settings.height = 24;
   s.settings.spp = spp;
   s.settings.seed = 4;
   s.settings.lod = lod;
-  s.camera.cameraToWorld = Transform::lookAt(Vec3(0.2f, 0.3f, distance), Vec3(0, 0, 0), Vec3(0, 1, 0));
-  s.camera.focalLength = 50;
-  // Frame the ball: aperture so that the ball spans about 80% of the image.
-  s.camera.horizontalAperture = s.camera.verticalAperture = 50.0f * 2.5f / distance / zoom;
-  MaterialDesc sand;
-  sand.name = "sand";
-  sand.type = MaterialType::Dielectric;
-  sand.ior = 1.5f;
-  sand.absorption = Vec3(0.02f, 0.04f, 0.1f);
-  s.materials.push_back(sand);
-  LightDesc sun;
-  sun.name = "sun";
-  sun.type = LightType::Distant;
-  sun.angle = 5;
-  sun.intensity = 3;
-  sun.xf = Transform::lookAt(Vec3(0.0f), Vec3(-0.4f, -1.0f, -0.5f), Vec3(0, 0, 1));
-  s.lights.push_back(sun);
-  LightDesc sky;
-  sky.name = "sky";
-  sky.type = LightType::Dome;
-  sky.color = Vec3(0.5f, 0.6f, 0.8f);
-  s.lights.push_back(sky);
-  AggregateDesc a;
-  a.name = "ball";
-  a.boundary = makeIcosphere(3);
-  a.grainRadius = R;
-  a.packingRate = 0.6f;
-  a.tileSpheres = 128;
-  a.prototypes = {GrainPrototypeDesc{"rock", makeRock(1, 0.2f, 2), 0}};
-  a.weights = {1.0f};
-  s.aggregates.push_back(a);
   return s;
 }
 
