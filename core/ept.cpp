@@ -163,15 +163,15 @@ void eptStep(const Scene& scene, PathState& path) {
     // Level of detail: grains well below the footprint here look like their medium.
     float lod = scene.settings().lod;
     float footprint = path.coneWidth + path.coneSpread * hit.t;
-    if (lod > 0 && scene.hasMedia() && scene.aggregates()[hit.aggregate]->grainRadius() < lod * footprint) {
+    if (lod > 0 && scene.hasMedia() && scene.aggregates()[hit.aggregate]->grainRadius() < lod * footprint)
       path.shortcut = true;
-      path.mode = path.credit = kVpt;
-      path.medium = scene.mediumAt(path.ray.o);  // usually -1: the medium starts at the boundary
-      vptStep(scene, path);
-      return;
-    }
   }
   shadeSurface(scene, path, hit, false);
+  // The shortcut keeps the first grain explicit, then leaves for the medium.
+  if (path.shortcut && path.alive && !path.inGrain) {
+    path.mode = path.credit = kVpt;
+    path.medium = scene.mediumAt(path.ray.o);
+  }
 }
 
 Vec3 tracePath(const Scene& scene, Ray ray, Rng& rng, PrimaryInfo* primary) {

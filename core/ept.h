@@ -48,7 +48,7 @@ struct PathState {
   // spread angle; for the level-of-detail shortcut (RenderSettings::lod).
   float coneWidth = 0, coneSpread = 0;
   bool touchedAggregate = false;  // a grain has been hit (the LOD test is at first contact)
-  bool shortcut = false;          // entered a medium directly by LOD
+  bool shortcut = false;          // took the LOD shortcut: to the medium after this grain
   // Deterministic cost (ray casts, a grain traversal counted kGrainCastCost) spent in
   // the low-order (EPT) and high-order (VPT, DA) parts: the t_L and t_H of NOTES item 7.
   double cost[2] = {0, 0};
@@ -68,6 +68,11 @@ PathState startPath(const Ray& ray, uint64_t rngSeed, float spread = 0);
 constexpr float kDiffuseConeSpread = 0.35f;
 
 // One bounce with explicit grains. Sets alive = false when the path ends.
+// Level of detail (RenderSettings::lod): at a path's first grain, if the grain radius is
+// under lod × the cone footprint there, that grain is still traced explicitly (its
+// Fresnel reflection and refraction, which the medium's boundary does not model), and the
+// path switches to the medium as soon as it is out of it, without roulette. Entering at
+// the boundary instead measured 3.5% brighter on sub-pixel sand (tests/core/test_lod).
 void eptStep(const Scene& scene, PathState& path);
 
 // Shared by EPT and VPT: emission, next-event estimation and BSDF sampling at a surface

@@ -48,7 +48,7 @@ class Renderer {
   // Samples whose estimate was not finite (NaN or Inf in some AOV) and were dropped from
   // the film: a numerical failure somewhere, never expected (the stress suite checks it).
   long nonFiniteSamples() const { return nonFinite_.load(); }
-  // Fraction of the paths so far that entered a medium directly by level of detail.
+  // Fraction of the paths so far that took the level-of-detail shortcut.
   double shortcutFraction() const { return paths_ ? double(shortcuts_) / double(paths_) : 0.0; }
 
  private:

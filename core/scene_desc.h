@@ -100,11 +100,11 @@ struct RenderSettings {
   int bundleSize = 16;         // N: paths of a pixel traced in lock-step (seed §3)
   float tau = 4.0f;            // switch EPT->VPT when σ_k > τ R_max N_k/N (NOTES item 8)
   float roulette = -1.0f;      // P_a in (0, 1]; negative: tuned by a pre-render (NOTES item 7)
-  // Level of detail: at a path's first contact with an aggregate, enter its medium
-  // directly when the grain radius is under lod × the ray cone's footprint width there
-  // (0: off, EPT always first). Off by default: on sub-pixel grains it measures about
-  // +3% brighter than EPT-first (tests/core/test_lod.cpp), above the 3% we aim for.
-  float lod = 0.0f;
+  // Level of detail: where a path first meets an aggregate and the grain radius is under
+  // lod × the ray cone's footprint width there, only that first grain is traced
+  // explicitly and the path then enters the medium (ept.h). 0: off, today's images
+  // exactly; the default shortcuts grains narrower than the footprint.
+  float lod = 0.5f;
   // Whether camera rays see dome lights (Hydra hosts may hide the background while its
   // light still illuminates the scene).
   bool domeCameraVisible = true;

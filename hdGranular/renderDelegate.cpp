@@ -41,7 +41,7 @@ void HdGranularRenderDelegate::_Initialize() {
       {"Seed", HdGranularSettingsTokens->seed, VtValue(0)},
       {"Technique (ept, ept+vpt, hybrid)", HdGranularSettingsTokens->technique, VtValue(std::string("hybrid"))},
       {"Switch spread tau (grain radii)", HdGranularSettingsTokens->tau, VtValue(4.0f)},
-      {"Level of detail (0: off)", HdGranularSettingsTokens->lod, VtValue(0.0f)},
+      {"Level of detail (0: off)", HdGranularSettingsTokens->lod, VtValue(0.5f)},
       {"Roulette P_a (negative: tuned)", HdGranularSettingsTokens->roulette, VtValue(-1.0f)},
       {"Bundle size", HdGranularSettingsTokens->bundleSize, VtValue(16)},
   };

@@ -64,7 +64,7 @@ granular::RenderSettings renderSettings(HdRenderDelegate* d, int width, int heig
   rs.technique = granular::techniqueFromName(setting<std::string>(d, HdGranularSettingsTokens->technique, "hybrid"),
                                              "render settings granular:technique");
   rs.tau = setting<float>(d, HdGranularSettingsTokens->tau, 4.0f);
-  rs.lod = setting<float>(d, HdGranularSettingsTokens->lod, 0.0f);
+  rs.lod = setting<float>(d, HdGranularSettingsTokens->lod, rs.lod);
   rs.roulette = setting<float>(d, HdGranularSettingsTokens->roulette, -1.0f);
   rs.bundleSize = setting<int>(d, HdGranularSettingsTokens->bundleSize, 16);
   rs.domeCameraVisible = setting<bool>(d, HdRenderSettingsTokens->domeLightCameraVisibility, true);

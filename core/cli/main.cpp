@@ -32,7 +32,7 @@ void usage() {
                "usage: granular-render SCENE.json -o OUT.exr [--png OUT.png] [--spp N] [--width W] [--height H]\n"
                "                       [--seed S] [--threads T] [--exposure E] [--quiet]\n"
                "                       [--technique ept|ept+vpt|hybrid] [--roulette P_a (negative: tuned)]\n"
-               "                       [--lod L (0: off)] [--stats-json FILE]\n");
+               "                       [--lod L (default 0.5; 0: off)] [--stats-json FILE]\n");
 }
 
 long parseInt(const char* flag, const char* v, long lo, long hi) {

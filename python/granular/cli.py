@@ -113,9 +113,10 @@ def build_parser():
     r.add_argument("--roulette", type=_roulette, default=-1.0, metavar="P_a",
                    help="survival probability of a path at the switch from EPT to the media, in (0, 1]; "
                         "negative (default): tuned by a pre-render")
-    r.add_argument("--lod", type=_non_negative_float(), default=0.0, metavar="L",
-                   help="level of detail: enter an aggregate's medium at first contact where a grain is "
-                        "smaller than L times the ray footprint (0, the default: off)")
+    r.add_argument("--lod", type=_non_negative_float(), default=0.5, metavar="L",
+                   help="level of detail: after the first grain, enter an aggregate's medium where the grain "
+                        "radius is under L times the ray footprint (default 0.5: grains narrower than a "
+                        "footprint; 0: off, every grain explicit)")
     r.add_argument("--quiet", action="store_true", help="no progress or statistics on stderr")
 
     i = sub.add_parser("info", help="grain counts, tiles and transport parameters of each aggregate")

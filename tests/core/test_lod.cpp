@@ -1,5 +1,5 @@
-// Level of detail: paths whose footprint dwarfs the grains enter the equivalent medium
-// at first contact (tests mirror the LOD part of core/ept.*).
+// Level of detail: where the ray footprint dwarfs the grains, a path traces its first
+// grain and then continues in the equivalent medium (tests mirror the LOD part of ept.*).
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -15,21 +15,36 @@ using namespace granular;
 namespace {
 
 // A ball of bright sand grains (radius 1, grain radius R) seen from `distance`, under a
-// sun and a sky; no diffuse surfaces, so ray cones spread only with distance.
-SceneDesc sandBall(float distance, float R, float lod, int spp, float zoom = 1.0f) {
+// sun and a sky; no diffuse surfaces, so ray cones spread only with distance. Bundles of
+// one path by default: the hybrid's own switching (which needs a bundle's paths to spread)
+// never happens, so without the shortcut every grain is explicit.
+SceneDesc sandBall(float distance, float R, float lod, int spp, Technique technique, float zoom = 1.0f) {
   // Aperture so that the ball spans about 80% of the image (before zooming in).
   SceneDesc s = granular::testing::sandBallScene(Vec3(0.2f, 0.3f, distance), 50.0f * 2.5f / distance / zoom, R, 1);
   s.settings.width = s.settings.height = 24;
   s.settings.spp = spp;
-  s.settings.seed = 4;
+  // Independent seeds with and without the shortcut: their difference's noise is then
+  // what the standard errors say (the same seed would correlate them).
+  s.settings.seed = lod > 0 ? 5 : 4;
   s.settings.lod = lod;
+  s.settings.technique = technique;
+  s.settings.bundleSize = 1;
   return s;
 }
 
-struct Result {
-  double mean = 0, se = 0, fraction = 0;
-  Image img;
+// Mean luminance of a block of pixels with its standard error (pixels are independent).
+struct Estimate {
+  double mean = 0, se = 0;
 };
+
+struct Result {
+  Image img;
+  double fraction = 0;
+  Estimate whole;
+  std::vector<Estimate> blocks;  // kBlocks x kBlocks tiles of the image
+};
+
+constexpr int kBlocks = 3;
 
 Result render(const SceneDesc& d) {
   auto scene = Scene::build(d);
@@ -37,44 +52,122 @@ Result render(const SceneDesc& d) {
   EXPECT_TRUE(r.render(d.settings.spp));
   Result out;
   out.img = r.film().toImage();
-  double v = 0;
-  int n = 0;
-  for (int y = 0; y < d.settings.height; ++y)
-    for (int x = 0; x < d.settings.width; ++x) {
-      out.mean += luminance(r.film().mean(x, y));
-      double se = r.film().stdError(x, y);
-      v += std::isfinite(se) ? se * se : 0;
-      ++n;
-    }
-  out.mean /= n;
-  out.se = std::sqrt(v) / n;
   out.fraction = r.shortcutFraction();
+  const int W = d.settings.width, H = d.settings.height;
+  std::vector<double> sum(kBlocks * kBlocks, 0.0), var(kBlocks * kBlocks, 0.0);
+  std::vector<int> count(kBlocks * kBlocks, 0);
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x) {
+      int b = (y * kBlocks / H) * kBlocks + x * kBlocks / W;
+      double se = r.film().stdError(x, y);
+      sum[b] += luminance(r.film().mean(x, y));
+      var[b] += std::isfinite(se) ? se * se : 0;
+      ++count[b];
+    }
+  double s = 0, v = 0;
+  for (int b = 0; b < kBlocks * kBlocks; ++b) {
+    out.blocks.push_back({sum[b] / count[b], std::sqrt(var[b]) / count[b]});
+    s += sum[b];
+    v += var[b];
+  }
+  out.whole = {s / (W * H), std::sqrt(v) / (W * H)};
   return out;
 }
 
+// Relative difference of two estimates and its standard error.
+struct Diff {
+  double rel, noise;
+};
+Diff compare(const Estimate& on, const Estimate& off) {
+  return {(on.mean - off.mean) / off.mean, std::hypot(on.se, off.se) / off.mean};
+}
+
+// R = 0.004 seen from 40 units: a grain is about 0.08 pixel wide.
+constexpr float kFar = 40.0f, kSmallGrain = 0.004f;
+
 }  // namespace
 
-TEST(Lod, SubPixelGrainsMatchTheImageWithoutTheShortcut) {
-  // R = 0.004 seen from 40 units: a grain is about 0.08 pixel wide.
-  Result off = render(sandBall(40.0f, 0.004f, 0.0f, 96));
-  Result on = render(sandBall(40.0f, 0.004f, 0.5f, 96));
-  double rel = (on.mean - off.mean) / off.mean;
-  std::printf("sub-pixel grains: shortcut on %.4f, off %.4f (relative %.4f, noise %.4f), %.0f%% of paths took it\n",
-              on.mean, off.mean, rel, std::hypot(on.se, off.se) / off.mean, 100 * on.fraction);
-  EXPECT_GT(on.fraction, 0.3);
+TEST(Lod, SubPixelGrainsMatchExplicitGrainsWithinNoise) {
+  // EPT+VPT: the shortcut changes only where paths leave the grains, so with and without
+  // it the images agree within noise, block by block.
+  Result off = render(sandBall(kFar, kSmallGrain, 0.0f, 128, Technique::EptVpt));
+  Result on = render(sandBall(kFar, kSmallGrain, 0.5f, 128, Technique::EptVpt));
+  Diff d = compare(on.whole, off.whole);
+  std::printf("sub-pixel grains, EPT+VPT: shortcut on %.4f, off %.4f (relative %+.4f, noise %.4f); %.0f%% of paths\n",
+              on.whole.mean, off.whole.mean, d.rel, d.noise, 100 * on.fraction);
+  EXPECT_GT(on.fraction, 0.3);  // about half the image is sand
   EXPECT_EQ(off.fraction, 0.0);
-  // Measured: +3.2% ± 0.2% (the medium's first interaction from outside reflects a little
-  // more than an explicit first grain contact). The 3% is not met yet, which is
-  // why RenderSettings::lod defaults to off; this bounds the regression.
-  EXPECT_LE(std::fabs(rel), 0.045);
+  EXPECT_LE(std::fabs(d.rel), 4 * d.noise);
+  EXPECT_LE(std::fabs(d.rel), 0.03);
+  for (int b = 0; b < kBlocks * kBlocks; ++b) {
+    if (off.blocks[b].mean < 0.05 * off.whole.mean) continue;  // sky only
+    Diff db = compare(on.blocks[b], off.blocks[b]);
+    EXPECT_LE(std::fabs(db.rel), 4 * db.noise) << "block " << b;
+  }
+}
+
+TEST(Lod, SubPixelGrainsInTheHybridStayWithinThreePercent) {
+  // The hybrid: after the first grain, diffusion takes paths deep below the boundary,
+  // so the shortcut's image carries DA's own approximation (measured +1.6% to +1.9%, ± 0.2%, against
+  // explicit grains, depending on the seed); the bound is 3%.
+  Result off = render(sandBall(kFar, kSmallGrain, 0.0f, 128, Technique::Hybrid));
+  Result on = render(sandBall(kFar, kSmallGrain, 0.5f, 128, Technique::Hybrid));
+  Diff d = compare(on.whole, off.whole);
+  std::printf("sub-pixel grains, hybrid: shortcut on %.4f, off %.4f (relative %+.4f, noise %.4f)\n",
+              on.whole.mean, off.whole.mean, d.rel, d.noise);
+  EXPECT_GT(on.fraction, 0.3);
+  EXPECT_LE(std::fabs(d.rel), 0.03 - 4 * d.noise);
+}
+
+TEST(Lod, HybridBundlesAgreeWithTheShortcut) {
+  // With bundles (the default), the hybrid switches sub-pixel paths to the media by
+  // itself soon after the first grain: the shortcut only moves the switch earlier.
+  SceneDesc offDesc = sandBall(kFar, kSmallGrain, 0.0f, 128, Technique::Hybrid);
+  SceneDesc onDesc = sandBall(kFar, kSmallGrain, 0.5f, 128, Technique::Hybrid);
+  offDesc.settings.bundleSize = onDesc.settings.bundleSize = 16;
+  offDesc.settings.roulette = onDesc.settings.roulette = 1.0f;
+  Result off = render(offDesc), on = render(onDesc);
+  Diff d = compare(on.whole, off.whole);
+  EXPECT_GT(on.fraction, 0.3);
+  EXPECT_LE(std::fabs(d.rel), 4 * d.noise + 1e-6);
 }
 
 TEST(Lod, CloseUpNeverTakesTheShortcutAndMatchesOffExactly) {
   // R = 0.05 seen from 3 units, zoomed 8x: a grain is about 8 pixels wide.
-  Result on = render(sandBall(3.0f, 0.05f, 0.5f, 8, 8.0f));
-  Result off = render(sandBall(3.0f, 0.05f, 0.0f, 8, 8.0f));
+  SceneDesc onDesc = sandBall(3.0f, 0.05f, 0.5f, 8, Technique::Hybrid, 8.0f);
+  SceneDesc offDesc = sandBall(3.0f, 0.05f, 0.0f, 8, Technique::Hybrid, 8.0f);
+  onDesc.settings.seed = offDesc.settings.seed;
+  Result on = render(onDesc), off = render(offDesc);
   EXPECT_EQ(on.fraction, 0.0);
   ASSERT_EQ(on.img.pixels.size(), off.img.pixels.size());
   for (size_t i = 0; i < on.img.pixels.size(); ++i)
     if (!(std::isinf(on.img.pixels[i]) && std::isinf(off.img.pixels[i]))) ASSERT_EQ(on.img.pixels[i], off.img.pixels[i]) << i;
+}
+
+TEST(Lod, ConesWidenAtDiffuseBounces) {
+  // The camera sees only a grey floor, close up; the sand ball (grains 0.05, large for
+  // the camera's own footprint) is off screen and lit only via the floor. Paths that
+  // bounce off the floor carry a wide cone, so they take the shortcut at the ball, and
+  // the image still matches explicit grains.
+  auto scene = [](float lod) {
+    SceneDesc s = granular::testing::sandBallScene(Vec3(0.0f, -0.6f, 2.0f), 2.0f, 0.05f, 1);
+    s.camera.cameraToWorld = Transform::lookAt(Vec3(0.0f, -0.9f, 1.6f), Vec3(0.0f, -1.0f, 1.4f), Vec3(0, 1, 0));
+    MeshDesc floor;
+    floor.name = "floor";
+    floor.mesh = makeBox(Vec3(-4.0f, -1.2f, -4.0f), Vec3(4.0f, -1.0f, 4.0f));
+    s.meshes.push_back(floor);
+    s.settings.width = s.settings.height = 16;
+    s.settings.spp = 128;
+    s.settings.seed = lod > 0 ? 10 : 9;
+    s.settings.lod = lod;
+    s.settings.technique = Technique::EptVpt;
+    s.settings.bundleSize = 1;
+    return s;
+  };
+  Result off = render(scene(0.0f)), on = render(scene(0.5f));
+  Diff d = compare(on.whole, off.whole);
+  std::printf("floor lit via the sand: shortcut on %.4f, off %.4f (relative %+.4f, noise %.4f); %.1f%% of paths\n",
+              on.whole.mean, off.whole.mean, d.rel, d.noise, 100 * on.fraction);
+  EXPECT_GT(on.fraction, 0.01);
+  EXPECT_LE(std::fabs(d.rel), 4 * d.noise);
 }
