@@ -7,6 +7,8 @@
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
+#include "error.h"
+
 namespace granular {
 
 Renderer::Renderer(const Scene& scene)
@@ -26,8 +28,11 @@ void Renderer::prepare() {
 }
 
 bool Renderer::renderPass(int samples, const std::atomic<bool>* cancel) {
-  if (!prepared_) prepare();
   const RenderSettings& rs = scene_.settings();
+  if (rs.width != film_.width() || rs.height != film_.height())  // Scene::setView since construction
+    throw InputError("render", "resolution", str(rs.width, "x", rs.height, " is not this renderer's ", film_.width(), "x",
+                                                 film_.height(), ": make a new renderer after a change of view"));
+  if (!prepared_) prepare();
   const Camera& cam = scene_.camera();
   const float pa = roulette_.pa;
   std::atomic<bool> cancelled{false};

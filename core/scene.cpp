@@ -107,9 +107,6 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc) {
         gts.push_back(estimateGrainTransport(agg->prototypes()[i].mesh, s->materials_[mats[i]]));
       s->mediumParams_.push_back(deriveMedium(gts, a.weights, a.grainRadius, a.packingRate));
       s->media_.emplace_back(s->mediumParams_.back());
-      // No DA where the object is too thin for it: its depth criterion is never met.
-      float daDepth = granular::diffusionDepth(s->mediumParams_.back());
-      s->diffusionDepth_.push_back(agg->stats().maxInteriorDepth > daDepth ? daDepth : kInf);
       s->diffusionProfiles_.emplace_back(s->mediumParams_.back());
       // VPT pays off only where paths scatter many times: an object thinner than its
       // mean free path is left to EPT alone (no bundles, no pre-render).
@@ -120,7 +117,6 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc) {
   if (!s->mediaNeeded_) {
     s->mediumParams_.clear();
     s->media_.clear();
-    s->diffusionDepth_.clear();
     s->diffusionProfiles_.clear();
   }
   s->sceneScale_ = all.empty() ? 1.0f : std::max(1e-6f, maxComponent(vmax(vabs(all.lo), vabs(all.hi))));
@@ -137,21 +133,19 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc) {
   // inside (a sphere light inside a ball rendered 15x too dark) and a camera inside would
   // see nothing but DA's planar-boundary model of the deep interior (60% too dark), both
   // measured by bench/stress.py against EPT.
-  if (!s->diffusionDepth_.empty()) {
-    s->daBlocked_.assign(s->aggregates_.size(), false);
+  if (!s->media_.empty()) {
+    s->emitterInside_.assign(s->aggregates_.size(), false);
     for (size_t a = 0; a < s->aggregates_.size(); ++a) {
       const Aggregate& agg = *s->aggregates_[a];
-      bool blocked = s->mediumAt(s->camera_.position()) == int(a);
-      for (const auto& l : desc.lights) blocked = blocked || emitterReachesInto(agg, l);
+      bool inside = false;
+      for (const auto& l : desc.lights) inside = inside || emitterReachesInto(agg, l);
       for (const auto& m : desc.meshes)
         if (m.visible && m.material >= 0 && !isBlack(desc.materials[m.material].emission))
-          blocked = blocked || meshReachesInto(agg, m.mesh.transformed(m.xf));
-      if (blocked) {
-        s->daBlocked_[a] = true;
-        s->diffusionDepth_[a] = kInf;
-      }
+          inside = inside || meshReachesInto(agg, m.mesh.transformed(m.xf));
+      s->emitterInside_[a] = inside;
     }
   }
+  s->updateDiffusionDepths();
   s->buildSeconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return s;
 }
@@ -235,16 +229,26 @@ void Scene::setView(const CameraDesc& camera, const RenderSettings& settings) {
     throw InputError("render", "technique", "a change between ept and the hybrid needs the scene built anew");
   settings_ = settings;
   camera_ = Camera(camera, settings.width, settings.height);
+  updateDiffusionDepths();  // the camera may have moved into or out of an aggregate
+}
+
+void Scene::updateDiffusionDepths() {
+  diffusionDepth_.assign(media_.size(), kInf);
+  for (size_t a = 0; a < media_.size(); ++a) {
+    // No DA where the object is too thin for it (its depth criterion is never met), nor
+    // where an emitter or the camera is inside (above).
+    float depth = granular::diffusionDepth(mediumParams_[a]);
+    bool blocked = emitterInside_[a] || mediumAt(camera_.position()) == int(a);
+    if (!blocked && aggregates_[a]->stats().maxInteriorDepth > depth) diffusionDepth_[a] = depth;
+  }
 }
 
 void Scene::setMedium(int aggregate, const MediumParams& params) {
   if (media_.empty()) return;  // technique Ept, or no aggregate thick enough: no media
   mediumParams_[aggregate] = params;
   media_[aggregate] = HomogeneousMedium(params);
-  float daDepth = granular::diffusionDepth(params);
-  diffusionDepth_[aggregate] =
-      !daBlocked_[aggregate] && aggregates_[aggregate]->stats().maxInteriorDepth > daDepth ? daDepth : kInf;
   diffusionProfiles_[aggregate] = DiffusionProfile(params);
+  updateDiffusionDepths();
 }
 
 bool Scene::intersectMedium(const Ray& ray, Hit& hit) const {

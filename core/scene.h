@@ -87,6 +87,7 @@ class Scene {
   bool intersectAreaLights(const Ray& ray, Hit& hit, float& tmax) const;
   void finishHit(const Ray& ray, Hit& hit) const;  // position and ray-offset scale
   bool surfacesOccluded(const Vec3& p, const Vec3& dir, float dist) const;  // meshes only
+  void updateDiffusionDepths();  // from the media, the emitters inside and the camera
 
   Camera camera_;
   RenderSettings settings_;
@@ -97,7 +98,7 @@ class Scene {
   std::vector<MediumParams> mediumParams_;
   std::vector<HomogeneousMedium> media_;
   std::vector<float> diffusionDepth_;
-  std::vector<bool> daBlocked_;            // no DA: the aggregate holds an emitter or the camera
+  std::vector<bool> emitterInside_;        // an emitter reaches into the aggregate: no DA there
   std::vector<DiffusionProfile> diffusionProfiles_;
   int diffusionExitMaterial_ = -1;
   bool mediaNeeded_ = false;

@@ -453,6 +453,16 @@ PYBIND11_MODULE(granular_core, m) {
             return s;
           },
           py::arg("desc"), "Validates and builds (BVHs, tiles, distance fields); the GIL is released.")
+      .def(
+          "set_view",
+          [](PyScene& s, const CameraDesc& camera, const RenderSettings& settings) {
+            s.scene->setView(camera, settings);
+            s.desc.camera = camera;
+            s.desc.settings = settings;
+          },
+          py::arg("camera"), py::arg("settings"),
+          "A new camera and render settings without rebuilding (geometry, tiles, TT stay); for "
+          "renderers made after it. InputError on bad values or a change between ept and the hybrid.")
       .def_property_readonly("build_seconds", [](const PyScene& s) { return s.scene->buildSeconds(); })
       .def_property_readonly("has_media", [](const PyScene& s) { return s.scene->hasMedia(); },
                              "whether the integrator uses the equivalent media (VPT, DA) in this scene")

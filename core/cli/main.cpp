@@ -2,7 +2,7 @@
 //
 //   granular-render SCENE.json -o OUT.exr [--png OUT.png] [--spp N] [--width W]
 //                   [--height H] [--seed S] [--threads T] [--exposure E] [--quiet]
-//                   [--technique ept|ept+vpt|hybrid] [--roulette P_a] [--stats-json FILE]
+//                   [--technique ept|ept+vpt|hybrid] [--roulette P_a] [--lod L] [--stats-json FILE]
 //
 // --stats-json writes one JSON object: build_s, render_s, spp, technique, pa,
 // lod_fraction, has_media, nonfinite_samples (samples dropped as NaN/Inf), nonfinite_values

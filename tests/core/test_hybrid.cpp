@@ -273,4 +273,13 @@ TEST(Hybrid, NoDiffusionInAnAggregateHoldingAnEmitterOrTheCamera) {
   // setMedium (validation against other renderers) keeps the rule.
   scene->setMedium(0, scene->mediumParams(0));
   EXPECT_FALSE(std::isfinite(scene->diffusionDepth(0)));
+  // So does a camera move (Hydra, usdview): out of the ball and back in.
+  scene->setView(base.camera, base.settings);
+  EXPECT_TRUE(std::isfinite(scene->diffusionDepth(0)));
+  scene->setView(inside.camera, inside.settings);
+  EXPECT_FALSE(std::isfinite(scene->diffusionDepth(0)));
+  // An emitter inside blocks DA whatever the camera does.
+  auto lit = Scene::build(mesh);
+  lit->setView(base.camera, base.settings);
+  EXPECT_FALSE(std::isfinite(lit->diffusionDepth(0)));
 }

@@ -126,6 +126,30 @@ def test_every_technique_renders(tmp_path, technique, lod):
         core.technique_from_name("dpt", "test")
 
 
+def test_set_view_renders_as_a_fresh_build(tmp_path):
+    scene = read_stage(str(small_scene(tmp_path / "s.usda")), width=32)
+    scene.desc.settings.spp = 2
+    built = core.Scene.build(scene.desc)
+    old = core.Renderer(built)
+    desc = scene.desc
+    cam, s = desc.camera, desc.settings
+    cam.focal_length *= 1.5
+    s.width, s.height, s.lod = 24, 16, 0.0
+    built.set_view(cam, s)
+    desc.camera, desc.settings = cam, s
+    moved = core.Renderer(built)
+    fresh = core.Renderer(core.Scene.build(desc))
+    assert moved.render() and fresh.render()
+    a, b = moved.image().pixels, fresh.image().pixels
+    assert a.shape[:2] == (16, 24)
+    assert np.array_equal(a[..., :3], b[..., :3])
+    with pytest.raises(core.InputError, match="resolution"):  # made before the change
+        old.render()
+    s.technique = core.technique_from_name("ept", "test")
+    with pytest.raises(core.InputError, match="technique"):
+        built.set_view(cam, s)
+
+
 def test_assembling_prims_from_python_with_a_lookup():
     def prim(path, mesh, apis):
         p = core.MeshPrim()
