@@ -77,7 +77,7 @@ float diffusionDepth(const MediumParams& p) {
     float b = p.sigmaTr[c] > 0 ? 0.5f / p.sigmaTr[c] : kInf;
     depth = std::max(depth, std::min(a, b));
   }
-  return depth;
+  return kDiffusionDepthFactor * depth;
 }
 
 namespace {

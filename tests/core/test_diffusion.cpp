@@ -90,7 +90,7 @@ SceneDesc brightSlab(Technique t) {
 void renderMean(Technique t, double& mean, double& se, double& daShare) {
   SceneDesc d = brightSlab(t);
   auto scene = Scene::build(d);
-  // σ_t = 20, α = 0.99: mean free path 0.05, DA from depth min(1/σ'_t, 0.5/σ_tr) = 0.05.
+  // σ_t = 20, α = 0.99: mean free path 0.05, DA from depth 2 min(1/σ'_t, 0.5/σ_tr) = 0.1.
   scene->setMedium(0, mediumFromRte(Vec3(20.0f), Vec3(0.99f), PhaseTable::isotropic()));
   Renderer r(*scene);
   ASSERT_TRUE(r.render(64));

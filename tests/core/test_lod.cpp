@@ -106,17 +106,18 @@ TEST(Lod, SubPixelGrainsMatchExplicitGrainsWithinNoise) {
   }
 }
 
-TEST(Lod, SubPixelGrainsInTheHybridStayWithinThreePercent) {
-  // The hybrid: after the first grain, diffusion takes paths deep below the boundary,
-  // so the shortcut's image carries DA's own approximation (measured +1.6% to +1.9%, ± 0.2%, against
-  // explicit grains, depending on the seed); the bound is 3%.
+TEST(Lod, SubPixelGrainsInTheHybridMatchExplicitGrainsWithinNoise) {
+  // The hybrid: after the first grain, diffusion takes the paths that go deep, so the
+  // shortcut's image also carries DA's approximation. At the seed's DA depth that was
+  // +1.6% to +1.9% against explicit grains here; at the depth we use (vpt.h), none.
   Result off = render(sandBall(kFar, kSmallGrain, 0.0f, 128, Technique::Hybrid));
   Result on = render(sandBall(kFar, kSmallGrain, 0.5f, 128, Technique::Hybrid));
   Diff d = compare(on.whole, off.whole);
   std::printf("sub-pixel grains, hybrid: shortcut on %.4f, off %.4f (relative %+.4f, noise %.4f)\n",
               on.whole.mean, off.whole.mean, d.rel, d.noise);
   EXPECT_GT(on.fraction, 0.3);
-  EXPECT_LE(std::fabs(d.rel), 0.03 - 4 * d.noise);
+  EXPECT_LE(std::fabs(d.rel), 4 * d.noise);
+  EXPECT_LE(std::fabs(d.rel), 0.03);
 }
 
 TEST(Lod, HybridBundlesAgreeWithTheShortcut) {
