@@ -5,7 +5,8 @@ lod, core/ept.h) against the image without it, from grains 10 pixels wide to 0.0
 The scene is a ball of bright sand (radius 1, grain radius R, so about 0.6 / R^3 grains)
 on a grey floor under a sun and a sky, built once; the camera then recedes along one
 direction (Scene.set_view), so that a grain at the ball's near point spans W pixels.
-At each distance, with the default integrator (hybrid, bundles of 16, tuned roulette):
+At each distance, with the default integrator (hybrid, bundles of 16, tuned roulette) or
+the one the options name:
   - the reference: no shortcut (lod 0), --ref-spp samples;
   - "off": no shortcut, --spp samples, another seed;
   - "on": lod 0.5 (the default), --spp samples, a third seed;
@@ -20,9 +21,11 @@ is in them): bias is the relative difference of the masked mean from the referen
 relMSE is mean((x − ref)² / (ref² + 0.01)), the reference's noise included for both. The
 equal-error speedup is relMSE·time off over relMSE·time on.
 
-Usage: python3 bench/lod_distance.py [--build build] [--out out/bench] [--spp 32]
-       [--ref-spp 128] [--grain-radius 5e-4] [--widths 10,3,1,0.3,0.1,0.03,0.01]
-Prints a markdown table; writes OUT/lod_distance.png when matplotlib is available.
+Usage: .venv/bin/python bench/lod_distance.py [--build build] [--out out/bench] [--spp 32]
+       [--ref-spp 128] [--grain-radius 5e-4] [--widths 10,3,2,1,0.5,0.3,0.1,0.03,0.01]
+       [--technique hybrid|ept+vpt] [--bundle-size 16]
+Prints a markdown table; writes OUT/lod_distance_<technique>_b<bundle>.png when
+matplotlib is available.
 """
 import argparse
 import json
@@ -104,13 +107,14 @@ def ball_mask(eye, w, h):
     return b * b - c > 0  # the sphere is ahead: the camera is outside, looking at its centre
 
 
-def render(core, built, desc, eye, gap, crop, spp, seed, lod):
+def render(core, built, desc, eye, gap, crop, spp, seed, lod, technique, bundle):
     d = json.loads(json.dumps(desc))
     d["camera"]["look_at"]["eye"] = [float(v) for v in eye]
     d["camera"]["clipping_range"] = [gap * 1e-3, 1e4]
     d["camera"]["horizontal_aperture"] = H_APERTURE * crop[0] / WIDTH
     d["camera"]["vertical_aperture"] = V_APERTURE * crop[1] / HEIGHT
-    d["render"].update(width=crop[0], height=crop[1], spp=spp, seed=seed, lod=lod)
+    d["render"].update(width=crop[0], height=crop[1], spp=spp, seed=seed, lod=lod, technique=technique,
+                       bundle_size=bundle)
     path = os.path.join(render.out, "lod_view.json")
     json.dump(d, open(path, "w"))
     view = core.load_scene_json(path)
@@ -140,7 +144,11 @@ def main():
     ap.add_argument("--spp", type=int, default=32)
     ap.add_argument("--ref-spp", type=int, default=128)
     ap.add_argument("--grain-radius", type=float, default=5e-4)
-    ap.add_argument("--widths", default="10,3,1,0.3,0.1,0.03,0.01", help="grain widths in pixels")
+    ap.add_argument("--widths", default="10,3,2,1,0.5,0.3,0.1,0.03,0.01", help="grain widths in pixels")
+    ap.add_argument("--technique", default="hybrid", choices=["ept+vpt", "hybrid"])
+    ap.add_argument("--bundle-size", type=int, default=16,
+                    help="paths of a pixel traced in lock-step; 1: no bundle switching, so that without the "
+                         "shortcut every grain is explicit")
     a = ap.parse_args()
     sys.path.insert(0, os.path.join(os.path.abspath(a.build), "python"))
     try:
@@ -167,10 +175,11 @@ def main():
         scale = int(min(16, max(1, round(WIDTH * HEIGHT / max(1, mask.sum())))))
         spp, ref_spp = a.spp * scale, a.ref_spp * scale
         view = (core, built, desc, eye, gap, crop)
-        ref, t_ref, _ = render(*view, ref_spp, 100, 0.0)
-        off, t_off, _ = render(*view, spp, 1, 0.0)
-        on, t_on, frac = render(*view, spp, 2, 0.5)
-        _, t_all, _ = render(*view, spp, 3, 1e9)
+        how = (a.technique, a.bundle_size)
+        ref, t_ref, _ = render(*view, ref_spp, 100, 0.0, *how)
+        off, t_off, _ = render(*view, spp, 1, 0.0, *how)
+        on, t_on, frac = render(*view, spp, 2, 0.5, *how)
+        _, t_all, _ = render(*view, spp, 3, 1e9, *how)
         b_off, se_off, m_off = errors(off, ref, mask)
         b_on, se_on, m_on = errors(on, ref, mask)
         # Of the paths that met the sand: about the ball's share of the pixels.
@@ -180,8 +189,8 @@ def main():
                          m_on=m_on))
         print(f"# grains {w:g} px: off {t_off:.1f} s, on {t_on:.1f} s, bias on {100 * b_on:+.2f}%", file=sys.stderr)
 
-    print(f"## Level of detail as the camera recedes (ball of sand, R = {R:g}, {WIDTH}x{HEIGHT}, "
-          f"{a.spp}+ spp; reference: no shortcut, {a.ref_spp // a.spp}x the samples)\n")
+    print(f"## Level of detail as the camera recedes (ball of sand, R = {R:g}, {WIDTH}x{HEIGHT}, {a.technique}, "
+          f"bundles of {a.bundle_size}, {a.spp}+ spp; reference: no shortcut, {a.ref_spp // a.spp}x the samples)\n")
     print("| grain width (px) | camera to sand | window | ball pixels | spp | sand paths shortcut | time off (s) | "
           "time on (s) | time all (s) | speedup | bias off | bias on | relMSE off | relMSE on | equal-error speedup |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
@@ -219,9 +228,9 @@ def main():
     ax2.set_ylabel("bias of the ball's mean vs reference (%, ±2 s.e.)")
     ax2.grid(True, which="both", alpha=0.3)
     ax2.legend()
-    fig.suptitle("Level of detail as the camera recedes")
+    fig.suptitle(f"Level of detail as the camera recedes ({a.technique}, bundles of {a.bundle_size})")
     fig.tight_layout()
-    png = os.path.join(a.out, "lod_distance.png")
+    png = os.path.join(a.out, f"lod_distance_{a.technique.replace('+', '_')}_b{a.bundle_size}.png")
     fig.savefig(png, dpi=110)
     print(f"\nplot: {png}", file=sys.stderr)
 
