@@ -8,7 +8,6 @@
 namespace granular {
 
 namespace {
-constexpr double kPiD = 3.14159265358979323846;
 
 // Laterally integrated exitance through the face z = 0 of the slab [0, d] (d = inf: a
 // half space) from a unit source at depth z: the exact solution of the 1-D diffusion

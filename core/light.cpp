@@ -19,36 +19,52 @@ Vec3 uvToDir(float u, float v) {
   return {s * std::sin(phi), std::cos(theta), -s * std::cos(phi)};
 }
 
-constexpr double kPiD = 3.14159265358979323846;
-
-// Radiance over an area (normalize), in double: the area of a tiny light underflows a
-// float to 0, and 0 / 0 made the radiance NaN (USD fuzzer). validateSceneDesc bounds the
-// quotient, so it fits a float.
-Vec3 divided(const Vec3& L, double area) {
-  return {float(double(L.x) / area), float(double(L.y) / area), float(double(L.z) / area)};
-}
+// A sun's half-angle, and whether it is so small that the sun is a delta light.
+float sunHalfAngle(const LightDesc& d) { return 0.5f * d.angle * kPi / 180.0f; }
+bool pointLikeSun(float half) { return std::cos(half) > 1.0f - 1e-7f; }
 
 }  // namespace
+
+double normalizationArea(const LightDesc& d) {
+  if (!d.normalize) return 1.0;
+  switch (d.type) {
+    case LightType::Distant: {
+      float half = sunHalfAngle(d);
+      return pointLikeSun(half) ? 1.0 : kPiD * std::sin(double(half)) * std::sin(double(half));  // irradiance = intensity
+    }
+    case LightType::Sphere: {
+      float r = d.radius * length(d.xf.vector(Vec3(1, 0, 0)));  // uniform scale scales the radius
+      return 4.0 * kPiD * double(r) * r;
+    }
+    case LightType::Rect: {
+      Vec3 u = d.xf.vector(Vec3(d.width, 0, 0)), v = d.xf.vector(Vec3(0, d.height, 0));
+      double cx = double(u.y) * v.z - double(u.z) * v.y, cy = double(u.z) * v.x - double(u.x) * v.z,
+             cz = double(u.x) * v.y - double(u.y) * v.x;
+      return std::sqrt(cx * cx + cy * cy + cz * cz);
+    }
+    case LightType::Dome: break;
+  }
+  return 1.0;
+}
 
 Light Light::fromDesc(const LightDesc& d) {
   Light l;
   l.type_ = d.type;
-  Vec3 L = d.color * (d.intensity * std::exp2(d.exposure));
+  // In double, then to float: validateSceneDesc bounds the quotient, so it fits.
+  const Vec3 L0 = d.color * (d.intensity * std::exp2(d.exposure));
+  const double area = normalizationArea(d);
+  const Vec3 L(float(double(L0.x) / area), float(double(L0.y) / area), float(double(L0.z) / area));
   switch (d.type) {
     case LightType::Distant: {
       l.dir_ = normalize(d.xf.vector(Vec3(0, 0, 1)));
-      float half = 0.5f * d.angle * kPi / 180.0f;
-      l.cosMax_ = std::cos(half);
-      if (l.cosMax_ > 1.0f - 1e-7f) l.cosMax_ = 1.0f;  // a point-like sun: delta light
-      if (d.normalize && l.cosMax_ < 1.0f) L = divided(L, kPiD * std::sin(double(half)) * std::sin(double(half)));  // irradiance = intensity
+      float half = sunHalfAngle(d);
+      l.cosMax_ = pointLikeSun(half) ? 1.0f : std::cos(half);  // 1: a delta light
       l.radiance_ = L;
       break;
     }
     case LightType::Sphere: {
       l.center_ = d.xf.point(Vec3(0.0f));
-      // Uniform scale of the transform scales the radius.
-      l.radius_ = d.radius * length(d.xf.vector(Vec3(1, 0, 0)));
-      if (d.normalize) L = divided(L, 4.0 * kPiD * double(l.radius_) * l.radius_);
+      l.radius_ = d.radius * length(d.xf.vector(Vec3(1, 0, 0)));  // uniform scale scales it
       l.radiance_ = L;
       break;
     }
@@ -59,12 +75,6 @@ Light Light::fromDesc(const LightDesc& d) {
       Vec3 c = cross(l.edgeU_, l.edgeV_);
       l.area_ = length(c);
       l.normal_ = normalize(d.xf.vector(Vec3(0, 0, -1)));
-      if (d.normalize) {
-        const Vec3 &u = l.edgeU_, &v = l.edgeV_;
-        double cx = double(u.y) * v.z - double(u.z) * v.y, cy = double(u.z) * v.x - double(u.x) * v.z,
-               cz = double(u.x) * v.y - double(u.y) * v.x;
-        L = divided(L, std::sqrt(cx * cx + cy * cy + cz * cz));
-      }
       l.radiance_ = L;
       break;
     }

@@ -25,6 +25,12 @@ struct LightSample {
   bool delta = false;
 };
 
+// What a light's radiance (color × intensity × 2^exposure) is divided by when it is
+// normalised: its area (sphere, rect) or π sin² of a sun's half-angle; 1 when it is not
+// normalised, for a point-like sun and for a dome. In double: a tiny light's area
+// underflows a float (0 / 0 made the radiance NaN: the USD fuzzer's finding).
+double normalizationArea(const LightDesc& d);
+
 class Light {
  public:
   static Light fromDesc(const LightDesc& d);

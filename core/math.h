@@ -12,7 +12,8 @@
 
 namespace granular {
 
-constexpr float kPi = 3.14159265358979323846f;
+constexpr double kPiD = 3.14159265358979323846;
+constexpr float kPi = float(kPiD);
 constexpr float kInvPi = 1.0f / kPi;
 constexpr float kInf = std::numeric_limits<float>::infinity();
 

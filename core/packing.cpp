@@ -24,7 +24,6 @@ namespace granular {
 
 namespace {
 
-constexpr double kPiD = 3.14159265358979323846;
 constexpr double kInfD = std::numeric_limits<double>::infinity();
 constexpr double kMaxPackingRate = 0.64;
 constexpr int kMaxSpheres = 100000;

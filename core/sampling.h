@@ -45,7 +45,7 @@ inline Vec3 sampleUniformConeSin2(float u1, float u2, double sin2) {
   return {r * std::cos(phi), r * std::sin(phi), z};
 }
 // May be +inf for a cone whose solid angle underflows a float: its light then adds 0.
-inline float uniformConePdfSin2(double sin2) { return float(1.0 / (2.0 * 3.14159265358979323846 * coneOneMinusCos(sin2))); }
+inline float uniformConePdfSin2(double sin2) { return float(1.0 / (2.0 * kPiD * coneOneMinusCos(sin2))); }
 
 // Uniform random rotation (Shoemake 1992, "Uniform random rotations"): a unit quaternion
 // uniform on S^3, returned as a rotation matrix.

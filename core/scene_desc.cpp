@@ -4,6 +4,7 @@
 #include "scene_desc.h"
 
 #include "error.h"
+#include "light.h"
 
 namespace granular {
 
@@ -172,18 +173,7 @@ void validateSceneDesc(const SceneDesc& desc) {
       // is normalised, must be a finite float too (1e38 x 2^100 gave an all-black image
       // of non-finite samples; so did normalising a sphere of radius 6e-39, whose area
       // underflows: the USD fuzzer's finding).
-      double peak = double(maxComponent(l.color)) * l.intensity * std::exp2(double(l.exposure));
-      if (l.normalize) {
-        if (l.type == LightType::Sphere) {
-          double r = double(l.radius) * length(l.xf.vector(Vec3(1, 0, 0)));
-          peak /= 4.0 * 3.14159265358979323846 * r * r;
-        } else if (l.type == LightType::Rect) {
-          peak /= double(length(cross(l.xf.vector(Vec3(l.width, 0, 0)), l.xf.vector(Vec3(0, l.height, 0)))));
-        } else if (l.type == LightType::Distant) {
-          double half = 0.5 * double(l.angle) * 3.14159265358979323846 / 180.0;
-          if (std::cos(float(half)) < 1.0f - 1e-7f) peak /= 3.14159265358979323846 * std::sin(half) * std::sin(half);
-        }
-      }
+      double peak = double(maxComponent(l.color)) * l.intensity * std::exp2(double(l.exposure)) / normalizationArea(l);
       if (!(peak <= 1e30))
         throw InputError(obj, "intensity",
                          str("color ", fmt(l.color), " x intensity ", l.intensity, " x 2^exposure ", l.exposure,

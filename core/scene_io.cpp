@@ -199,7 +199,7 @@ Transform matrixFrom(const json& v, const std::string& obj, const std::string& k
 Transform rotation(double deg, double ax, double ay, double az) {
   double l = std::sqrt(ax * ax + ay * ay + az * az);
   ax /= l, ay /= l, az /= l;
-  double a = deg * 3.14159265358979323846 / 180.0, c = std::cos(a), s = std::sin(a), t = 1 - c;
+  double a = deg * kPiD / 180.0, c = std::cos(a), s = std::sin(a), t = 1 - c;
   Transform r;
   r.m[0][0] = t * ax * ax + c;      r.m[0][1] = t * ax * ay - s * az; r.m[0][2] = t * ax * az + s * ay;
   r.m[1][0] = t * ax * ay + s * az; r.m[1][1] = t * ay * ay + c;      r.m[1][2] = t * ay * az - s * ax;

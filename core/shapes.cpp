@@ -120,7 +120,7 @@ TriangleMesh makeLathe(const std::vector<std::pair<float, float>>& profile, int 
       continue;
     }
     for (uint32_t j = 0; j < seg; ++j) {
-      double a = 2.0 * 3.14159265358979323846 * double(j) / double(seg);
+      double a = 2.0 * kPiD * double(j) / double(seg);
       m.points.push_back({float(r * std::cos(a)), h, float(r * std::sin(a))});
     }
   }
@@ -152,7 +152,7 @@ TriangleMesh makeUVSphere(int segments, int rings) {
                          kMaxShapeVertices));
   std::vector<std::pair<float, float>> profile;
   for (int i = 0; i <= rings; ++i) {
-    double theta = 3.14159265358979323846 * (1.0 - double(i) / rings);  // from the south pole up
+    double theta = kPiD * (1.0 - double(i) / rings);  // from the south pole up
     // Exact zeros at the poles: sin(pi) is not 0 in floating point and would add caps.
     float r = (i == 0 || i == rings) ? 0.0f : float(std::sin(theta));
     profile.push_back({r, float(std::cos(theta))});

@@ -19,8 +19,8 @@ namespace granular {
 
 namespace {
 
-constexpr double kFourPi = 4.0 * 3.14159265358979323846;
-constexpr double kTwoPi = 2.0 * 3.14159265358979323846;
+constexpr double kFourPi = 4.0 * kPiD;
+constexpr double kTwoPi = 2.0 * kPiD;
 constexpr int64_t kChunk = 4096;  // rays per chunk: fixed, so results ignore the thread count
 // EPT offsets grain hits by 2e-4 grain radii (scene.cpp); the same here, in unit-sphere units.
 constexpr float kGrainEps = 2e-4f;
