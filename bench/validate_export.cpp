@@ -25,6 +25,7 @@
 //     hash(seed, x, y, s) and jittered in the pixel like Renderer.
 #include <tbb/parallel_for.h>
 
+#include <atomic>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -213,6 +214,7 @@ int renderVpt(const std::string& scenePath, const std::string& outPath, int spp,
   const Camera& cam = scene->camera();
   const int startMedium = scene->mediumAt(cam.position());
   Film film(rs.width, rs.height);
+  std::atomic<long> nonFinite{0};
   tbb::parallel_for(0, rs.height, [&](int y) {
     for (int x = 0; x < rs.width; ++x)
       for (int s = 0; s < rs.spp; ++s) {
@@ -224,15 +226,12 @@ int renderVpt(const std::string& scenePath, const std::string& outPath, int spp,
         p.medium = startMedium;
         while (p.alive) vptStep(*scene, p);
         PixelSample ps;
-        bool finite = isFinite(p.L[0]) && isFinite(p.L[1]) && isFinite(p.L[2]);
-        for (int t = 0; t < 3; ++t) ps.byTechnique[t] = finite ? p.L[t] : Vec3(0.0f);
-        ps.L = ps.byTechnique[0] + ps.byTechnique[1] + ps.byTechnique[2];
-        ps.hit = p.primary.hit;
-        ps.depth = p.primary.depth;
-        ps.normal = p.primary.normal;
+        if (!toPixelSample(p, ps)) ++nonFinite;
         film.add(x, y, ps);
       }
   });
+  // A validation image must not hide a numerical failure as a slightly darker pixel.
+  if (nonFinite > 0) throw std::runtime_error(str(nonFinite.load(), " VPT samples were not finite"));
   writeImage(outPath, film.toImage());
   return 0;
 }

@@ -58,15 +58,7 @@ bool Renderer::renderPass(int samples, const std::atomic<bool>* cancel) {
           for (const PathState& p : paths) {
             shortcuts += p.shortcut;
             PixelSample ps;
-            // A non-finite estimate (a numerical failure) is dropped as a whole sample.
-            bool finite = isFinite(p.L[0]) && isFinite(p.L[1]) && isFinite(p.L[2]);
-            if (!finite) nonFinite_.fetch_add(1, std::memory_order_relaxed);
-            for (int t = 0; t < 3; ++t) ps.byTechnique[t] = finite ? p.L[t] : Vec3(0.0f);
-            ps.L = ps.byTechnique[0] + ps.byTechnique[1] + ps.byTechnique[2];
-            ps.hit = p.primary.hit;
-            ps.depth = p.primary.depth;
-            ps.normal = p.primary.normal;
-            ps.primId = p.primary.primId;
+            if (!toPixelSample(p, ps)) nonFinite_.fetch_add(1, std::memory_order_relaxed);
             film_.add(x, y, ps);
           }
           shortcuts_ += shortcuts;

@@ -7,7 +7,7 @@
 // --stats-json writes one JSON object: build_s, render_s, spp, technique, pa,
 // lod_fraction, has_media, nonfinite_samples (samples dropped as NaN/Inf), nonfinite_values
 // (NaN/Inf in the image's colour and AOV channels; Z is +inf where nothing was hit, by
-// design, and not counted) and mean (the image's mean RGB).
+// design, and not counted) and mean (the image's mean RGB over finite values).
 //
 // Exit status: 0 on success, 2 on bad input (one line naming object and attribute),
 // 1 on any other failure. No partial output file is left behind.
@@ -108,15 +108,6 @@ int main(int argc, char** argv) {
       if (p.samplesDone == p.samplesTarget) std::fprintf(stderr, "\n");
     });
     Image img = renderer.film().toImage();
-    Vec3 meanRgb(0.0f);
-    {
-      double sum[3] = {0, 0, 0};
-      for (int y = 0; y < img.height; ++y)
-        for (int x = 0; x < img.width; ++x)
-          for (int c = 0; c < 3; ++c) sum[c] += img.at(x, y)[c];
-      double n = double(img.width) * img.height;
-      meanRgb = Vec3(float(sum[0] / n), float(sum[1] / n), float(sum[2] / n));
-    }
     if (!quiet && scene->hasMedia()) {
       const RouletteTuning& rt = renderer.roulette();
       std::fprintf(stderr, "  technique %s, bundles of %d, P_a %.3f", techniqueName(scene->settings().technique),
@@ -142,18 +133,25 @@ int main(int argc, char** argv) {
       if (!f) throw std::runtime_error("cannot write " + statsPath);
       // Robustness counters: samples dropped as non-finite, and non-finite values in the
       // colour and AOV channels of the image (Z is +inf where nothing was hit, by design).
+      // The mean is over finite values, so that the file stays valid JSON.
+      const int zc = img.channelIndex("Z");
       long nonFiniteValues = 0;
+      double sum[3] = {0, 0, 0};
       for (int y = 0; y < img.height; ++y)
         for (int x = 0; x < img.width; ++x)
-          for (int c = 0; c < img.numChannels(); ++c)
-            if (img.channels[c] != "Z" && !std::isfinite(img.at(x, y)[c])) ++nonFiniteValues;
+          for (int c = 0; c < img.numChannels(); ++c) {
+            float v = img.at(x, y)[c];
+            if (!std::isfinite(v)) nonFiniteValues += c != zc;
+            else if (c < 3) sum[c] += v;
+          }
+      const double n = double(img.width) * img.height;
       std::fprintf(f,
                    "{\"build_s\": %.6f, \"render_s\": %.6f, \"spp\": %ld, \"technique\": \"%s\", \"pa\": %.6f, "
                    "\"lod_fraction\": %.6f, \"has_media\": %s, \"nonfinite_samples\": %ld, \"nonfinite_values\": %ld, "
                    "\"mean\": [%.6g, %.6g, %.6g]}\n",
                    scene->buildSeconds(), renderSeconds, renderer.samplesPerPixel(),
                    techniqueName(scene->settings().technique), renderer.roulette().pa, renderer.shortcutFraction(), scene->hasMedia() ? "true" : "false",
-                   renderer.nonFiniteSamples(), nonFiniteValues, meanRgb.x, meanRgb.y, meanRgb.z);
+                   renderer.nonFiniteSamples(), nonFiniteValues, sum[0] / n, sum[1] / n, sum[2] / n);
       std::fclose(f);
     }
     return 0;
