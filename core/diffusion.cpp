@@ -55,7 +55,7 @@ Vec3 DiffusionProfile::exitance(float z, float rho, float d, bool farFace) const
     add(h, +1.0);
     add(-(h + 2.0 * b), -1.0);
     // d'Eon & Irving 2011 (η = 1): J = φ/4 + (D/2) ∂φ/∂n (fluence and outward flux).
-    double J0 = std::max(0.0, 0.25 * phi + 0.5 * Dc * dphi);
+    double J0 = std::max(0.25 * phi + 0.5 * Dc * dphi, 0.0);  // NaN passes (and is counted), not clamped
     // Finite thickness: keep the dipole's lateral shape, scale its total to the slab's
     // exact 1-D total (a truncated multipole sum does not conserve energy as σ_a d → 0).
     if (std::isfinite(d)) J0 *= slabToHalfSpace(s, b, h, d);
