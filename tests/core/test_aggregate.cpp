@@ -176,9 +176,13 @@ TEST(Aggregate, TinyAndHugeScenesClassifyLikeUnitScene) {
     EXPECT_EQ(b.agg.stats().insideCells, ref.agg.stats().insideCells) << s;
     EXPECT_EQ(b.agg.stats().partialCells, ref.agg.stats().partialCells) << s;
     EXPECT_NEAR(b.agg.boundaryDistance(Vec3(0.0f)) / s, ref.agg.boundaryDistance(Vec3(0.0f)), 1e-3f) << s;
-    EXPECT_NEAR(b.agg.boundaryDistance(Vec3(0.0f, 0.0f, 1.05f * s)) / s, 0.05f, 0.02f) << s;
-    EXPECT_NEAR(b.agg.boundaryDistance(Vec3(0.0f, 0.0f, 0.95f * s)) / s, -0.05f, 0.02f) << s;
+    for (float z : {1.05f, 0.95f})
+      EXPECT_NEAR(b.agg.boundaryDistance(Vec3(0.0f, 0.0f, z * s)) / s, ref.agg.boundaryDistance(Vec3(0.0f, 0.0f, z)), 1e-3f)
+          << s << " " << z;
   }
+  // And the unit-scale field is the boundary's distance (icosphere: within a voxel).
+  EXPECT_NEAR(ref.agg.boundaryDistance(Vec3(0.0f, 0.0f, 1.05f)), 0.05f, 0.02f);
+  EXPECT_NEAR(ref.agg.boundaryDistance(Vec3(0.0f, 0.0f, 0.95f)), -0.05f, 0.02f);
 }
 
 TEST(Aggregate, NonFiniteRaysHitNothing) {

@@ -132,9 +132,12 @@ TEST(Diffusion, ExitanceStaysFiniteManyDiffusionLengthsDeep) {
     for (float rho : {0.0f, 0.3f, 5.0f})
       for (bool far : {false, true}) {
         Vec3 J = prof.exitance(z, rho, 4.0f, far);
-        EXPECT_TRUE(isFinite(J) && minComponent(J) >= 0) << z << " " << rho << " " << far << ": " << J.x;
+        // Only the shallowest source right above it reaches the near face in float.
+        if (z == 0.01f && rho == 0.0f && !far) EXPECT_GT(J.x, 0.0f);
+        else EXPECT_TRUE(J.x == 0 && J.y == 0 && J.z == 0) << z << " " << rho << " " << far << ": " << J.x;
       }
   // Where it does not underflow, the finite slab is still scaled to its exact total.
   Vec3 near = prof.totalExitance(0.01f, 4.0f, false), half = prof.totalExitance(0.01f, kInf, false);
+  ASSERT_GT(half.x, 0.0f);
   EXPECT_NEAR(near.x, half.x, 1e-3f * half.x);  // the far face is 4 units away: no difference
 }

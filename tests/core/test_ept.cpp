@@ -8,6 +8,7 @@
 #include "render.h"
 #include "scene.h"
 #include "shapes.h"
+#include "test_helpers.h"
 
 using namespace granular;
 
@@ -107,9 +108,7 @@ TEST(EptDeterminism, SameSeedSameImageForOneAndTwoThreadsAndAnyPassSplit) {
   Renderer r2(*s2);
   ASSERT_TRUE(r2.render(1));
   Image a = r1.film().toImage(), b = r2.film().toImage();
-  ASSERT_EQ(a.pixels.size(), b.pixels.size());
-  for (size_t i = 0; i < a.pixels.size(); ++i)
-    if (!(std::isinf(a.pixels[i]) && std::isinf(b.pixels[i]))) ASSERT_EQ(a.pixels[i], b.pixels[i]) << i;
+  ASSERT_TRUE(granular::testing::sameImage(a, b));
   // A different seed gives a different image.
   d.settings.seed = 99;
   auto s3 = Scene::build(d);
@@ -169,9 +168,7 @@ TEST(EptView, SetViewRendersTheSameAsABuildWithThatView) {
   ASSERT_TRUE(b.render(4));
   Image ia = a.film().toImage(), ib = b.film().toImage();
   ASSERT_EQ(ia.width, 16);
-  ASSERT_EQ(ia.pixels.size(), ib.pixels.size());
-  for (size_t i = 0; i < ia.pixels.size(); ++i)
-    if (!(std::isinf(ia.pixels[i]) && std::isinf(ib.pixels[i]))) ASSERT_EQ(ia.pixels[i], ib.pixels[i]) << i;
+  ASSERT_TRUE(granular::testing::sameImage(ia, ib));
   d2.settings.spp = 0;
   EXPECT_THROW(moved->setView(d2.camera, d2.settings), InputError);
 }

@@ -1,7 +1,11 @@
-// test_helpers.h — brute-force references shared by the core tests.
+// test_helpers.h — brute-force references and scenes shared by the core tests.
 #pragma once
 
+#include <gtest/gtest.h>
+
 #include <cmath>
+
+#include "image_io.h"
 
 #include "math.h"
 #include "mesh.h"
@@ -42,11 +46,24 @@ inline bool pointInMesh(const TriangleMesh& m, const Vec3& p) {
   return votes >= 2;
 }
 
+// Images equal value for value, every channel (NaN never equals; +inf where nothing was
+// hit equals +inf).
+inline ::testing::AssertionResult sameImage(const Image& a, const Image& b) {
+  if (a.width != b.width || a.height != b.height || a.channels != b.channels || a.pixels.size() != b.pixels.size())
+    return ::testing::AssertionFailure() << "sizes or channels differ";
+  for (size_t i = 0; i < a.pixels.size(); ++i)
+    if (!(a.pixels[i] == b.pixels[i]))
+      return ::testing::AssertionFailure() << "value " << i << ": " << a.pixels[i] << " vs " << b.pixels[i];
+  return ::testing::AssertionSuccess();
+}
+
 // A ball (radius 1) of bright sand grains of radius R under a sun and a sky, seen from
-// eye with square apertures (focal length 50): the scene of the hybrid and LOD tests.
-inline SceneDesc sandBallScene(const Vec3& eye, float aperture, float R, uint64_t aggregateSeed) {
+// eye towards target with square apertures (focal length 50): the scene of the hybrid
+// and LOD tests.
+inline SceneDesc sandBallScene(const Vec3& eye, float aperture, float R, uint64_t aggregateSeed,
+                               const Vec3& target = Vec3(0.0f)) {
   SceneDesc s;
-  s.camera.cameraToWorld = Transform::lookAt(eye, Vec3(0, 0, 0), Vec3(0, 1, 0));
+  s.camera.cameraToWorld = Transform::lookAt(eye, target, Vec3(0, 1, 0));
   s.camera.focalLength = 50;
   s.camera.horizontalAperture = s.camera.verticalAperture = aperture;
   MaterialDesc sand;

@@ -40,8 +40,8 @@ TEST(Light, SmallSphereFarAwaySamplesFiniteAndConsistent) {
     LightSample s;
     ASSERT_TRUE(l.sampleLi(Vec3(0.0f), rng.next1D(), rng.next1D(), s));
     ASSERT_TRUE(isFinite(s.wi) && std::isfinite(s.pdf) && s.pdf > 0);
-    EXPECT_NEAR(s.pdf * solidAngle, 1.0, 1e-4);
-    EXPECT_NEAR(l.pdfLi(Vec3(0.0f), s.wi, s.dist) * solidAngle, 1.0, 1e-4);
+    EXPECT_NEAR(s.pdf * solidAngle, 1.0, 1e-6);
+    EXPECT_NEAR(l.pdfLi(Vec3(0.0f), s.wi, s.dist) * solidAngle, 1.0, 1e-6);
     EXPECT_GT(s.wi.y, 0.999999f);
     EXPECT_NEAR(s.dist, 4999.5f, 0.5f);
   }
@@ -72,7 +72,11 @@ TEST(Light, FloorUnderASmallSphereFarAwayHasTheAnalyticRadiance) {
   ASSERT_TRUE(r.render(16));
   EXPECT_EQ(r.nonFiniteSamples(), 0);
   for (int y = 0; y < 8; ++y)
-    for (int x = 0; x < 8; ++x) EXPECT_NEAR(r.film().mean(x, y).x, 0.5f, 2e-3f) << x << "," << y;
+    // Light sampling leaves almost no variance here (cos θ ≥ 1 − 1e-9, MIS weight ≈ 1):
+    // the standard error and float rounding bound the error (measuring to the sphere's
+    // near surface instead of its centre would be off by 2e-4).
+    for (int x = 0; x < 8; ++x)
+      EXPECT_NEAR(r.film().mean(x, y).x, 0.5f, 4 * r.film().stdError(x, y) + 1e-5f) << x << "," << y;
 }
 
 TEST(Light, NormalisedTinyLightsOfZeroIntensityAreBlackNotNaN) {
@@ -86,11 +90,12 @@ TEST(Light, NormalisedTinyLightsOfZeroIntensityAreBlackNotNaN) {
   LightSample s;
   Light sphere = Light::fromDesc(d);
   ASSERT_TRUE(sphere.sampleLi(Vec3(0.0f), 0.5f, 0.5f, s));
-  EXPECT_TRUE(isFinite(s.Li)) << s.Li.x;
+  EXPECT_TRUE(s.Li.x == 0 && s.Li.y == 0 && s.Li.z == 0) << s.Li.x;
   d.type = LightType::Rect;
   d.width = d.height = 1e-25f;
   Light rect = Light::fromDesc(d);
-  EXPECT_TRUE(isFinite(rect.areaLe(Vec3(0, -1, 0))));
+  Vec3 Le = rect.areaLe(Vec3(0, -1, 0));
+  EXPECT_TRUE(Le.x == 0 && Le.y == 0 && Le.z == 0) << Le.x;
   // A finite normalised light keeps its meaning: intensity is the power per area.
   d.type = LightType::Sphere;
   d.radius = 0.5f;
