@@ -415,8 +415,6 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readonly("absorption", &GrainValues::absorption)
       .def_readonly("roughness", &GrainValues::roughness);
 
-  m.def("is_aggregate_primvar", &isAggregatePrimvar, py::arg("name"));
-  m.def("is_grain_primvar", &isGrainPrimvar, py::arg("name"));
   m.def("resolve_prototype_path", &resolvePrototypePath, py::arg("aggregate_path"), py::arg("text"),
         "A prototypes entry made absolute against the aggregate; InputError when it is no prim path.");
   m.def("read_aggregate_values", &readAggregateValues, py::arg("prim"),

@@ -65,14 +65,36 @@ def _report(scene, built, media):
     return out
 
 
-def _media(scene, built):
-    import granular_core as core
-    from .usd_reader import translate_core_error
-    try:
-        return built.media()
-    except core.InputError as e:
-        raise translate_core_error(e, scene) from None
+def _fmt3(v):
+    return "(" + ", ".join(f"{x:.4g}" for x in v) + ")"
 
+
+def report_lines(r):
+    """One aggregate_report() entry as text (granular info, the usdview statistics)."""
+    t, tt, rte = r["tiles"], r["tt"], r["rte"]
+    return [
+        r["prim"],
+        f"  prototypes    {', '.join(r['prototypes'])}  (weights {', '.join(f'{w:g}' for w in r['weights'])})",
+        f"  grains        ~{r['grains']:.4g}  (radius {r['grain_radius']:g}, packing rate {r['packing_rate']:g}, "
+        f"seed {r['seed']})",
+        f"  tiles         {t['cells']} of edge {t['edge']:.4g}: {t['inside']} inside, {t['partial']} partial "
+        f"({r['tile_spheres']} spheres each, f = {r['tile_packing_rate']:.3f})",
+        f"  TT            beta {tt['beta']:.4f} ± {tt['beta_se']:.4f}, lambda_delta {tt['lambda_delta']:.4g} R, "
+        f"lambda_s {_fmt3(tt['lambda_s'])} R, sigma_b {tt['sigma_b']:.4g}",
+        f"  RTE           sigma_t {_fmt3(rte['sigma_t'])}, albedo {_fmt3(rte['albedo'])}, g {_fmt3(rte['g'])}",
+        f"  diffusion     sigma'_t {_fmt3(rte['sigma_t_reduced'])}, albedo' {_fmt3(rte['albedo_reduced'])}, "
+        f"sigma_tr {_fmt3(rte['sigma_tr'])}",
+        f"  mean free path {_fmt3(r['mean_free_path'])} (world units, per RGB channel)",
+        "  hybrid        " + ("switches to these media (VPT, DA)" if r["media_used_by_renderer"] else
+                              "does not use media here: the scene's aggregates are thinner than their mean "
+                              "free paths, so EPT renders them"),
+    ]
+
+
+def export_summary(prim, output, r):
+    """What export_density() wrote, in one line."""
+    return (f"wrote {output}: grid 'density' = {r['sigma_t']:.6g} inside {prim}, 0 outside; "
+            f"voxel {r['voxel_size']:.4g}, {r['active_voxels']} active voxels")
 
 
 def read_aggregates(path=None, stage=None):

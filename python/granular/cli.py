@@ -256,10 +256,6 @@ def cmd_render(args):
     return EXIT_OK
 
 
-def _fmt3(v):
-    return "(" + ", ".join(f"{x:.4g}" for x in v) + ")"
-
-
 def cmd_info(args):
     scene = api.read_aggregates(args.scene)
     report = api.aggregate_report(scene=scene)
@@ -270,32 +266,14 @@ def cmd_info(args):
     if not report:
         print(f"{args.scene}: no granular aggregates (no Mesh with GranularAggregateAPI)")
     for r in report:
-        t = r["tiles"]
-        print(f"{r['prim']}")
-        print(f"  prototypes    {', '.join(r['prototypes'])}  (weights {', '.join(f'{w:g}' for w in r['weights'])})")
-        print(f"  grains        ~{r['grains']:.4g}  (radius {r['grain_radius']:g}, packing rate {r['packing_rate']:g}, "
-              f"seed {r['seed']})")
-        print(f"  tiles         {t['cells']} of edge {t['edge']:.4g}: {t['inside']} inside, {t['partial']} partial "
-              f"({r['tile_spheres']} spheres each, f = {r['tile_packing_rate']:.3f})")
-        tt, rte = r["tt"], r["rte"]
-        print(f"  TT            beta {tt['beta']:.4f} ± {tt['beta_se']:.4f}, lambda_delta {tt['lambda_delta']:.4g} R, "
-              f"lambda_s {_fmt3(tt['lambda_s'])} R, sigma_b {tt['sigma_b']:.4g}")
-        print(f"  RTE           sigma_t {_fmt3(rte['sigma_t'])}, albedo {_fmt3(rte['albedo'])}, g {_fmt3(rte['g'])}")
-        print(f"  diffusion     sigma'_t {_fmt3(rte['sigma_t_reduced'])}, albedo' {_fmt3(rte['albedo_reduced'])}, "
-              f"sigma_tr {_fmt3(rte['sigma_tr'])}")
-        print(f"  mean free path {_fmt3(r['mean_free_path'])} (world units, per RGB channel)")
-        print("  hybrid        " + ("switches to these media (VPT, DA)" if r["media_used_by_renderer"] else
-                                   "does not use media here: the scene's aggregates are thinner than their mean "
-                                   "free paths, so EPT renders them"))
+        print("\n".join(api.report_lines(r)))
     return EXIT_OK
 
 
 def cmd_export_vdb(args):
-
     _check_output(args.output, "-o", (".vdb",))
     r = api.export_density(args.prim, args.output, args.voxel_size, path=args.scene)
-    _log(args, f"wrote {args.output}: grid 'density' = {r['sigma_t']:.6g} inside {args.prim}, 0 outside; "
-               f"voxel {r['voxel_size']:.4g}, {r['active_voxels']} active voxels")
+    _log(args, api.export_summary(args.prim, args.output, r))
     return EXIT_OK
 
 

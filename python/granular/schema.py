@@ -152,7 +152,7 @@ def _numbers(v):
     out = []
     try:
         for x in v:
-            out.extend(_numbers(x) if not isinstance(x, (bool, int, float)) else [float(x)])
+            out.extend(_numbers(x))
     except TypeError:
         return []
     return out
@@ -175,12 +175,11 @@ def primvar_value(pv, time=Usd.TimeCode.Default()):
     out.source = str(attr.GetPrim().GetPath())
     out.is_array = out.type_name.endswith("[]")
     out.is_string = out.type_name.replace("[]", "") in ("string", "token")
-    if v is None:
-        pass
-    elif out.is_string:
-        out.strings = [v] if isinstance(v, str) else [str(x) for x in v]
-    elif not isinstance(v, str):
-        out.numbers = _numbers(v)
+    if v is not None:  # else: no value of that type, only the type, for core to report
+        if out.is_string:
+            out.strings = [v] if isinstance(v, str) else [str(x) for x in v]
+        elif not isinstance(v, str):
+            out.numbers = _numbers(v)
     return out
 
 

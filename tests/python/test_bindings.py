@@ -135,8 +135,7 @@ def test_set_view_renders_as_a_fresh_build(tmp_path):
     cam, s = desc.camera, desc.settings
     cam.focal_length *= 1.5
     s.width, s.height, s.lod = 24, 16, 0.0
-    built.set_view(cam, s)
-    desc.camera, desc.settings = cam, s
+    built.set_view(cam, s)  # cam and s are desc's own fields (pybind11 references)
     moved = core.Renderer(built)
     fresh = core.Renderer(core.Scene.build(desc))
     assert moved.render() and fresh.render()

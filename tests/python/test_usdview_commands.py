@@ -47,7 +47,8 @@ def test_export_density_writes_a_vdb_with_sigma_t_inside(tmp_path):
     # Inside the slab the grid holds the medium's σ_t (as the statistics report it), 0 far outside.
     import numpy as np
     inside, outside = core.sample_vdb_grid(str(out), "density", np.array([[0, 0.15, 0], [0, 50, 0]], dtype=np.float32))
-    assert inside > 0 and outside == 0
+    r = commands._api().aggregate_report(stage=stage)[0]
+    assert inside == pytest.approx(sum(r["rte"]["sigma_t"]) / 3, rel=1e-5) and outside == 0
     assert commands.default_vdb_name(stage, "/World/Snow") == "snowslab_World_Snow.vdb"
 
 

@@ -15,47 +15,31 @@ def _api():
     return api
 
 
-def _descendants(prim):
-    from pxr import Usd
-    return list(Usd.PrimRange(prim))[1:]
-
-
 def statistics_text(stage, paths):
     """Grains, tiles, teleportation-transport and RTE parameters of the selected aggregates."""
+    from pxr import Usd
     from granular import schema
-    wanted = []
+    wanted = set()
     for p in paths:
         prim = stage.GetPrimAtPath(str(p))
-        if not prim:
-            continue
-        for q in [prim] + _descendants(prim):
-            if q.HasAPI(schema.AGGREGATE_API) and str(q.GetPath()) not in wanted:
-                wanted.append(str(q.GetPath()))
+        if prim:
+            wanted.update(str(q.GetPath()) for q in Usd.PrimRange(prim) if q.HasAPI(schema.AGGREGATE_API))
     if not wanted:
         return "No granular aggregate selected (select a Mesh with GranularAggregateAPI, or a parent of one)."
+    api = _api()
     lines = []
-    for r in _api().aggregate_report(stage=stage):
-        if r["prim"] not in wanted:
-            continue
-        rte, tt = r["rte"], r["tt"]
-        f3 = lambda v: "(" + ", ".join(f"{x:.4g}" for x in v) + ")"
-        lines += [
-            r["prim"],
-            f"  grains          ~{r['grains']:.4g}  (radius {r['grain_radius']:g}, packing rate {r['packing_rate']:g})",
-            f"  prototypes      {', '.join(r['prototypes'])}  (weights {', '.join(f'{w:g}' for w in r['weights'])})",
-            f"  tiles           {r['tiles']['cells']}: {r['tiles']['inside']} inside, {r['tiles']['partial']} partial",
-            f"  TT              beta {tt['beta']:.4f}, lambda_delta {tt['lambda_delta']:.4g} R, lambda_s {f3(tt['lambda_s'])} R",
-            f"  sigma_t         {f3(rte['sigma_t'])}  albedo {f3(rte['albedo'])}  g {f3(rte['g'])}",
-            f"  mean free path  {f3(r['mean_free_path'])}",
-        ]
+    for r in api.aggregate_report(stage=stage):
+        if r["prim"] in wanted:
+            lines += api.report_lines(r)
     return "\n".join(lines)
 
 
 def export_density_text(stage, prim_path, output, voxel_size=None):
     """Writes the aggregate's coarse density to an OpenVDB file; returns a summary."""
-    r = _api().export_density(str(prim_path), output, voxel_size, stage=stage)
-    return (f"Wrote {output}: grid 'density' = {r['sigma_t']:.6g} inside {prim_path}, 0 outside "
-            f"(voxel {r['voxel_size']:.4g}, {r['active_voxels']} active voxels).")
+    api = _api()
+    r = api.export_density(str(prim_path), output, voxel_size, stage=stage)
+    text = api.export_summary(prim_path, output, r)
+    return text[0].upper() + text[1:] + "."
 
 
 def default_vdb_name(stage, prim_path):
