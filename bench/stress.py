@@ -19,7 +19,7 @@ a sphere light of radius 0.5 at 5000 units, the whole scene scaled to 1e6 and 1e
 
 Usage: python3 bench/stress.py [--build build] [--quick] [--timeout 300] [--only SUBSTR]
        [--techniques ept,ept+vpt,hybrid] [--out out/stress]
-Exit status 1 when any case FAILs. --quick runs a small subset (the ctest entry).
+Exit status 1 when any case FAILs. --quick runs a small subset of each sweep.
 """
 import argparse
 import copy
@@ -191,6 +191,8 @@ def main():
             rows.append((name, tech, outcome, elapsed, rss, note))
             print(f"{name:28s} {tech:8s} {outcome:11s} {elapsed:7.2f} s {rss / 1024:7.0f} MiB  {note}",
                   file=sys.stderr, flush=True)
+    if not rows:
+        sys.exit(f"no case matches --only {a.only!r}")
     print("| case | technique | outcome | time (s) | peak RSS (MiB) | note |")
     print("|---|---|---|---|---|---|")
     for name, tech, outcome, elapsed, rss, note in rows:
