@@ -1,13 +1,19 @@
-// fuzz_common.h — what both fuzz targets do with a scene description that validated:
-// bound its cost (the fuzzer must stay fast, and some costs are legitimately large: a
-// 2^28-cell grid, a 100000-sphere tile), then build it and render a few pixels with EPT,
-// treating anything but an InputError, and any non-finite sample, as a bug (abort()).
+// fuzz_common.h — what the USD fuzz targets share: reading the input bytes as values
+// (Reader; the material, camera, light and image layout both use), and what every target
+// does with a scene description that validated: bound its cost (the fuzzer must stay
+// fast, and some costs are legitimately large: a 2^28-cell grid, a 100000-sphere tile),
+// then build it and render a few pixels with EPT, treating anything but an InputError,
+// and any non-finite sample, as a bug (abort()).
 #pragma once
 
+#include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <exception>
+#include <string>
 
 #include "error.h"
 #include "render.h"
@@ -26,6 +32,86 @@ inline void note(const char* what, const char* detail = "") {
   if (verbose) std::fprintf(stderr, "fuzz: %s%s%s\n", what, *detail ? ": " : "", detail);
 }
 
+// The input bytes as values (little-endian; missing bytes read as 0).
+struct Reader {
+  const uint8_t* p;
+  size_t n;
+  template <typename T>
+  T get() {
+    T v{};
+    size_t k = std::min(sizeof(T), n);
+    std::memcpy(&v, p, k);
+    p += k;
+    n -= k;
+    return v;
+  }
+  float f() { return get<float>(); }
+  Vec3 v3() {
+    float x = f(), y = f(), z = f();
+    return {x, y, z};
+  }
+  // rows x 4 floats, row-major (core convention: a transposed GfMatrix4d); rows 3: an
+  // affine matrix without its projective row.
+  Transform matrix(int rows = 4) {
+    Transform t;
+    for (int i = 0; i < 4 * rows; ++i) t.m[i / 4][i % 4] = f();
+    return t;
+  }
+  // A u8 selector: below 0xF0 an entry of list (modulo its size), else a u8 length and
+  // that many bytes.
+  template <size_t N>
+  std::string pick(const char* const (&list)[N]) {
+    uint8_t sel = get<uint8_t>();
+    if (sel < 0xF0) return list[sel % N];
+    std::string s(get<uint8_t>() % 48, '\0');
+    for (char& c : s) c = char(get<uint8_t>());
+    return s;
+  }
+};
+
+// u8 type (odd: dielectric, else Lambert), float3 albedo, float ior, float3 absorption,
+// float3 emission.
+inline MaterialDesc readMaterial(Reader& r, const std::string& name) {
+  MaterialDesc m;
+  m.name = name;
+  m.type = r.get<uint8_t>() % 2 ? MaterialType::Dielectric : MaterialType::Lambert;
+  m.albedo = r.v3();
+  m.ior = r.f();
+  m.absorption = r.v3();
+  m.emission = r.v3();
+  return m;
+}
+
+// 16 floats camera matrix; floats focalLength, horizontal/verticalAperture, their
+// offsets, clipping near/far; u8 light type (distant, sphere, rect, dome), 16 floats
+// matrix, float3 color, floats intensity, exposure, angle, radius, width, height,
+// u8 normalize; u8 width, u8 height (1 + value % 8).
+inline void readViewAndLight(Reader& r, SceneDesc& d) {
+  d.camera.cameraToWorld = r.matrix();
+  d.camera.focalLength = r.f();
+  d.camera.horizontalAperture = r.f();
+  d.camera.verticalAperture = r.f();
+  d.camera.horizontalApertureOffset = r.f();
+  d.camera.verticalApertureOffset = r.f();
+  d.camera.clipNear = r.f();
+  d.camera.clipFar = r.f();
+  LightDesc l;
+  l.name = "/World/Light";
+  l.type = LightType(r.get<uint8_t>() % 4);
+  l.xf = r.matrix();
+  l.color = r.v3();
+  l.intensity = r.f();
+  l.exposure = r.f();
+  l.angle = r.f();
+  l.radius = r.f();
+  l.width = r.f();
+  l.height = r.f();
+  l.normalize = r.get<uint8_t>() & 1;
+  d.lights.push_back(l);
+  d.settings.width = 1 + r.get<uint8_t>() % 8;
+  d.settings.height = 1 + r.get<uint8_t>() % 8;
+}
+
 [[noreturn]] inline void bug(const char* what) {
   std::fprintf(stderr, "fuzz: %s\n", what);
   std::abort();
@@ -33,7 +119,7 @@ inline void note(const char* what, const char* detail = "") {
 
 // Cheap upper bound of the aggregate's cell count, as Aggregate::build computes it.
 inline double estimatedCells(const AggregateDesc& a) {
-  double rTile = std::cbrt(3.0 * a.packingRate / (4.0 * 3.14159265358979 * a.tileSpheres));
+  double rTile = std::cbrt(3.0 * a.packingRate / (4.0 * kPiD * a.tileSpheres));
   double L = a.grainRadius / rTile;
   Bounds3 b = a.boundary.transformed(a.xf).bounds();
   double cells = 1;

@@ -6,52 +6,19 @@
 //   faceVertexIndices                                  -> triangulate(), validateClosed()
 //   16 floats: the aggregate's world matrix (core convention: a transposed GfMatrix4d)
 //   float grainRadius, float packingRate, u64 seed, i32 tileSpheres, u8 w, w x float weights
-//   u8 type (0 lambert, 1 dielectric), float3 albedo, float ior, float3 absorption, float3 emission
-//   16 floats: camera matrix; floats focalLength, horizontal/verticalAperture, their
-//   offsets, clipping near/far
-//   u8 light type (distant, sphere, rect, dome), 16 floats matrix, float3 color, floats
-//   intensity, exposure, angle, radius, width, height, u8 normalize
-//   u8 width, u8 height, u8 technique
+//   a material, then the camera, one light and the image size (fuzz_common.h:
+//   readMaterial, readViewAndLight)
 // The mesh becomes the aggregate's boundary and its prototype (a box when triangulate
 // refuses it, so that the rest is still exercised). validateSceneDesc must refuse every
 // bad value with an InputError; anything else escaping, a crash, or a non-finite sample
 // of a scene that validated (fuzz_common.h) is a bug.
 #include <cstddef>
 #include <cstdint>
-#include <cstring>
 #include <vector>
 
 #include "fuzz_common.h"
 #include "mesh.h"
 #include "shapes.h"
-
-namespace {
-
-struct Reader {
-  const uint8_t* p;
-  size_t n;
-  template <typename T>
-  T get() {
-    T v{};
-    size_t k = std::min(sizeof(T), n);
-    std::memcpy(&v, p, k);
-    p += k;
-    n -= k;
-    return v;
-  }
-  float f() { return get<float>(); }
-  granular::Vec3 v3() {
-    float x = f(), y = f(), z = f();
-    return {x, y, z};
-  }
-  granular::Transform matrix() {
-    granular::Transform t;
-    for (int i = 0; i < 16; ++i) t.m[i / 4][i % 4] = f();
-    return t;
-  }
-};
-
-}  // namespace
 
 extern "C" int LLVMFuzzerInitialize(int*, char***) {
   granular::fuzz::setUpCache();
@@ -60,7 +27,7 @@ extern "C" int LLVMFuzzerInitialize(int*, char***) {
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   using namespace granular;
-  Reader r{data, size};
+  fuzz::Reader r{data, size};
 
   std::vector<Vec3> points(r.get<uint8_t>());
   for (Vec3& p : points) p = r.v3();
@@ -91,41 +58,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   if (a.weights.size() > 1) a.prototypes.resize(a.weights.size(), a.prototypes[0]);
   d.aggregates.push_back(a);
 
-  MaterialDesc m;
-  m.name = "/World/Looks/Sand";
-  m.type = r.get<uint8_t>() % 2 ? MaterialType::Dielectric : MaterialType::Lambert;
-  m.albedo = r.v3();
-  m.ior = r.f();
-  m.absorption = r.v3();
-  m.emission = r.v3();
-  d.materials.push_back(m);
-
-  d.camera.cameraToWorld = r.matrix();
-  d.camera.focalLength = r.f();
-  d.camera.horizontalAperture = r.f();
-  d.camera.verticalAperture = r.f();
-  d.camera.horizontalApertureOffset = r.f();
-  d.camera.verticalApertureOffset = r.f();
-  d.camera.clipNear = r.f();
-  d.camera.clipFar = r.f();
-
-  LightDesc l;
-  l.name = "/World/Light";
-  l.type = LightType(r.get<uint8_t>() % 4);
-  l.xf = r.matrix();
-  l.color = r.v3();
-  l.intensity = r.f();
-  l.exposure = r.f();
-  l.angle = r.f();
-  l.radius = r.f();
-  l.width = r.f();
-  l.height = r.f();
-  l.normalize = r.get<uint8_t>() & 1;
-  d.lights.push_back(l);
-
-  d.settings.width = 1 + r.get<uint8_t>() % 8;
-  d.settings.height = 1 + r.get<uint8_t>() % 8;
-  d.settings.technique = Technique(r.get<uint8_t>() % 3);
+  d.materials.push_back(fuzz::readMaterial(r, "/World/Looks/Sand"));
+  fuzz::readViewAndLight(r, d);
 
   try {
     validateSceneDesc(d);

@@ -9,10 +9,9 @@
 // InputError naming a prim path and attribute; nothing else escapes, nothing crashes,
 // no sample is NaN or Inf.
 //
-// Input layout (little-endian; missing bytes read as 0; fuzz/seed_corpus.py writes
-// seeds). A "string" is a u8 selector: below 0xF0 it picks from a list of plausible
-// paths or names (index modulo the list's size), else a u8 length and that many bytes.
-//   u8 materials (0-3), each: u8 type, float3 albedo, float ior, float3 absorption, float3 emission
+// Input layout (fuzz_common.h's Reader; fuzz/seed_corpus.py writes seeds). A "string" is
+// Reader::pick: a plausible path or name from a list, or raw bytes.
+//   u8 materials (0-3), each as fuzz_common.h's readMaterial
 //   u8 prims (1-4) listed, then u8 prims (0-2) for the lookup, each prim:
 //     path, typeName, u8 flags (1 active, 2 visible, 4 apiSchemas known, 8 displayColor),
 //     [u8 k, k x apiSchema name], [float3 displayColor], i8 material,
@@ -21,10 +20,9 @@
 //     three rows of a matrix), u8 primvars (0-6), each: name, typeName, u8 flags
 //     (1 isArray, 2 isString, 4 inherited), interpolation, [source path], u8 numbers
 //     (< 8) x float, u8 strings (< 4) x path
-//   then the camera, one light and the image settings as in fuzz_usd_attributes.cpp.
+//   then the camera, one light and the image size (fuzz_common.h's readViewAndLight).
 #include <cstddef>
 #include <cstdint>
-#include <cstring>
 #include <string>
 #include <vector>
 
@@ -49,37 +47,7 @@ const char* const kTypes[] = {"float", "double", "half", "int", "int64", "uint",
                               "bool", "int[]", "matrix4d"};
 const char* const kInterpolations[] = {"constant", "uniform", "vertex", "faceVarying", ""};
 
-struct Reader {
-  const uint8_t* p;
-  size_t n;
-  template <typename T>
-  T get() {
-    T v{};
-    size_t k = std::min(sizeof(T), n);
-    std::memcpy(&v, p, k);
-    p += k;
-    n -= k;
-    return v;
-  }
-  float f() { return get<float>(); }
-  Vec3 v3() {
-    float x = f(), y = f(), z = f();
-    return {x, y, z};
-  }
-  template <size_t N>
-  std::string pick(const char* const (&list)[N]) {
-    uint8_t sel = get<uint8_t>();
-    if (sel < 0xF0) return list[sel % N];
-    std::string s(get<uint8_t>() % 48, '\0');
-    for (char& c : s) c = char(get<uint8_t>());
-    return s;
-  }
-  Transform matrix3x4() {
-    Transform t;
-    for (int i = 0; i < 12; ++i) t.m[i / 4][i % 4] = f();
-    return t;
-  }
-};
+using fuzz::Reader;
 
 MeshPrim readPrim(Reader& r) {
   MeshPrim prim;
@@ -107,7 +75,7 @@ MeshPrim readPrim(Reader& r) {
     prim.mesh = makeBox(Vec3(-1.0f), Vec3(1.0f));
   }
   prim.instances.resize(r.get<uint8_t>() % 3);
-  for (Transform& t : prim.instances) t = r.matrix3x4();
+  for (Transform& t : prim.instances) t = r.matrix(3);
   int primvars = r.get<uint8_t>() % 7;
   for (int k = 0; k < primvars; ++k) {
     std::string name = r.pick(kNames);
@@ -139,15 +107,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   Reader r{data, size};
   SceneDesc d;
   d.materials.resize(r.get<uint8_t>() % 4);
-  for (size_t i = 0; i < d.materials.size(); ++i) {
-    MaterialDesc& m = d.materials[i];
-    m.name = "/World/Looks/M" + std::to_string(i);
-    m.type = r.get<uint8_t>() % 2 ? MaterialType::Dielectric : MaterialType::Lambert;
-    m.albedo = r.v3();
-    m.ior = r.f();
-    m.absorption = r.v3();
-    m.emission = r.v3();
-  }
+  for (size_t i = 0; i < d.materials.size(); ++i) d.materials[i] = fuzz::readMaterial(r, "/World/Looks/M" + std::to_string(i));
   std::vector<MeshPrim> prims(1 + r.get<uint8_t>() % 4);
   for (MeshPrim& p : prims) p = readPrim(r);
   std::vector<MeshPrim> hidden(r.get<uint8_t>() % 3);
@@ -161,27 +121,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     return false;
   };
 
-  d.camera.cameraToWorld = r.matrix3x4();
-  d.camera.focalLength = r.f();
-  d.camera.horizontalAperture = r.f();
-  d.camera.verticalAperture = r.f();
-  d.camera.clipNear = r.f();
-  d.camera.clipFar = r.f();
-  LightDesc l;
-  l.name = "/World/Light";
-  l.type = LightType(r.get<uint8_t>() % 4);
-  l.xf = r.matrix3x4();
-  l.color = r.v3();
-  l.intensity = r.f();
-  l.exposure = r.f();
-  l.angle = r.f();
-  l.radius = r.f();
-  l.width = r.f();
-  l.height = r.f();
-  l.normalize = r.get<uint8_t>() & 1;
-  d.lights.push_back(l);
-  d.settings.width = 1 + r.get<uint8_t>() % 8;
-  d.settings.height = 1 + r.get<uint8_t>() % 8;
+  fuzz::readViewAndLight(r, d);
 
   try {
     assembleGranularScene(prims, d, lookup);

@@ -20,6 +20,37 @@ import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
+BOX = [(x, y, z) for z in (-1, 1) for y in (-1, 1) for x in (-1, 1)]
+QUADS = [0, 4, 6, 2, 1, 3, 7, 5, 0, 1, 5, 4, 2, 6, 7, 3, 0, 2, 3, 1, 4, 5, 7, 6]
+TET = [(1, 1, 1), (1, -1, -1), (-1, 1, -1), (-1, -1, 1)]
+TRIS = [0, 1, 2, 0, 3, 1, 0, 2, 3, 1, 3, 2]
+
+
+def copy_regressions(pattern, out):
+    """Copies fuzz/regressions/PATTERN into out as regression_*; returns the count."""
+    n = 0
+    for path in sorted(glob.glob(os.path.join(ROOT, "fuzz/regressions", pattern))):
+        with open(path, "rb") as f, open(os.path.join(out, "regression_" + os.path.basename(path)), "wb") as g:
+            g.write(f.read())
+        n += 1
+    return n
+
+
+def view_and_light(light_type):
+    """fuzz_common.h's readViewAndLight: a camera at z = 4 looking down -z, a light above
+    (each type's parameters sane), a 5 x 4 image."""
+    b = bytearray(struct.pack("<16f", 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 4, 0, 0, 0, 1))
+    b += struct.pack("<7f", 35, 36, 24, 0, 0, 0.01, 100)
+    b += struct.pack("<B16f", light_type, 1, 0, 0, 0, 0, 1, 0, 2, 0, 0, 1, 0, 0, 0, 0, 1)
+    b += struct.pack("<3f6fB", 1, 1, 1, 2, 0, 0.53, 0.5, 1, 1, 0)
+    b += struct.pack("<BB", 5, 4)
+    return b
+
+
+def material(dielectric):
+    """fuzz_common.h's readMaterial: a sand-like dielectric or a grey Lambert."""
+    return struct.pack("<B3ff3f3f", 1 if dielectric else 0, 0.5, 0.5, 0.5, 1.5, 0.1, 0.2, 0.4, 0, 0, 0)
+
 
 def json_seeds(out):
     os.makedirs(out, exist_ok=True)
@@ -37,10 +68,7 @@ def json_seeds(out):
         with open(os.path.join(out, f"test_scene_io_{k}.json"), "w") as f:
             f.write(m.group(1))
         n += 1
-    for path in sorted(glob.glob(os.path.join(ROOT, "fuzz/regressions/*.json"))):
-        with open(path, "rb") as f, open(os.path.join(out, "regression_" + os.path.basename(path)), "wb") as g:
-            g.write(f.read())
-        n += 1
+    n += copy_regressions("*.json", out)
     sys.path.insert(0, os.path.join(ROOT, "bench"))
     import stress  # noqa: E402
     with open(os.path.join(out, "stress_base.json"), "w") as f:
@@ -61,37 +89,20 @@ def usd_seed(points, counts, indices, light_type, dielectric=True):
     b += struct.pack("<16f", *identity)                       # aggregate xf
     b += struct.pack("<ffQi", 0.2, 0.5, 1, 16)                 # grainRadius, packingRate, seed, tileSpheres
     b += struct.pack("<B2f", 2, 1.0, 0.5)                      # weights
-    b += struct.pack("<B", 1 if dielectric else 0)
-    b += struct.pack("<3ff3f3f", 0.5, 0.5, 0.5, 1.5, 0.1, 0.2, 0.4, 0, 0, 0)
-    camera = [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 4, 0, 0, 0, 1]  # at z = 4 looking down -z
-    b += struct.pack("<16f", *camera)
-    b += struct.pack("<7f", 35, 36, 24, 0, 0, 0.01, 100)
-    b += struct.pack("<B", light_type)
-    light = [1, 0, 0, 0, 0, 1, 0, 2, 0, 0, 1, 0, 0, 0, 0, 1]
-    b += struct.pack("<16f", *light)
-    b += struct.pack("<3f6fB", 1, 1, 1, 2, 0, 0.53, 0.5, 1, 1, 0)
-    b += struct.pack("<BBB", 5, 4, 0)
+    b += material(dielectric) + view_and_light(light_type)
     return bytes(b)
 
 
 def usd_seeds(out):
     os.makedirs(out, exist_ok=True)
-    box = [(x, y, z) for z in (-1, 1) for y in (-1, 1) for x in (-1, 1)]
-    quads = [0, 4, 6, 2, 1, 3, 7, 5, 0, 1, 5, 4, 2, 6, 7, 3, 0, 2, 3, 1, 4, 5, 7, 6]
-    tet = [(1, 1, 1), (1, -1, -1), (-1, 1, -1), (-1, -1, 1)]
-    tris = [0, 1, 2, 0, 3, 1, 0, 2, 3, 1, 3, 2]
     n = 0
     for lt in range(4):
         with open(os.path.join(out, f"box_light{lt}.bin"), "wb") as f:
-            f.write(usd_seed(box, [4] * 6, quads, lt))
+            f.write(usd_seed(BOX, [4] * 6, QUADS, lt))
         with open(os.path.join(out, f"tet_light{lt}.bin"), "wb") as f:
-            f.write(usd_seed(tet, [3] * 4, tris, lt, dielectric=lt % 2 == 0))
+            f.write(usd_seed(TET, [3] * 4, TRIS, lt, dielectric=lt % 2 == 0))
         n += 2
-    for path in sorted(glob.glob(os.path.join(ROOT, "fuzz/regressions/usd_attributes_*.bin"))):
-        with open(path, "rb") as f, open(os.path.join(out, "regression_" + os.path.basename(path)), "wb") as g:
-            g.write(f.read())
-        n += 1
-    return n
+    return n + copy_regressions("usd_attributes_*.bin", out)
 
 
 # fuzz_usd_prims.cpp's pick lists: the index of an entry.
@@ -128,28 +139,19 @@ def prims_prim(path, api, visible, material, mesh, primvars):
 
 
 def prims_seed(light_type, lookup):
-    box = [(x, y, z) for z in (-1, 1) for y in (-1, 1) for x in (-1, 1)]
-    quads = [0, 4, 6, 2, 1, 3, 7, 5, 0, 1, 5, 4, 2, 6, 7, 3, 0, 2, 3, 1, 4, 5, 7, 6]
-    tet = [(1, 1, 1), (1, -1, -1), (-1, 1, -1), (-1, -1, 1)]
-    tris = [0, 1, 2, 0, 3, 1, 0, 2, 3, 1, 3, 2]
-    b = bytearray(struct.pack("<B", 1))  # one material: a dielectric
-    b += struct.pack("<B3ff3f3f", 1, 0.5, 0.5, 0.5, 1.5, 0.1, 0.2, 0.4, 0, 0, 0)
-    castle = prims_prim("/World/Castle", "GranularAggregateAPI", True, -1, prims_mesh(box, [4] * 6, quads), [
+    b = bytearray(struct.pack("<B", 1)) + material(True)  # one material: a dielectric
+    castle = prims_prim("/World/Castle", "GranularAggregateAPI", True, -1, prims_mesh(BOX, [4] * 6, QUADS), [
         prims_primvar("grainRadius", "float", [0.2]),
         prims_primvar("prototypes", "string[]", strings=["../Grains/Round"], is_array=True, is_string=True),
         prims_primvar("tileSpheres", "int", [16])])
-    grain = prims_prim("/World/Grains/Round", "GranularGrainAPI", False, 0, prims_mesh(tet, [3] * 4, tris),
+    grain = prims_prim("/World/Grains/Round", "GranularGrainAPI", False, 0, prims_mesh(TET, [3] * 4, TRIS),
                        [prims_primvar("ior", "float", [1.5])])
     # The listed count is read as 1 + byte % 4, the looked-up count as byte % 3.
     if lookup:
         b += struct.pack("<B", 0) + castle + struct.pack("<B", 1) + grain
     else:
         b += struct.pack("<B", 1) + castle + grain + struct.pack("<B", 0)
-    b += struct.pack("<12f", 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 4)  # camera at z = 4
-    b += struct.pack("<5f", 35, 36, 24, 0.01, 100)
-    b += struct.pack("<B12f", light_type, 1, 0, 0, 0, 0, 1, 0, 2, 0, 0, 1, 0)
-    b += struct.pack("<3f6fB", 1, 1, 1, 2, 0, 0.53, 0.5, 1, 1, 0)
-    b += struct.pack("<BB", 5, 4)
+    b += view_and_light(light_type)
     return bytes(b)
 
 
@@ -161,11 +163,7 @@ def prims_seeds(out):
             with open(os.path.join(out, f"castle_light{lt}{'_lookup' if lookup else ''}.bin"), "wb") as f:
                 f.write(prims_seed(lt, lookup))
             n += 1
-    for path in sorted(glob.glob(os.path.join(ROOT, "fuzz/regressions/prims_*.bin"))):
-        with open(path, "rb") as f, open(os.path.join(out, "regression_" + os.path.basename(path)), "wb") as g:
-            g.write(f.read())
-        n += 1
-    return n
+    return n + copy_regressions("prims_*.bin", out)
 
 
 def main():
