@@ -42,8 +42,8 @@ void HdGranularMaterial::Sync(HdSceneDelegate* delegate, HdRenderParam* renderPa
         m.ior = input<float>(node, "ior", 1.5f);
       } else {
         m.albedo = granular::Vec3(diffuse[0], diffuse[1], diffuse[2]);
+        m.emission = granular::Vec3(emissive[0], emissive[1], emissive[2]);  // Lambert only, as usd_reader.py
       }
-      m.emission = granular::Vec3(emissive[0], emissive[1], emissive[2]);
       store->SetMaterial(id, std::move(m));
       return;
     }

@@ -144,9 +144,11 @@ void HdGranularMesh::Sync(HdSceneDelegate* delegate, HdRenderParam* renderParam,
     if (name.rfind("primvars:", 0) == 0) name = name.substr(9);
     if (pv.name == HdTokens->displayColor) {
       VtValue c = delegate->Get(id, pv.name);
-      if (c.IsHolding<VtVec3fArray>() && c.GetArraySize() > 0) {
+      if (c.IsHolding<VtVec3fArray>() && c.GetArraySize() > 0) {  // averaged, as usd_reader.py
         m.hasDisplayColor = true;
-        m.displayColor = c.UncheckedGet<VtVec3fArray>()[0];
+        GfVec3f sum(0.0f);
+        for (GfVec3f const& x : c.UncheckedGet<VtVec3fArray>()) sum += x;
+        m.displayColor = sum / float(c.GetArraySize());
       } else if (c.IsHolding<GfVec3f>()) {
         m.hasDisplayColor = true;
         m.displayColor = c.UncheckedGet<GfVec3f>();

@@ -22,10 +22,9 @@ void HdGranularRenderParam::SetMaterial(SdfPath const& id, granular::MaterialDes
 
 void HdGranularRenderParam::Remove(SdfPath const& id) {
   std::lock_guard<std::mutex> lock(_mutex);
-  _meshes.erase(id);
-  _lights.erase(id);
-  _materials.erase(id);
-  ++_version;
+  // Only a real removal is a scene edit: hosts re-sync prims we do not keep (usdview's
+  // camera light follows the camera), and a rebuild on every camera move would be wrong.
+  if (_meshes.erase(id) + _lights.erase(id) + _materials.erase(id)) ++_version;
 }
 
 granular::SceneDesc HdGranularRenderParam::Assemble() const {

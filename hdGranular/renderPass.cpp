@@ -117,7 +117,7 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
     if (!cameraFromMatrices(view, proj, cam))
       throw granular::InputError("camera", "projection", "only perspective cameras are supported");
     granular::RenderSettings rs = renderSettings(delegate, width, height);
-    if (rebuild) {
+    if (rebuild || !_renderer->GetScene()) {  // no scene: the last attempt failed (e.g. a bad camera)
       granular::SceneDesc desc = _param->Assemble();
       if (TfGetenvBool("GRANULAR_HD_DEBUG", false)) {  // what the core is given, for users' bug reports
         for (auto const& l : desc.lights)
