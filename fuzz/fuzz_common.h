@@ -154,7 +154,15 @@ inline bool boundCost(SceneDesc& d) {
   return triangles <= 20000;
 }
 
+// validateSceneDesc must refuse a bad description with an InputError; one that validates
+// is built and rendered.
 inline void buildAndRender(SceneDesc d) {
+  try {
+    validateSceneDesc(d);
+  } catch (const InputError& e) {
+    note("refused", e.what());
+    return;
+  }
   if (!boundCost(d)) {
     note("valid, too costly to build here");
     return;
