@@ -38,28 +38,35 @@ float Film::stdError(int x, int y) const {
   return float(std::sqrt(var / p.n));
 }
 
+const std::vector<std::string>& Film::channelNames() {
+  static const std::vector<std::string> names = {"R",     "G",     "B",     "A",     "Z",     "N.X",
+                                                 "N.Y",   "N.Z",   "ept.R", "ept.G", "ept.B", "vpt.R",
+                                                 "vpt.G", "vpt.B", "da.R",  "da.G",  "da.B",  "primId"};
+  return names;
+}
+
+void Film::pixelChannels(int x, int y, float* o) const {
+  const Pixel& p = px_[idx(x, y)];
+  Vec3 c = mean(x, y);
+  o[0] = c.x; o[1] = c.y; o[2] = c.z;
+  o[3] = p.n ? float(double(p.hits) / p.n) : 0.0f;
+  o[4] = p.hits ? float(p.depth / p.hits) : kInf;
+  Vec3 n(float(p.normal[0]), float(p.normal[1]), float(p.normal[2]));
+  n = p.hits ? normalize(n) : Vec3(0.0f);
+  o[5] = n.x; o[6] = n.y; o[7] = n.z;
+  for (int t = 0; t < 3; ++t)
+    for (int ch = 0; ch < 3; ++ch) o[8 + 3 * t + ch] = p.n ? float(p.part[t][ch] / p.n) : 0.0f;
+  o[17] = float(p.primId);
+}
+
 Image Film::toImage() const {
   Image img;
   img.width = width_;
   img.height = height_;
-  img.channels = {"R", "G", "B", "A", "Z", "N.X", "N.Y", "N.Z",
-                  "ept.R", "ept.G", "ept.B", "vpt.R", "vpt.G", "vpt.B", "da.R", "da.G", "da.B", "primId"};
-  img.pixels.assign(size_t(width_) * height_ * img.channels.size(), 0.0f);
+  img.channels = channelNames();
+  img.pixels.assign(size_t(width_) * height_ * kChannels, 0.0f);
   for (int y = 0; y < height_; ++y)
-    for (int x = 0; x < width_; ++x) {
-      const Pixel& p = px_[idx(x, y)];
-      float* o = &img.pixels[idx(x, y) * img.channels.size()];
-      Vec3 c = mean(x, y);
-      o[0] = c.x; o[1] = c.y; o[2] = c.z;
-      o[3] = p.n ? float(double(p.hits) / p.n) : 0.0f;
-      o[4] = p.hits ? float(p.depth / p.hits) : kInf;
-      Vec3 n(float(p.normal[0]), float(p.normal[1]), float(p.normal[2]));
-      n = p.hits ? normalize(n) : Vec3(0.0f);
-      o[5] = n.x; o[6] = n.y; o[7] = n.z;
-      for (int t = 0; t < 3; ++t)
-        for (int c = 0; c < 3; ++c) o[8 + 3 * t + c] = p.n ? float(p.part[t][c] / p.n) : 0.0f;
-      o[17] = float(p.primId);
-    }
+    for (int x = 0; x < width_; ++x) pixelChannels(x, y, &img.pixels[idx(x, y) * kChannels]);
   return img;
 }
 

@@ -9,6 +9,7 @@
 // covering sample hit; -1 where nothing or an unnamed object was hit).
 #pragma once
 
+#include <string>
 #include <vector>
 
 #include "image_io.h"
@@ -37,6 +38,10 @@ class Film {
   // Standard error of the mean of the pixel's luminance.
   float stdError(int x, int y) const;
   Image toImage() const;
+  // The channels of toImage() (kChannels of them, named by channelNames()) of one pixel.
+  static constexpr int kChannels = 18;
+  static const std::vector<std::string>& channelNames();
+  void pixelChannels(int x, int y, float* out) const;
   void clear();
 
  private:

@@ -27,57 +27,87 @@ void Renderer::prepare() {
   else roulette_ = tuneRoulette(scene_);
 }
 
-bool Renderer::renderPass(int samples, const std::atomic<bool>* cancel) {
+void Renderer::tracePixel(int x, int y, long first, int count, Film& film, int fx, int fy) {
+  const RenderSettings& rs = scene_.settings();
+  const Camera& cam = scene_.camera();
+  thread_local std::vector<PathState> paths;
+  for (int b = 0; b < count; b += bundle_) {
+    paths.clear();
+    for (int s = b; s < std::min(b + bundle_, count); ++s) {
+      long index = first + s;
+      Rng rng(hashInts(rs.seed, uint64_t(x), uint64_t(y), uint64_t(index)), 0);
+      Ray ray = cam.generateRay(float(x) + rng.next1D(), float(y) + rng.next1D());
+      PathState p = startPath(ray, 0, cam.pixelSpreadAngle());
+      p.rng = rng;
+      paths.push_back(p);
+    }
+    traceBundle(scene_, paths, roulette_.pa);
+    long shortcuts = 0;
+    for (const PathState& p : paths) {
+      shortcuts += p.shortcut;
+      PixelSample ps;
+      if (!toPixelSample(p, ps)) nonFinite_.fetch_add(1, std::memory_order_relaxed);
+      film.add(fx, fy, ps);
+    }
+    shortcuts_ += shortcuts;
+    paths_ += long(paths.size());
+  }
+}
+
+// Runs body over 8×8 tiles of a width × height image on TBB (in an arena of
+// settings().threads when that is set).
+template <typename Body>
+void Renderer::forTiles(int width, int height, const Body& body) const {
+  tbb::blocked_range2d<int> range(0, height, 8, 0, width, 8);
+  const int threads = scene_.settings().threads;
+  if (threads > 0) {
+    tbb::task_arena arena(threads);
+    arena.execute([&] { tbb::parallel_for(range, body); });
+  } else {
+    tbb::parallel_for(range, body);
+  }
+}
+
+bool Renderer::renderPass(int samples, const std::atomic<bool>* cancel, const TileCallback& onTile) {
   const RenderSettings& rs = scene_.settings();
   if (rs.width != film_.width() || rs.height != film_.height())  // Scene::setView since construction
     throw InputError("render", "resolution", str(rs.width, "x", rs.height, " is not this renderer's ", film_.width(), "x",
                                                  film_.height(), ": make a new renderer after a change of view"));
   if (!prepared_) prepare();
-  const Camera& cam = scene_.camera();
-  const float pa = roulette_.pa;
   std::atomic<bool> cancelled{false};
   passPixels_ = 0;  // before the state names the new pass (progressSamples relies on it)
   passState_ = (uint64_t(done_) << 24) | uint64_t(samples);
-  auto body = [&](const tbb::blocked_range2d<int>& r) {
-    std::vector<PathState> paths;
+  forTiles(rs.width, rs.height, [&](const tbb::blocked_range2d<int>& r) {
     for (int y = r.rows().begin(); y < r.rows().end(); ++y)
       for (int x = r.cols().begin(); x < r.cols().end(); ++x) {
         if (cancel && cancel->load(std::memory_order_relaxed)) { cancelled = true; return; }
-        for (int b = 0; b < samples; b += bundle_) {
-          paths.clear();
-          for (int s = b; s < std::min(b + bundle_, samples); ++s) {
-            long index = done_ + s;
-            Rng rng(hashInts(rs.seed, uint64_t(x), uint64_t(y), uint64_t(index)), 0);
-            Ray ray = cam.generateRay(float(x) + rng.next1D(), float(y) + rng.next1D());
-            PathState p = startPath(ray, 0, cam.pixelSpreadAngle());
-            p.rng = rng;
-            paths.push_back(p);
-          }
-          traceBundle(scene_, paths, pa);
-          long shortcuts = 0;
-          for (const PathState& p : paths) {
-            shortcuts += p.shortcut;
-            PixelSample ps;
-            if (!toPixelSample(p, ps)) nonFinite_.fetch_add(1, std::memory_order_relaxed);
-            film_.add(x, y, ps);
-          }
-          shortcuts_ += shortcuts;
-          paths_ += long(paths.size());
-        }
+        tracePixel(x, y, done_, samples, film_, x, y);
         passPixels_.fetch_add(1, std::memory_order_relaxed);
       }
-  };
-  tbb::blocked_range2d<int> range(0, rs.height, 8, 0, rs.width, 8);
-  if (rs.threads > 0) {
-    tbb::task_arena arena(rs.threads);
-    arena.execute([&] { tbb::parallel_for(range, body); });
-  } else {
-    tbb::parallel_for(range, body);
-  }
+    if (onTile) onTile(r.cols().begin(), r.cols().end(), r.rows().begin(), r.rows().end());
+  });
   if (cancelled) return false;
   done_ += samples;
   passState_ = uint64_t(done_) << 24;
   return true;
+}
+
+bool Renderer::renderPreview(int stride, Film& preview, const std::atomic<bool>* cancel) {
+  const RenderSettings& rs = scene_.settings();
+  stride = std::max(1, stride);
+  if (!prepared_) prepare();
+  const int w = (rs.width + stride - 1) / stride, h = (rs.height + stride - 1) / stride;
+  preview = Film(w, h);
+  std::atomic<bool> cancelled{false};
+  forTiles(w, h, [&](const tbb::blocked_range2d<int>& r) {
+    for (int j = r.rows().begin(); j < r.rows().end(); ++j)
+      for (int i = r.cols().begin(); i < r.cols().end(); ++i) {
+        if (cancel && cancel->load(std::memory_order_relaxed)) { cancelled = true; return; }
+        int x = std::min(i * stride + stride / 2, rs.width - 1), y = std::min(j * stride + stride / 2, rs.height - 1);
+        tracePixel(x, y, 0, std::min(bundle_, rs.spp), preview, i, j);
+      }
+  });
+  return !cancelled;
 }
 
 double Renderer::progressSamples() const {

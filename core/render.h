@@ -11,6 +11,12 @@
 // pre-render (tuneRoulette) run once before the first pass. A pass checks the cancel
 // flag between tiles and returns false when it was set. A sample whose estimate is not
 // finite is dropped as a whole (the pixel keeps its count) and counted.
+//
+// Interactive hosts: renderPass() calls onTile from the worker thread that finished a
+// tile (its pixels then hold the pass's samples), so a host can show tiles as they come;
+// renderPreview(stride) first renders one bundle of the centre pixel of every
+// stride×stride block into a coarse film — the same random streams as those pixels' first
+// bundle in renderPass — at about 1/stride² of a pass's cost, leaving the film untouched.
 #pragma once
 
 #include <atomic>
@@ -45,7 +51,12 @@ inline bool toPixelSample(const PathState& p, PixelSample& ps) {
 class Renderer {
  public:
   explicit Renderer(const Scene& scene);
-  bool renderPass(int samples, const std::atomic<bool>* cancel = nullptr);
+  // Pixel window [x0, x1) × [y0, y1) of a finished tile.
+  using TileCallback = std::function<void(int x0, int x1, int y0, int y1)>;
+  bool renderPass(int samples, const std::atomic<bool>* cancel = nullptr, const TileCallback& onTile = nullptr);
+  // A film of ceil(W/stride) × ceil(H/stride) pixels: pixel (i, j) holds the first bundle
+  // of image pixel (min(i·stride + stride/2, W−1), likewise j); false when cancelled.
+  bool renderPreview(int stride, Film& preview, const std::atomic<bool>* cancel = nullptr);
   // Renders settings().spp samples in passes of passSamples; calls progress after each.
   bool render(int passSamples = 1, const std::function<void(const RenderProgress&)>& progress = nullptr,
               const std::atomic<bool>* cancel = nullptr);
@@ -66,6 +77,11 @@ class Renderer {
 
  private:
   void prepare();
+  // Traces samples [first, first + count) of image pixel (x, y) as bundles into film
+  // pixel (fx, fy).
+  void tracePixel(int x, int y, long first, int count, Film& film, int fx, int fy);
+  template <typename Body>
+  void forTiles(int width, int height, const Body& body) const;
   const Scene& scene_;
   Film film_;
   long done_ = 0;

@@ -53,6 +53,12 @@ bool emitterReachesInto(const Aggregate& agg, const LightDesc& l) {
   return false;  // distant and dome lights are outside everything
 }
 
+bool hasEmissiveSurface(const SceneDesc& desc) {
+  for (const auto& m : desc.meshes)
+    if (m.visible && m.material >= 0 && !isBlack(desc.materials[m.material].emission)) return true;
+  return false;
+}
+
 }  // namespace
 
 std::unique_ptr<Scene> Scene::build(const SceneDesc& desc) {
@@ -121,7 +127,15 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc) {
   }
   s->sceneScale_ = all.empty() ? 1.0f : std::max(1e-6f, maxComponent(vmax(vabs(all.lo), vabs(all.hi))));
 
-  for (const auto& l : desc.lights) {
+  std::vector<LightDesc> lights = desc.lights;
+  if (lights.empty() && desc.settings.defaultLight && !hasEmissiveSurface(desc)) {
+    LightDesc dome;  // a uniform white dome of radiance 1 (RenderSettings::defaultLight)
+    dome.name = "default_dome";
+    dome.type = LightType::Dome;
+    lights.push_back(dome);
+    s->defaultLightAdded_ = true;
+  }
+  for (const auto& l : lights) {
     int idx = int(s->lights_.size());
     s->lights_.push_back(Light::fromDesc(l));
     (s->lights_.back().isInfinite() ? s->infiniteLights_ : s->areaLights_).push_back(idx);
@@ -138,7 +152,7 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc) {
     for (size_t a = 0; a < s->aggregates_.size(); ++a) {
       const Aggregate& agg = *s->aggregates_[a];
       bool inside = false;
-      for (const auto& l : desc.lights) inside = inside || emitterReachesInto(agg, l);
+      for (const auto& l : lights) inside = inside || emitterReachesInto(agg, l);
       for (const auto& m : desc.meshes)
         if (m.visible && m.material >= 0 && !isBlack(desc.materials[m.material].emission))
           inside = inside || meshReachesInto(agg, m.mesh.transformed(m.xf));

@@ -80,6 +80,9 @@ class Scene {
   const std::vector<int>& infiniteLights() const { return infiniteLights_; }
   const std::vector<std::unique_ptr<Aggregate>>& aggregates() const { return aggregates_; }
   double buildSeconds() const { return buildSeconds_; }
+  // The scene had no light and settings().defaultLight added the default dome (front ends
+  // warn about it).
+  bool defaultLightAdded() const { return defaultLightAdded_; }
 
  private:
   // Parts of intersect()/intersectMedium(): nearest hit below tmax (which they lower).
@@ -110,6 +113,7 @@ class Scene {
   EmbreeScene surfaces_;
   float sceneScale_ = 1;
   double buildSeconds_ = 0;
+  bool defaultLightAdded_ = false;
 };
 
 }  // namespace granular

@@ -108,6 +108,9 @@ struct RenderSettings {
   // Whether camera rays see dome lights (Hydra hosts may hide the background while its
   // light still illuminates the scene).
   bool domeCameraVisible = true;
+  // A stage with no light at all (no light, no emissive visible surface) is lit by a
+  // uniform white dome of radiance 1, as other path tracers' default world; false: black.
+  bool defaultLight = true;
 };
 
 struct SceneDesc {

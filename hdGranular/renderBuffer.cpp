@@ -1,5 +1,7 @@
 #include "renderBuffer.h"
 
+#include "renderParam.h"
+
 #include <algorithm>
 #include <cmath>
 #include <cstring>
@@ -13,6 +15,17 @@ PXR_NAMESPACE_OPEN_SCOPE
 HdGranularRenderBuffer::HdGranularRenderBuffer(SdfPath const& id) : HdRenderBuffer(id) {}
 
 HdGranularRenderBuffer::~HdGranularRenderBuffer() = default;
+
+void HdGranularRenderBuffer::Sync(HdSceneDelegate* sceneDelegate, HdRenderParam* renderParam, HdDirtyBits* dirtyBits) {
+  if ((*dirtyBits & DirtyDescription) && renderParam)
+    static_cast<HdGranularRenderParam*>(renderParam)->StopRenderForEdit();
+  HdRenderBuffer::Sync(sceneDelegate, renderParam, dirtyBits);
+}
+
+void HdGranularRenderBuffer::Finalize(HdRenderParam* renderParam) {
+  if (renderParam) static_cast<HdGranularRenderParam*>(renderParam)->StopRenderForEdit();
+  HdRenderBuffer::Finalize(renderParam);
+}
 
 bool HdGranularRenderBuffer::Allocate(GfVec3i const& dims, HdFormat format, bool /*multiSampled*/) {
   _Deallocate();

@@ -2,7 +2,8 @@
 //
 // Contract: Allocate() sizes it for a format; Write() stores one pixel from floats (or
 // an integer for Int32 formats), converting to the buffer's format (Float32, Float16,
-// UNorm8, Int32; 1 to 4 components). Row 0 is the bottom of the image (Hydra's
+// UNorm8, Int32; 1 to 4 components). Hydra reallocates (Sync) or frees (Finalize) a
+// buffer only after the render loop was stopped. Row 0 is the bottom of the image (Hydra's
 // convention). Converged is set by the renderer when its loop ends.
 #ifndef HDGRANULAR_RENDER_BUFFER_H
 #define HDGRANULAR_RENDER_BUFFER_H
@@ -20,6 +21,9 @@ class HdGranularRenderBuffer final : public HdRenderBuffer {
   explicit HdGranularRenderBuffer(SdfPath const& id);
   ~HdGranularRenderBuffer() override;
 
+  // Both stop the render loop first (it may be writing into this buffer).
+  void Sync(HdSceneDelegate* sceneDelegate, HdRenderParam* renderParam, HdDirtyBits* dirtyBits) override;
+  void Finalize(HdRenderParam* renderParam) override;
   bool Allocate(GfVec3i const& dimensions, HdFormat format, bool multiSampled) override;
   unsigned int GetWidth() const override { return _width; }
   unsigned int GetHeight() const override { return _height; }

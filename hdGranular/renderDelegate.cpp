@@ -33,6 +33,7 @@ HdGranularRenderDelegate::HdGranularRenderDelegate(HdRenderSettingsMap const& se
 void HdGranularRenderDelegate::_Initialize() {
   _param = std::make_shared<HdGranularRenderParam>();
   _renderer = std::make_unique<HdGranularRenderer>();
+  _param->SetRenderer(_renderer.get());
   _registry = std::make_shared<HdResourceRegistry>();
   _descriptors = {
       {"Samples per pixel", HdRenderSettingsTokens->convergedSamplesPerPixel, VtValue(16)},
@@ -44,11 +45,14 @@ void HdGranularRenderDelegate::_Initialize() {
       {"Level of detail (0: off)", HdGranularSettingsTokens->lod, VtValue(0.5f)},
       {"Roulette P_a (negative: tuned)", HdGranularSettingsTokens->roulette, VtValue(-1.0f)},
       {"Bundle size", HdGranularSettingsTokens->bundleSize, VtValue(16)},
+      {"Default dome light when the stage has none", HdGranularSettingsTokens->defaultLight, VtValue(true)},
+      {"Coarse previews before the first pass", HdGranularSettingsTokens->preview, VtValue(true)},
   };
   _PopulateDefaultSettings(_descriptors);
 }
 
 HdGranularRenderDelegate::~HdGranularRenderDelegate() {
+  _param->SetRenderer(nullptr);
   _renderer.reset();  // stops the render thread before the prims go
 }
 

@@ -21,7 +21,9 @@ PXR_NAMESPACE_OPEN_SCOPE
   ((tau, "granular:tau"))                             \
   ((lod, "granular:lod"))                             \
   ((roulette, "granular:roulette"))                   \
-  ((bundleSize, "granular:bundleSize"))
+  ((bundleSize, "granular:bundleSize"))               \
+  ((defaultLight, "granular:defaultLight"))           \
+  ((preview, "granular:preview"))
 
 TF_DECLARE_PUBLIC_TOKENS(HdGranularSettingsTokens, HDGRANULAR_SETTINGS_TOKENS);
 

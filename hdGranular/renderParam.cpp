@@ -1,5 +1,7 @@
 #include "renderParam.h"
 
+#include "renderer.h"
+
 PXR_NAMESPACE_OPEN_SCOPE
 
 void HdGranularRenderParam::SetMesh(SdfPath const& id, Mesh mesh) {
@@ -18,6 +20,10 @@ void HdGranularRenderParam::SetMaterial(SdfPath const& id, granular::MaterialDes
   std::lock_guard<std::mutex> lock(_mutex);
   _materials[id] = std::move(material);
   ++_version;
+}
+
+void HdGranularRenderParam::StopRenderForEdit() {
+  if (_renderer) _renderer->StopForEdit();
 }
 
 void HdGranularRenderParam::Remove(SdfPath const& id) {

@@ -24,6 +24,8 @@
 
 PXR_NAMESPACE_OPEN_SCOPE
 
+class HdGranularRenderer;
+
 // USD's row-vector matrix as core's column-form Transform; the rounding an inverse leaves
 // in the projective row of an affine matrix is cleared.
 inline granular::Transform HdGranularToCore(GfMatrix4d const& m) {
@@ -56,12 +58,18 @@ class HdGranularRenderParam final : public HdRenderParam {
   // Bumped by every edit above.
   int Version() const { return _version.load(); }
 
+  // Render buffers call this before Hydra reallocates or frees them: the render loop
+  // must not be writing into them then (renderer.h: StopForEdit).
+  void SetRenderer(HdGranularRenderer* renderer) { _renderer = renderer; }
+  void StopRenderForEdit();
+
  private:
   mutable std::mutex _mutex;
   std::map<SdfPath, Mesh> _meshes;
   std::map<SdfPath, granular::LightDesc> _lights;
   std::map<SdfPath, granular::MaterialDesc> _materials;
   std::atomic<int> _version{0};
+  HdGranularRenderer* _renderer = nullptr;
 };
 
 PXR_NAMESPACE_CLOSE_SCOPE

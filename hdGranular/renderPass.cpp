@@ -1,7 +1,6 @@
-#include <cmath>
-
 #include "renderPass.h"
 
+#include <cmath>
 #include <exception>
 
 #include "error.h"
@@ -68,6 +67,7 @@ granular::RenderSettings renderSettings(HdRenderDelegate* d, int width, int heig
   rs.roulette = setting<float>(d, HdGranularSettingsTokens->roulette, -1.0f);
   rs.bundleSize = setting<int>(d, HdGranularSettingsTokens->bundleSize, 16);
   rs.domeCameraVisible = setting<bool>(d, HdRenderSettingsTokens->domeLightCameraVisibility, true);
+  rs.defaultLight = setting<bool>(d, HdGranularSettingsTokens->defaultLight, rs.defaultLight);
   return rs;
 }
 
@@ -95,18 +95,22 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
   const GfMatrix4d view = state->GetWorldToViewMatrix(), proj = state->GetProjectionMatrix();
 
   const int sceneVersion = _param->Version(), settingsVersion = delegate->GetRenderSettingsVersion();
-  const std::string technique = setting<std::string>(delegate, HdGranularSettingsTokens->technique, "hybrid");
-  const bool rebuild = !_started || sceneVersion != _sceneVersion || technique != _technique;
+  // Settings that change what is built (media or not, the default light), not the view.
+  const std::string buildKey =
+      setting<std::string>(delegate, HdGranularSettingsTokens->technique, "hybrid") + "|" +
+      (setting<bool>(delegate, HdGranularSettingsTokens->defaultLight, true) ? "light" : "dark");
+  const bool rebuild = !_started || sceneVersion != _sceneVersion || buildKey != _buildKey;
   const bool reframe = rebuild || settingsVersion != _settingsVersion || view != _view || proj != _projection ||
                        width != _width || height != _height;
-  const bool rebind = reframe || bindings != _bindings;
+  // A render buffer reallocated or freed under the loop stopped it (renderBuffer.h).
+  const bool rebind = reframe || bindings != _bindings || _renderer->WasInterrupted();
   if (!rebind) return;  // the loop goes on
 
   _renderer->Stop();
   _started = true;
   _sceneVersion = sceneVersion;
   _settingsVersion = settingsVersion;
-  _technique = technique;
+  _buildKey = buildKey;
   _view = view;
   _projection = proj;
   _width = width;
@@ -128,6 +132,9 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
       desc.camera = cam;
       desc.settings = rs;
       _renderer->SetScene(granular::Scene::build(desc));
+      if (_renderer->GetScene()->defaultLightAdded())
+        TF_WARN("hdGranular: the stage has no light (no UsdLux light, no emissive surface): it is lit by the "
+                "default white dome of radiance 1 (render setting granular:defaultLight false renders it black)");
     } else if (reframe && _renderer->GetScene()) {
       _renderer->GetScene()->setView(cam, rs);
     }
@@ -140,6 +147,7 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
   _renderer->SetAovBindings(bindings);
   _renderer->SetProjection(proj);
   _renderer->SetNoiseThreshold(setting<float>(delegate, HdRenderSettingsTokens->convergedVariance, 0.0f));
+  _renderer->SetPreview(setting<bool>(delegate, HdGranularSettingsTokens->preview, true));
   _renderer->Start();
 }
 

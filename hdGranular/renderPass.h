@@ -2,7 +2,7 @@
 // to date with the least work, then lets the render loop run progressively.
 //
 // Contract: an edit of the scene (meshes, lights, materials; the render param's
-// version) or of the technique rebuilds the core scene (tiles and TT parameters come
+// version), of the technique or of the default light rebuilds the core scene (tiles and TT parameters come
 // from their disk caches); a camera move, a resize or other settings only set a new
 // view (no re-voxelising, no re-estimation); new AOV bindings only restart the loop.
 // A scene that cannot be built is reported once (TF_RUNTIME_ERROR naming the prim and
@@ -36,7 +36,7 @@ class HdGranularRenderPass final : public HdRenderPass {
   HdGranularRenderParam* _param;
   HdGranularRenderer* _renderer;
   int _sceneVersion = -1, _settingsVersion = -1;
-  std::string _technique;
+  std::string _buildKey;
   GfMatrix4d _view{0.0}, _projection{0.0};
   int _width = 0, _height = 0;
   HdRenderPassAovBindingVector _bindings;

@@ -3,6 +3,7 @@
 #include <chrono>
 #include <cmath>
 #include <thread>
+#include <vector>
 
 #include "image_io.h"
 #include "pxr/imaging/hd/aov.h"
@@ -29,8 +30,8 @@ void HdGranularRenderer::SetScene(std::unique_ptr<granular::Scene> scene) {
 void HdGranularRenderer::Start() {
   _cancel = false;
   _converged = false;
-  for (auto const& b : _bindings)
-    if (auto* rb = dynamic_cast<HdGranularRenderBuffer*>(b.renderBuffer)) rb->SetConverged(false);
+  _interrupted = false;
+  _SetBuffersConverged(false);
   _thread.StartRender();
 }
 
@@ -38,6 +39,12 @@ void HdGranularRenderer::Stop() {
   _cancel = true;  // core leaves its pass at the next tile
   _thread.StopRender();
   _cancel = false;
+}
+
+void HdGranularRenderer::StopForEdit() {
+  // Even a finished render must run again: a reallocated buffer has lost its pixels.
+  Stop();
+  _interrupted = true;
 }
 
 float HdGranularRenderer::_DepthToClip(float viewDepth) const {
@@ -49,40 +56,52 @@ float HdGranularRenderer::_DepthToClip(float viewDepth) const {
   return float(std::clamp(0.5 * (clipZ / clipW) + 0.5, 0.0, 1.0));
 }
 
-void HdGranularRenderer::_MarkConverged() {
-  _converged = true;
+void HdGranularRenderer::_SetBuffersConverged(bool converged) {
   for (auto const& b : _bindings)
-    if (auto* rb = dynamic_cast<HdGranularRenderBuffer*>(b.renderBuffer)) rb->SetConverged(true);
+    if (auto* rb = dynamic_cast<HdGranularRenderBuffer*>(b.renderBuffer)) rb->SetConverged(converged);
 }
 
-void HdGranularRenderer::_WriteBuffers(bool converged) {
-  granular::Image img = _renderer->film().toImage();
+void HdGranularRenderer::_MarkConverged() {
+  _converged = true;
+  _SetBuffersConverged(true);
+}
+
+void HdGranularRenderer::_WriteRegion(granular::Film const& film, int stride, int x0, int x1, int y0, int y1) {
+  // Channel offsets of Film::pixelChannels (film.h).
+  constexpr int kColor = 0, kDepth = 4, kNormal = 5, kParts = 8, kPrimId = 17;
+  std::vector<float> px(size_t(x1 - x0) * (y1 - y0) * granular::Film::kChannels);
+  for (int y = y0; y < y1; ++y)
+    for (int x = x0; x < x1; ++x)
+      film.pixelChannels(x / stride, y / stride,
+                         &px[(size_t(y - y0) * (x1 - x0) + (x - x0)) * granular::Film::kChannels]);
   auto lock = _thread.LockFramebuffer();
   for (auto const& b : _bindings) {
     auto* rb = dynamic_cast<HdGranularRenderBuffer*>(b.renderBuffer);
-    if (!rb || int(rb->GetWidth()) != img.width || int(rb->GetHeight()) != img.height) continue;
+    // A buffer of another size belongs to a view this render is not for.
+    if (!rb || int(rb->GetWidth()) != _renderer->film().width() || int(rb->GetHeight()) != _renderer->film().height())
+      continue;
     const TfToken& aov = b.aovName;
     int c0 = -1, n = 0;
-    if (aov == HdAovTokens->color) c0 = img.channelIndex("R"), n = 4;
-    else if (aov == HdAovTokens->normal) c0 = img.channelIndex("N.X"), n = 3;
-    else if (aov == "ept" || aov == "vpt" || aov == "da") c0 = img.channelIndex(aov.GetString() + ".R"), n = 3;
-    const int zc = img.channelIndex("Z"), idc = img.channelIndex("primId");
-    for (int y = 0; y < img.height; ++y)
-      for (int x = 0; x < img.width; ++x) {
-        const float* px = img.at(x, y);
+    if (aov == HdAovTokens->color) c0 = kColor, n = 4;
+    else if (aov == HdAovTokens->normal) c0 = kNormal, n = 3;
+    else if (aov == "ept") c0 = kParts, n = 3;
+    else if (aov == "vpt") c0 = kParts + 3, n = 3;
+    else if (aov == "da") c0 = kParts + 6, n = 3;
+    for (int y = y0; y < y1; ++y)
+      for (int x = x0; x < x1; ++x) {
+        const float* p = &px[(size_t(y - y0) * (x1 - x0) + (x - x0)) * granular::Film::kChannels];
         if (aov == HdAovTokens->depth) {
-          float d = _DepthToClip(px[zc]);
+          float d = _DepthToClip(p[kDepth]);
           rb->Write(x, y, &d, 1);
         } else if (aov == HdAovTokens->cameraDepth) {
-          float d = std::isfinite(px[zc]) ? px[zc] : 0.0f;
+          float d = std::isfinite(p[kDepth]) ? p[kDepth] : 0.0f;
           rb->Write(x, y, &d, 1);
         } else if (aov == HdAovTokens->primId) {
-          rb->WriteInt(x, y, int(px[idc]));
+          rb->WriteInt(x, y, int(p[kPrimId]));
         } else if (c0 >= 0) {
-          rb->Write(x, y, px + c0, n);
+          rb->Write(x, y, p + c0, n);
         }
       }
-    rb->SetConverged(converged);
   }
 }
 
@@ -93,9 +112,23 @@ void HdGranularRenderer::_Render() {
   }
   _renderer = std::make_unique<granular::Renderer>(*_scene);
   const long target = _scene->settings().spp;
+  const int width = _scene->settings().width, height = _scene->settings().height;
   _samplesTarget = target;
   _samplesDone = 0;
+  _nonFinite = 0;
+  // Coarse previews first on images large enough to wait for (see renderer.h).
+  if (_preview && long(width) * height >= 128 * 128) {
+    for (int stride : {16, 4}) {
+      granular::Film preview;
+      if (!_renderer->renderPreview(stride, preview, &_cancel)) return;
+      _WriteRegion(preview, stride, 0, width, 0, height);
+      _nonFinite = _renderer->nonFiniteSamples();
+      if (_thread.IsStopRequested()) return;
+    }
+  }
   const int bundle = _renderer->bundleSize();
+  const granular::Film& film = _renderer->film();
+  auto onTile = [&](int x0, int x1, int y0, int y1) { _WriteRegion(film, 1, x0, x1, y0, y1); };
   while (!_thread.IsStopRequested()) {
     if (_thread.IsPauseRequested()) {
       std::this_thread::sleep_for(std::chrono::milliseconds(10));
@@ -103,21 +136,21 @@ void HdGranularRenderer::_Render() {
     }
     long done = _renderer->samplesPerPixel();
     int pass = int(std::min<long>(bundle, target - done));
-    if (!_renderer->renderPass(pass, &_cancel)) return;  // stopped mid-pass
+    bool finished = _renderer->renderPass(pass, &_cancel, onTile);
+    _nonFinite = _renderer->nonFiniteSamples();
+    if (!finished) return;  // stopped mid-pass
     done = _renderer->samplesPerPixel();
     _samplesDone = done;
     _lodFraction = _renderer->shortcutFraction();
     bool converged = done >= target;
     if (!converged && _noiseThreshold > 0 && done >= 2 * bundle) {
       // Noise threshold: every pixel's standard error below threshold × (value + 0.01).
-      const granular::Film& film = _renderer->film();
       bool quiet = true;
       for (int y = 0; y < film.height() && quiet; ++y)
         for (int x = 0; x < film.width() && quiet; ++x)
           quiet = film.stdError(x, y) <= _noiseThreshold * (granular::luminance(film.mean(x, y)) + 0.01f);
       converged = quiet;
     }
-    _WriteBuffers(converged);
     if (converged) {
       _MarkConverged();
       return;
@@ -139,7 +172,9 @@ VtDictionary HdGranularRenderer::GetStats() const {
     stats["granular:grains"] = VtValue(grains);
     stats["granular:sigmaT"] = VtValue(sigmaT);
     stats["granular:lodFraction"] = VtValue(_lodFraction.load());
+    stats["granular:defaultLight"] = VtValue(_scene->defaultLightAdded());
   }
+  stats["granular:nonFiniteSamples"] = VtValue(int(_nonFinite.load()));
   return stats;
 }
 

@@ -7,6 +7,12 @@
 // count is reached or, with a noise threshold, when every covered pixel's standard error
 // is below threshold × (its value + 0.01); then, and also when the scene could not be
 // built, the buffers are marked converged, so hosts never wait forever.
+//
+// What a viewport sees first: on images of 128×128 pixels or more, coarse previews (one
+// bundle per 16×16, then per 4×4 block: core's renderPreview) fill the buffers within a
+// fraction of a pass, then every full-resolution tile is written as soon as it is done.
+// A render stopped by something else than the render pass (a render buffer being
+// reallocated or freed: StopForEdit) is remembered, so that the next Execute restarts it.
 #ifndef HDGRANULAR_RENDERER_H
 #define HDGRANULAR_RENDERER_H
 
@@ -38,14 +44,23 @@ class HdGranularRenderer {
   void SetProjection(GfMatrix4d const& projection) { _projection = projection; }
   void SetNoiseThreshold(float t) { _noiseThreshold = t; }
 
+  void SetPreview(bool enabled) { _preview = enabled; }
+
   void Start();
   void Stop();
+  // Stop() on behalf of a render buffer about to be reallocated or freed (any thread but
+  // the render thread); WasInterrupted() is then true until the next Start().
+  void StopForEdit();
+  bool WasInterrupted() const { return _interrupted.load(); }
   bool IsConverged() const { return _converged.load(); }
   VtDictionary GetStats() const;
 
  private:
   void _Render();
-  void _WriteBuffers(bool converged);
+  // Writes the image window [x0, x1) × [y0, y1) into the bound buffers from a film that
+  // holds every stride-th pixel (stride 1: the image's own film).
+  void _WriteRegion(granular::Film const& film, int stride, int x0, int x1, int y0, int y1);
+  void _SetBuffersConverged(bool converged);
   void _MarkConverged();
   float _DepthToClip(float viewDepth) const;
 
@@ -55,7 +70,9 @@ class HdGranularRenderer {
   HdRenderPassAovBindingVector _bindings;
   GfMatrix4d _projection{1.0};
   float _noiseThreshold = 0;
-  std::atomic<bool> _cancel{false}, _converged{false};
+  bool _preview = true;
+  std::atomic<bool> _cancel{false}, _converged{false}, _interrupted{false};
+  std::atomic<long> _nonFinite{0};
   std::atomic<long> _samplesDone{0}, _samplesTarget{1};
   std::atomic<double> _lodFraction{0};
 };

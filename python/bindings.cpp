@@ -360,7 +360,9 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("bundle_size", &RenderSettings::bundleSize)
       .def_readwrite("tau", &RenderSettings::tau)
       .def_readwrite("roulette", &RenderSettings::roulette)
-      .def_readwrite("lod", &RenderSettings::lod);
+      .def_readwrite("lod", &RenderSettings::lod)
+      .def_readwrite("default_light", &RenderSettings::defaultLight)
+      .def_readwrite("dome_camera_visible", &RenderSettings::domeCameraVisible);
 
   py::class_<SceneDesc>(m, "SceneDesc")
       .def(py::init<>())
@@ -462,6 +464,8 @@ PYBIND11_MODULE(granular_core, m) {
           "A new camera and render settings without rebuilding (geometry, tiles, TT stay); for "
           "renderers made after it. InputError on bad values or a change between ept and the hybrid.")
       .def_property_readonly("build_seconds", [](const PyScene& s) { return s.scene->buildSeconds(); })
+      .def_property_readonly("default_light_added", [](const PyScene& s) { return s.scene->defaultLightAdded(); },
+                             "the stage had no light and the default white dome (radiance 1) lights it")
       .def_property_readonly("has_media", [](const PyScene& s) { return s.scene->hasMedia(); },
                              "whether the integrator uses the equivalent media (VPT, DA) in this scene")
       .def_property_readonly("aggregates", [](const PyScene& s) {

@@ -103,3 +103,70 @@ TEST(Light, NormalisedTinyLightsOfZeroIntensityAreBlackNotNaN) {
   Light unit = Light::fromDesc(d);
   EXPECT_NEAR(unit.areaLe(Vec3(0, -1, 0)).x, 1.0f, 1e-6f);  // π / (4π 0.25)
 }
+
+// ---- the default light of a stage without any ------------------------------------------
+
+namespace {
+
+SceneDesc unlitGround() {
+  SceneDesc d;
+  d.settings.width = 8;
+  d.settings.height = 8;
+  d.settings.spp = 4;
+  d.camera.cameraToWorld = Transform::lookAt(Vec3(0, 2, 0), Vec3(0, 0, 0), Vec3(0, 0, -1));
+  MeshDesc ground;
+  ground.name = "ground";
+  ground.mesh.points = {Vec3(-10, 0, -10), Vec3(10, 0, -10), Vec3(10, 0, 10), Vec3(-10, 0, 10)};
+  ground.mesh.indices = {0, 2, 1, 0, 3, 2};
+  MaterialDesc white;
+  white.name = "white";
+  white.albedo = Vec3(0.5f);
+  ground.material = 0;
+  d.materials.push_back(white);
+  d.meshes.push_back(ground);
+  return d;
+}
+
+}  // namespace
+
+TEST(DefaultLight, AStageWithoutLightsIsLitByAWhiteDomeOfRadianceOne) {
+  // A Lambert floor of albedo 0.5 under a uniform dome of radiance 1 reflects 0.5 exactly
+  // (the upper hemisphere sees nothing but the dome).
+  SceneDesc d = unlitGround();
+  auto scene = Scene::build(d);
+  EXPECT_TRUE(scene->defaultLightAdded());
+  Renderer r(*scene);
+  ASSERT_TRUE(r.render(4));
+  double sum = 0, var = 0;
+  for (int y = 0; y < 8; ++y)
+    for (int x = 0; x < 8; ++x) {
+      Vec3 c = r.film().mean(x, y);
+      EXPECT_EQ(c.x, c.y);  // white
+      sum += c.x;
+      var += double(r.film().stdError(x, y)) * r.film().stdError(x, y);
+    }
+  const double mean = sum / 64, se = std::sqrt(var) / 64;
+  EXPECT_GT(se, 0.0);
+  EXPECT_NEAR(mean, 0.5, 4 * se + 1e-6);
+}
+
+TEST(DefaultLight, OffRendersBlackAndAnyLightOrEmitterReplacesIt) {
+  SceneDesc off = unlitGround();
+  off.settings.defaultLight = false;
+  auto dark = Scene::build(off);
+  EXPECT_FALSE(dark->defaultLightAdded());
+  Renderer r(*dark);
+  ASSERT_TRUE(r.render(4));
+  for (int y = 0; y < 8; ++y)
+    for (int x = 0; x < 8; ++x) EXPECT_EQ(luminance(r.film().mean(x, y)), 0.0f);
+
+  SceneDesc lit = unlitGround();
+  LightDesc sun;
+  sun.name = "sun";
+  lit.lights.push_back(sun);
+  EXPECT_FALSE(Scene::build(lit)->defaultLightAdded());
+
+  SceneDesc glowing = unlitGround();
+  glowing.materials[0].emission = Vec3(1.0f);
+  EXPECT_FALSE(Scene::build(glowing)->defaultLightAdded());
+}

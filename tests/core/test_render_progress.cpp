@@ -58,3 +58,69 @@ TEST(RenderProgress, GrowsWithinPassesAndEndsAtTheSampleCount) {
     if (i) EXPECT_GE(seen[i], seen[i - 1]) << "progress went back at " << i;
   }
 }
+
+// ---- what an interactive host shows before a pass ends ----------------------------------
+
+#include "test_helpers.h"
+
+namespace {
+
+std::unique_ptr<Scene> smallSandBall(int width, int height, int spp) {
+  SceneDesc d = granular::testing::sandBallScene(Vec3(0, 0.5f, 4), 24, 0.02f, 1);
+  d.settings.width = width;
+  d.settings.height = height;
+  d.settings.spp = spp;
+  d.settings.roulette = 1;  // no pre-render: the test is about pixels, not P_a
+  return Scene::build(d);
+}
+
+}  // namespace
+
+TEST(RenderProgress, TilesCoverTheImageOnceAndHoldTheirPixelsWhenReported) {
+  auto scene = smallSandBall(37, 21, 4);  // not a multiple of the 8x8 tiles
+  Renderer r(*scene);
+  std::vector<std::atomic<int>> covered(37 * 21);
+  std::atomic<int> unfinished{0};
+  ASSERT_TRUE(r.renderPass(4, nullptr, [&](int x0, int x1, int y0, int y1) {
+    for (int y = y0; y < y1; ++y)
+      for (int x = x0; x < x1; ++x) {
+        covered[y * 37 + x]++;
+        if (r.film().samples(x, y) != 4) unfinished++;
+      }
+  }));
+  for (size_t i = 0; i < covered.size(); ++i) EXPECT_EQ(covered[i].load(), 1) << i;
+  EXPECT_EQ(unfinished.load(), 0);
+}
+
+TEST(RenderProgress, APreviewPixelIsTheFirstBundleOfItsBlocksCentrePixel) {
+  // With spp equal to the bundle size the full pass is one bundle per pixel, drawn from
+  // the same per-sample streams as the preview's: the values must be equal.
+  auto scene = smallSandBall(40, 30, 16);
+  Renderer full(*scene);
+  ASSERT_TRUE(full.renderPass(16));
+  Renderer preview(*scene);
+  Film coarse;
+  ASSERT_TRUE(preview.renderPreview(4, coarse));
+  ASSERT_EQ(coarse.width(), 10);
+  ASSERT_EQ(coarse.height(), 8);  // ceil(30 / 4)
+  EXPECT_EQ(preview.samplesPerPixel(), 0);  // the renderer's own film is untouched
+  int lit = 0;
+  for (int j = 0; j < coarse.height(); ++j)
+    for (int i = 0; i < coarse.width(); ++i) {
+      int x = std::min(i * 4 + 2, 39), y = std::min(j * 4 + 2, 29);
+      float a[Film::kChannels], b[Film::kChannels];
+      coarse.pixelChannels(i, j, a);
+      full.film().pixelChannels(x, y, b);
+      for (int c = 0; c < Film::kChannels; ++c) EXPECT_EQ(a[c], b[c]) << i << "," << j << " channel " << c;
+      lit += a[0] > 0;
+    }
+  EXPECT_GT(lit, 0);
+}
+
+TEST(RenderProgress, ACancelledPreviewSaysSo) {
+  auto scene = smallSandBall(40, 30, 16);
+  Renderer r(*scene);
+  std::atomic<bool> cancel{true};
+  Film coarse;
+  EXPECT_FALSE(r.renderPreview(4, coarse, &cancel));
+}

@@ -9,12 +9,14 @@
 #include <string>
 #include <vector>
 
+#include "pxr/base/gf/camera.h"
 #include "pxr/base/gf/vec2i.h"
 #include "pxr/imaging/cameraUtil/framing.h"
 #include "pxr/imaging/hd/renderBuffer.h"
 #include "pxr/imaging/hd/tokens.h"
 #include "pxr/usd/usd/primRange.h"
 #include "pxr/usd/usd/stage.h"
+#include "pxr/usd/usdGeom/camera.h"
 #include "pxr/usd/usdLux/lightAPI.h"
 #include "pxr/usdImaging/usdImagingGL/engine.h"
 
@@ -99,6 +101,10 @@ TEST(HdGranular, EveryExampleRendersWithoutNaN) {
     ASSERT_EQ(f.values.size(), size_t(48 * 32 * 4));
     for (float v : f.values) ASSERT_TRUE(std::isfinite(v));
     EXPECT_GT(mean(f, 0), 0.0);
+    // A sample that was not finite is dropped from the image and counted: none may be.
+    VtDictionary stats = engine->GetRenderStats();
+    ASSERT_TRUE(stats.count("granular:nonFiniteSamples"));
+    EXPECT_EQ(stats["granular:nonFiniteSamples"].Get<int>(), 0);
   }
 }
 
@@ -144,7 +150,9 @@ TEST(HdGranular, ABadStageStillConvergesWithNothingRendered) {
   auto engine = makeEngine(2);
   Frame f = render(*engine, stage, HdAovTokens->color, 16, 10);
   EXPECT_TRUE(f.converged);
-  for (float v : f.values) EXPECT_TRUE(std::isfinite(v));
+  ASSERT_EQ(f.values.size(), size_t(16 * 10 * 4));
+  for (size_t i = 0; i < f.values.size(); i += 4)  // the clear colour: nothing was drawn
+    for (int c = 0; c < 3; ++c) ASSERT_EQ(f.values[i + c], 0.0f) << i;
 }
 
 TEST(HdGranular, StoppingMidRenderIsClean) {
@@ -206,4 +214,131 @@ def Xform "World" {
   double one = coverage(1), three = coverage(3);
   EXPECT_GT(one, 0.0);
   EXPECT_NEAR(three, 3.0 * one, 0.15 * one);
+}
+
+namespace {
+
+// The snow slab with every light deactivated.
+UsdStageRefPtr unlitSnowslab() {
+  UsdStageRefPtr stage = UsdStage::Open(kExamples + "/snowslab.usda");
+  for (UsdPrim const& prim : stage->Traverse())
+    if (prim.HasAPI<UsdLuxLightAPI>()) prim.SetActive(false);
+  return stage;
+}
+
+template <typename T>
+T stat(VtDictionary const& stats, const char* key) {
+  auto it = stats.find(key);
+  EXPECT_NE(it, stats.end()) << key;
+  if (it == stats.end()) return T();
+  EXPECT_TRUE(it->second.template CanCast<T>()) << key;
+  return VtValue::Cast<T>(it->second).template Get<T>();
+}
+
+}  // namespace
+
+TEST(HdGranular, EveryDocumentedRenderStatIsReported) {
+  UsdStageRefPtr stage = UsdStage::Open(kExamples + "/snowslab.usda");
+  auto engine = makeEngine(4);
+  Frame f = render(*engine, stage, HdAovTokens->color, 32, 20);
+  ASSERT_TRUE(f.converged);
+  VtDictionary stats = engine->GetRenderStats();
+  EXPECT_EQ(stat<double>(stats, "percentDone"), 100.0);
+  EXPECT_EQ(stat<int>(stats, "numCompletedSamples"), 4);
+  EXPECT_GT(stat<double>(stats, "granular:grains"), 1e3);  // the slab holds ~10^4..10^5 grains
+  const double sigmaT = stat<double>(stats, "granular:sigmaT");
+  EXPECT_TRUE(std::isfinite(sigmaT) && sigmaT > 0) << sigmaT;
+  const double lod = stat<double>(stats, "granular:lodFraction");
+  EXPECT_TRUE(lod >= 0 && lod <= 1) << lod;
+  EXPECT_EQ(stat<int>(stats, "granular:nonFiniteSamples"), 0);
+  EXPECT_FALSE(stat<bool>(stats, "granular:defaultLight"));
+}
+
+TEST(HdGranular, AStageWithoutLightsGetsTheDefaultDomeUnlessTurnedOff) {
+  UsdStageRefPtr stage = unlitSnowslab();
+  auto engine = makeEngine(2);
+  Frame lit = render(*engine, stage, HdAovTokens->color, 32, 20);
+  ASSERT_TRUE(lit.converged);
+  EXPECT_GT(mean(lit, 0), 0.05);  // white snow under a white sky of radiance 1
+  EXPECT_TRUE(stat<bool>(engine->GetRenderStats(), "granular:defaultLight"));
+
+  engine->SetRendererSetting(TfToken("granular:defaultLight"), VtValue(false));
+  Frame dark = render(*engine, stage, HdAovTokens->color, 32, 20);
+  ASSERT_TRUE(dark.converged);
+  for (size_t i = 0; i < dark.values.size(); i += 4)
+    for (int c = 0; c < 3; ++c) ASSERT_EQ(dark.values[i + c], 0.0f);
+  EXPECT_FALSE(stat<bool>(engine->GetRenderStats(), "granular:defaultLight"));
+}
+
+TEST(HdGranular, TheNoiseThresholdStopsSimpleScenesEarlierThanHardOnes) {
+  // A grey card under a uniform sky against the snow slab, at the same threshold: the
+  // card's pixels are quiet after a few samples, the slab's grains need many more.
+  UsdStageRefPtr card = UsdStage::CreateInMemory();
+  card->GetRootLayer()->ImportFromString(R"(#usda 1.0
+def Xform "World" {
+  def Camera "Camera" {
+    double3 xformOp:translate = (0, 0, 10)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+    float focalLength = 50
+    float horizontalAperture = 10
+    float verticalAperture = 10
+  }
+  def DomeLight "Sky" {
+    float inputs:intensity = 1
+  }
+  def Mesh "Card" {
+    point3f[] points = [(-5, -5, 0), (5, -5, 0), (5, 5, 0), (-5, 5, 0)]
+    int[] faceVertexCounts = [4]
+    int[] faceVertexIndices = [0, 1, 2, 3]
+  }
+}
+)");
+  UsdStageRefPtr slab = UsdStage::Open(kExamples + "/snowslab.usda");
+  const int cap = 4096;
+  auto samplesAtThreshold = [&](UsdStageRefPtr const& stage) {
+    auto engine = makeEngine(cap);
+    engine->SetRendererSetting(HdRenderSettingsTokens->convergedVariance, VtValue(0.05f));
+    Frame f = render(*engine, stage, HdAovTokens->color, 24, 16);
+    EXPECT_TRUE(f.converged);
+    return stat<int>(engine->GetRenderStats(), "numCompletedSamples");
+  };
+  const int simple = samplesAtThreshold(card), hard = samplesAtThreshold(slab);
+  std::printf("noise threshold 0.05: grey card %d samples per pixel, snow slab %d\n", simple, hard);
+  EXPECT_LT(simple, hard);
+  EXPECT_LT(hard, cap);  // the threshold, not the sample cap, ended it
+  EXPECT_GE(simple, 2);
+}
+
+TEST(HdGranular, BuffersSurviveResizesAovSwitchesAndCameraMovesWhileRendering) {
+  // 200 cycles of a new buffer size, a new AOV (buffers freed and made) and a moved free
+  // camera, each while the loop renders (the sample count never converges); then the
+  // final image must equal a fresh render of the same view, value for value.
+  UsdStageRefPtr stage = UsdStage::Open(kExamples + "/snowslab.usda");
+  auto engine = makeEngine(100000);
+  GfCamera camera = UsdGeomCamera(stage->GetPrimAtPath(SdfPath("/World/Camera"))).GetCamera(UsdTimeCode::Default());
+  const TfToken aovs[] = {HdAovTokens->color, HdAovTokens->depth, HdAovTokens->normal, TfToken("ept"),
+                          HdAovTokens->primId};
+  UsdImagingGLRenderParams params;
+  for (int i = 0; i < 200; ++i) {
+    const int w = 40 + 8 * (i % 3), h = 24 + 8 * (i % 2);
+    engine->SetRenderBufferSize(GfVec2i(w, h));
+    engine->SetFraming(CameraUtilFraming(GfRect2i(GfVec2i(0, 0), w, h)));
+    engine->SetRendererAov(aovs[(i / 2) % 5]);
+    GfCamera moved = camera;
+    moved.SetTransform(camera.GetTransform() * GfMatrix4d().SetTranslate(GfVec3d(0.01 * (i % 7), 0, 0)));
+    engine->SetCameraState(moved.GetFrustum().ComputeViewMatrix(), moved.GetFrustum().ComputeProjectionMatrix());
+    engine->Render(stage->GetPseudoRoot(), params);
+    ASSERT_FALSE(engine->IsConverged());
+  }
+  engine->SetRendererSetting(HdRenderSettingsTokens->convergedSamplesPerPixel, VtValue(2));
+  Frame after = render(*engine, stage, HdAovTokens->color, 32, 20);
+  auto fresh = makeEngine(2);
+  Frame expected = render(*fresh, stage, HdAovTokens->color, 32, 20);
+  ASSERT_TRUE(after.converged && expected.converged);
+  ASSERT_EQ(after.values.size(), expected.values.size());
+  for (size_t i = 0; i < after.values.size(); ++i) {
+    ASSERT_TRUE(std::isfinite(after.values[i]));
+    ASSERT_EQ(after.values[i], expected.values[i]) << i;
+  }
+  EXPECT_EQ(stat<int>(engine->GetRenderStats(), "granular:nonFiniteSamples"), 0);
 }
