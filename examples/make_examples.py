@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
-"""Writes the bundled USD examples (sandcastle, snowslab, sugarcube, mixture) with usd-core
-and the granular schema helpers:
+"""Writes the bundled USD examples (sandcastle, snowslab, sugarcube, mixture, animated) with
+usd-core and the granular schema helpers:
 
     .venv/bin/python examples/make_examples.py [OUT_DIR]
 
@@ -8,6 +8,8 @@ Each scene: a /World with a camera, UsdLux lights, a ground with a UsdPreviewSur
 aggregates (Meshes with GranularAggregateAPI) and their grain prototypes (invisible Meshes
 with GranularGrainAPI under the /World/Grains scope), and render settings with the
 resolution. Shapes come from core's procedural meshes, so the files are deterministic.
+`animated` is a short shot (frames 1 to 3) for `granular render --frames`: its camera moves
+(time samples on its transform) and its sun brightens between frames 2 and 3.
 """
 import math
 import os
@@ -153,18 +155,20 @@ def sandcastle(path):
     dark = grain(stage, "Dark", core.make_rock(2, 0.3, 5), 1.55, (0.7, 0.9, 1.5))
     protos = [round_, flat, dark]
 
-    # Shared values are constant primvars on the castle Xform, inherited by its parts
-    # (as Hydra inherits them); the prototypes are named on each part, relative to it.
-    castle = UsdGeom.Xform.Define(stage, "/World/Castle")
-    api = UsdGeom.PrimvarsAPI(castle)
-    api.CreatePrimvar("granular:grainRadius", Sdf.ValueTypeNames.Float, UsdGeom.Tokens.constant).Set(0.012)
-    api.CreatePrimvar("granular:packingRate", Sdf.ValueTypeNames.Float, UsdGeom.Tokens.constant).Set(0.6)
-    api.CreatePrimvar("granular:weights", Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.constant).Set(
-        Vt.FloatArray([0.6, 0.3, 0.1]))
+    # The values are authored on each part: Hydra (OpenUSD 24.08's UsdImaging) does not
+    # hand a delegate the granular primvars a part would inherit from the castle Xform,
+    # so inherited values would mean one thing in `granular render` and another in
+    # usdview. The prototypes are named on each part, relative to it.
+    UsdGeom.Xform.Define(stage, "/World/Castle")
 
     def part(name, tri, translate, seed):
         m = mesh_from(stage, f"/World/Castle/{name}", tri, translate=translate)
         schema.apply_aggregate(m, protos, seed=seed, tile_spheres=512, author_fallbacks=False)
+        api = UsdGeom.PrimvarsAPI(m)
+        api.CreatePrimvar("granular:grainRadius", Sdf.ValueTypeNames.Float, UsdGeom.Tokens.constant).Set(0.012)
+        api.CreatePrimvar("granular:packingRate", Sdf.ValueTypeNames.Float, UsdGeom.Tokens.constant).Set(0.6)
+        api.CreatePrimvar("granular:weights", Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.constant).Set(
+            Vt.FloatArray([0.6, 0.3, 0.1]))
         return m
 
     part("Base", core.make_box((-0.8, 0.0, -0.8), (0.8, 0.3, 0.8)), None, 1)
@@ -235,7 +239,38 @@ def mixture(path):
     stage.GetRootLayer().Save()
 
 
-SCENES = {"sandcastle": sandcastle, "snowslab": snowslab, "sugarcube": sugarcube, "mixture": mixture}
+def animated(path):
+    """A small snow drift (snowslab's grains, so their transport is cached alike) filmed over
+    frames 1 to 3: the camera circles it (frames 1-2: only the view changes, the renderer
+    keeps the scene) and the sun brightens from frame 2 to 3 (a light change: built anew)."""
+    stage, _ = new_stage(path, (320, 200))
+    stage.SetStartTimeCode(1)
+    stage.SetEndTimeCode(3)
+    cam = camera(stage, eye=(1.2, 0.8, 1.5), target=(0.0, 0.1, 0.0))
+    op = UsdGeom.Xformable(cam).GetOrderedXformOps()[0]
+    op.GetAttr().Clear()  # time samples only
+    for frame, angle in ((1, 38.0), (2, 20.0), (3, 2.0)):
+        a = math.radians(angle)
+        eye = Gf.Vec3d(1.9 * math.sin(a), 0.8, 1.9 * math.cos(a))
+        op.Set(Gf.Matrix4d().SetLookAt(eye, Gf.Vec3d(0.0, 0.1, 0.0), Gf.Vec3d(0, 1, 0)).GetInverse(), frame)
+    light = sun(stage, direction=(-0.3, -0.55, -0.75), intensity=8.0, color=(1.0, 0.97, 0.92), angle=5.0)
+    intensity = light.GetIntensityAttr()
+    intensity.Clear()
+    for frame, value in ((1, 8.0), (2, 8.0), (3, 14.0)):
+        intensity.Set(value, frame)
+    sky(stage, (0.55, 0.7, 1.0), 0.8)
+    ground = quad(stage, "/World/Ground", 12.0)
+    bind(ground, preview_material(stage, "Rock", diffuse=(0.08, 0.08, 0.09)))
+    flake = grain(stage, "Flake", core.make_ellipsoid((1.0, 0.35, 0.9), 2), 1.31, (0.004, 0.0015, 0.0006))
+    pellet = grain(stage, "Pellet", core.make_rock(2, 0.25, 11), 1.31, (0.004, 0.0015, 0.0006))
+    drift = mesh_from(stage, "/World/Drift", core.make_box((-0.35, 0.0, -0.25), (0.35, 0.22, 0.25)))
+    schema.apply_aggregate(drift, [flake, pellet], grain_radius=0.014, packing_rate=0.45, weights=[0.5, 0.5],
+                           seed=4, tile_spheres=512)
+    stage.GetRootLayer().Save()
+
+
+SCENES = {"sandcastle": sandcastle, "snowslab": snowslab, "sugarcube": sugarcube, "mixture": mixture,
+          "animated": animated}
 
 
 def main(argv):

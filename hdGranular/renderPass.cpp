@@ -127,7 +127,18 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
         for (auto const& l : desc.lights)
           fprintf(stderr, "hdGranular: light %s type %d intensity %g\n", l.name.c_str(), int(l.type), l.intensity);
         for (auto const& m : desc.meshes) fprintf(stderr, "hdGranular: mesh %s\n", m.name.c_str());
-        for (auto const& a : desc.aggregates) fprintf(stderr, "hdGranular: aggregate %s\n", a.name.c_str());
+        for (auto const& a : desc.aggregates) {
+          fprintf(stderr, "hdGranular: aggregate %s radius %g packing %g seed %llu tile %d points %zu t (%g %g %g)",
+                  a.name.c_str(), a.grainRadius, a.packingRate, (unsigned long long)a.seed, a.tileSpheres,
+                  a.boundary.points.size(), a.xf.m[0][3], a.xf.m[1][3], a.xf.m[2][3]);
+          for (size_t i = 0; i < a.prototypes.size(); ++i)
+            fprintf(stderr, " [%s w %g mat %d]", a.prototypes[i].name.c_str(), a.weights[i], a.prototypes[i].material);
+          fprintf(stderr, "\n");
+        }
+        for (auto const& m : desc.materials)
+          fprintf(stderr, "hdGranular: material %s type %d ior %g absorption (%g %g %g) albedo (%g %g %g)\n",
+                  m.name.c_str(), int(m.type), m.ior, m.absorption.x, m.absorption.y, m.absorption.z, m.albedo.x,
+                  m.albedo.y, m.albedo.z);
       }
       desc.camera = cam;
       desc.settings = rs;

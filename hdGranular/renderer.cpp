@@ -31,6 +31,9 @@ void HdGranularRenderer::Start() {
   _cancel = false;
   _converged = false;
   _interrupted = false;
+  _firstImageSeconds = -1;
+  _firstPassSeconds = -1;
+  _startTime = std::chrono::steady_clock::now();
   _SetBuffersConverged(false);
   _thread.StartRender();
 }
@@ -54,6 +57,10 @@ float HdGranularRenderer::_DepthToClip(float viewDepth) const {
   double clipZ = _projection[2][2] * z + _projection[3][2], clipW = _projection[2][3] * z + _projection[3][3];
   if (clipW == 0) return 1.0f;
   return float(std::clamp(0.5 * (clipZ / clipW) + 0.5, 0.0, 1.0));
+}
+
+double HdGranularRenderer::_SecondsSinceStart() const {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - _startTime).count();
 }
 
 void HdGranularRenderer::_SetBuffersConverged(bool converged) {
@@ -122,6 +129,7 @@ void HdGranularRenderer::_Render() {
       granular::Film preview;
       if (!_renderer->renderPreview(stride, preview, &_cancel)) return;
       _WriteRegion(preview, stride, 0, width, 0, height);
+      if (_firstImageSeconds < 0) _firstImageSeconds = _SecondsSinceStart();
       _nonFinite = _renderer->nonFiniteSamples();
       if (_thread.IsStopRequested()) return;
     }
@@ -141,6 +149,8 @@ void HdGranularRenderer::_Render() {
     if (!finished) return;  // stopped mid-pass
     done = _renderer->samplesPerPixel();
     _samplesDone = done;
+    if (_firstPassSeconds < 0) _firstPassSeconds = _SecondsSinceStart();
+    if (_firstImageSeconds < 0) _firstImageSeconds = _firstPassSeconds.load();
     _lodFraction = _renderer->shortcutFraction();
     bool converged = done >= target;
     if (!converged && _noiseThreshold > 0 && done >= 2 * bundle) {
@@ -175,6 +185,8 @@ VtDictionary HdGranularRenderer::GetStats() const {
     stats["granular:defaultLight"] = VtValue(_scene->defaultLightAdded());
   }
   stats["granular:nonFiniteSamples"] = VtValue(int(_nonFinite.load()));
+  stats["granular:firstImageSeconds"] = VtValue(_firstImageSeconds.load());
+  stats["granular:firstPassSeconds"] = VtValue(_firstPassSeconds.load());
   return stats;
 }
 

@@ -17,6 +17,7 @@
 #define HDGRANULAR_RENDERER_H
 
 #include <atomic>
+#include <chrono>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -61,6 +62,7 @@ class HdGranularRenderer {
   // holds every stride-th pixel (stride 1: the image's own film).
   void _WriteRegion(granular::Film const& film, int stride, int x0, int x1, int y0, int y1);
   void _SetBuffersConverged(bool converged);
+  double _SecondsSinceStart() const;
   void _MarkConverged();
   float _DepthToClip(float viewDepth) const;
 
@@ -73,6 +75,10 @@ class HdGranularRenderer {
   bool _preview = true;
   std::atomic<bool> _cancel{false}, _converged{false}, _interrupted{false};
   std::atomic<long> _nonFinite{0};
+  // Seconds from Start() to the first image covering the viewport (the coarsest preview,
+  // or the first pass) and to the first full-resolution pass; -1 until then.
+  std::chrono::steady_clock::time_point _startTime;
+  std::atomic<double> _firstImageSeconds{-1}, _firstPassSeconds{-1};
   std::atomic<long> _samplesDone{0}, _samplesTarget{1};
   std::atomic<double> _lodFraction{0};
 };

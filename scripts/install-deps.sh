@@ -8,6 +8,9 @@ DEB_PACKAGES=(
   libembree-dev libopenimageio-dev libopencolorio-dev libopenvdb-dev libtbb-dev
   libboost-iostreams-dev libgtest-dev nlohmann-json3-dev
   python3 python3-venv python3-dev
+  # numpy for Debian's own Python: usdview (an OpenUSD with imaging runs on it) loads the
+  # Granular menu, whose density export hands arrays to the granular_core module.
+  python3-numpy
 )
 
 missing=()

@@ -2,7 +2,8 @@
 
     granular render SCENE.usda -o OUT.exr [--png OUT.png] [--width W --height H] [--spp N]
                     [--camera /path] [--seed S] [--threads T] [--exposure E] [--quiet]
-                    [--technique ept|ept+vpt|hybrid] [--roulette P_a] [--lod L]
+                    [--technique ept|ept+vpt|hybrid] [--roulette P_a] [--lod L] [--no-default-light]
+                    [--frames A:B[xSTEP]]   (then -o and --png name a run of '#': OUT.####.exr)
     granular info SCENE.usda [--json]
     granular export-vdb SCENE.usda --prim /path -o OUT.vdb [--voxel-size S]
 
@@ -10,9 +11,11 @@ Exit status: 0 on success, 2 on bad input (one line `error: prim.attribute: mess
 no traceback, no output file left behind), 1 on any other failure, 130 when interrupted.
 """
 import argparse
+import hashlib
 import json
 import math
 import os
+import re
 import sys
 import time
 
@@ -117,6 +120,14 @@ def build_parser():
                    help="level of detail: after the first grain, enter an aggregate's medium where the grain "
                         "radius is under L times the ray footprint (default 0.5: grains narrower than a "
                         "footprint; 0: off, every grain explicit)")
+    r.add_argument("--no-default-light", action="store_true",
+                   help="a stage without any light (no UsdLux light, no emissive surface) renders black; "
+                        "by default it is lit by a uniform white dome of radiance 1, with a warning")
+    r.add_argument("--frames", metavar="A:B[xSTEP]",
+                   help="render the frames A to B (inclusive) every STEP (default 1; may be fractional), each "
+                        "at its own time code; -o (and --png) then contain a run of '#', replaced by the frame "
+                        "number padded with zeros to that many digits (out.####.exr: out.0001.exr; frame 1.5: "
+                        "out.0001.5.exr). Without it, one image at the stage's start time")
     r.add_argument("--quiet", action="store_true", help="no progress or statistics on stderr")
 
     i = sub.add_parser("info", help="grain counts, tiles and transport parameters of each aggregate")
@@ -196,19 +207,159 @@ def _remove(paths):
             pass
 
 
+def _write_images(image, exr, png, exposure):
+    """Writes the EXR (and the PNG) atomically: each to a temporary name in its own folder,
+    then renamed into place, so that a reader never sees a partial file and a failure leaves
+    neither (all or nothing). Returns the paths written."""
+    import granular_core as core
+    targets = [(exr, lambda path: core.write_exr(path, image))]
+    if png:
+        targets.append((png, lambda path: core.write_png(path, image, exposure)))
+    temps, done = [], []
+    try:
+        for path, write in targets:
+            folder, base = os.path.split(os.path.abspath(path))
+            stem, ext = os.path.splitext(base)
+            tmp = os.path.join(folder, f".{stem}.{os.getpid()}.tmp{ext}")  # the extension picks the format
+            temps.append(tmp)
+            write(tmp)
+        for tmp, (path, _) in zip(temps, targets):
+            os.replace(tmp, path)
+            done.append(path)
+    except BaseException:
+        _remove(temps + done)
+        raise
+    return done
+
+
+# ---- frame sequences (render --frames) ------------------------------------------------------
+
+MAX_FRAMES = 100000
+
+
+def _frame_number(text, what):
+    try:
+        v = float(text)
+    except ValueError:
+        raise UserError("command line", "--frames", f"{what} '{text.strip()}' is not a number") from None
+    if not math.isfinite(v):
+        raise UserError("command line", "--frames", f"{what} {text.strip()} is not finite")
+    return v
+
+
+def parse_frames(spec):
+    """'A:B[xSTEP]' (or 'A', one frame) -> the frames A, A+STEP, ... up to B inclusive, as
+    floats; UserError on command line.--frames for anything else."""
+    body, sep, step_text = spec.partition("x")
+    parts = body.split(":")
+    if len(parts) > 2 or (sep and len(parts) != 2) or not all(p.strip() for p in parts) or (sep and not step_text.strip()):
+        raise UserError("command line", "--frames", f"'{spec}' is not A:B or A:BxSTEP (e.g. 1:24 or 1:2x0.5)")
+    a = _frame_number(parts[0], "start")
+    b = _frame_number(parts[1], "end") if len(parts) == 2 else a
+    step = _frame_number(step_text, "step") if sep else 1.0
+    if a > b:
+        raise UserError("command line", "--frames", f"start {a:g} is after end {b:g}")
+    if step <= 0:
+        raise UserError("command line", "--frames", f"step {step:g} must be > 0")
+    count = math.floor((b - a) / step * (1 + 1e-12) + 1e-9) + 1  # B itself despite rounding in (B-A)/STEP
+    if count > MAX_FRAMES:
+        raise UserError("command line", "--frames", f"'{spec}' has {count} frames, more than {MAX_FRAMES}")
+    # A + k STEP (not a running sum), rid of binary noise (1 + 3 x 0.1 is frame 1.3).
+    return [round(a + k * step, 9) for k in range(count)]
+
+
+def frame_text(frame, digits=0):
+    """A frame number for file names and the log: the integer part zero-padded to `digits`,
+    then the fraction, if any, to at most 6 decimals: (1, 4) -> '0001', (1.5, 4) -> '0001.5',
+    (-2, 4) -> '-0002', (12.25, 0) -> '12.25'."""
+    text = f"{abs(frame):.6f}".rstrip("0").rstrip(".")
+    whole, _, fraction = text.partition(".")
+    sign = "-" if frame < 0 and text != "0" else ""
+    return sign + whole.zfill(digits) + ("." + fraction if fraction else "")
+
+
+_HASHES = re.compile(r"#+")
+
+
+def frame_path(pattern, flag):
+    """A function frame -> file name: the last run of '#' in the file name of `pattern`
+    replaced by frame_text(frame, len(run)); UserError on command line.<flag> without one."""
+    folder, base = os.path.split(pattern)
+    runs = list(_HASHES.finditer(base))
+    if not runs:
+        raise UserError("command line", flag, f'"{pattern}" has no run of \'#\' for the frame number '
+                                              f"(needed with --frames, e.g. out.####{os.path.splitext(base)[1]})")
+    run = runs[-1]
+    return lambda frame: os.path.join(folder, base[:run.start()] + frame_text(frame, len(run.group())) +
+                                      base[run.end():])
+
+
+# What a frame's description is made of: a change in any of _SCENE_PARTS needs the scene
+# built anew; a change of the view alone ("camera", "settings") is Scene.set_view.
+_SCENE_PARTS = ("materials", "meshes", "lights", "aggregates", "build settings")
+_CAMERA_FIELDS = ("camera_to_world", "focal_length", "horizontal_aperture", "vertical_aperture",
+                  "horizontal_aperture_offset", "vertical_aperture_offset", "clip_near", "clip_far")
+_SETTINGS_FIELDS = ("width", "height", "spp", "seed", "max_depth", "rr_depth", "threads", "technique", "bundle_size",
+                    "tau", "roulette", "lod", "default_light", "dome_camera_visible")
+
+
+def _feed(h, *values):
+    """Hashes values exactly: numpy arrays by dtype, shape and bytes, the rest by repr (floats
+    round-trip)."""
+    import numpy as np
+    for v in values:
+        if isinstance(v, np.ndarray):
+            h.update(f"{v.dtype}{v.shape}".encode())
+            h.update(np.ascontiguousarray(v).tobytes())
+        else:
+            h.update(repr(v).encode())
+        h.update(b"\x00")
+
+
+def _feed_mesh(h, mesh):
+    _feed(h, mesh.points, mesh.indices)
+
+
+def fingerprint(desc):
+    """{part: digest} of a core.SceneDesc, parts _SCENE_PARTS, "camera" and "settings": equal
+    digests, equal values (meshes compared point by point)."""
+    import granular_core as core
+    parts = {name: hashlib.blake2b(digest_size=20) for name in (*_SCENE_PARTS, "camera", "settings")}
+    h = parts["materials"]
+    for m in desc.materials:
+        _feed(h, m.name, m.type, m.albedo, m.ior, m.absorption, m.emission)
+    h = parts["meshes"]
+    for m in desc.meshes:
+        _feed(h, m.name, m.xf, m.material, m.visible, m.id)
+        _feed_mesh(h, m.mesh)
+    h = parts["lights"]
+    for light in desc.lights:
+        _feed(h, light.name, light.type, light.xf, light.color, light.intensity, light.exposure, light.normalize,
+              light.angle, light.radius, light.width, light.height, light.texture_file)
+    h = parts["aggregates"]
+    for a in desc.aggregates:
+        _feed(h, a.name, a.xf, a.weights, a.grain_radius, a.packing_rate, a.seed, a.tile_spheres, a.id)
+        _feed_mesh(h, a.boundary)
+        for p in a.prototypes:
+            _feed(h, p.name, p.material)
+            _feed_mesh(h, p.mesh)
+    # Settings that take effect when the scene is built: media or none (Scene.set_view
+    # refuses a change between ept and the hybrid), the default light of a stage without any.
+    _feed(parts["build settings"], desc.settings.technique == core.Technique.Ept, desc.settings.default_light)
+    _feed(parts["camera"], *(getattr(desc.camera, f) for f in _CAMERA_FIELDS))
+    _feed(parts["settings"], *(getattr(desc.settings, f) for f in _SETTINGS_FIELDS))
+    return {name: d.hexdigest() for name, d in parts.items()}
+
+
 # ---- commands ---------------------------------------------------------------------------------
 
-def cmd_render(args):
-    import granular_core as core
-    from .usd_reader import read_stage
+_DEFAULT_LIGHT_WARNING = ("warning: the stage has no light (no UsdLux light, no emissive surface): it is lit by "
+                          "the default white dome of radiance 1 (--no-default-light renders it black)")
 
-    _check_output(args.output, "-o", (".exr",))
-    if args.png:
-        _check_output(args.png, "--png", (".png",))
-    if args.png and os.path.abspath(args.png) == os.path.abspath(args.output):
-        raise UserError("command line", "--png", "is the same file as -o")
-    t0 = time.monotonic()
-    scene = read_stage(args.scene, camera=args.camera, width=args.width, height=args.height)
+
+def _apply_options(args, scene):
+    """The command line's render settings on a read scene; returns them."""
+    import granular_core as core
     s = scene.desc.settings
     s.spp = args.spp
     s.seed = args.seed
@@ -216,17 +367,24 @@ def cmd_render(args):
     s.technique = core.technique_from_name(args.technique, "command line")
     s.roulette = args.roulette
     s.lod = args.lod
-    _warnings(args, scene)
-    built = api.build_scene(scene)
-    _log(args, f"{args.scene}: camera {scene.camera_path}, {s.width}x{s.height}, {s.spp} spp; "
-               f"scene read and built in {time.monotonic() - t0:.2f} s")
+    s.default_light = not args.no_default_light
+    return s
+
+
+def _log_aggregates(args, built):
     for a in built.aggregates:
         _log(args, f"  aggregate {a['name']}: ~{a['approx_grains']:.3g} grains, {a['cells']} tiles "
                    f"({a['inside_cells']} inside, {a['partial_cells']} partial)")
+
+
+def _render_image(args, built):
+    import granular_core as core
     renderer = core.Renderer(built)
-    t1 = time.monotonic()
     renderer.render(1, _Progress(not args.quiet), 0.5)
-    image = renderer.image()
+    return renderer, renderer.image()
+
+
+def _log_transports(args, built, renderer, image):
     if built.has_media:
         rt = renderer.roulette
         tuned = f" (tuned on {rt['pixels']} pixels)" if rt["pixels"] else ""
@@ -241,18 +399,102 @@ def cmd_render(args):
     elif args.technique != "ept":
         _log(args, f"  technique {args.technique}: every aggregate is thinner than its mean free path, "
                    f"so explicit grains (EPT) render it all")
-    written = []
-    try:
-        core.write_exr(args.output, image)
-        written.append(args.output)
-        if args.png:
-            core.write_png(args.png, image, args.exposure)
-            written.append(args.png)
-    except BaseException:
-        _remove(written)  # all or nothing
-        raise
+
+
+def cmd_render(args):
+    from .usd_reader import read_stage
+
+    _check_output(args.output, "-o", (".exr",))
+    if args.png:
+        _check_output(args.png, "--png", (".png",))
+    if args.png and os.path.abspath(args.png) == os.path.abspath(args.output):
+        raise UserError("command line", "--png", "is the same file as -o")
+    if args.frames is not None:
+        return _render_frames(args)
+    t0 = time.monotonic()
+    scene = read_stage(args.scene, camera=args.camera, width=args.width, height=args.height)
+    s = _apply_options(args, scene)
+    _warnings(args, scene)
+    built = api.build_scene(scene)
+    if built.default_light_added:
+        _log(args, _DEFAULT_LIGHT_WARNING)
+    _log(args, f"{args.scene}: camera {scene.camera_path}, {s.width}x{s.height}, {s.spp} spp; "
+               f"scene read and built in {time.monotonic() - t0:.2f} s")
+    _log_aggregates(args, built)
+    t1 = time.monotonic()
+    renderer, image = _render_image(args, built)
+    _log_transports(args, built, renderer, image)
+    written = _write_images(image, args.output, args.png, args.exposure)
     _log(args, f"wrote {' and '.join(written)} (render {time.monotonic() - t1:.1f} s, "
                f"total {time.monotonic() - t0:.1f} s)")
+    return EXIT_OK
+
+
+def _render_frames(args):
+    """render --frames: the stage opened once, each frame's description read at its time and
+    compared with the previous frame's; the built scene is kept when only the view (camera,
+    render settings) changed (Scene.set_view: no voxelising, no TT work) and built anew when
+    lights, meshes, materials or aggregates changed (tiles and TT parameters then come from
+    their disk caches). Each frame's files are written atomically as it completes; a failure
+    leaves the frames before it, complete, and nothing of its own."""
+    import granular_core as core
+    from .usd_reader import open_stage, read_stage, translate_core_error
+
+    frames = parse_frames(args.frames)
+    exr_name = frame_path(args.output, "-o")
+    png_name = frame_path(args.png, "--png") if args.png else None
+    seen = {}
+    for f in frames:
+        other = seen.setdefault(exr_name(f), f)
+        if other != f:  # frame numbers in names have 6 decimals at most
+            raise UserError("command line", "--frames", f"step too small: frames {other!r} and {f!r} would both "
+                                                        f"write {exr_name(f)}")
+    t0 = time.monotonic()
+    stage = open_stage(args.scene)
+    built = previous = None
+    shown = set()
+    for k, frame in enumerate(frames):
+        tf = time.monotonic()
+        scene = read_stage(args.scene, camera=args.camera, width=args.width, height=args.height, stage=stage,
+                           time=frame)
+        s = _apply_options(args, scene)
+        for w in scene.warnings:
+            if w not in shown:
+                shown.add(w)
+                _log(args, "warning: " + w)
+        current = fingerprint(scene.desc)
+        changed = [p for p in _SCENE_PARTS if previous is None or current[p] != previous[p]]
+        if changed:
+            first = built is None
+            built = None  # the previous scene's memory goes before the new one is built
+            built = api.build_scene(scene)
+            if first:
+                if built.default_light_added:
+                    _log(args, _DEFAULT_LIGHT_WARNING)
+                _log(args, f"{args.scene}: frames {frame_text(frames[0])} to {frame_text(frames[-1])} "
+                           f"({len(frames)}), camera {scene.camera_path}, {s.width}x{s.height}, {s.spp} spp")
+                _log_aggregates(args, built)
+                action = f"scene built in {time.monotonic() - tf:.2f} s"
+            else:
+                action = f"scene rebuilt ({', '.join(changed)} changed) in {time.monotonic() - tf:.2f} s"
+        elif current["camera"] != previous["camera"] or current["settings"] != previous["settings"]:
+            try:
+                built.set_view(scene.desc.camera, scene.desc.settings)
+            except core.InputError as e:
+                raise translate_core_error(e, scene) from None
+            new = [p for p in ("camera", "settings") if current[p] != previous[p]]
+            action = f"scene reused (new {' and '.join(new)})"
+        else:
+            action = "scene reused (unchanged)"
+        previous = current
+        t1 = time.monotonic()
+        renderer, image = _render_image(args, built)
+        seconds = time.monotonic() - t1
+        if k == 0:
+            _log_transports(args, built, renderer, image)
+        written = _write_images(image, exr_name(frame), png_name(frame) if png_name else None, args.exposure)
+        _log(args, f"frame {frame_text(frame)}: {action}; render {seconds:.2f} s; wrote {' and '.join(written)}")
+    _log(args, f"{len(frames)} frames in {time.monotonic() - t0:.1f} s")
     return EXIT_OK
 
 

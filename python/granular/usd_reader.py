@@ -1,6 +1,10 @@
 """Reads a USD stage (usd-core) into core's plain SceneDesc.
 
-What is read, at the stage's start time code (or the earliest time sample):
+What is read, at one time code: the caller's (read_stage's `time`, e.g. each frame of
+`granular render --frames`), else the stage's start time code (or, without an authored
+range, the earliest time sample). Every time-varying value is read at that time:
+transforms, points, visibility, camera and light attributes, material inputs, displayColor,
+the granular primvars and the render settings' resolution.
 - UsdGeomMesh prims (polygons triangulated by fans, world transforms, orientation),
   UsdGeomCube and UsdGeomSphere (tessellated), skipping invisible prims and the guide and
   proxy purposes;
@@ -100,9 +104,22 @@ def open_stage(path):
 
 
 def stage_time(stage):
+    """The time a stage is read at when no time is given: its start time code, else
+    (no authored range) the earliest time sample."""
     if stage.HasAuthoredTimeCodeRange():
         return Usd.TimeCode(stage.GetStartTimeCode())
     return Usd.TimeCode.EarliestTime()
+
+
+def as_time_code(time, stage=None):
+    """None (stage_time(stage)), a number or a Usd.TimeCode -> Usd.TimeCode."""
+    if time is None:
+        return stage_time(stage)
+    if isinstance(time, Usd.TimeCode):
+        return time
+    if isinstance(time, bool) or not isinstance(time, (int, float)) or not math.isfinite(time):
+        raise ValueError(f"time must be a finite number or a Usd.TimeCode, not {time!r}")
+    return Usd.TimeCode(float(time))
 
 
 def to_core_matrix(m):
@@ -272,7 +289,7 @@ def _preview_surface(scene, prim, time, cache):
     if not shader:
         scene.warn(f"{mat.GetPath()}: no surface shader; using the default material")
         return -1
-    sid = shader.GetIdAttr().Get()
+    sid = shader.GetIdAttr().Get(time)
     if sid != "UsdPreviewSurface":
         scene.warn(f"{shader.GetPath()}: shader {sid!r} is not supported (only UsdPreviewSurface); using the default material")
         return -1
@@ -473,11 +490,14 @@ def _is_light(prim):
 
 # ---- the stage ---------------------------------------------------------------------------------
 
-def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_camera=True, stage=None):
-    """Reads the stage at `path` into a StageScene. With surfaces=False only aggregates are
-    read (for info and export); without need_camera a missing camera is no error."""
+def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_camera=True, stage=None,
+               time=None):
+    """Reads the stage at `path` (or the open `stage`) into a StageScene, every value at
+    `time` (a Usd.TimeCode or a number; None: stage_time, the stage's start). With
+    surfaces=False only aggregates are read (for info and export); without need_camera a
+    missing camera is no error."""
     stage = stage or open_stage(path)
-    time = stage_time(stage)
+    time = as_time_code(time, stage)
     scene = StageScene(path, stage, time)
     scene.name("render", path, {})
     xf_cache = UsdGeom.XformCache(time)

@@ -41,16 +41,17 @@ def _export(usdviewApi):
 
 
 def _toggle_reference(usdviewApi):
-    # usdview's API offers no renderer-setting setter; its stage view does (the Hydra
-    # Settings dialog uses it too).
-    view = getattr(getattr(usdviewApi, "_appController", None), "_stageView", None)
+    # usdview's API offers no renderer-setting setter; its stage view, a child widget of
+    # the main window, does (the Hydra Settings dialog uses it too).
+    from pxr.Usdviewq.stageView import StageView
+    view = usdviewApi.qMainWindow.findChild(StageView)
     if view is None or not hasattr(view, "SetRendererSetting"):
         _error(usdviewApi, "EPT reference", "this usdview has no renderer settings")
         return
     new = commands.toggled_technique(view.GetRendererSetting(commands.TECHNIQUE_SETTING))
     view.SetRendererSetting(commands.TECHNIQUE_SETTING, new)
     usdviewApi.PrintStatus(f"Granular technique: {new}")
-    usdviewApi.UpdateViewport()
+    view.updateView()
 
 
 class GranularPluginContainer(PluginContainer):
