@@ -23,14 +23,14 @@ EXAMPLES = ["snowslab", "sugarcube", "sandcastle", "mixture"]
 
 
 def _until(engine, stage, params, key, limit=600.0):
-    """Render frames until the stat `key` is set (>= 0); seconds it took, or inf."""
+    """Renders frames until the stat `key` is set (>= 0), at most `limit` seconds."""
     t0 = time.monotonic()
     while time.monotonic() - t0 < limit:
         engine.Render(stage.GetPseudoRoot(), params)
         if engine.GetRenderStats().get(key, -1.0) >= 0:
-            return time.monotonic() - t0
+            return
         time.sleep(0.002)
-    return float("inf")
+    raise SystemExit(f"{key} not reported within {limit} s")
 
 
 def measure(path, width, height):
@@ -53,20 +53,21 @@ def measure(path, width, height):
     frustum = camera.frustum
     engine.SetCameraState(frustum.ComputeViewMatrix(), frustum.ComputeProjectionMatrix())
     params = UsdImagingGL.RenderParams()
-    _until(engine, stage, params, "granular:firstImageSeconds")
-    first = time.monotonic() - t_open
-    _until(engine, stage, params, "granular:firstPassSeconds")
-    full = time.monotonic() - t_open
-    # A small orbit step: the camera moves 2% of its distance sideways.
+
+    def first_image_and_pass(t0):
+        """Seconds from t0 to the first image and to the first full pass of this view."""
+        _until(engine, stage, params, "granular:firstImageSeconds")
+        image = time.monotonic() - t0
+        _until(engine, stage, params, "granular:firstPassSeconds")
+        return image, time.monotonic() - t0
+
+    first, full = first_image_and_pass(t_open)
+    # A small orbit step: the camera moves 0.05 units sideways.
     moved = Gf.Camera(camera)
     moved.transform = camera.transform * Gf.Matrix4d().SetTranslate(Gf.Vec3d(0.05, 0, 0))
     f = moved.frustum
     engine.SetCameraState(f.ComputeViewMatrix(), f.ComputeProjectionMatrix())
-    t_move = time.monotonic()
-    _until(engine, stage, params, "granular:firstImageSeconds")
-    move_first = time.monotonic() - t_move
-    _until(engine, stage, params, "granular:firstPassSeconds")
-    move_full = time.monotonic() - t_move
+    move_first, move_full = first_image_and_pass(time.monotonic())
     return {"first_image": first, "first_pass": full, "move_first_image": move_first, "move_first_pass": move_full}
 
 

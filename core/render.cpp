@@ -27,7 +27,7 @@ void Renderer::prepare() {
   else roulette_ = tuneRoulette(scene_);
 }
 
-void Renderer::tracePixel(int x, int y, long first, int count, Film& film, int fx, int fy) {
+void Renderer::tracePixel(int x, int y, long first, int count, Film& film, int fx, int fy, bool counted) {
   const RenderSettings& rs = scene_.settings();
   const Camera& cam = scene_.camera();
   thread_local std::vector<PathState> paths;
@@ -42,13 +42,15 @@ void Renderer::tracePixel(int x, int y, long first, int count, Film& film, int f
       paths.push_back(p);
     }
     traceBundle(scene_, paths, roulette_.pa);
-    long shortcuts = 0;
+    long shortcuts = 0, nonFinite = 0;
     for (const PathState& p : paths) {
       shortcuts += p.shortcut;
       PixelSample ps;
-      if (!toPixelSample(p, ps)) nonFinite_.fetch_add(1, std::memory_order_relaxed);
+      nonFinite += !toPixelSample(p, ps);
       film.add(fx, fy, ps);
     }
+    if (!counted) continue;
+    if (nonFinite) nonFinite_.fetch_add(nonFinite, std::memory_order_relaxed);
     shortcuts_ += shortcuts;
     paths_ += long(paths.size());
   }
@@ -81,7 +83,7 @@ bool Renderer::renderPass(int samples, const std::atomic<bool>* cancel, const Ti
     for (int y = r.rows().begin(); y < r.rows().end(); ++y)
       for (int x = r.cols().begin(); x < r.cols().end(); ++x) {
         if (cancel && cancel->load(std::memory_order_relaxed)) { cancelled = true; return; }
-        tracePixel(x, y, done_, samples, film_, x, y);
+        tracePixel(x, y, done_, samples, film_, x, y, true);
         passPixels_.fetch_add(1, std::memory_order_relaxed);
       }
     if (onTile) onTile(r.cols().begin(), r.cols().end(), r.rows().begin(), r.rows().end());
@@ -104,7 +106,7 @@ bool Renderer::renderPreview(int stride, Film& preview, const std::atomic<bool>*
       for (int i = r.cols().begin(); i < r.cols().end(); ++i) {
         if (cancel && cancel->load(std::memory_order_relaxed)) { cancelled = true; return; }
         int x = std::min(i * stride + stride / 2, rs.width - 1), y = std::min(j * stride + stride / 2, rs.height - 1);
-        tracePixel(x, y, 0, std::min(bundle_, rs.spp), preview, i, j);
+        tracePixel(x, y, 0, std::min(bundle_, rs.spp), preview, i, j, false);
       }
   });
   return !cancelled;

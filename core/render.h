@@ -16,7 +16,8 @@
 // tile (its pixels then hold the pass's samples), so a host can show tiles as they come;
 // renderPreview(stride) first renders one bundle of the centre pixel of every
 // stride×stride block into a coarse film — the same random streams as those pixels' first
-// bundle in renderPass — at about 1/stride² of a pass's cost, leaving the film untouched.
+// bundle in renderPass — at about 1/stride² of a pass's cost, leaving the film and the
+// counts (nonFiniteSamples, shortcutFraction) untouched.
 #pragma once
 
 #include <atomic>
@@ -78,8 +79,9 @@ class Renderer {
  private:
   void prepare();
   // Traces samples [first, first + count) of image pixel (x, y) as bundles into film
-  // pixel (fx, fy).
-  void tracePixel(int x, int y, long first, int count, Film& film, int fx, int fy);
+  // pixel (fx, fy); counted (non-finite samples, shortcuts) only for the image's own film
+  // (a preview repeats samples the passes trace again).
+  void tracePixel(int x, int y, long first, int count, Film& film, int fx, int fy, bool counted);
   template <typename Body>
   void forTiles(int width, int height, const Body& body) const;
   const Scene& scene_;

@@ -53,6 +53,10 @@ std::string setting<std::string>(HdRenderDelegate* d, TfToken const& key, std::s
   return fallback;
 }
 
+bool defaultLightSetting(HdRenderDelegate* d) {
+  return setting<bool>(d, HdGranularSettingsTokens->defaultLight, granular::RenderSettings().defaultLight);
+}
+
 granular::RenderSettings renderSettings(HdRenderDelegate* d, int width, int height) {
   granular::RenderSettings rs;
   rs.width = width;
@@ -67,7 +71,7 @@ granular::RenderSettings renderSettings(HdRenderDelegate* d, int width, int heig
   rs.roulette = setting<float>(d, HdGranularSettingsTokens->roulette, -1.0f);
   rs.bundleSize = setting<int>(d, HdGranularSettingsTokens->bundleSize, 16);
   rs.domeCameraVisible = setting<bool>(d, HdRenderSettingsTokens->domeLightCameraVisibility, true);
-  rs.defaultLight = setting<bool>(d, HdGranularSettingsTokens->defaultLight, rs.defaultLight);
+  rs.defaultLight = defaultLightSetting(d);
   return rs;
 }
 
@@ -98,7 +102,7 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
   // Settings that change what is built (media or not, the default light), not the view.
   const std::string buildKey =
       setting<std::string>(delegate, HdGranularSettingsTokens->technique, "hybrid") + "|" +
-      (setting<bool>(delegate, HdGranularSettingsTokens->defaultLight, true) ? "light" : "dark");
+      (defaultLightSetting(delegate) ? "light" : "dark");
   const bool rebuild = !_started || sceneVersion != _sceneVersion || buildKey != _buildKey;
   const bool reframe = rebuild || settingsVersion != _settingsVersion || view != _view || proj != _projection ||
                        width != _width || height != _height;

@@ -130,7 +130,6 @@ void HdGranularRenderer::_Render() {
       if (!_renderer->renderPreview(stride, preview, &_cancel)) return;
       _WriteRegion(preview, stride, 0, width, 0, height);
       if (_firstImageSeconds < 0) _firstImageSeconds = _SecondsSinceStart();
-      _nonFinite = _renderer->nonFiniteSamples();
       if (_thread.IsStopRequested()) return;
     }
   }

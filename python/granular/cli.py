@@ -208,28 +208,21 @@ def _remove(paths):
 
 
 def _write_images(image, exr, png, exposure):
-    """Writes the EXR (and the PNG) atomically: each to a temporary name in its own folder,
-    then renamed into place, so that a reader never sees a partial file and a failure leaves
-    neither (all or nothing). Returns the paths written."""
+    """Writes the EXR (and the PNG): each file appears whole or not at all (core writes
+    through a temporary name), and a failure removes the one already written (all or
+    nothing). Returns the paths written."""
     import granular_core as core
-    targets = [(exr, lambda path: core.write_exr(path, image))]
-    if png:
-        targets.append((png, lambda path: core.write_png(path, image, exposure)))
-    temps, done = [], []
+    written = []
     try:
-        for path, write in targets:
-            folder, base = os.path.split(os.path.abspath(path))
-            stem, ext = os.path.splitext(base)
-            tmp = os.path.join(folder, f".{stem}.{os.getpid()}.tmp{ext}")  # the extension picks the format
-            temps.append(tmp)
-            write(tmp)
-        for tmp, (path, _) in zip(temps, targets):
-            os.replace(tmp, path)
-            done.append(path)
+        core.write_exr(exr, image)
+        written.append(exr)
+        if png:
+            core.write_png(png, image, exposure)
+            written.append(png)
     except BaseException:
-        _remove(temps + done)
+        _remove(written)
         raise
-    return done
+    return written
 
 
 # ---- frame sequences (render --frames) ------------------------------------------------------

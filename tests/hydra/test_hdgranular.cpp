@@ -76,6 +76,27 @@ Frame render(UsdImagingGLEngine& engine, UsdStageRefPtr const& stage, TfToken co
   return f;
 }
 
+// An in-memory stage: /World/Camera on the +z axis looking at the origin (square aperture
+// of `aperture` mm, focal length 50), a uniform dome of radiance 1, then `prims` in /World.
+UsdStageRefPtr domeLitStage(int aperture, std::string const& prims) {
+  UsdStageRefPtr stage = UsdStage::CreateInMemory();
+  std::string a = std::to_string(aperture);
+  stage->GetRootLayer()->ImportFromString(R"(#usda 1.0
+def Xform "World" {
+  def Camera "Camera" {
+    double3 xformOp:translate = (0, 0, 10)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+    float focalLength = 50
+    float horizontalAperture = )" + a + R"(
+    float verticalAperture = )" + a + R"(
+  }
+  def DomeLight "Sky" {
+    float inputs:intensity = 1
+  }
+)" + prims + "}\n");
+  return stage;
+}
+
 double mean(Frame const& f, int channel) {
   double s = 0;
   for (size_t i = channel; i < f.values.size(); i += f.channels) s += f.values[i];
@@ -170,31 +191,18 @@ TEST(HdGranular, StoppingMidRenderIsClean) {
 }
 
 TEST(HdGranular, PointInstancerInstancesAreRendered) {
-  // A sun-lit ground seen from above with one instanced quad mesh: 3 instances cover
+  // One instanced quad under a uniform sky, seen from the front: 3 instances cover
   // 3x the pixels of 1 (the alpha channel counts coverage).
   auto coverage = [](int instances) {
-    UsdStageRefPtr stage = UsdStage::CreateInMemory();
-    std::string text = R"(#usda 1.0
-def Xform "World" {
-  def Camera "Camera" {
-    double3 xformOp:translate = (0, 0, 10)
-    uniform token[] xformOpOrder = ["xformOp:translate"]
-    float focalLength = 50
-    float horizontalAperture = 40
-    float verticalAperture = 40
-  }
-  def DomeLight "Sky" {
-    float inputs:intensity = 1
-  }
-  def PointInstancer "Inst" {
-    rel prototypes = </World/Inst/Protos/Quad>
-    int[] protoIndices = [)";
-    std::string positions;
+    std::string indices, positions;
     for (int i = 0; i < instances; ++i) {
-      text += std::string(i ? ", " : "") + "0";
+      indices += std::string(i ? ", " : "") + "0";
       positions += std::string(i ? ", " : "") + "(" + std::to_string(-2 + 2 * i) + ", 0, 0)";
     }
-    text += "]\n    point3f[] positions = [" + positions + R"(]
+    UsdStageRefPtr stage = domeLitStage(40, R"(
+  def PointInstancer "Inst" {
+    rel prototypes = </World/Inst/Protos/Quad>
+    int[] protoIndices = [)" + indices + "]\n    point3f[] positions = [" + positions + R"(]
     def Scope "Protos" {
       def Mesh "Quad" {
         point3f[] points = [(-0.5, -0.5, 0), (0.5, -0.5, 0), (0.5, 0.5, 0), (-0.5, 0.5, 0)]
@@ -203,9 +211,7 @@ def Xform "World" {
       }
     }
   }
-}
-)";
-    stage->GetRootLayer()->ImportFromString(text);
+)");
     auto engine = makeEngine(4);
     Frame f = render(*engine, stage, HdAovTokens->color, 40, 40);
     EXPECT_TRUE(f.converged);
@@ -273,25 +279,12 @@ TEST(HdGranular, AStageWithoutLightsGetsTheDefaultDomeUnlessTurnedOff) {
 TEST(HdGranular, TheNoiseThresholdStopsSimpleScenesEarlierThanHardOnes) {
   // A grey card under a uniform sky against the snow slab, at the same threshold: the
   // card's pixels are quiet after a few samples, the slab's grains need many more.
-  UsdStageRefPtr card = UsdStage::CreateInMemory();
-  card->GetRootLayer()->ImportFromString(R"(#usda 1.0
-def Xform "World" {
-  def Camera "Camera" {
-    double3 xformOp:translate = (0, 0, 10)
-    uniform token[] xformOpOrder = ["xformOp:translate"]
-    float focalLength = 50
-    float horizontalAperture = 10
-    float verticalAperture = 10
-  }
-  def DomeLight "Sky" {
-    float inputs:intensity = 1
-  }
+  UsdStageRefPtr card = domeLitStage(10, R"(
   def Mesh "Card" {
     point3f[] points = [(-5, -5, 0), (5, -5, 0), (5, 5, 0), (-5, 5, 0)]
     int[] faceVertexCounts = [4]
     int[] faceVertexIndices = [0, 1, 2, 3]
   }
-}
 )");
   UsdStageRefPtr slab = UsdStage::Open(kExamples + "/snowslab.usda");
   const int cap = 4096;

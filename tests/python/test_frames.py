@@ -176,14 +176,17 @@ def test_reader_reads_every_time_sampled_value_at_the_given_time(tmp_path):
 
 # ---- rendering sequences -----------------------------------------------------------------------
 
+def _sun_intensity(stage, samples, frames=(1, 3)):
+    """The stage timed over frames, its sun's intensity only the given {time: value}."""
+    _timed(stage, frames)
+    a = UsdLux.DistantLight(stage.GetPrimAtPath("/World/Sun")).GetIntensityAttr()
+    a.Clear()
+    for t, v in samples.items():
+        a.Set(v, t)
+
+
 def test_a_light_whose_intensity_doubles_doubles_the_image(tmp_path, capsys):
-    def mutate(stage):
-        _timed(stage)
-        a = UsdLux.DistantLight(stage.GetPrimAtPath("/World/Sun")).GetIntensityAttr()
-        a.Clear()
-        for t, v in ((1, 1.0), (2, 2.0), (3, 4.0)):
-            a.Set(v, t)
-    scene = small_scene(tmp_path / "light.usda", mutate)
+    scene = small_scene(tmp_path / "light.usda", lambda st: _sun_intensity(st, {1: 1.0, 2: 2.0, 3: 4.0}))
     err = _render(scene, tmp_path / "f.####.exr", capsys, "--frames", "1:3")
     lines = _frame_lines(err)
     assert len(lines) == 3 and "rebuilt (lights changed)" in lines[1] and "rebuilt (lights changed)" in lines[2]
@@ -290,12 +293,7 @@ def test_fractional_steps_name_files_by_frame_and_reuse_an_unchanged_scene(scene
 
 def test_a_failure_mid_sequence_keeps_the_complete_frames_only(tmp_path, capsys):
     def mutate(stage):
-        _timed(stage)
-        a = UsdLux.DistantLight(stage.GetPrimAtPath("/World/Sun")).GetIntensityAttr()
-        a.Clear()
-        a.Set(5.0, 1)
-        a.Set(5.0, 1.5)
-        a.Set(-1.0, 2)  # bad from frame 2 on
+        _sun_intensity(stage, {1: 5.0, 1.5: 5.0, 2: -1.0})  # bad from frame 2 on
     scene = small_scene(tmp_path / "bad.usda", mutate)
     out = tmp_path / "out"
     out.mkdir()
@@ -344,13 +342,7 @@ def test_bad_frame_options_exit_2_with_one_line_and_no_files(argv, expected, sce
 
 
 def test_without_frames_the_stage_renders_once_at_its_start(tmp_path, capsys):
-    def mutate(stage):
-        _timed(stage, (2, 3))
-        a = UsdLux.DistantLight(stage.GetPrimAtPath("/World/Sun")).GetIntensityAttr()
-        a.Clear()
-        for t, v in ((1, 100.0), (2, 1.0), (3, 100.0)):
-            a.Set(v, t)
-    scene = small_scene(tmp_path / "s.usda", mutate)
+    scene = small_scene(tmp_path / "s.usda", lambda st: _sun_intensity(st, {1: 100.0, 2: 1.0, 3: 100.0}, (2, 3)))
     err = _render(scene, tmp_path / "one.####.exr", capsys, "--frames", "2")
     assert _frame_lines(err)[0].startswith("frame 2: scene built")
     _render(scene, tmp_path / "start.exr", capsys)  # no --frames: the start time, 2; '#' is no pattern
