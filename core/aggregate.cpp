@@ -119,6 +119,7 @@ struct AggregateCallbacks {
 void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, const std::vector<int>& prototypeMaterials) {
   auto t0 = std::chrono::steady_clock::now();
   name_ = desc.name;
+  device_ = device;
   R_ = desc.grainRadius;
   f_ = desc.packingRate;
   prototypeMaterials_ = prototypeMaterials;

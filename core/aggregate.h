@@ -104,6 +104,7 @@ class Aggregate {
 
   bool sphereIsInside(const int64_t home[3], const Vec3& worldCenter) const;
 
+  EmbreeDevice device_;  // first: it outlives the BVHs below (scenes share aggregates)
   std::string name_;
   float R_ = 0, L_ = 0, f_ = 0;
   Tile tile_;

@@ -25,6 +25,8 @@ struct LightSample {
   bool delta = false;
 };
 
+// A distant light so small that it is a delta light (angle below ~0.05°).
+bool isDeltaSun(const LightDesc& d);
 // What a light's radiance (color × intensity × 2^exposure) is divided by when it is
 // normalised: its area (sphere, rect) or π sin² of a sun's half-angle; 1 when it is not
 // normalised, for a point-like sun and for a dome. In double: a tiny light's area
@@ -53,6 +55,7 @@ class Light {
   // distant
   Vec3 dir_;            // towards the light
   float cosMax_ = 1;
+  double sunSin2_ = 0;  // sin² of a distant light's half-angle (its cone's pdf)
   // sphere
   Vec3 center_;
   float radius_ = 0;

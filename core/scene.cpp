@@ -53,6 +53,33 @@ bool emitterReachesInto(const Aggregate& agg, const LightDesc& l) {
   return false;  // distant and dome lights are outside everything
 }
 
+// Exact equality of build inputs (a reused aggregate must be the one build() would make).
+bool sameMesh(const TriangleMesh& a, const TriangleMesh& b) { return a.points == b.points && a.indices == b.indices; }
+
+bool sameTransform(const Transform& a, const Transform& b) {
+  for (int i = 0; i < 4; ++i)
+    for (int j = 0; j < 4; ++j)
+      if (a.m[i][j] != b.m[i][j]) return false;
+  return true;
+}
+
+bool sameAggregate(const AggregateDesc& a, const AggregateDesc& b) {
+  if (a.name != b.name || !sameMesh(a.boundary, b.boundary) || !sameTransform(a.xf, b.xf) || a.weights != b.weights ||
+      a.grainRadius != b.grainRadius || a.packingRate != b.packingRate || a.seed != b.seed ||
+      a.tileSpheres != b.tileSpheres || a.prototypes.size() != b.prototypes.size())
+    return false;
+  for (size_t i = 0; i < a.prototypes.size(); ++i)
+    if (a.prototypes[i].name != b.prototypes[i].name || a.prototypes[i].material != b.prototypes[i].material ||
+        !sameMesh(a.prototypes[i].mesh, b.prototypes[i].mesh))
+      return false;
+  return true;
+}
+
+bool sameMaterial(const MaterialDesc& a, const MaterialDesc& b) {
+  return a.type == b.type && a.albedo == b.albedo && a.ior == b.ior && a.absorption == b.absorption &&
+         a.emission == b.emission;
+}
+
 bool hasEmissiveSurface(const SceneDesc& desc) {
   for (const auto& m : desc.meshes)
     if (m.visible && m.material >= 0 && !isBlack(desc.materials[m.material].emission)) return true;
@@ -61,7 +88,18 @@ bool hasEmissiveSurface(const SceneDesc& desc) {
 
 }  // namespace
 
-std::unique_ptr<Scene> Scene::build(const SceneDesc& desc) {
+const Scene::BuiltAggregate* Scene::findBuilt(const AggregateDesc& desc, const std::vector<int>& materials,
+                                              const std::vector<MaterialDesc>& materialDescs) const {
+  for (const auto& b : built_) {
+    if (b.materials != materials || !sameAggregate(b.desc, desc)) continue;
+    bool same = true;
+    for (size_t i = 0; i < materialDescs.size() && same; ++i) same = sameMaterial(b.materialDescs[i], materialDescs[i]);
+    if (same) return &b;
+  }
+  return nullptr;
+}
+
+std::unique_ptr<Scene> Scene::build(const SceneDesc& desc, const Scene* previous) {
   auto t0 = std::chrono::steady_clock::now();
   validateSceneDesc(desc);
   auto s = std::unique_ptr<Scene>(new Scene());
@@ -99,26 +137,48 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc) {
   rtcCommitScene(s->surfaces_.get());
 
   for (const auto& a : desc.aggregates) {
-    std::vector<int> mats;
-    for (const auto& p : a.prototypes) mats.push_back(p.material >= 0 ? p.material : defaultGrain);
-    auto agg = std::make_unique<Aggregate>();
-    agg->build(a, s->device_, mats);
+    BuiltAggregate entry;
+    entry.desc = a;
+    entry.desc.id = -1;
+    for (const auto& p : a.prototypes) {
+      entry.materials.push_back(p.material >= 0 ? p.material : defaultGrain);
+      entry.materialDescs.push_back(p.material >= 0 ? desc.materials[p.material] : glass);
+    }
+    const BuiltAggregate* old = previous ? previous->findBuilt(a, entry.materials, entry.materialDescs) : nullptr;
+    if (old) {
+      entry.aggregate = old->aggregate;
+      entry.hasMedium = old->hasMedium;
+      entry.medium = old->medium;
+      ++s->aggregatesReused_;
+    } else {
+      auto agg = std::make_shared<Aggregate>();
+      agg->build(a, s->device_, entry.materials);
+      entry.aggregate = std::move(agg);
+      ++s->aggregatesBuilt_;
+    }
+    const Aggregate& agg = *entry.aggregate;
     s->aggregateId_.push_back(a.id);
-    all.extend(agg->bounds());
-    s->maxGrainRadius_ = std::max(s->maxGrainRadius_, agg->grainRadius());
+    all.extend(agg.bounds());
+    s->maxGrainRadius_ = std::max(s->maxGrainRadius_, agg.grainRadius());
     if (desc.settings.technique != Technique::Ept) {
-      // TT parameters per prototype (cached on disk), combined per aggregate (seed §2.2).
-      std::vector<GrainTransport> gts;
-      for (size_t i = 0; i < agg->prototypes().size(); ++i)
-        gts.push_back(estimateGrainTransport(agg->prototypes()[i].mesh, s->materials_[mats[i]]));
-      s->mediumParams_.push_back(deriveMedium(gts, a.weights, a.grainRadius, a.packingRate));
+      if (!entry.hasMedium) {
+        // TT parameters per prototype (cached on disk), combined per aggregate (seed §2.2).
+        std::vector<GrainTransport> gts;
+        for (size_t i = 0; i < agg.prototypes().size(); ++i)
+          gts.push_back(estimateGrainTransport(agg.prototypes()[i].mesh, s->materials_[entry.materials[i]]));
+        entry.medium = deriveMedium(gts, a.weights, a.grainRadius, a.packingRate);
+        entry.hasMedium = true;
+        ++s->mediaDerived_;
+      }
+      s->mediumParams_.push_back(entry.medium);
       s->media_.emplace_back(s->mediumParams_.back());
       s->diffusionProfiles_.emplace_back(s->mediumParams_.back());
       // VPT pays off only where paths scatter many times: an object thinner than its
       // mean free path is left to EPT alone (no bundles, no pre-render).
-      if (2.0f * agg->stats().maxInteriorDepth > maxComponent(s->mediumParams_.back().lambdaT)) s->mediaNeeded_ = true;
+      if (2.0f * agg.stats().maxInteriorDepth > maxComponent(s->mediumParams_.back().lambdaT)) s->mediaNeeded_ = true;
     }
-    s->aggregates_.push_back(std::move(agg));
+    s->aggregates_.push_back(entry.aggregate);
+    s->built_.push_back(std::move(entry));
   }
   if (!s->mediaNeeded_) {
     s->mediumParams_.clear();
@@ -135,6 +195,17 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc) {
     lights.push_back(dome);
     s->defaultLightAdded_ = true;
   }
+  bool dielectricGrains = false;  // (only where physicalSun asks for it)
+  for (const auto& a : desc.aggregates)
+    for (const auto& p : a.prototypes)
+      dielectricGrains = dielectricGrains || (desc.settings.physicalSun && (p.material < 0 ||
+                                              desc.materials[p.material].type == MaterialType::Dielectric));
+  for (auto& l : lights)
+    if (dielectricGrains && isDeltaSun(l)) {  // widenedSuns()
+      l.angle = kSunAngle;
+      l.normalize = true;  // a delta light's intensity is its irradiance: keep it
+      s->widenedSuns_.push_back(l.name);
+    }
   for (const auto& l : lights) {
     int idx = int(s->lights_.size());
     s->lights_.push_back(Light::fromDesc(l));
@@ -162,6 +233,16 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc) {
   s->updateDiffusionDepths();
   s->buildSeconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return s;
+}
+
+std::string Scene::widenedSunsWarning() const {
+  if (widenedSuns_.empty()) return "";
+  std::string names;
+  for (const auto& n : widenedSuns_) names += (names.empty() ? "" : ", ") + n;
+  return str("the delta sun", widenedSuns_.size() > 1 ? "s " : " ", names, widenedSuns_.size() > 1 ? " are" : " is",
+             " rendered as the physical sun, a disk of ", kSunAngle,
+             " degrees with the same irradiance: light refracted through the smooth grains could never reach a "
+             "delta light (set its angle to choose another size)");
 }
 
 bool Scene::intersectSurfaces(const Ray& ray, Hit& hit, float& tmax) const {

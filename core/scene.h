@@ -1,7 +1,10 @@
 // scene.h — the built scene: BVHs, aggregates, lights, materials and camera.
 //
 // Contract: Scene::build() turns a validated SceneDesc into everything the integrators
-// query: intersect() returns the nearest surface, grain or area light along a ray;
+// query. Given the previous scene of the same stage, it reuses each aggregate whose inputs
+// (its AggregateDesc but the id, its prototypes' materials) are unchanged: no voxelising,
+// no tile, no TT work for it; a light or camera edit then costs only the surfaces' BVH.
+// Built aggregates are shared, immutable, between the two scenes. Then: intersect() returns the nearest surface, grain or area light along a ray;
 // occluded() answers shadow rays. Grains are opaque to shadow rays (their interfaces
 // are delta: light reaches through them only by path continuation). The scene is
 // immutable once built and safe to query from many threads.
@@ -38,7 +41,7 @@ struct Hit {
 
 class Scene {
  public:
-  static std::unique_ptr<Scene> build(const SceneDesc& desc);
+  static std::unique_ptr<Scene> build(const SceneDesc& desc, const Scene* previous = nullptr);
 
   // Explicit grains (EPT): nearest surface, grain or area light.
   bool intersect(const Ray& ray, Hit& hit) const;
@@ -78,11 +81,26 @@ class Scene {
   const Material& material(int i) const { return materials_[i]; }
   const std::vector<Light>& lights() const { return lights_; }
   const std::vector<int>& infiniteLights() const { return infiniteLights_; }
-  const std::vector<std::unique_ptr<Aggregate>>& aggregates() const { return aggregates_; }
+  const std::vector<std::shared_ptr<const Aggregate>>& aggregates() const { return aggregates_; }
   double buildSeconds() const { return buildSeconds_; }
+  // Of this build's aggregates: how many were voxelised anew, how many were taken from the
+  // previous scene unchanged; and how many media were derived from TT parameters anew.
+  int aggregatesBuilt() const { return aggregatesBuilt_; }
+  int aggregatesReused() const { return aggregatesReused_; }
+  int mediaDerived() const { return mediaDerived_; }
   // The scene had no light and settings().defaultLight added the default dome (front ends
   // warn about it).
   bool defaultLightAdded() const { return defaultLightAdded_; }
+  // Delta suns (distant lights of angle 0) made the physical sun, a disk of kSunAngle
+  // degrees and the same irradiance, because the scene has smooth dielectric grains:
+  // light refracted through a grain can never reach a delta light (no connection exists
+  // through a smooth interface, and a path hits it with probability 0), so explicit
+  // grains would lose all of it while the medium's emitter sampling keeps it. Front ends
+  // warn once with these lights' names.
+  const std::vector<std::string>& widenedSuns() const { return widenedSuns_; }
+  // The front ends' warning line about them ("" when none).
+  std::string widenedSunsWarning() const;
+  static constexpr float kSunAngle = 0.53f;
 
  private:
   // Parts of intersect()/intersectMedium(): nearest hit below tmax (which they lower).
@@ -97,7 +115,20 @@ class Scene {
   std::vector<Material> materials_;
   std::vector<Light> lights_;
   std::vector<int> infiniteLights_, areaLights_;
-  std::vector<std::unique_ptr<Aggregate>> aggregates_;
+  std::vector<std::shared_ptr<const Aggregate>> aggregates_;
+  // Per aggregate, what a later build(desc, this) compares and reuses.
+  struct BuiltAggregate {
+    AggregateDesc desc;                         // id cleared: it does not change the build
+    std::vector<int> materials;                 // scene material of each prototype
+    std::vector<MaterialDesc> materialDescs;    // their descriptions (TT depends on them)
+    std::shared_ptr<const Aggregate> aggregate;
+    bool hasMedium = false;                     // TT-derived (before any setMedium)
+    MediumParams medium;
+  };
+  const BuiltAggregate* findBuilt(const AggregateDesc& desc, const std::vector<int>& materials,
+                                  const std::vector<MaterialDesc>& materialDescs) const;
+  std::vector<BuiltAggregate> built_;
+  int aggregatesBuilt_ = 0, aggregatesReused_ = 0, mediaDerived_ = 0;
   std::vector<MediumParams> mediumParams_;
   std::vector<HomogeneousMedium> media_;
   std::vector<float> diffusionDepth_;
@@ -114,6 +145,7 @@ class Scene {
   float sceneScale_ = 1;
   double buildSeconds_ = 0;
   bool defaultLightAdded_ = false;
+  std::vector<std::string> widenedSuns_;
 };
 
 }  // namespace granular

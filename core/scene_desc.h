@@ -99,6 +99,13 @@ struct RenderSettings {
   Technique technique = Technique::Hybrid;  // EPT, EPT+VPT or EPT+VPT+DA
   int bundleSize = 16;         // N: paths of a pixel traced in lock-step (seed §3)
   float tau = 4.0f;            // switch EPT->VPT when σ_k > τ R_max N_k/N (NOTES item 8)
+  // Low orders stay explicit: neither the bundle switch nor the level-of-detail shortcut
+  // moves a path into the medium before this many bounces. The medium is memoryless (a
+  // Poisson medium); a dense packing is not: light scattered back near the surface leaves
+  // through the gaps it came in by (shadow hiding), which the medium misses — 1–6% too
+  // dark on absorbing and high-IOR grains when paths switched at once
+  // (bench/accuracy_matrix.py). Bright grains pay ~10% more time for 16.
+  int explicitBounces = 16;
   float roulette = -1.0f;      // P_a in (0, 1]; negative: tuned by a pre-render (NOTES item 7)
   // Level of detail: where a path first meets an aggregate and the grain radius is under
   // lod × the ray cone's footprint width there, only that first grain is traced
@@ -111,6 +118,11 @@ struct RenderSettings {
   // A stage with no light at all (no light, no emissive visible surface) is lit by a
   // uniform white dome of radiance 1, as other path tracers' default world; false: black.
   bool defaultLight = true;
+  // Delta suns (distant lights of angle ~0) become the physical sun, a 0.53° disk of the
+  // same irradiance, in scenes with smooth dielectric grains (Scene::widenedSuns): light
+  // refracted through a grain can never reach a delta light. false keeps them delta (to
+  // compare with renderers that lose that light, as bench/validate_mitsuba.py does).
+  bool physicalSun = true;
 };
 
 struct SceneDesc {

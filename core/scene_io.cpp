@@ -374,9 +374,11 @@ void parseRender(const Obj& o, RenderSettings& s) {
   s.threads = o.integer("threads", s.threads);
   s.bundleSize = o.integer("bundle_size", s.bundleSize);
   s.tau = o.num("tau", s.tau);
+  s.explicitBounces = o.integer("explicit_bounces", s.explicitBounces);
   s.roulette = o.num("roulette", s.roulette);
   s.lod = o.num("lod", s.lod);
   s.defaultLight = o.flag("default_light", s.defaultLight);
+  s.physicalSun = o.flag("physical_sun", s.physicalSun);
   if (o.has("technique")) s.technique = techniqueFromName(o.string("technique", ""), o.label());
 }
 
@@ -701,7 +703,7 @@ SceneDesc parseSceneJson(const std::string& text, const std::string& sourceName)
     ctx.base = fs::path(sourceName).parent_path();
     Obj top(root, sourceName, "", "scene", {"render", "camera", "materials", "meshes", "lights", "aggregates"});
     if (const json* r = top.find("render"))
-      parseRender(Obj(*r, "scene", "render", "render", {"width", "height", "spp", "seed", "max_depth", "rr_depth", "threads", "technique", "bundle_size", "tau", "roulette", "lod", "default_light"}),
+      parseRender(Obj(*r, "scene", "render", "render", {"width", "height", "spp", "seed", "max_depth", "rr_depth", "threads", "technique", "bundle_size", "tau", "explicit_bounces", "roulette", "lod", "default_light", "physical_sun"}),
                   desc.settings);
     if (const json* c = top.find("camera"))
       parseCamera(Obj(*c, "scene", "camera", "camera",

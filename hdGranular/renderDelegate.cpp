@@ -42,10 +42,14 @@ void HdGranularRenderDelegate::_Initialize() {
       {"Seed", HdGranularSettingsTokens->seed, VtValue(0)},
       {"Technique (ept, ept+vpt, hybrid)", HdGranularSettingsTokens->technique, VtValue(std::string("hybrid"))},
       {"Switch spread tau (grain radii)", HdGranularSettingsTokens->tau, VtValue(4.0f)},
+      {"Bounces always explicit", HdGranularSettingsTokens->explicitBounces,
+       VtValue(granular::RenderSettings().explicitBounces)},
       {"Level of detail (0: off)", HdGranularSettingsTokens->lod, VtValue(0.5f)},
       {"Roulette P_a (negative: tuned)", HdGranularSettingsTokens->roulette, VtValue(-1.0f)},
       {"Bundle size", HdGranularSettingsTokens->bundleSize, VtValue(16)},
       {"Default dome light when the stage has none", HdGranularSettingsTokens->defaultLight, VtValue(true)},
+      {"Delta suns as the physical sun (0.53 degrees) over smooth grains", HdGranularSettingsTokens->physicalSun,
+       VtValue(true)},
       {"Coarse previews before the first pass", HdGranularSettingsTokens->preview, VtValue(true)},
   };
   _PopulateDefaultSettings(_descriptors);

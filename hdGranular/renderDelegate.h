@@ -19,10 +19,12 @@ PXR_NAMESPACE_OPEN_SCOPE
   ((seed, "granular:seed"))                           \
   ((technique, "granular:technique"))                 \
   ((tau, "granular:tau"))                             \
+  ((explicitBounces, "granular:explicitBounces"))     \
   ((lod, "granular:lod"))                             \
   ((roulette, "granular:roulette"))                   \
   ((bundleSize, "granular:bundleSize"))               \
   ((defaultLight, "granular:defaultLight"))           \
+  ((physicalSun, "granular:physicalSun"))             \
   ((preview, "granular:preview"))
 
 TF_DECLARE_PUBLIC_TOKENS(HdGranularSettingsTokens, HDGRANULAR_SETTINGS_TOKENS);

@@ -67,11 +67,13 @@ granular::RenderSettings renderSettings(HdRenderDelegate* d, int width, int heig
   rs.technique = granular::techniqueFromName(setting<std::string>(d, HdGranularSettingsTokens->technique, "hybrid"),
                                              "render settings granular:technique");
   rs.tau = setting<float>(d, HdGranularSettingsTokens->tau, 4.0f);
+  rs.explicitBounces = setting<int>(d, HdGranularSettingsTokens->explicitBounces, rs.explicitBounces);
   rs.lod = setting<float>(d, HdGranularSettingsTokens->lod, rs.lod);
   rs.roulette = setting<float>(d, HdGranularSettingsTokens->roulette, -1.0f);
   rs.bundleSize = setting<int>(d, HdGranularSettingsTokens->bundleSize, 16);
   rs.domeCameraVisible = setting<bool>(d, HdRenderSettingsTokens->domeLightCameraVisibility, true);
   rs.defaultLight = defaultLightSetting(d);
+  rs.physicalSun = setting<bool>(d, HdGranularSettingsTokens->physicalSun, true);
   return rs;
 }
 
@@ -99,10 +101,12 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
   const GfMatrix4d view = state->GetWorldToViewMatrix(), proj = state->GetProjectionMatrix();
 
   const int sceneVersion = _param->Version(), settingsVersion = delegate->GetRenderSettingsVersion();
-  // Settings that change what is built (media or not, the default light), not the view.
+  // Settings that change what is built (media or not, the default light, delta suns), not
+  // the view.
   const std::string buildKey =
       setting<std::string>(delegate, HdGranularSettingsTokens->technique, "hybrid") + "|" +
-      (defaultLightSetting(delegate) ? "light" : "dark");
+      (defaultLightSetting(delegate) ? "light" : "dark") + "|" +
+      (setting<bool>(delegate, HdGranularSettingsTokens->physicalSun, true) ? "sun" : "delta");
   const bool rebuild = !_started || sceneVersion != _sceneVersion || buildKey != _buildKey;
   const bool reframe = rebuild || settingsVersion != _settingsVersion || view != _view || proj != _projection ||
                        width != _width || height != _height;
@@ -146,7 +150,12 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
       }
       desc.camera = cam;
       desc.settings = rs;
-      _renderer->SetScene(granular::Scene::build(desc));
+      // The scene before lends its unchanged aggregates (a light or mesh edit voxelises
+      // nothing; a deformed boundary, only its aggregate).
+      _renderer->SetScene(granular::Scene::build(desc, _renderer->GetScene()));
+      const std::string suns = _renderer->GetScene()->widenedSunsWarning();
+      if (!suns.empty() && suns != _sunsWarned) TF_WARN("hdGranular: %s", suns.c_str());
+      _sunsWarned = suns;  // once, until the lights change
       if (_renderer->GetScene()->defaultLightAdded())
         TF_WARN("hdGranular: the stage has no light (no UsdLux light, no emissive surface): it is lit by the "
                 "default white dome of radiance 1 (render setting granular:defaultLight false renders it black)");

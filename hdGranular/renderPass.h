@@ -37,6 +37,7 @@ class HdGranularRenderPass final : public HdRenderPass {
   HdGranularRenderer* _renderer;
   int _sceneVersion = -1, _settingsVersion = -1;
   std::string _buildKey;
+  std::string _sunsWarned;  // the last widened-suns warning given
   GfMatrix4d _view{0.0}, _projection{0.0};
   int _width = 0, _height = 0;
   HdRenderPassAovBindingVector _bindings;

@@ -25,6 +25,12 @@ HdGranularRenderer::~HdGranularRenderer() {
 void HdGranularRenderer::SetScene(std::unique_ptr<granular::Scene> scene) {
   _renderer.reset();
   _scene = std::move(scene);
+  if (_scene) {
+    ++_sceneBuilds;
+    _aggregatesBuilt += _scene->aggregatesBuilt();
+    _aggregatesReused += _scene->aggregatesReused();
+    _mediaDerived += _scene->mediaDerived();
+  }
 }
 
 void HdGranularRenderer::Start() {
@@ -182,8 +188,13 @@ VtDictionary HdGranularRenderer::GetStats() const {
     stats["granular:sigmaT"] = VtValue(sigmaT);
     stats["granular:lodFraction"] = VtValue(_lodFraction.load());
     stats["granular:defaultLight"] = VtValue(_scene->defaultLightAdded());
+    stats["granular:widenedSuns"] = VtValue(int(_scene->widenedSuns().size()));
   }
   stats["granular:nonFiniteSamples"] = VtValue(int(_nonFinite.load()));
+  stats["granular:sceneBuilds"] = VtValue(_sceneBuilds);
+  stats["granular:aggregatesBuilt"] = VtValue(_aggregatesBuilt);
+  stats["granular:aggregatesReused"] = VtValue(_aggregatesReused);
+  stats["granular:mediaDerived"] = VtValue(_mediaDerived);
   stats["granular:firstImageSeconds"] = VtValue(_firstImageSeconds.load());
   stats["granular:firstPassSeconds"] = VtValue(_firstPassSeconds.load());
   return stats;

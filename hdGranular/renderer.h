@@ -75,6 +75,9 @@ class HdGranularRenderer {
   bool _preview = true;
   std::atomic<bool> _cancel{false}, _converged{false}, _interrupted{false};
   std::atomic<long> _nonFinite{0};
+  // Since the delegate was made: core scenes built, aggregates voxelised in them or reused
+  // from the scene before, equivalent media derived from TT (Scene::build's counts).
+  int _sceneBuilds = 0, _aggregatesBuilt = 0, _aggregatesReused = 0, _mediaDerived = 0;
   // Seconds from Start() to the first image covering the viewport (the coarsest preview,
   // or the first pass) and to the first full-resolution pass; -1 until then.
   std::chrono::steady_clock::time_point _startTime;

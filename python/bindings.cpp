@@ -359,9 +359,11 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("technique", &RenderSettings::technique)
       .def_readwrite("bundle_size", &RenderSettings::bundleSize)
       .def_readwrite("tau", &RenderSettings::tau)
+      .def_readwrite("explicit_bounces", &RenderSettings::explicitBounces)
       .def_readwrite("roulette", &RenderSettings::roulette)
       .def_readwrite("lod", &RenderSettings::lod)
       .def_readwrite("default_light", &RenderSettings::defaultLight)
+      .def_readwrite("physical_sun", &RenderSettings::physicalSun)
       .def_readwrite("dome_camera_visible", &RenderSettings::domeCameraVisible);
 
   py::class_<SceneDesc>(m, "SceneDesc")
@@ -445,14 +447,17 @@ PYBIND11_MODULE(granular_core, m) {
   scene
       .def_static(
           "build",
-          [](const SceneDesc& desc) {
+          [](const SceneDesc& desc, std::shared_ptr<PyScene> previous) {
             auto s = std::make_shared<PyScene>();
             s->desc = desc;
             py::gil_scoped_release release;
-            s->scene = Scene::build(s->desc);
+            s->scene = Scene::build(s->desc, previous ? previous->scene.get() : nullptr);
             return s;
           },
-          py::arg("desc"), "Validates and builds (BVHs, tiles, distance fields); the GIL is released.")
+          py::arg("desc"), py::arg("previous") = nullptr,
+          "Validates and builds (BVHs, tiles, distance fields); the GIL is released. With the previous "
+          "scene of the same stage, its aggregates whose inputs are unchanged are reused (no voxelising, "
+          "no TT work).")
       .def(
           "set_view",
           [](PyScene& s, const CameraDesc& camera, const RenderSettings& settings) {
@@ -464,8 +469,16 @@ PYBIND11_MODULE(granular_core, m) {
           "A new camera and render settings without rebuilding (geometry, tiles, TT stay); for "
           "renderers made after it. InputError on bad values or a change between ept and the hybrid.")
       .def_property_readonly("build_seconds", [](const PyScene& s) { return s.scene->buildSeconds(); })
+      .def_property_readonly("aggregates_built", [](const PyScene& s) { return s.scene->aggregatesBuilt(); },
+                             "aggregates voxelised by this build")
+      .def_property_readonly("aggregates_reused", [](const PyScene& s) { return s.scene->aggregatesReused(); },
+                             "aggregates this build took unchanged from the previous scene")
+      .def_property_readonly("media_derived", [](const PyScene& s) { return s.scene->mediaDerived(); },
+                             "equivalent media this build derived from TT parameters")
       .def_property_readonly("default_light_added", [](const PyScene& s) { return s.scene->defaultLightAdded(); },
                              "the stage had no light and the default white dome (radiance 1) lights it")
+      .def_property_readonly("widened_suns_warning", [](const PyScene& s) { return s.scene->widenedSunsWarning(); },
+                             "the warning about delta suns rendered as the physical sun (\"\" when none)")
       .def_property_readonly("has_media", [](const PyScene& s) { return s.scene->hasMedia(); },
                              "whether the integrator uses the equivalent media (VPT, DA) in this scene")
       .def_property_readonly("aggregates", [](const PyScene& s) {

@@ -92,6 +92,8 @@ int main(int argc, char** argv) {
     auto scene = Scene::build(desc);
     if (!quiet) {
       std::fprintf(stderr, "scene built in %.2f s\n", scene->buildSeconds());
+      if (!scene->widenedSunsWarning().empty())
+        std::fprintf(stderr, "warning: %s\n", scene->widenedSunsWarning().c_str());
       for (const auto& a : scene->aggregates()) {
         const auto& s = a->stats();
         std::fprintf(stderr, "  aggregate %s: ~%.3g grains, %lld cells (%lld inside, %lld partial), %.1f MiB, setup %.2f s\n",

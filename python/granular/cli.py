@@ -293,7 +293,7 @@ _SCENE_PARTS = ("materials", "meshes", "lights", "aggregates", "build settings")
 _CAMERA_FIELDS = ("camera_to_world", "focal_length", "horizontal_aperture", "vertical_aperture",
                   "horizontal_aperture_offset", "vertical_aperture_offset", "clip_near", "clip_far")
 _SETTINGS_FIELDS = ("width", "height", "spp", "seed", "max_depth", "rr_depth", "threads", "technique", "bundle_size",
-                    "tau", "roulette", "lod", "default_light", "dome_camera_visible")
+                    "tau", "explicit_bounces", "roulette", "lod", "default_light", "dome_camera_visible")
 
 
 def _feed(h, *values):
@@ -337,8 +337,10 @@ def fingerprint(desc):
             _feed(h, p.name, p.material)
             _feed_mesh(h, p.mesh)
     # Settings that take effect when the scene is built: media or none (Scene.set_view
-    # refuses a change between ept and the hybrid), the default light of a stage without any.
-    _feed(parts["build settings"], desc.settings.technique == core.Technique.Ept, desc.settings.default_light)
+    # refuses a change between ept and the hybrid), the default light of a stage without any,
+    # delta suns made physical or not.
+    _feed(parts["build settings"], desc.settings.technique == core.Technique.Ept, desc.settings.default_light,
+          desc.settings.physical_sun)
     _feed(parts["camera"], *(getattr(desc.camera, f) for f in _CAMERA_FIELDS))
     _feed(parts["settings"], *(getattr(desc.settings, f) for f in _SETTINGS_FIELDS))
     return {name: d.hexdigest() for name, d in parts.items()}
@@ -348,6 +350,13 @@ def fingerprint(desc):
 
 _DEFAULT_LIGHT_WARNING = ("warning: the stage has no light (no UsdLux light, no emissive surface): it is lit by "
                           "the default white dome of radiance 1 (--no-default-light renders it black)")
+
+
+def _log_build_warnings(args, built):
+    if built.default_light_added:
+        _log(args, _DEFAULT_LIGHT_WARNING)
+    if built.widened_suns_warning:
+        _log(args, "warning: " + built.widened_suns_warning)
 
 
 def _apply_options(args, scene):
@@ -409,8 +418,7 @@ def cmd_render(args):
     s = _apply_options(args, scene)
     _warnings(args, scene)
     built = api.build_scene(scene)
-    if built.default_light_added:
-        _log(args, _DEFAULT_LIGHT_WARNING)
+    _log_build_warnings(args, built)
     _log(args, f"{args.scene}: camera {scene.camera_path}, {s.width}x{s.height}, {s.spp} spp; "
                f"scene read and built in {time.monotonic() - t0:.2f} s")
     _log_aggregates(args, built)
@@ -427,8 +435,8 @@ def _render_frames(args):
     """render --frames: the stage opened once, each frame's description read at its time and
     compared with the previous frame's; the built scene is kept when only the view (camera,
     render settings) changed (Scene.set_view: no voxelising, no TT work) and built anew when
-    lights, meshes, materials or aggregates changed (tiles and TT parameters then come from
-    their disk caches). Each frame's files are written atomically as it completes; a failure
+    lights, meshes, materials or aggregates changed, reusing every aggregate whose inputs did
+    not (a moving light voxelises nothing, a deforming boundary only its aggregate). Each frame's files are written atomically as it completes; a failure
     leaves the frames before it, complete, and nothing of its own."""
     import granular_core as core
     from .usd_reader import open_stage, read_stage, translate_core_error
@@ -459,17 +467,16 @@ def _render_frames(args):
         changed = [p for p in _SCENE_PARTS if previous is None or current[p] != previous[p]]
         if changed:
             first = built is None
-            built = None  # the previous scene's memory goes before the new one is built
-            built = api.build_scene(scene)
+            built = api.build_scene(scene, previous=built)
             if first:
-                if built.default_light_added:
-                    _log(args, _DEFAULT_LIGHT_WARNING)
+                _log_build_warnings(args, built)
                 _log(args, f"{args.scene}: frames {frame_text(frames[0])} to {frame_text(frames[-1])} "
                            f"({len(frames)}), camera {scene.camera_path}, {s.width}x{s.height}, {s.spp} spp")
                 _log_aggregates(args, built)
                 action = f"scene built in {time.monotonic() - tf:.2f} s"
             else:
-                action = f"scene rebuilt ({', '.join(changed)} changed) in {time.monotonic() - tf:.2f} s"
+                action = (f"scene rebuilt ({', '.join(changed)} changed; aggregates: {built.aggregates_built} "
+                          f"built, {built.aggregates_reused} reused) in {time.monotonic() - tf:.2f} s")
         elif current["camera"] != previous["camera"] or current["settings"] != previous["settings"]:
             try:
                 built.set_view(scene.desc.camera, scene.desc.settings)

@@ -170,3 +170,91 @@ TEST(DefaultLight, OffRendersBlackAndAnyLightOrEmitterReplacesIt) {
   glowing.materials[0].emission = Vec3(1.0f);
   EXPECT_FALSE(Scene::build(glowing)->defaultLightAdded());
 }
+
+namespace {
+
+// The unlit ground with a delta sun (irradiance 3 along the slanted direction) and, off
+// camera, a small aggregate whose grains are of `grain` type.
+SceneDesc sunAndGrains(MaterialType grain) {
+  SceneDesc d = unlitGround();
+  LightDesc sun;
+  sun.name = "sun";
+  sun.type = LightType::Distant;
+  sun.angle = 0;
+  sun.intensity = 3;
+  sun.xf = Transform::lookAt(Vec3(0.0f), Vec3(-0.3f, -1.0f, 0.2f), Vec3(0, 0, 1));
+  d.lights.push_back(sun);
+  MaterialDesc m;
+  m.name = "grain";
+  m.type = grain;
+  d.materials.push_back(m);
+  AggregateDesc a;
+  a.name = "pebbles";
+  a.boundary = makeIcosphere(2);
+  a.xf = Transform::translate(Vec3(40, 1, 0));
+  a.grainRadius = 0.1f;
+  a.tileSpheres = 64;
+  a.prototypes = {GrainPrototypeDesc{"pebble", makeIcosphere(1), 1}};
+  a.weights = {1};
+  d.aggregates.push_back(a);
+  return d;
+}
+
+}  // namespace
+
+TEST(PhysicalSun, ADeltaSunOverSmoothGrainsBecomesADiskOfTheSameIrradiance) {
+  SceneDesc d = sunAndGrains(MaterialType::Dielectric);
+  auto scene = Scene::build(d);
+  ASSERT_EQ(scene->widenedSuns(), std::vector<std::string>{"sun"});
+  EXPECT_NE(scene->widenedSunsWarning().find("sun is rendered as the physical sun, a disk of 0.53 degrees"),
+            std::string::npos)
+      << scene->widenedSunsWarning();
+  const Light& sun = scene->lights()[0];
+  // Irradiance on a plane facing the sun, E = E[Li cos / pdf] over the disk's samples.
+  const Vec3 toSun = normalize(Vec3(0.3f, 1.0f, -0.2f));
+  const int n = 4096;
+  double sum = 0, sum2 = 0;
+  for (int i = 0; i < n; ++i) {
+    LightSample s;
+    ASSERT_TRUE(sun.sampleLi(Vec3(0.0f), (i + 0.5f) / n, float((i * 0.618034) - std::floor(i * 0.618034)), s));
+    ASSERT_FALSE(s.delta);
+    ASSERT_GT(dot(s.wi, toSun), std::cos(0.5 * 0.53 * kPi / 180) - 1e-6);
+    double e = double(s.Li.x) * dot(s.wi, toSun) / s.pdf;
+    sum += e;
+    sum2 += e * e;
+  }
+  const double mean = sum / n, se = std::sqrt(std::max(0.0, sum2 / n - mean * mean) / n);
+  EXPECT_NEAR(mean, 3.0, std::max(4 * se, 3e-5 * 3.0)) << "se " << se;  // cos over the disk: 1 − 1e-5
+}
+
+TEST(PhysicalSun, LambertGrainsOrTheSettingOffKeepTheDeltaSun) {
+  auto lambert = Scene::build(sunAndGrains(MaterialType::Lambert));
+  EXPECT_TRUE(lambert->widenedSuns().empty());
+  EXPECT_EQ(lambert->widenedSunsWarning(), "");
+  SceneDesc off = sunAndGrains(MaterialType::Dielectric);
+  off.settings.physicalSun = false;
+  auto kept = Scene::build(off);
+  EXPECT_TRUE(kept->widenedSuns().empty());
+  LightSample s;
+  ASSERT_TRUE(kept->lights()[0].sampleLi(Vec3(0.0f), 0.5f, 0.5f, s));
+  EXPECT_TRUE(s.delta);
+  // On the ground (no grain in view), the disk and the delta sun give the same image
+  // within the disk's sampling noise: only the penumbrae, which are not in view, differ.
+  SceneDesc on = sunAndGrains(MaterialType::Dielectric);
+  auto widened = Scene::build(on);
+  Renderer a(*widened), b(*kept);
+  ASSERT_TRUE(a.render(4));
+  ASSERT_TRUE(b.render(4));
+  Image ia = a.film().toImage(), ib = b.film().toImage();
+  double ma = 0, mb = 0;
+  for (int y = 0; y < ia.height; ++y)
+    for (int x = 0; x < ia.width; ++x) {
+      ma += ia.at(x, y)[0];
+      mb += ib.at(x, y)[0];
+    }
+  // Lambert 0.5 under E = 3 at cos 0.96: L = 0.5/π · 3 · 0.96 per pixel, exactly for the
+  // delta; the disk's cosine varies by 1e-5.
+  const double expected = 0.5 / kPiD * 3.0 * normalize(Vec3(0.3f, 1.0f, -0.2f)).y * ia.width * ia.height;
+  EXPECT_NEAR(mb, expected, 1e-4 * expected);
+  EXPECT_NEAR(ma, expected, 1e-3 * expected);
+}

@@ -189,7 +189,9 @@ def test_a_light_whose_intensity_doubles_doubles_the_image(tmp_path, capsys):
     scene = small_scene(tmp_path / "light.usda", lambda st: _sun_intensity(st, {1: 1.0, 2: 2.0, 3: 4.0}))
     err = _render(scene, tmp_path / "f.####.exr", capsys, "--frames", "1:3")
     lines = _frame_lines(err)
-    assert len(lines) == 3 and "rebuilt (lights changed)" in lines[1] and "rebuilt (lights changed)" in lines[2]
+    # The scene is built anew for the light, but the aggregate is reused: no voxelising.
+    assert len(lines) == 3 and all("rebuilt (lights changed; aggregates: 0 built, 1 reused)" in line
+                                   for line in lines[1:]), err
     f1, f2, f3 = (_pixels(tmp_path / f"f.000{k}.exr") for k in (1, 2, 3))
     assert f1.mean() > 0.01, "the light reaches the camera"
     # Same seed, same random numbers: only the light's scale differs, so the images scale
@@ -272,7 +274,8 @@ def test_a_moving_boundary_rebuilds_and_equals_the_still_render(how, tmp_path, c
     moving = small_scene(tmp_path / "moving.usda", _moving_boundary(how))
     err = _render(moving, tmp_path / "b.##.exr", capsys, "--frames", "1:2")
     lines = _frame_lines(err)
-    assert len(lines) == 2 and lines[1].startswith("frame 2: scene rebuilt (aggregates changed)"), err
+    assert len(lines) == 2 and lines[1].startswith(
+        "frame 2: scene rebuilt (aggregates changed; aggregates: 1 built, 0 reused)"), err
     still = small_scene(tmp_path / "still.usda", _moving_boundary(how, t=2))
     _render(still, tmp_path / "still.exr", capsys)
     f1, f2 = _pixels(tmp_path / "b.01.exr"), _pixels(tmp_path / "b.02.exr")
@@ -359,7 +362,7 @@ def test_the_animated_example(tmp_path, capsys):
     lines = _frame_lines(err)
     assert [line.split(";")[0] for line in lines] == [
         lines[0].split(";")[0], "frame 2: scene reused (new camera)", lines[2].split(";")[0]]
-    assert lines[0].startswith("frame 1: scene built") and lines[2].startswith("frame 3: scene rebuilt (lights changed)")
+    assert lines[0].startswith("frame 1: scene built") and lines[2].startswith("frame 3: scene rebuilt (lights changed;")
     assert "VPT" in err, "the example's aggregate is deep enough for the media"
 
     stage = Usd.Stage.Open(example)
