@@ -109,6 +109,7 @@ for shape in ("sphere", "flake", "crystal"):
     CASES[f"shape-{shape}"] = [_set(("aggregates", 0, "prototypes", 0, "shape"), SHAPES[shape])]
 for ior in (1.31, 1.8, 2.4):
     CASES[f"ior-{ior}"] = [_set(("materials", "grain", "ior"), ior)]
+CASES["ior-2.4-clear"] = [_set(("materials", "grain", "ior"), 2.4), _set(("materials", "grain", "absorption"), 0.0)]
 for absorption in (0.0, 0.5, 2.0):
     CASES[f"absorption-{absorption}"] = [_set(("materials", "grain", "absorption"), absorption)]
 CASES["absorption-chromatic"] = [_set(("materials", "grain", "absorption"), [0.02, 0.2, 1.0])]
@@ -167,8 +168,10 @@ def stats(values):
     return a.mean(axis=0), (a.std(axis=0, ddof=1) / math.sqrt(n) if n > 1 else np.full(3, np.nan))
 
 
-def run_case(core, case, techniques, spp, seeds, threads, tmp, log):
+def run_case(core, case, techniques, spp, seeds, threads, tmp, log, explicit_bounces=None):
     scene = scene_for(case)
+    if explicit_bounces is not None:
+        scene["render"]["explicit_bounces"] = explicit_bounces
     out = {"case": case, "techniques": {}}
     for name, (technique, lod) in [("ept", ("Ept", None))] + [(t, TECHNIQUES[t]) for t in techniques]:
         means, secs = [], 0.0
@@ -237,6 +240,8 @@ def main():
     ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--cases", default=",".join(CASES))
     ap.add_argument("--techniques", default=",".join(TECHNIQUES))
+    ap.add_argument("--explicit-bounces", type=int, default=None,
+                    help="render setting explicit_bounces for every case (default: the renderer's, automatic)")
     ap.add_argument("--json")
     ap.add_argument("--plot")
     ap.add_argument("--replot", metavar="JSON", help="table and plot of a saved --json; renders nothing")
@@ -262,7 +267,8 @@ def main():
             ap.error(f"unknown technique {t!r} (one of {', '.join(TECHNIQUES)})")
     tmp = os.path.join(args.build, "accuracy_matrix_scene.json")
     log = lambda m: print(m, file=sys.stderr, flush=True)
-    results = [run_case(core, c, techniques, args.spp, args.seeds, args.threads, tmp, log) for c in cases]
+    results = [run_case(core, c, techniques, args.spp, args.seeds, args.threads, tmp, log, args.explicit_bounces)
+               for c in cases]
     print(f"spp {args.spp} x {args.seeds} seeds per technique; bias = (technique − EPT) / EPT over the ball's pixels\n")
     print(table(results, techniques))
     if args.json:

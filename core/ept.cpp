@@ -167,9 +167,9 @@ void eptStep(const Scene& scene, PathState& path) {
       path.shortcut = true;
   }
   shadeSurface(scene, path, hit, false);
-  // The shortcut keeps the first grain and the low orders explicit (explicitBounces:
+  // The shortcut keeps the first grain and the low orders explicit (Scene::explicitBounces:
   // the medium misses the packing's shadow hiding), then leaves for the medium.
-  if (path.shortcut && path.alive && !path.inGrain && path.depth >= scene.settings().explicitBounces) {
+  if (path.shortcut && path.alive && !path.inGrain && path.depth >= scene.explicitBounces()) {
     path.mode = path.credit = kVpt;
     path.medium = scene.mediumAt(path.ray.o);
   }

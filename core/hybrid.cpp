@@ -49,7 +49,7 @@ BundleStats traceBundle(const Scene& scene, std::vector<PathState>& paths, float
       }
     }
     if (alive == 0) break;
-    if (decided || alive < 2 || k + 1 < rs.explicitBounces) continue;
+    if (decided || alive < 2 || k + 1 < scene.explicitBounces()) continue;
     // σ_k: RMS distance of the live vertices to their centroid (NOTES item 8).
     centroid /= float(alive);
     double s2 = 0;

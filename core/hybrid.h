@@ -2,7 +2,7 @@
 // part (seed §3; NOTES items 7, 8).
 //
 // Contract. traceBundle() traces the N paths of one pixel's bundle in lock-step with EPT.
-// After each bounce k (from the settings' explicitBounces on: low orders stay explicit,
+// After each bounce k (from Scene::explicitBounces() on: low orders stay explicit,
 // scene_desc.h) it measures σ_k, the root-mean-square distance of the N_k live paths'
 // vertices to their centroid; once σ_k > τ R_max N_k / N (R_max: the largest grain
 // radius) every live path switches to the equivalent media (VPT), as soon as it is out

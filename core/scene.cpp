@@ -231,6 +231,7 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc, const Scene* previous
     }
   }
   s->updateDiffusionDepths();
+  s->updateExplicitBounces();
   s->buildSeconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return s;
 }
@@ -325,6 +326,19 @@ void Scene::setView(const CameraDesc& camera, const RenderSettings& settings) {
   settings_ = settings;
   camera_ = Camera(camera, settings.width, settings.height);
   updateDiffusionDepths();  // the camera may have moved into or out of an aggregate
+  updateExplicitBounces();
+}
+
+int Scene::explicitBouncesFor(const Vec3& albedo) {
+  const float lowest = std::min({albedo.x, albedo.y, albedo.z});
+  const float t = std::clamp((0.92f - lowest) / 0.06f, 0.0f, 1.0f);
+  return int(std::lround(16.0f * t));
+}
+
+void Scene::updateExplicitBounces() {
+  explicitBounces_ = std::max(0, settings_.explicitBounces);
+  if (settings_.explicitBounces >= 0) return;
+  for (const auto& m : mediumParams_) explicitBounces_ = std::max(explicitBounces_, explicitBouncesFor(m.albedo));
 }
 
 void Scene::updateDiffusionDepths() {
@@ -344,6 +358,7 @@ void Scene::setMedium(int aggregate, const MediumParams& params) {
   media_[aggregate] = HomogeneousMedium(params);
   diffusionProfiles_[aggregate] = DiffusionProfile(params);
   updateDiffusionDepths();
+  updateExplicitBounces();
 }
 
 bool Scene::intersectMedium(const Ray& ray, Hit& hit) const {

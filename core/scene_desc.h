@@ -102,10 +102,11 @@ struct RenderSettings {
   // Low orders stay explicit: neither the bundle switch nor the level-of-detail shortcut
   // moves a path into the medium before this many bounces. The medium is memoryless (a
   // Poisson medium); a dense packing is not: light scattered back near the surface leaves
-  // through the gaps it came in by (shadow hiding), which the medium misses — 1–6% too
-  // dark on absorbing and high-IOR grains when paths switched at once
-  // (bench/accuracy_matrix.py). Bright grains pay ~10% more time for 16.
-  int explicitBounces = 16;
+  // through the gaps it came in by (shadow hiding), which the medium misses — up to 6–9%
+  // too dark on absorbing and high-IOR grains when paths switched at once, nothing on
+  // clear ones, whose energy does not depend on where it leaves (bench/accuracy_matrix.py).
+  // -1: automatic, from the grains' albedo (Scene::explicitBounces).
+  int explicitBounces = -1;
   float roulette = -1.0f;      // P_a in (0, 1]; negative: tuned by a pre-render (NOTES item 7)
   // Level of detail: where a path first meets an aggregate and the grain radius is under
   // lod × the ray cone's footprint width there, only that first grain is traced

@@ -155,6 +155,7 @@ void vptStep(const Scene& scene, PathState& path) {
         path.beta *= med.transmittance(t) * med.sigmaT() * med.albedo() / med.distancePdf(t);
         float daDepth = scene.diffusionDepth(path.medium);
         if (scene.settings().technique == Technique::Hybrid && std::isfinite(daDepth) &&
+            path.depth >= kDiffusionMinOrder &&
             deeperThan(*scene.aggregates()[path.medium], p, daDepth)) {
           diffusionStep(scene, path, p);
           return;
