@@ -3,6 +3,7 @@
     granular render SCENE.usda -o OUT.exr [--png OUT.png] [--width W --height H] [--spp N]
                     [--camera /path] [--seed S] [--threads T] [--exposure E] [--quiet]
                     [--technique ept|ept+vpt|hybrid] [--roulette P_a] [--lod L] [--no-default-light]
+                    [--no-physical-sun]
                     [--frames A:B[xSTEP]]   (then -o and --png name a run of '#': OUT.####.exr)
     granular info SCENE.usda [--json]
     granular export-vdb SCENE.usda --prim /path -o OUT.vdb [--voxel-size S]
@@ -123,6 +124,10 @@ def build_parser():
     r.add_argument("--no-default-light", action="store_true",
                    help="a stage without any light (no UsdLux light, no emissive surface) renders black; "
                         "by default it is lit by a uniform white dome of radiance 1, with a warning")
+    r.add_argument("--no-physical-sun", action="store_true",
+                   help="keep delta suns (distant lights of angle 0) delta; by default, over smooth dielectric "
+                        "grains, they are rendered as the physical 0.53 degree sun of the same irradiance, "
+                        "with a warning")
     r.add_argument("--frames", metavar="A:B[xSTEP]",
                    help="render the frames A to B (inclusive) every STEP (default 1; may be fractional), each "
                         "at its own time code; -o (and --png) then contain a run of '#', replaced by the frame "
@@ -370,6 +375,7 @@ def _apply_options(args, scene):
     s.roulette = args.roulette
     s.lod = args.lod
     s.default_light = not args.no_default_light
+    s.physical_sun = not args.no_physical_sun
     return s
 
 

@@ -43,6 +43,19 @@ def test_a_delta_sun_over_glass_grains_is_the_physical_sun_with_one_warning(tmp_
     np.testing.assert_array_equal(a, b)
 
 
+def test_no_physical_sun_keeps_the_delta_sun_without_a_warning(tmp_path, capsys):
+    delta = small_scene(tmp_path / "delta.usda", _sun(0.0))
+    rc, _, err = run_cli(["render", delta, "-o", tmp_path / "kept.exr", "--no-physical-sun", *OPTIONS], capsys)
+    assert rc == 0, err
+    assert "physical sun" not in err
+    rc, _, err = run_cli(["render", delta, "-o", tmp_path / "widened.exr", *OPTIONS], capsys)
+    assert rc == 0, err
+    kept, widened = _rgb(tmp_path / "kept.exr"), _rgb(tmp_path / "widened.exr")
+    # Lit either way, and not the same image: the delta is not sampled, the disk is (that
+    # the two give the ground the same irradiance is core's test, tests/core/test_light.cpp).
+    assert kept.mean() > 0.01 and not np.array_equal(kept, widened)
+
+
 def test_frames_warn_once(tmp_path, capsys):
     delta = small_scene(tmp_path / "delta.usda", _sun(0.0))
     rc, _, err = run_cli(["render", delta, "-o", tmp_path / "f.#.exr", "--frames", "1:3", *OPTIONS], capsys)
