@@ -63,6 +63,7 @@ bool sameTransform(const Transform& a, const Transform& b) {
   return true;
 }
 
+// The id is left out: it only names the aggregate in the primId AOV (aggregateId_).
 bool sameAggregate(const AggregateDesc& a, const AggregateDesc& b) {
   if (a.name != b.name || !sameMesh(a.boundary, b.boundary) || !sameTransform(a.xf, b.xf) || a.weights != b.weights ||
       a.grainRadius != b.grainRadius || a.packingRate != b.packingRate || a.seed != b.seed ||
@@ -80,9 +81,21 @@ bool sameMaterial(const MaterialDesc& a, const MaterialDesc& b) {
          a.emission == b.emission;
 }
 
+bool isEmitter(const SceneDesc& desc, const MeshDesc& m) {
+  return m.visible && m.material >= 0 && !isBlack(desc.materials[m.material].emission);
+}
+
 bool hasEmissiveSurface(const SceneDesc& desc) {
   for (const auto& m : desc.meshes)
-    if (m.visible && m.material >= 0 && !isBlack(desc.materials[m.material].emission)) return true;
+    if (isEmitter(desc, m)) return true;
+  return false;
+}
+
+// Any grain a smooth dielectric (prototypes without a material are the default glass).
+bool hasDielectricGrains(const SceneDesc& desc) {
+  for (const auto& a : desc.aggregates)
+    for (const auto& p : a.prototypes)
+      if (p.material < 0 || desc.materials[p.material].type == MaterialType::Dielectric) return true;
   return false;
 }
 
@@ -139,7 +152,6 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc, const Scene* previous
   for (const auto& a : desc.aggregates) {
     BuiltAggregate entry;
     entry.desc = a;
-    entry.desc.id = -1;
     for (const auto& p : a.prototypes) {
       entry.materials.push_back(p.material >= 0 ? p.material : defaultGrain);
       entry.materialDescs.push_back(p.material >= 0 ? desc.materials[p.material] : glass);
@@ -195,13 +207,9 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc, const Scene* previous
     lights.push_back(dome);
     s->defaultLightAdded_ = true;
   }
-  bool dielectricGrains = false;  // (only where physicalSun asks for it)
-  for (const auto& a : desc.aggregates)
-    for (const auto& p : a.prototypes)
-      dielectricGrains = dielectricGrains || (desc.settings.physicalSun && (p.material < 0 ||
-                                              desc.materials[p.material].type == MaterialType::Dielectric));
+  const bool widen = desc.settings.physicalSun && hasDielectricGrains(desc);
   for (auto& l : lights)
-    if (dielectricGrains && isDeltaSun(l)) {  // widenedSuns()
+    if (widen && isDeltaSun(l)) {  // widenedSuns()
       l.angle = kSunAngle;
       l.normalize = true;  // a delta light's intensity is its irradiance: keep it
       s->widenedSuns_.push_back(l.name);
@@ -225,8 +233,7 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc, const Scene* previous
       bool inside = false;
       for (const auto& l : lights) inside = inside || emitterReachesInto(agg, l);
       for (const auto& m : desc.meshes)
-        if (m.visible && m.material >= 0 && !isBlack(desc.materials[m.material].emission))
-          inside = inside || meshReachesInto(agg, m.mesh.transformed(m.xf));
+        if (isEmitter(desc, m)) inside = inside || meshReachesInto(agg, m.mesh.transformed(m.xf));
       s->emitterInside_[a] = inside;
     }
   }

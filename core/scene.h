@@ -1,13 +1,14 @@
 // scene.h — the built scene: BVHs, aggregates, lights, materials and camera.
 //
 // Contract: Scene::build() turns a validated SceneDesc into everything the integrators
-// query. Given the previous scene of the same stage, it reuses each aggregate whose inputs
-// (its AggregateDesc but the id, its prototypes' materials) are unchanged: no voxelising,
-// no tile, no TT work for it; a light or camera edit then costs only the surfaces' BVH.
-// Built aggregates are shared, immutable, between the two scenes. Then: intersect() returns the nearest surface, grain or area light along a ray;
-// occluded() answers shadow rays. Grains are opaque to shadow rays (their interfaces
-// are delta: light reaches through them only by path continuation). The scene is
-// immutable once built and safe to query from many threads.
+// query: intersect() returns the nearest surface, grain or area light along a ray;
+// occluded() answers shadow rays. Given the previous scene of the same stage, build()
+// reuses each aggregate whose inputs (its AggregateDesc but the id, its prototypes'
+// materials) are unchanged: no voxelising, no tile, no TT work for it; a light or camera
+// edit then costs only the surfaces' BVH. Built aggregates are shared, immutable, between
+// the two scenes. Grains are opaque to shadow rays (their interfaces are delta: light
+// reaches through them only by path continuation). The scene is immutable once built and
+// safe to query from many threads.
 #pragma once
 
 #include <memory>
@@ -128,7 +129,7 @@ class Scene {
   std::vector<std::shared_ptr<const Aggregate>> aggregates_;
   // Per aggregate, what a later build(desc, this) compares and reuses.
   struct BuiltAggregate {
-    AggregateDesc desc;                         // id cleared: it does not change the build
+    AggregateDesc desc;                         // compared without its id (the primId AOV's)
     std::vector<int> materials;                 // scene material of each prototype
     std::vector<MaterialDesc> materialDescs;    // their descriptions (TT depends on them)
     std::shared_ptr<const Aggregate> aggregate;

@@ -180,16 +180,24 @@ def sandcastle(path):
     stage.GetRootLayer().Save()
 
 
+def snow_ground(stage):
+    """The dark rock ground of the snow scenes."""
+    bind(quad(stage, "/World/Ground", 12.0), preview_material(stage, "Rock", diffuse=(0.08, 0.08, 0.09)))
+
+
+def snow_grains(stage):
+    """Ice flakes and pellets: index 1.31, almost no absorption (a faint blue with depth)."""
+    return (grain(stage, "Flake", core.make_ellipsoid((1.0, 0.35, 0.9), 2), 1.31, (0.004, 0.0015, 0.0006)),
+            grain(stage, "Pellet", core.make_rock(2, 0.25, 11), 1.31, (0.004, 0.0015, 0.0006)))
+
+
 def snowslab(path):
     stage, _ = new_stage(path, (400, 260))
     camera(stage, eye=(1.7, 1.05, 2.2), target=(0.0, 0.12, 0.0))
     sun(stage, direction=(-0.3, -0.55, -0.75), intensity=10.0, color=(1.0, 0.97, 0.92), angle=5.0)
     sky(stage, (0.55, 0.7, 1.0), 0.8)
-    ground = quad(stage, "/World/Ground", 12.0)
-    bind(ground, preview_material(stage, "Rock", diffuse=(0.08, 0.08, 0.09)))
-    # Ice: index 1.31, almost no absorption (a faint blue with depth).
-    flake = grain(stage, "Flake", core.make_ellipsoid((1.0, 0.35, 0.9), 2), 1.31, (0.004, 0.0015, 0.0006))
-    pellet = grain(stage, "Pellet", core.make_rock(2, 0.25, 11), 1.31, (0.004, 0.0015, 0.0006))
+    snow_ground(stage)
+    flake, pellet = snow_grains(stage)
     slab = mesh_from(stage, "/World/Snow", core.make_box((-0.9, 0.0, -0.55), (0.9, 0.3, 0.55)))
     schema.apply_aggregate(slab, [flake, pellet], grain_radius=0.014, packing_rate=0.45, weights=[0.5, 0.5],
                            seed=4, tile_spheres=512)
@@ -259,10 +267,8 @@ def animated(path):
     for frame, value in ((1, 8.0), (2, 8.0), (3, 14.0)):
         intensity.Set(value, frame)
     sky(stage, (0.55, 0.7, 1.0), 0.8)
-    ground = quad(stage, "/World/Ground", 12.0)
-    bind(ground, preview_material(stage, "Rock", diffuse=(0.08, 0.08, 0.09)))
-    flake = grain(stage, "Flake", core.make_ellipsoid((1.0, 0.35, 0.9), 2), 1.31, (0.004, 0.0015, 0.0006))
-    pellet = grain(stage, "Pellet", core.make_rock(2, 0.25, 11), 1.31, (0.004, 0.0015, 0.0006))
+    snow_ground(stage)
+    flake, pellet = snow_grains(stage)
     drift = mesh_from(stage, "/World/Drift", core.make_box((-0.35, 0.0, -0.25), (0.35, 0.22, 0.25)))
     schema.apply_aggregate(drift, [flake, pellet], grain_radius=0.014, packing_rate=0.45, weights=[0.5, 0.5],
                            seed=4, tile_spheres=512)

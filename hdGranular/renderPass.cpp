@@ -57,6 +57,10 @@ bool defaultLightSetting(HdRenderDelegate* d) {
   return setting<bool>(d, HdGranularSettingsTokens->defaultLight, granular::RenderSettings().defaultLight);
 }
 
+bool physicalSunSetting(HdRenderDelegate* d) {
+  return setting<bool>(d, HdGranularSettingsTokens->physicalSun, granular::RenderSettings().physicalSun);
+}
+
 granular::RenderSettings renderSettings(HdRenderDelegate* d, int width, int height) {
   granular::RenderSettings rs;
   rs.width = width;
@@ -73,7 +77,7 @@ granular::RenderSettings renderSettings(HdRenderDelegate* d, int width, int heig
   rs.bundleSize = setting<int>(d, HdGranularSettingsTokens->bundleSize, 16);
   rs.domeCameraVisible = setting<bool>(d, HdRenderSettingsTokens->domeLightCameraVisibility, true);
   rs.defaultLight = defaultLightSetting(d);
-  rs.physicalSun = setting<bool>(d, HdGranularSettingsTokens->physicalSun, true);
+  rs.physicalSun = physicalSunSetting(d);
   return rs;
 }
 
@@ -106,7 +110,7 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
   const std::string buildKey =
       setting<std::string>(delegate, HdGranularSettingsTokens->technique, "hybrid") + "|" +
       (defaultLightSetting(delegate) ? "light" : "dark") + "|" +
-      (setting<bool>(delegate, HdGranularSettingsTokens->physicalSun, true) ? "sun" : "delta");
+      (physicalSunSetting(delegate) ? "sun" : "delta");
   const bool rebuild = !_started || sceneVersion != _sceneVersion || buildKey != _buildKey;
   const bool reframe = rebuild || settingsVersion != _settingsVersion || view != _view || proj != _projection ||
                        width != _width || height != _height;

@@ -2,9 +2,10 @@
 // to date with the least work, then lets the render loop run progressively.
 //
 // Contract: an edit of the scene (meshes, lights, materials; the render param's
-// version), of the technique or of the default light rebuilds the core scene (tiles and TT parameters come
-// from their disk caches); a camera move, a resize or other settings only set a new
-// view (no re-voxelising, no re-estimation); new AOV bindings only restart the loop.
+// version), of the technique, of the default light or of the physical-sun setting builds
+// the core scene anew, reusing every aggregate whose inputs did not change (Scene::build);
+// a camera move, a resize or other settings only set a new view (no re-voxelising, no
+// re-estimation); new AOV bindings only restart the loop.
 // A scene that cannot be built is reported once (TF_RUNTIME_ERROR naming the prim and
 // attribute) and renders nothing, its buffers marked converged.
 #ifndef HDGRANULAR_RENDER_PASS_H

@@ -357,11 +357,17 @@ _DEFAULT_LIGHT_WARNING = ("warning: the stage has no light (no UsdLux light, no 
                           "the default white dome of radiance 1 (--no-default-light renders it black)")
 
 
-def _log_build_warnings(args, built):
-    if built.default_light_added:
-        _log(args, _DEFAULT_LIGHT_WARNING)
+def _log_build_warnings(args, built, shown=None):
+    """The built scene's warnings (default light, widened suns); with `shown` (a set kept over
+    a sequence), each distinct one once."""
+    lines = [_DEFAULT_LIGHT_WARNING] if built.default_light_added else []
     if built.widened_suns_warning:
-        _log(args, "warning: " + built.widened_suns_warning)
+        lines.append("warning: " + built.widened_suns_warning)
+    for line in lines:
+        if shown is None or line not in shown:
+            _log(args, line)
+            if shown is not None:
+                shown.add(line)
 
 
 def _apply_options(args, scene):
@@ -442,8 +448,9 @@ def _render_frames(args):
     compared with the previous frame's; the built scene is kept when only the view (camera,
     render settings) changed (Scene.set_view: no voxelising, no TT work) and built anew when
     lights, meshes, materials or aggregates changed, reusing every aggregate whose inputs did
-    not (a moving light voxelises nothing, a deforming boundary only its aggregate). Each frame's files are written atomically as it completes; a failure
-    leaves the frames before it, complete, and nothing of its own."""
+    not (a moving light voxelises nothing, a deforming boundary only its aggregate). Each
+    frame's files are written atomically as it completes; a failure leaves the frames before
+    it, complete, and nothing of its own."""
     import granular_core as core
     from .usd_reader import open_stage, read_stage, translate_core_error
 
@@ -474,8 +481,8 @@ def _render_frames(args):
         if changed:
             first = built is None
             built = api.build_scene(scene, previous=built)
+            _log_build_warnings(args, built, shown)  # a later frame may bring its own
             if first:
-                _log_build_warnings(args, built)
                 _log(args, f"{args.scene}: frames {frame_text(frames[0])} to {frame_text(frames[-1])} "
                            f"({len(frames)}), camera {scene.camera_path}, {s.width}x{s.height}, {s.spp} spp")
                 _log_aggregates(args, built)
