@@ -6,6 +6,15 @@ namespace granular {
 
 Film::Film(int width, int height) : width_(width), height_(height), px_(size_t(width) * height) {}
 
+Film::Film(const PixelWindow& w, int fullWidth, int fullHeight) : Film(w.width(), w.height()) {
+  originX_ = w.x0;
+  originY_ = w.y0;
+  if (w.x0 != 0 || w.y0 != 0 || w.width() != fullWidth || w.height() != fullHeight) {
+    fullWidth_ = fullWidth;
+    fullHeight_ = fullHeight;
+  }
+}
+
 void Film::clear() { std::fill(px_.begin(), px_.end(), Pixel()); }
 
 void Film::add(int x, int y, const PixelSample& s) {
@@ -63,6 +72,10 @@ Image Film::toImage() const {
   Image img;
   img.width = width_;
   img.height = height_;
+  img.x = originX_;
+  img.y = originY_;
+  img.fullWidth = fullWidth_;
+  img.fullHeight = fullHeight_;
   img.channels = channelNames();
   img.pixels.assign(size_t(width_) * height_ * kChannels, 0.0f);
   for (int y = 0; y < height_; ++y)

@@ -14,6 +14,7 @@
 
 #include "image_io.h"
 #include "math.h"
+#include "scene_desc.h"
 
 namespace granular {
 
@@ -30,6 +31,9 @@ class Film {
  public:
   Film() = default;
   Film(int width, int height);
+  // A film of the window's pixels of a fullWidth × fullHeight image: toImage() says where
+  // they lie (Image::x, y, fullWidth, fullHeight); pixel (0, 0) is the window's first.
+  Film(const PixelWindow& window, int fullWidth, int fullHeight);
   int width() const { return width_; }
   int height() const { return height_; }
   void add(int x, int y, const PixelSample& s);
@@ -55,6 +59,7 @@ class Film {
   };
   size_t idx(int x, int y) const { return size_t(y) * width_ + x; }
   int width_ = 0, height_ = 0;
+  int originX_ = 0, originY_ = 0, fullWidth_ = 0, fullHeight_ = 0;
   std::vector<Pixel> px_;
 };
 

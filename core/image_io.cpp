@@ -138,9 +138,17 @@ void writeExr(const std::string& path, const Image& img) {
   for (const std::string& name : img.channels)
     if (name.empty() || !seen.insert(name).second)
       throw std::runtime_error(failure(path, "channel names must be unique and non-empty"));
+  if (img.x < 0 || img.y < 0 || img.x + img.width > img.displayWidth() || img.y + img.height > img.displayHeight())
+    throw std::runtime_error(failure(path, str("pixels at (", img.x, ", ", img.y, ") of size ", img.width, "x", img.height,
+                                               " lie outside the ", img.displayWidth(), "x", img.displayHeight(), " image")));
 
   OIIO::ImageSpec spec(img.width, img.height, img.numChannels(), OIIO::TypeDesc::FLOAT);
   spec.channelnames = img.channels;
+  spec.x = img.x;
+  spec.y = img.y;
+  spec.full_x = spec.full_y = 0;
+  spec.full_width = img.displayWidth();
+  spec.full_height = img.displayHeight();
   // The constructor guesses alpha at index 3; only a channel named A is alpha.
   spec.alpha_channel = img.channelIndex("A");
   spec.z_channel = img.channelIndex("Z");
@@ -253,6 +261,69 @@ float srgbEncode(float linear) {
   float rgb[3] = {linear, linear, linear};
   encodeRGB(defaultEncoder(), rgb, 1);
   return rgb[0];
+}
+
+Image readExr(const std::string& path) {
+  auto in = OIIO::ImageInput::open(path);
+  if (!in) {
+    std::string why = OIIO::geterror();
+    throw InputError(path, "", "cannot read image: " + (why.empty() ? std::string("unknown error") : why));
+  }
+  const OIIO::ImageSpec spec = in->spec();
+  if (spec.deep || spec.width <= 0 || spec.height <= 0 || spec.depth > 1 || spec.nchannels <= 0)
+    throw InputError(path, "", str("cannot read image: unusable size ", spec.width, "x", spec.height, "x", spec.depth,
+                                   " with ", spec.nchannels, " channels"));
+  if (spec.full_x != 0 || spec.full_y != 0 || spec.x < 0 || spec.y < 0 || spec.x + spec.width > spec.full_width ||
+      spec.y + spec.height > spec.full_height)
+    throw InputError(path, "", str("cannot read image: data window at (", spec.x, ", ", spec.y, ") of size ", spec.width,
+                                   "x", spec.height, " is not inside a display window at the origin (", spec.full_x,
+                                   ", ", spec.full_y, ", ", spec.full_width, "x", spec.full_height, ")"));
+  Image img(spec.width, spec.height, spec.channelnames);
+  img.x = spec.x;
+  img.y = spec.y;
+  if (spec.full_width != spec.width || spec.full_height != spec.height || spec.x || spec.y) {
+    img.fullWidth = spec.full_width;
+    img.fullHeight = spec.full_height;
+  }
+  if (!in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT, img.pixels.data()))
+    throw InputError(path, "", "cannot read image: " + in->geterror());
+  in->close();
+  return img;
+}
+
+Image mergeTiles(const std::vector<Image>& tiles) {
+  if (tiles.empty()) throw InputError("tiles", "", "no tiles to merge");
+  const Image& first = tiles.front();
+  const int W = first.displayWidth(), H = first.displayHeight();
+  auto where = [](size_t k, const Image& t) {
+    return str("tile ", k, " (", t.width, "x", t.height, " at ", t.x, ", ", t.y, ")");
+  };
+  Image out(W, H, first.channels);
+  const size_t nch = first.channels.size();
+  // Which tile wrote each pixel (-1: none yet): overlaps and gaps are errors, not averages.
+  std::vector<int> owner(size_t(W) * H, -1);
+  for (size_t k = 0; k < tiles.size(); ++k) {
+    const Image& t = tiles[k];
+    if (t.displayWidth() != W || t.displayHeight() != H)
+      throw InputError("tiles", "", str(where(k, t), " belongs to a ", t.displayWidth(), "x", t.displayHeight(),
+                                        " image, tile 0 to a ", W, "x", H, " one"));
+    if (t.channels != first.channels) throw InputError("tiles", "", str(where(k, t), " has other channels than tile 0"));
+    if (t.width <= 0 || t.height <= 0 || t.x < 0 || t.y < 0 || t.x + t.width > W || t.y + t.height > H ||
+        t.pixels.size() != size_t(t.width) * t.height * nch)
+      throw InputError("tiles", "", str(where(k, t), " does not lie inside the ", W, "x", H, " image"));
+    for (int y = 0; y < t.height; ++y)
+      for (int x = 0; x < t.width; ++x) {
+        int& o = owner[size_t(t.y + y) * W + (t.x + x)];
+        if (o >= 0) throw InputError("tiles", "", str(where(k, t), " overlaps tile ", o, " at pixel (", t.x + x, ", ", t.y + y, ")"));
+        o = int(k);
+      }
+    for (int y = 0; y < t.height; ++y)
+      std::copy_n(t.at(0, y), size_t(t.width) * nch, out.at(t.x, t.y + y));
+  }
+  for (size_t i = 0; i < owner.size(); ++i)
+    if (owner[i] < 0)
+      throw InputError("tiles", "", str("pixel (", i % W, ", ", i / W, ") of the ", W, "x", H, " image is in no tile"));
+  return out;
 }
 
 }  // namespace granular

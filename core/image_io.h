@@ -20,6 +20,12 @@ struct Image {
   int width = 0, height = 0;
   std::vector<std::string> channels;  // e.g. {"R","G","B","A","Z","N.X","N.Y","N.Z"}
   std::vector<float> pixels;          // width*height*channels.size(), interleaved
+  // Where these pixels lie in the full image (a crop, a tile): the position of the first
+  // pixel, and the full image's size (0: this image is the full image). EXR keeps them as
+  // its data and display windows; a PNG holds the pixels alone.
+  int x = 0, y = 0, fullWidth = 0, fullHeight = 0;
+  int displayWidth() const { return fullWidth > 0 ? fullWidth : width; }
+  int displayHeight() const { return fullHeight > 0 ? fullHeight : height; }
 
   Image() = default;
   Image(int w, int h, std::vector<std::string> names)
@@ -39,8 +45,19 @@ struct Image {
   }
 };
 
-// OpenEXR, float32 for every channel, ZIP compression.
+// OpenEXR, float32 for every channel, ZIP compression; a crop's data window inside the
+// full image's display window.
 void writeExr(const std::string& path, const Image& img);
+
+// An OpenEXR file as written by writeExr (any channels, data and display windows kept):
+// float32 of every channel. Throws InputError(path, "", "cannot read image: ...").
+Image readExr(const std::string& path);
+
+// The full image tiled by `tiles` (crops of one image: the same display size and the same
+// channels), each pixel copied from the tile that holds it, so the result is bit for bit
+// what those pixels were. Throws InputError("tiles", ...) naming the tile when tiles
+// disagree on size or channels, lie outside the image, overlap, or leave pixels uncovered.
+Image mergeTiles(const std::vector<Image>& tiles);
 
 // 8-bit PNG: linear RGB * 2^exposure, sRGB-encoded, clamped to [0,1]; NaN/Inf -> 0.
 // With an "A" channel the PNG is RGBA; colour is taken as premultiplied by A (as the

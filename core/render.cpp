@@ -12,7 +12,11 @@
 namespace granular {
 
 Renderer::Renderer(const Scene& scene)
-    : scene_(scene), film_(scene.settings().width, scene.settings().height) {
+    : scene_(scene),
+      width_(scene.settings().width),
+      height_(scene.settings().height),
+      window_(renderWindow(scene.settings())),
+      film_(window_, scene.settings().width, scene.settings().height) {
   const RenderSettings& rs = scene.settings();
   // Bundles matter only where paths can switch to the media.
   bool hybrid = rs.technique != Technique::Ept && scene.hasMedia();
@@ -72,18 +76,22 @@ void Renderer::forTiles(int width, int height, const Body& body) const {
 
 bool Renderer::renderPass(int samples, const std::atomic<bool>* cancel, const TileCallback& onTile) {
   const RenderSettings& rs = scene_.settings();
-  if (rs.width != film_.width() || rs.height != film_.height())  // Scene::setView since construction
-    throw InputError("render", "resolution", str(rs.width, "x", rs.height, " is not this renderer's ", film_.width(), "x",
-                                                 film_.height(), ": make a new renderer after a change of view"));
+  const PixelWindow w = renderWindow(rs);
+  // Scene::setView since construction may have changed the image or the crop.
+  if (rs.width != width_ || rs.height != height_ || w.x0 != window_.x0 || w.x1 != window_.x1 || w.y0 != window_.y0 ||
+      w.y1 != window_.y1)
+    throw InputError("render", "resolution", str(rs.width, "x", rs.height, " (pixels [", w.x0, ", ", w.x1, ") x [", w.y0,
+                                                 ", ", w.y1, ")) is not this renderer's: make a new renderer after a "
+                                                 "change of view"));
   if (!prepared_) prepare();
   std::atomic<bool> cancelled{false};
   passPixels_ = 0;  // before the state names the new pass (progressSamples relies on it)
   passState_ = (uint64_t(done_) << 24) | uint64_t(samples);
-  forTiles(rs.width, rs.height, [&](const tbb::blocked_range2d<int>& r) {
+  forTiles(window_.width(), window_.height(), [&](const tbb::blocked_range2d<int>& r) {
     for (int y = r.rows().begin(); y < r.rows().end(); ++y)
       for (int x = r.cols().begin(); x < r.cols().end(); ++x) {
         if (cancel && cancel->load(std::memory_order_relaxed)) { cancelled = true; return; }
-        tracePixel(x, y, done_, samples, film_, x, y, true);
+        tracePixel(window_.x0 + x, window_.y0 + y, done_, samples, film_, x, y, true);
         passPixels_.fetch_add(1, std::memory_order_relaxed);
       }
     if (onTile) onTile(r.cols().begin(), r.cols().end(), r.rows().begin(), r.rows().end());
@@ -98,14 +106,16 @@ bool Renderer::renderPreview(int stride, Film& preview, const std::atomic<bool>*
   const RenderSettings& rs = scene_.settings();
   stride = std::max(1, stride);
   if (!prepared_) prepare();
-  const int w = (rs.width + stride - 1) / stride, h = (rs.height + stride - 1) / stride;
+  const int W = window_.width(), H = window_.height();
+  const int w = (W + stride - 1) / stride, h = (H + stride - 1) / stride;
   preview = Film(w, h);
   std::atomic<bool> cancelled{false};
   forTiles(w, h, [&](const tbb::blocked_range2d<int>& r) {
     for (int j = r.rows().begin(); j < r.rows().end(); ++j)
       for (int i = r.cols().begin(); i < r.cols().end(); ++i) {
         if (cancel && cancel->load(std::memory_order_relaxed)) { cancelled = true; return; }
-        int x = std::min(i * stride + stride / 2, rs.width - 1), y = std::min(j * stride + stride / 2, rs.height - 1);
+        int x = window_.x0 + std::min(i * stride + stride / 2, W - 1);
+        int y = window_.y0 + std::min(j * stride + stride / 2, H - 1);
         tracePixel(x, y, 0, std::min(bundle_, rs.spp), preview, i, j, false);
       }
   });

@@ -12,6 +12,11 @@
 // flag between tiles and returns false when it was set. A sample whose estimate is not
 // finite is dropped as a whole (the pixel keeps its count) and counted.
 //
+// A crop (RenderSettings::cropX0.., renderWindow()) renders only its pixels, into a film
+// of the window's size whose pixel (0, 0) is the window's first; everything else — each
+// pixel's random streams, the pre-render over the whole image — is as without it, so the
+// films of a tiling are the full film's pixels bit for bit.
+//
 // Interactive hosts: renderPass() calls onTile from the worker thread that finished a
 // tile (its pixels then hold the pass's samples), so a host can show tiles as they come;
 // renderPreview(stride) first renders one bundle of the centre pixel of every
@@ -52,11 +57,13 @@ inline bool toPixelSample(const PathState& p, PixelSample& ps) {
 class Renderer {
  public:
   explicit Renderer(const Scene& scene);
-  // Pixel window [x0, x1) × [y0, y1) of a finished tile.
+  // Film pixel window [x0, x1) × [y0, y1) of a finished tile (image pixels less the
+  // crop's origin).
   using TileCallback = std::function<void(int x0, int x1, int y0, int y1)>;
   bool renderPass(int samples, const std::atomic<bool>* cancel = nullptr, const TileCallback& onTile = nullptr);
-  // A film of ceil(W/stride) × ceil(H/stride) pixels: pixel (i, j) holds the first bundle
-  // of image pixel (min(i·stride + stride/2, W−1), likewise j); false when cancelled.
+  // A film of ceil(W/stride) × ceil(H/stride) pixels, W × H the crop's size: pixel (i, j)
+  // holds the first bundle of crop pixel (min(i·stride + stride/2, W−1), likewise j);
+  // false when cancelled.
   bool renderPreview(int stride, Film& preview, const std::atomic<bool>* cancel = nullptr);
   // Renders settings().spp samples in passes of passSamples; calls progress after each.
   bool render(int passSamples = 1, const std::function<void(const RenderProgress&)>& progress = nullptr,
@@ -85,6 +92,8 @@ class Renderer {
   template <typename Body>
   void forTiles(int width, int height, const Body& body) const;
   const Scene& scene_;
+  int width_, height_;  // of the image
+  PixelWindow window_;  // the image pixels this renderer covers
   Film film_;
   long done_ = 0;
   int bundle_ = 1;

@@ -85,10 +85,22 @@ void checkMaterialIndex(int m, size_t count, const std::string& obj) {
 
 }  // namespace
 
+PixelWindow renderWindow(const RenderSettings& s) {
+  if (s.cropX0 == 0 && s.cropX1 == 0 && s.cropY0 == 0 && s.cropY1 == 0) return {0, s.width, 0, s.height};
+  return {s.cropX0, s.cropX1, s.cropY0, s.cropY1};
+}
+
 void validateSceneDesc(const SceneDesc& desc) {
   const RenderSettings& s = desc.settings;
   checkInt(s.width, 1, 32768, "render", "width");
   checkInt(s.height, 1, 32768, "render", "height");
+  {
+    const PixelWindow w = renderWindow(s);
+    if (!(0 <= w.x0 && w.x0 < w.x1 && w.x1 <= s.width && 0 <= w.y0 && w.y0 < w.y1 && w.y1 <= s.height))
+      throw InputError("render", "crop",
+                       str("pixels [", w.x0, ", ", w.x1, ") x [", w.y0, ", ", w.y1, ") are not a non-empty window of the ",
+                           s.width, "x", s.height, " image"));
+  }
   checkInt(s.spp, 1, 1000000, "render", "spp");
   if (s.maxDepth < 1) throw InputError("render", "maxDepth", str(s.maxDepth, " must be >= 1"));
   if (s.rrDepth < 0) throw InputError("render", "rrDepth", str(s.rrDepth, " must be >= 0"));

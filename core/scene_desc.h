@@ -124,7 +124,23 @@ struct RenderSettings {
   // refracted through a grain can never reach a delta light. false keeps them delta (to
   // compare with renderers that lose that light, as bench/validate_mitsuba.py does).
   bool physicalSun = true;
+  // Crop: only the pixels [cropX0, cropX1) × [cropY0, cropY1) of the width × height image
+  // are rendered (a tile of a farm job, UsdRenderSettings dataWindowNDC); all 0 (the
+  // default): every pixel. A pixel's samples depend on (seed, pixel, sample index) only and
+  // the roulette pre-render always covers the whole image, so the crops of a tiling,
+  // merged, equal the full render bit for bit (tests/core/test_render.cpp).
+  int cropX0 = 0, cropX1 = 0, cropY0 = 0, cropY1 = 0;
 };
+
+// A pixel window [x0, x1) × [y0, y1) of an image.
+struct PixelWindow {
+  int x0 = 0, x1 = 0, y0 = 0, y1 = 0;
+  int width() const { return x1 - x0; }
+  int height() const { return y1 - y0; }
+};
+
+// The pixels a render covers: the crop, or the whole image when the crop is all 0.
+PixelWindow renderWindow(const RenderSettings& s);
 
 struct SceneDesc {
   CameraDesc camera;

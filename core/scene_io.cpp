@@ -380,6 +380,14 @@ void parseRender(const Obj& o, RenderSettings& s) {
   s.defaultLight = o.flag("default_light", s.defaultLight);
   s.physicalSun = o.flag("physical_sun", s.physicalSun);
   if (o.has("technique")) s.technique = techniqueFromName(o.string("technique", ""), o.label());
+  if (const json* c = o.find("crop")) {  // [x0, x1, y0, y1], pixels
+    const json& a = toArray(*c, o.label(), "crop");
+    if (a.size() != 4) throw InputError(o.label(), "crop", "expected [x0, x1, y0, y1], got " + describe(a));
+    s.cropX0 = toInt(a[0], o.label(), "crop");
+    s.cropX1 = toInt(a[1], o.label(), "crop");
+    s.cropY0 = toInt(a[2], o.label(), "crop");
+    s.cropY1 = toInt(a[3], o.label(), "crop");
+  }
 }
 
 void parseCamera(const Obj& o, CameraDesc& c) {
@@ -703,7 +711,7 @@ SceneDesc parseSceneJson(const std::string& text, const std::string& sourceName)
     ctx.base = fs::path(sourceName).parent_path();
     Obj top(root, sourceName, "", "scene", {"render", "camera", "materials", "meshes", "lights", "aggregates"});
     if (const json* r = top.find("render"))
-      parseRender(Obj(*r, "scene", "render", "render", {"width", "height", "spp", "seed", "max_depth", "rr_depth", "threads", "technique", "bundle_size", "tau", "explicit_bounces", "roulette", "lod", "default_light", "physical_sun"}),
+      parseRender(Obj(*r, "scene", "render", "render", {"width", "height", "spp", "seed", "max_depth", "rr_depth", "threads", "technique", "bundle_size", "tau", "explicit_bounces", "roulette", "lod", "default_light", "physical_sun", "crop"}),
                   desc.settings);
     if (const json* c = top.find("camera"))
       parseCamera(Obj(*c, "scene", "camera", "camera",

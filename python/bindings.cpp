@@ -364,7 +364,14 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("lod", &RenderSettings::lod)
       .def_readwrite("default_light", &RenderSettings::defaultLight)
       .def_readwrite("physical_sun", &RenderSettings::physicalSun)
-      .def_readwrite("dome_camera_visible", &RenderSettings::domeCameraVisible);
+      .def_readwrite("dome_camera_visible", &RenderSettings::domeCameraVisible)
+      .def_property(
+          "crop",
+          [](const RenderSettings& s) { return std::make_tuple(s.cropX0, s.cropX1, s.cropY0, s.cropY1); },
+          [](RenderSettings& s, const std::tuple<int, int, int, int>& c) {
+            std::tie(s.cropX0, s.cropX1, s.cropY0, s.cropY1) = c;
+          },
+          "pixels (x0, x1, y0, y1) rendered: [x0, x1) x [y0, y1); (0, 0, 0, 0): every pixel");
 
   py::class_<SceneDesc>(m, "SceneDesc")
       .def(py::init<>())
@@ -489,8 +496,28 @@ PYBIND11_MODULE(granular_core, m) {
       });
 
   py::class_<Image>(m, "Image")
+      .def(py::init([](const FloatArray& pixels, const std::vector<std::string>& channels, int x, int y, int fullWidth,
+                       int fullHeight) {
+             if (pixels.ndim() != 3 || pixels.shape(2) != py::ssize_t(channels.size()))
+               throw py::value_error("pixels must be a (height, width, len(channels)) array");
+             Image img(int(pixels.shape(1)), int(pixels.shape(0)), channels);
+             std::copy(pixels.data(), pixels.data() + img.pixels.size(), img.pixels.begin());
+             img.x = x;
+             img.y = y;
+             img.fullWidth = fullWidth;
+             img.fullHeight = fullHeight;
+             return img;
+           }),
+           py::arg("pixels"), py::arg("channels"), py::arg("x") = 0, py::arg("y") = 0, py::arg("full_width") = 0,
+           py::arg("full_height") = 0,
+           "An image of float32 pixels (height, width, channels), at (x, y) of a full_width x full_height "
+           "image (0: this is the full image)")
       .def_readonly("width", &Image::width)
       .def_readonly("height", &Image::height)
+      .def_readonly("x", &Image::x)
+      .def_readonly("y", &Image::y)
+      .def_property_readonly("full_width", &Image::displayWidth)
+      .def_property_readonly("full_height", &Image::displayHeight)
       .def_readonly("channels", &Image::channels)
       .def_property_readonly(
           "pixels",
@@ -601,6 +628,10 @@ PYBIND11_MODULE(granular_core, m) {
   m.def("write_png", &writePngSrgb, py::arg("path"), py::arg("image"), py::arg("exposure") = 0.0f,
         py::call_guard<py::gil_scoped_release>());
   m.def("write_image", &writeImage, py::arg("path"), py::arg("image"), py::call_guard<py::gil_scoped_release>());
+  m.def("read_exr", &readExr, py::arg("path"), py::call_guard<py::gil_scoped_release>(),
+        "An EXR written by write_exr (every channel, its place in the full image)");
+  m.def("merge_tiles", &mergeTiles, py::arg("tiles"), py::call_guard<py::gil_scoped_release>(),
+        "The full image tiled by crops of it, bit for bit; InputError on gaps, overlaps, mismatches");
   m.def("read_image_rgb", &readImageRGB, py::arg("path"), py::call_guard<py::gil_scoped_release>());
 
   // ---- coarse density ------------------------------------------------------------------

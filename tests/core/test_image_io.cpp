@@ -332,5 +332,98 @@ TEST_F(ImageIoTest, ReadDecodesSrgbPngToLinear) {
   }
 }
 
+// ---- tiles: crops of one image and their merge ----------------------------------------
+
+// A W x H image of 2 channels whose every value says where it is (x + 1000 y, and its bit
+// pattern negated), cut into the given windows.
+Image pattern(int W, int H) {
+  Image img(W, H, {"R", "id"});
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x) img.at(x, y)[0] = float(x + 1000 * y), img.at(x, y)[1] = -float(x + 1000 * y) - 0.5f;
+  return img;
+}
+
+Image cut(const Image& full, int x0, int x1, int y0, int y1) {
+  Image t(x1 - x0, y1 - y0, full.channels);
+  t.x = x0, t.y = y0, t.fullWidth = full.width, t.fullHeight = full.height;
+  for (int y = y0; y < y1; ++y)
+    for (int x = x0; x < x1; ++x) std::copy_n(full.at(x, y), full.channels.size(), t.at(x - x0, y - y0));
+  return t;
+}
+
+bool sameImageBits(const Image& a, const Image& b) {
+  if (a.width != b.width || a.height != b.height || a.channels != b.channels) return false;
+  return std::memcmp(a.pixels.data(), b.pixels.data(), a.pixels.size() * sizeof(float)) == 0;
+}
+
+TEST_F(ImageIoTest, MergeTilesOfOddSizesEdgesAndSinglePixels) {
+  const Image full = pattern(7, 5);
+  // Rows of uneven width, a one-pixel tile, the last column and row as edge tiles.
+  std::vector<Image> tiles = {cut(full, 0, 3, 0, 2), cut(full, 3, 6, 0, 2), cut(full, 6, 7, 0, 5),
+                              cut(full, 0, 1, 2, 3), cut(full, 1, 6, 2, 3), cut(full, 0, 6, 3, 5)};
+  Image merged = mergeTiles(tiles);
+  EXPECT_TRUE(sameImageBits(merged, full));
+  EXPECT_EQ(merged.fullWidth, 0);
+  // Order does not matter.
+  std::reverse(tiles.begin(), tiles.end());
+  EXPECT_TRUE(sameImageBits(mergeTiles(tiles), full));
+  // Every pixel its own tile.
+  std::vector<Image> pixels;
+  for (int y = 0; y < 5; ++y)
+    for (int x = 0; x < 7; ++x) pixels.push_back(cut(full, x, x + 1, y, y + 1));
+  EXPECT_TRUE(sameImageBits(mergeTiles(pixels), full));
+  // One tile that is the whole image.
+  EXPECT_TRUE(sameImageBits(mergeTiles({full}), full));
+}
+
+TEST_F(ImageIoTest, MergeTilesThroughExrFiles) {
+  const Image full = pattern(9, 4);
+  std::vector<Image> read;
+  const int cuts[][4] = {{0, 4, 0, 4}, {4, 9, 0, 1}, {4, 9, 1, 4}};
+  for (size_t k = 0; k < 3; ++k) {
+    const std::string p = path("tile" + std::to_string(k) + ".exr");
+    writeExr(p, cut(full, cuts[k][0], cuts[k][1], cuts[k][2], cuts[k][3]));
+    read.push_back(readExr(p));
+    EXPECT_EQ(read.back().x, cuts[k][0]);
+    EXPECT_EQ(read.back().y, cuts[k][2]);
+    EXPECT_EQ(read.back().displayWidth(), 9);
+    EXPECT_EQ(read.back().displayHeight(), 4);
+  }
+  EXPECT_TRUE(sameImageBits(mergeTiles(read), full));
+  // A full image read back says it is one.
+  writeExr(path("full.exr"), full);
+  Image back = readExr(path("full.exr"));
+  EXPECT_EQ(back.fullWidth, 0);
+  EXPECT_TRUE(sameImageBits(back, full));
+}
+
+TEST_F(ImageIoTest, MergeTilesRefusesGapsOverlapsAndMismatches) {
+  const Image full = pattern(6, 4);
+  auto refused = [](const std::vector<Image>& tiles, const std::string& words) {
+    try {
+      mergeTiles(tiles);
+    } catch (const InputError& e) {
+      EXPECT_EQ(e.object(), "tiles");
+      EXPECT_NE(std::string(e.what()).find(words), std::string::npos) << e.what();
+      return;
+    }
+    ADD_FAILURE() << "merged without complaint; expected: " << words;
+  };
+  refused({}, "no tiles");
+  refused({cut(full, 0, 3, 0, 4)}, "is in no tile");                                  // a gap
+  refused({cut(full, 0, 4, 0, 4), cut(full, 3, 6, 0, 4)}, "overlaps tile 0");         // an overlap
+  Image other = cut(pattern(7, 4), 3, 7, 0, 4);
+  refused({cut(full, 0, 3, 0, 4), other}, "belongs to a 7x4 image");                  // another image
+  Image renamed = cut(full, 3, 6, 0, 4);
+  renamed.channels[1] = "Z";
+  refused({cut(full, 0, 3, 0, 4), renamed}, "other channels");
+  Image outside = cut(full, 3, 6, 0, 4);
+  outside.x = 4;
+  refused({cut(full, 0, 3, 0, 4), outside}, "does not lie inside");
+  // A tile outside its image is refused by the writer too.
+  EXPECT_THROW(writeExr(path("bad.exr"), outside), std::runtime_error);
+  EXPECT_FALSE(fs::exists(path("bad.exr")));
+}
+
 }  // namespace
 }  // namespace granular

@@ -1,0 +1,143 @@
+// Crops (RenderSettings::crop*): a tiling of an image, rendered crop by crop and merged
+// (mergeTiles), is the full render bit for bit, for every technique; bad windows are
+// refused by name.
+#include <gtest/gtest.h>
+
+#include <cstdio>
+#include <string>
+#include <vector>
+
+#include "error.h"
+#include "image_io.h"
+#include "render.h"
+#include "scene.h"
+#include "test_helpers.h"
+
+using namespace granular;
+using granular::testing::sameImage;
+
+namespace {
+
+Image renderWith(const SceneDesc& d) {
+  auto scene = Scene::build(d);
+  Renderer r(*scene);
+  EXPECT_TRUE(r.render(4));
+  return r.film().toImage();
+}
+
+// A small view of the sand ball (media, so the hybrid's bundles and its roulette
+// pre-render take part), odd sizes so that the tiles are uneven.
+SceneDesc ballScene(Technique t) {
+  SceneDesc d = granular::testing::sandBallScene(Vec3(0, 0.5f, 4), 24, 0.02f, 7);
+  d.settings.width = 37;
+  d.settings.height = 29;
+  d.settings.spp = 8;
+  d.settings.bundleSize = 4;
+  d.settings.technique = t;
+  return d;
+}
+
+}  // namespace
+
+class CropTiling : public ::testing::TestWithParam<Technique> {};
+
+TEST_P(CropTiling, TilesMergeIntoTheFullRenderBitForBit) {
+  SceneDesc d = ballScene(GetParam());
+  const Image full = renderWith(d);
+  EXPECT_EQ(full.x, 0);
+  EXPECT_EQ(full.fullWidth, 0);  // a full image says so
+  // Four uneven tiles, one a single pixel wide.
+  const std::vector<PixelWindow> windows = {{0, 20, 0, 13}, {20, 37, 0, 13}, {0, 1, 13, 29}, {1, 37, 13, 29}};
+  std::vector<Image> tiles;
+  for (const PixelWindow& w : windows) {
+    d.settings.cropX0 = w.x0, d.settings.cropX1 = w.x1, d.settings.cropY0 = w.y0, d.settings.cropY1 = w.y1;
+    tiles.push_back(renderWith(d));
+    const Image& t = tiles.back();
+    EXPECT_EQ(t.width, w.width());
+    EXPECT_EQ(t.height, w.height());
+    EXPECT_EQ(t.x, w.x0);
+    EXPECT_EQ(t.y, w.y0);
+    EXPECT_EQ(t.displayWidth(), 37);
+    EXPECT_EQ(t.displayHeight(), 29);
+  }
+  const Image merged = mergeTiles(tiles);
+  EXPECT_TRUE(sameImage(merged, full));
+  // The scene must have something in view for this to mean anything.
+  double sum = 0;
+  for (int y = 0; y < full.height; ++y)
+    for (int x = 0; x < full.width; ++x) sum += full.at(x, y)[full.channelIndex("A")];
+  EXPECT_GT(sum, 0.2 * full.width * full.height);
+}
+
+INSTANTIATE_TEST_SUITE_P(Techniques, CropTiling, ::testing::Values(Technique::Ept, Technique::EptVpt, Technique::Hybrid),
+                         [](const auto& info) { return std::string(info.param == Technique::Ept      ? "Ept"
+                                                                   : info.param == Technique::EptVpt ? "EptVpt"
+                                                                                                      : "Hybrid"); });
+
+TEST(Crop, TheRoulettePreRenderCoversTheWholeImage) {
+  SceneDesc d = ballScene(Technique::Hybrid);
+  auto fullScene = Scene::build(d);
+  Renderer full(*fullScene);
+  ASSERT_TRUE(full.renderPass(4));
+  d.settings.cropX0 = 30, d.settings.cropX1 = 37, d.settings.cropY0 = 0, d.settings.cropY1 = 3;  // a corner
+  auto cropScene = Scene::build(d);
+  Renderer crop(*cropScene);
+  ASSERT_TRUE(crop.renderPass(4));
+  EXPECT_EQ(crop.roulette().pa, full.roulette().pa);
+  EXPECT_EQ(crop.roulette().pixels, full.roulette().pixels);
+}
+
+TEST(Crop, PreviewCoversTheCropOnly) {
+  SceneDesc d = ballScene(Technique::Ept);
+  d.settings.cropX0 = 5, d.settings.cropX1 = 14, d.settings.cropY0 = 2, d.settings.cropY1 = 6;
+  auto scene = Scene::build(d);
+  Renderer r(*scene);
+  Film preview;
+  ASSERT_TRUE(r.renderPreview(4, preview));
+  EXPECT_EQ(preview.width(), 3);  // ceil(9 / 4)
+  EXPECT_EQ(preview.height(), 1);
+}
+
+TEST(Crop, BadWindowsNameTheRenderCrop) {
+  const std::vector<PixelWindow> bad = {{-1, 5, 0, 5}, {0, 38, 0, 5}, {5, 5, 0, 5}, {0, 5, 3, 2}, {0, 5, 0, 30}};
+  for (const PixelWindow& w : bad) {
+    SceneDesc d = ballScene(Technique::Ept);
+    d.settings.cropX0 = w.x0, d.settings.cropX1 = w.x1, d.settings.cropY0 = w.y0, d.settings.cropY1 = w.y1;
+    try {
+      validateSceneDesc(d);
+      ADD_FAILURE() << "accepted [" << w.x0 << ", " << w.x1 << ") x [" << w.y0 << ", " << w.y1 << ")";
+    } catch (const InputError& e) {
+      EXPECT_EQ(e.object(), "render");
+      EXPECT_EQ(e.attribute(), "crop");
+    }
+  }
+}
+
+TEST(Crop, ExrKeepsTheTilesPlaceAndMergesFromFiles) {
+  SceneDesc d = ballScene(Technique::Ept);
+  d.settings.spp = 2;
+  const Image full = renderWith(d);
+  std::vector<Image> read;
+  const std::vector<PixelWindow> windows = {{0, 37, 0, 10}, {0, 37, 10, 29}};
+  for (size_t k = 0; k < windows.size(); ++k) {
+    const PixelWindow& w = windows[k];
+    d.settings.cropX0 = w.x0, d.settings.cropX1 = w.x1, d.settings.cropY0 = w.y0, d.settings.cropY1 = w.y1;
+    const std::string path = ::testing::TempDir() + "crop_tile_" + std::to_string(k) + ".exr";
+    writeExr(path, renderWith(d));
+    read.push_back(readExr(path));
+    std::remove(path.c_str());
+    EXPECT_EQ(read.back().y, w.y0);
+    EXPECT_EQ(read.back().displayHeight(), 29);
+  }
+  // OpenEXR stores channels by name, not in the film's order: compare by name.
+  const Image merged = mergeTiles(read);
+  ASSERT_EQ(merged.width, full.width);
+  ASSERT_EQ(merged.height, full.height);
+  ASSERT_EQ(merged.numChannels(), full.numChannels());
+  for (int c = 0; c < full.numChannels(); ++c) {
+    const int m = merged.channelIndex(full.channels[c]);
+    ASSERT_GE(m, 0) << full.channels[c];
+    for (int y = 0; y < full.height; ++y)
+      for (int x = 0; x < full.width; ++x) ASSERT_EQ(merged.at(x, y)[m], full.at(x, y)[c]) << full.channels[c];
+  }
+}
