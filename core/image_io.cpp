@@ -298,10 +298,8 @@ Image mergeTiles(const std::vector<Image>& tiles) {
   auto where = [](size_t k, const Image& t) {
     return str("tile ", k, " (", t.width, "x", t.height, " at ", t.x, ", ", t.y, ")");
   };
-  Image out(W, H, first.channels);
   const size_t nch = first.channels.size();
-  // Which tile wrote each pixel (-1: none yet): overlaps and gaps are errors, not averages.
-  std::vector<int> owner(size_t(W) * H, -1);
+  int x0 = W, x1 = 0, y0 = H, y1 = 0;  // the rectangle the tiles cover
   for (size_t k = 0; k < tiles.size(); ++k) {
     const Image& t = tiles[k];
     if (t.displayWidth() != W || t.displayHeight() != H)
@@ -311,18 +309,29 @@ Image mergeTiles(const std::vector<Image>& tiles) {
     if (t.width <= 0 || t.height <= 0 || t.x < 0 || t.y < 0 || t.x + t.width > W || t.y + t.height > H ||
         t.pixels.size() != size_t(t.width) * t.height * nch)
       throw InputError("tiles", "", str(where(k, t), " does not lie inside the ", W, "x", H, " image"));
-    for (int y = 0; y < t.height; ++y)
+    x0 = std::min(x0, t.x), x1 = std::max(x1, t.x + t.width);
+    y0 = std::min(y0, t.y), y1 = std::max(y1, t.y + t.height);
+  }
+  Image out(x1 - x0, y1 - y0, first.channels);
+  out.x = x0, out.y = y0;
+  if (x0 != 0 || y0 != 0 || x1 != W || y1 != H) out.fullWidth = W, out.fullHeight = H;
+  // Which tile wrote each pixel (-1: none): overlaps and gaps are errors, not averages.
+  std::vector<int> owner(size_t(out.width) * out.height, -1);
+  for (size_t k = 0; k < tiles.size(); ++k) {
+    const Image& t = tiles[k];
+    for (int y = 0; y < t.height; ++y) {
       for (int x = 0; x < t.width; ++x) {
-        int& o = owner[size_t(t.y + y) * W + (t.x + x)];
+        int& o = owner[size_t(t.y + y - y0) * out.width + (t.x + x - x0)];
         if (o >= 0) throw InputError("tiles", "", str(where(k, t), " overlaps tile ", o, " at pixel (", t.x + x, ", ", t.y + y, ")"));
         o = int(k);
       }
-    for (int y = 0; y < t.height; ++y)
-      std::copy_n(t.at(0, y), size_t(t.width) * nch, out.at(t.x, t.y + y));
+      std::copy_n(t.at(0, y), size_t(t.width) * nch, out.at(t.x - x0, t.y + y - y0));
+    }
   }
   for (size_t i = 0; i < owner.size(); ++i)
     if (owner[i] < 0)
-      throw InputError("tiles", "", str("pixel (", i % W, ", ", i / W, ") of the ", W, "x", H, " image is in no tile"));
+      throw InputError("tiles", "", str("pixel (", x0 + int(i % out.width), ", ", y0 + int(i / out.width), ") of the ",
+                                        out.width, "x", out.height, " rectangle at (", x0, ", ", y0, ") the tiles span is in no tile"));
   return out;
 }
 

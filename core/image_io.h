@@ -53,10 +53,11 @@ void writeExr(const std::string& path, const Image& img);
 // float32 of every channel. Throws InputError(path, "", "cannot read image: ...").
 Image readExr(const std::string& path);
 
-// The full image tiled by `tiles` (crops of one image: the same display size and the same
-// channels), each pixel copied from the tile that holds it, so the result is bit for bit
-// what those pixels were. Throws InputError("tiles", ...) naming the tile when tiles
-// disagree on size or channels, lie outside the image, overlap, or leave pixels uncovered.
+// The rectangle of an image tiled by `tiles` (crops of one image: the same display size and
+// the same channels) as one image — the full image, or a crop of it when the tiles cover
+// less — each pixel copied from the tile that holds it, so the result is bit for bit what
+// those pixels were. Throws InputError("tiles", ...) naming the tile when tiles disagree on
+// size or channels, lie outside the image, overlap, or leave gaps in their rectangle.
 Image mergeTiles(const std::vector<Image>& tiles);
 
 // 8-bit PNG: linear RGB * 2^exposure, sRGB-encoded, clamped to [0,1]; NaN/Inf -> 0.

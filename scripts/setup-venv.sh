@@ -13,8 +13,9 @@ VENV=${1:?usage: setup-venv.sh VENV BUILD_DIR}
 BUILD_DIR=${2:?usage: setup-venv.sh VENV BUILD_DIR}
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
 # usd-core: USD reading and the schema; numpy: arrays for the bindings; pytest: tests;
-# pybind11: the bindings' build; jinja2: usdGenSchema (make schemas, schema up-to-date test).
-PY_PACKAGES=(usd-core numpy pytest pybind11 jinja2)
+# pybind11: the bindings' build; jinja2: usdGenSchema (make schemas, schema up-to-date test);
+# dask, distributed: granular farm's scheduling (dask[distributed]).
+PY_PACKAGES=(usd-core numpy pytest pybind11 jinja2 dask distributed)
 
 # A venv made while python3-venv was missing has no pip: start it again.
 if [ -x "$VENV/bin/python" ] && ! "$VENV/bin/python" -c 'import pip' >/dev/null 2>&1; then
@@ -57,7 +58,10 @@ $BUILD_ABS/python"
 VENV_ABS=$(cd "$VENV" && pwd)
 put "$VENV/bin/granular" "#!$VENV_ABS/bin/python
 # granular: the usd-core front end of hdGranular (python/granular/cli.py).
+# The guard: granular farm's LocalCluster starts its workers by spawning Python processes
+# that import this file as __mp_main__, and they must not run the command again.
 import sys
 from granular.cli import main
-sys.exit(main())"
+if __name__ == \"__main__\":
+    sys.exit(main())"
 chmod +x "$VENV/bin/granular"

@@ -5,6 +5,10 @@
                     [--technique ept|ept+vpt|hybrid] [--roulette P_a] [--lod L] [--no-default-light]
                     [--no-physical-sun]
                     [--frames A:B[xSTEP]]   (then -o and --png name a run of '#': OUT.####.exr)
+                    [--crop X0:X1,Y0:Y1]    (only those pixels; the EXR keeps their place)
+    granular merge TILE.exr [TILE.exr ...] -o OUT.exr [--png OUT.png] [--exposure E]
+    granular farm SCENE.usda -o OUT.####.exr [--png OUT.####.png] --frames A:B[xSTEP] [--tiles N]
+                  [--scheduler ADDRESS | --workers K] [render options]
     granular info SCENE.usda [--json]
     granular export-vdb SCENE.usda --prim /path -o OUT.vdb [--voxel-size S]
 
@@ -81,6 +85,17 @@ def _finite_float():
     return parse
 
 
+def _crop(text):
+    """'X0:X1,Y0:Y1' -> (x0, x1, y0, y1), a non-empty pixel window."""
+    m = re.fullmatch(r"\s*(\d+)\s*:\s*(\d+)\s*,\s*(\d+)\s*:\s*(\d+)\s*", text)
+    if not m:
+        raise argparse.ArgumentTypeError(f"'{text}' is not X0:X1,Y0:Y1 (pixels, e.g. 0:320,0:240)")
+    x0, x1, y0, y1 = (int(v) for v in m.groups())
+    if not (x0 < x1 and y0 < y1):
+        raise argparse.ArgumentTypeError(f"'{text}' is empty: X0 < X1 and Y0 < Y1 are needed")
+    return x0, x1, y0, y1
+
+
 def _roulette(text):
     try:
         v = float(text)
@@ -91,16 +106,8 @@ def _roulette(text):
     return v
 
 
-def build_parser():
-    p = _Parser(prog="granular", description="hdGranular: render granular materials from USD stages.")
-    p.add_argument("--version", action="version", version=f"granular {__version__}")
-    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    sub.required = True
-
-    r = sub.add_parser("render", help="render a stage to EXR (and PNG)")
-    r.add_argument("scene", metavar="SCENE", help="USD stage (.usda, .usdc, .usd)")
-    r.add_argument("-o", "--output", required=True, metavar="OUT.exr", help="OpenEXR image (RGBA, Z, N)")
-    r.add_argument("--png", metavar="OUT.png", help="also an 8-bit sRGB PNG")
+def _render_options(r):
+    """The options `render` and `farm` share: what is rendered and how."""
     r.add_argument("--width", type=_int_in(1, 32768), help="image width (default: the render "
                    "settings' resolution, else 640; with only --height, the camera's aspect)")
     r.add_argument("--height", type=_int_in(1, 32768), help="image height (default: as --width)")
@@ -128,12 +135,40 @@ def build_parser():
                    help="keep delta suns (distant lights of angle 0) delta; by default, over smooth dielectric "
                         "grains, they are rendered as the physical 0.53 degree sun of the same irradiance, "
                         "with a warning")
+
+
+def build_parser():
+    p = _Parser(prog="granular", description="hdGranular: render granular materials from USD stages.")
+    p.add_argument("--version", action="version", version=f"granular {__version__}")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.required = True
+
+    r = sub.add_parser("render", help="render a stage to EXR (and PNG)")
+    r.add_argument("scene", metavar="SCENE", help="USD stage (.usda, .usdc, .usd)")
+    r.add_argument("-o", "--output", required=True, metavar="OUT.exr", help="OpenEXR image (RGBA, Z, N)")
+    r.add_argument("--png", metavar="OUT.png", help="also an 8-bit sRGB PNG")
+    _render_options(r)
     r.add_argument("--frames", metavar="A:B[xSTEP]",
                    help="render the frames A to B (inclusive) every STEP (default 1; may be fractional), each "
                         "at its own time code; -o (and --png) then contain a run of '#', replaced by the frame "
                         "number padded with zeros to that many digits (out.####.exr: out.0001.exr; frame 1.5: "
                         "out.0001.5.exr). Without it, one image at the stage's start time")
+    r.add_argument("--crop", type=_crop, metavar="X0:X1,Y0:Y1",
+                   help="render only the pixels X0 <= x < X1, Y0 <= y < Y1 (rows from the top) of the image; the "
+                        "EXR holds them with their place in the full image (its data window), and `granular merge` "
+                        "joins such tiles bit for bit into the full render. Default: the render settings' "
+                        "dataWindowNDC, else every pixel")
     r.add_argument("--quiet", action="store_true", help="no progress or statistics on stderr")
+
+    g = sub.add_parser("merge", help="join tiles (EXRs of --crop renders of one image) into one image")
+    g.add_argument("tiles", nargs="+", metavar="TILE.exr")
+    g.add_argument("-o", "--output", required=True, metavar="OUT.exr")
+    g.add_argument("--png", metavar="OUT.png", help="also an 8-bit sRGB PNG")
+    g.add_argument("--exposure", type=_finite_float(), default=0.0, help="exposure of the PNG in stops (0)")
+    g.add_argument("--quiet", action="store_true")
+
+    from . import farm
+    farm.add_parser(sub, _render_options)
 
     i = sub.add_parser("info", help="grain counts, tiles and transport parameters of each aggregate")
     i.add_argument("scene", metavar="SCENE")
@@ -166,8 +201,9 @@ def _check_output(path, flag, extensions):
 class _Progress:
     """A progress bar on stderr; on a terminal it redraws one line, else it prints a few."""
 
-    def __init__(self, enabled, stream=sys.stderr):
+    def __init__(self, enabled, stream=sys.stderr, unit="spp"):
         self.enabled = enabled
+        self.unit = unit
         self.stream = stream
         self.tty = enabled and stream.isatty()
         self.last_quarter = -1
@@ -180,7 +216,8 @@ class _Progress:
         eta = seconds / frac - seconds if frac > 0 else 0.0
         width = 30
         bar = "#" * int(frac * width) + "-" * (width - int(frac * width))
-        line = f"  [{bar}] {done:.1f}/{target} spp  {seconds:.1f} s  eta {eta:.0f} s"
+        count = f"{done:.1f}" if self.unit == "spp" else f"{done:g}"
+        line = f"  [{bar}] {count}/{target} {self.unit}  {seconds:.1f} s  eta {eta:.0f} s"
         if self.tty:
             pad = " " * max(0, self.last_len - len(line))  # wipe the rest of a longer previous line
             self.last_len = len(line)
@@ -292,13 +329,27 @@ def frame_path(pattern, flag):
                                       base[run.end():])
 
 
+def frame_outputs(args, frames):
+    """(exr_name, png_name or None): frame -> file name of -o and --png, checked to give each
+    frame files of its own."""
+    exr_name = frame_path(args.output, "-o")
+    png_name = frame_path(args.png, "--png") if args.png else None
+    seen = {}
+    for f in frames:
+        other = seen.setdefault(exr_name(f), f)
+        if other != f:  # frame numbers in names have 6 decimals at most
+            raise UserError("command line", "--frames", f"step too small: frames {other!r} and {f!r} would both "
+                                                        f"write {exr_name(f)}")
+    return exr_name, png_name
+
+
 # What a frame's description is made of: a change in any of _SCENE_PARTS needs the scene
 # built anew; a change of the view alone ("camera", "settings") is Scene.set_view.
 _SCENE_PARTS = ("materials", "meshes", "lights", "aggregates", "build settings")
 _CAMERA_FIELDS = ("camera_to_world", "focal_length", "horizontal_aperture", "vertical_aperture",
                   "horizontal_aperture_offset", "vertical_aperture_offset", "clip_near", "clip_far")
 _SETTINGS_FIELDS = ("width", "height", "spp", "seed", "max_depth", "rr_depth", "threads", "technique", "bundle_size",
-                    "tau", "explicit_bounces", "roulette", "lod", "default_light", "dome_camera_visible")
+                    "tau", "explicit_bounces", "roulette", "lod", "default_light", "dome_camera_visible", "crop")
 
 
 def _feed(h, *values):
@@ -382,7 +433,18 @@ def _apply_options(args, scene):
     s.lod = args.lod
     s.default_light = not args.no_default_light
     s.physical_sun = not args.no_physical_sun
+    if getattr(args, "crop", None):
+        x0, x1, y0, y1 = args.crop
+        if x1 > s.width or y1 > s.height:
+            raise UserError("command line", "--crop", f"{x0}:{x1},{y0}:{y1} reaches outside the {s.width}x{s.height} "
+                                                      f"image")
+        s.crop = args.crop
     return s
+
+
+def _crop_text(settings):
+    x0, x1, y0, y1 = settings.crop
+    return f" (pixels {x0}:{x1},{y0}:{y1})" if (x0, x1, y0, y1) != (0, 0, 0, 0) else ""
 
 
 def _log_aggregates(args, built):
@@ -431,7 +493,7 @@ def cmd_render(args):
     _warnings(args, scene)
     built = api.build_scene(scene)
     _log_build_warnings(args, built)
-    _log(args, f"{args.scene}: camera {scene.camera_path}, {s.width}x{s.height}, {s.spp} spp; "
+    _log(args, f"{args.scene}: camera {scene.camera_path}, {s.width}x{s.height}{_crop_text(s)}, {s.spp} spp; "
                f"scene read and built in {time.monotonic() - t0:.2f} s")
     _log_aggregates(args, built)
     t1 = time.monotonic()
@@ -455,14 +517,7 @@ def _render_frames(args):
     from .usd_reader import open_stage, read_stage, translate_core_error
 
     frames = parse_frames(args.frames)
-    exr_name = frame_path(args.output, "-o")
-    png_name = frame_path(args.png, "--png") if args.png else None
-    seen = {}
-    for f in frames:
-        other = seen.setdefault(exr_name(f), f)
-        if other != f:  # frame numbers in names have 6 decimals at most
-            raise UserError("command line", "--frames", f"step too small: frames {other!r} and {f!r} would both "
-                                                        f"write {exr_name(f)}")
+    exr_name, png_name = frame_outputs(args, frames)
     t0 = time.monotonic()
     stage = open_stage(args.scene)
     built = previous = None
@@ -484,7 +539,7 @@ def _render_frames(args):
             _log_build_warnings(args, built, shown)  # a later frame may bring its own
             if first:
                 _log(args, f"{args.scene}: frames {frame_text(frames[0])} to {frame_text(frames[-1])} "
-                           f"({len(frames)}), camera {scene.camera_path}, {s.width}x{s.height}, {s.spp} spp")
+                           f"({len(frames)}), camera {scene.camera_path}, {s.width}x{s.height}{_crop_text(s)}, {s.spp} spp")
                 _log_aggregates(args, built)
                 action = f"scene built in {time.monotonic() - tf:.2f} s"
             else:
@@ -511,6 +566,31 @@ def _render_frames(args):
     return EXIT_OK
 
 
+def cmd_merge(args):
+    import granular_core as core
+    _check_output(args.output, "-o", (".exr",))
+    if args.png:
+        _check_output(args.png, "--png", (".png",))
+    outputs = {os.path.abspath(p) for p in (args.output, args.png) if p}
+    tiles = []
+    for path in args.tiles:
+        if os.path.abspath(path) in outputs:
+            raise UserError("command line", "-o", f'"{path}" is both a tile and an output')
+        if not os.path.isfile(path):
+            raise UserError(path, "", "no such file")
+        tiles.append(core.read_exr(path))
+    try:
+        image = core.merge_tiles(tiles)
+    except core.InputError as e:  # name the files, not the tiles' indices
+        detail = re.sub(r"tile (\d+)", lambda m: f"tile {args.tiles[int(m.group(1))]}", e.detail)
+        raise UserError("command line", "tiles", detail) from None
+    written = _write_images(image, args.output, args.png, args.exposure)
+    where = "" if image.full_width == image.width and image.full_height == image.height else \
+        f" at ({image.x}, {image.y}) of {image.full_width}x{image.full_height}"
+    _log(args, f"merged {len(tiles)} tiles into {image.width}x{image.height}{where}; wrote {' and '.join(written)}")
+    return EXIT_OK
+
+
 def cmd_info(args):
     scene = api.read_aggregates(args.scene)
     report = api.aggregate_report(scene=scene)
@@ -532,7 +612,12 @@ def cmd_export_vdb(args):
     return EXIT_OK
 
 
-COMMANDS = {"render": cmd_render, "info": cmd_info, "export-vdb": cmd_export_vdb}
+def cmd_farm(args):
+    from . import farm
+    return farm.run(args)
+
+
+COMMANDS = {"render": cmd_render, "merge": cmd_merge, "farm": cmd_farm, "info": cmd_info, "export-vdb": cmd_export_vdb}
 
 
 def main(argv=None):

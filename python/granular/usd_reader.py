@@ -17,7 +17,7 @@ the granular primvars and the render settings' resolution.
   intensity, exposure, color, color temperature and normalize;
 - a UsdPreviewSurface subset: diffuseColor -> Lambert, opacity < 1 -> dielectric of
   inputs:ior, emissiveColor -> emission; without a material, displayColor -> Lambert;
-- the render settings prim's resolution and camera.
+- the render settings prim's resolution, camera and dataWindowNDC (a crop).
 Every problem a user can cause raises UserError naming the prim and the attribute;
 `translate_core_error` turns core's InputError (named after SceneDesc fields) into the same.
 """
@@ -584,7 +584,48 @@ def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_c
         s.width, s.height = res
     else:
         s.width, s.height = DEFAULT_WIDTH, DEFAULT_HEIGHT
+    if settings is not None:
+        _read_data_window(scene, settings, time)
     return scene
+
+
+def ndc_to_pixels(ndc, width, height):
+    """A data window (xmin, ymin, xmax, ymax) in NDC (0, 0 the image's lower left, 1, 1 its
+    upper right) -> the pixels it covers, (x0, x1, y0, y1) with rows counted from the top:
+    every pixel the window covers even in part (a window edge within 1e-4 pixel of a pixel
+    edge counts as on it, so float NDC values like 0.3 do not pick up a sliver), clipped to
+    the image; None when nothing of the image is left."""
+    eps = 1e-4
+    xmin, ymin, xmax, ymax = (float(v) for v in ndc)
+    x0 = max(0, math.floor(xmin * width + eps))
+    x1 = min(width, math.ceil(xmax * width - eps))
+    y0 = max(0, math.floor((1.0 - ymax) * height + eps))
+    y1 = min(height, math.ceil((1.0 - ymin) * height - eps))
+    return (x0, x1, y0, y1) if x0 < x1 and y0 < y1 else None
+
+
+def _read_data_window(scene, settings, time):
+    """The render settings' dataWindowNDC as the render's crop (only those pixels are
+    rendered; the EXR keeps their place in the full image)."""
+    attr = UsdRender.Settings(settings).GetDataWindowNDCAttr()
+    if not attr.HasAuthoredValue():
+        return
+    path = str(settings.GetPath())
+    ndc = get_vec(attr, time, 4)
+    if ndc is None or not all(_finite(v) for v in ndc):
+        raise UserError(path, "dataWindowNDC", f"{ndc} is not four finite numbers (xmin, ymin, xmax, ymax)")
+    if not (ndc[0] < ndc[2] and ndc[1] < ndc[3]):
+        raise UserError(path, "dataWindowNDC", f"{tuple(ndc)} is empty: xmin < xmax and ymin < ymax are needed")
+    s = scene.desc.settings
+    window = ndc_to_pixels(ndc, s.width, s.height)
+    if window is None:
+        raise UserError(path, "dataWindowNDC", f"{tuple(ndc)} covers no pixel of the {s.width}x{s.height} image")
+    if ndc[0] < 0 or ndc[1] < 0 or ndc[2] > 1 or ndc[3] > 1:
+        scene.warn(f"{path}.dataWindowNDC: {tuple(ndc)} reaches outside the image; overscan is not rendered, "
+                   f"only the pixels inside (0, 0, 1, 1)")
+    if window != (0, s.width, 0, s.height):
+        s.crop = window
+    scene.name("render", path, {"crop": (path, "dataWindowNDC")})
 
 
 def validate(scene):

@@ -374,6 +374,13 @@ TEST_F(ImageIoTest, MergeTilesOfOddSizesEdgesAndSinglePixels) {
   EXPECT_TRUE(sameImageBits(mergeTiles(pixels), full));
   // One tile that is the whole image.
   EXPECT_TRUE(sameImageBits(mergeTiles({full}), full));
+  // Tiles of a crop (a data window) merge into that crop, which knows its place.
+  Image crop = mergeTiles({cut(full, 2, 4, 1, 3), cut(full, 4, 6, 1, 2), cut(full, 4, 6, 2, 3)});
+  EXPECT_TRUE(sameImageBits(crop, cut(full, 2, 6, 1, 3)));
+  EXPECT_EQ(crop.x, 2);
+  EXPECT_EQ(crop.y, 1);
+  EXPECT_EQ(crop.fullWidth, 7);
+  EXPECT_EQ(crop.fullHeight, 5);
 }
 
 TEST_F(ImageIoTest, MergeTilesThroughExrFiles) {
@@ -410,7 +417,7 @@ TEST_F(ImageIoTest, MergeTilesRefusesGapsOverlapsAndMismatches) {
     ADD_FAILURE() << "merged without complaint; expected: " << words;
   };
   refused({}, "no tiles");
-  refused({cut(full, 0, 3, 0, 4)}, "is in no tile");                                  // a gap
+  refused({cut(full, 0, 3, 0, 2), cut(full, 3, 6, 2, 4)}, "is in no tile");           // gaps
   refused({cut(full, 0, 4, 0, 4), cut(full, 3, 6, 0, 4)}, "overlaps tile 0");         // an overlap
   Image other = cut(pattern(7, 4), 3, 7, 0, 4);
   refused({cut(full, 0, 3, 0, 4), other}, "belongs to a 7x4 image");                  // another image

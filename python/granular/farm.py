@@ -1,0 +1,321 @@
+"""`granular farm`: a frame sequence as Dask tasks, one per frame and image tile, merged bit for bit.
+
+    granular farm SCENE.usda -o out/frame.####.exr [--png out/frame.####.png] --frames A:B[xSTEP]
+                  [--tiles N] [--scheduler ADDRESS | --workers K] [--retries R] [render options]
+
+Each task renders one tile of one frame through the code of `granular render`: the stage
+read at the frame's time, the command line's options, core.Scene.build, core.Renderer, with
+the tile as the render's crop (RenderSettings.crop). A pixel's samples depend on the seed,
+the pixel and the sample index only, and what is computed once per image (the roulette
+pre-render over the whole image, the TT parameters) is the same whatever the crop, so the
+merged tiles are the single-process render bit for bit. Tasks return their pixels; the client
+merges each frame's tiles (core.merge_tiles) as they arrive and writes the frame's PNG, then
+its EXR, each through a temporary name: a frame's EXR appears complete or not at all.
+
+Dask schedules: without --scheduler a LocalCluster of K worker processes (default: the
+cores) with one task at a time each and cores/K render threads; with --scheduler, the
+workers of that scheduler (start them with `dask worker ADDRESS --nthreads 1` on machines
+with this checkout, its venv and a shared GRANULAR_CACHE_DIR), each rendering with all its
+cores. A task that fails (an exception, a lost worker) is run again by Dask (--retries); a
+stage that cannot be read fails the whole job at once, before any task runs where the
+client can see it, else at its first task: exit 2, one `error:` line, no frame written
+after it.
+"""
+import logging
+import math
+import os
+import sys
+import threading
+import time
+
+from .errors import UserError
+
+DEFAULT_TILES = 4
+
+
+def add_parser(sub, render_options):
+    f = sub.add_parser("farm", help="render a frame sequence as Dask tasks (frames x tiles), on this machine "
+                                    "or a farm")
+    f.add_argument("scene", metavar="SCENE", help="USD stage (.usda, .usdc, .usd)")
+    f.add_argument("-o", "--output", required=True, metavar="OUT.####.exr",
+                   help="OpenEXR per frame; a run of '#' is replaced by the frame number, as in render --frames")
+    f.add_argument("--png", metavar="OUT.####.png", help="also an 8-bit sRGB PNG per frame")
+    f.add_argument("--frames", required=True, metavar="A:B[xSTEP]", help="the frames, as in render --frames")
+    f.add_argument("--tiles", type=_tiles, default=DEFAULT_TILES, metavar="N",
+                   help=f"tiles per frame, each its own task (default {DEFAULT_TILES}): a grid of about "
+                        "sqrt(N) x sqrt(N)")
+    where = f.add_mutually_exclusive_group()
+    where.add_argument("--scheduler", metavar="ADDRESS",
+                       help="a running Dask scheduler (tcp://host:8786); default: a LocalCluster here")
+    where.add_argument("--workers", type=_workers, metavar="K",
+                       help="worker processes of the LocalCluster (default: the cores)")
+    f.add_argument("--retries", type=_retries, default=2,
+                   help="times Dask runs a failed task again (default 2; a lost worker's tasks are rescheduled "
+                        "besides)")
+    render_options(f)
+    f.add_argument("--quiet", action="store_true", help="no progress or log on stderr")
+    return f
+
+
+def _bounded_int(name, lo, hi):
+    import argparse
+
+    def parse(text):
+        try:
+            v = int(text, 10)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"'{text}' is not an integer") from None
+        if not lo <= v <= hi:
+            raise argparse.ArgumentTypeError(f"{v} is outside [{lo}, {hi}]")
+        return v
+    parse.__name__ = name
+    return parse
+
+
+_tiles = _bounded_int("tiles", 1, 4096)
+_workers = _bounded_int("workers", 1, 1024)
+_retries = _bounded_int("retries", 0, 100)
+
+
+# ---- tiles -----------------------------------------------------------------------------------
+
+def grid(n):
+    """(rows, columns) of n tiles: the most nearly square factorisation, more columns than
+    rows (images are wider than tall)."""
+    rows = int(math.isqrt(n))
+    while n % rows:
+        rows -= 1
+    return rows, n // rows
+
+
+def tile_windows(window, n):
+    """n pixel windows (x0, x1, y0, y1) tiling `window` in a grid (rows, then columns), their
+    edges spread as evenly as whole pixels allow; fewer rows or columns than the grid asks
+    where the window is too narrow for them (never an empty tile)."""
+    x0, x1, y0, y1 = window
+    rows, cols = grid(n)
+    rows, cols = min(rows, y1 - y0), min(cols, x1 - x0)
+    xs = [x0 + (x1 - x0) * c // cols for c in range(cols + 1)]
+    ys = [y0 + (y1 - y0) * r // rows for r in range(rows + 1)]
+    return [(xs[c], xs[c + 1], ys[r], ys[r + 1]) for r in range(rows) for c in range(cols)]
+
+
+# ---- the task (runs on a worker) ---------------------------------------------------------------
+
+class _WorkerState:
+    """What a worker process keeps between tasks: the open stage, and the last built scene
+    with its description's fingerprint, so that the tiles of a frame build it once and the
+    next frame reuses what did not change (as render --frames does). One task at a time: a
+    render already uses every core it is given."""
+
+    def __init__(self):
+        self.lock = threading.Lock()
+        self.key = None
+        self.stage = None
+        self.built = None
+        self.fingerprint = None
+
+
+_STATE = _WorkerState()
+
+
+def _job_key(job):
+    path = os.path.abspath(job["scene"])
+    try:
+        stamp = os.stat(path).st_mtime_ns
+    except OSError:
+        stamp = None
+    return (path, stamp)
+
+
+def render_tile(job, frame, window):
+    """Renders one tile of one frame; returns its pixels and where they lie, or
+    {"error": (object, attribute, message)} for bad input (which no retry can fix). `job` holds the command
+    line's render options (the names of `granular render`'s)."""
+    import granular_core as core
+    from pxr import Tf
+    from . import api
+    from .cli import _apply_options, _SCENE_PARTS, fingerprint
+    from .usd_reader import open_stage, read_stage, translate_core_error, describe_tf_error
+
+    args = _Args(job)
+    t0 = time.monotonic()
+    with _STATE.lock:
+        try:
+            key = _job_key(job)
+            if _STATE.key != key:
+                _STATE.key, _STATE.stage, _STATE.built, _STATE.fingerprint = key, open_stage(job["scene"]), None, None
+            scene = read_stage(job["scene"], camera=args.camera, width=args.width, height=args.height,
+                               stage=_STATE.stage, time=frame)
+            s = _apply_options(args, scene)
+            s.crop = tuple(window)
+            current = fingerprint(scene.desc)
+            previous = _STATE.fingerprint
+            built = _STATE.built
+            if built is None or any(current[p] != previous[p] for p in _SCENE_PARTS):
+                built = api.build_scene(scene, previous=built)
+                action = "built"
+            else:
+                try:
+                    built.set_view(scene.desc.camera, scene.desc.settings)
+                except core.InputError as e:
+                    raise translate_core_error(e, scene) from None
+                action = "reused"
+            _STATE.built, _STATE.fingerprint = built, current
+            t1 = time.monotonic()
+            renderer = core.Renderer(built)
+            if not renderer.render(1, None, 0.5):
+                raise RuntimeError("render cancelled")
+            image = renderer.image()
+        except UserError as e:
+            _STATE.key = None  # read the stage again next time
+            return {"error": (e.object, e.attribute, e.message)}
+        except core.InputError as e:
+            _STATE.key = None
+            return {"error": (e.object, e.attribute, e.detail)}
+        except Tf.ErrorException as e:
+            _STATE.key = None
+            return {"error": (job["scene"], "", " ".join(describe_tf_error(e).split()))}
+    return {"frame": frame, "window": tuple(window), "pixels": image.pixels, "channels": list(image.channels),
+            "x": image.x, "y": image.y, "full": (image.full_width, image.full_height), "scene": action,
+            "build_seconds": t1 - t0, "render_seconds": time.monotonic() - t1, "pid": os.getpid()}
+
+
+class _Args:
+    """The command line's options as attributes (what cli._apply_options reads)."""
+
+    def __init__(self, job):
+        self.__dict__.update(job)
+
+
+# Options a task needs; everything else (outputs, scheduling) stays on the client.
+_JOB_OPTIONS = ("scene", "camera", "width", "height", "spp", "seed", "threads", "technique", "roulette", "lod",
+                "no_default_light", "no_physical_sun")
+
+
+# ---- the client ------------------------------------------------------------------------------
+
+def _log(args, msg):
+    if not args.quiet:
+        print(msg, file=sys.stderr)
+
+
+def _check_scene(args, frames):
+    """Reads every frame's description here, as a task would (no build), so that a stage that
+    cannot be read fails the job before any task runs; returns each frame's pixel window."""
+    from . import api  # noqa: F401  (the core module is importable: checked by the caller)
+    from .cli import _apply_options
+    from .usd_reader import open_stage, read_stage, validate
+
+    stage = open_stage(args.scene)
+    windows = {}
+    for frame in frames:
+        scene = read_stage(args.scene, camera=args.camera, width=args.width, height=args.height, stage=stage,
+                           time=frame)
+        s = _apply_options(args, scene)
+        validate(scene)
+        x0, x1, y0, y1 = s.crop
+        windows[frame] = (x0, x1, y0, y1) if (x0, x1, y0, y1) != (0, 0, 0, 0) else (0, s.width, 0, s.height)
+        if frame == frames[0]:
+            for w in scene.warnings:
+                _log(args, "warning: " + w)
+            _log(args, f"{args.scene}: camera {scene.camera_path}, {s.width}x{s.height}, {s.spp} spp")
+    return windows
+
+
+def _start(args):
+    """(client, cluster or None, description)."""
+    from distributed import Client, LocalCluster
+
+    if args.scheduler:
+        try:
+            client = Client(args.scheduler, timeout="20s")
+        except (OSError, TimeoutError) as e:
+            raise UserError("command line", "--scheduler", f"cannot reach {args.scheduler}: {e}") from None
+        workers = len(client.scheduler_info().get("workers", {}))
+        return client, None, f"scheduler {args.scheduler} ({workers} workers now)"
+    k = args.workers or os.cpu_count() or 1
+    cluster = LocalCluster(n_workers=k, threads_per_worker=1, processes=True, dashboard_address=None,
+                           silence_logs=logging.ERROR)
+    return Client(cluster), cluster, f"a LocalCluster of {k} worker processes"
+
+
+def _write_frame(image, exr, png, exposure):
+    """The PNG, then the EXR, each written whole or not at all: the EXR marks a finished frame."""
+    import granular_core as core
+    if png:
+        core.write_png(png, image, exposure)
+    core.write_exr(exr, image)
+    return [p for p in (png, exr) if p]
+
+
+def run(args):
+    from .cli import EXIT_OK, _check_output, _Progress, frame_outputs, frame_text, parse_frames
+
+    _check_output(args.output, "-o", (".exr",))
+    if args.png:
+        _check_output(args.png, "--png", (".png",))
+    if args.png and os.path.abspath(args.png) == os.path.abspath(args.output):
+        raise UserError("command line", "--png", "is the same file as -o")
+    frames = parse_frames(args.frames)
+    exr_name, png_name = frame_outputs(args, frames)
+    t0 = time.monotonic()
+    windows = _check_scene(args, frames)
+    for frame, w in windows.items():
+        if args.tiles > (w[1] - w[0]) * (w[3] - w[2]):
+            raise UserError("command line", "--tiles", f"{args.tiles} tiles are more than the {w[1] - w[0]}x"
+                                                       f"{w[3] - w[2]} pixels of frame {frame_text(frame)}")
+
+    job = {name: getattr(args, name) for name in _JOB_OPTIONS}
+    if not args.scheduler and not args.threads:  # share this machine's cores among its workers
+        job["threads"] = max(1, (os.cpu_count() or 1) // (args.workers or os.cpu_count() or 1))
+    client, cluster, where = _start(args)
+    try:
+        tasks = {}
+        futures = []
+        for frame in frames:
+            tiles = tile_windows(windows[frame], args.tiles)
+            tasks[frame] = len(tiles)
+            for k, w in enumerate(tiles):
+                futures.append(client.submit(render_tile, job, frame, w, retries=args.retries, pure=False,
+                                             key=f"granular-tile-{frame_text(frame)}-{k}-{os.getpid()}-{t0}"))
+        _log(args, f"farm: {len(frames)} frames x {args.tiles} tiles = {len(futures)} tasks on {where}; set-up "
+                   f"{time.monotonic() - t0:.2f} s")
+        return _collect(args, client, futures, tasks, exr_name, png_name, t0)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def _collect(args, client, futures, tasks, exr_name, png_name, t0):
+    import granular_core as core
+    from distributed import as_completed
+    from .cli import EXIT_OK, _Progress, frame_text
+
+    progress = _Progress(not args.quiet, unit="tasks")
+    pending = {frame: [] for frame in tasks}
+    done = 0
+    builds = 0
+    workers = set()
+    for future in as_completed(futures):
+        result = future.result()  # re-raises a task's exception once its retries are spent
+        if "error" in result:
+            for f in futures:
+                f.cancel()
+            raise UserError(*result["error"])
+        done += 1
+        builds += result["scene"] == "built"
+        workers.add(result["pid"])
+        frame = result["frame"]
+        pending[frame].append(core.Image(result["pixels"], result["channels"], result["x"], result["y"],
+                                         *result["full"]))
+        progress(done, len(futures), time.monotonic() - t0)
+        if len(pending[frame]) == tasks[frame]:
+            image = core.merge_tiles(pending.pop(frame))
+            written = _write_frame(image, exr_name(frame), png_name(frame) if png_name else None, args.exposure)
+            if not progress.tty:
+                _log(args, f"frame {frame_text(frame)}: {tasks[frame]} tiles merged; wrote {' and '.join(written)}")
+    _log(args, f"{len(tasks)} frames, {done} tasks in {time.monotonic() - t0:.1f} s ({builds} scene builds on "
+               f"{len(workers)} worker processes)")
+    return EXIT_OK
