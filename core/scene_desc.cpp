@@ -3,6 +3,9 @@
 // what it is given. Attribute names follow the USD schema (camelCase).
 #include "scene_desc.h"
 
+#include <algorithm>
+#include <cmath>
+
 #include "error.h"
 #include "light.h"
 
@@ -88,6 +91,18 @@ void checkMaterialIndex(int m, size_t count, const std::string& obj) {
 PixelWindow renderWindow(const RenderSettings& s) {
   if (s.cropX0 == 0 && s.cropX1 == 0 && s.cropY0 == 0 && s.cropY1 == 0) return {0, s.width, 0, s.height};
   return {s.cropX0, s.cropX1, s.cropY0, s.cropY1};
+}
+
+PixelWindow pixelWindowFromNdc(double xmin, double ymin, double xmax, double ymax, int width, int height) {
+  if (!(std::isfinite(xmin) && std::isfinite(ymin) && std::isfinite(xmax) && std::isfinite(ymax))) return PixelWindow{};
+  constexpr double eps = 1e-4;
+  auto pixel = [](double v, int size) { return int(std::clamp(v, 0.0, double(size))); };
+  PixelWindow w;
+  w.x0 = pixel(std::floor(xmin * width + eps), width);
+  w.x1 = pixel(std::ceil(xmax * width - eps), width);
+  w.y0 = pixel(std::floor((1.0 - ymax) * height + eps), height);
+  w.y1 = pixel(std::ceil((1.0 - ymin) * height - eps), height);
+  return w.x0 < w.x1 && w.y0 < w.y1 ? w : PixelWindow{};
 }
 
 void validateSceneDesc(const SceneDesc& desc) {

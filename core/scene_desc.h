@@ -142,6 +142,13 @@ struct PixelWindow {
 // The pixels a render covers: the crop, or the whole image when the crop is all 0.
 PixelWindow renderWindow(const RenderSettings& s);
 
+// UsdRenderSettings' dataWindowNDC (xmin, ymin, xmax, ymax; (0, 0) the image's lower left,
+// (1, 1) its upper right) as the pixels of a width × height image it covers, rows from the
+// top: every pixel covered even in part (an edge within 1e-4 pixel of a pixel edge counts as
+// on it, so that float values such as 0.3 pick up no sliver), clipped to the image (no
+// overscan); an empty window (width() <= 0) when nothing of the image is left.
+PixelWindow pixelWindowFromNdc(double xmin, double ymin, double xmax, double ymax, int width, int height);
+
 struct SceneDesc {
   CameraDesc camera;
   std::vector<MaterialDesc> materials;

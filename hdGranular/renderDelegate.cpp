@@ -7,6 +7,7 @@
 #include "pxr/imaging/hd/camera.h"
 #include "pxr/imaging/hd/tokens.h"
 #include "renderBuffer.h"
+#include "renderSettings.h"
 #include "renderParam.h"
 #include "renderPass.h"
 #include "renderer.h"
@@ -20,7 +21,7 @@ const TfTokenVector kRprimTypes = {HdPrimTypeTokens->mesh};
 const TfTokenVector kSprimTypes = {HdPrimTypeTokens->camera,      HdPrimTypeTokens->material,
                                    HdPrimTypeTokens->distantLight, HdPrimTypeTokens->domeLight,
                                    HdPrimTypeTokens->rectLight,    HdPrimTypeTokens->sphereLight};
-const TfTokenVector kBprimTypes = {HdPrimTypeTokens->renderBuffer};
+const TfTokenVector kBprimTypes = {HdPrimTypeTokens->renderBuffer, HdPrimTypeTokens->renderSettings};
 }  // namespace
 
 HdGranularRenderDelegate::HdGranularRenderDelegate() { _Initialize(); }
@@ -112,6 +113,7 @@ void HdGranularRenderDelegate::DestroySprim(HdSprim* sprim) { delete sprim; }
 
 HdBprim* HdGranularRenderDelegate::CreateBprim(TfToken const& typeId, SdfPath const& bprimId) {
   if (typeId == HdPrimTypeTokens->renderBuffer) return new HdGranularRenderBuffer(bprimId);
+  if (typeId == HdPrimTypeTokens->renderSettings) return new HdGranularRenderSettings(bprimId);
   TF_CODING_ERROR("hdGranular: unknown bprim type %s", typeId.GetText());
   return nullptr;
 }

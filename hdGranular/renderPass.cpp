@@ -11,6 +11,7 @@
 #include "renderBuffer.h"
 #include "renderDelegate.h"
 #include "renderParam.h"
+#include "renderSettings.h"
 #include "renderer.h"
 
 PXR_NAMESPACE_OPEN_SCOPE
@@ -102,6 +103,9 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
     }
   if (!first) return;  // nothing bound: nothing to render into
   const int width = int(first->GetWidth()), height = int(first->GetHeight());
+  // The active UsdRenderSettings' dataWindowNDC: only those pixels are rendered, the rest
+  // keep the buffers' clear values (as granular render writes only them).
+  const granular::PixelWindow crop = HdGranularDataWindow(GetRenderIndex(), width, height);
   const GfMatrix4d view = state->GetWorldToViewMatrix(), proj = state->GetProjectionMatrix();
 
   const int sceneVersion = _param->Version(), settingsVersion = delegate->GetRenderSettingsVersion();
@@ -113,7 +117,8 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
       (physicalSunSetting(delegate) ? "sun" : "delta");
   const bool rebuild = !_started || sceneVersion != _sceneVersion || buildKey != _buildKey;
   const bool reframe = rebuild || settingsVersion != _settingsVersion || view != _view || proj != _projection ||
-                       width != _width || height != _height;
+                       width != _width || height != _height || crop.x0 != _crop.x0 || crop.x1 != _crop.x1 ||
+                       crop.y0 != _crop.y0 || crop.y1 != _crop.y1;
   // A render buffer reallocated or freed under the loop stopped it (renderBuffer.h).
   const bool rebind = reframe || bindings != _bindings || _renderer->WasInterrupted();
   if (!rebind) return;  // the loop goes on
@@ -127,12 +132,15 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
   _projection = proj;
   _width = width;
   _height = height;
+  _crop = crop;
   _bindings = bindings;
   try {
     granular::CameraDesc cam;
     if (!cameraFromMatrices(view, proj, cam))
       throw granular::InputError("camera", "projection", "only perspective cameras are supported");
     granular::RenderSettings rs = renderSettings(delegate, width, height);
+    if (crop.x0 != 0 || crop.y0 != 0 || crop.x1 != width || crop.y1 != height)
+      rs.cropX0 = crop.x0, rs.cropX1 = crop.x1, rs.cropY0 = crop.y0, rs.cropY1 = crop.y1;
     if (rebuild || !_renderer->GetScene()) {  // no scene: the last attempt failed (e.g. a bad camera)
       granular::SceneDesc desc = _param->Assemble();
       if (TfGetenvBool("GRANULAR_HD_DEBUG", false)) {  // what the core is given, for users' bug reports

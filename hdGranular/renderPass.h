@@ -5,7 +5,9 @@
 // version), of the technique, of the default light or of the physical-sun setting builds
 // the core scene anew, reusing every aggregate whose inputs did not change (Scene::build);
 // a camera move, a resize or other settings only set a new view (no re-voxelising, no
-// re-estimation); new AOV bindings only restart the loop.
+// re-estimation); new AOV bindings only restart the loop. The active UsdRenderSettings'
+// dataWindowNDC (renderSettings.h) crops the render as in granular render: only its pixels
+// are rendered, the others keep the buffers' clear values.
 // A scene that cannot be built is reported once (TF_RUNTIME_ERROR naming the prim and
 // attribute) and renders nothing, its buffers marked converged.
 #ifndef HDGRANULAR_RENDER_PASS_H
@@ -17,6 +19,7 @@
 #include "pxr/imaging/hd/renderPass.h"
 #include "pxr/imaging/hd/renderPassState.h"
 #include "pxr/pxr.h"
+#include "scene_desc.h"
 
 PXR_NAMESPACE_OPEN_SCOPE
 
@@ -41,6 +44,7 @@ class HdGranularRenderPass final : public HdRenderPass {
   std::string _sunsWarned;  // the last widened-suns warning given
   GfMatrix4d _view{0.0}, _projection{0.0};
   int _width = 0, _height = 0;
+  granular::PixelWindow _crop;  // of the active render settings (renderSettings.h)
   HdRenderPassAovBindingVector _bindings;
   bool _started = false;
 };

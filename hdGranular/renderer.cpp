@@ -80,6 +80,9 @@ void HdGranularRenderer::_MarkConverged() {
 }
 
 void HdGranularRenderer::_WriteRegion(granular::Film const& film, int stride, int x0, int x1, int y0, int y1) {
+  // Film pixel (x, y) is image pixel (x, y) + the crop's origin (render.h).
+  const granular::PixelWindow crop = granular::renderWindow(_scene->settings());
+  const int width = _scene->settings().width, height = _scene->settings().height;
   // Channel offsets of Film::pixelChannels (film.h).
   constexpr int kColor = 0, kDepth = 4, kNormal = 5, kParts = 8, kPrimId = 17;
   std::vector<float> px(size_t(x1 - x0) * (y1 - y0) * granular::Film::kChannels);
@@ -91,8 +94,7 @@ void HdGranularRenderer::_WriteRegion(granular::Film const& film, int stride, in
   for (auto const& b : _bindings) {
     auto* rb = dynamic_cast<HdGranularRenderBuffer*>(b.renderBuffer);
     // A buffer of another size belongs to a view this render is not for.
-    if (!rb || int(rb->GetWidth()) != _renderer->film().width() || int(rb->GetHeight()) != _renderer->film().height())
-      continue;
+    if (!rb || int(rb->GetWidth()) != width || int(rb->GetHeight()) != height) continue;
     const TfToken& aov = b.aovName;
     int c0 = -1, n = 0;
     if (aov == HdAovTokens->color) c0 = kColor, n = 4;
@@ -103,16 +105,17 @@ void HdGranularRenderer::_WriteRegion(granular::Film const& film, int stride, in
     for (int y = y0; y < y1; ++y)
       for (int x = x0; x < x1; ++x) {
         const float* p = &px[(size_t(y - y0) * (x1 - x0) + (x - x0)) * granular::Film::kChannels];
+        const int ix = crop.x0 + x, iy = crop.y0 + y;
         if (aov == HdAovTokens->depth) {
           float d = _DepthToClip(p[kDepth]);
-          rb->Write(x, y, &d, 1);
+          rb->Write(ix, iy, &d, 1);
         } else if (aov == HdAovTokens->cameraDepth) {
           float d = std::isfinite(p[kDepth]) ? p[kDepth] : 0.0f;
-          rb->Write(x, y, &d, 1);
+          rb->Write(ix, iy, &d, 1);
         } else if (aov == HdAovTokens->primId) {
-          rb->WriteInt(x, y, int(p[kPrimId]));
+          rb->WriteInt(ix, iy, int(p[kPrimId]));
         } else if (c0 >= 0) {
-          rb->Write(x, y, p + c0, n);
+          rb->Write(ix, iy, p + c0, n);
         }
       }
   }
@@ -125,7 +128,8 @@ void HdGranularRenderer::_Render() {
   }
   _renderer = std::make_unique<granular::Renderer>(*_scene);
   const long target = _scene->settings().spp;
-  const int width = _scene->settings().width, height = _scene->settings().height;
+  const granular::PixelWindow crop = granular::renderWindow(_scene->settings());  // the film's pixels
+  const int width = crop.width(), height = crop.height();
   _samplesTarget = target;
   _samplesDone = 0;
   _nonFinite = 0;

@@ -58,8 +58,9 @@ class HdGranularRenderer {
 
  private:
   void _Render();
-  // Writes the image window [x0, x1) × [y0, y1) into the bound buffers from a film that
-  // holds every stride-th pixel (stride 1: the image's own film).
+  // Writes the film window [x0, x1) × [y0, y1) (image pixels less the crop's origin) into
+  // the bound buffers from a film that holds every stride-th pixel (stride 1: the render's
+  // own film).
   void _WriteRegion(granular::Film const& film, int stride, int x0, int x1, int y0, int y1);
   void _SetBuffersConverged(bool converged);
   double _SecondsSinceStart() const;

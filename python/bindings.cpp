@@ -388,6 +388,14 @@ PYBIND11_MODULE(granular_core, m) {
       .def("add_aggregate", [](SceneDesc& d, const AggregateDesc& x) { d.aggregates.push_back(x); return int(d.aggregates.size()) - 1; });
 
   m.def("validate_scene_desc", &validateSceneDesc, py::arg("desc"));
+  m.def(
+      "pixel_window_from_ndc",
+      [](double xmin, double ymin, double xmax, double ymax, int width, int height) {
+        PixelWindow w = pixelWindowFromNdc(xmin, ymin, xmax, ymax, width, height);
+        return std::make_tuple(w.x0, w.x1, w.y0, w.y1);
+      },
+      py::arg("xmin"), py::arg("ymin"), py::arg("xmax"), py::arg("ymax"), py::arg("width"), py::arg("height"),
+      "UsdRenderSettings dataWindowNDC -> pixels (x0, x1, y0, y1), rows from the top; (0, 0, 0, 0) when empty");
 
   // ---- the granular schema's meaning (granular_prims.h) ------------------------------------
   py::class_<PrimvarValue>(m, "PrimvarValue")

@@ -114,6 +114,10 @@ class _WorkerState:
         self.stage = None
         self.built = None
         self.fingerprint = None
+        # P_a tuned by the pre-render of a frame (its description without the crop): the
+        # frame's later tiles pass it on as the roulette setting instead of tuning again —
+        # the same float, so the same image (the pre-render covers the whole image anyway).
+        self.tuned = {}
 
 
 _STATE = _WorkerState()
@@ -145,9 +149,13 @@ def render_tile(job, frame, window):
             key = _job_key(job)
             if _STATE.key != key:
                 _STATE.key, _STATE.stage, _STATE.built, _STATE.fingerprint = key, open_stage(job["scene"]), None, None
+                _STATE.tuned.clear()
             scene = read_stage(job["scene"], camera=args.camera, width=args.width, height=args.height,
                                stage=_STATE.stage, time=frame)
             s = _apply_options(args, scene)
+            frame_key = tuple(sorted(fingerprint(scene.desc).items()))
+            if frame_key in _STATE.tuned:
+                s.roulette = _STATE.tuned[frame_key]
             s.crop = tuple(window)
             current = fingerprint(scene.desc)
             previous = _STATE.fingerprint
@@ -167,6 +175,10 @@ def render_tile(job, frame, window):
             if not renderer.render(1, None, 0.5):
                 raise RuntimeError("render cancelled")
             image = renderer.image()
+            if s.roulette < 0 and built.has_media:
+                if len(_STATE.tuned) > 64:
+                    _STATE.tuned.clear()
+                _STATE.tuned[frame_key] = renderer.roulette["pa"]
         except UserError as e:
             _STATE.key = None  # read the stage again next time
             return {"error": (e.object, e.attribute, e.message)}
@@ -223,21 +235,72 @@ def _check_scene(args, frames):
     return windows
 
 
-def _start(args):
-    """(client, cluster or None, description)."""
-    from distributed import Client, LocalCluster
+def _warm(scene):
+    """On a worker: the imports and the stage opened before its first task (while the client
+    reads the frames), so that no task waits for them."""
+    import granular_core  # noqa: F401
+    from . import api, cli  # noqa: F401
+    from .usd_reader import open_stage
+    with _STATE.lock:
+        key = _job_key({"scene": scene})
+        if _STATE.key != key:
+            try:
+                _STATE.stage = open_stage(scene)
+            except Exception:  # the task reports it, with the stage's own words
+                return False
+            _STATE.key, _STATE.built, _STATE.fingerprint = key, None, None
+            _STATE.tuned.clear()
+    return True
 
-    if args.scheduler:
+
+class _Cluster:
+    """Starts the Dask client (and, without --scheduler, its LocalCluster) on a thread and
+    warms its workers, while the caller reads the stage; result() waits for it."""
+
+    def __init__(self, args):
+        self.args = args
+        self.client = self.cluster = self.where = self.error = None
+        self.thread = threading.Thread(target=self._start, daemon=True)
+        self.thread.start()
+
+    def _start(self):
+        import dask
+        from distributed import Client, LocalCluster
+        args = self.args
+        # Workers render with every core they are given: their statistical profiler (a stack
+        # sample every 10 ms) and a 20 ms event-loop tick only take cycles from the render.
+        dask.config.set({"distributed.worker.profile.enabled": False, "distributed.admin.tick.interval": "200ms"})
         try:
-            client = Client(args.scheduler, timeout="20s")
-        except (OSError, TimeoutError) as e:
-            raise UserError("command line", "--scheduler", f"cannot reach {args.scheduler}: {e}") from None
-        workers = len(client.scheduler_info().get("workers", {}))
-        return client, None, f"scheduler {args.scheduler} ({workers} workers now)"
-    k = args.workers or os.cpu_count() or 1
-    cluster = LocalCluster(n_workers=k, threads_per_worker=1, processes=True, dashboard_address=None,
-                           silence_logs=logging.ERROR)
-    return Client(cluster), cluster, f"a LocalCluster of {k} worker processes"
+            if args.scheduler:
+                try:
+                    self.client = Client(args.scheduler, timeout="20s")
+                except (OSError, TimeoutError) as e:
+                    raise UserError("command line", "--scheduler", f"cannot reach {args.scheduler}: {e}") from None
+                workers = len(self.client.scheduler_info().get("workers", {}))
+                self.where = f"scheduler {args.scheduler} ({workers} workers now)"
+            else:
+                k = args.workers or os.cpu_count() or 1
+                self.cluster = LocalCluster(n_workers=k, threads_per_worker=1, processes=True,
+                                            dashboard_address=None, silence_logs=logging.ERROR)
+                self.client = Client(self.cluster)
+                self.where = f"a LocalCluster of {k} worker processes"
+            self.client.run(_warm, os.path.abspath(args.scene))
+        except BaseException as e:  # handed to the caller by result()
+            self.error = e
+
+    def result(self):
+        self.thread.join()
+        if self.error is not None:
+            self.close()
+            raise self.error
+        return self.client, self.where
+
+    def close(self):
+        self.thread.join()
+        if self.client is not None:
+            self.client.close()
+        if self.cluster is not None:
+            self.cluster.close()
 
 
 def _write_frame(image, exr, png, exposure):
@@ -250,7 +313,7 @@ def _write_frame(image, exr, png, exposure):
 
 
 def run(args):
-    from .cli import EXIT_OK, _check_output, _Progress, frame_outputs, frame_text, parse_frames
+    from .cli import _check_output, frame_outputs, frame_text, parse_frames
 
     _check_output(args.output, "-o", (".exr",))
     if args.png:
@@ -260,17 +323,18 @@ def run(args):
     frames = parse_frames(args.frames)
     exr_name, png_name = frame_outputs(args, frames)
     t0 = time.monotonic()
-    windows = _check_scene(args, frames)
-    for frame, w in windows.items():
-        if args.tiles > (w[1] - w[0]) * (w[3] - w[2]):
-            raise UserError("command line", "--tiles", f"{args.tiles} tiles are more than the {w[1] - w[0]}x"
-                                                       f"{w[3] - w[2]} pixels of frame {frame_text(frame)}")
-
-    job = {name: getattr(args, name) for name in _JOB_OPTIONS}
-    if not args.scheduler and not args.threads:  # share this machine's cores among its workers
-        job["threads"] = max(1, (os.cpu_count() or 1) // (args.workers or os.cpu_count() or 1))
-    client, cluster, where = _start(args)
+    cluster = _Cluster(args)  # starts while the frames are read
     try:
+        windows = _check_scene(args, frames)
+        for frame, w in windows.items():
+            if args.tiles > (w[1] - w[0]) * (w[3] - w[2]):
+                raise UserError("command line", "--tiles", f"{args.tiles} tiles are more than the {w[1] - w[0]}x"
+                                                           f"{w[3] - w[2]} pixels of frame {frame_text(frame)}")
+        job = {name: getattr(args, name) for name in _JOB_OPTIONS}
+        job["scene"] = os.path.abspath(args.scene)
+        if not args.scheduler and not args.threads:  # share this machine's cores among its workers
+            job["threads"] = max(1, (os.cpu_count() or 1) // (args.workers or os.cpu_count() or 1))
+        client, where = cluster.result()
         tasks = {}
         futures = []
         for frame in frames:
@@ -283,9 +347,7 @@ def run(args):
                    f"{time.monotonic() - t0:.2f} s")
         return _collect(args, client, futures, tasks, exr_name, png_name, t0)
     finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+        cluster.close()
 
 
 def _collect(args, client, futures, tasks, exr_name, png_name, t0):
@@ -297,6 +359,7 @@ def _collect(args, client, futures, tasks, exr_name, png_name, t0):
     pending = {frame: [] for frame in tasks}
     done = 0
     builds = 0
+    busy = 0.0  # seconds the tasks spent building and rendering
     workers = set()
     for future in as_completed(futures):
         result = future.result()  # re-raises a task's exception once its retries are spent
@@ -306,6 +369,7 @@ def _collect(args, client, futures, tasks, exr_name, png_name, t0):
             raise UserError(*result["error"])
         done += 1
         builds += result["scene"] == "built"
+        busy += result["build_seconds"] + result["render_seconds"]
         workers.add(result["pid"])
         frame = result["frame"]
         pending[frame].append(core.Image(result["pixels"], result["channels"], result["x"], result["y"],
@@ -317,5 +381,5 @@ def _collect(args, client, futures, tasks, exr_name, png_name, t0):
             if not progress.tty:
                 _log(args, f"frame {frame_text(frame)}: {tasks[frame]} tiles merged; wrote {' and '.join(written)}")
     _log(args, f"{len(tasks)} frames, {done} tasks in {time.monotonic() - t0:.1f} s ({builds} scene builds on "
-               f"{len(workers)} worker processes)")
+               f"{len(workers)} worker processes; the tasks read, built and rendered for {busy:.1f} s in all)")
     return EXIT_OK

@@ -17,7 +17,8 @@ the granular primvars and the render settings' resolution.
   intensity, exposure, color, color temperature and normalize;
 - a UsdPreviewSurface subset: diffuseColor -> Lambert, opacity < 1 -> dielectric of
   inputs:ior, emissiveColor -> emission; without a material, displayColor -> Lambert;
-- the render settings prim's resolution, camera and dataWindowNDC (a crop).
+- the render settings prim's resolution and camera, and its first product's
+  dataWindowNDC (a crop).
 Every problem a user can cause raises UserError naming the prim and the attribute;
 `translate_core_error` turns core's InputError (named after SceneDesc fields) into the same.
 """
@@ -590,27 +591,33 @@ def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_c
 
 
 def ndc_to_pixels(ndc, width, height):
-    """A data window (xmin, ymin, xmax, ymax) in NDC (0, 0 the image's lower left, 1, 1 its
-    upper right) -> the pixels it covers, (x0, x1, y0, y1) with rows counted from the top:
-    every pixel the window covers even in part (a window edge within 1e-4 pixel of a pixel
-    edge counts as on it, so float NDC values like 0.3 do not pick up a sliver), clipped to
-    the image; None when nothing of the image is left."""
-    eps = 1e-4
-    xmin, ymin, xmax, ymax = (float(v) for v in ndc)
-    x0 = max(0, math.floor(xmin * width + eps))
-    x1 = min(width, math.ceil(xmax * width - eps))
-    y0 = max(0, math.floor((1.0 - ymax) * height + eps))
-    y1 = min(height, math.ceil((1.0 - ymin) * height - eps))
-    return (x0, x1, y0, y1) if x0 < x1 and y0 < y1 else None
+    """A data window (xmin, ymin, xmax, ymax) in NDC -> the pixels (x0, x1, y0, y1) it covers
+    (core.pixel_window_from_ndc: the delegate's conversion too); None when nothing of the
+    image is left."""
+    w = core.pixel_window_from_ndc(*(float(v) for v in ndc), width, height)
+    return w if w[0] < w[1] and w[2] < w[3] else None
 
 
 def _read_data_window(scene, settings, time):
-    """The render settings' dataWindowNDC as the render's crop (only those pixels are
-    rendered; the EXR keeps their place in the full image)."""
-    attr = UsdRender.Settings(settings).GetDataWindowNDCAttr()
-    if not attr.HasAuthoredValue():
+    """The data window of the settings prim's first render product (UsdRender: the product's
+    own dataWindowNDC, else the settings prim's) as the render's crop: only those pixels are
+    rendered, and the EXR keeps their place in the full image. Hydra hosts hand hdGranular
+    the same value (hdGranular/renderSettings.h)."""
+    rs = UsdRender.Settings(settings)
+    own = rs.GetDataWindowNDCAttr()
+    targets = rs.GetProductsRel().GetForwardedTargets()
+    product = settings.GetStage().GetPrimAtPath(targets[0]) if targets else None
+    if product is None or not product.IsA(UsdRender.Product):
+        if own.HasAuthoredValue():
+            scene.warn(f"{settings.GetPath()}.dataWindowNDC: ignored: a data window applies to render products, "
+                       f"and this settings prim has none (add one to its products)")
         return
-    path = str(settings.GetPath())
+    attr = UsdRender.Product(product).GetDataWindowNDCAttr()
+    if not attr.HasAuthoredValue():
+        attr = own
+        if not attr.HasAuthoredValue():
+            return
+    path = str(attr.GetPrim().GetPath())
     ndc = get_vec(attr, time, 4)
     if ndc is None or not all(_finite(v) for v in ndc):
         raise UserError(path, "dataWindowNDC", f"{ndc} is not four finite numbers (xmin, ymin, xmax, ymax)")

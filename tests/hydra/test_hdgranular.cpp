@@ -464,3 +464,64 @@ TEST(HdGranular, ADeltaSunOverSmoothGrainsIsThePhysicalSunUnlessTurnedOff) {
   EXPECT_EQ(stat<int>(engine->GetRenderStats(), "granular:widenedSuns"), 0);
   EXPECT_EQ(stat<int>(engine->GetRenderStats(), "granular:sceneBuilds"), 2);  // a setting that rebuilds
 }
+
+// The stage's render settings prim with a data window (UsdRender dataWindowNDC: x from 1/4
+// to 3/4, the upper half) on it and, when `product`, a render product that inherits it.
+UsdStageRefPtr dataWindowStage(bool product) {
+  UsdStageRefPtr stage = UsdStage::Open(kExamples + "/snowslab.usda");
+  UsdPrim settings = stage->DefinePrim(SdfPath("/Render/CropSettings"), TfToken("RenderSettings"));
+  settings.CreateAttribute(TfToken("dataWindowNDC"), SdfValueTypeNames->Float4, false, SdfVariabilityUniform)
+      .Set(GfVec4f(0.25f, 0.5f, 0.75f, 1.0f));
+  settings.CreateRelationship(TfToken("camera")).SetTargets({SdfPath("/World/Camera")});
+  if (product) {
+    UsdPrim p = stage->DefinePrim(SdfPath("/Render/CropSettings/Product"), TfToken("RenderProduct"));
+    settings.CreateRelationship(TfToken("products")).SetTargets({p.GetPath()});
+  }
+  return stage;
+}
+
+TEST(HdGranular, TheActiveRenderSettingsDataWindowCropsTheRender) {
+  UsdStageRefPtr stage = dataWindowStage(true);
+  auto engine = makeEngine(2);
+  Frame full = render(*engine, stage, HdAovTokens->color, 40, 30);
+  ASSERT_TRUE(full.converged);
+  auto cropping = makeEngine(2);
+  cropping->SetActiveRenderSettingsPrimPath(SdfPath("/Render/CropSettings"));
+  Frame crop = render(*cropping, stage, HdAovTokens->color, 40, 30);
+  ASSERT_TRUE(crop.converged);
+  ASSERT_EQ(crop.values.size(), full.values.size());
+  // Pixels [10, 30) x [0, 15) from the top (granular::pixelWindowFromNdc) hold the full
+  // render's values; the rest keep the host's clear colour (black). Row 0 of a Hydra buffer
+  // is the bottom of the image.
+  int inside = 0, lit = 0, litOutside = 0;
+  for (int row = 0; row < 30; ++row)
+    for (int x = 0; x < 40; ++x) {
+      const int y = 29 - row;  // from the top
+      const float* c = &crop.values[(size_t(row) * 40 + x) * crop.channels];
+      const float* f = &full.values[(size_t(row) * 40 + x) * full.channels];
+      if (x >= 10 && x < 30 && y < 15) {
+        ++inside;
+        for (int k = 0; k < 4; ++k) ASSERT_EQ(c[k], f[k]) << "pixel " << x << ", " << y;
+        lit += f[0] > 0;
+      } else {
+        for (int k = 0; k < 3; ++k) ASSERT_EQ(c[k], 0.0f) << "pixel " << x << ", " << y << " outside the window";
+        litOutside += f[0] > 0;
+      }
+    }
+  EXPECT_EQ(inside, 300);
+  EXPECT_GT(lit, 150);         // the window holds something to compare
+  EXPECT_GT(litOutside, 500);  // and so does what it leaves out
+}
+
+TEST(HdGranular, ADataWindowWithoutARenderProductCropsNothing) {
+  // UsdRender: the data window belongs to render products (a settings prim's value is its
+  // products' default); granular render reads it the same way (usd_reader.py).
+  UsdStageRefPtr stage = dataWindowStage(false);
+  auto engine = makeEngine(2);
+  Frame full = render(*engine, stage, HdAovTokens->color, 40, 30);
+  auto settingsAlone = makeEngine(2);
+  settingsAlone->SetActiveRenderSettingsPrimPath(SdfPath("/Render/CropSettings"));
+  Frame f = render(*settingsAlone, stage, HdAovTokens->color, 40, 30);
+  ASSERT_TRUE(full.converged && f.converged);
+  EXPECT_EQ(f.values, full.values);
+}

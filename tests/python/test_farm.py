@@ -151,18 +151,27 @@ def test_ndc_to_pixels():
     assert ndc_to_pixels((1.1, 0, 1.5, 1), 40, 30) is None
 
 
-def _data_window(ndc):
+def _data_window(ndc, product=True, on_product=False):
+    """Render settings of 40x30 pixels with the data window `ndc` on the settings prim (or on
+    its product), and a render product unless `product` is False."""
     def mutate(stage):
         rs = UsdRender.Settings.Define(stage, "/Render/Settings")
         rs.CreateResolutionAttr(Gf.Vec2i(40, 30))
-        rs.CreateDataWindowNDCAttr(Gf.Vec4f(*ndc))
+        if product:
+            p = UsdRender.Product.Define(stage, "/Render/Settings/Beauty")
+            rs.CreateProductsRel().SetTargets([p.GetPath()])
+            if on_product:
+                p.CreateDataWindowNDCAttr(Gf.Vec4f(*ndc))
+        if not on_product:
+            rs.CreateDataWindowNDCAttr(Gf.Vec4f(*ndc))
         stage.SetMetadata("renderSettingsPrimPath", "/Render/Settings")
     return mutate
 
 
-def test_data_window_ndc_renders_its_pixels_only(tmp_path, scene_file, capsys):
+@pytest.mark.parametrize("on_product", [False, True])
+def test_data_window_ndc_renders_its_pixels_only(tmp_path, scene_file, capsys, on_product):
     opts = ["--spp", 4, "--seed", 5]
-    windowed = scene_file(_data_window((0.25, 0.5, 0.75, 1.0)), name="windowed.usda")
+    windowed = scene_file(_data_window((0.25, 0.5, 0.75, 1.0), on_product=on_product), name="windowed.usda")
     rc, _, err = run_cli(["render", windowed, "-o", tmp_path / "dw.exr", *opts], capsys)
     assert rc == 0, err
     # The same pixels by --crop on the full stage (the stage's window, overridden by --crop).
@@ -171,6 +180,15 @@ def test_data_window_ndc_renders_its_pixels_only(tmp_path, scene_file, capsys):
     _same(tmp_path / "dw.exr", tmp_path / "crop.exr")
     img, _ = _exr(tmp_path / "dw.exr")
     assert (img.x, img.y, img.width, img.height) == (10, 0, 20, 15)
+
+
+def test_a_data_window_without_a_render_product_is_ignored_with_a_warning(tmp_path, scene_file, capsys):
+    rc, _, err = run_cli(["render", scene_file(_data_window((0.25, 0.5, 0.75, 1.0), product=False)), "-o",
+                          tmp_path / "x.exr", "--spp", 1], capsys)
+    assert rc == 0, err
+    assert "/Render/Settings.dataWindowNDC: ignored: a data window applies to render products" in err
+    img, _ = _exr(tmp_path / "x.exr")
+    assert (img.x, img.y, img.width, img.height) == (0, 0, 40, 30)
 
 
 @pytest.mark.parametrize("ndc, words", [((0.5, 0, 0.5, 1), "is empty"), ((1.2, 0, 1.5, 1), "covers no pixel")])

@@ -1,0 +1,29 @@
+// renderSettings.h — the stage's UsdRenderSettings as Hydra bprims, so that the delegate
+// sees the render products of the active settings prim (the host's choice, else the stage's
+// renderSettingsPrimPath); of them it uses the first product's dataWindowNDC, which the
+// product inherits from its settings prim unless it authors its own — the crop, as
+// `granular render` reads it.
+#ifndef HDGRANULAR_RENDER_SETTINGS_H
+#define HDGRANULAR_RENDER_SETTINGS_H
+
+#include "pxr/imaging/hd/renderSettings.h"
+#include "pxr/pxr.h"
+#include "scene_desc.h"
+
+PXR_NAMESPACE_OPEN_SCOPE
+
+class HdRenderIndex;
+
+class HdGranularRenderSettings final : public HdRenderSettings {
+ public:
+  explicit HdGranularRenderSettings(SdfPath const& id) : HdRenderSettings(id) {}
+};
+
+// The pixels of a width × height image that the active render settings prim's first render
+// product asks for (its dataWindowNDC, granular::pixelWindowFromNdc); the whole image when
+// there is no active prim, no product, or its data window covers no pixel.
+granular::PixelWindow HdGranularDataWindow(HdRenderIndex* index, int width, int height);
+
+PXR_NAMESPACE_CLOSE_SCOPE
+
+#endif
