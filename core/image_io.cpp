@@ -130,6 +130,21 @@ std::string lowerExtension(const std::string& path) {
   return ext;
 }
 
+// An image file open for reading, of a usable flat 2-D shape; InputError naming the path.
+OIIO::ImageInput::unique_ptr openFlatImage(const std::string& path) {
+  auto in = OIIO::ImageInput::open(path);
+  if (!in) {
+    std::string why = OIIO::geterror();
+    throw InputError(path, "", "cannot read image: " + (why.empty() ? std::string("unknown error") : why));
+  }
+  const OIIO::ImageSpec& spec = in->spec();
+  if (spec.deep) throw InputError(path, "", "cannot read image: deep images are not supported");
+  if (spec.width <= 0 || spec.height <= 0 || spec.depth > 1 || spec.nchannels <= 0)
+    throw InputError(path, "", str("cannot read image: unusable size ", spec.width, "x", spec.height, "x",
+                                   spec.depth, " with ", spec.nchannels, " channels"));
+  return in;
+}
+
 }  // namespace
 
 void writeExr(const std::string& path, const Image& img) {
@@ -211,16 +226,8 @@ void writeImage(const std::string& path, const Image& img) {
 }
 
 Image readImageRGB(const std::string& path) {
-  auto in = OIIO::ImageInput::open(path);
-  if (!in) {
-    std::string why = OIIO::geterror();
-    throw InputError(path, "", "cannot read image: " + (why.empty() ? std::string("unknown error") : why));
-  }
+  auto in = openFlatImage(path);
   const OIIO::ImageSpec spec = in->spec();
-  if (spec.deep) throw InputError(path, "", "cannot read image: deep images are not supported");
-  if (spec.width <= 0 || spec.height <= 0 || spec.depth > 1 || spec.nchannels <= 0)
-    throw InputError(path, "", str("cannot read image: unusable size ", spec.width, "x", spec.height, "x",
-                                   spec.depth, " with ", spec.nchannels, " channels"));
 
   const size_t n = static_cast<size_t>(spec.width) * spec.height;
   const int nch = spec.nchannels;
@@ -264,15 +271,8 @@ float srgbEncode(float linear) {
 }
 
 Image readExr(const std::string& path) {
-  auto in = OIIO::ImageInput::open(path);
-  if (!in) {
-    std::string why = OIIO::geterror();
-    throw InputError(path, "", "cannot read image: " + (why.empty() ? std::string("unknown error") : why));
-  }
+  auto in = openFlatImage(path);
   const OIIO::ImageSpec spec = in->spec();
-  if (spec.deep || spec.width <= 0 || spec.height <= 0 || spec.depth > 1 || spec.nchannels <= 0)
-    throw InputError(path, "", str("cannot read image: unusable size ", spec.width, "x", spec.height, "x", spec.depth,
-                                   " with ", spec.nchannels, " channels"));
   if (spec.full_x != 0 || spec.full_y != 0 || spec.x < 0 || spec.y < 0 || spec.x + spec.width > spec.full_width ||
       spec.y + spec.height > spec.full_height)
     throw InputError(path, "", str("cannot read image: data window at (", spec.x, ", ", spec.y, ") of size ", spec.width,

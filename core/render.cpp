@@ -78,8 +78,7 @@ bool Renderer::renderPass(int samples, const std::atomic<bool>* cancel, const Ti
   const RenderSettings& rs = scene_.settings();
   const PixelWindow w = renderWindow(rs);
   // Scene::setView since construction may have changed the image or the crop.
-  if (rs.width != width_ || rs.height != height_ || w.x0 != window_.x0 || w.x1 != window_.x1 || w.y0 != window_.y0 ||
-      w.y1 != window_.y1)
+  if (rs.width != width_ || rs.height != height_ || w != window_)
     throw InputError("render", "resolution", str(rs.width, "x", rs.height, " (pixels [", w.x0, ", ", w.x1, ") x [", w.y0,
                                                  ", ", w.y1, ")) is not this renderer's: make a new renderer after a "
                                                  "change of view"));

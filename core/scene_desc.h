@@ -128,7 +128,7 @@ struct RenderSettings {
   // are rendered (a tile of a farm job, UsdRenderSettings dataWindowNDC); all 0 (the
   // default): every pixel. A pixel's samples depend on (seed, pixel, sample index) only and
   // the roulette pre-render always covers the whole image, so the crops of a tiling,
-  // merged, equal the full render bit for bit (tests/core/test_render.cpp).
+  // merged, equal the full render bit for bit (tests/core/test_render_crop.cpp).
   int cropX0 = 0, cropX1 = 0, cropY0 = 0, cropY1 = 0;
 };
 
@@ -137,6 +137,8 @@ struct PixelWindow {
   int x0 = 0, x1 = 0, y0 = 0, y1 = 0;
   int width() const { return x1 - x0; }
   int height() const { return y1 - y0; }
+  bool operator==(const PixelWindow& o) const { return x0 == o.x0 && x1 == o.x1 && y0 == o.y0 && y1 == o.y1; }
+  bool operator!=(const PixelWindow& o) const { return !(*this == o); }
 };
 
 // The pixels a render covers: the crop, or the whole image when the crop is all 0.

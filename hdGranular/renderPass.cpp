@@ -117,8 +117,7 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
       (physicalSunSetting(delegate) ? "sun" : "delta");
   const bool rebuild = !_started || sceneVersion != _sceneVersion || buildKey != _buildKey;
   const bool reframe = rebuild || settingsVersion != _settingsVersion || view != _view || proj != _projection ||
-                       width != _width || height != _height || crop.x0 != _crop.x0 || crop.x1 != _crop.x1 ||
-                       crop.y0 != _crop.y0 || crop.y1 != _crop.y1;
+                       width != _width || height != _height || crop != _crop;
   // A render buffer reallocated or freed under the loop stopped it (renderBuffer.h).
   const bool rebind = reframe || bindings != _bindings || _renderer->WasInterrupted();
   if (!rebind) return;  // the loop goes on
@@ -139,7 +138,7 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
     if (!cameraFromMatrices(view, proj, cam))
       throw granular::InputError("camera", "projection", "only perspective cameras are supported");
     granular::RenderSettings rs = renderSettings(delegate, width, height);
-    if (crop.x0 != 0 || crop.y0 != 0 || crop.x1 != width || crop.y1 != height)
+    if (crop != granular::PixelWindow{0, width, 0, height})
       rs.cropX0 = crop.x0, rs.cropX1 = crop.x1, rs.cropY0 = crop.y0, rs.cropY1 = crop.y1;
     if (rebuild || !_renderer->GetScene()) {  // no scene: the last attempt failed (e.g. a bad camera)
       granular::SceneDesc desc = _param->Assemble();

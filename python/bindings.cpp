@@ -127,6 +127,9 @@ py::array_t<float> pointsToArray(const std::vector<Vec3>& pts) {
   return a;
 }
 
+// A pixel window as Python sees one: (x0, x1, y0, y1).
+std::tuple<int, int, int, int> windowTuple(const PixelWindow& w) { return {w.x0, w.x1, w.y0, w.y1}; }
+
 TriangleMesh makeMesh(const FloatArray& points, const IntArray& indices) {
   TriangleMesh m;
   m.points = toPoints(points, "points");
@@ -367,7 +370,7 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("dome_camera_visible", &RenderSettings::domeCameraVisible)
       .def_property(
           "crop",
-          [](const RenderSettings& s) { return std::make_tuple(s.cropX0, s.cropX1, s.cropY0, s.cropY1); },
+          [](const RenderSettings& s) { return windowTuple({s.cropX0, s.cropX1, s.cropY0, s.cropY1}); },
           [](RenderSettings& s, const std::tuple<int, int, int, int>& c) {
             std::tie(s.cropX0, s.cropX1, s.cropY0, s.cropY1) = c;
           },
@@ -389,10 +392,13 @@ PYBIND11_MODULE(granular_core, m) {
 
   m.def("validate_scene_desc", &validateSceneDesc, py::arg("desc"));
   m.def(
+      "render_window",
+      [](const RenderSettings& s) { return windowTuple(renderWindow(s)); },
+      py::arg("settings"), "The pixels (x0, x1, y0, y1) a render covers: the crop, or the whole image");
+  m.def(
       "pixel_window_from_ndc",
       [](double xmin, double ymin, double xmax, double ymax, int width, int height) {
-        PixelWindow w = pixelWindowFromNdc(xmin, ymin, xmax, ymax, width, height);
-        return std::make_tuple(w.x0, w.x1, w.y0, w.y1);
+        return windowTuple(pixelWindowFromNdc(xmin, ymin, xmax, ymax, width, height));
       },
       py::arg("xmin"), py::arg("ymin"), py::arg("xmax"), py::arg("ymax"), py::arg("width"), py::arg("height"),
       "UsdRenderSettings dataWindowNDC -> pixels (x0, x1, y0, y1), rows from the top; (0, 0, 0, 0) when empty");
@@ -639,7 +645,8 @@ PYBIND11_MODULE(granular_core, m) {
   m.def("read_exr", &readExr, py::arg("path"), py::call_guard<py::gil_scoped_release>(),
         "An EXR written by write_exr (every channel, its place in the full image)");
   m.def("merge_tiles", &mergeTiles, py::arg("tiles"), py::call_guard<py::gil_scoped_release>(),
-        "The full image tiled by crops of it, bit for bit; InputError on gaps, overlaps, mismatches");
+        "The rectangle of an image tiled by crops of it (the full image when they cover it), bit for bit; "
+        "InputError on gaps, overlaps, mismatches");
   m.def("read_image_rgb", &readImageRGB, py::arg("path"), py::call_guard<py::gil_scoped_release>());
 
   // ---- coarse density ------------------------------------------------------------------

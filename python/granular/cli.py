@@ -477,14 +477,19 @@ def _log_transports(args, built, renderer, image):
                    f"so explicit grains (EPT) render it all")
 
 
-def cmd_render(args):
-    from .usd_reader import read_stage
-
+def check_outputs(args):
+    """-o (an EXR) and --png (a PNG, another file) can be written."""
     _check_output(args.output, "-o", (".exr",))
     if args.png:
         _check_output(args.png, "--png", (".png",))
     if args.png and os.path.abspath(args.png) == os.path.abspath(args.output):
         raise UserError("command line", "--png", "is the same file as -o")
+
+
+def cmd_render(args):
+    from .usd_reader import read_stage
+
+    check_outputs(args)
     if args.frames is not None:
         return _render_frames(args)
     t0 = time.monotonic()
@@ -568,9 +573,7 @@ def _render_frames(args):
 
 def cmd_merge(args):
     import granular_core as core
-    _check_output(args.output, "-o", (".exr",))
-    if args.png:
-        _check_output(args.png, "--png", (".png",))
+    check_outputs(args)
     outputs = {os.path.abspath(p) for p in (args.output, args.png) if p}
     tiles = []
     for path in args.tiles:

@@ -34,6 +34,7 @@ DEFAULT_TILES = 4
 
 
 def add_parser(sub, render_options):
+    from .cli import _int_in
     f = sub.add_parser("farm", help="render a frame sequence as Dask tasks (frames x tiles), on this machine "
                                     "or a farm")
     f.add_argument("scene", metavar="SCENE", help="USD stage (.usda, .usdc, .usd)")
@@ -41,40 +42,20 @@ def add_parser(sub, render_options):
                    help="OpenEXR per frame; a run of '#' is replaced by the frame number, as in render --frames")
     f.add_argument("--png", metavar="OUT.####.png", help="also an 8-bit sRGB PNG per frame")
     f.add_argument("--frames", required=True, metavar="A:B[xSTEP]", help="the frames, as in render --frames")
-    f.add_argument("--tiles", type=_tiles, default=DEFAULT_TILES, metavar="N",
+    f.add_argument("--tiles", type=_int_in(1, 4096), default=DEFAULT_TILES, metavar="N",
                    help=f"tiles per frame, each its own task (default {DEFAULT_TILES}): a grid of about "
                         "sqrt(N) x sqrt(N)")
     where = f.add_mutually_exclusive_group()
     where.add_argument("--scheduler", metavar="ADDRESS",
                        help="a running Dask scheduler (tcp://host:8786); default: a LocalCluster here")
-    where.add_argument("--workers", type=_workers, metavar="K",
+    where.add_argument("--workers", type=_int_in(1, 1024), metavar="K",
                        help="worker processes of the LocalCluster (default: the cores)")
-    f.add_argument("--retries", type=_retries, default=2,
+    f.add_argument("--retries", type=_int_in(0, 100), default=2,
                    help="times Dask runs a failed task again (default 2; a lost worker's tasks are rescheduled "
                         "besides)")
     render_options(f)
     f.add_argument("--quiet", action="store_true", help="no progress or log on stderr")
     return f
-
-
-def _bounded_int(name, lo, hi):
-    import argparse
-
-    def parse(text):
-        try:
-            v = int(text, 10)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"'{text}' is not an integer") from None
-        if not lo <= v <= hi:
-            raise argparse.ArgumentTypeError(f"{v} is outside [{lo}, {hi}]")
-        return v
-    parse.__name__ = name
-    return parse
-
-
-_tiles = _bounded_int("tiles", 1, 4096)
-_workers = _bounded_int("workers", 1, 1024)
-_retries = _bounded_int("retries", 0, 100)
 
 
 # ---- tiles -----------------------------------------------------------------------------------
@@ -119,51 +100,54 @@ class _WorkerState:
         # the same float, so the same image (the pre-render covers the whole image anyway).
         self.tuned = {}
 
+    def use_stage(self, path):
+        """The stage at `path` (absolute), opened again when the file changed; forgets
+        everything else then. The caller holds the lock."""
+        from .usd_reader import open_stage
+        try:
+            key = (path, os.stat(path).st_mtime_ns)
+        except OSError:
+            key = (path, None)
+        if self.key != key:
+            self.stage = open_stage(path)
+            self.key, self.built, self.fingerprint = key, None, None
+            self.tuned.clear()
+        return self.stage
+
 
 _STATE = _WorkerState()
 
 
-def _job_key(job):
-    path = os.path.abspath(job["scene"])
-    try:
-        stamp = os.stat(path).st_mtime_ns
-    except OSError:
-        stamp = None
-    return (path, stamp)
-
-
 def render_tile(job, frame, window):
     """Renders one tile of one frame; returns its pixels and where they lie, or
-    {"error": (object, attribute, message)} for bad input (which no retry can fix). `job` holds the command
-    line's render options (the names of `granular render`'s)."""
+    {"error": (object, attribute, message)} for bad input, which no retry can fix. `job`
+    holds the command line's render options (the names of `granular render`'s)."""
+    import argparse
     import granular_core as core
     from pxr import Tf
     from . import api
     from .cli import _apply_options, _SCENE_PARTS, fingerprint
-    from .usd_reader import open_stage, read_stage, translate_core_error, describe_tf_error
+    from .usd_reader import read_stage, translate_core_error, describe_tf_error
 
-    args = _Args(job)
+    args = argparse.Namespace(**job)
     t0 = time.monotonic()
     with _STATE.lock:
         try:
-            key = _job_key(job)
-            if _STATE.key != key:
-                _STATE.key, _STATE.stage, _STATE.built, _STATE.fingerprint = key, open_stage(job["scene"]), None, None
-                _STATE.tuned.clear()
             scene = read_stage(job["scene"], camera=args.camera, width=args.width, height=args.height,
-                               stage=_STATE.stage, time=frame)
+                               stage=_STATE.use_stage(job["scene"]), time=frame)
             s = _apply_options(args, scene)
-            frame_key = tuple(sorted(fingerprint(scene.desc).items()))
+            # The frame's description before this tile's crop (and a shared P_a): its scene
+            # parts decide a rebuild, the whole of it keys the frame's tuned P_a.
+            current = fingerprint(scene.desc)
+            frame_key = tuple(sorted(current.items()))
             if frame_key in _STATE.tuned:
                 s.roulette = _STATE.tuned[frame_key]
             s.crop = tuple(window)
-            current = fingerprint(scene.desc)
-            previous = _STATE.fingerprint
             built = _STATE.built
-            if built is None or any(current[p] != previous[p] for p in _SCENE_PARTS):
+            if built is None or any(current[p] != _STATE.fingerprint[p] for p in _SCENE_PARTS):
                 built = api.build_scene(scene, previous=built)
                 action = "built"
-            else:
+            else:  # the camera, the crop, P_a: a new view only
                 try:
                     built.set_view(scene.desc.camera, scene.desc.settings)
                 except core.InputError as e:
@@ -179,25 +163,16 @@ def render_tile(job, frame, window):
                 if len(_STATE.tuned) > 64:
                     _STATE.tuned.clear()
                 _STATE.tuned[frame_key] = renderer.roulette["pa"]
-        except UserError as e:
+        except (UserError, core.InputError, Tf.ErrorException) as e:
             _STATE.key = None  # read the stage again next time
-            return {"error": (e.object, e.attribute, e.message)}
-        except core.InputError as e:
-            _STATE.key = None
-            return {"error": (e.object, e.attribute, e.detail)}
-        except Tf.ErrorException as e:
-            _STATE.key = None
+            if isinstance(e, UserError):
+                return {"error": (e.object, e.attribute, e.message)}
+            if isinstance(e, core.InputError):
+                return {"error": (e.object, e.attribute, e.detail)}
             return {"error": (job["scene"], "", " ".join(describe_tf_error(e).split()))}
     return {"frame": frame, "window": tuple(window), "pixels": image.pixels, "channels": list(image.channels),
             "x": image.x, "y": image.y, "full": (image.full_width, image.full_height), "scene": action,
             "build_seconds": t1 - t0, "render_seconds": time.monotonic() - t1, "pid": os.getpid()}
-
-
-class _Args:
-    """The command line's options as attributes (what cli._apply_options reads)."""
-
-    def __init__(self, job):
-        self.__dict__.update(job)
 
 
 # Options a task needs; everything else (outputs, scheduling) stays on the client.
@@ -215,7 +190,7 @@ def _log(args, msg):
 def _check_scene(args, frames):
     """Reads every frame's description here, as a task would (no build), so that a stage that
     cannot be read fails the job before any task runs; returns each frame's pixel window."""
-    from . import api  # noqa: F401  (the core module is importable: checked by the caller)
+    import granular_core as core
     from .cli import _apply_options
     from .usd_reader import open_stage, read_stage, validate
 
@@ -226,8 +201,7 @@ def _check_scene(args, frames):
                            time=frame)
         s = _apply_options(args, scene)
         validate(scene)
-        x0, x1, y0, y1 = s.crop
-        windows[frame] = (x0, x1, y0, y1) if (x0, x1, y0, y1) != (0, 0, 0, 0) else (0, s.width, 0, s.height)
+        windows[frame] = core.render_window(s)
         if frame == frames[0]:
             for w in scene.warnings:
                 _log(args, "warning: " + w)
@@ -240,16 +214,11 @@ def _warm(scene):
     reads the frames), so that no task waits for them."""
     import granular_core  # noqa: F401
     from . import api, cli  # noqa: F401
-    from .usd_reader import open_stage
     with _STATE.lock:
-        key = _job_key({"scene": scene})
-        if _STATE.key != key:
-            try:
-                _STATE.stage = open_stage(scene)
-            except Exception:  # the task reports it, with the stage's own words
-                return False
-            _STATE.key, _STATE.built, _STATE.fingerprint = key, None, None
-            _STATE.tuned.clear()
+        try:
+            _STATE.use_stage(scene)
+        except Exception:  # the task reports it, with the stage's own words
+            return False
     return True
 
 
@@ -313,13 +282,9 @@ def _write_frame(image, exr, png, exposure):
 
 
 def run(args):
-    from .cli import _check_output, frame_outputs, frame_text, parse_frames
+    from .cli import check_outputs, frame_outputs, frame_text, parse_frames
 
-    _check_output(args.output, "-o", (".exr",))
-    if args.png:
-        _check_output(args.png, "--png", (".png",))
-    if args.png and os.path.abspath(args.png) == os.path.abspath(args.output):
-        raise UserError("command line", "--png", "is the same file as -o")
+    check_outputs(args)
     frames = parse_frames(args.frames)
     exr_name, png_name = frame_outputs(args, frames)
     t0 = time.monotonic()

@@ -632,7 +632,7 @@ def _read_data_window(scene, settings, time):
                    f"only the pixels inside (0, 0, 1, 1)")
     if window != (0, s.width, 0, s.height):
         s.crop = window
-    scene.name("render", path, {"crop": (path, "dataWindowNDC")})
+    scene.names["render"]["crop"] = (path, "dataWindowNDC")  # core's render.crop errors
 
 
 def validate(scene):

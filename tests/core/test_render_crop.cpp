@@ -3,6 +3,7 @@
 // refused by name.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <string>
 #include <vector>
@@ -83,19 +84,36 @@ TEST(Crop, TheRoulettePreRenderCoversTheWholeImage) {
   auto cropScene = Scene::build(d);
   Renderer crop(*cropScene);
   ASSERT_TRUE(crop.renderPass(4));
-  EXPECT_EQ(crop.roulette().pa, full.roulette().pa);
   EXPECT_EQ(crop.roulette().pixels, full.roulette().pixels);
+  EXPECT_EQ(crop.roulette().VL, full.roulette().VL);
+  EXPECT_EQ(crop.roulette().tH, full.roulette().tH);
+  EXPECT_EQ(crop.roulette().pa, full.roulette().pa);
 }
 
 TEST(Crop, PreviewCoversTheCropOnly) {
+  // Preview pixel (i, j) is the first sample of crop pixel (min(4i + 2, 8), min(4j + 2, 3)):
+  // the full image's pixel (5 + that, 2 + that), as one sample of the whole image has it.
   SceneDesc d = ballScene(Technique::Ept);
+  d.settings.spp = 1;
+  auto fullScene = Scene::build(d);
+  Renderer full(*fullScene);
+  ASSERT_TRUE(full.renderPass(1));
   d.settings.cropX0 = 5, d.settings.cropX1 = 14, d.settings.cropY0 = 2, d.settings.cropY1 = 6;
   auto scene = Scene::build(d);
   Renderer r(*scene);
   Film preview;
   ASSERT_TRUE(r.renderPreview(4, preview));
-  EXPECT_EQ(preview.width(), 3);  // ceil(9 / 4)
-  EXPECT_EQ(preview.height(), 1);
+  ASSERT_EQ(preview.width(), 3);  // ceil(9 / 4)
+  ASSERT_EQ(preview.height(), 1);
+  int lit = 0;
+  for (int i = 0; i < 3; ++i) {
+    const Vec3 p = preview.mean(i, 0), f = full.film().mean(5 + std::min(4 * i + 2, 8), 2 + 2);
+    EXPECT_EQ(p.x, f.x) << i;
+    EXPECT_EQ(p.y, f.y) << i;
+    EXPECT_EQ(p.z, f.z) << i;
+    lit += f.x > 0;
+  }
+  EXPECT_GT(lit, 0);
 }
 
 TEST(Crop, BadWindowsNameTheRenderCrop) {
