@@ -1,9 +1,11 @@
 #include "diffusion.h"
 
+#include <algorithm>
 #include <cmath>
 
 #include "ept.h"
 #include "scene.h"
+#include "vpt.h"
 
 namespace granular {
 
@@ -14,12 +16,10 @@ namespace {
 // equation D Φ'' − σ_a Φ = −δ(ζ − z) with Φ = 0 on the extrapolated boundaries −z_b and
 // d + z_b, read out as Φ(0)/4 + (D/2) Φ'(0). With κ = σ_tr, a = κ(z + z_b), b = κ(d + z_b − z):
 //   Φ(ζ < z) = A sinh(κ(ζ + z_b)),  A = sinh b / (Dκ sinh(a + b)),
-// so the total is e^{−a} Â/(Dκ) · (sinh(κz_b)/4 + Dκ cosh(κz_b)/2) with
-//   Â = sinh b / sinh(a + b) · e^{a} = (1 − e^{−2b}) / (1 − e^{−2(a+b)})   (1 for d = inf).
-// The finite slab's total over the half space's is therefore Â: computed directly, not
-// as a quotient of the two totals, which both underflow to 0 for deep sources (a beyond
-// ~745: fine grains, large σ_tr) and gave 0/0 = NaN. For κ → 0 the fluence is linear and
-// the ratio is the escape probability (d + z_b − z)/(d + 2z_b).
+// and the total over the half space's (b → ∞) is
+//   Â = sinh b / sinh(a + b) · e^{a} = (1 − e^{−2b}) / (1 − e^{−2(a+b)})   (1 for d = inf),
+// computed directly: both totals underflow to 0 for deep sources (a beyond ~745). For
+// κ → 0 the fluence is linear and the ratio is the escape probability (d + z_b − z)/(d + 2z_b).
 double slabToHalfSpace(double kappa, double zb, double z, double d) {
   if (!std::isfinite(d)) return 1.0;
   if (kappa * (d + 2 * zb) < 1e-4) return (d + zb - z) / (d + 2 * zb);
@@ -27,24 +27,70 @@ double slabToHalfSpace(double kappa, double zb, double z, double d) {
   return -std::expm1(-2 * b) / -std::expm1(-2 * (a + b));
 }
 
+// Plane integral over the face ζ = 0 of the exitance of a +1 source at signed depth a and a
+// −1 source at b: each source gives e^{−σ|ζ|} (1/(8Dσ) + sign(ζ)/4), from
+// ∫ e^{−σr}/(4πDr) dA = e^{−σ|ζ|}/(2Dσ) and its derivative across the face. The 1/σ parts
+// cancel to first order within the pair: (e^{−σ|a|} − e^{−σ|b|})/σ = −e^{−σ|a|}
+// expm1(−σ(|b| − |a|))/σ, whose σ → 0 limit |b| − |a| makes σ_a = 0 exact.
+double pairTotal(double D, double s, double a, double b) {
+  const double ea = std::exp(-s * std::fabs(a)), eb = std::exp(-s * std::fabs(b));
+  const double gap = std::fabs(b) - std::fabs(a);
+  const double diff = std::fabs(s * gap) > 1e-12 ? -ea * std::expm1(-s * gap) / s : ea * gap;  // (ea − eb)/σ
+  const double sa = a > 0 ? 1.0 : (a < 0 ? -1.0 : 0.0), sb = b > 0 ? 1.0 : (b < 0 ? -1.0 : 0.0);
+  return diff / (8.0 * D) + 0.25 * (sa * ea - sb * eb);
+}
+
 }  // namespace
+
+int multipoleTerms(double sigmaTr, double zb, double d) {
+  if (!std::isfinite(d)) return 0;
+  const double reach = sigmaTr * (d + 2.0 * zb);
+  if (!(reach > 0)) return kMaxMultipoleTerms;
+  return int(std::clamp(std::ceil(kMultipoleReach / reach), 1.0, double(kMaxMultipoleTerms)));
+}
 
 DiffusionProfile::DiffusionProfile(const MediumParams& p) {
   for (int c = 0; c < 3; ++c) {
     float st = std::max(p.sigmaTReduced[c], 1e-30f);
     D[c] = 1.0f / (3.0f * st);
     sigmaTr[c] = p.sigmaTr[c];
-    zb[c] = 2.0f * D[c];  // z_b = 2AD, A = 1 for an index-matched boundary
+    zb[c] = 2.0f * D[c];  // z_b = 2AD, A = 1 (index ratio 1, diffusion.h)
   }
+  sigmaSReduced = p.sigmaSReduced;
+  sigmaTReduced = p.sigmaTReduced;
+}
+
+Vec3 DiffusionProfile::slabTotal(float z, float d, bool farFace) const {
+  Vec3 T;
+  const double h = farFace ? double(d) - z : double(z);
+  for (int c = 0; c < 3; ++c) {
+    // The half space's dipole (exact in 1-D), then the slab's factor.
+    double t = pairTotal(D[c], sigmaTr[c], h, -(h + 2.0 * zb[c]));
+    T[c] = float(std::max(t, 0.0) * slabToHalfSpace(sigmaTr[c], zb[c], h, d));
+  }
+  return T;
+}
+
+Vec3 DiffusionProfile::multipoleTotal(float z, float d, bool farFace, int n) const {
+  Vec3 T;
+  const double h = farFace ? double(d) - z : double(z);
+  for (int c = 0; c < 3; ++c) {
+    const double L = std::isfinite(d) ? double(d) + 2.0 * zb[c] : 0.0;
+    double t = 0;
+    for (int i = -n; i <= n; ++i) t += pairTotal(D[c], sigmaTr[c], 2 * i * L + h, 2 * i * L - h - 2.0 * zb[c]);
+    T[c] = float(t);
+  }
+  return T;
 }
 
 Vec3 DiffusionProfile::exitance(float z, float rho, float d, bool farFace) const {
   Vec3 J;
-  // The face's own depth of the source.
+  // The face's own depth of the source (the multipole is symmetric under swapping faces).
   const double h = farFace ? double(d) - z : double(z);
   for (int c = 0; c < 3; ++c) {
     const double Dc = D[c], s = sigmaTr[c], b = zb[c];
-    // Half-space dipole seen from the face: real source at depth h, image at −(h + 2z_b).
+    const int n = multipoleTerms(s, b, d);
+    const double L = n > 0 ? double(d) + 2.0 * b : 0.0;
     double phi = 0, dphi = 0;  // fluence and its derivative into the medium, on the face
     auto add = [&](double zs, double sign) {
       double r = std::max(std::sqrt(double(rho) * rho + zs * zs), 1e-12);
@@ -52,13 +98,20 @@ Vec3 DiffusionProfile::exitance(float z, float rho, float d, bool farFace) const
       phi += sign * e / r;
       dphi += sign * zs * (1.0 + s * r) * e / (r * r * r);
     };
-    add(h, +1.0);
-    add(-(h + 2.0 * b), -1.0);
-    // d'Eon & Irving 2011 (η = 1): J = φ/4 + (D/2) ∂φ/∂n (fluence and outward flux).
+    double planeTotal = 0;
+    for (int i = -n; i <= n; ++i) {
+      const double zr = 2 * i * L + h, zv = 2 * i * L - h - 2.0 * b;
+      add(zr, +1.0);
+      add(zv, -1.0);
+      planeTotal += pairTotal(Dc, s, zr, zv);
+    }
+    // d'Eon & Irving 2011 at index ratio 1: J = φ/4 + (D/2) ∂φ/∂n.
     double J0 = std::max(0.25 * phi + 0.5 * Dc * dphi, 0.0);  // NaN passes (and is counted), not clamped
-    // Finite thickness: keep the dipole's lateral shape, scale its total to the slab's
-    // exact 1-D total (a truncated multipole sum does not conserve energy as σ_a d → 0).
-    if (std::isfinite(d)) J0 *= slabToHalfSpace(s, b, h, d);
+    // Scaled to the exact 1-D total (diffusion.h); a multipole whose total underflowed is 0.
+    if (n > 0) {
+      double exact = pairTotal(Dc, s, h, -(h + 2.0 * b)) * slabToHalfSpace(s, b, h, d);
+      J0 = planeTotal > 0 ? J0 * (std::max(exact, 0.0) / planeTotal) : 0.0;
+    }
     J[c] = float(J0);
   }
   return J;
@@ -93,24 +146,68 @@ float sampleRadius(float h, float sigma, float uPick, float u, float& pdfArea) {
   return std::sqrt(std::max(0.0f, r * r - h * h));
 }
 
+// The path leaves the aggregate at boundary point p (normal ng) along dir, out of the media.
+void leaveAt(PathState& path, const Vec3& p, const Vec3& ng, const Vec3& dir) {
+  float eps = 1e-5f * std::max(1e-3f, maxComponent(vabs(p)));
+  path.ray.o = offsetRayOrigin(p, ng, dir, eps);
+  path.ray.d = dir;
+  path.ray.tmin = 0;
+  path.ray.tmax = kInf;
+  path.medium = -1;
+}
+
 }  // namespace
 
 void diffusionStep(const Scene& scene, PathState& path, const Vec3& x) {
   const Aggregate& agg = *scene.aggregates()[path.medium];
   const DiffusionProfile& prof = scene.diffusionProfile(path.medium);
-  path.cost[1] += 3;
-  // Depth and the locally planar boundary: the nearest boundary point (exact query).
+  const HomogeneousMedium& med = scene.medium(path.medium);
+  path.cost[1] += 5;
+  // Light reaching x straight from the lights (single scattering, exact; the diffusion
+  // below carries the rest): a delta sun can only be reached this way.
+  path.credit = kDa;
+  mediumNee(scene, path, med, x, &prof.sigmaTReduced);
+
+  // 1. The beam: ω from the phase function, the first reduced scattering at t along it.
+  Vec3 phaseWeight;
+  float phasePdf;
+  float uc = path.rng.next1D(), u1 = path.rng.next1D(), u2 = path.rng.next1D();
+  const Vec3 w = med.samplePhase(path.ray.d, uc, u1, u2, phaseWeight, phasePdf);
+  float s;
+  Vec3 ngS;
+  if (!(phasePdf > 0) || !agg.intersectBoundary(x, w, 0.0f, kInf, s, ngS)) {
+    path.alive = false;  // no boundary along ω: a leak (open by rounding)
+    return;
+  }
+  const float sigmaBar = average(prof.sigmaTReduced);
+  const float t = -std::log1p(-std::min(path.rng.next1D(), 1.0f - 1e-7f)) / sigmaBar;
+  if (t >= s) {
+    // Uncollided: probability e^{−σ'_t s} per channel, sampled as e^{−σ̄ s}.
+    path.beta *= phaseWeight * vexp((prof.sigmaTReduced - Vec3(sigmaBar)) * -s);
+    // MIS with the NEE at x (its weights were computed against this phase pdf).
+    path.lastDelta = false;
+    path.lastPdf = phasePdf;
+    path.lastP = x;
+    leaveAt(path, x + w * s, ngS, w);
+    ++path.depth;
+    if (!isFinite(path.beta) || isBlack(path.beta)) path.alive = false;
+    return;
+  }
+  // Source density σ'_s e^{−σ'_t t} per channel over the sampling pdf σ̄ e^{−σ̄ t}.
+  path.beta *= phaseWeight * prof.sigmaSReduced * vexp((prof.sigmaTReduced - Vec3(sigmaBar)) * -t) / sigmaBar;
+  const Vec3 y = x + w * t;
+
+  // 2. The slab through y: near face at the closest boundary point, far face along −n.
   Vec3 closest;
-  float z = agg.closestBoundaryPoint(x, closest);
+  float z = agg.closestBoundaryPoint(y, closest);
   if (!(z > 0)) {
     path.alive = false;
     return;
   }
-  Vec3 n = (closest - x) / z;  // outward normal of the near face
-  // Thickness along −n (the slab of Donner & Jensen); no far face: a half space.
+  Vec3 n = (closest - y) / z;  // outward normal of the near face
   float tFar, dFar = kInf;
   Vec3 ngFar;
-  if (agg.intersectBoundary(x, -n, 0.0f, kInf, tFar, ngFar)) dFar = tFar;
+  if (agg.intersectBoundary(y, -n, 0.0f, kInf, tFar, ngFar)) dFar = tFar;
   float d = z + dFar;
   // Face choice: the escape probability of a non-absorbing slab, (d − z + z_b)/(d + 2z_b).
   float zb = average(prof.zb);
@@ -120,32 +217,32 @@ void diffusionStep(const Scene& scene, PathState& path, const Vec3& x) {
   float h = farFace ? dFar : z;
   Vec3 faceN = farFace ? -n : n;
 
+  // 3. A point of that face, J/pdf.
   float pdfArea;
   float uPick = path.rng.next1D(), u = path.rng.next1D(), uPhi = path.rng.next1D();
   float rho = sampleRadius(h, average(prof.sigmaTr), uPick, u, pdfArea);
   Frame frame(faceN);
   float phi = 2.0f * kPi * uPhi;
-  Vec3 q = x + faceN * h + (frame.s * std::cos(phi) + frame.t * std::sin(phi)) * rho;
+  Vec3 q = y + faceN * h + (frame.s * std::cos(phi) + frame.t * std::sin(phi)) * rho;
   Vec3 J = prof.exitance(z, rho, d, farFace);
   if (!(pdfArea > 0) || isBlack(J)) {
     path.alive = false;
     return;
   }
-  // The curved boundary: x_o is where the ray from x towards the planar point leaves.
-  Vec3 dir = normalize(q - x);
+  // The curved boundary: x_o is where the ray from y towards the planar point leaves.
+  Vec3 dir = normalize(q - y);
   float tOut;
   Vec3 ngOut;
-  if (!agg.intersectBoundary(x, dir, 0.0f, kInf, tOut, ngOut)) {
+  if (!agg.intersectBoundary(y, dir, 0.0f, kInf, tOut, ngOut)) {
     path.alive = false;
     return;
   }
   path.beta *= J / (pdfArea * pFace);
-  path.credit = kDa;
   path.medium = -1;
-  // At x_o the exit lobe q plays the BSDF: NEE, then a direction sampled from q.
+  // 4. At x_o the exit lobe plays the BSDF: NEE, then a direction sampled from it.
   Hit hit;
   hit.kind = Hit::Surface;
-  hit.p = x + dir * tOut;
+  hit.p = y + dir * tOut;
   hit.ng = dot(ngOut, dir) > 0 ? ngOut : -ngOut;
   hit.t = tOut;
   hit.material = scene.diffusionExitMaterial();

@@ -353,7 +353,7 @@ void Scene::updateDiffusionDepths() {
   for (size_t a = 0; a < media_.size(); ++a) {
     // No DA where the object is too thin for it (its depth criterion is never met), nor
     // where an emitter or the camera is inside (above).
-    float depth = granular::diffusionDepth(mediumParams_[a]);
+    float depth = granular::diffusionDepth(mediumParams_[a], settings_.daDepthFactor);
     bool blocked = emitterInside_[a] || mediumAt(camera_.position()) == int(a);
     if (!blocked && aggregates_[a]->stats().maxInteriorDepth > depth) diffusionDepth_[a] = depth;
   }

@@ -122,6 +122,9 @@ void validateSceneDesc(const SceneDesc& desc) {
   if (s.threads < 0) throw InputError("render", "threads", str(s.threads, " must be >= 0 (0: all cores)"));
   checkInt(s.bundleSize, 1, 256, "render", "bundleSize");
   if (!std::isfinite(s.tau) || !(s.tau > 0)) throw InputError("render", "tau", str(s.tau, " must be finite and > 0"));
+  if (!(s.daDepthFactor > 0) || !std::isfinite(s.daDepthFactor))
+    throw InputError("render", "daDepthFactor", str(s.daDepthFactor, " must be a positive number"));
+  if (s.daMinOrder < 0) throw InputError("render", "daMinOrder", str(s.daMinOrder, " must be >= 0"));
   if (s.explicitBounces < -1)
     throw InputError("render", "explicitBounces", str(s.explicitBounces, " must be >= -1 (-1: automatic; 0: switch as soon as the spread allows)"));
   if (!std::isfinite(s.lod) || s.lod < 0) throw InputError("render", "lod", str(s.lod, " must be finite and >= 0 (0: off)"));

@@ -107,6 +107,13 @@ struct RenderSettings {
   // clear ones, whose energy does not depend on where it leaves (bench/accuracy_matrix.py).
   // -1: automatic, from the grains' albedo (Scene::explicitBounces).
   int explicitBounces = -1;
+  // Diffusion (technique Hybrid, diffusion.h): DA replaces VPT at a scattering deeper than
+  // daDepthFactor × seed §3's min(1/σ'_t, 0.5/σ_tr), of a path that has scattered at least
+  // daMinOrder times (EPT and VPT events: diffusion models multiply scattered light).
+  // With the point-source DA the factor had to be 2 (+1.6…+2.5% on bright sand at 1) and
+  // the order 16 (+4.6% on IOR 1.31 grains, g 0.71, without it; bench/README.md).
+  float daDepthFactor = 1.0f;
+  int daMinOrder = 16;
   float roulette = -1.0f;      // P_a in (0, 1]; negative: tuned by a pre-render (NOTES item 7)
   // Level of detail: where a path first meets an aggregate and the grain radius is under
   // lod × the ray cone's footprint width there, only that first grain is traced

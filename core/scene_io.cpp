@@ -375,6 +375,8 @@ void parseRender(const Obj& o, RenderSettings& s) {
   s.bundleSize = o.integer("bundle_size", s.bundleSize);
   s.tau = o.num("tau", s.tau);
   s.explicitBounces = o.integer("explicit_bounces", s.explicitBounces);
+  s.daDepthFactor = o.num("da_depth_factor", s.daDepthFactor);
+  s.daMinOrder = o.integer("da_min_order", s.daMinOrder);
   s.roulette = o.num("roulette", s.roulette);
   s.lod = o.num("lod", s.lod);
   s.defaultLight = o.flag("default_light", s.defaultLight);
@@ -711,7 +713,7 @@ SceneDesc parseSceneJson(const std::string& text, const std::string& sourceName)
     ctx.base = fs::path(sourceName).parent_path();
     Obj top(root, sourceName, "", "scene", {"render", "camera", "materials", "meshes", "lights", "aggregates"});
     if (const json* r = top.find("render"))
-      parseRender(Obj(*r, "scene", "render", "render", {"width", "height", "spp", "seed", "max_depth", "rr_depth", "threads", "technique", "bundle_size", "tau", "explicit_bounces", "roulette", "lod", "default_light", "physical_sun", "crop"}),
+      parseRender(Obj(*r, "scene", "render", "render", {"width", "height", "spp", "seed", "max_depth", "rr_depth", "threads", "technique", "bundle_size", "tau", "explicit_bounces", "da_depth_factor", "da_min_order", "roulette", "lod", "default_light", "physical_sun", "crop"}),
                   desc.settings);
     if (const json* c = top.find("camera"))
       parseCamera(Obj(*c, "scene", "camera", "camera",

@@ -70,14 +70,14 @@ Vec3 HomogeneousMedium::samplePhase(const Vec3& wi, float uChannel, float u1, fl
   return wo;
 }
 
-float diffusionDepth(const MediumParams& p) {
+float diffusionDepth(const MediumParams& p, float factor) {
   float depth = 0;
   for (int c = 0; c < 3; ++c) {
     float a = p.sigmaTReduced[c] > 0 ? 1.0f / p.sigmaTReduced[c] : kInf;
     float b = p.sigmaTr[c] > 0 ? 0.5f / p.sigmaTr[c] : kInf;
     depth = std::max(depth, std::min(a, b));
   }
-  return kDiffusionDepthFactor * depth;
+  return factor * depth;
 }
 
 namespace {
@@ -92,8 +92,10 @@ bool deeperThan(const Aggregate& agg, const Vec3& p, float depth) {
   return agg.closestBoundaryPoint(p, closest) > depth;
 }
 
-// Scattering at p inside medium med: NEE through the media, then a phase-sampled direction.
-void scatterInMedium(const Scene& scene, PathState& path, const HomogeneousMedium& med, const Vec3& p) {
+}  // namespace
+
+void mediumNee(const Scene& scene, PathState& path, const HomogeneousMedium& med, const Vec3& p,
+               const Vec3* reducedSigmaT) {
   const auto& lights = scene.lights();
   const Vec3 wi = path.ray.d;
   if (!lights.empty()) {
@@ -106,6 +108,13 @@ void scatterInMedium(const Scene& scene, PathState& path, const HomogeneousMediu
       float dist = std::isfinite(ls.dist) ? ls.dist * (1.0f - 1e-4f) : kInf;
       Vec3 Tr = scene.transmittance(p, ls.wi, dist);
       path.cost[1] += 1;
+      if (reducedSigmaT && !isBlack(Tr)) {
+        // The flight to the own medium's boundary in the reduced medium (diffusion.h).
+        float s;
+        Vec3 ng;
+        if (scene.aggregates()[path.medium]->intersectBoundary(p, ls.wi, 0.0f, dist, s, ng))
+          Tr *= vexp((med.sigmaT() - *reducedSigmaT) * s);
+      }
       if (!isBlack(Tr) && !isBlack(f)) {
         if (ls.delta) {
           path.L[path.credit] += path.beta * f * Tr * ls.Li / lightPick;
@@ -117,6 +126,14 @@ void scatterInMedium(const Scene& scene, PathState& path, const HomogeneousMediu
       }
     }
   }
+}
+
+namespace {
+
+// Scattering at p inside medium med: NEE through the media, then a phase-sampled direction.
+void scatterInMedium(const Scene& scene, PathState& path, const HomogeneousMedium& med, const Vec3& p) {
+  mediumNee(scene, path, med, p);
+  const Vec3 wi = path.ray.d;
   Vec3 weight;
   float pdf;
   float uc = path.rng.next1D(), u1 = path.rng.next1D(), u2 = path.rng.next1D();
@@ -155,7 +172,7 @@ void vptStep(const Scene& scene, PathState& path) {
         path.beta *= med.transmittance(t) * med.sigmaT() * med.albedo() / med.distancePdf(t);
         float daDepth = scene.diffusionDepth(path.medium);
         if (scene.settings().technique == Technique::Hybrid && std::isfinite(daDepth) &&
-            path.depth >= kDiffusionMinOrder &&
+            path.depth >= scene.settings().daMinOrder &&
             deeperThan(*scene.aggregates()[path.medium], p, daDepth)) {
           diffusionStep(scene, path, p);
           return;

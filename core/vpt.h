@@ -61,26 +61,21 @@ class Scene;
 // then a scattering in a medium (next-event estimation with transmittance, phase
 // sampling, MIS), a surface bounce, an emitter or an escape. Sets alive = false when
 // the path ends. With technique Hybrid, a scattering deeper than diffusionDepth() below
-// the boundary, of a path that has scattered kDiffusionMinOrder times, hands the path to
-// diffusion.h.
+// the boundary, of a path that has scattered RenderSettings::daMinOrder times, hands the
+// path to diffusion.h.
 void vptStep(const Scene& scene, PathState& path);
 
-// Depth below the boundary beyond which DA replaces VPT: kDiffusionDepthFactor × seed §3's
-// min(1/σ'_t, 0.5/σ_tr), taken for the channel with the longest such depth (DA must be
-// valid in every channel).
-float diffusionDepth(const MediumParams& p);
+// Next-event estimation at a scattering at p in med for a path arriving along path.ray.d:
+// one light, its transmittance through the media, the phase function, MIS against phase
+// sampling (power heuristic; delta lights unweighted). Adds to path.L[path.credit].
+// reducedSigmaT: the flight through the path's own medium, up to its first boundary
+// crossing, uses this extinction (σ'_t: DA's uncollided beam, diffusion.h) instead.
+void mediumNee(const Scene& scene, PathState& path, const HomogeneousMedium& med, const Vec3& p,
+               const Vec3* reducedSigmaT = nullptr);
 
-// Our DA (a point source at the scattering point, diffusion.h) is less accurate this close
-// to the boundary than the paper's model: at the seed's depth it measured +1.6% to +2.5%
-// brighter than explicit grains on bright sand (tests/core/test_lod.cpp,
-// bench/lod_distance.py), 0.0% ± 0.3% at twice the depth, for about 12% of the hybrid's
-// equal-error speed-up (bench/hybrid_speedup.py, bright sand: 18.7x -> 16.5x).
-constexpr float kDiffusionDepthFactor = 2.0f;
-// ... and only for paths that have scattered at least this often (EPT and VPT events):
-// diffusion models multiply scattered light, and forward-scattering grains carry low
-// orders deep at once. Without it the hybrid measured +4.6% on IOR 1.31 grains (g 0.71)
-// and +2.5% on spheres against +0.5% and +1.2% with it, at no cost on the speed bench
-// (bench/accuracy_matrix.py, bench/hybrid_speedup.py: bright sand 16.2x either way).
-constexpr int kDiffusionMinOrder = 16;
+// Depth below the boundary beyond which DA replaces VPT: factor × seed §3's
+// min(1/σ'_t, 0.5/σ_tr), taken for the channel with the longest such depth (DA must be
+// valid in every channel). The factor is RenderSettings::daDepthFactor.
+float diffusionDepth(const MediumParams& p, float factor);
 
 }  // namespace granular

@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 
 #include "diffusion.h"
 #include "render.h"
@@ -51,15 +52,30 @@ TEST(Diffusion, AbsorptionLowersAndDepthLowersTheExitance) {
 
 namespace {
 
-// A thick bright slab of index-matched grains under a sun at normal incidence, seen from
-// above. τ is tiny so every bundle switches to the medium after its first grain contact.
-SceneDesc brightSlab(Technique t) {
+// Henyey–Greenstein tabulated exactly by mass over the table's equal μ bins.
+PhaseTable henyeyGreenstein(float g, int bins = 256) {
+  // The HG cdf in μ: P(μ' ≤ μ) = (1 − g²)/(2g) · (1/sqrt(1 + g² − 2gμ) − 1/(1 + g)).
+  auto cdf = [g](double mu) {
+    if (std::fabs(g) < 1e-6) return 0.5 * (mu + 1.0);
+    return (1.0 - g * g) / (2.0 * g) * (1.0 / std::sqrt(1.0 + g * g - 2.0 * g * mu) - 1.0 / (1.0 + g));
+  };
+  std::vector<double> w(bins);
+  for (int i = 0; i < bins; ++i) w[i] = cdf(-1.0 + 2.0 * (i + 1) / bins) - cdf(-1.0 + 2.0 * i / bins);
+  return PhaseTable::fromHistogram(w);
+}
+
+// A slab of index-matched grains (thickness: inf for a half space) under a sun at normal
+// incidence, seen from above; its medium is then replaced by (σ_t, α, phase). τ is tiny
+// so that every bundle switches to the medium after its first grain contact.
+SceneDesc slabScene(Technique t, float thickness, int spp) {
   SceneDesc s;
   s.settings.technique = t;
   s.settings.width = s.settings.height = 12;
-  s.settings.spp = 64;
+  s.settings.spp = spp;
   s.settings.seed = 5;
   s.settings.tau = 1e-6f;
+  s.settings.explicitBounces = 0;  // index-matched grains scatter nothing: no explicit orders
+  s.settings.physicalSun = false;  // a delta sun: never seen through a thin slab by the camera
   s.settings.roulette = 1.0f;
   s.camera.cameraToWorld = Transform::lookAt(Vec3(0, 0, 6), Vec3(0, 0, 0), Vec3(0, 1, 0));
   s.camera.focalLength = 50;
@@ -77,8 +93,9 @@ SceneDesc brightSlab(Technique t) {
   s.lights.push_back(sun);
   AggregateDesc a;
   a.name = "slab";
-  a.boundary = makeBox(Vec3(-4, -4, -4), Vec3(4, 4, 0));
-  a.grainRadius = 0.02f;
+  const float depth = std::isfinite(thickness) ? thickness : 4.0f;
+  a.boundary = makeBox(Vec3(-4, -4, -depth), Vec3(4, 4, 0));
+  a.grainRadius = std::min(0.02f, depth / 20.0f);  // a medium needs an aggregate some grains thick
   a.packingRate = 0.3f;
   a.tileSpheres = 64;
   a.prototypes = {GrainPrototypeDesc{"ball", makeIcosphere(1), 0}};
@@ -87,38 +104,109 @@ SceneDesc brightSlab(Technique t) {
   return s;
 }
 
-void renderMean(Technique t, double& mean, double& se, double& daShare) {
-  SceneDesc d = brightSlab(t);
-  auto scene = Scene::build(d);
-  // σ_t = 20, α = 0.99: mean free path 0.05, DA from depth 2 min(1/σ'_t, 0.5/σ_tr) = 0.1.
-  scene->setMedium(0, mediumFromRte(Vec3(20.0f), Vec3(0.99f), PhaseTable::isotropic()));
-  Renderer r(*scene);
-  ASSERT_TRUE(r.render(64));
-  Image img = r.film().toImage();
-  int da = img.channelIndex("da.G");
-  double s = 0, s2 = 0, sda = 0;
+// Radiance of the slab with medium m seen from above (R, the sun's diffuse reflection) or
+// from below (T, finite slabs), rendered by VPT alone and by VPT+DA with the same seed.
+// A pixel's two estimates share their random numbers until DA takes over, so the
+// pixel-wise differences are independent across pixels and far less noisy than either
+// image: the bias is their mean, its standard error their spread over sqrt(pixels).
+struct Comparison {
+  double vpt = 0, diff = 0, seDiff = 0, daShare = 0;
+  double relative() const { return diff / vpt; }
+};
+
+Comparison compareSlab(const MediumParams& m, float thickness, bool below, int spp) {
+  Image img[2];
+  for (int k = 0; k < 2; ++k) {
+    SceneDesc d = slabScene(k == 0 ? Technique::EptVpt : Technique::Hybrid, thickness, spp);
+    if (below)
+      d.camera.cameraToWorld = Transform::lookAt(Vec3(0, 0, -thickness - 6), Vec3(0, 0, -thickness), Vec3(0, 1, 0));
+    auto scene = Scene::build(d);
+    scene->setMedium(0, m);
+    Renderer r(*scene);
+    EXPECT_TRUE(r.render(spp));
+    img[k] = r.film().toImage();
+  }
+  Comparison c;
+  const int da = img[1].channelIndex("da.G");
+  double s = 0, s2 = 0, sum = 0, hsum = 0, dsum = 0;
   int n = 0;
-  for (int y = 0; y < img.height; ++y)
-    for (int x = 0; x < img.width; ++x) {
-      double v = img.at(x, y)[1];
-      s += v; s2 += v * v; sda += img.at(x, y)[da]; ++n;
+  for (int y = 0; y < img[0].height; ++y)
+    for (int x = 0; x < img[0].width; ++x) {
+      double v = img[0].at(x, y)[1], h = img[1].at(x, y)[1], dd = h - v;
+      s += dd; s2 += dd * dd; sum += v; hsum += h; dsum += img[1].at(x, y)[da]; ++n;
     }
-  mean = s / n;
-  se = std::sqrt(std::max(0.0, s2 / n - mean * mean) / (n - 1));
-  daShare = sda / s;
+  c.vpt = sum / n;
+  c.diff = s / n;
+  c.seDiff = std::sqrt(std::max(0.0, s2 / n - c.diff * c.diff) / (n - 1));
+  c.daShare = hsum > 0 ? dsum / hsum : 0.0;
+  return c;
 }
 
 }  // namespace
 
-TEST(Diffusion, BrightSlabReflectanceMatchesVptWithinFivePercent) {
-  double mv, sv, dv, mh, sh, dh;
-  renderMean(Technique::EptVpt, mv, sv, dv);
-  renderMean(Technique::Hybrid, mh, sh, dh);
-  std::printf("bright slab: VPT %.4f ± %.4f, VPT+DA %.4f ± %.4f (DA share %.2f)\n", mv, sv, mh, sh, dh);
-  EXPECT_EQ(dv, 0.0);
-  EXPECT_GT(dh, 0.3) << "DA should carry much of a bright slab's light";
-  // The criterion of the issue (5%), widened by the two estimates' noise.
-  EXPECT_NEAR(mh, mv, 0.05 * mv + 3 * std::sqrt(sv * sv + sh * sh)) << "VPT " << mv << " DA " << mh;
+// DA against VPT on the same medium, a half space (80 mean free paths deep, 160 across),
+// albedo 0.99 / 0.9 / 0.5, Henyey–Greenstein g 0 and 0.7, under the renderer's default
+// switching (RenderSettings::daDepthFactor, daMinOrder): diffuse reflectance within 1%
+// (the issue's bound) plus three standard errors of the paired difference.
+TEST(Diffusion, SemiInfiniteSlabReflectanceMatchesVptWithinOnePercent) {
+  const float sigmaT = 20.0f;  // mean free path 0.05
+  for (float albedo : {0.99f, 0.9f, 0.5f})
+    for (float g : {0.0f, 0.7f}) {
+      MediumParams m = mediumFromRte(Vec3(sigmaT), Vec3(albedo), henyeyGreenstein(g));
+      Comparison c = compareSlab(m, kInf, false, 128);
+      std::printf("half space albedo %.2f g %.1f: VPT %.5f, VPT+DA %+.2f%% ± %.2f%% (DA share %.2f)\n", albedo, g,
+                  c.vpt, 100 * c.relative(), 100 * c.seDiff / c.vpt, c.daShare);
+      if (albedo > 0.95f) EXPECT_GT(c.daShare, 0.2) << "DA should carry much of a bright slab's light";
+      EXPECT_LT(std::fabs(c.diff), 0.01 * c.vpt + 3.0 * c.seDiff) << "albedo " << albedo << " g " << g;
+    }
+}
+
+// Finite slabs of 2, 5, 10 and 20 transport mean free paths (1/σ'_t), albedo 0.99, g 0
+// and 0.7: reflectance and transmittance within 2% of VPT plus three standard errors
+// (the multipole and its far face).
+TEST(Diffusion, FiniteSlabsMatchVptWithinTwoPercent) {
+  const float sigmaT = 20.0f;
+  for (float g : {0.0f, 0.7f}) {
+    MediumParams m = mediumFromRte(Vec3(sigmaT), Vec3(0.99f), henyeyGreenstein(g));
+    for (float mfps : {2.0f, 5.0f, 10.0f, 20.0f}) {
+      const float d = mfps / m.sigmaTReduced.x;
+      for (bool below : {false, true}) {
+        Comparison c = compareSlab(m, d, below, 64);
+        std::printf("slab %4.0f transport mfp (d %.2f) g %.1f %s: VPT %.5f, VPT+DA %+.2f%% ± %.2f%% (DA share %.2f)\n",
+                    mfps, d, g, below ? "T" : "R", c.vpt, 100 * c.relative(), 100 * c.seDiff / c.vpt, c.daShare);
+        EXPECT_LT(std::fabs(c.diff), 0.02 * c.vpt + 3.0 * c.seDiff) << mfps << " mfp, g " << g << (below ? " T" : " R");
+      }
+    }
+  }
+}
+
+// The truncated multipole's own energy against the exact 1-D slab: with the number of
+// pairs from multipoleTerms() (n σ_tr L ≥ kMultipoleReach) it is within 0.3%; with a
+// fixed small n it is not as σ_a d → 0 (why exitance() scales to the 1-D total).
+TEST(Diffusion, MultipoleConservesEnergyWithTermsChosenFromThickness) {
+  for (float albedo : {0.9f, 0.99f, 0.999f, 0.9999f, 1.0f}) {
+    MediumParams p = mediumFromRte(Vec3(10.0f), Vec3(albedo), PhaseTable::isotropic());
+    DiffusionProfile prof(p);
+    for (float d : {0.2f, 0.5f, 1.0f, 2.0f}) {
+      const int n = multipoleTerms(prof.sigmaTr.x, prof.zb.x, d);
+      for (float zFrac : {0.25f, 0.5f}) {
+        const float z = zFrac * d;
+        for (bool far : {false, true}) {
+          float exact = prof.slabTotal(z, d, far).x, truncated = prof.multipoleTotal(z, d, far, n).x;
+          float scaled = prof.totalExitance(z, d, far).x, fixed = prof.multipoleTotal(z, d, far, 1).x;
+          ASSERT_GT(exact, 0.0f);
+          // What exitance() returns integrates to the exact total in every case.
+          EXPECT_NEAR(scaled, exact, 3e-3f * exact + 1e-4f) << albedo << " " << d << " " << z << " " << far;
+          if (n < kMaxMultipoleTerms)
+            EXPECT_NEAR(truncated, exact, 3e-3f * exact) << "n " << n << " albedo " << albedo << " d " << d;
+          if (albedo >= 0.9999f && d <= 0.5f)  // nearly non-absorbing and thin: one pair is far off
+            EXPECT_GT(std::fabs(fixed / exact - 1.0f), 0.05f) << albedo << " " << d;
+        }
+      }
+    }
+  }
+  EXPECT_EQ(multipoleTerms(1.0, 0.1, kInf), 0);
+  EXPECT_EQ(multipoleTerms(0.0, 0.1, 1.0), kMaxMultipoleTerms);
 }
 
 TEST(Diffusion, ExitanceStaysFiniteManyDiffusionLengthsDeep) {
