@@ -117,7 +117,7 @@ for f in (0.3, 0.45):
     CASES[f"packing-{f}"] = [_set(("aggregates", 0, "packing_rate"), f)]
 CASES["mixture-clear+absorbing"] = [_mixture]
 CASES["mixture-amber+flint"] = [_amber_flint]
-for across in (25, 400):
+for across in (25, 50, 100, 400):
     CASES[f"size-{across}"] = [_size(across)]
 CASES["sun-5deg"] = [_sun(5.0)]
 CASES["sun-0.53deg"] = [_sun(0.53)]

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Hybrid benchmark: relative MSE against a converged EPT reference versus render time,
-for EPT, EPT+VPT and EPT+VPT+DA (hybrid), on three scenes — bright sand, dark grains
-and a mixture with glass-like grains — and the equal-error speedup of each over EPT.
+for EPT, EPT+VPT and EPT+VPT+DA (hybrid), on four scenes — bright sand, dark grains,
+a mixture with glass-like grains and a snow field seen from afar — and the equal-error speedup of each over EPT.
 
 Each technique renders the scene at a ladder of sample counts; relMSE (mean over
 pixels and channels of (x − ref)² / (ref² + 0.01), bench/image_compare.cpp) and the
@@ -11,7 +11,7 @@ is the ratio of those products (median over the ladder's upper half). The refere
 own noise adds (EPT's relMSE at the reference count) to every entry, which is reported
 so that a floor is not mistaken for bias.
 
-Usage: python3 bench/hybrid_speedup.py [--build build] [--out out/bench] [--ref-spp 1024]
+Usage: python3 bench/hybrid_speedup.py [--build build] [--out out/bench] [--ref-spp 1024] [--set KEY=VALUE]
 Prints markdown tables; writes OUT/hybrid_speedup.png when matplotlib is available.
 """
 import argparse
@@ -44,6 +44,18 @@ def scenes():
                    "material": "glass"})
     mix["aggregates"][0]["weights"] = [0.35, 0.25, 0.4]
     out["mixture with glass"] = mix
+    # Mostly deep, bright material seen from afar: a snow field (ice grains, IOR 1.31,
+    # nearly clear) 6 units wide and 0.6 deep, where DA should carry most of the light.
+    snow = json.loads(json.dumps(base))
+    snow["materials"]["snow"] = {"type": "dielectric", "ior": 1.31, "absorption": [0.002, 0.001, 0.0005]}
+    field = snow["aggregates"][0]
+    field["name"] = "snow_field"
+    field["boundary"] = {"box": {"lo": [-3.0, 0.0, -3.0], "hi": [3.0, 0.6, 3.0]}}
+    field["prototypes"] = [{"name": "snow", "shape": {"rock": {"subdivisions": 2, "roughness": 0.15, "seed": 3}},
+                            "material": "snow"}]
+    field["weights"] = [1.0]
+    snow["camera"]["look_at"] = {"eye": [4.5, 3.2, 5.5], "target": [0.0, 0.2, 0.0], "up": [0, 1, 0]}
+    out["snow field"] = snow
     return out
 
 
@@ -66,7 +78,14 @@ def main():
     ap.add_argument("--ref-spp", type=int, default=1024)
     ap.add_argument("--ladder", default="4,8,16,32,64")
     ap.add_argument("--scenes", default="", help="comma-separated subset of scene names")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a render setting for every scene (JSON value), e.g. --set da_min_order=8; the EPT "
+                         "reference is rendered without it")
     a = ap.parse_args()
+    overrides = {}
+    for kv in a.set:
+        key, _, value = kv.partition("=")
+        overrides[key] = json.loads(value)
     render_exe = os.path.join(a.build, "core", "granular-render")
     compare_exe = os.path.join(a.build, "bench", "granular-compare")
     for e in (render_exe, compare_exe):
@@ -83,8 +102,13 @@ def main():
         path = os.path.join(a.out, tag + ".json")
         json.dump(desc, open(path, "w"), indent=1)
         ref = os.path.join(a.out, tag + "_ref.exr")
+        ref_path = path
+        if overrides:  # the reference above keeps the defaults; the ladder gets the overrides
+            desc["render"].update(overrides)
+            path = os.path.join(a.out, tag + "_set.json")
+            json.dump(desc, open(path, "w"), indent=1)
         if not os.path.exists(ref):
-            st = render(render_exe, path, ref, a.ref_spp, "ept", 1000)
+            st = render(render_exe, ref_path, ref, a.ref_spp, "ept", 1000)
             print(f"# {name}: reference EPT {a.ref_spp} spp in {st['render_s']:.1f} s", file=sys.stderr)
         rows = []
         for t in techniques:

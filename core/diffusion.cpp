@@ -158,6 +158,32 @@ void leaveAt(PathState& path, const Vec3& p, const Vec3& ng, const Vec3& dir) {
 
 }  // namespace
 
+float localCurvatureRadius(const Aggregate& agg, const Vec3& x, float delta) {
+  Vec3 c;
+  const float z = agg.closestBoundaryPoint(x, c);
+  if (!(z > 0)) return 0.0f;
+  delta = std::max(delta, z);
+  const Vec3 n = (c - x) / z;
+  const Frame frame(n);
+  float radius = kInf;
+  for (const Vec3& tangent : {frame.s, -frame.s, frame.t, -frame.t}) {
+    const Vec3 x2 = x + tangent * delta;
+    Vec3 c2;
+    const float z2 = agg.closestBoundaryPoint(x2, c2);
+    if (!(z2 > 0)) return 0.0f;
+    // Outside (the boundary bends within δ), the normal points back: a ≥ 90°, radius 0.
+    const float cosA = std::clamp(dot(n, (c2 - x2) / z2), -1.0f, 1.0f);
+    const float a = std::acos(cosA);
+    if (a >= 0.5f * kPi) return 0.0f;
+    if (a > 1e-6f) radius = std::min(radius, delta / std::tan(a) + z);
+  }
+  return radius;
+}
+
+bool diffusionHolds(const Aggregate& agg, const Vec3& x, float daDepth) {
+  return localCurvatureRadius(agg, x, 0.0f) >= kCurvatureGuard * daDepth;
+}
+
 void diffusionStep(const Scene& scene, PathState& path, const Vec3& x) {
   const Aggregate& agg = *scene.aggregates()[path.medium];
   const DiffusionProfile& prof = scene.diffusionProfile(path.medium);

@@ -49,6 +49,7 @@ struct PathState {
   float coneWidth = 0, coneSpread = 0;
   bool touchedAggregate = false;  // a grain has been hit (the LOD test is at first contact)
   bool shortcut = false;          // took the LOD shortcut: to the medium after this grain
+  bool daRefused = false;         // the curvature guard refused DA once: VPT to the end (vpt.cpp)
   // Deterministic cost (ray casts, a grain traversal counted kGrainCastCost) spent in
   // the low-order (EPT) and high-order (VPT, DA) parts: the t_L and t_H of NOTES item 7.
   double cost[2] = {0, 0};

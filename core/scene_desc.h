@@ -110,8 +110,10 @@ struct RenderSettings {
   // Diffusion (technique Hybrid, diffusion.h): DA replaces VPT at a scattering deeper than
   // daDepthFactor × seed §3's min(1/σ'_t, 0.5/σ_tr), of a path that has scattered at least
   // daMinOrder times (EPT and VPT events: diffusion models multiply scattered light).
-  // With the point-source DA the factor had to be 2 (+1.6…+2.5% on bright sand at 1) and
-  // the order 16 (+4.6% on IOR 1.31 grains, g 0.71, without it; bench/README.md).
+  // The beam DA holds at the seed's depth (factor 1: half spaces and slabs within 1–2% of
+  // VPT, tests/core/test_diffusion.cpp); the former point-source DA needed 2. Order 16:
+  // lower orders measured up to −0.65% bias on bright sand for 14% more speed
+  // (bench/README.md, "Diffusion").
   float daDepthFactor = 1.0f;
   int daMinOrder = 16;
   float roulette = -1.0f;      // P_a in (0, 1]; negative: tuned by a pre-render (NOTES item 7)

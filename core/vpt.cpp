@@ -130,6 +130,22 @@ void mediumNee(const Scene& scene, PathState& path, const HomogeneousMedium& med
 
 namespace {
 
+// Does DA take over at a scattering at p (vptStep's contract)? The curvature guard comes
+// last and at most once per path: it costs six closest-point queries, and a path it
+// refused mostly stays near the curved part it scatters in.
+bool takesDiffusion(const Scene& scene, PathState& path, const Vec3& p) {
+  const float daDepth = scene.diffusionDepth(path.medium);
+  if (scene.settings().technique != Technique::Hybrid || !std::isfinite(daDepth) ||
+      path.depth < scene.settings().daMinOrder || path.daRefused)
+    return false;
+  const Aggregate& agg = *scene.aggregates()[path.medium];
+  if (!deeperThan(agg, p, daDepth)) return false;
+  path.cost[1] += 6;
+  if (diffusionHolds(agg, p, daDepth)) return true;
+  path.daRefused = true;
+  return false;
+}
+
 // Scattering at p inside medium med: NEE through the media, then a phase-sampled direction.
 void scatterInMedium(const Scene& scene, PathState& path, const HomogeneousMedium& med, const Vec3& p) {
   mediumNee(scene, path, med, p);
@@ -170,10 +186,7 @@ void vptStep(const Scene& scene, PathState& path) {
         // Scattering at t: weight α σ_t T(t) / p(t) per channel (vpt.h).
         Vec3 p = path.ray.o + path.ray.d * t;
         path.beta *= med.transmittance(t) * med.sigmaT() * med.albedo() / med.distancePdf(t);
-        float daDepth = scene.diffusionDepth(path.medium);
-        if (scene.settings().technique == Technique::Hybrid && std::isfinite(daDepth) &&
-            path.depth >= scene.settings().daMinOrder &&
-            deeperThan(*scene.aggregates()[path.medium], p, daDepth)) {
+        if (takesDiffusion(scene, path, p)) {
           diffusionStep(scene, path, p);
           return;
         }

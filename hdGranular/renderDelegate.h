@@ -20,6 +20,8 @@ PXR_NAMESPACE_OPEN_SCOPE
   ((technique, "granular:technique"))                 \
   ((tau, "granular:tau"))                             \
   ((explicitBounces, "granular:explicitBounces"))     \
+  ((daDepthFactor, "granular:daDepthFactor"))         \
+  ((daMinOrder, "granular:daMinOrder"))               \
   ((lod, "granular:lod"))                             \
   ((roulette, "granular:roulette"))                   \
   ((bundleSize, "granular:bundleSize"))               \

@@ -73,6 +73,8 @@ granular::RenderSettings renderSettings(HdRenderDelegate* d, int width, int heig
                                              "render settings granular:technique");
   rs.tau = setting<float>(d, HdGranularSettingsTokens->tau, 4.0f);
   rs.explicitBounces = setting<int>(d, HdGranularSettingsTokens->explicitBounces, rs.explicitBounces);
+  rs.daDepthFactor = setting<float>(d, HdGranularSettingsTokens->daDepthFactor, rs.daDepthFactor);
+  rs.daMinOrder = setting<int>(d, HdGranularSettingsTokens->daMinOrder, rs.daMinOrder);
   rs.lod = setting<float>(d, HdGranularSettingsTokens->lod, rs.lod);
   rs.roulette = setting<float>(d, HdGranularSettingsTokens->roulette, -1.0f);
   rs.bundleSize = setting<int>(d, HdGranularSettingsTokens->bundleSize, 16);

@@ -363,6 +363,8 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("bundle_size", &RenderSettings::bundleSize)
       .def_readwrite("tau", &RenderSettings::tau)
       .def_readwrite("explicit_bounces", &RenderSettings::explicitBounces)
+      .def_readwrite("da_depth_factor", &RenderSettings::daDepthFactor)
+      .def_readwrite("da_min_order", &RenderSettings::daMinOrder)
       .def_readwrite("roulette", &RenderSettings::roulette)
       .def_readwrite("lod", &RenderSettings::lod)
       .def_readwrite("default_light", &RenderSettings::defaultLight)

@@ -349,7 +349,7 @@ _SCENE_PARTS = ("materials", "meshes", "lights", "aggregates", "build settings")
 _CAMERA_FIELDS = ("camera_to_world", "focal_length", "horizontal_aperture", "vertical_aperture",
                   "horizontal_aperture_offset", "vertical_aperture_offset", "clip_near", "clip_far")
 _SETTINGS_FIELDS = ("width", "height", "spp", "seed", "max_depth", "rr_depth", "threads", "technique", "bundle_size",
-                    "tau", "explicit_bounces", "roulette", "lod", "default_light", "dome_camera_visible", "crop")
+                    "tau", "explicit_bounces", "da_depth_factor", "da_min_order", "roulette", "lod", "default_light", "dome_camera_visible", "crop")
 
 
 def _feed(h, *values):

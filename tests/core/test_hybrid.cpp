@@ -383,7 +383,7 @@ TEST(HybridAccuracy, TheAmberAndFlintMixtureInTheMediumMatchesExplicitGrains) {
 
 TEST(HybridAccuracy, ForwardScatteringGrainsThroughDiffusionMatchExplicitGrains) {
   // IOR 1.31 (g 0.71): low orders went deep at once and DA took them, +4.6% before DA
-  // waited for kDiffusionMinOrder scatterings (vpt.h); 128 spp for a standard error of
+  // waited for RenderSettings::daMinOrder scatterings; 128 spp for a standard error of
   // ~0.6%.
   SceneDesc d = matrixBall(false, 1.31f);
   d.settings.spp = 128;

@@ -282,6 +282,12 @@ TEST(SceneIo, ReferenceAndRangeErrors) {
   EXPECT_CONTAINS(e, "render.width: 0 is outside [1, 32768]");
   e = errorAfter([](json& j) { j["render"]["max_depth"] = 0; });
   EXPECT_CONTAINS(e, "render.max_depth");
+  e = errorAfter([](json& j) { j["render"]["da_depth_factor"] = 0; });
+  EXPECT_CONTAINS(e, "render.da_depth_factor: 0 must be a positive number");
+  e = errorAfter([](json& j) { j["render"]["da_min_order"] = -1; });
+  EXPECT_CONTAINS(e, "render.da_min_order: -1 must be >= 0");
+  EXPECT_EQ(errorAfter([](json& j) { j["render"]["da_depth_factor"] = 2.5; j["render"]["da_min_order"] = 0; }),
+            "NO ERROR");
   e = errorAfter([](json& j) { j["camera"]["clipping_range"] = {1, 0.5}; });
   EXPECT_CONTAINS(e, "camera.clipping_range");
   e = errorAfter([](json& j) { j["camera"]["focal_length"] = 0; });
