@@ -30,12 +30,13 @@ void recordPrimary(const Scene& scene, PathState& path, const Hit& hit) {
   path.primary.primId = hit.primId;
 }
 
-PathState startPath(const Ray& ray, uint64_t rngSeed, float spread) {
+PathState startPath(const Ray& ray, uint64_t rngSeed, float spread, float width) {
   PathState p;
   p.ray = ray;
   p.rng = Rng(rngSeed, 0);
   p.lastP = ray.o;
   p.coneSpread = spread;
+  p.coneWidth = width;
   return p;
 }
 
@@ -124,7 +125,7 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
   Vec3 wi = frame.toWorld(bs.wi);
   // Ray cone: the footprint grows along the segment; delta bounces keep the spread
   // (flat-interface approximation), others widen it.
-  path.coneWidth += path.coneSpread * hit.t;
+  path.coneWidth = std::fabs(path.coneWidth + path.coneSpread * hit.t);  // |·|: a lens's cone crosses its focus
   if (!bs.delta) path.coneSpread = std::max(path.coneSpread, kDiffuseConeSpread);
   path.lastDelta = bs.delta;
   path.lastPdf = bs.pdf;
@@ -162,7 +163,7 @@ void eptStep(const Scene& scene, PathState& path) {
     path.touchedAggregate = true;
     // Level of detail: grains well below the footprint here look like their medium.
     float lod = scene.settings().lod;
-    float footprint = path.coneWidth + path.coneSpread * hit.t;
+    float footprint = std::fabs(path.coneWidth + path.coneSpread * hit.t);
     if (lod > 0 && scene.hasMedia() && scene.aggregates()[hit.aggregate]->grainRadius() < lod * footprint)
       path.shortcut = true;
   }

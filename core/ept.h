@@ -62,7 +62,7 @@ struct PathState {
 constexpr double kGrainCastCost = 4.0;
 
 // spread: the ray cone's spread angle (Camera::pixelSpreadAngle for camera rays).
-PathState startPath(const Ray& ray, uint64_t rngSeed, float spread = 0);
+PathState startPath(const Ray& ray, uint64_t rngSeed, float spread = 0, float width = 0);
 
 // Spread angle of a ray cone after a non-delta bounce: a diffuse lobe blurs the
 // footprint at once (a conservative stand-in for the lobe's width).

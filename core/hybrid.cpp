@@ -87,8 +87,8 @@ RouletteTuning tuneRoulette(const Scene& scene) {
       paths.clear();
       for (int s = 0; s < N; ++s) {
         Rng rng(hashInts(rs.seed, uint64_t(x), uint64_t(y), uint64_t(s), 0x9a11ULL), 0);
-        Ray ray = cam.generateRay(float(x) + rng.next1D(), float(y) + rng.next1D());
-        PathState p = startPath(ray, 0, cam.pixelSpreadAngle());
+        Ray ray = cam.sampleRay(x, y, rng);
+        PathState p = startPath(ray, 0, cam.coneSpread(), cam.coneWidth());
         p.rng = rng;
         paths.push_back(p);
       }

@@ -40,8 +40,8 @@ void Renderer::tracePixel(int x, int y, long first, int count, Film& film, int f
     for (int s = b; s < std::min(b + bundle_, count); ++s) {
       long index = first + s;
       Rng rng(hashInts(rs.seed, uint64_t(x), uint64_t(y), uint64_t(index)), 0);
-      Ray ray = cam.generateRay(float(x) + rng.next1D(), float(y) + rng.next1D());
-      PathState p = startPath(ray, 0, cam.pixelSpreadAngle());
+      Ray ray = cam.sampleRay(x, y, rng);
+      PathState p = startPath(ray, 0, cam.coneSpread(), cam.coneWidth());
       p.rng = rng;
       paths.push_back(p);
     }

@@ -17,6 +17,22 @@ inline Vec3 sampleCosineHemisphere(float u1, float u2) {
   float r = std::sqrt(u1), phi = 2.0f * kPi * u2;
   return {r * std::cos(phi), r * std::sin(phi), std::sqrt(std::max(0.0f, 1.0f - u1))};
 }
+// Uniform point of the unit disk (Shirley & Chiu's concentric map: strata stay compact);
+// pdf 1/π per unit area. Returns (x, y, 0).
+inline Vec3 sampleConcentricDisk(float u1, float u2) {
+  float a = 2.0f * u1 - 1.0f, b = 2.0f * u2 - 1.0f;
+  if (a == 0 && b == 0) return Vec3(0.0f);
+  float r, phi;
+  if (std::fabs(a) > std::fabs(b)) {
+    r = a;
+    phi = 0.25f * kPi * (b / a);
+  } else {
+    r = b;
+    phi = 0.5f * kPi - 0.25f * kPi * (a / b);
+  }
+  return Vec3(r * std::cos(phi), r * std::sin(phi), 0.0f);
+}
+
 inline float cosineHemispherePdf(float cosTheta) { return cosTheta > 0 ? cosTheta * kInvPi : 0.0f; }
 
 // Uniform direction on the sphere. pdf = 1 / (4 pi).

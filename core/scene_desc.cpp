@@ -139,6 +139,10 @@ void validateSceneDesc(const SceneDesc& desc) {
   checkPositive(c.verticalAperture, "camera", "verticalAperture");
   checkFinite(c.horizontalApertureOffset, "camera", "horizontalApertureOffset");
   checkFinite(c.verticalApertureOffset, "camera", "verticalApertureOffset");
+  if (!std::isfinite(c.lensRadius) || c.lensRadius < 0)
+    throw InputError("camera", "lensRadius", str(c.lensRadius, " must be finite and >= 0 (0: a pinhole)"));
+  if (c.lensRadius > 0 && !(std::isfinite(c.focusDistance) && c.focusDistance > 0))
+    throw InputError("camera", "focusDistance", str(c.focusDistance, " must be finite and > 0 with a lens"));
   if (!std::isfinite(c.clipNear) || !(c.clipNear > 0))
     throw InputError("camera", "clippingRange", str("near ", c.clipNear, " must be finite and > 0"));
   if (std::isnan(c.clipFar) || !(c.clipFar > c.clipNear))

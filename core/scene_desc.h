@@ -25,7 +25,20 @@ struct CameraDesc {
   float verticalApertureOffset = 0.0f;
   float clipNear = 1e-4f;
   float clipFar = 1e30f;
+  // Depth of field (thin lens): the lens radius and the distance of the plane in focus
+  // along the view axis, both in scene units. lensRadius 0 is the pinhole. USD: radius =
+  // focalLength / (2 fStop), the focal length in scene units (UsdGeomCamera stores tenths).
+  float lensRadius = 0.0f;
+  float focusDistance = 1.0f;
 };
+
+// A thin lens's radius in scene units from UsdGeomCamera's focalLength (tenths of a scene
+// unit, as its apertures) and fStop: focalLength / 10 / (2 fStop), as Hydra's HdCamera
+// (focal length in scene units) gives it. fStop <= 0: a pinhole (0). Both front ends and
+// JSON scenes use it, so one camera blurs alike everywhere.
+inline float lensRadiusFromFStop(float focalLength, float fStop) {
+  return fStop > 0 ? 0.05f * focalLength / fStop : 0.0f;
+}
 
 // DiffusionExit is internal: the lobe of light leaving a diffusing medium (diffusion.h).
 enum class MaterialType { Lambert, Dielectric, DiffusionExit };

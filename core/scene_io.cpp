@@ -412,6 +412,14 @@ void parseCamera(const Obj& o, CameraDesc& c) {
   c.verticalAperture = o.num("vertical_aperture", c.verticalAperture);
   c.horizontalApertureOffset = o.num("horizontal_aperture_offset", c.horizontalApertureOffset);
   c.verticalApertureOffset = o.num("vertical_aperture_offset", c.verticalApertureOffset);
+  // Depth of field as UsdGeomCamera gives it: f_stop (0: pinhole) and focus_distance.
+  float fStop = o.num("f_stop", 0.0f);
+  if (!std::isfinite(fStop) || fStop < 0)
+    throw InputError(o.label(), "f_stop", str(fStop, " must be finite and >= 0 (0: no depth of field)"));
+  c.lensRadius = lensRadiusFromFStop(c.focalLength, fStop);
+  c.focusDistance = o.num("focus_distance", c.focusDistance);
+  if (c.lensRadius > 0 && !(std::isfinite(c.focusDistance) && c.focusDistance > 0))
+    throw InputError(o.label(), "focus_distance", str(c.focusDistance, " must be > 0 with an f_stop"));
   if (const json* cr = o.find("clipping_range")) {
     if (!cr->is_array() || cr->size() != 2)
       throw InputError(o.label(), "clipping_range", "expected [near, far], got " + describe(*cr));
@@ -718,7 +726,8 @@ SceneDesc parseSceneJson(const std::string& text, const std::string& sourceName)
     if (const json* c = top.find("camera"))
       parseCamera(Obj(*c, "scene", "camera", "camera",
                       {"look_at", "transform", "focal_length", "horizontal_aperture", "vertical_aperture",
-                       "horizontal_aperture_offset", "vertical_aperture_offset", "clipping_range"}),
+                       "horizontal_aperture_offset", "vertical_aperture_offset", "clipping_range", "f_stop",
+                       "focus_distance"}),
                   desc.camera);
     MaterialIndex mats;
     if (const json* m = top.find("materials")) parseMaterials(*m, desc, mats);

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Writes the bundled USD examples (sandcastle, snowslab, sugarcube, mixture, animated) with
+"""Writes the bundled USD examples (sandcastle, snowslab, sugarcube, mixture, animated, macro) with
 usd-core and the granular schema helpers:
 
     .venv/bin/python examples/make_examples.py [OUT_DIR]
@@ -9,7 +9,9 @@ aggregates (Meshes with GranularAggregateAPI) and their grain prototypes (invisi
 with GranularGrainAPI under the /World/Grains scope), and render settings with the
 resolution. Shapes come from core's procedural meshes, so the files are deterministic.
 `animated` is a short shot (frames 1 to 3) for `granular render --frames`: its camera moves
-(time samples on its transform) and its sun brightens between frames 2 and 3.
+(time samples on its transform) and its sun brightens between frames 2 and 3. `macro` is
+a close-up with depth of field (fStop, focusDistance): the front grains of a heap sharp,
+the heap behind them soft.
 """
 import math
 import os
@@ -275,8 +277,29 @@ def animated(path):
     stage.GetRootLayer().Save()
 
 
+def macro(path):
+    stage, _ = new_stage(path, (360, 240))
+    # A short focal length in tenths of a unit (USD's convention; these scenes are in
+    # metres), so that f/16 is a lens of radius 0.05 x 8 / 16 = 0.025 units, focused on the
+    # heap's near slope, 0.45 in front of the camera; its top, the ground and the sky blur.
+    cam = camera(stage, eye=(0.0, 0.22, 0.75), target=(0.0, 0.2, 0.0), focal=8.0, aperture=(7.2, 4.8))
+    cam.CreateFStopAttr(16.0)
+    cam.CreateFocusDistanceAttr(0.45)
+    sun(stage, direction=(-0.4, -0.75, -0.45), intensity=10.0)
+    sky(stage, (0.7, 0.8, 1.0), 0.8)
+    ground = quad(stage, "/World/Ground", 12.0)
+    bind(ground, preview_material(stage, "Slate", diffuse=(0.3, 0.3, 0.32)))
+    amber = grain(stage, "Amber", core.make_rock(2, 0.2, 4), 1.55, (0.1, 0.5, 1.4))
+    clear = grain(stage, "Clear", core.make_icosphere(2), 1.5, (0.02, 0.02, 0.02))
+    heap = mesh_from(stage, "/World/Heap", core.make_lathe(
+        [(0.45, 0.0), (0.4, 0.06), (0.3, 0.16), (0.16, 0.26), (0.0, 0.3)], 48))
+    schema.apply_aggregate(heap, [amber, clear], grain_radius=0.012, packing_rate=0.58, weights=[0.6, 0.4],
+                           seed=11, tile_spheres=512)
+    stage.GetRootLayer().Save()
+
+
 SCENES = {"sandcastle": sandcastle, "snowslab": snowslab, "sugarcube": sugarcube, "mixture": mixture,
-          "animated": animated}
+          "animated": animated, "macro": macro}
 
 
 def main(argv):

@@ -5,6 +5,7 @@
 
 #include "error.h"
 #include "pxr/base/tf/getenv.h"
+#include "pxr/imaging/hd/camera.h"
 #include "pxr/imaging/hd/renderDelegate.h"
 #include "pxr/imaging/hd/renderIndex.h"
 #include "pxr/imaging/hd/tokens.h"
@@ -35,6 +36,18 @@ bool cameraFromMatrices(GfMatrix4d const& view, GfMatrix4d const& proj, granular
   cam.clipNear = float(n > 0 ? n : 1e-4);
   cam.clipFar = float(f > n ? f : 1e30);
   return true;
+}
+
+// The thin lens of the pass's camera (UsdGeomCamera fStop, focusDistance; HdCamera keeps
+// the focal length in scene units): as granular render reads it (lensRadiusFromFStop).
+// No camera prim (free matrices): a pinhole.
+GfVec2f lensOfCamera(HdCamera const* camera) {
+  if (!camera) return GfVec2f(0.0f, 1.0f);
+  const float fStop = camera->GetFStop();
+  if (!std::isfinite(fStop) || fStop < 0)
+    throw granular::InputError(camera->GetId().GetString(), "fStop",
+                               std::to_string(fStop) + " must be finite and >= 0 (0: no depth of field)");
+  return GfVec2f(granular::lensRadiusFromFStop(10.0f * camera->GetFocalLength(), fStop), camera->GetFocusDistance());
 }
 
 // A setting of the type we want, whatever numeric type (or token) the host stored.
@@ -109,6 +122,8 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
   // keep the buffers' clear values (as granular render writes only them).
   const granular::PixelWindow crop = HdGranularDataWindow(GetRenderIndex(), width, height);
   const GfMatrix4d view = state->GetWorldToViewMatrix(), proj = state->GetProjectionMatrix();
+  HdCamera const* const camera = state->GetCamera();
+  const GfVec2f lens = camera ? GfVec2f(camera->GetFStop(), camera->GetFocusDistance()) : GfVec2f(0.0f);
 
   const int sceneVersion = _param->Version(), settingsVersion = delegate->GetRenderSettingsVersion();
   // Settings that change what is built (media or not, the default light, delta suns), not
@@ -119,7 +134,7 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
       (physicalSunSetting(delegate) ? "sun" : "delta");
   const bool rebuild = !_started || sceneVersion != _sceneVersion || buildKey != _buildKey;
   const bool reframe = rebuild || settingsVersion != _settingsVersion || view != _view || proj != _projection ||
-                       width != _width || height != _height || crop != _crop;
+                       width != _width || height != _height || crop != _crop || lens != _lens;
   // A render buffer reallocated or freed under the loop stopped it (renderBuffer.h).
   const bool rebind = reframe || bindings != _bindings || _renderer->WasInterrupted();
   if (!rebind) return;  // the loop goes on
@@ -131,6 +146,7 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
   _buildKey = buildKey;
   _view = view;
   _projection = proj;
+  _lens = lens;
   _width = width;
   _height = height;
   _crop = crop;
@@ -139,6 +155,9 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
     granular::CameraDesc cam;
     if (!cameraFromMatrices(view, proj, cam))
       throw granular::InputError("camera", "projection", "only perspective cameras are supported");
+    const GfVec2f thinLens = lensOfCamera(camera);
+    cam.lensRadius = thinLens[0];
+    cam.focusDistance = thinLens[1];
     granular::RenderSettings rs = renderSettings(delegate, width, height);
     if (crop != granular::PixelWindow{0, width, 0, height})
       rs.cropX0 = crop.x0, rs.cropX1 = crop.x1, rs.cropY0 = crop.y0, rs.cropY1 = crop.y1;

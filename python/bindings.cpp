@@ -280,7 +280,9 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("horizontal_aperture_offset", &CameraDesc::horizontalApertureOffset)
       .def_readwrite("vertical_aperture_offset", &CameraDesc::verticalApertureOffset)
       .def_readwrite("clip_near", &CameraDesc::clipNear)
-      .def_readwrite("clip_far", &CameraDesc::clipFar);
+      .def_readwrite("clip_far", &CameraDesc::clipFar)
+      .def_readwrite("lens_radius", &CameraDesc::lensRadius)
+      .def_readwrite("focus_distance", &CameraDesc::focusDistance);
 
   py::enum_<MaterialType>(m, "MaterialType")
       .value("Lambert", MaterialType::Lambert)
@@ -346,6 +348,8 @@ PYBIND11_MODULE(granular_core, m) {
       .value("Ept", Technique::Ept)
       .value("EptVpt", Technique::EptVpt)
       .value("Hybrid", Technique::Hybrid);
+  m.def("lens_radius_from_f_stop", &lensRadiusFromFStop, py::arg("focal_length"), py::arg("f_stop"),
+        "Thin-lens radius in scene units from UsdGeomCamera's focalLength (tenths of a unit) and fStop.");
   m.def("technique_from_name", &techniqueFromName, py::arg("name"), py::arg("object"),
         "\"ept\", \"ept+vpt\" or \"hybrid\"; else InputError on object.technique");
   m.def("technique_name", &techniqueName, py::arg("technique"));

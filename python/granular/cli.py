@@ -347,7 +347,8 @@ def frame_outputs(args, frames):
 # built anew; a change of the view alone ("camera", "settings") is Scene.set_view.
 _SCENE_PARTS = ("materials", "meshes", "lights", "aggregates", "build settings")
 _CAMERA_FIELDS = ("camera_to_world", "focal_length", "horizontal_aperture", "vertical_aperture",
-                  "horizontal_aperture_offset", "vertical_aperture_offset", "clip_near", "clip_far")
+                  "horizontal_aperture_offset", "vertical_aperture_offset", "clip_near", "clip_far", "lens_radius",
+                  "focus_distance")
 _SETTINGS_FIELDS = ("width", "height", "spp", "seed", "max_depth", "rr_depth", "threads", "technique", "bundle_size",
                     "tau", "explicit_bounces", "da_depth_factor", "da_min_order", "roulette", "lod", "default_light", "dome_camera_visible", "crop")
 

@@ -418,9 +418,18 @@ def read_camera(scene, prim, xf_cache):
     c.horizontal_aperture_offset = get_number(cam.GetHorizontalApertureOffsetAttr(), t, 0.0)
     c.vertical_aperture_offset = get_number(cam.GetVerticalApertureOffsetAttr(), t, 0.0)
     c.clip_near, c.clip_far = get_vec(cam.GetClippingRangeAttr(), t, 2, (1.0, 1000000.0))
+    # Depth of field: fStop 0 (USD's default) is a pinhole.
+    f_stop = get_number(cam.GetFStopAttr(), t, 0.0)
+    if not math.isfinite(f_stop) or f_stop < 0:
+        raise UserError(path, "fStop", f"{f_stop} must be finite and >= 0 (0: no depth of field)")
+    c.lens_radius = core.lens_radius_from_f_stop(c.focal_length, f_stop)
+    c.focus_distance = get_number(cam.GetFocusDistanceAttr(), t, 0.0)
+    if c.lens_radius > 0 and not (math.isfinite(c.focus_distance) and c.focus_distance > 0):
+        raise UserError(path, "focusDistance", f"{c.focus_distance} must be > 0 when fStop is set")
     scene.camera_path = path
     attrs = {k: (path, k) for k in ("focalLength", "horizontalAperture", "verticalAperture",
-                                    "horizontalApertureOffset", "verticalApertureOffset", "clippingRange")}
+                                    "horizontalApertureOffset", "verticalApertureOffset", "clippingRange",
+                                    "fStop", "focusDistance")}
     attrs["transform"] = (path, "transform")
     scene.name("camera", path, attrs)
 

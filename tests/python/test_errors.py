@@ -105,6 +105,10 @@ CASES = {
                         "error: /World/Sun.inputs:intensity: -1 must be finite and >= 0"),
     "dome texture": (_missing_dome_texture, 'error: /World/Sky.inputs:texture:file: "nope.exr" cannot be found'),
     "no camera": (_no_camera, ["the stage has no UsdGeomCamera"]),
+    "negative fStop": (_set("/World/Camera", "fStop", "float", -2.0),
+                       "error: /World/Camera.fStop: -2.0 must be finite and >= 0 (0: no depth of field)"),
+    "focus at 0": (_set("/World/Camera", "fStop", "float", 4.0),
+                   "error: /World/Camera.focusDistance: 0.0 must be > 0 when fStop is set"),
 }
 
 

@@ -102,6 +102,8 @@ def test_camera_lights_and_render_settings(tmp_path):
 
     def mutate(stage):
         cam = UsdGeom.Camera(stage.GetPrimAtPath("/World/Camera"))
+        cam.CreateFStopAttr(2.0)
+        cam.CreateFocusDistanceAttr(7.5)
         cam.CreateHorizontalApertureAttr(30.0)
         cam.CreateVerticalApertureAttr(15.0)
         cam.CreateClippingRangeAttr(Gf.Vec2f(0.5, 50))
@@ -139,6 +141,10 @@ def test_camera_lights_and_render_settings(tmp_path):
     scene = read_stage(path, camera="/World/Camera", width=300)
     c = scene.desc.camera
     assert (c.horizontal_aperture, c.vertical_aperture, c.clip_near, c.clip_far) == pytest.approx((30, 15, 0.5, 50))
+    # Depth of field: a thin lens of radius focalLength / 10 / (2 fStop) scene units (USD's
+    # focal length is in tenths of a unit; Hydra's HdCamera gives the same radius).
+    assert (c.lens_radius, c.focus_distance) == pytest.approx((0.05 * c.focal_length / 2.0, 7.5))
+    assert read_stage(path).desc.camera.lens_radius == 0  # /World/Second has no fStop: a pinhole
     assert (scene.desc.settings.width, scene.desc.settings.height) == (300, 150)
     lights = {l.name: l for l in scene.desc.lights}
     assert sorted(lights) == ["/World/Bulb", "/World/Panel", "/World/Sky", "/World/Sun"]
