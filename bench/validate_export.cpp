@@ -115,7 +115,9 @@ int exportScene(const std::string& scenePath, const std::string& dir) {
   j += "  \"width\": " + std::to_string(W) + ", \"height\": " + std::to_string(H) +
        ", \"max_depth\": " + std::to_string(desc.settings.maxDepth) + ",\n";
   j += "  \"camera\": {\"to_world\": " + matrix(desc.camera.cameraToWorld) + ", \"fov_x_deg\": " + num(fovX) +
-       ", \"near\": " + num(desc.camera.clipNear) + ", \"far\": " + num(std::min(desc.camera.clipFar, 1e30f)) + "},\n";
+       ", \"near\": " + num(desc.camera.clipNear) + ", \"far\": " + num(std::min(desc.camera.clipFar, 1e30f)) +
+       ", \"lens_radius\": " + num(desc.camera.lensRadius) + ", \"focus_distance\": " + num(desc.camera.focusDistance) +
+       "},\n";
 
   j += "  \"lights\": [";
   for (size_t i = 0; i < desc.lights.size(); ++i) {

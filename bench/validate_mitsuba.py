@@ -21,6 +21,8 @@ Cases (bench/scenes/validate_<case>.json):
        brighter", see bench/README.md).
   ept_clear    the same with clear grains (absorption exactly 0) of IOR 2.4 and 1.33:
        long total-internal-reflection paths.
+  ept_dof  validate_ept_dof.json: the ept scene through a thin lens focused in front of
+       the grains; Mitsuba's `thinlens` sensor (aperture_radius, focus_distance).
   ept_furnace  those clear grains alone under a white dome: every pixel is 1 in
        expectation (and, without Russian roulette, in every sample up to rounding).
   vpt  validate_vpt.json: the homogeneous medium our TT estimation derives for a ball of
@@ -115,6 +117,7 @@ def mitsuba_scene(mi, exp, base, spp, case, integrator, phase_channel=0):
     to_world = np.array(cam["to_world"], dtype=np.float64).reshape(4, 4)
     # Ours looks down local -Z with +X right; Mitsuba's looks down +Z with +X left.
     to_world = to_world @ np.diag([-1.0, 1.0, -1.0, 1.0])
+    lens = {"aperture_radius": cam["lens_radius"], "focus_distance": cam["focus_distance"]} if cam.get("lens_radius") else {}
     scene = {
         "type": "scene",
         # Our paths end at max_depth scattering events (Mitsuba counts the camera vertex
@@ -123,12 +126,14 @@ def mitsuba_scene(mi, exp, base, spp, case, integrator, phase_channel=0):
         # survivors of hundreds of total internal reflections give heavy-tailed pixels.
         "integrator": {"type": integrator, "max_depth": exp["max_depth"] + 1, "rr_depth": 1 << 30},
         "sensor": {
-            "type": "perspective", "fov": cam["fov_x_deg"], "fov_axis": "x",
+            "type": "perspective" if not cam.get("lens_radius") else "thinlens",
+            "fov": cam["fov_x_deg"], "fov_axis": "x",
             "near_clip": cam["near"], "far_clip": cam["far"],
             "to_world": mi.ScalarTransform4f(to_world.tolist()),
             "film": {"type": "hdrfilm", "width": exp["width"], "height": exp["height"],
                      "rfilter": {"type": "box"}, "pixel_format": "rgb"},
             "sampler": {"type": "independent", "sample_count": spp},
+            **lens,
         },
     }
     for i, l in enumerate(exp["lights"]):
@@ -240,7 +245,7 @@ def main():
     ap.add_argument("--build", default="build")
     ap.add_argument("--renders", type=int, default=32, help="independent renders per side (K)")
     ap.add_argument("--spp", type=int, default=32, help="samples per pixel of each render")
-    ap.add_argument("--cases", default="ept,ept_clear,ept_furnace,vpt")
+    ap.add_argument("--cases", default="ept,ept_clear,ept_furnace,vpt,ept_dof")
     ap.add_argument("--out", default="out/validate")
     ap.add_argument("--integrator", default="volpathmis",
                     help="Mitsuba integrator: volpathmis (spectral MIS, default) or volpath (hero channel)")

@@ -170,3 +170,27 @@ TEST(Lod, ConesWidenAtDiffuseBounces) {
   EXPECT_GT(on.fraction, 0.01);
   EXPECT_LE(std::fabs(d.rel), 4 * d.noise);
 }
+
+TEST(Lod, ALensThatBlursTheGrainsWidensTheFootprint) {
+  // The close-up above (grains about 8 pixels wide) through a thin lens of radius 0.05:
+  // focused on the ball (2.1 units away, its near side) the grains stay sharp and
+  // explicit; focused at 0.5 the blur circle at the ball, 2·0.05·(2.1 − 0.5)/0.5 = 0.32,
+  // is three grains wide: the footprint there is the blur's, and the shortcut applies
+  // (camera.h: cones narrow to the plane in focus and widen beyond it). The image keeps
+  // within noise of explicit grains.
+  auto withLens = [](float focus, float lod, uint64_t seed) {
+    SceneDesc d = sandBall(3.0f, 0.05f, lod, 32, Technique::EptVpt, 8.0f);
+    d.camera.lensRadius = 0.05f;
+    d.camera.focusDistance = focus;
+    d.settings.seed = seed;
+    return d;
+  };
+  Result sharp = render(withLens(2.1f, 0.5f, 5));
+  EXPECT_EQ(sharp.fraction, 0.0);
+  Result blurredOn = render(withLens(0.5f, 0.5f, 5)), blurredOff = render(withLens(0.5f, 0.0f, 4));
+  std::printf("defocused close-up: shortcut on %.4f, off %.4f; %.0f%% of paths\n", blurredOn.whole.mean,
+              blurredOff.whole.mean, 100 * blurredOn.fraction);
+  EXPECT_GT(blurredOn.fraction, 0.3);
+  Diff d = compare(blurredOn.whole, blurredOff.whole);
+  EXPECT_LE(std::fabs(d.rel), 4 * d.noise);
+}

@@ -11,6 +11,8 @@ import os
 import subprocess
 import sys
 
+from usdrecord_run import run_usdrecord
+
 
 def main():
     usdrecord, granular, compare, outdir, scene = sys.argv[1:]
@@ -19,9 +21,10 @@ def main():
     env["PYTHONPATH"] = os.environ.get("GRANULAR_USD_PYTHONPATH", "")
     env["PXR_PLUGINPATH_NAME"] = os.environ.get("GRANULAR_HD_PLUGINPATH", "")
     width, height = 64, 42  # 36 x 24 aperture: usdrecord truncates 64 * 24 / 36
-    subprocess.run([usdrecord, "--disableGpu", "--renderer", "Granular", "--enableDomeLightVisibility",
-                    "--imageWidth", str(width), "--camera", "/World/Camera", "--frames", "1:3", scene,
-                    os.path.join(outdir, "hydra.#.exr")], check=True, env=env)
+    run_usdrecord([usdrecord, "--disableGpu", "--renderer", "Granular", "--enableDomeLightVisibility",
+                   "--imageWidth", str(width), "--camera", "/World/Camera", "--frames", "1:3", scene,
+                   os.path.join(outdir, "hydra.#.exr")], [os.path.join(outdir, f"hydra.{f}.exr") for f in (1, 2, 3)],
+                  env=env)
     subprocess.run([granular, "render", scene, "--frames", "1:3", "-o", os.path.join(outdir, "granular.#.exr"),
                     "--width", str(width), "--height", str(height), "--spp", "16", "--camera", "/World/Camera",
                     "--quiet"], check=True)

@@ -14,6 +14,7 @@ import subprocess
 import sys
 
 from pxr import Usd, UsdGeom
+from usdrecord_run import run_usdrecord
 
 
 def main():
@@ -34,9 +35,8 @@ def main():
         # and finds the delegate there (usd-core must not see the delegate's plugInfo).
         env["PYTHONPATH"] = os.environ.get("GRANULAR_USD_PYTHONPATH", "")
         env["PXR_PLUGINPATH_NAME"] = os.environ.get("GRANULAR_HD_PLUGINPATH", "")
-        subprocess.run([usdrecord, "--disableGpu", "--renderer", "Granular", "--enableDomeLightVisibility",
-                        "--imageWidth", str(width),
-                        "--camera", "/World/Camera", scene, hydra], check=True, env=env)
+        run_usdrecord([usdrecord, "--disableGpu", "--renderer", "Granular", "--enableDomeLightVisibility",
+                       "--imageWidth", str(width), "--camera", "/World/Camera", scene, hydra], [hydra], env=env)
         other = os.path.join(outdir, name + "_granular_seed1.exr")
         for seed, out in ((0, ours), (1, other)):
             subprocess.run([granular, "render", scene, "-o", out, "--width", str(width), "--height", str(height),

@@ -18,6 +18,7 @@ import subprocess
 import sys
 
 import numpy as np
+from usdrecord_run import run_usdrecord
 
 import granular_core as core
 from pxr import Usd, UsdGeom
@@ -80,9 +81,9 @@ def main():
             r = json.load(f)
 
         hydra = os.path.join(outdir, name + "_usdrecord.exr")
-        subprocess.run(["/usr/bin/python3", usdrecord, "--disableGpu", "--renderer", "Granular",
-                        "--enableDomeLightVisibility", "--imageWidth", str(WIDTH), "--camera", "/World/Camera",
-                        scene, hydra], env=usd_env, check=True, timeout=1200, capture_output=True)
+        run_usdrecord(["/usr/bin/python3", usdrecord, "--disableGpu", "--renderer", "Granular",
+                       "--enableDomeLightVisibility", "--imageWidth", str(WIDTH), "--camera", "/World/Camera",
+                       scene, hydra], [hydra], env=usd_env, timeout=1200, stdout=subprocess.DEVNULL)
         renders = {}
         for technique, seed in (("hybrid", 1), ("ept", 0), ("ept", 1)):
             path = renders[technique, seed] = os.path.join(outdir, f"{name}_granular_{technique}_seed{seed}.exr")
