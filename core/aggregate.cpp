@@ -3,6 +3,8 @@
 #include <chrono>
 #include <cmath>
 
+#include <tbb/parallel_for.h>
+
 #include "error.h"
 
 namespace granular {
@@ -160,37 +162,62 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
 
   classes_.assign(size_t(cells), CellClass::Outside);
   stats_.cells = int64_t(cells);
-  double insideFractionSum = 0;
-  float deepest = 0;
-  std::vector<Vec3> clampedCells;  // centres deeper than the field's band
-  for (int64_t k = 0; k < n_[2]; ++k)
+  // Cell classes, slice by slice (z) in parallel: each slice keeps its own counts, sum
+  // and clamped centres, combined below in slice order, so the result does not depend on
+  // the thread count (10^10 grains: 3.8·10^7 cells, a third of the set-up when serial).
+  struct Slice {
+    int64_t inside = 0, partial = 0;
+    double insideFraction = 0;
+    float deepest = 0;
+    std::vector<Vec3> clamped;  // centres deeper than the field's band
+  };
+  std::vector<Slice> slices(static_cast<size_t>(n_[2]));
+  tbb::parallel_for(int64_t(0), n_[2], [&](int64_t k) {
+    Slice& sl = slices[size_t(k)];
     for (int64_t j = 0; j < n_[1]; ++j)
       for (int64_t i = 0; i < n_[0]; ++i) {
         Vec3 c = origin_ + Vec3(float(i) + 0.5f, float(j) + 0.5f, float(k) + 0.5f) * L_;
         float dist = sdf_.distance(c);
         CellClass cls = dist > margin ? CellClass::Outside : (dist < -margin ? CellClass::Inside : CellClass::Partial);
         classes_[size_t((k * n_[1] + j) * n_[0] + i)] = cls;
-        if (cls == CellClass::Inside) ++stats_.insideCells;
-        if (-dist > deepest) deepest = -dist;
-        if (-dist >= 0.99f * sdf_.bandWidth()) clampedCells.push_back(c);
+        if (cls == CellClass::Inside) ++sl.inside;
+        if (-dist > sl.deepest) sl.deepest = -dist;
+        if (-dist >= 0.99f * sdf_.bandWidth()) sl.clamped.push_back(c);
         if (cls == CellClass::Partial) {
-          ++stats_.partialCells;
-          insideFractionSum += std::min(1.0, std::max(0.0, 0.5 - double(dist) / L_));
+          ++sl.partial;
+          sl.insideFraction += std::min(1.0, std::max(0.0, 0.5 - double(dist) / L_));
         }
       }
+  });
+  double insideFractionSum = 0;
+  float deepest = 0;
+  size_t clampedCount = 0;
+  for (const Slice& sl : slices) {
+    stats_.insideCells += sl.inside;
+    stats_.partialCells += sl.partial;
+    insideFractionSum += sl.insideFraction;
+    deepest = std::max(deepest, sl.deepest);
+    clampedCount += sl.clamped.size();
+  }
   stats_.approxGrains = double(tile_.numSpheres) * (double(stats_.insideCells) + insideFractionSum);
 
   boundaryBvh_ = buildTriangleScene(device, boundary_);
   // The field is clamped at its band: beyond it, measure up to 4096 of the deep cell
   // centres exactly (evenly strided).
   stats_.maxInteriorDepth = deepest;
-  if (!clampedCells.empty()) {
-    size_t stride = std::max<size_t>(1, clampedCells.size() / 4096);
-    for (size_t i = 0; i < clampedCells.size(); i += stride) {
-      Vec3 closest;
-      stats_.maxInteriorDepth = std::max(stats_.maxInteriorDepth, closestBoundaryPoint(clampedCells[i], closest));
-    }
+  if (clampedCount > 0) {
+    // Every stride-th of them in slice order (the slices' centres are not copied together).
+    const size_t stride = std::max<size_t>(1, clampedCount / 4096);
+    size_t index = 0;
+    for (const Slice& sl : slices)
+      for (const Vec3& c : sl.clamped) {
+        if (index++ % stride != 0) continue;
+        Vec3 closest;
+        stats_.maxInteriorDepth = std::max(stats_.maxInteriorDepth, closestBoundaryPoint(c, closest));
+      }
   }
+  slices.clear();
+  slices.shrink_to_fit();
 
   prototypes_.clear();
   for (size_t i = 0; i < desc.prototypes.size(); ++i) {
