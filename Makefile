@@ -15,7 +15,7 @@ PXR_ARGS := $(if $(PXR_DIR),-Dpxr_DIR=$(PXR_DIR) -DPython3_EXECUTABLE=$(PXR_PYTH
   -DPython3_INCLUDE_DIR=$(shell $(PXR_PYTHON) -c 'import sysconfig; print(sysconfig.get_paths()["include"])' 2>/dev/null) \
   -DPython3_LIBRARY=$(shell $(PXR_PYTHON) -c 'import sysconfig as s; print(s.get_config_var("LIBDIR") + "/" + s.get_config_var("LDLIBRARY"))' 2>/dev/null),)
 
-.PHONY: demo demo-json test deps venv build schemas bench clean sanitize fuzz
+.PHONY: demo demo-json gallery test deps venv build schemas bench clean sanitize fuzz
 
 deps:
 	@scripts/install-deps.sh
@@ -33,6 +33,12 @@ build: venv
 demo: build
 	@mkdir -p out
 	$(VENV)/bin/granular render examples/sandcastle.usda -o out/demo.exr --png out/demo.png
+
+# Every USD example at presentation quality into out/gallery/, with a contact sheet
+# (scripts/gallery.py; GALLERY_ARGS="--width 640 --spp 256 --docs" and so on).
+GALLERY_ARGS ?=
+gallery: build
+	$(PY) scripts/gallery.py $(GALLERY_ARGS)
 
 # The JSON front end of the C++ command line, for comparison.
 demo-json: build
