@@ -26,7 +26,8 @@ def test_box_downsample_averages_blocks():
 
 
 def test_gallery_renders_every_example_and_a_contact_sheet(tmp_path):
-    venv_granular = ROOT / ".venv" / "bin" / "granular"
+    from pathlib import Path
+    venv_granular = Path(sys.executable).parent / "granular"  # the command of the venv running the tests
     r = subprocess.run([sys.executable, str(ROOT / "scripts" / "gallery.py"), "--width", "32", "--spp", "1", "--out",
                         str(tmp_path), "--granular", str(venv_granular)], capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
