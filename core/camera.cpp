@@ -42,8 +42,10 @@ Ray Camera::generateRay(float px, float py, float lensU, float lensV) const {
 }
 
 Ray Camera::sampleRay(int x, int y, Rng& rng) const {
-  float fx = float(x) + rng.next1D();
+  // y's jitter first: the order in which the former generateRay(x + u, y + u) call drew
+  // them (GCC evaluates arguments right to left), so pinhole images are unchanged.
   float fy = float(y) + rng.next1D();
+  float fx = float(x) + rng.next1D();
   if (!hasLens()) return generateRay(fx, fy);
   float lu = rng.next1D();
   float lv = rng.next1D();

@@ -22,8 +22,9 @@ class Camera {
   Camera(const CameraDesc& desc, int width, int height);
   // (lensU, lensV): the lens sample, ignored by a pinhole.
   Ray generateRay(float px, float py, float lensU = 0.5f, float lensV = 0.5f) const;
-  // A sample's camera ray through pixel (x, y): the film position from rng, then (with a
-  // lens only, so that pinhole images keep their random numbers) the lens position.
+  // A sample's camera ray through pixel (x, y): the film position from rng (y's jitter,
+  // then x's), then (with a lens only, so that pinhole images keep their random numbers)
+  // the lens position.
   Ray sampleRay(int x, int y, Rng& rng) const;
   bool hasLens() const { return lensRadius_ > 0; }
   // A camera ray cone (ept.h: footprint = width + spread·t): width at the lens and spread.

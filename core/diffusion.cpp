@@ -40,6 +40,21 @@ double pairTotal(double D, double s, double a, double b) {
   return diff / (8.0 * D) + 0.25 * (sa * ea - sb * eb);
 }
 
+// The exact 1-D slab's laterally integrated exitance through a face at distance h from
+// the source (the half space's dipole, exact in 1-D, times the slab's factor).
+double slabTotalAt(double D, double s, double zb, double h, double d) {
+  return std::max(pairTotal(D, s, h, -(h + 2.0 * zb)), 0.0) * slabToHalfSpace(s, zb, h, d);
+}
+
+// The plane total of the multipole with n image pairs on each side (Donner & Jensen's
+// sources at 2iL + h and 2iL − h − 2z_b, L = d + 2z_b).
+double multipoleTotalAt(double D, double s, double zb, double h, double d, int n) {
+  const double L = std::isfinite(d) ? d + 2.0 * zb : 0.0;
+  double t = 0;
+  for (int i = -n; i <= n; ++i) t += pairTotal(D, s, 2 * i * L + h, 2 * i * L - h - 2.0 * zb);
+  return t;
+}
+
 }  // namespace
 
 int multipoleTerms(double sigmaTr, double zb, double d) {
@@ -63,23 +78,14 @@ DiffusionProfile::DiffusionProfile(const MediumParams& p) {
 Vec3 DiffusionProfile::slabTotal(float z, float d, bool farFace) const {
   Vec3 T;
   const double h = farFace ? double(d) - z : double(z);
-  for (int c = 0; c < 3; ++c) {
-    // The half space's dipole (exact in 1-D), then the slab's factor.
-    double t = pairTotal(D[c], sigmaTr[c], h, -(h + 2.0 * zb[c]));
-    T[c] = float(std::max(t, 0.0) * slabToHalfSpace(sigmaTr[c], zb[c], h, d));
-  }
+  for (int c = 0; c < 3; ++c) T[c] = float(slabTotalAt(D[c], sigmaTr[c], zb[c], h, d));
   return T;
 }
 
 Vec3 DiffusionProfile::multipoleTotal(float z, float d, bool farFace, int n) const {
   Vec3 T;
   const double h = farFace ? double(d) - z : double(z);
-  for (int c = 0; c < 3; ++c) {
-    const double L = std::isfinite(d) ? double(d) + 2.0 * zb[c] : 0.0;
-    double t = 0;
-    for (int i = -n; i <= n; ++i) t += pairTotal(D[c], sigmaTr[c], 2 * i * L + h, 2 * i * L - h - 2.0 * zb[c]);
-    T[c] = float(t);
-  }
+  for (int c = 0; c < 3; ++c) T[c] = float(multipoleTotalAt(D[c], sigmaTr[c], zb[c], h, d, n));
   return T;
 }
 
@@ -98,19 +104,16 @@ Vec3 DiffusionProfile::exitance(float z, float rho, float d, bool farFace) const
       phi += sign * e / r;
       dphi += sign * zs * (1.0 + s * r) * e / (r * r * r);
     };
-    double planeTotal = 0;
     for (int i = -n; i <= n; ++i) {
-      const double zr = 2 * i * L + h, zv = 2 * i * L - h - 2.0 * b;
-      add(zr, +1.0);
-      add(zv, -1.0);
-      planeTotal += pairTotal(Dc, s, zr, zv);
+      add(2 * i * L + h, +1.0);
+      add(2 * i * L - h - 2.0 * b, -1.0);
     }
     // d'Eon & Irving 2011 at index ratio 1: J = φ/4 + (D/2) ∂φ/∂n.
     double J0 = std::max(0.25 * phi + 0.5 * Dc * dphi, 0.0);  // NaN passes (and is counted), not clamped
     // Scaled to the exact 1-D total (diffusion.h); a multipole whose total underflowed is 0.
     if (n > 0) {
-      double exact = pairTotal(Dc, s, h, -(h + 2.0 * b)) * slabToHalfSpace(s, b, h, d);
-      J0 = planeTotal > 0 ? J0 * (std::max(exact, 0.0) / planeTotal) : 0.0;
+      const double planeTotal = multipoleTotalAt(Dc, s, b, h, d, n);
+      J0 = planeTotal > 0 ? J0 * (slabTotalAt(Dc, s, b, h, d) / planeTotal) : 0.0;
     }
     J[c] = float(J0);
   }

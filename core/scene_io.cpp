@@ -417,9 +417,7 @@ void parseCamera(const Obj& o, CameraDesc& c) {
   if (!std::isfinite(fStop) || fStop < 0)
     throw InputError(o.label(), "f_stop", str(fStop, " must be finite and >= 0 (0: no depth of field)"));
   c.lensRadius = lensRadiusFromFStop(c.focalLength, fStop);
-  c.focusDistance = o.num("focus_distance", c.focusDistance);
-  if (c.lensRadius > 0 && !(std::isfinite(c.focusDistance) && c.focusDistance > 0))
-    throw InputError(o.label(), "focus_distance", str(c.focusDistance, " must be > 0 with an f_stop"));
+  c.focusDistance = o.num("focus_distance", c.focusDistance);  // checked with the lens (validateSceneDesc)
   if (const json* cr = o.find("clipping_range")) {
     if (!cr->is_array() || cr->size() != 2)
       throw InputError(o.label(), "clipping_range", "expected [near, far], got " + describe(*cr));

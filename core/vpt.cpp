@@ -131,7 +131,7 @@ void mediumNee(const Scene& scene, PathState& path, const HomogeneousMedium& med
 namespace {
 
 // Does DA take over at a scattering at p (vptStep's contract)? The curvature guard comes
-// last and at most once per path: it costs six closest-point queries, and a path it
+// last and at most once per path: it costs five closest-point queries, and a path it
 // refused mostly stays near the curved part it scatters in.
 bool takesDiffusion(const Scene& scene, PathState& path, const Vec3& p) {
   const float daDepth = scene.diffusionDepth(path.medium);
@@ -140,7 +140,7 @@ bool takesDiffusion(const Scene& scene, PathState& path, const Vec3& p) {
     return false;
   const Aggregate& agg = *scene.aggregates()[path.medium];
   if (!deeperThan(agg, p, daDepth)) return false;
-  path.cost[1] += 6;
+  path.cost[1] += 5;
   if (diffusionHolds(agg, p, daDepth)) return true;
   path.daRefused = true;
   return false;

@@ -65,14 +65,12 @@ def main():
     images = []
     for name in names:
         stage = os.path.join(EXAMPLES, name + ".usda")
-        exr, png = os.path.join(args.out, name + ".exr"), os.path.join(args.out, name + ".png")
-        cmd = [args.granular, "render", stage, "-o", exr, "--png", png, "--width", str(args.width),
-               "--spp", str(args.spp), "--quiet"]
-        if name == "animated":
-            cmd += ["--frames", "1:1"]
-            exr, png = exr.replace(".exr", ".0001.exr"), png.replace(".png", ".0001.png")
-            cmd[cmd.index("-o") + 1] = os.path.join(args.out, name + ".####.exr")
-            cmd[cmd.index("--png") + 1] = os.path.join(args.out, name + ".####.png")
+        # The shot renders its frame 1: names with a frame number (####, written 0001).
+        stem, frames = (name + ".####", ["--frames", "1:1"]) if name == "animated" else (name, [])
+        out = os.path.join(args.out, stem)
+        cmd = [args.granular, "render", stage, "-o", out + ".exr", "--png", out + ".png", "--width", str(args.width),
+               "--spp", str(args.spp), "--quiet"] + frames
+        exr = out.replace("####", "0001") + ".exr"
         t0 = time.perf_counter()
         r = subprocess.run(cmd, capture_output=True, text=True)
         seconds = time.perf_counter() - t0

@@ -33,7 +33,10 @@ TEST(Camera, APinholeDrawsTwoNumbersPerRayAsBefore) {
   EXPECT_FALSE(cam.hasLens());
   Rng a(7, 0), b(7, 0);
   Ray r = cam.sampleRay(5, 9, a);
-  float fx = 5.0f + b.next1D(), fy = 9.0f + b.next1D();
+  // The former call, generateRay(x + u, y + u), drew y's jitter first (GCC evaluates
+  // arguments right to left): pinhole renders keep the samples they had before the lens.
+  float fy = 9.0f + b.next1D();
+  float fx = 5.0f + b.next1D();
   Ray ref = cam.generateRay(fx, fy);
   EXPECT_EQ(a.next1D(), b.next1D());  // the streams stay in step: pinhole images keep their samples
   EXPECT_EQ(r.o, ref.o);
