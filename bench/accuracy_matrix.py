@@ -14,7 +14,7 @@ radiance per channel over the pixels that see the ball (primId); the bias of a t
 is (its mean − EPT's) / EPT's, with a standard error from the seeds' spread of both.
 
 Usage: python3 bench/accuracy_matrix.py [--build build] [--spp 256] [--seeds 4] [--threads 0]
-         [--cases base,ior-2.4,...] [--techniques ept+vpt,hybrid,lod0] [--json out/accuracy.json]
+         [--cases base,ior-2.4,size-25/absorption-0.0,...] [--techniques ept+vpt,hybrid,lod0] [--json out/accuracy.json]
          [--plot out/bench/accuracy_matrix.png]
        python3 bench/accuracy_matrix.py --replot out/accuracy.json --plot out/bench/accuracy_matrix.png
 Prints a markdown table; --json keeps every number, --plot writes a heat map (matplotlib);
@@ -127,8 +127,9 @@ TECHNIQUES = {"ept+vpt": ("EptVpt", None), "hybrid": ("Hybrid", None), "lod0": (
 
 def scene_for(case):
     s = base_scene()
-    for edit in CASES[case]:
-        edit(s)
+    for part in case.split("/"):  # "size-25/absorption-0.0": both edits
+        for edit in CASES[part]:
+            edit(s)
     return s
 
 
@@ -267,8 +268,9 @@ def main():
     cases = [c for c in args.cases.split(",") if c]
     techniques = [t for t in args.techniques.split(",") if t]
     for c in cases:
-        if c not in CASES:
-            ap.error(f"unknown case {c!r} (one of {', '.join(CASES)})")
+        for part in c.split("/"):
+            if part not in CASES:
+                ap.error(f"unknown case {part!r} (one of {', '.join(CASES)}; A/B combines two)")
     for t in techniques:
         if t not in TECHNIQUES:
             ap.error(f"unknown technique {t!r} (one of {', '.join(TECHNIQUES)})")

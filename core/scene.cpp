@@ -336,16 +336,23 @@ void Scene::setView(const CameraDesc& camera, const RenderSettings& settings) {
   updateExplicitBounces();
 }
 
-int Scene::explicitBouncesFor(const Vec3& albedo) {
+int Scene::explicitBouncesFor(const Vec3& albedo, float depthMfp) {
   const float lowest = std::min({albedo.x, albedo.y, albedo.z});
   const float t = std::clamp((0.92f - lowest) / 0.06f, 0.0f, 1.0f);
-  return int(std::lround(16.0f * t));
+  int k = int(std::lround(16.0f * t));
+  if (lowest < kThinAlbedo && depthMfp < 20.0f)
+    k = std::max(k, int(std::lround(32.0f * std::clamp((20.0f - depthMfp) / 10.0f, 0.0f, 1.0f))));
+  return k;
 }
 
 void Scene::updateExplicitBounces() {
   explicitBounces_ = std::max(0, settings_.explicitBounces);
   if (settings_.explicitBounces >= 0) return;
-  for (const auto& m : mediumParams_) explicitBounces_ = std::max(explicitBounces_, explicitBouncesFor(m.albedo));
+  for (size_t a = 0; a < media_.size(); ++a) {
+    const MediumParams& m = mediumParams_[a];
+    const float depthMfp = aggregates_[a]->stats().maxInteriorDepth / std::max(1e-30f, maxComponent(m.lambdaT));
+    explicitBounces_ = std::max(explicitBounces_, explicitBouncesFor(m.albedo, depthMfp));
+  }
 }
 
 void Scene::updateDiffusionDepths() {

@@ -170,6 +170,7 @@ py::dict aggregateInfo(const Aggregate& a, int tileSpheres) {
   d["tile_spheres"] = tileSpheres;
   d["tile_packing_rate"] = a.tile().packingRate;
   d["bounds"] = boundsDict(a.bounds());
+  d["max_interior_depth"] = s.maxInteriorDepth;
   return d;
 }
 
@@ -508,6 +509,8 @@ PYBIND11_MODULE(granular_core, m) {
                              "the warning about delta suns rendered as the physical sun (\"\" when none)")
       .def_property_readonly("has_media", [](const PyScene& s) { return s.scene->hasMedia(); },
                              "whether the integrator uses the equivalent media (VPT, DA) in this scene")
+      .def_property_readonly("explicit_bounces", [](const PyScene& s) { return s.scene->explicitBounces(); },
+                             "bounces every path keeps explicit before it may enter a medium (the setting, or automatic)")
       .def_property_readonly("aggregates", [](const PyScene& s) {
         py::list out;
         const auto& aggs = s.scene->aggregates();
