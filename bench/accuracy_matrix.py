@@ -119,7 +119,9 @@ CASES["mixture-clear+absorbing"] = [_mixture]
 CASES["mixture-amber+flint"] = [_amber_flint]
 for across in (25, 50, 100, 400):
     CASES[f"size-{across}"] = [_size(across)]
+CASES["sun-10deg"] = [_sun(10.0)]
 CASES["sun-5deg"] = [_sun(5.0)]
+CASES["sun-2deg"] = [_sun(2.0)]
 CASES["sun-0.53deg"] = [_sun(0.53)]
 
 TECHNIQUES = {"ept+vpt": ("EptVpt", None), "hybrid": ("Hybrid", None), "lod0": ("EptVpt", 0.0)}

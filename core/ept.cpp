@@ -83,7 +83,7 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
   Vec3 wo = frame.toLocal(-ray.d);
   double& cost = path.cost[path.mode == kEpt ? 0 : 1];
 
-  if (!m.isDelta() && !lights.empty() && wo.z > 0) {
+  if (!m.isDelta() && !lights.empty() && (wo.z > 0 || m.twoSided())) {
     // Next-event estimation: one light, chosen uniformly.
     int li = std::min(int(path.rng.next1D() * lights.size()), int(lights.size()) - 1);
     LightSample ls;
@@ -126,7 +126,7 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
   // Ray cone: the footprint grows along the segment; delta bounces keep the spread
   // (flat-interface approximation), others widen it.
   path.coneWidth = std::fabs(path.coneWidth + path.coneSpread * hit.t);  // |·|: a lens's cone crosses its focus
-  if (!bs.delta) path.coneSpread = std::max(path.coneSpread, kDiffuseConeSpread);
+  if (!bs.delta) path.coneSpread = std::max(path.coneSpread, std::min(kDiffuseConeSpread, m.lobeSpread()));
   path.lastDelta = bs.delta;
   path.lastPdf = bs.pdf;
   path.lastP = hit.p;

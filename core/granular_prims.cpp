@@ -452,14 +452,12 @@ class Assembler {
       const std::string& src = sourceOf(proto, "roughness");
       if (!std::isfinite(g.roughness) || g.roughness < 0 || g.roughness > 1)
         throw InputError(src, usdName("roughness"), str(g.roughness, " is outside [0, 1]"));
-      if (g.roughness > 0)
-        throw InputError(src, usdName("roughness"),
-                         str(g.roughness, ": rough grains are not supported by this renderer yet (use 0)"));
       MaterialDesc m;
       m.name = proto.path;
       m.type = MaterialType::Dielectric;
       m.ior = g.ior;
       m.absorption = g.absorption;
+      m.roughness = g.roughness;
       inUsdTerms(proto, [&] { validateMaterialDesc(m, proto.path); });
       desc_.materials.push_back(m);
       index = int(desc_.materials.size()) - 1;

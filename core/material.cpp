@@ -1,5 +1,6 @@
 #include "material.h"
 
+#include "microfacet.h"
 #include "sampling.h"
 
 namespace granular {
@@ -22,6 +23,7 @@ Material Material::fromDesc(const MaterialDesc& d) {
   m.ior = d.ior;
   m.absorption = d.absorption;
   m.emission = d.emission;
+  if (d.type == MaterialType::Dielectric) m.alpha = alphaFromRoughness(d.roughness);
   return m;
 }
 
@@ -29,9 +31,53 @@ namespace {
 // DiffusionExit: f μ = (2μ + 3μ²)/(4π), sampled as an equal mixture of μ/π (cosine) and
 // 3μ²/(2π) (μ = u^{1/3}); the mixture's pdf is exactly f μ, so the weight is 1.
 float diffusionExitPdf(float mu) { return mu > 0 ? (2.0f * mu + 3.0f * mu * mu) / (4.0f * kPi) : 0.0f; }
+
+// The rough dielectric's f |cos wi| and pdf for a pair of directions, either side.
+// Mirrored so that wo.z > 0, eta = n_t / n_i seen from wo. Reflection: h = wo + wi,
+// f = F D G2 / (4 |wo.z| |wi.z|) (Walter eq. 20), pdf = F D_wo(h) / (4 wo·h). Refraction:
+// h ∝ −(wo + eta wi) (eq. 16), f = (1 − F) D G2 |wo·h| |wi·h| eta² / (|wo.z| |wi.z| (wo·h +
+// eta wi·h)²) — eq. 21 without the 1/eta² radiance scale (header) — and pdf = (1 − F)
+// D_wo(h) eta² |wi·h| / (wo·h + eta wi·h)² (eq. 17's Jacobian).
+void roughDielectric(Vec3 wo, Vec3 wi, float ior, float alpha, float& fcos, float& pdf) {
+  fcos = pdf = 0.0f;
+  if (wo.z == 0 || wi.z == 0) return;
+  float eta = ior;
+  if (wo.z < 0) {
+    wo = -wo;
+    wi = -wi;
+    eta = 1.0f / ior;
+  }
+  const bool reflect = wi.z > 0;
+  Vec3 h = reflect ? wo + wi : -(wo + wi * eta);
+  if (length2(h) <= 0) return;
+  h = normalize(h);
+  if (h.z < 0) h = -h;
+  const float oh = dot(wo, h), ih = dot(wi, h);
+  if (oh <= 0 || (reflect ? ih <= 0 : ih >= 0)) return;  // back-facing microfacet
+  const float F = fresnelDielectric(oh, eta);
+  const float D = ggxD(h, alpha), G = ggxG2(wo, wi, alpha), Dv = ggxVisiblePdf(wo, h, alpha);
+  if (reflect) {
+    fcos = F * D * G / (4.0f * wo.z);
+    pdf = F * Dv / (4.0f * oh);
+  } else {
+    const float denom = (oh + eta * ih) * (oh + eta * ih);
+    if (!(denom > 0)) return;
+    const float jacobian = eta * eta * std::fabs(ih) / denom;
+    fcos = (1.0f - F) * D * G * oh * jacobian / wo.z;
+    pdf = (1.0f - F) * Dv * jacobian;
+  }
+  if (!std::isfinite(fcos) || !std::isfinite(pdf)) fcos = pdf = 0.0f;
+}
+
 }  // namespace
 
 Vec3 Material::eval(const Vec3& wo, const Vec3& wi) const {
+  if (type == MaterialType::Dielectric) {
+    if (alpha == 0) return Vec3(0.0f);
+    float f, p;
+    roughDielectric(wo, wi, ior, alpha, f, p);
+    return Vec3(f);
+  }
   if (wo.z <= 0 || wi.z <= 0) return Vec3(0.0f);
   if (type == MaterialType::Lambert) return albedo * (kInvPi * wi.z);
   if (type == MaterialType::DiffusionExit) return Vec3(diffusionExitPdf(wi.z));
@@ -39,6 +85,12 @@ Vec3 Material::eval(const Vec3& wo, const Vec3& wi) const {
 }
 
 float Material::pdf(const Vec3& wo, const Vec3& wi) const {
+  if (type == MaterialType::Dielectric) {
+    if (alpha == 0) return 0.0f;
+    float f, p;
+    roughDielectric(wo, wi, ior, alpha, f, p);
+    return p;
+  }
   if (wo.z <= 0) return 0.0f;
   if (type == MaterialType::Lambert) return cosineHemispherePdf(wi.z);
   if (type == MaterialType::DiffusionExit) return diffusionExitPdf(wi.z);
@@ -69,6 +121,35 @@ bool Material::sample(const Vec3& wo, float uLobe, float u1, float u2, BsdfSampl
     s.weight = albedo;  // (albedo/pi) cos / (cos/pi)
     s.delta = false;
     s.transmitted = false;
+    return true;
+  }
+  if (alpha > 0) {
+    // Rough dielectric: a visible normal, then F picks reflection or refraction on it.
+    const float sign = wo.z < 0 ? -1.0f : 1.0f;
+    const Vec3 w = wo * sign;
+    const float eta = sign > 0 ? ior : 1.0f / ior;
+    const Vec3 h = sampleGgxVisibleNormal(w, alpha, u1, u2);
+    const float oh = dot(w, h);
+    if (!(oh > 0)) return false;
+    const float F = fresnelDielectric(oh, eta);
+    Vec3 wi;
+    if (uLobe < F) {
+      wi = h * (2.0f * oh) - w;
+      if (wi.z <= 0) return false;  // below the macro surface: lost (single scattering)
+    } else {
+      const float sin2T = (1.0f - oh * oh) / (eta * eta);
+      if (sin2T >= 1.0f) return false;
+      const float cosT = std::sqrt(1.0f - sin2T);
+      wi = normalize(-w / eta + h * (oh / eta - cosT));
+      if (wi.z >= 0) return false;
+    }
+    s.wi = wi * sign;
+    s.transmitted = wi.z < 0;
+    s.delta = false;
+    float f;
+    roughDielectric(wo, s.wi, ior, alpha, f, s.pdf);
+    if (!(s.pdf > 0)) return false;
+    s.weight = Vec3(ggxG2(w, wi, alpha) / ggxG1(w, alpha));
     return true;
   }
   // Smooth dielectric.

@@ -8,7 +8,12 @@
 // probability F and refraction with 1 - F, so the weight is 1. The radiance scale
 // 1/eta^2 of refraction (Veach 1997 §5.2) is left out on purpose: cameras and lights
 // sit outside every grain, so each entry is undone by an exit, and leaving it out keeps
-// throughput at 1 inside clear grains (no Russian-roulette noise there). Absorption is
+// throughput at 1 inside clear grains (no Russian-roulette noise there). A rough
+// dielectric (alpha > 0) is Walter et al. 2007's microfacet BSDF with GGX normals
+// (microfacet.h), sampled by visible normals, F choosing reflection or refraction per
+// microfacet, so the weight is G2 / G1(wo); its transmission term leaves out 1/eta^2 as the
+// smooth one does (eq. 21 times eta_t²/eta_i²). It works from either side (wo.z < 0 is
+// inside the grain) and is not delta: lights connect to it. Absorption is
 // applied by the integrator along the path inside (Beer–Lambert). DiffusionExit is the
 // angular distribution of light leaving a diffusing half space through an index-matched
 // boundary, in the P1 approximation: L(μ) ∝ φ + 3Eμ with φ = 2E at the boundary
@@ -37,9 +42,15 @@ struct Material {
   float ior = 1.5f;
   Vec3 absorption{0.0f};   // per unit length of the object's own space
   Vec3 emission{0.0f};
+  float alpha = 0.0f;      // Dielectric: GGX width (alphaFromRoughness); 0: smooth
 
   static Material fromDesc(const MaterialDesc& d);
-  bool isDelta() const { return type == MaterialType::Dielectric; }
+  bool isDelta() const { return type == MaterialType::Dielectric && alpha == 0; }
+  // Directions wo with wo.z < 0 (seen from behind) can scatter: rough dielectrics.
+  bool twoSided() const { return type == MaterialType::Dielectric; }
+  // Angular width (radians) a non-delta bounce gives a ray cone: a GGX lobe's is about
+  // 2α; diffuse lobes are wide (the caller caps it).
+  float lobeSpread() const { return type == MaterialType::Dielectric ? 2.0f * alpha : kInf; }
   Vec3 eval(const Vec3& wo, const Vec3& wi) const;  // f * |cos wi|; zero for delta lobes
   float pdf(const Vec3& wo, const Vec3& wi) const;
   bool sample(const Vec3& wo, float uLobe, float u1, float u2, BsdfSample& s) const;

@@ -4,6 +4,7 @@
 #include <chrono>
 
 #include "error.h"
+#include "microfacet.h"
 
 namespace granular {
 
@@ -78,7 +79,7 @@ bool sameAggregate(const AggregateDesc& a, const AggregateDesc& b) {
 
 bool sameMaterial(const MaterialDesc& a, const MaterialDesc& b) {
   return a.type == b.type && a.albedo == b.albedo && a.ior == b.ior && a.absorption == b.absorption &&
-         a.emission == b.emission;
+         a.emission == b.emission && a.roughness == b.roughness;
 }
 
 bool isEmitter(const SceneDesc& desc, const MeshDesc& m) {
@@ -91,11 +92,15 @@ bool hasEmissiveSurface(const SceneDesc& desc) {
   return false;
 }
 
-// Any grain a smooth dielectric (prototypes without a material are the default glass).
+// Any grain a smooth dielectric (prototypes without a material are the default glass);
+// rough ones connect to delta lights like any non-delta surface.
 bool hasDielectricGrains(const SceneDesc& desc) {
   for (const auto& a : desc.aggregates)
-    for (const auto& p : a.prototypes)
-      if (p.material < 0 || desc.materials[p.material].type == MaterialType::Dielectric) return true;
+    for (const auto& p : a.prototypes) {
+      if (p.material < 0) return true;
+      const MaterialDesc& m = desc.materials[p.material];
+      if (m.type == MaterialType::Dielectric && alphaFromRoughness(m.roughness) == 0) return true;
+    }
   return false;
 }
 

@@ -237,6 +237,8 @@ void validateMaterialDesc(const MaterialDesc& m, const std::string& obj) {
   if (!std::isfinite(m.ior) || m.ior < 1 || m.ior > 4) throw InputError(obj, "ior", str(m.ior, " is outside [1, 4]"));
   checkNonNegative(m.absorption, obj, "absorption");
   checkNonNegative(m.emission, obj, "emission");
+  if (!std::isfinite(m.roughness) || m.roughness < 0 || m.roughness > 1)
+    throw InputError(obj, "roughness", str(m.roughness, " is outside [0, 1]"));
 }
 
 void validateAggregateParameters(const AggregateDesc& a, const std::string& obj) {

@@ -53,6 +53,8 @@ struct MaterialDesc {
   // the optical depth per grain radius, independent of the aggregate's grain size.
   Vec3 absorption{0.0f};
   Vec3 emission{0.0f};     // Lambert surfaces may emit (radiance)
+  // Dielectric surface roughness in [0, 1]: GGX α = roughness² (microfacet.h); 0 smooth.
+  float roughness = 0.0f;
 };
 
 enum class LightType { Distant, Sphere, Rect, Dome };

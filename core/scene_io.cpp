@@ -443,10 +443,11 @@ void parseMaterials(const json& v, SceneDesc& desc, MaterialIndex& index) {
       md.albedo = o.vec3("albedo", md.albedo, true);
       md.emission = o.vec3("emission", md.emission, true);
     } else if (type == "dielectric") {
-      Obj o(m, "materials", name, name, {"type", "ior", "absorption"});
+      Obj o(m, "materials", name, name, {"type", "ior", "absorption", "roughness"});
       md.type = MaterialType::Dielectric;
       md.ior = o.num("ior", md.ior);
       md.absorption = o.vec3("absorption", md.absorption, true);
+      md.roughness = o.num("roughness", md.roughness);
     } else {
       throw InputError(name, "type", str("unknown material type \"", type, "\" (expected lambert or dielectric)"));
     }

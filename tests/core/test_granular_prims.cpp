@@ -146,6 +146,7 @@ TEST(GranularPrims, GrainMaterialsComeFromGrainValuesThenTheFrontEndThenClearGla
   s.prims.push_back(meshPrim("/World/Grains/C", makeIcosphere(0)));
   MeshPrim d = meshPrim("/World/Grains/D", makeIcosphere(0));
   d.granular["ior"] = number("double", 1.7);
+  d.granular["roughness"] = number("float", 0.3);
   d.material = 0;
   s.prims.push_back(d);
   s["/World/Grains/B"].displayColor = Vec3(1, 0, 0);
@@ -164,6 +165,8 @@ TEST(GranularPrims, GrainMaterialsComeFromGrainValuesThenTheFrontEndThenClearGla
   const MaterialDesc& md = s.desc.materials.at(size_t(a.prototypes[3].material));
   EXPECT_EQ(md.type, MaterialType::Dielectric);
   EXPECT_FLOAT_EQ(md.ior, 1.7f);
+  EXPECT_FLOAT_EQ(md.roughness, 0.3f);  // rough grains (GGX α = 0.09)
+  EXPECT_EQ(ma.roughness, 0.0f);
   EXPECT_EQ(a.weights, (std::vector<float>{1, 1, 1, 1}));  // [] = equal
   EXPECT_EQ(s.desc.materials.size(), 3u);                 // slate, A, D: B's colour made none
 }
@@ -480,13 +483,13 @@ INSTANTIATE_TEST_SUITE_P(
                   "/World/Grains.primvars:granular:ior: 0.5 is outside [1, 4]"},
         ErrorCase{"grainAbsorption", set("/World/Grains/A", "absorption", numbers("color3f", {-1, 0, 0}, false)),
                   A + "absorption: (-1, 0, 0) has a negative component"},
-        ErrorCase{"grainRoughness", set("/World/Grains/A", "roughness", number("float", 0.3)),
-                  A + "roughness: 0.3: rough grains are not supported by this renderer yet (use 0)"},
         ErrorCase{"grainRoughnessRange", set("/World/Grains/A", "roughness", number("float", 2)),
                   A + "roughness: 2 is outside [0, 1]"},
+        ErrorCase{"negativeRoughness", set("/World/Grains/A", "roughness", number("float", -0.1f)),
+                  A + "roughness: -0.1 is outside [0, 1]"},
         ErrorCase{"roughnessWithoutApi",
-                  [](Stage& s) { s["/World/Grains/B"].granular["roughness"] = number("float", 0.5); },
-                  "/World/Grains/B." + P + "roughness: 0.5: rough grains are not supported by this renderer yet (use 0)"},
+                  [](Stage& s) { s["/World/Grains/B"].granular["roughness"] = number("float", 1.5); },
+                  "/World/Grains/B." + P + "roughness: 1.5 is outside [0, 1]"},
         ErrorCase{"stringRadius",
                   set("/World/Castle", "grainRadius", [] {
                     PrimvarValue v;

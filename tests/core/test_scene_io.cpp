@@ -276,6 +276,20 @@ TEST(SceneIo, ReferenceAndRangeErrors) {
   e = errorAfter([](json& j) { j["materials"]["sand"]["ior"] = 5; });
   EXPECT_CONTAINS(e, "sand.ior: 5 is outside [1, 4]");
   EXPECT_EQ(errorAfter([](json& j) { j["materials"]["sand"]["ior"] = 1; }), "NO ERROR");
+  e = errorAfter([](json& j) { j["materials"]["sand"]["roughness"] = 1.2; });
+  EXPECT_CONTAINS(e, "sand.roughness: 1.2 is outside [0, 1]");
+  e = errorAfter([](json& j) { j["materials"]["sand"]["roughness"] = -0.5; });
+  EXPECT_CONTAINS(e, "sand.roughness: -0.5 is outside [0, 1]");
+  e = errorAfter([](json& j) { j["materials"]["floor"]["roughness"] = 0.5; });  // Lambert has none
+  EXPECT_CONTAINS(e, "roughness");
+  {
+    json j = base();
+    j["materials"]["sand"]["roughness"] = 0.4;
+    int rough = 0;
+    for (const MaterialDesc& m : parseSceneJson(j.dump(), "scenes/test.json").materials)
+      if (m.name == "sand") rough += m.roughness == 0.4f;
+    EXPECT_EQ(rough, 1);
+  }
   e = errorAfter([](json& j) { j["materials"]["floor"]["albedo"] = {0.5, 1.5, 0}; });
   EXPECT_CONTAINS(e, "floor.albedo");
   e = errorAfter([](json& j) { j["render"]["width"] = 0; });
