@@ -115,6 +115,8 @@ for absorption in (0.0, 0.5, 2.0):
 CASES["absorption-chromatic"] = [_set(("materials", "grain", "absorption"), [0.02, 0.2, 1.0])]
 for f in (0.3, 0.45):
     CASES[f"packing-{f}"] = [_set(("aggregates", 0, "packing_rate"), f)]
+for roughness in (0.3, 0.7):
+    CASES[f"roughness-{roughness}"] = [_set(("materials", "grain", "roughness"), roughness)]
 CASES["mixture-clear+absorbing"] = [_mixture]
 CASES["mixture-amber+flint"] = [_amber_flint]
 for across in (25, 50, 100, 400):

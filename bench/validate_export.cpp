@@ -35,6 +35,7 @@
 #include <vector>
 
 #include "error.h"
+#include "microfacet.h"
 #include "film.h"
 #include "image_io.h"
 #include "render.h"
@@ -146,7 +147,8 @@ int exportScene(const std::string& scenePath, const std::string& dir) {
     j += i ? ",\n    " : "\n    ";
     j += "{\"name\": \"" + m.name + "\", \"type\": \"" +
          std::string(m.type == MaterialType::Lambert ? "lambert" : "dielectric") + "\", \"albedo\": " + vec(m.albedo) +
-         ", \"ior\": " + num(m.ior) + ", \"absorption\": " + vec(m.absorption) + "}";
+         ", \"ior\": " + num(m.ior) + ", \"absorption\": " + vec(m.absorption) +
+         ", \"ggx_alpha\": " + num(m.type == MaterialType::Dielectric ? alphaFromRoughness(m.roughness) : 0.0f) + "}";
   }
   j += "\n  ],\n";
 

@@ -165,8 +165,11 @@ def mitsuba_scene(mi, exp, base, spp, case, integrator, phase_channel=0):
             m = mats[proto["material"]]
             if m["type"] != "dielectric":
                 raise SystemExit(f"grain material {m['name']} is not a dielectric")
-            shape = {"type": "ply", "filename": os.path.join(base, proto["ply"]), "face_normals": True,
-                     "bsdf": {"type": "dielectric", "int_ior": m["ior"], "ext_ior": 1.0}}
+            bsdf = {"type": "dielectric", "int_ior": m["ior"], "ext_ior": 1.0}
+            if m.get("ggx_alpha", 0) > 0:
+                bsdf = {"type": "roughdielectric", "distribution": "ggx", "alpha": m["ggx_alpha"],
+                        "sample_visible": True, "int_ior": m["ior"], "ext_ior": 1.0}
+            shape = {"type": "ply", "filename": os.path.join(base, proto["ply"]), "face_normals": True, "bsdf": bsdf}
             if max(m["absorption"]) > 0:
                 # Absorption is per unit of the prototype's space (grain radius): per world length it is a / R.
                 shape["interior"] = medium_dict([x / R for x in m["absorption"]], [0.0, 0.0, 0.0])
@@ -245,7 +248,7 @@ def main():
     ap.add_argument("--build", default="build")
     ap.add_argument("--renders", type=int, default=32, help="independent renders per side (K)")
     ap.add_argument("--spp", type=int, default=32, help="samples per pixel of each render")
-    ap.add_argument("--cases", default="ept,ept_clear,ept_furnace,vpt,ept_dof")
+    ap.add_argument("--cases", default="ept,ept_clear,ept_furnace,vpt,ept_dof,ept_rough")
     ap.add_argument("--out", default="out/validate")
     ap.add_argument("--integrator", default="volpathmis",
                     help="Mitsuba integrator: volpathmis (spectral MIS, default) or volpath (hero channel)")

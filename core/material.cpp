@@ -16,6 +16,10 @@ float fresnelDielectric(float cosI, float eta) {
   return 0.5f * (rs * rs + rp * rp);
 }
 
+namespace {
+bool sampleRoughDielectric(const Vec3& wo, float ior, float alpha, float uLobe, float u1, float u2, BsdfSample& s);
+}  // namespace
+
 Material Material::fromDesc(const MaterialDesc& d) {
   Material m;
   m.type = d.type;
@@ -24,7 +28,36 @@ Material Material::fromDesc(const MaterialDesc& d) {
   m.absorption = d.absorption;
   m.emission = d.emission;
   if (d.type == MaterialType::Dielectric) m.alpha = alphaFromRoughness(d.roughness);
+  if (m.alpha > 0 && d.energyCompensation) {
+    // P_valid(μ): the fraction of raw samples with a valid direction, by stratified
+    // sampling (a 48×48 grid of visible normals, the lobe choice from a golden-ratio
+    // sequence; deterministic, about 1e-3).
+    std::vector<float> table;
+    for (int side = 0; side < 2; ++side)
+      for (int i = 0; i < kValidNodes; ++i) {
+        const float mu = (i + 0.5f) / kValidNodes;
+        const Vec3 wo(std::sqrt(1.0f - mu * mu), 0.0f, side == 0 ? mu : -mu);
+        const int n = 48;
+        int valid = 0;
+        for (int a = 0; a < n; ++a)
+          for (int b = 0; b < n; ++b) {
+            const float uLobe = float(std::fmod((a * n + b) * 0.6180339887498949, 1.0));
+            BsdfSample s;
+            valid += sampleRoughDielectric(wo, m.ior, m.alpha, uLobe, (a + 0.5f) / n, (b + 0.5f) / n, s);
+          }
+        table.push_back(std::max(0.05f, float(valid) / float(n * n)));
+      }
+    m.validTable = std::move(table);
+  }
   return m;
+}
+
+float Material::validFraction(const Vec3& wo) const {
+  const float* e = validTable.data() + (wo.z < 0 ? kValidNodes : 0);
+  const float x = std::clamp(std::fabs(wo.z) * kValidNodes - 0.5f, 0.0f, float(kValidNodes - 1));
+  const int i = std::min(int(x), kValidNodes - 2);
+  const float t = x - float(i);
+  return (1.0f - t) * e[i] + t * e[i + 1];
 }
 
 namespace {
@@ -69,6 +102,36 @@ void roughDielectric(Vec3 wo, Vec3 wi, float ior, float alpha, float& fcos, floa
   if (!std::isfinite(fcos) || !std::isfinite(pdf)) fcos = pdf = 0.0f;
 }
 
+// One sample of the uncompensated rough dielectric: a visible normal, then F picks
+// reflection or refraction on it; false when the direction is invalid (below the macro
+// surface on its side: single scattering loses it). Sets wi, transmitted, delta and the
+// weight G2 / G1(wo); not the pdf.
+bool sampleRoughDielectric(const Vec3& wo, float ior, float alpha, float uLobe, float u1, float u2, BsdfSample& s) {
+  const float sign = wo.z < 0 ? -1.0f : 1.0f;
+  const Vec3 w = wo * sign;
+  const float eta = sign > 0 ? ior : 1.0f / ior;
+  const Vec3 h = sampleGgxVisibleNormal(w, alpha, u1, u2);
+  const float oh = dot(w, h);
+  if (!(oh > 0)) return false;
+  const float F = fresnelDielectric(oh, eta);
+  Vec3 wi;
+  if (uLobe < F) {
+    wi = h * (2.0f * oh) - w;
+    if (wi.z <= 0) return false;
+  } else {
+    const float sin2T = (1.0f - oh * oh) / (eta * eta);
+    if (sin2T >= 1.0f) return false;
+    const float cosT = std::sqrt(1.0f - sin2T);
+    wi = normalize(-w / eta + h * (oh / eta - cosT));
+    if (wi.z >= 0) return false;
+  }
+  s.wi = wi * sign;
+  s.transmitted = wi.z < 0;
+  s.delta = false;
+  s.weight = Vec3(ggxG2(w, wi, alpha) / ggxG1(w, alpha));
+  return true;
+}
+
 }  // namespace
 
 Vec3 Material::eval(const Vec3& wo, const Vec3& wi) const {
@@ -76,7 +139,7 @@ Vec3 Material::eval(const Vec3& wo, const Vec3& wi) const {
     if (alpha == 0) return Vec3(0.0f);
     float f, p;
     roughDielectric(wo, wi, ior, alpha, f, p);
-    return Vec3(f);
+    return Vec3(validTable.empty() ? f : p / validFraction(wo));
   }
   if (wo.z <= 0 || wi.z <= 0) return Vec3(0.0f);
   if (type == MaterialType::Lambert) return albedo * (kInvPi * wi.z);
@@ -89,7 +152,7 @@ float Material::pdf(const Vec3& wo, const Vec3& wi) const {
     if (alpha == 0) return 0.0f;
     float f, p;
     roughDielectric(wo, wi, ior, alpha, f, p);
-    return p;
+    return validTable.empty() ? p : p / validFraction(wo);
   }
   if (wo.z <= 0) return 0.0f;
   if (type == MaterialType::Lambert) return cosineHemispherePdf(wi.z);
@@ -124,33 +187,28 @@ bool Material::sample(const Vec3& wo, float uLobe, float u1, float u2, BsdfSampl
     return true;
   }
   if (alpha > 0) {
-    // Rough dielectric: a visible normal, then F picks reflection or refraction on it.
-    const float sign = wo.z < 0 ? -1.0f : 1.0f;
-    const Vec3 w = wo * sign;
-    const float eta = sign > 0 ? ior : 1.0f / ior;
-    const Vec3 h = sampleGgxVisibleNormal(w, alpha, u1, u2);
-    const float oh = dot(w, h);
-    if (!(oh > 0)) return false;
-    const float F = fresnelDielectric(oh, eta);
-    Vec3 wi;
-    if (uLobe < F) {
-      wi = h * (2.0f * oh) - w;
-      if (wi.z <= 0) return false;  // below the macro surface: lost (single scattering)
-    } else {
-      const float sin2T = (1.0f - oh * oh) / (eta * eta);
-      if (sin2T >= 1.0f) return false;
-      const float cosT = std::sqrt(1.0f - sin2T);
-      wi = normalize(-w / eta + h * (oh / eta - cosT));
-      if (wi.z >= 0) return false;
+    if (validTable.empty()) {
+      if (!sampleRoughDielectric(wo, ior, alpha, uLobe, u1, u2, s)) return false;
+      float f;
+      roughDielectric(wo, s.wi, ior, alpha, f, s.pdf);
+      if (!(s.pdf > 0)) return false;
+      return true;
     }
-    s.wi = wi * sign;
-    s.transmitted = wi.z < 0;
-    s.delta = false;
-    float f;
-    roughDielectric(wo, s.wi, ior, alpha, f, s.pdf);
-    if (!(s.pdf > 0)) return false;
-    s.weight = Vec3(ggxG2(w, wi, alpha) / ggxG1(w, alpha));
-    return true;
+    // Compensated: the lobe's valid directions renormalised, drawn by rejection (fresh
+    // numbers from additive recurrences per try): pdf = raw pdf / P_valid(wo), weight 1.
+    for (int k = 0; k < kCompensationTries; ++k) {
+      const float a = float(k);
+      const float ul = std::fmod(uLobe + a * 0.6180339887f, 1.0f), v1 = std::fmod(u1 + a * 0.7548776662f, 1.0f),
+                  v2 = std::fmod(u2 + a * 0.5698402910f, 1.0f);
+      if (!sampleRoughDielectric(wo, ior, alpha, ul, v1, v2, s)) continue;
+      float f, p;
+      roughDielectric(wo, s.wi, ior, alpha, f, p);
+      if (!(p > 0)) continue;
+      s.pdf = p / validFraction(wo);
+      s.weight = Vec3(1.0f);
+      return true;
+    }
+    return false;
   }
   // Smooth dielectric.
   float cosO = wo.z;

@@ -79,7 +79,7 @@ bool sameAggregate(const AggregateDesc& a, const AggregateDesc& b) {
 
 bool sameMaterial(const MaterialDesc& a, const MaterialDesc& b) {
   return a.type == b.type && a.albedo == b.albedo && a.ior == b.ior && a.absorption == b.absorption &&
-         a.emission == b.emission && a.roughness == b.roughness;
+         a.emission == b.emission && a.roughness == b.roughness && a.energyCompensation == b.energyCompensation;
 }
 
 bool isEmitter(const SceneDesc& desc, const MeshDesc& m) {

@@ -55,6 +55,10 @@ struct MaterialDesc {
   Vec3 emission{0.0f};     // Lambert surfaces may emit (radiance)
   // Dielectric surface roughness in [0, 1]: GGX α = roughness² (microfacet.h); 0 smooth.
   float roughness = 0.0f;
+  // Rough dielectric: renormalise the single-scattering microfacet BSDF so that no energy
+  // is lost (material.h). Off only to compare with renderers that lose it (Mitsuba's
+  // roughdielectric); JSON "energy_compensation".
+  bool energyCompensation = true;
 };
 
 enum class LightType { Distant, Sphere, Rect, Dome };

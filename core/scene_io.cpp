@@ -443,11 +443,12 @@ void parseMaterials(const json& v, SceneDesc& desc, MaterialIndex& index) {
       md.albedo = o.vec3("albedo", md.albedo, true);
       md.emission = o.vec3("emission", md.emission, true);
     } else if (type == "dielectric") {
-      Obj o(m, "materials", name, name, {"type", "ior", "absorption", "roughness"});
+      Obj o(m, "materials", name, name, {"type", "ior", "absorption", "roughness", "energy_compensation"});
       md.type = MaterialType::Dielectric;
       md.ior = o.num("ior", md.ior);
       md.absorption = o.vec3("absorption", md.absorption, true);
       md.roughness = o.num("roughness", md.roughness);
+      md.energyCompensation = o.flag("energy_compensation", md.energyCompensation);
     } else {
       throw InputError(name, "type", str("unknown material type \"", type, "\" (expected lambert or dielectric)"));
     }

@@ -168,7 +168,10 @@ uint64_t cacheKey(const TriangleMesh& mesh, const Material& m, const TTOptions& 
   h = hashValue(h, m.albedo);
   h = hashValue(h, m.ior);
   h = hashValue(h, m.absorption);
-  if (m.alpha > 0) h = hashValue(h, m.alpha);  // smooth grains keep their cached entries
+  if (m.alpha > 0) {  // smooth grains keep their cached entries
+    h = hashValue(h, m.alpha);
+    h = hashBytes(h, m.validTable.data(), m.validTable.size() * sizeof(float));
+  }
   h = hashValue(h, o.rays);
   h = hashValue(h, int32_t(o.phaseBins));
   h = hashValue(h, int32_t(o.maxBounces));

@@ -12,6 +12,7 @@
 #include "cache.h"
 #include "embree_util.h"
 #include "error.h"
+#include "microfacet.h"
 #include "sampling.h"
 #include "shapes.h"
 #include "tt.h"
@@ -269,6 +270,38 @@ TEST(TTEstimate, AbsorptionLowersTheAlbedo) {
   EXPECT_EQ(clear.beta, g.beta);
   EXPECT_EQ(clear.lambdaDelta, g.lambdaDelta);
   EXPECT_EQ(h.lambdaDelta, g.lambdaDelta);
+}
+
+TEST(TTEstimate, RoughGrainsAreContinuousAsRoughnessVanishes) {
+  // A rough sphere's α_s, g and λ_s approach the smooth sphere's as roughness → 0 (the
+  // same random numbers drive both, so differences are far below the standard errors),
+  // and roughness does change them.
+  TriangleMesh sphere = prototypeOf(makeIcosphere(3));
+  Material smooth = dielectric(1.5f, Vec3(0.1f));
+  GrainTransport g0 = estimateGrainTransport(sphere, smooth, opts(1 << 14, 6));
+  std::vector<double> dAlbedo, dG, dLambda;
+  for (float roughness : {0.05f, 0.1f, 0.2f, 0.4f, 0.7f}) {
+    MaterialDesc d;  // the renderer's default: energy-compensated
+    d.type = MaterialType::Dielectric;
+    d.ior = smooth.ior;
+    d.absorption = smooth.absorption;
+    d.roughness = roughness;
+    Material m = Material::fromDesc(d);
+    ASSERT_FALSE(m.validTable.empty());
+    GrainTransport g = estimateGrainTransport(sphere, m, opts(1 << 14, 6));
+    std::printf("roughness %.2f: albedo %.4f (smooth %.4f), g %.4f (%.4f), lambda_s %.4f (%.4f)\n", roughness,
+                g.albedo[0], g0.albedo[0], g.g[0], g0.g[0], g.lambdaS[0], g0.lambdaS[0]);
+    EXPECT_EQ(g.beta, g0.beta);  // geometry alone
+    dAlbedo.push_back(std::fabs(g.albedo[0] - g0.albedo[0]));
+    dG.push_back(std::fabs(g.g[0] - g0.g[0]));
+    dLambda.push_back(std::fabs(g.lambdaS[0] - g0.lambdaS[0]));
+  }
+  EXPECT_LT(dAlbedo[0], 0.005);
+  EXPECT_LT(dG[0], 0.01);
+  EXPECT_LT(dLambda[0], 0.01);
+  EXPECT_GT(dG.back(), 10 * dG[0]);
+  EXPECT_GT(dG.back(), 4 * g0.gSE[0]);
+  for (size_t i = 1; i < dG.size(); ++i) EXPECT_GE(dG[i] + 2 * g0.gSE[0], dG[i - 1]) << i;
 }
 
 TEST(TTEstimate, BlackAndNeverHitGrainsStayFinite) {
