@@ -343,7 +343,7 @@ void Scene::setView(const CameraDesc& camera, const RenderSettings& settings) {
 
 int Scene::explicitBouncesFor(const Vec3& albedo, float depthMfp) {
   const float lowest = std::min({albedo.x, albedo.y, albedo.z});
-  const float t = std::clamp((0.92f - lowest) / 0.06f, 0.0f, 1.0f);
+  const float t = std::clamp((0.95f - lowest) / 0.05f, 0.0f, 1.0f);
   int k = int(std::lround(16.0f * t));
   if (lowest < kThinAlbedo && depthMfp < 20.0f)
     k = std::max(k, int(std::lround(32.0f * std::clamp((20.0f - depthMfp) / 10.0f, 0.0f, 1.0f))));

@@ -69,8 +69,10 @@ class Scene {
   // object whose half thickness is depthMfp of its longest mean free path. The medium's
   // low-order error is an error in how much is absorbed near the surface (a Poisson
   // medium misses the packing's shadow hiding; bench/accuracy_matrix.py):
-  // - by albedo: 0 for α_s ≥ 0.92, 16 from α_s ≤ 0.86, linear between. Switching at once
-  //   measured within 1% for α_s ≥ 0.91 and 2–9% from 0.86 down;
+  // - by albedo: 0 for α_s ≥ 0.95, 16 from α_s ≤ 0.90, linear between. Switching at once
+  //   measured 2–9% off from α_s 0.86 down; the ball of base rock grains (α_s 0.89) −0.6%
+  //   with 9 bounces, −0.2% with 32; cube-like crystals (0.94) −0.9% with none, −0.2%
+  //   with 16; rough grains (roughness 0.7, α_s 0.90) −1.5% with 6, −0.4% with 16;
   // - thin objects, where every order stays near the surface: absorbing grains
   //   (α_s < kThinAlbedo) keep 32 bounces below 10 mean free paths, none from 20,
   //   linear between. A ball 25 grains across (6 mfp deep, α_s 0.89) measured −1.3%

@@ -401,12 +401,12 @@ TEST(HybridAccuracy, ForwardScatteringGrainsThroughDiffusionMatchExplicitGrains)
 }
 
 TEST(HybridAccuracy, ExplicitBouncesFollowTheGrainsAlbedoUnlessSet) {
-  // Automatic: none for grains that absorb little, 16 from α_s ≤ 0.86, monotone, decided
+  // Automatic: none for grains that absorb little, 16 from α_s ≤ 0.90, monotone, decided
   // by the lowest channel.
   EXPECT_EQ(Scene::explicitBouncesFor(Vec3(1.0f)), 0);
-  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.92f)), 0);
-  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.89f)), 8);
-  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.86f)), 16);
+  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.95f)), 0);
+  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.925f)), 8);
+  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.90f)), 16);
   EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.1f)), 16);
   EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.99f, 0.99f, 0.86f)), 16);
   int last = 0;
@@ -419,7 +419,7 @@ TEST(HybridAccuracy, ExplicitBouncesFollowTheGrainsAlbedoUnlessSet) {
   // 20, more the thinner; clear grains none whatever the size.
   EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.89f), 6.0f), 32);
   EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.89f), 15.0f), 16);
-  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.89f), 20.0f), 8);
+  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.93f), 20.0f), 6);
   EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.95f), 5.0f), 32);
   EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.97f), 5.0f), 0);
   EXPECT_EQ(Scene::explicitBouncesFor(Vec3(1.0f), 1.0f), 0);
