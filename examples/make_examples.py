@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Writes the bundled USD examples (sandcastle, snowslab, sugarcube, mixture, animated, macro) with
+"""Writes the bundled USD examples (sandcastle, snowslab, sugarcube, mixture, animated, macro,
+frosted) with
 usd-core and the granular schema helpers:
 
     .venv/bin/python examples/make_examples.py [OUT_DIR]
@@ -11,7 +12,8 @@ resolution. Shapes come from core's procedural meshes, so the files are determin
 `animated` is a short shot (frames 1 to 3) for `granular render --frames`: its camera moves
 (time samples on its transform) and its sun brightens between frames 2 and 3. `macro` is
 a close-up with depth of field (fStop, focusDistance): the front grains of a heap sharp,
-the heap behind them soft.
+the heap behind them soft. `frosted` is sea glass: rough grains (GranularGrainAPI's
+roughness).
 """
 import math
 import os
@@ -127,9 +129,9 @@ def sky(stage, color, intensity):
     return light
 
 
-def grain(stage, name, tri, ior, absorption):
+def grain(stage, name, tri, ior, absorption, roughness=0.0):
     m = mesh_from(stage, f"/World/Grains/{name}", tri)
-    schema.apply_grain(m, ior=ior, absorption=absorption, roughness=0.0)
+    schema.apply_grain(m, ior=ior, absorption=absorption, roughness=roughness)
     return m
 
 
@@ -298,8 +300,29 @@ def macro(path):
     stage.GetRootLayer().Save()
 
 
+def frosted(path):
+    """Sea glass: pebbles of frosted glass (GGX roughness 0.35 to 0.6) in green, blue and
+    white, worn smooth-edged, in a heap on slate beside a few clear, polished ones."""
+    stage, _ = new_stage(path, (400, 300))
+    camera(stage, eye=(0.62, 0.55, 0.78), target=(0.0, 0.12, 0.0), aperture=(36.0, 27.0))
+    sun(stage, direction=(-0.45, -0.7, -0.5), intensity=10.0, angle=5.0)
+    sky(stage, (0.7, 0.8, 1.0), 0.8)
+    ground = quad(stage, "/World/Ground", 12.0)
+    bind(ground, preview_material(stage, "Slate", diffuse=(0.3, 0.3, 0.32)))
+    pebble = core.make_ellipsoid((1.0, 0.55, 0.8), 2)
+    green = grain(stage, "Green", pebble, 1.52, (0.9, 0.12, 0.7), roughness=0.5)
+    blue = grain(stage, "Blue", core.make_rock(2, 0.12, 6), 1.52, (1.1, 0.45, 0.08), roughness=0.6)
+    white = grain(stage, "White", core.make_rock(2, 0.18, 2), 1.52, (0.03, 0.03, 0.03), roughness=0.35)
+    polished = grain(stage, "Polished", pebble, 1.52, (0.02, 0.02, 0.02))
+    heap = mesh_from(stage, "/World/Heap", core.make_lathe(
+        [(0.5, 0.0), (0.45, 0.06), (0.34, 0.18), (0.2, 0.29), (0.0, 0.35)], 48))
+    schema.apply_aggregate(heap, [green, blue, white, polished], grain_radius=0.014, packing_rate=0.55,
+                           weights=[0.3, 0.25, 0.3, 0.15], seed=13, tile_spheres=512)
+    stage.GetRootLayer().Save()
+
+
 SCENES = {"sandcastle": sandcastle, "snowslab": snowslab, "sugarcube": sugarcube, "mixture": mixture,
-          "animated": animated, "macro": macro}
+          "animated": animated, "macro": macro, "frosted": frosted}
 
 
 def main(argv):
