@@ -1,8 +1,10 @@
 // granular-bench — measurements behind bench/*.py (a tool, not a test).
 //
-//   granular-bench throughput [--grain-radius R] [--seconds S]
+//   granular-bench throughput [--grain-radius R] [--seconds S] [--raw-seconds S]
 //     EPT ray casts per second through an aggregate against Embree's raw rtcIntersect1
 //     rate on the same prototype mesh, single thread, in the same run. One JSON line.
+//     --raw-seconds (default: --seconds) shortens the raw part, e.g. to profile the
+//     aggregate alone (perf record ... --raw-seconds 0.01).
 //   granular-bench setup --grains N
 //     Set-up time and memory of an aggregate of about N grains. One JSON line.
 //   granular-bench tt [--rays N]
@@ -47,7 +49,7 @@ AggregateDesc sphereAggregate(float boundaryRadius, float R, int tileSpheres) {
   return a;
 }
 
-int throughput(float R, double budget) {
+int throughput(float R, double budget, double rawBudget) {
   EmbreeDevice dev = makeEmbreeDevice();
   Aggregate agg;
   agg.build(sphereAggregate(1.0f, R, 512), dev, {0});
@@ -57,7 +59,7 @@ int throughput(float R, double budget) {
   // Raw Embree: rays from a sphere of radius 2 towards random points of the unit ball.
   long raw = 0, rawHits = 0;
   auto t0 = Clock::now();
-  while (seconds(t0) < budget) {
+  while (seconds(t0) < rawBudget) {
     for (int i = 0; i < 4096; ++i) {
       Vec3 o = sampleUniformSphere(rng.next1D(), rng.next1D()) * 2.0f;
       Vec3 target = sampleUniformSphere(rng.next1D(), rng.next1D()) * std::cbrt(rng.next1D());
@@ -166,22 +168,24 @@ int ttParams(long rays) {
 int main(int argc, char** argv) {
   if (argc < 2) {
     std::fprintf(stderr,
-                 "usage: granular-bench throughput [--grain-radius R] [--seconds S] | setup --grains N | tt [--rays N]\n");
+                 "usage: granular-bench throughput [--grain-radius R] [--seconds S] [--raw-seconds S] | setup --grains N | "
+                 "tt [--rays N]\n");
     return 2;
   }
   std::string mode = argv[1];
   float R = 0.01f;
-  double secs = 2.0, grains = 1e6;
+  double secs = 2.0, rawSecs = -1, grains = 1e6;
   long rays = 1L << 18;
   for (int i = 2; i + 1 < argc; i += 2) {
     std::string a = argv[i];
     if (a == "--grain-radius") R = std::strtof(argv[i + 1], nullptr);
     else if (a == "--seconds") secs = std::strtod(argv[i + 1], nullptr);
+    else if (a == "--raw-seconds") rawSecs = std::strtod(argv[i + 1], nullptr);
     else if (a == "--grains") grains = std::strtod(argv[i + 1], nullptr);
     else if (a == "--rays") rays = std::strtol(argv[i + 1], nullptr, 10);
   }
   try {
-    if (mode == "throughput") return throughput(R, secs);
+    if (mode == "throughput") return throughput(R, secs, rawSecs < 0 ? secs : rawSecs);
     if (mode == "setup") return setup(grains);
     if (mode == "tt") return ttParams(rays);
   } catch (const std::exception& e) {

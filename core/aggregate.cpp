@@ -12,14 +12,6 @@ namespace granular {
 namespace {
 
 // Context handed through Embree to the tile's user-geometry callback.
-struct TileQuery {
-  RTCIntersectContext ctx;  // must come first: Embree passes a pointer to it
-  const class Aggregate* agg;
-  int64_t cell[3];
-  Vec3 cellOrigin;
-  GrainHit* best;
-};
-
 // A direction unlikely to run along mesh edges, for the parity inside test.
 const Vec3 kInsideProbeDir = normalize(Vec3(0.5773f, 0.5774f, 0.5775f) + Vec3(0.0123f, -0.0311f, 0.0207f));
 
@@ -66,57 +58,30 @@ bool closestPointCallback(RTCPointQueryFunctionArguments* args) {
 
 }  // namespace
 
-struct AggregateCallbacks {
-  static void bounds(const RTCBoundsFunctionArguments* args) {
-    auto* agg = static_cast<const Aggregate*>(args->geometryUserPtr);
-    const Aggregate::TileSphere& s = agg->spheres_[args->primID];
-    float r = agg->R_;
-    args->bounds_o->lower_x = s.center.x - r; args->bounds_o->upper_x = s.center.x + r;
-    args->bounds_o->lower_y = s.center.y - r; args->bounds_o->upper_y = s.center.y + r;
-    args->bounds_o->lower_z = s.center.z - r; args->bounds_o->upper_z = s.center.z + r;
-  }
-
-  static void intersect(const RTCIntersectFunctionNArguments* args) {
-    if (!args->valid[0]) return;
-    auto* agg = static_cast<const Aggregate*>(args->geometryUserPtr);
-    auto* q = reinterpret_cast<const TileQuery*>(args->context);
-    RTCRayHit* rh = reinterpret_cast<RTCRayHit*>(args->rayhit);  // N == 1 for rtcIntersect1
-    const Aggregate::TileSphere& s = agg->spheres_[args->primID];
-    Vec3 o(rh->ray.org_x, rh->ray.org_y, rh->ray.org_z), d(rh->ray.dir_x, rh->ray.dir_y, rh->ray.dir_z);
-    // Bounding sphere first: cheap rejection before any hashing.
-    Vec3 oc = o - s.center;
-    float b = dot(oc, d), c = length2(oc) - agg->R_ * agg->R_;
-    float disc = b * b - c;
-    if (disc < 0) return;
-    float sq = std::sqrt(disc);
-    if (-b + sq < rh->ray.tnear || -b - sq > rh->ray.tfar) return;
-    int64_t home[3] = {q->cell[0] + s.home[0], q->cell[1] + s.home[1], q->cell[2] + s.home[2]};
-    // The centre from the home cell, computed as forEachGrain does, so that every cell
-    // that lists this sphere makes the same inside decision.
-    Vec3 worldCenter = agg->origin_ + Vec3(float(home[0]), float(home[1]), float(home[2])) * agg->L_ +
-                       agg->tile_.centers[s.id] * agg->L_;
-    if (!agg->sphereIsInside(home, worldCenter)) return;
-    GrainChoice g = agg->selector_.choose(home[0], home[1], home[2], s.id);
-    const GrainPrototype& proto = agg->prototypes_[g.prototype];
-    // Into the grain frame; t is unchanged because the direction is scaled by 1/R too.
-    float invR = 1.0f / agg->R_;
-    Vec3 ol = g.rotation.transposeMul(oc) * invR, dl = g.rotation.transposeMul(d) * invR;
-    RTCIntersectContext ctx;
-    rtcInitIntersectContext(&ctx);
-    RTCRayHit local = makeRayHit(ol, dl, rh->ray.tnear, rh->ray.tfar);
-    rtcIntersect1(proto.bvh.get(), &ctx, &local);
-    if (local.hit.geomID == RTC_INVALID_GEOMETRY_ID) return;
-    rh->ray.tfar = local.ray.tfar;
-    rh->hit.geomID = args->geomID;
-    rh->hit.primID = args->primID;
-    GrainHit* best = q->best;
-    best->t = local.ray.tfar;
-    best->ng = normalize(g.rotation * triangleNormal(proto.mesh, local.hit.primID));
-    best->prototype = g.prototype;
-    best->cell[0] = home[0]; best->cell[1] = home[1]; best->cell[2] = home[2];
-    best->sphere = s.id;
-  }
-};
+bool Aggregate::traceGrain(const TileSphere& s, const int64_t cell[3], const Vec3& oc, const Vec3& d, float tmin,
+                           float tmax, GrainHit& best) const {
+  int64_t home[3] = {cell[0] + s.home[0], cell[1] + s.home[1], cell[2] + s.home[2]};
+  // The centre from the home cell, computed as forEachGrain does, so that every cell
+  // that lists this sphere makes the same inside decision.
+  Vec3 worldCenter = origin_ + Vec3(float(home[0]), float(home[1]), float(home[2])) * L_ + tile_.centers[s.id] * L_;
+  if (!sphereIsInside(home, worldCenter)) return false;
+  GrainChoice g = selector_.choose(home[0], home[1], home[2], s.id);
+  const GrainPrototype& proto = prototypes_[g.prototype];
+  // Into the grain frame; t is unchanged because the direction is scaled by 1/R too.
+  float invR = 1.0f / R_;
+  Vec3 ol = g.rotation.transposeMul(oc) * invR, dl = g.rotation.transposeMul(d) * invR;
+  RTCIntersectContext ctx;
+  rtcInitIntersectContext(&ctx);
+  RTCRayHit local = makeRayHit(ol, dl, tmin, tmax);
+  rtcIntersect1(proto.bvh.get(), &ctx, &local);
+  if (local.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
+  best.t = local.ray.tfar;
+  best.ng = normalize(g.rotation * triangleNormal(proto.mesh, local.hit.primID));
+  best.prototype = g.prototype;
+  best.cell[0] = home[0]; best.cell[1] = home[1]; best.cell[2] = home[2];
+  best.sphere = s.id;
+  return true;
+}
 
 void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, const std::vector<int>& prototypeMaterials) {
   auto t0 = std::chrono::steady_clock::now();
@@ -248,19 +213,40 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
           spheres_.push_back(ts);
         }
   }
-  tileBvh_ = makeEmbreeScene(device);
-  RTCGeometry g = rtcNewGeometry(device.get(), RTC_GEOMETRY_TYPE_USER);
-  rtcSetGeometryUserPrimitiveCount(g, unsigned(spheres_.size()));
-  rtcSetGeometryUserData(g, this);
-  rtcSetGeometryBoundsFunction(g, &AggregateCallbacks::bounds, nullptr);
-  rtcSetGeometryIntersectFunction(g, &AggregateCallbacks::intersect);
-  rtcCommitGeometry(g);
-  rtcAttachGeometry(tileBvh_.get(), g);
-  rtcReleaseGeometry(g);
-  rtcCommitScene(tileBvh_.get());
+  // Sub-cells: an M^3 grid over the unit cell, M ≈ L / 2R (one or two spheres across),
+  // each listing the spheres (and images) that overlap it, for the front-to-back walk.
+  sub_ = std::clamp(int(std::lround(L_ / (2.0f * R_))), 1, 32);
+  const float Ls = L_ / float(sub_), reach = R_ + 1e-3f * R_;
+  std::vector<std::vector<uint32_t>> lists(size_t(sub_) * sub_ * sub_);
+  for (size_t i = 0; i < spheres_.size(); ++i) {
+    const Vec3& c = spheres_[i].center;
+    int lo[3], hi[3];
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::clamp(int(std::floor((c[a] - reach) / Ls)), 0, sub_ - 1);
+      hi[a] = std::clamp(int(std::floor((c[a] + reach) / Ls)), 0, sub_ - 1);
+    }
+    for (int z = lo[2]; z <= hi[2]; ++z)
+      for (int y = lo[1]; y <= hi[1]; ++y)
+        for (int x = lo[0]; x <= hi[0]; ++x) {
+          const int idx[3] = {x, y, z};
+          float d2 = 0;  // sphere centre to the sub-cell box
+          for (int a = 0; a < 3; ++a) {
+            float e = std::max({float(idx[a]) * Ls - c[a], 0.0f, c[a] - float(idx[a] + 1) * Ls});
+            d2 += e * e;
+          }
+          if (d2 <= reach * reach) lists[size_t((z * sub_ + y) * sub_ + x)].push_back(uint32_t(i));
+        }
+  }
+  subStart_.assign(1, 0);
+  subList_.clear();
+  for (const auto& l : lists) {
+    subList_.insert(subList_.end(), l.begin(), l.end());
+    subStart_.push_back(uint32_t(subList_.size()));
+  }
 
   stats_.memoryBytes = classes_.size() * sizeof(CellClass) + sdf_.memoryBytes() +
-                       spheres_.size() * (sizeof(TileSphere) + 64) + boundary_.points.size() * 40;
+                       spheres_.size() * sizeof(TileSphere) + (subList_.size() + subStart_.size()) * sizeof(uint32_t) +
+                       boundary_.points.size() * 40;
   for (const auto& p : prototypes_) stats_.memoryBytes += p.mesh.points.size() * 40 + p.mesh.indices.size() * 8;
   stats_.setupSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
@@ -309,8 +295,9 @@ bool Aggregate::sphereIsInside(const int64_t home[3], const Vec3& worldCenter) c
     case CellClass::Outside: return false;
     case CellClass::Partial: break;
   }
-  // Far enough from the surface, the field's sign is certain; near it, cast a ray.
-  float d = sdf_.distance(worldCenter);
+  // Far enough from the surface, the field's sign is certain (the nearest voxel's value
+  // is within 0.87 voxel of the field there); near it, cast a ray.
+  float d = sdf_.nearestDistance(worldCenter);
   if (std::fabs(d) > 2.0f * sdf_.voxelSize()) return d < 0;
   return insideBoundary(worldCenter);
 }
@@ -342,26 +329,93 @@ bool Aggregate::intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, 
       tDelta[a] = kInf;
     }
   }
-  const float pad = 1e-4f * L_;
-  float tEnter = t0;
-  TileQuery q;
-  rtcInitIntersectContext(&q.ctx);
-  q.agg = this;
-  q.best = &hit;
+  float tEnter = t0, best = tmax;
+  bool found = false;
   for (;;) {
     int axis = tNext[0] < tNext[1] ? (tNext[0] < tNext[2] ? 0 : 2) : (tNext[1] < tNext[2] ? 1 : 2);
     float tExit = std::min(tNext[axis], t1);
-    if (cellClass(cell[0], cell[1], cell[2]) != CellClass::Outside) {
-      q.cell[0] = cell[0]; q.cell[1] = cell[1]; q.cell[2] = cell[2];
-      q.cellOrigin = origin_ + Vec3(float(cell[0]), float(cell[1]), float(cell[2])) * L_;
-      RTCRayHit rh = makeRayHit(o - q.cellOrigin, d, std::max(tmin, tEnter - pad), std::min(tmax, tExit + pad));
-      rtcIntersect1(tileBvh_.get(), &q.ctx, &rh);
-      if (rh.hit.geomID != RTC_INVALID_GEOMETRY_ID) return true;
-    }
-    if (tExit >= t1) return false;
+    if (cellClass(cell[0], cell[1], cell[2]) != CellClass::Outside &&
+        walkCell(cell, o, d, invD, tmin, tEnter, tExit, best, found, hit))
+      return true;
+    if (tExit >= t1) return found;
     cell[axis] += step[axis];
-    if (cell[axis] < 0 || cell[axis] >= n_[axis]) return false;
+    if (cell[axis] < 0 || cell[axis] >= n_[axis]) return found;
     tEnter = tNext[axis];
+    tNext[axis] += tDelta[axis];
+  }
+}
+
+bool Aggregate::walkCell(const int64_t cell[3], const Vec3& o, const Vec3& d, const Vec3& invD, float tmin,
+                         float tEnter, float tExit, float& best, bool& found, GrainHit& hit) const {
+  // 3-D DDA over the cell's sub-cells from tEnter to tExit, front to back. A sphere is
+  // traced in the sub-cell where the ray enters it (its entry t within the sub-cell's
+  // span, padded against rounding: at worst traced twice, never missed).
+  const int M = sub_;
+  const float Ls = L_ / float(M), pad = 1e-4f * Ls, R2 = R_ * R_;
+  // The entry t and the sub-cells' spans are each a few ulps of t off (they are computed
+  // from different origins): pads of 1e-5 t (~80 ulps) on top of 1e-4 of a sub-cell.
+  constexpr float kRelPad = 1e-5f;
+  const Vec3 cellOrigin = origin_ + Vec3(float(cell[0]), float(cell[1]), float(cell[2])) * L_;
+  const Vec3 oCell = o - cellOrigin;
+  const Vec3 pc = oCell + d * tEnter;
+  int sc[3], step[3];
+  float tNext[3], tDelta[3];
+  for (int a = 0; a < 3; ++a) {
+    sc[a] = std::clamp(int(std::floor(pc[a] / Ls)), 0, M - 1);
+    if (d[a] > 0) {
+      step[a] = 1;
+      tNext[a] = tEnter + (float(sc[a] + 1) * Ls - pc[a]) * invD[a];
+      tDelta[a] = Ls * invD[a];
+    } else if (d[a] < 0) {
+      step[a] = -1;
+      tNext[a] = tEnter + (float(sc[a]) * Ls - pc[a]) * invD[a];
+      tDelta[a] = -Ls * invD[a];
+    } else {
+      step[a] = 0;
+      tNext[a] = kInf;
+      tDelta[a] = kInf;
+    }
+  }
+  float sEnter = tEnter;
+  // In a partial cell, a sub-cell whose centre lies further outside than its half
+  // diagonal plus R (plus the nearest voxel's error) holds no sphere centred inside.
+  const bool partial = cellClass(cell[0], cell[1], cell[2]) == CellClass::Partial;
+  const float skipBeyond = 0.8661f * Ls + R_ + sdf_.voxelSize();
+  for (;;) {
+    int axis = tNext[0] < tNext[1] ? (tNext[0] < tNext[2] ? 0 : 2) : (tNext[1] < tNext[2] ? 1 : 2);
+    float sExit = std::min(tNext[axis], tExit);
+    const size_t sub = size_t((sc[2] * M + sc[1]) * M + sc[0]);
+    if (partial && sdf_.nearestDistance(cellOrigin + Vec3(sc[0] + 0.5f, sc[1] + 0.5f, sc[2] + 0.5f) * Ls) > skipBeyond) {
+      if (sExit >= tExit) return false;
+      sc[axis] += step[axis];
+      if (sc[axis] < 0 || sc[axis] >= M) return false;
+      sEnter = tNext[axis];
+      tNext[axis] += tDelta[axis];
+      continue;
+    }
+    const float lo = sEnter - pad - kRelPad * std::fabs(sEnter), hi = sExit + pad + kRelPad * std::fabs(sExit);
+    for (uint32_t k = subStart_[sub]; k < subStart_[sub + 1]; ++k) {
+      const TileSphere& s = spheres_[subList_[k]];
+      Vec3 oc = oCell - s.center;
+      // Ray–sphere by the closest approach (b² − c would cancel catastrophically for a
+      // sphere far along the ray): disc = R² − |oc − b d|².
+      float b = dot(oc, d);
+      float disc = R2 - length2(oc - d * b);
+      if (disc < 0) continue;
+      float sq = std::sqrt(disc);
+      float te = std::max(-b - sq, tmin);
+      if (-b + sq < tmin || te >= best || te < lo || te >= hi) continue;
+      if (traceGrain(s, cell, oc, d, tmin, best, hit)) {
+        best = hit.t;
+        found = true;
+      }
+    }
+    // Spheres not traced yet enter at t >= hi: none can be nearer.
+    if (found && best <= hi) return true;
+    if (sExit >= tExit) return false;
+    sc[axis] += step[axis];
+    if (sc[axis] < 0 || sc[axis] >= M) return false;
+    sEnter = tNext[axis];
     tNext[axis] += tDelta[axis];
   }
 }
@@ -379,7 +433,7 @@ void Aggregate::forEachGrain(const Bounds3& box, const std::function<void(const 
         int64_t home[3] = {i, j, k};
         Vec3 cellOrigin = origin_ + Vec3(float(i), float(j), float(k)) * L_;
         for (int s = 0; s < tile_.numSpheres; ++s) {
-          Vec3 c = cellOrigin + tile_.centers[s] * L_;  // as the intersection callback computes it
+          Vec3 c = cellOrigin + tile_.centers[s] * L_;  // as traceGrain computes it
           if (!sphereIsInside(home, c)) continue;
           GrainChoice g = selector_.choose(i, j, k, s);
           fn(GrainInstance{c, R_, g.prototype, g.rotation, {i, j, k}, s});

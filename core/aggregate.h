@@ -5,10 +5,13 @@
 // L = R / r_tile, classified outside / partial / inside from the boundary's signed
 // distance field with a margin of half a cell diagonal plus R (so no sphere whose
 // centre is inside the boundary can reach an "outside" cell). intersect() walks the
-// cells along the ray by 3-D DDA; in a non-outside cell it traces the tile's sphere
-// BVH, keeps a sphere only if its centre is inside the boundary (exactly, by a ray cast
-// against the boundary mesh, in partial cells), instantiates its grain from a hash and
-// traces the prototype's BVH in the grain's frame. Memory is the tile, the cell
+// cells' sub-cells (an M^3 grid per cell, M ≈ L / 2R, each listing the tile spheres that
+// overlap it) along the ray by 3-D DDA, front to back; in a non-outside cell it tests the
+// listed spheres the ray enters there, keeps a sphere only if its centre is inside the
+// boundary (exactly, by a ray cast against the boundary mesh, in partial cells),
+// instantiates its grain from a hash and traces the prototype's BVH in the grain's
+// frame, and stops at the first sub-cell that ends beyond the nearest grain hit. Memory
+// is the tile and its sub-cell lists, the cell
 // classes (one byte per cell) and the narrow-band distance field: independent of the
 // number of grains per cell. Queries are thread-safe.
 #pragma once
@@ -100,21 +103,31 @@ class Aggregate {
     int8_t home[3];         // offset of the cell that holds the centre
     int id;                 // sphere index in the tile
   };
-  friend struct AggregateCallbacks;
-
   bool sphereIsInside(const int64_t home[3], const Vec3& worldCenter) const;
+  // The grain of tile sphere s listed by `cell`, if its centre is inside: its nearest hit
+  // in [tmin, tmax] along oc + t d (oc: the ray's origin relative to the sphere's centre).
+  // The sub-cell walk of intersect() through one non-outside cell between tEnter and
+  // tExit; best: the nearest hit's t so far (lowered, hit written, found set). True when
+  // a hit is found and no later sphere can be nearer: the walk may stop.
+  bool walkCell(const int64_t cell[3], const Vec3& o, const Vec3& d, const Vec3& invD, float tmin, float tEnter,
+                float tExit, float& best, bool& found, GrainHit& hit) const;
+  bool traceGrain(const TileSphere& s, const int64_t cell[3], const Vec3& oc, const Vec3& d, float tmin, float tmax,
+                  GrainHit& best) const;
 
   EmbreeDevice device_;  // first: it outlives the BVHs below (scenes share aggregates)
   std::string name_;
   float R_ = 0, L_ = 0, f_ = 0;
   Tile tile_;
   std::vector<TileSphere> spheres_;
+  int sub_ = 1;                        // sub-cells per cell edge
+  std::vector<uint32_t> subStart_;     // per sub-cell, its first entry in subList_ (CSR)
+  std::vector<uint32_t> subList_;      // indices into spheres_
   std::vector<GrainPrototype> prototypes_;
   std::vector<int> prototypeMaterials_;
   GrainSelector selector_;
   TriangleMesh boundary_;
   DistanceField sdf_;
-  EmbreeScene boundaryBvh_, tileBvh_;
+  EmbreeScene boundaryBvh_;
   Vec3 origin_;
   int64_t n_[3] = {0, 0, 0};
   std::vector<CellClass> classes_;

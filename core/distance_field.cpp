@@ -73,6 +73,19 @@ float DistanceField::distance(const Vec3& p) const {
   return value * voxel_;
 }
 
+float DistanceField::nearestDistance(const Vec3& p) const {
+  thread_local uint64_t id = 0;
+  thread_local std::optional<openvdb::FloatGrid::ConstUnsafeAccessor> accessor;
+  if (id != impl_->id) {
+    accessor.emplace(impl_->grid->getConstUnsafeAccessor());
+    id = impl_->id;
+  }
+  const double inv = 1.0 / double(voxel_);
+  const openvdb::Coord ijk(int(std::floor(p.x * inv + 0.5)), int(std::floor(p.y * inv + 0.5)),
+                           int(std::floor(p.z * inv + 0.5)));
+  return accessor->getValue(ijk) * voxel_;
+}
+
 Vec3 DistanceField::gradient(const Vec3& p) const {
   float h = 0.5f * voxel_;
   Vec3 g(distance(p + Vec3(h, 0, 0)) - distance(p - Vec3(h, 0, 0)),

@@ -13,7 +13,8 @@
 //  "camera": {"look_at": {"eye":[0,1,5], "target":[0,0,0], "up":[0,1,0]},  // or "transform": T
 //             "focal_length":50, "horizontal_aperture":36, "vertical_aperture":24,
 //             "horizontal_aperture_offset":0, "vertical_aperture_offset":0, "clipping_range":[0.01,1000]},
-//  "materials": {"sand":  {"type":"dielectric", "ior":1.5, "absorption":[0.1,0.2,0.4]},
+//  "materials": {"sand":  {"type":"dielectric", "ior":1.5, "absorption":[0.1,0.2,0.4],
+//                         "roughness":0, "energy_compensation":true},
 //                "floor": {"type":"lambert", "albedo":[0.5,0.5,0.5], "emission":0}},
 //  "meshes": [{"name":"floor", "shape"*: S, "material":"floor", "transform": T, "visible":true}],
 //  "lights": [{"type"*:"distant", "direction":[0,-1,-1], "angle":0.53},   // or "transform": T
