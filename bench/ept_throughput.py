@@ -1,9 +1,14 @@
 #!/usr/bin/env python3
-"""EPT benchmark: ray throughput through an aggregate against raw Embree, and the
-set-up time and memory of aggregates from 10^6 to 10^9 grains.
+"""EPT benchmark: ray throughput through an aggregate against raw Embree, the set-up time
+and memory of aggregates from 10^6 to 10^9 grains, and full EPT renders of the examples
+with one and two threads.
 
-Prints two markdown tables. Each measurement runs in a fresh process (so peak RSS
-belongs to one aggregate). Usage: python3 bench/ept_throughput.py [--build build]
+Prints three markdown tables. Each throughput and set-up measurement runs in a fresh
+process (so peak RSS belongs to one aggregate); the renders run in this process through
+granular_core (the build's), timing the render alone (the scene is built first).
+Usage: python3 bench/ept_throughput.py [--build build] [--seconds 2] [--sizes 1e6,...]
+           [--examples sandcastle,snowslab,sugarcube,mixture] [--width 240] [--spp 8]
+           [--threads 1,2] [--skip throughput,setup,renders]
 """
 import argparse
 import json
@@ -22,11 +27,26 @@ def main():
     ap.add_argument("--build", default="build")
     ap.add_argument("--seconds", default="2")
     ap.add_argument("--sizes", default="1e6,1e7,1e8,1e9")
+    ap.add_argument("--examples", default="sandcastle,snowslab,sugarcube,mixture")
+    ap.add_argument("--width", type=int, default=240)
+    ap.add_argument("--spp", type=int, default=8)
+    ap.add_argument("--threads", default="1,2")
+    ap.add_argument("--skip", default="", help="comma-separated tables to skip: throughput, setup, renders")
     a = ap.parse_args()
+    skip = set(a.skip.split(","))
     exe = os.path.join(a.build, "bench", "granular-bench")
     if not os.path.exists(exe):
         sys.exit(f"{exe} not found: run 'make build' first")
 
+    if "throughput" not in skip:
+        throughput(exe, a)
+    if "setup" not in skip:
+        setup(exe, a)
+    if "renders" not in skip:
+        renders(a)
+
+
+def throughput(exe, a):
     print("## EPT ray throughput (one thread)\n")
     print("| grain radius | grains | Embree rtcIntersect1 on the grain mesh (rays/s) | aggregate EPT rays (rays/s) | ratio |")
     print("|---|---|---|---|---|")
@@ -35,6 +55,8 @@ def main():
         print(f"| {m['grain_radius']} | {m['grains']:.3g} | {m['embree_rays_per_s']:.3g} | "
               f"{m['aggregate_rays_per_s']:.3g} | {m['ratio']:.3f} |")
 
+
+def setup(exe, a):
     print("\n## Aggregate set-up time and memory\n")
     print("| grains | cells (tiles) | set-up (s) | tile (s) | distance field (s) | aggregate memory (MiB) | process peak RSS (MiB) |")
     print("|---|---|---|---|---|---|---|")
@@ -42,6 +64,39 @@ def main():
         m = run(exe, "setup", "--grains", n)
         print(f"| {m['grains']:.3g} | {m['cells']} | {m['setup_s']:.2f} | {m['tile_s']:.2f} | {m['sdf_s']:.2f} | "
               f"{m['aggregate_mib']:.1f} | {m['peak_rss_mib']:.0f} |")
+
+
+def renders(a):
+    """Full EPT renders of the examples at equal samples, per thread count: render seconds
+    (scene built beforehand) and the speed-up of the largest count over one thread."""
+    import time
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    sys.path[:0] = [os.path.join(os.path.abspath(a.build), "python"), os.path.join(root, "python")]
+    import granular_core as core
+    from granular.usd_reader import read_stage
+    threads = [int(t) for t in a.threads.split(",")]
+    print(f"\n## Full EPT renders ({a.width} px wide, {a.spp} spp; render seconds, scene built first)\n")
+    print("| example | grains | " + " | ".join(f"{t} thread{'s' if t > 1 else ''} (s)" for t in threads) +
+          f" | speed-up {threads[-1]} / {threads[0]} | image mean |")
+    print("|---|---|" + "---|" * len(threads) + "---|---|")
+    for name in a.examples.split(","):
+        scene = read_stage(os.path.join(root, "examples", f"{name}.usda"), width=a.width)
+        s = scene.desc.settings
+        s.technique = core.Technique.Ept
+        s.spp = a.spp
+        times, mean = [], None
+        for t in threads:
+            s.threads = t
+            scene.desc.settings = s
+            built = core.Scene.build(scene.desc)
+            r = core.Renderer(built)
+            t0 = time.monotonic()
+            r.render(pass_samples=a.spp)
+            times.append(time.monotonic() - t0)
+            mean = float(r.image().pixels[..., :3].mean())
+        grains = sum(info["approx_grains"] for info in built.aggregates)
+        print(f"| {name} | {grains:.3g} | " + " | ".join(f"{x:.2f}" for x in times) +
+              f" | {times[0] / times[-1]:.2f}x | {mean:.4f} |", flush=True)
 
 
 if __name__ == "__main__":

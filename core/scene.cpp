@@ -341,10 +341,12 @@ void Scene::setView(const CameraDesc& camera, const RenderSettings& settings) {
   updateExplicitBounces();
 }
 
-int Scene::explicitBouncesFor(const Vec3& albedo, float depthMfp) {
+int Scene::explicitBouncesFor(const Vec3& albedo, const Vec3& g, float depthMfp) {
+  float x = 0;  // the absorption of back-scattered light, (1 − α_s)(1 − g), worst channel
+  for (int c = 0; c < 3; ++c) x = std::max(x, (1.0f - albedo[c]) * (1.0f - g[c]));
+  const float k16 = std::clamp((x - 0.025f) / 0.01f, 0.0f, 1.0f), k32 = std::clamp((x - 0.05f) / 0.05f, 0.0f, 1.0f);
+  int k = int(std::lround(16.0f * k16 + 16.0f * k32));
   const float lowest = std::min({albedo.x, albedo.y, albedo.z});
-  const float t = std::clamp((0.95f - lowest) / 0.05f, 0.0f, 1.0f);
-  int k = int(std::lround(16.0f * t));
   if (lowest < kThinAlbedo && depthMfp < 20.0f)
     k = std::max(k, int(std::lround(32.0f * std::clamp((20.0f - depthMfp) / 10.0f, 0.0f, 1.0f))));
   return k;
@@ -356,7 +358,7 @@ void Scene::updateExplicitBounces() {
   for (size_t a = 0; a < media_.size(); ++a) {
     const MediumParams& m = mediumParams_[a];
     const float depthMfp = aggregates_[a]->stats().maxInteriorDepth / std::max(1e-30f, maxComponent(m.lambdaT));
-    explicitBounces_ = std::max(explicitBounces_, explicitBouncesFor(m.albedo, depthMfp));
+    explicitBounces_ = std::max(explicitBounces_, explicitBouncesFor(m.albedo, m.g, depthMfp));
   }
 }
 

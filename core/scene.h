@@ -65,19 +65,20 @@ class Scene {
   // Bounces every path keeps explicit before it may enter a medium: the settings' value,
   // or with -1 the largest over the media of explicitBouncesFor(their albedo, depth).
   int explicitBounces() const { return explicitBounces_; }
-  // Automatic explicit bounces of a medium of albedo α_s (lowest channel decides) in an
-  // object whose half thickness is depthMfp of its longest mean free path. The medium's
+  // Automatic explicit bounces of a medium of albedo α_s and mean cosine g in an object
+  // whose half thickness is depthMfp of its longest mean free path. The medium's
   // low-order error is an error in how much is absorbed near the surface (a Poisson
-  // medium misses the packing's shadow hiding; bench/accuracy_matrix.py):
-  // - by albedo: 0 for α_s ≥ 0.95, 16 from α_s ≤ 0.90, linear between. Switching at once
-  //   measured 2–9% off from α_s 0.86 down; the ball of base rock grains (α_s 0.89) −0.6%
-  //   with 9 bounces, −0.2% with 32; cube-like crystals (0.94) −0.9% with none, −0.2%
-  //   with 16; rough grains (roughness 0.7, α_s 0.90) −1.5% with 6, −0.4% with 16;
+  // medium misses the packing's shadow hiding; bench/accuracy_matrix.py), largest where
+  // grains absorb and scatter light back within few bounces:
+  // - by x = (1 − α_s)(1 − g), worst channel: 0 for x ≤ 0.025, 16 from 0.035, 32 from
+  //   0.10, linear between. Switching at once measured within 0.5% for IOR 1.31 rocks
+  //   (x 0.025), −0.4% for flakes (0.033), −0.9% for cube-like crystals (0.035; −0.2%
+  //   with 16), −0.6% for the base rocks (0.048) with 9, −1.0% for IOR 2.4 (0.14) with 16;
   // - thin objects, where every order stays near the surface: absorbing grains
   //   (α_s < kThinAlbedo) keep 32 bounces below 10 mean free paths, none from 20,
   //   linear between. A ball 25 grains across (6 mfp deep, α_s 0.89) measured −1.3%
   //   with 9 bounces, −0.4% with 16, −0.1% with 32; 50 across (15 mfp) −0.7% with 9.
-  static int explicitBouncesFor(const Vec3& albedo, float depthMfp = kInf);
+  static int explicitBouncesFor(const Vec3& albedo, const Vec3& g = Vec3(0.0f), float depthMfp = kInf);
   static constexpr float kThinAlbedo = 0.96f;
   // A new view or new settings without rebuilding geometry, tiles, distance fields or TT
   // (a camera move in an interactive host). Not thread-safe: no render may be running.

@@ -401,40 +401,51 @@ TEST(HybridAccuracy, ForwardScatteringGrainsThroughDiffusionMatchExplicitGrains)
 }
 
 TEST(HybridAccuracy, ExplicitBouncesFollowTheGrainsAlbedoUnlessSet) {
-  // Automatic: none for grains that absorb little, 16 from α_s ≤ 0.90, monotone, decided
-  // by the lowest channel.
-  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(1.0f)), 0);
-  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.95f)), 0);
-  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.925f)), 8);
-  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.90f)), 16);
-  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.1f)), 16);
-  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.99f, 0.99f, 0.86f)), 16);
+  // Automatic, from x = (1 − α_s)(1 − g) of the worst channel: none up to 0.025, 16
+  // from 0.035, 32 from 0.10; monotone in absorption and in back-scattering.
+  const Vec3 g(0.5f);
+  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(1.0f), g), 0);
+  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.95f), g), 0);   // x 0.025
+  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.94f), g), 8);   // x 0.030
+  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.90f), g), 16);  // x 0.050
+  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.85f), g), 24);  // x 0.075
+  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.1f), g), 32);
+  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.99f, 0.99f, 0.86f), g), 22);
+  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.93f), Vec3(0.75f)), 0);  // forward: light goes deep
+  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.93f), Vec3(0.45f)), 16);
   int last = 0;
   for (float a = 1.0f; a >= 0.0f; a -= 0.01f) {
-    const int k = Scene::explicitBouncesFor(Vec3(a));
+    const int k = Scene::explicitBouncesFor(Vec3(a), g);
     EXPECT_GE(k, last) << a;
+    last = k;
+  }
+  last = 0;
+  for (float gg = 0.95f; gg >= -0.5f; gg -= 0.05f) {
+    const int k = Scene::explicitBouncesFor(Vec3(0.93f), Vec3(gg));
+    EXPECT_GE(k, last) << gg;
     last = k;
   }
   // Thin objects of absorbing grains keep more: 32 below 10 mean free paths, none from
   // 20, more the thinner; clear grains none whatever the size.
-  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.89f), 6.0f), 32);
-  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.89f), 15.0f), 16);
-  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.93f), 20.0f), 6);
-  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.95f), 5.0f), 32);
-  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.97f), 5.0f), 0);
-  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(1.0f), 1.0f), 0);
+  const Vec3 forward(0.8f);  // x small: the thin rule alone decides
+  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.89f), forward, 6.0f), 32);
+  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.89f), forward, 15.0f), 16);
+  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.93f), forward, 20.0f), 0);
+  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.95f), forward, 5.0f), 32);
+  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(0.97f), forward, 5.0f), 0);
+  EXPECT_EQ(Scene::explicitBouncesFor(Vec3(1.0f), forward, 1.0f), 0);
   last = 0;
   for (float depth = 40.0f; depth >= 0.0f; depth -= 0.5f) {
-    const int k = Scene::explicitBouncesFor(Vec3(0.9f), depth);
+    const int k = Scene::explicitBouncesFor(Vec3(0.9f), forward, depth);
     EXPECT_GE(k, last) << depth;
     last = k;
   }
-  // In a scene: the IOR 2.4 ball's medium (α_s ≈ 0.80) gets 16; a set value wins, also
-  // through setView; a scene without media has nothing to keep.
+  // In a scene: the IOR 2.4 ball's medium (α_s ≈ 0.80, g ≈ 0.26) gets 32; a set value
+  // wins, also through setView; a scene without media has nothing to keep.
   SceneDesc d = matrixBall(false);
   auto scene = Scene::build(d);
   ASSERT_TRUE(scene->hasMedia());
-  EXPECT_EQ(scene->explicitBounces(), 16);
+  EXPECT_EQ(scene->explicitBounces(), 32);
   d.settings.explicitBounces = 3;
   scene->setView(d.camera, d.settings);
   EXPECT_EQ(scene->explicitBounces(), 3);
