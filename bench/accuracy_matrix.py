@@ -125,6 +125,7 @@ CASES["sun-10deg"] = [_sun(10.0)]
 CASES["sun-5deg"] = [_sun(5.0)]
 CASES["sun-2deg"] = [_sun(2.0)]
 CASES["sun-0.53deg"] = [_sun(0.53)]
+CASES["sun-delta"] = [_sun(0.0)]  # the physical sun over smooth grains; delta over rough ones
 
 TECHNIQUES = {"ept+vpt": ("EptVpt", None), "hybrid": ("Hybrid", None), "lod0": ("EptVpt", 0.0)}
 
