@@ -59,12 +59,12 @@ bool closestPointCallback(RTCPointQueryFunctionArguments* args) {
 }  // namespace
 
 bool Aggregate::traceGrain(const TileSphere& s, const int64_t cell[3], const Vec3& oc, const Vec3& d, float tmin,
-                           float tmax, GrainHit& best) const {
+                           float tmax, bool knownInside, GrainHit& best) const {
   int64_t home[3] = {cell[0] + s.home[0], cell[1] + s.home[1], cell[2] + s.home[2]};
   // The centre from the home cell, computed as forEachGrain does, so that every cell
   // that lists this sphere makes the same inside decision.
   Vec3 worldCenter = origin_ + Vec3(float(home[0]), float(home[1]), float(home[2])) * L_ + tile_.centers[s.id] * L_;
-  if (!sphereIsInside(home, worldCenter)) return false;
+  if (!knownInside && !sphereIsInside(home, worldCenter)) return false;
   GrainChoice g = selector_.choose(home[0], home[1], home[2], s.id);
   const GrainPrototype& proto = prototypes_[g.prototype];
   // Into the grain frame; t is unchanged because the direction is scaled by 1/R too.
@@ -377,15 +377,20 @@ bool Aggregate::walkCell(const int64_t cell[3], const Vec3& o, const Vec3& d, co
     }
   }
   float sEnter = tEnter;
-  // In a partial cell, a sub-cell whose centre lies further outside than its half
-  // diagonal plus R (plus the nearest voxel's error) holds no sphere centred inside.
+  // In a partial cell, one distance per sub-cell decides for all its spheres where it
+  // can: the centres of the spheres that overlap it lie within its half diagonal plus R
+  // of its centre, whose distance the nearest voxel gives within 0.87 voxel. Further
+  // outside than that: no sphere centred inside (skip the sub-cell); further inside than
+  // that and sphereIsInside's 2 voxels: every one inside (no test per sphere).
   const bool partial = cellClass(cell[0], cell[1], cell[2]) == CellClass::Partial;
-  const float skipBeyond = 0.8661f * Ls + R_ + sdf_.voxelSize();
+  const float skipBeyond = 0.8661f * Ls + R_ + sdf_.voxelSize(), sureWithin = -(skipBeyond + 2.0f * sdf_.voxelSize());
   for (;;) {
     int axis = tNext[0] < tNext[1] ? (tNext[0] < tNext[2] ? 0 : 2) : (tNext[1] < tNext[2] ? 1 : 2);
     float sExit = std::min(tNext[axis], tExit);
     const size_t sub = size_t((sc[2] * M + sc[1]) * M + sc[0]);
-    if (partial && sdf_.nearestDistance(cellOrigin + Vec3(sc[0] + 0.5f, sc[1] + 0.5f, sc[2] + 0.5f) * Ls) > skipBeyond) {
+    const float dSub =
+        partial ? sdf_.nearestDistance(cellOrigin + Vec3(sc[0] + 0.5f, sc[1] + 0.5f, sc[2] + 0.5f) * Ls) : -kInf;
+    if (dSub > skipBeyond) {
       if (sExit >= tExit) return false;
       sc[axis] += step[axis];
       if (sc[axis] < 0 || sc[axis] >= M) return false;
@@ -405,7 +410,7 @@ bool Aggregate::walkCell(const int64_t cell[3], const Vec3& o, const Vec3& d, co
       float sq = std::sqrt(disc);
       float te = std::max(-b - sq, tmin);
       if (-b + sq < tmin || te >= best || te < lo || te >= hi) continue;
-      if (traceGrain(s, cell, oc, d, tmin, best, hit)) {
+      if (traceGrain(s, cell, oc, d, tmin, best, dSub < sureWithin, hit)) {
         best = hit.t;
         found = true;
       }

@@ -104,15 +104,16 @@ class Aggregate {
     int id;                 // sphere index in the tile
   };
   bool sphereIsInside(const int64_t home[3], const Vec3& worldCenter) const;
-  // The grain of tile sphere s listed by `cell`, if its centre is inside: its nearest hit
-  // in [tmin, tmax] along oc + t d (oc: the ray's origin relative to the sphere's centre).
   // The sub-cell walk of intersect() through one non-outside cell between tEnter and
   // tExit; best: the nearest hit's t so far (lowered, hit written, found set). True when
   // a hit is found and no later sphere can be nearer: the walk may stop.
   bool walkCell(const int64_t cell[3], const Vec3& o, const Vec3& d, const Vec3& invD, float tmin, float tEnter,
                 float tExit, float& best, bool& found, GrainHit& hit) const;
+  // The grain of tile sphere s listed by `cell`, if its centre is inside (knownInside:
+  // the caller knows it is): its nearest hit in [tmin, tmax] along oc + t d (oc: the
+  // ray's origin relative to the sphere's centre).
   bool traceGrain(const TileSphere& s, const int64_t cell[3], const Vec3& oc, const Vec3& d, float tmin, float tmax,
-                  GrainHit& best) const;
+                  bool knownInside, GrainHit& best) const;
 
   EmbreeDevice device_;  // first: it outlives the BVHs below (scenes share aggregates)
   std::string name_;
