@@ -7,7 +7,8 @@ The scene: a ball (radius 1) of grains over a grey floor, seen close enough to f
 of a small image, lit by a white dome (radiance 1) and optionally a sun. One factor at a
 time is varied around a base case (rock grains, IOR 1.55, absorption 0.05 per grain
 radius, packing rate 0.6, 100 grains across, dome only): grain shape, IOR, absorption,
-packing rate, mixture, size, lighting.
+packing rate, surface roughness, mixture, size, lighting. A case "A/B" applies both
+cases' edits (e.g. size-25/absorption-0.0).
 
 Per case and technique, `--seeds` independent renders (different seeds) give the mean
 radiance per channel over the pixels that see the ball (primId); the bias of a technique
