@@ -52,7 +52,7 @@ struct GrainInstance {
 struct AggregateStats {
   int64_t cells = 0, insideCells = 0, partialCells = 0;
   double approxGrains = 0;       // inside cells * N + partial cells * N * inside fraction
-  size_t memoryBytes = 0;        // classes + distance field + tile BVH + prototypes
+  size_t memoryBytes = 0;        // classes + distance field + tile sub-cell lists + prototypes
   double setupSeconds = 0;
   double tileSeconds = 0, sdfSeconds = 0;
   // Largest depth below the boundary of a cell centre (a lower bound of the object's
