@@ -1,5 +1,6 @@
 #include "aggregate.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 
@@ -214,34 +215,51 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
         }
   }
   // Sub-cells: an M^3 grid over the unit cell, M ≈ L / 2R (one or two spheres across),
-  // each listing the spheres (and images) that overlap it, for the front-to-back walk.
-  sub_ = std::clamp(int(std::lround(L_ / (2.0f * R_))), 1, 32);
-  const float Ls = L_ / float(sub_), reach = R_ + 1e-3f * R_;
-  std::vector<std::vector<uint32_t>> lists(size_t(sub_) * sub_ * sub_);
-  for (size_t i = 0; i < spheres_.size(); ++i) {
-    const Vec3& c = spheres_[i].center;
-    int lo[3], hi[3];
-    for (int a = 0; a < 3; ++a) {
-      lo[a] = std::clamp(int(std::floor((c[a] - reach) / Ls)), 0, sub_ - 1);
-      hi[a] = std::clamp(int(std::floor((c[a] + reach) / Ls)), 0, sub_ - 1);
-    }
-    for (int z = lo[2]; z <= hi[2]; ++z)
-      for (int y = lo[1]; y <= hi[1]; ++y)
-        for (int x = lo[0]; x <= hi[0]; ++x) {
-          const int idx[3] = {x, y, z};
-          float d2 = 0;  // sphere centre to the sub-cell box
-          for (int a = 0; a < 3; ++a) {
-            float e = std::max({float(idx[a]) * Ls - c[a], 0.0f, c[a] - float(idx[a] + 1) * Ls});
-            d2 += e * e;
+  // each listing the spheres (and images) that overlap it, for the front-to-back walk;
+  // finer if a list would be longer than the walk's buffers (tiny tiles of few spheres).
+  std::vector<std::vector<uint32_t>> lists;
+  for (sub_ = std::clamp(int(std::lround(L_ / (2.0f * R_))), 1, 32);; ++sub_) {
+    const float Ls = L_ / float(sub_), reach = R_ + 1e-3f * R_;
+    lists.assign(size_t(sub_) * sub_ * sub_, {});
+    size_t longest = 0;
+    for (size_t i = 0; i < spheres_.size(); ++i) {
+      const Vec3& c = spheres_[i].center;
+      int lo[3], hi[3];
+      for (int a = 0; a < 3; ++a) {
+        lo[a] = std::clamp(int(std::floor((c[a] - reach) / Ls)), 0, sub_ - 1);
+        hi[a] = std::clamp(int(std::floor((c[a] + reach) / Ls)), 0, sub_ - 1);
+      }
+      for (int z = lo[2]; z <= hi[2]; ++z)
+        for (int y = lo[1]; y <= hi[1]; ++y)
+          for (int x = lo[0]; x <= hi[0]; ++x) {
+            const int idx[3] = {x, y, z};
+            float d2 = 0;  // sphere centre to the sub-cell box
+            for (int a = 0; a < 3; ++a) {
+              float e = std::max({float(idx[a]) * Ls - c[a], 0.0f, c[a] - float(idx[a] + 1) * Ls});
+              d2 += e * e;
+            }
+            if (d2 > reach * reach) continue;
+            auto& l = lists[size_t((z * sub_ + y) * sub_ + x)];
+            l.push_back(uint32_t(i));
+            longest = std::max(longest, l.size());
           }
-          if (d2 <= reach * reach) lists[size_t((z * sub_ + y) * sub_ + x)].push_back(uint32_t(i));
-        }
+    }
+    if (longest <= kMaxSubList || sub_ >= 64) break;
   }
+  if (lists.empty() || std::any_of(lists.begin(), lists.end(), [](const auto& l) { return l.size() > kMaxSubList; }))
+    throw InputError(name_, "tileSpheres", "the tile's spheres crowd its sub-cells beyond " + std::to_string(kMaxSubList));
   subStart_.assign(1, 0);
   subList_.clear();
   for (const auto& l : lists) {
     subList_.insert(subList_.end(), l.begin(), l.end());
     subStart_.push_back(uint32_t(subList_.size()));
+  }
+  // The listed centres again, one array per axis, for the walk's vectorised sphere tests.
+  for (auto* v : {&subX_, &subY_, &subZ_}) v->resize(subList_.size());
+  for (size_t k = 0; k < subList_.size(); ++k) {
+    subX_[k] = spheres_[subList_[k]].center.x;
+    subY_[k] = spheres_[subList_[k]].center.y;
+    subZ_[k] = spheres_[subList_[k]].center.z;
   }
 
   stats_.memoryBytes = classes_.size() * sizeof(CellClass) + sdf_.memoryBytes() +
@@ -399,18 +417,25 @@ bool Aggregate::walkCell(const int64_t cell[3], const Vec3& o, const Vec3& d, co
       continue;
     }
     const float lo = sEnter - pad - kRelPad * std::fabs(sEnter), hi = sExit + pad + kRelPad * std::fabs(sExit);
-    for (uint32_t k = subStart_[sub]; k < subStart_[sub + 1]; ++k) {
-      const TileSphere& s = spheres_[subList_[k]];
-      Vec3 oc = oCell - s.center;
-      // Ray–sphere by the closest approach (b² − c would cancel catastrophically for a
-      // sphere far along the ray): disc = R² − |oc − b d|².
-      float b = dot(oc, d);
-      float disc = R2 - length2(oc - d * b);
-      if (disc < 0) continue;
-      float sq = std::sqrt(disc);
-      float te = std::max(-b - sq, tmin);
+    // Ray–sphere by the closest approach (b² − c would cancel catastrophically for a
+    // sphere far along the ray): disc = R² − |oc − b d|². First for the whole list (a
+    // loop the compiler vectorises), then the spheres the ray enters here, in list order.
+    const uint32_t k0 = subStart_[sub], n = subStart_[sub + 1] - k0;
+    float disc[kMaxSubList], bs[kMaxSubList];
+    for (uint32_t i = 0; i < n; ++i) {
+      const float ox = oCell.x - subX_[k0 + i], oy = oCell.y - subY_[k0 + i], oz = oCell.z - subZ_[k0 + i];
+      const float b = ox * d.x + oy * d.y + oz * d.z;
+      const float wx = ox - d.x * b, wy = oy - d.y * b, wz = oz - d.z * b;
+      bs[i] = b;
+      disc[i] = R2 - (wx * wx + wy * wy + wz * wz);
+    }
+    for (uint32_t i = 0; i < n; ++i) {
+      if (disc[i] < 0) continue;
+      const float b = bs[i], sq = std::sqrt(disc[i]);
+      const float te = std::max(-b - sq, tmin);
       if (-b + sq < tmin || te >= best || te < lo || te >= hi) continue;
-      if (traceGrain(s, cell, oc, d, tmin, best, dSub < sureWithin, hit)) {
+      const TileSphere& s = spheres_[subList_[k0 + i]];
+      if (traceGrain(s, cell, oCell - s.center, d, tmin, best, dSub < sureWithin, hit)) {
         best = hit.t;
         found = true;
       }

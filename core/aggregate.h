@@ -123,6 +123,8 @@ class Aggregate {
   int sub_ = 1;                        // sub-cells per cell edge
   std::vector<uint32_t> subStart_;     // per sub-cell, its first entry in subList_ (CSR)
   std::vector<uint32_t> subList_;      // indices into spheres_
+  std::vector<float> subX_, subY_, subZ_;  // their centres (parallel to subList_)
+  static constexpr uint32_t kMaxSubList = 256;  // longest list (M >= 1 keeps it far below)
   std::vector<GrainPrototype> prototypes_;
   std::vector<int> prototypeMaterials_;
   GrainSelector selector_;
