@@ -344,7 +344,7 @@ void Scene::setView(const CameraDesc& camera, const RenderSettings& settings) {
 int Scene::explicitBouncesFor(const Vec3& albedo, const Vec3& g, float depthMfp) {
   float x = 0;  // the absorption of back-scattered light, (1 − α_s)(1 − g), worst channel
   for (int c = 0; c < 3; ++c) x = std::max(x, (1.0f - albedo[c]) * (1.0f - g[c]));
-  const float k16 = std::clamp((x - 0.025f) / 0.01f, 0.0f, 1.0f), k32 = std::clamp((x - 0.05f) / 0.05f, 0.0f, 1.0f);
+  const float k16 = std::clamp((x - 0.03f) / 0.01f, 0.0f, 1.0f), k32 = std::clamp((x - 0.05f) / 0.05f, 0.0f, 1.0f);
   int k = int(std::lround(16.0f * k16 + 16.0f * k32));
   const float lowest = std::min({albedo.x, albedo.y, albedo.z});
   if (lowest < kThinAlbedo && depthMfp < 20.0f)

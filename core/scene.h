@@ -70,10 +70,12 @@ class Scene {
   // low-order error is an error in how much is absorbed near the surface (a Poisson
   // medium misses the packing's shadow hiding; bench/accuracy_matrix.py), largest where
   // grains absorb and scatter light back within few bounces:
-  // - by x = (1 − α_s)(1 − g), worst channel: 0 for x ≤ 0.025, 16 from 0.035, 32 from
+  // - by x = (1 − α_s)(1 − g), worst channel: 0 for x ≤ 0.03, 16 from 0.04, 32 from
   //   0.10, linear between. Switching at once measured within 0.5% for IOR 1.31 rocks
-  //   (x 0.025), −0.4% for flakes (0.033), −0.9% for cube-like crystals (0.035; −0.2%
-  //   with 16), −0.6% for the base rocks (0.048) with 9, −1.0% for IOR 2.4 (0.14) with 16;
+  //   (x 0.025) and flakes (0.033), −0.9% for cube-like crystals (0.035; −0.4% with 15
+  //   bounces, but a ramp that steep cut the hybrid bench's glass mixture, x 0.034, from
+  //   4.4× to 2.5× at equal error), −0.6% for the base rocks (0.048) with 9, −1.0% for
+  //   IOR 2.4 (0.14) with 16 and −0.4% with 32;
   // - thin objects, where every order stays near the surface: absorbing grains
   //   (α_s < kThinAlbedo) keep 32 bounces below 10 mean free paths, none from 20,
   //   linear between. A ball 25 grains across (6 mfp deep, α_s 0.89) measured −1.3%
