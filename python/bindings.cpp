@@ -511,6 +511,11 @@ PYBIND11_MODULE(granular_core, m) {
                              "whether the integrator uses the equivalent media (VPT, DA) in this scene")
       .def_property_readonly("explicit_bounces", [](const PyScene& s) { return s.scene->explicitBounces(); },
                              "bounces every path keeps explicit before it may enter a medium (the setting, or automatic)")
+      .def_static(
+          "explicit_bounces_for",
+          [](const Vec3& albedo, const Vec3& g, float depthMfp) { return Scene::explicitBouncesFor(albedo, g, depthMfp); },
+          py::arg("albedo"), py::arg("g"), py::arg("depth_mfp"),
+          "the automatic explicit bounces of one medium (albedo, mean cosine, depth in mean free paths)")
       .def_property_readonly("aggregates", [](const PyScene& s) {
         py::list out;
         const auto& aggs = s.scene->aggregates();

@@ -36,6 +36,7 @@ def _media(scene, built):
 
 
 def _report(scene, built, media):
+    import granular_core as core
     out = []
     descs = scene.desc.aggregates
     for k, (src, info) in enumerate(zip(scene.aggregates, built.aggregates)):
@@ -62,6 +63,9 @@ def _report(scene, built, media):
         r["rte"] = {key: [_f32(x) for x in m[key]] for key in ("sigma_t", "albedo", "g", "sigma_t_reduced", "albedo_reduced",
                                                   "sigma_a", "sigma_tr")}
         r["mean_free_path"] = [_f32(x) for x in m["mean_free_path"]]
+        # What the hybrid keeps explicit for this medium when explicit_bounces is automatic.
+        depth = info["max_interior_depth"] / max(max(m["mean_free_path"]), 1e-30)
+        r["explicit_bounces"] = core.Scene.explicit_bounces_for(tuple(m["albedo"]), tuple(m["g"]), depth)
         out.append(r)
     return out
 
@@ -86,7 +90,8 @@ def report_lines(r):
         f"  diffusion     sigma'_t {_fmt3(rte['sigma_t_reduced'])}, albedo' {_fmt3(rte['albedo_reduced'])}, "
         f"sigma_tr {_fmt3(rte['sigma_tr'])}",
         f"  mean free path {_fmt3(r['mean_free_path'])} (world units, per RGB channel)",
-        "  hybrid        " + ("switches to these media (VPT, DA)" if r["media_used_by_renderer"] else
+        "  hybrid        " + (f"switches to these media (VPT, DA) after {r['explicit_bounces']} explicit bounces "
+                              "(automatic)" if r["media_used_by_renderer"] else
                               "does not use media here: the scene's aggregates are thinner than their mean "
                               "free paths, so EPT renders them"),
     ]
