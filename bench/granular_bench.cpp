@@ -2,7 +2,8 @@
 //
 //   granular-bench throughput [--grain-radius R] [--seconds S] [--raw-seconds S]
 //     EPT ray casts per second through an aggregate against Embree's raw rtcIntersect1
-//     rate on the same prototype mesh, single thread, in the same run. One JSON line.
+//     rate on the same prototype mesh (and rtcIntersect16 on the same kind of rays in
+//     packets of 16), single thread, in the same run. One JSON line.
 //     --raw-seconds (default: --seconds) shortens the raw part, e.g. to profile the
 //     aggregate alone (perf record ... --raw-seconds 0.01).
 //   granular-bench setup --grains N
@@ -73,6 +74,33 @@ int throughput(float R, double budget, double rawBudget) {
   }
   double rawRate = raw / seconds(t0);
 
+  // The same rays as packets of 16 (rtcIntersect16): what the hybrid's bundles could gain
+  // from Embree's packet API where their rays are alike (here: random, incoherent).
+  long packet = 0;
+  t0 = Clock::now();
+  while (seconds(t0) < rawBudget) {
+    for (int i = 0; i < 4096; i += 16) {
+      RTCRayHit16 rh;
+      alignas(64) int valid[16];
+      for (int k = 0; k < 16; ++k) {
+        Vec3 o = sampleUniformSphere(rng.next1D(), rng.next1D()) * 2.0f;
+        Vec3 target = sampleUniformSphere(rng.next1D(), rng.next1D()) * std::cbrt(rng.next1D());
+        Vec3 d = normalize(target - o);
+        rh.ray.org_x[k] = o.x; rh.ray.org_y[k] = o.y; rh.ray.org_z[k] = o.z;
+        rh.ray.dir_x[k] = d.x; rh.ray.dir_y[k] = d.y; rh.ray.dir_z[k] = d.z;
+        rh.ray.tnear[k] = 0.0f; rh.ray.tfar[k] = kInf; rh.ray.time[k] = 0.0f;
+        rh.ray.mask[k] = ~0u; rh.ray.id[k] = 0; rh.ray.flags[k] = 0;
+        rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
+        valid[k] = -1;
+      }
+      RTCIntersectContext ctx;
+      rtcInitIntersectContext(&ctx);
+      rtcIntersect16(valid, proto.bvh.get(), &ctx, &rh);
+    }
+    packet += 4096;
+  }
+  double packetRate = packet / seconds(t0);
+
   // Aggregate: the rays a path tracer casts — half from outside towards the object,
   // half from random points inside in random directions (scattered paths).
   long ept = 0, eptHits = 0;
@@ -89,9 +117,10 @@ int throughput(float R, double budget, double rawBudget) {
   }
   double eptRate = ept / seconds(t0);
   std::printf(
-      "{\"grain_radius\": %g, \"grains\": %.4g, \"embree_rays_per_s\": %.4g, \"embree_hit_fraction\": %.3f, "
+      "{\"grain_radius\": %g, \"grains\": %.4g, \"embree_rays_per_s\": %.4g, \"embree_packet16_rays_per_s\": %.4g, "
+      "\"embree_hit_fraction\": %.3f, "
       "\"aggregate_rays_per_s\": %.4g, \"aggregate_hit_fraction\": %.3f, \"ratio\": %.3f}\n",
-      R, agg.stats().approxGrains, rawRate, double(rawHits) / raw, eptRate, double(eptHits) / ept, eptRate / rawRate);
+      R, agg.stats().approxGrains, rawRate, packetRate, double(rawHits) / raw, eptRate, double(eptHits) / ept, eptRate / rawRate);
   return 0;
 }
 
