@@ -215,38 +215,36 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
         }
   }
   // Sub-cells: an M^3 grid over the unit cell, M ≈ L / 2R (one or two spheres across),
-  // each listing the spheres (and images) that overlap it, for the front-to-back walk;
-  // finer if a list would be longer than the walk's buffers (tiny tiles of few spheres).
-  std::vector<std::vector<uint32_t>> lists;
-  for (sub_ = std::clamp(int(std::lround(L_ / (2.0f * R_))), 1, 32);; ++sub_) {
-    const float Ls = L_ / float(sub_), reach = R_ + 1e-3f * R_;
-    lists.assign(size_t(sub_) * sub_ * sub_, {});
-    size_t longest = 0;
-    for (size_t i = 0; i < spheres_.size(); ++i) {
-      const Vec3& c = spheres_[i].center;
-      int lo[3], hi[3];
-      for (int a = 0; a < 3; ++a) {
-        lo[a] = std::clamp(int(std::floor((c[a] - reach) / Ls)), 0, sub_ - 1);
-        hi[a] = std::clamp(int(std::floor((c[a] + reach) / Ls)), 0, sub_ - 1);
-      }
-      for (int z = lo[2]; z <= hi[2]; ++z)
-        for (int y = lo[1]; y <= hi[1]; ++y)
-          for (int x = lo[0]; x <= hi[0]; ++x) {
-            const int idx[3] = {x, y, z};
-            float d2 = 0;  // sphere centre to the sub-cell box
-            for (int a = 0; a < 3; ++a) {
-              float e = std::max({float(idx[a]) * Ls - c[a], 0.0f, c[a] - float(idx[a] + 1) * Ls});
-              d2 += e * e;
-            }
-            if (d2 > reach * reach) continue;
-            auto& l = lists[size_t((z * sub_ + y) * sub_ + x)];
-            l.push_back(uint32_t(i));
-            longest = std::max(longest, l.size());
-          }
+  // each listing the spheres (and images) that overlap it, for the front-to-back walk.
+  // A list then holds about 8 spheres whatever the tile (at most ~20 from 8 to 10^5
+  // spheres per tile); the walk's buffers hold kMaxSubList.
+  sub_ = std::clamp(int(std::lround(L_ / (2.0f * R_))), 1, 32);
+  const float Ls = L_ / float(sub_), reach = R_ + 1e-3f * R_;
+  std::vector<std::vector<uint32_t>> lists(size_t(sub_) * sub_ * sub_);
+  size_t longest = 0;
+  for (size_t i = 0; i < spheres_.size(); ++i) {
+    const Vec3& c = spheres_[i].center;
+    int lo[3], hi[3];
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::clamp(int(std::floor((c[a] - reach) / Ls)), 0, sub_ - 1);
+      hi[a] = std::clamp(int(std::floor((c[a] + reach) / Ls)), 0, sub_ - 1);
     }
-    if (longest <= kMaxSubList || sub_ >= 64) break;
+    for (int z = lo[2]; z <= hi[2]; ++z)
+      for (int y = lo[1]; y <= hi[1]; ++y)
+        for (int x = lo[0]; x <= hi[0]; ++x) {
+          const int idx[3] = {x, y, z};
+          float d2 = 0;  // sphere centre to the sub-cell box
+          for (int a = 0; a < 3; ++a) {
+            float e = std::max({float(idx[a]) * Ls - c[a], 0.0f, c[a] - float(idx[a] + 1) * Ls});
+            d2 += e * e;
+          }
+          if (d2 > reach * reach) continue;
+          auto& l = lists[size_t((z * sub_ + y) * sub_ + x)];
+          l.push_back(uint32_t(i));
+          longest = std::max(longest, l.size());
+        }
   }
-  if (lists.empty() || std::any_of(lists.begin(), lists.end(), [](const auto& l) { return l.size() > kMaxSubList; }))
+  if (longest > kMaxSubList)
     throw InputError(name_, "tileSpheres", "the tile's spheres crowd its sub-cells beyond " + std::to_string(kMaxSubList));
   subStart_.assign(1, 0);
   subList_.clear();
@@ -320,6 +318,47 @@ bool Aggregate::sphereIsInside(const int64_t home[3], const Vec3& worldCenter) c
   return insideBoundary(worldCenter);
 }
 
+namespace {
+
+// A 3-D DDA (Amanatides & Woo 1987) over a grid of n cells of edge `size` from `origin`,
+// for a ray of direction d entering at t0 at point p: the current cell, and per axis the t
+// of the next crossing and the t between crossings.
+struct GridWalk {
+  int64_t cell[3], step[3];
+  float tNext[3], tDelta[3];
+  GridWalk(const Vec3& p, float t0, const Vec3& d, const Vec3& invD, const Vec3& origin, float size,
+           const int64_t n[3]) {
+    for (int a = 0; a < 3; ++a) {
+      float rel = (p[a] - origin[a]) / size;
+      cell[a] = std::min<int64_t>(std::max<int64_t>(int64_t(std::floor(rel)), 0), n[a] - 1);
+      if (d[a] > 0) {
+        step[a] = 1;
+        tNext[a] = t0 + (origin[a] + float(cell[a] + 1) * size - p[a]) * invD[a];
+        tDelta[a] = size * invD[a];
+      } else if (d[a] < 0) {
+        step[a] = -1;
+        tNext[a] = t0 + (origin[a] + float(cell[a]) * size - p[a]) * invD[a];
+        tDelta[a] = -size * invD[a];
+      } else {
+        step[a] = 0;
+        tNext[a] = kInf;
+        tDelta[a] = kInf;
+      }
+    }
+  }
+  // The axis of the next crossing.
+  int axis() const { return tNext[0] < tNext[1] ? (tNext[0] < tNext[2] ? 0 : 2) : (tNext[1] < tNext[2] ? 1 : 2); }
+  // Into the next cell along `axis`; false when that leaves the grid.
+  bool advance(int axis, const int64_t n[3]) {
+    cell[axis] += step[axis];
+    if (cell[axis] < 0 || cell[axis] >= n[axis]) return false;
+    tNext[axis] += tDelta[axis];
+    return true;
+  }
+};
+
+}  // namespace
+
 bool Aggregate::intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, GrainHit& hit) const {
   // A non-finite ray (a numerical failure upstream) hits nothing: the cell walk below
   // would convert NaN to an integer (undefined behaviour; found by the USD fuzzer).
@@ -327,126 +366,80 @@ bool Aggregate::intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, 
   Vec3 invD(1.0f / d.x, 1.0f / d.y, 1.0f / d.z);
   float t0, t1;
   if (!bounds_.intersect(o, invD, tmin, tmax, t0, t1)) return false;
-  int64_t cell[3], step[3];
-  float tNext[3], tDelta[3];
-  Vec3 p = o + d * t0;
-  for (int a = 0; a < 3; ++a) {
-    float rel = (p[a] - origin_[a]) / L_;
-    cell[a] = std::min<int64_t>(std::max<int64_t>(int64_t(std::floor(rel)), 0), n_[a] - 1);
-    if (d[a] > 0) {
-      step[a] = 1;
-      tNext[a] = t0 + (origin_[a] + float(cell[a] + 1) * L_ - p[a]) * invD[a];
-      tDelta[a] = L_ * invD[a];
-    } else if (d[a] < 0) {
-      step[a] = -1;
-      tNext[a] = t0 + (origin_[a] + float(cell[a]) * L_ - p[a]) * invD[a];
-      tDelta[a] = -L_ * invD[a];
-    } else {
-      step[a] = 0;
-      tNext[a] = kInf;
-      tDelta[a] = kInf;
-    }
-  }
+  GridWalk w(o + d * t0, t0, d, invD, origin_, L_, n_);
   float tEnter = t0, best = tmax;
   bool found = false;
   for (;;) {
-    int axis = tNext[0] < tNext[1] ? (tNext[0] < tNext[2] ? 0 : 2) : (tNext[1] < tNext[2] ? 1 : 2);
-    float tExit = std::min(tNext[axis], t1);
-    if (cellClass(cell[0], cell[1], cell[2]) != CellClass::Outside &&
-        walkCell(cell, o, d, invD, tmin, tEnter, tExit, best, found, hit))
+    const int axis = w.axis();
+    const float tExit = std::min(w.tNext[axis], t1);
+    const CellClass c = cellClass(w.cell[0], w.cell[1], w.cell[2]);
+    if (c != CellClass::Outside &&
+        walkCell(w.cell, c == CellClass::Partial, o, d, invD, tmin, tEnter, tExit, best, found, hit))
       return true;
     if (tExit >= t1) return found;
-    cell[axis] += step[axis];
-    if (cell[axis] < 0 || cell[axis] >= n_[axis]) return found;
-    tEnter = tNext[axis];
-    tNext[axis] += tDelta[axis];
+    tEnter = w.tNext[axis];
+    if (!w.advance(axis, n_)) return found;
   }
 }
 
-bool Aggregate::walkCell(const int64_t cell[3], const Vec3& o, const Vec3& d, const Vec3& invD, float tmin,
-                         float tEnter, float tExit, float& best, bool& found, GrainHit& hit) const {
+bool Aggregate::walkCell(const int64_t cell[3], bool partial, const Vec3& o, const Vec3& d, const Vec3& invD,
+                         float tmin, float tEnter, float tExit, float& best, bool& found, GrainHit& hit) const {
   // 3-D DDA over the cell's sub-cells from tEnter to tExit, front to back. A sphere is
   // traced in the sub-cell where the ray enters it (its entry t within the sub-cell's
   // span, padded against rounding: at worst traced twice, never missed).
-  const int M = sub_;
+  const int64_t M = sub_, nSub[3] = {M, M, M};
   const float Ls = L_ / float(M), pad = 1e-4f * Ls, R2 = R_ * R_;
   // The entry t and the sub-cells' spans are each a few ulps of t off (they are computed
   // from different origins): pads of 1e-5 t (~80 ulps) on top of 1e-4 of a sub-cell.
   constexpr float kRelPad = 1e-5f;
   const Vec3 cellOrigin = origin_ + Vec3(float(cell[0]), float(cell[1]), float(cell[2])) * L_;
   const Vec3 oCell = o - cellOrigin;
-  const Vec3 pc = oCell + d * tEnter;
-  int sc[3], step[3];
-  float tNext[3], tDelta[3];
-  for (int a = 0; a < 3; ++a) {
-    sc[a] = std::clamp(int(std::floor(pc[a] / Ls)), 0, M - 1);
-    if (d[a] > 0) {
-      step[a] = 1;
-      tNext[a] = tEnter + (float(sc[a] + 1) * Ls - pc[a]) * invD[a];
-      tDelta[a] = Ls * invD[a];
-    } else if (d[a] < 0) {
-      step[a] = -1;
-      tNext[a] = tEnter + (float(sc[a]) * Ls - pc[a]) * invD[a];
-      tDelta[a] = -Ls * invD[a];
-    } else {
-      step[a] = 0;
-      tNext[a] = kInf;
-      tDelta[a] = kInf;
-    }
-  }
+  GridWalk w(oCell + d * tEnter, tEnter, d, invD, Vec3(0.0f), Ls, nSub);
   float sEnter = tEnter;
   // In a partial cell, one distance per sub-cell decides for all its spheres where it
   // can: the centres of the spheres that overlap it lie within its half diagonal plus R
   // of its centre, whose distance the nearest voxel gives within 0.87 voxel. Further
   // outside than that: no sphere centred inside (skip the sub-cell); further inside than
   // that and sphereIsInside's 2 voxels: every one inside (no test per sphere).
-  const bool partial = cellClass(cell[0], cell[1], cell[2]) == CellClass::Partial;
   const float skipBeyond = 0.8661f * Ls + R_ + sdf_.voxelSize(), sureWithin = -(skipBeyond + 2.0f * sdf_.voxelSize());
   for (;;) {
-    int axis = tNext[0] < tNext[1] ? (tNext[0] < tNext[2] ? 0 : 2) : (tNext[1] < tNext[2] ? 1 : 2);
-    float sExit = std::min(tNext[axis], tExit);
-    const size_t sub = size_t((sc[2] * M + sc[1]) * M + sc[0]);
+    const int axis = w.axis();
+    const float sExit = std::min(w.tNext[axis], tExit);
+    const int64_t* sc = w.cell;
     const float dSub =
         partial ? sdf_.nearestDistance(cellOrigin + Vec3(sc[0] + 0.5f, sc[1] + 0.5f, sc[2] + 0.5f) * Ls) : -kInf;
-    if (dSub > skipBeyond) {
-      if (sExit >= tExit) return false;
-      sc[axis] += step[axis];
-      if (sc[axis] < 0 || sc[axis] >= M) return false;
-      sEnter = tNext[axis];
-      tNext[axis] += tDelta[axis];
-      continue;
-    }
-    const float lo = sEnter - pad - kRelPad * std::fabs(sEnter), hi = sExit + pad + kRelPad * std::fabs(sExit);
-    // Ray–sphere by the closest approach (b² − c would cancel catastrophically for a
-    // sphere far along the ray): disc = R² − |oc − b d|². First for the whole list (a
-    // loop the compiler vectorises), then the spheres the ray enters here, in list order.
-    const uint32_t k0 = subStart_[sub], n = subStart_[sub + 1] - k0;
-    float disc[kMaxSubList], bs[kMaxSubList];
-    for (uint32_t i = 0; i < n; ++i) {
-      const float ox = oCell.x - subX_[k0 + i], oy = oCell.y - subY_[k0 + i], oz = oCell.z - subZ_[k0 + i];
-      const float b = ox * d.x + oy * d.y + oz * d.z;
-      const float wx = ox - d.x * b, wy = oy - d.y * b, wz = oz - d.z * b;
-      bs[i] = b;
-      disc[i] = R2 - (wx * wx + wy * wy + wz * wz);
-    }
-    for (uint32_t i = 0; i < n; ++i) {
-      if (disc[i] < 0) continue;
-      const float b = bs[i], sq = std::sqrt(disc[i]);
-      const float te = std::max(-b - sq, tmin);
-      if (-b + sq < tmin || te >= best || te < lo || te >= hi) continue;
-      const TileSphere& s = spheres_[subList_[k0 + i]];
-      if (traceGrain(s, cell, oCell - s.center, d, tmin, best, dSub < sureWithin, hit)) {
-        best = hit.t;
-        found = true;
+    if (dSub <= skipBeyond) {
+      const size_t sub = size_t((sc[2] * M + sc[1]) * M + sc[0]);
+      const float lo = sEnter - pad - kRelPad * std::fabs(sEnter), hi = sExit + pad + kRelPad * std::fabs(sExit);
+      // Ray–sphere by the closest approach (b² − c would cancel catastrophically for a
+      // sphere far along the ray): disc = R² − |oc − b d|². First for the whole list (a
+      // loop the compiler vectorises), then the spheres the ray enters here, in list order.
+      const uint32_t k0 = subStart_[sub], n = subStart_[sub + 1] - k0;
+      float disc[kMaxSubList], bs[kMaxSubList];
+      for (uint32_t i = 0; i < n; ++i) {
+        const float ox = oCell.x - subX_[k0 + i], oy = oCell.y - subY_[k0 + i], oz = oCell.z - subZ_[k0 + i];
+        const float b = ox * d.x + oy * d.y + oz * d.z;
+        const float wx = ox - d.x * b, wy = oy - d.y * b, wz = oz - d.z * b;
+        bs[i] = b;
+        disc[i] = R2 - (wx * wx + wy * wy + wz * wz);
       }
+      for (uint32_t i = 0; i < n; ++i) {
+        if (disc[i] < 0) continue;
+        const float b = bs[i], sq = std::sqrt(disc[i]);
+        const float te = std::max(-b - sq, tmin);
+        if (-b + sq < tmin || te >= best || te < lo || te >= hi) continue;
+        const TileSphere& s = spheres_[subList_[k0 + i]];
+        if (traceGrain(s, cell, oCell - s.center, d, tmin, best, dSub < sureWithin, hit)) {
+          best = hit.t;
+          found = true;
+        }
+      }
+      // Spheres not traced yet enter at t >= hi: none can be nearer.
+      if (found && best <= hi) return true;
     }
-    // Spheres not traced yet enter at t >= hi: none can be nearer.
-    if (found && best <= hi) return true;
     if (sExit >= tExit) return false;
-    sc[axis] += step[axis];
-    if (sc[axis] < 0 || sc[axis] >= M) return false;
-    sEnter = tNext[axis];
-    tNext[axis] += tDelta[axis];
+    sEnter = w.tNext[axis];
+    if (!w.advance(axis, nSub)) return false;
   }
 }
 

@@ -104,11 +104,12 @@ class Aggregate {
     int id;                 // sphere index in the tile
   };
   bool sphereIsInside(const int64_t home[3], const Vec3& worldCenter) const;
-  // The sub-cell walk of intersect() through one non-outside cell between tEnter and
-  // tExit; best: the nearest hit's t so far (lowered, hit written, found set). True when
-  // a hit is found and no later sphere can be nearer: the walk may stop.
-  bool walkCell(const int64_t cell[3], const Vec3& o, const Vec3& d, const Vec3& invD, float tmin, float tEnter,
-                float tExit, float& best, bool& found, GrainHit& hit) const;
+  // The sub-cell walk of intersect() through one non-outside (partial or inside) cell
+  // between tEnter and tExit; best: the nearest hit's t so far (lowered, hit written,
+  // found set). True when a hit is found and no later sphere can be nearer: the walk may
+  // stop.
+  bool walkCell(const int64_t cell[3], bool partial, const Vec3& o, const Vec3& d, const Vec3& invD, float tmin,
+                float tEnter, float tExit, float& best, bool& found, GrainHit& hit) const;
   // The grain of tile sphere s listed by `cell`, if its centre is inside (knownInside:
   // the caller knows it is): its nearest hit in [tmin, tmax] along oc + t d (oc: the
   // ray's origin relative to the sphere's centre).

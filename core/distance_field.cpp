@@ -50,40 +50,39 @@ void DistanceField::build(const TriangleMesh& mesh, float voxelSize, float minBa
 
 bool DistanceField::empty() const { return !impl_ || !impl_->grid; }
 
-float DistanceField::distance(const Vec3& p) const {
-  // One accessor per thread, kept between queries so that its node cache pays off (rays
-  // query nearby points); rebuilt when the thread turns to another field (ids are unique
-  // per build, so a cached accessor never reads a freed tree). Unregistered ("unsafe"):
-  // a registered accessor locks the tree's accessor table when made and destroyed, which
-  // cost a sixth of a render; the tree never changes after build().
-  struct Cached {
-    uint64_t id = 0;
-    std::optional<openvdb::FloatGrid::ConstUnsafeAccessor> accessor;
-  };
-  thread_local Cached cached;
-  if (cached.id != impl_->id) {
-    cached.accessor.emplace(impl_->grid->getConstUnsafeAccessor());
-    cached.id = impl_->id;
+namespace {
+
+// This thread's accessor of `grid`, kept between queries so that its node cache pays off
+// (rays query nearby points); rebuilt when the thread turns to another field (ids are
+// unique per build, so a cached accessor never reads a freed tree). Unregistered
+// ("unsafe"): a registered accessor locks the tree's accessor table when made and
+// destroyed, which cost a sixth of a render; the tree never changes after build().
+const openvdb::FloatGrid::ConstUnsafeAccessor& threadAccessor(const openvdb::FloatGrid& grid, uint64_t id) {
+  thread_local uint64_t cachedId = 0;
+  thread_local std::optional<openvdb::FloatGrid::ConstUnsafeAccessor> accessor;
+  if (cachedId != id) {
+    accessor.emplace(grid.getConstUnsafeAccessor());
+    cachedId = id;
   }
+  return *accessor;
+}
+
+}  // namespace
+
+float DistanceField::distance(const Vec3& p) const {
   // The grid is in index space (build()): index = world / voxel, distance = value * voxel.
   const double inv = 1.0 / double(voxel_);
   openvdb::Vec3d ijk(p.x * inv, p.y * inv, p.z * inv);
   float value = 0;
-  openvdb::tools::BoxSampler::sample(*cached.accessor, ijk, value);  // trilinear
+  openvdb::tools::BoxSampler::sample(threadAccessor(*impl_->grid, impl_->id), ijk, value);  // trilinear
   return value * voxel_;
 }
 
 float DistanceField::nearestDistance(const Vec3& p) const {
-  thread_local uint64_t id = 0;
-  thread_local std::optional<openvdb::FloatGrid::ConstUnsafeAccessor> accessor;
-  if (id != impl_->id) {
-    accessor.emplace(impl_->grid->getConstUnsafeAccessor());
-    id = impl_->id;
-  }
   const double inv = 1.0 / double(voxel_);
   const openvdb::Coord ijk(int(std::floor(p.x * inv + 0.5)), int(std::floor(p.y * inv + 0.5)),
                            int(std::floor(p.z * inv + 0.5)));
-  return accessor->getValue(ijk) * voxel_;
+  return threadAccessor(*impl_->grid, impl_->id).getValue(ijk) * voxel_;
 }
 
 Vec3 DistanceField::gradient(const Vec3& p) const {
