@@ -90,7 +90,8 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
     float u1 = path.rng.next1D(), u2 = path.rng.next1D();
     if (lights[li].sampleLi(hit.p, u1, u2, ls) && !isBlack(ls.Li)) {
       Vec3 wiLocal = frame.toLocal(ls.wi);
-      Vec3 f = m.eval(wo, wiLocal);
+      float bsdfPdf;
+      Vec3 f = m.eval(wo, wiLocal, &bsdfPdf);
       if (!isBlack(f)) {
         Vec3 origin = offsetRayOrigin(hit.p, hit.ng, ls.wi, hit.eps);
         float dist = std::isfinite(ls.dist) ? ls.dist * (1.0f - 1e-4f) : kInf;
@@ -107,7 +108,7 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
             path.L[path.credit] += path.beta * f * Tr * ls.Li / lightPick;
           } else {
             float lp = ls.pdf * lightPick;
-            float w = powerHeuristic(lp, m.pdf(wo, wiLocal));
+            float w = powerHeuristic(lp, bsdfPdf);
             path.L[path.credit] += path.beta * f * Tr * ls.Li * (w / lp);
           }
         }

@@ -134,30 +134,33 @@ bool sampleRoughDielectric(const Vec3& wo, float ior, float alpha, float uLobe, 
 
 }  // namespace
 
-Vec3 Material::eval(const Vec3& wo, const Vec3& wi) const {
+Vec3 Material::eval(const Vec3& wo, const Vec3& wi, float* pdfOut) const {
+  Vec3 f(0.0f);
+  float p = 0.0f;
   if (type == MaterialType::Dielectric) {
-    if (alpha == 0) return Vec3(0.0f);
-    float f, p;
-    roughDielectric(wo, wi, ior, alpha, f, p);
-    return Vec3(validTable.empty() ? f : p / validFraction(wo));
+    if (alpha > 0) {
+      float fcos;
+      roughDielectric(wo, wi, ior, alpha, fcos, p);
+      if (!validTable.empty()) p /= validFraction(wo);
+      f = Vec3(validTable.empty() ? fcos : p);  // compensated: f |cos wi| is the density
+    }
+  } else if (wo.z > 0 && wi.z > 0) {
+    if (type == MaterialType::Lambert) {
+      f = albedo * (kInvPi * wi.z);
+      p = cosineHemispherePdf(wi.z);
+    } else if (type == MaterialType::DiffusionExit) {
+      p = diffusionExitPdf(wi.z);
+      f = Vec3(p);
+    }
   }
-  if (wo.z <= 0 || wi.z <= 0) return Vec3(0.0f);
-  if (type == MaterialType::Lambert) return albedo * (kInvPi * wi.z);
-  if (type == MaterialType::DiffusionExit) return Vec3(diffusionExitPdf(wi.z));
-  return Vec3(0.0f);
+  if (pdfOut) *pdfOut = p;
+  return f;
 }
 
 float Material::pdf(const Vec3& wo, const Vec3& wi) const {
-  if (type == MaterialType::Dielectric) {
-    if (alpha == 0) return 0.0f;
-    float f, p;
-    roughDielectric(wo, wi, ior, alpha, f, p);
-    return validTable.empty() ? p : p / validFraction(wo);
-  }
-  if (wo.z <= 0) return 0.0f;
-  if (type == MaterialType::Lambert) return cosineHemispherePdf(wi.z);
-  if (type == MaterialType::DiffusionExit) return diffusionExitPdf(wi.z);
-  return 0.0f;
+  float p;
+  eval(wo, wi, &p);
+  return p;
 }
 
 bool Material::sample(const Vec3& wo, float uLobe, float u1, float u2, BsdfSample& s) const {

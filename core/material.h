@@ -68,7 +68,8 @@ struct Material {
   // Angular width (radians) a non-delta bounce gives a ray cone: a GGX lobe's is about
   // 2α; diffuse lobes are wide (the caller caps it).
   float lobeSpread() const { return type == MaterialType::Dielectric ? 2.0f * alpha : kInf; }
-  Vec3 eval(const Vec3& wo, const Vec3& wi) const;  // f * |cos wi|; zero for delta lobes
+  // f * |cos wi| (zero for delta lobes); with pdfOut also pdf(wo, wi), computed once.
+  Vec3 eval(const Vec3& wo, const Vec3& wi, float* pdfOut = nullptr) const;
   float pdf(const Vec3& wo, const Vec3& wi) const;
   bool sample(const Vec3& wo, float uLobe, float u1, float u2, BsdfSample& s) const;
 };
