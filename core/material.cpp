@@ -99,7 +99,6 @@ void roughDielectric(Vec3 wo, Vec3 wi, float ior, float alpha, float& fcos, floa
     fcos = (1.0f - F) * D * G * oh * jacobian / wo.z;
     pdf = (1.0f - F) * Dv * jacobian;
   }
-  if (!std::isfinite(fcos) || !std::isfinite(pdf)) fcos = pdf = 0.0f;
 }
 
 // One sample of the uncompensated rough dielectric: a visible normal, then F picks
