@@ -15,38 +15,12 @@ using namespace granular;
 namespace {
 
 SceneDesc furnaceScene(MaterialType grainType) {
-  SceneDesc s;
-  s.settings.width = 24;
-  s.settings.height = 24;
-  s.settings.spp = 4;
-  s.settings.maxDepth = 1 << 20;
-  s.settings.seed = 3;
-  s.settings.technique = Technique::Ept;  // the explicit reference alone
-  s.camera.cameraToWorld = Transform::lookAt(Vec3(0, 0, 4), Vec3(0, 0, 0), Vec3(0, 1, 0));
-  s.camera.focalLength = 50;
-  s.camera.horizontalAperture = 24;
-  s.camera.verticalAperture = 24;
   MaterialDesc m;
   m.name = "white";
   m.type = grainType;
   m.albedo = Vec3(1.0f);
   m.ior = 1.5f;
-  s.materials.push_back(m);
-  LightDesc dome;
-  dome.name = "dome";
-  dome.type = LightType::Dome;
-  dome.color = Vec3(1.0f);
-  s.lights.push_back(dome);
-  AggregateDesc a;
-  a.name = "furnace_grains";
-  a.boundary = makeIcosphere(2);
-  a.grainRadius = 0.12f;
-  a.packingRate = 0.5f;
-  a.tileSpheres = 64;
-  a.prototypes = {GrainPrototypeDesc{"rock", makeRock(1, 0.2f, 1), 0}};
-  a.weights = {1.0f};
-  s.aggregates.push_back(a);
-  return s;
+  return granular::testing::whiteFurnaceScene(m);
 }
 
 // Mean and standard error over all pixels' luminance.

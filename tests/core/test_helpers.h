@@ -97,4 +97,37 @@ inline SceneDesc sandBallScene(const Vec3& eye, float aperture, float R, uint64_
   return s;
 }
 
+// A white furnace: a ball (radius 1) of rock grains of one material under a white dome of
+// radiance 1 and nothing else, seen head-on (24x24 pixels, EPT only, no path-length
+// limit). What the grains return is all the image shows.
+inline SceneDesc whiteFurnaceScene(const MaterialDesc& grain) {
+  SceneDesc s;
+  s.settings.width = 24;
+  s.settings.height = 24;
+  s.settings.spp = 4;
+  s.settings.maxDepth = 1 << 20;
+  s.settings.seed = 3;
+  s.settings.technique = Technique::Ept;  // the explicit reference alone
+  s.camera.cameraToWorld = Transform::lookAt(Vec3(0, 0, 4), Vec3(0, 0, 0), Vec3(0, 1, 0));
+  s.camera.focalLength = 50;
+  s.camera.horizontalAperture = 24;
+  s.camera.verticalAperture = 24;
+  s.materials.push_back(grain);
+  LightDesc dome;
+  dome.name = "dome";
+  dome.type = LightType::Dome;
+  dome.color = Vec3(1.0f);
+  s.lights.push_back(dome);
+  AggregateDesc a;
+  a.name = "furnace_grains";
+  a.boundary = makeIcosphere(2);
+  a.grainRadius = 0.12f;
+  a.packingRate = 0.5f;
+  a.tileSpheres = 64;
+  a.prototypes = {GrainPrototypeDesc{"rock", makeRock(1, 0.2f, 1), 0}};
+  a.weights = {1.0f};
+  s.aggregates.push_back(a);
+  return s;
+}
+
 }  // namespace granular::testing

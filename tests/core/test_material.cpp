@@ -14,6 +14,7 @@
 #include "sampling.h"
 #include "scene.h"
 #include "shapes.h"
+#include "test_helpers.h"
 
 using namespace granular;
 
@@ -139,7 +140,7 @@ TEST(RoughDielectric, DirectionalAlbedoBySamplingEqualsTheIntegralOfEval) {
         const double mb = b / n, seb = std::sqrt((b2 / n - mb * mb) / n);
         const double ms = succ / n, ses = std::sqrt(ms * (1 - ms) / n);
         const double mp = p / n, sep = std::sqrt((p2 / n - mp * mp) / n);
-        SCOPED_TRACE(testing::Message() << "ior " << ior << " roughness " << roughness << " cos " << cosO);
+        SCOPED_TRACE(::testing::Message() << "ior " << ior << " roughness " << roughness << " cos " << cosO);
         std::printf("ior %.2f roughness %.1f cos %+.1f: albedo %.4f (sampled) %.4f (integrated), success %.4f / %.4f\n",
                     ior, roughness, cosO, ma, mb, ms, mp);
         EXPECT_NEAR(ma, mb, 4 * std::hypot(sea, seb));
@@ -147,6 +148,30 @@ TEST(RoughDielectric, DirectionalAlbedoBySamplingEqualsTheIntegralOfEval) {
         EXPECT_LE(ma, 1.0 + 4 * sea);
         EXPECT_GT(ma, 0.3);
       }
+}
+
+TEST(RoughDielectric, StaysFiniteAtGrazingAnglesAndTheSmallestAlpha) {
+  // Directions within 1e-6 of the macro surface, on both sides, normal incidence and the
+  // narrowest lobe (α = kMinAlpha): eval, pdf and samples finite, never NaN.
+  const float cosines[] = {1.0f, 0.5f, 1e-3f, 1e-6f, -1e-6f, -1e-3f, -0.5f, -1.0f};
+  for (float roughness : {std::sqrt(kMinAlpha) * 1.001f, 0.3f, 1.0f})
+    for (bool compensated : {false, true}) {
+      const Material m = rough(2.4f, roughness, compensated);
+      ASSERT_GT(m.alpha, 0.0f);
+      Rng rng(31);
+      for (float co : cosines)
+        for (float ci : cosines) {
+          const Vec3 wo = direction(co, 0.2f), wi = direction(ci, 2.9f);
+          float p;
+          const float f = m.eval(wo, wi, &p).x;
+          EXPECT_TRUE(std::isfinite(f) && std::isfinite(p) && f >= 0 && p >= 0) << co << " " << ci << " " << roughness;
+          for (int k = 0; k < 64; ++k) {
+            BsdfSample s;
+            if (!m.sample(wo, rng.next1D(), rng.next1D(), rng.next1D(), s)) continue;
+            EXPECT_TRUE(isFinite(s.wi) && isFinite(s.weight) && std::isfinite(s.pdf) && s.pdf > 0) << co;
+          }
+        }
+    }
 }
 
 TEST(RoughDielectric, ApproachesTheSmoothInterfaceAsRoughnessVanishes) {
@@ -177,38 +202,32 @@ TEST(RoughDielectric, ApproachesTheSmoothInterfaceAsRoughnessVanishes) {
 namespace {
 
 SceneDesc roughFurnace(float roughness, bool compensated) {
-  SceneDesc s;
-  s.settings.width = 16;
-  s.settings.height = 16;
-  s.settings.spp = 64;
-  s.settings.maxDepth = 1 << 20;
-  s.settings.seed = 5;
-  s.settings.technique = Technique::Ept;
-  s.camera.cameraToWorld = Transform::lookAt(Vec3(0, 0, 4), Vec3(0, 0, 0), Vec3(0, 1, 0));
-  s.camera.focalLength = 50;
-  s.camera.horizontalAperture = 24;
-  s.camera.verticalAperture = 24;
   MaterialDesc m;
   m.name = "frosted";
   m.type = MaterialType::Dielectric;
   m.ior = 1.5f;
   m.roughness = roughness;
   m.energyCompensation = compensated;
-  s.materials.push_back(m);
-  LightDesc dome;
-  dome.name = "dome";
-  dome.type = LightType::Dome;
-  s.lights.push_back(dome);
-  AggregateDesc a;
-  a.name = "frosted_grains";
-  a.boundary = makeIcosphere(2);
-  a.grainRadius = 0.15f;
-  a.packingRate = 0.5f;
-  a.tileSpheres = 64;
-  a.prototypes = {GrainPrototypeDesc{"rock", makeRock(1, 0.2f, 1), 0}};
-  a.weights = {1.0f};
-  s.aggregates.push_back(a);
+  SceneDesc s = granular::testing::whiteFurnaceScene(m);
+  s.settings.width = 16;
+  s.settings.height = 16;
+  s.settings.spp = 64;
+  s.settings.seed = 5;
+  s.aggregates[0].name = "frosted_grains";
+  s.aggregates[0].grainRadius = 0.15f;
   return s;
+}
+
+// The mean of each pixel of d rendered (channel R: the furnaces are grey), raster order.
+std::vector<double> renderedPixels(const SceneDesc& d, std::unique_ptr<Scene>* built = nullptr) {
+  auto scene = Scene::build(d);
+  Renderer r(*scene);
+  EXPECT_TRUE(r.render(4));
+  std::vector<double> pixels;
+  for (int y = 0; y < d.settings.height; ++y)
+    for (int x = 0; x < d.settings.width; ++x) pixels.push_back(r.film().mean(x, y).x);
+  if (built) *built = std::move(scene);
+  return pixels;
 }
 
 // Mean and standard error of a list of per-path values.
@@ -226,12 +245,8 @@ TEST(RoughDielectric, AWhiteFurnaceOfRoughGrainsMatchesABsdfOnlyWalk) {
   // hits) against a walk that only samples the BSDF and counts escapes (dome radiance 1):
   // equal within noise. Both are below 1 by the microfacet model's energy loss.
   const SceneDesc d = roughFurnace(0.5f, false);
-  auto scene = Scene::build(d);
-  Renderer r(*scene);
-  ASSERT_TRUE(r.render(4));
-  std::vector<double> pixels;
-  for (int y = 0; y < d.settings.height; ++y)
-    for (int x = 0; x < d.settings.width; ++x) pixels.push_back(r.film().mean(x, y).x);
+  std::unique_ptr<Scene> scene;
+  const std::vector<double> pixels = renderedPixels(d, &scene);
   double rendered, renderedSe;
   meanSe(pixels, rendered, renderedSe);
 
@@ -287,7 +302,7 @@ TEST(RoughDielectric, EnergyCompensationKeepsEveryDirectionsEnergy) {
       const Material m = rough(ior, roughness, true);
       ASSERT_EQ(m.validTable.size(), size_t(2 * Material::kValidNodes));
       for (float cosO : {0.95f, 0.6f, 0.2f, -0.3f, -0.8f}) {
-        SCOPED_TRACE(testing::Message() << "ior " << ior << " roughness " << roughness << " cos " << cosO);
+        SCOPED_TRACE(::testing::Message() << "ior " << ior << " roughness " << roughness << " cos " << cosO);
         const Vec3 wo = direction(cosO, 0.4f);
         Rng rng(23);
         int failed = 0;
@@ -316,15 +331,11 @@ TEST(RoughDielectric, EnergyCompensationKeepsEveryDirectionsEnergy) {
 TEST(RoughDielectric, AWhiteFurnaceOfCompensatedRoughGrainsReturnsTheEnvironment) {
   // Clear grains of roughness 0.5 lose 37% without compensation (above); with it, every
   // path keeps throughput 1 through every interaction, as through smooth grains.
-  const SceneDesc d = roughFurnace(0.5f, true);
-  auto scene = Scene::build(d);
-  Renderer r(*scene);
-  ASSERT_TRUE(r.render(4));
-  std::vector<double> pixels;
-  for (int y = 0; y < d.settings.height; ++y)
-    for (int x = 0; x < d.settings.width; ++x) pixels.push_back(r.film().mean(x, y).x);
   double mean, se;
-  meanSe(pixels, mean, se);
+  meanSe(renderedPixels(roughFurnace(0.5f, true)), mean, se);
   std::printf("compensated furnace (roughness 0.5): %.4f ± %.4f\n", mean, se);
-  EXPECT_NEAR(mean, 1.0, 4 * se + 0.01);
+  // Escapes carry weight 1 exactly; next-event estimates evaluate f through the P_valid
+  // table, whose accuracy (5e-3, EnergyCompensationKeepsEveryDirectionsEnergy) bounds
+  // their bias.
+  EXPECT_NEAR(mean, 1.0, 4 * se + 5e-3);
 }
