@@ -55,15 +55,13 @@ def peak_rss_of(cmd):
     return r.stdout, (int(m.group(1)) / 1024 if m else float("nan"))
 
 
-def ours(args, scene_path, width, height, out):
+def ours(core, args, scene_path, width, height, out):
     exr, stats = out + ".exr", out + ".json"
     _, peak = peak_rss_of([os.path.join(args.build, "core", "granular-render"), scene_path, "-o", exr,
                            "--technique", "ept", "--threads", "1", "--spp", str(args.spp), "--seed", "1",
                            "--width", str(width), "--height", str(height), "--quiet", "--stats-json", stats])
     s = json.load(open(stats))
     import numpy as np
-    sys.path[:0] = [os.path.join(args.build, "python"), os.path.join(ROOT, "python")]
-    import granular_core as core
     img = core.read_image_rgb(exr)
     return dict(build_s=s["build_s"], render_s=s["render_s"], mean=float(np.asarray(img.pixels)[..., :3].mean()),
                 peak_mib=peak)
@@ -89,6 +87,7 @@ def main():
     sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
     text = open(os.path.join(HERE, "scenes", "validate_ept.json")).read()
     sys.path[:0] = [os.path.join(args.build, "python"), os.path.join(ROOT, "python")]
+    import granular_core as core
     rows = []
     for n in [float(g) for g in args.grains.split(",")]:
         scene = json.loads("\n".join(line for line in text.splitlines() if not line.lstrip().startswith("//")))
@@ -103,7 +102,7 @@ def main():
         grains = sum(len(a["grains"]) for a in json.load(open(os.path.join(base, "scene.json")))["aggregates"])
         for (w, h) in sizes:
             print(f"{grains} grains, {w}x{h}: ours ...", file=sys.stderr, flush=True)
-            a = ours(args, scene_path, w, h, os.path.join(base, f"ours_{w}x{h}"))
+            a = ours(core, args, scene_path, w, h, os.path.join(base, f"ours_{w}x{h}"))
             print(f"  {a}\n  Mitsuba ...", file=sys.stderr, flush=True)
             b = theirs(args, base, w, h)
             print(f"  {b}", file=sys.stderr, flush=True)

@@ -94,7 +94,7 @@ bool hasEmissiveSurface(const SceneDesc& desc) {
 
 // Any grain a smooth dielectric (prototypes without a material are the default glass);
 // rough ones connect to delta lights like any non-delta surface.
-bool hasDielectricGrains(const SceneDesc& desc) {
+bool hasSmoothDielectricGrains(const SceneDesc& desc) {
   for (const auto& a : desc.aggregates)
     for (const auto& p : a.prototypes) {
       if (p.material < 0) return true;
@@ -212,7 +212,7 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc, const Scene* previous
     lights.push_back(dome);
     s->defaultLightAdded_ = true;
   }
-  const bool widen = desc.settings.physicalSun && hasDielectricGrains(desc);
+  const bool widen = desc.settings.physicalSun && hasSmoothDielectricGrains(desc);
   for (auto& l : lights)
     if (widen && isDeltaSun(l)) {  // widenedSuns()
       l.angle = kSunAngle;

@@ -63,7 +63,7 @@ class Scene {
   const MediumParams& mediumParams(int aggregate) const { return mediumParams_[aggregate]; }
   float maxGrainRadius() const { return maxGrainRadius_; }
   // Bounces every path keeps explicit before it may enter a medium: the settings' value,
-  // or with -1 the largest over the media of explicitBouncesFor(their albedo, depth).
+  // or with -1 the largest over the media of explicitBouncesFor(their albedo, g, depth).
   int explicitBounces() const { return explicitBounces_; }
   // Automatic explicit bounces of a medium of albedo α_s and mean cosine g in an object
   // whose half thickness is depthMfp of its longest mean free path. The medium's
@@ -80,7 +80,7 @@ class Scene {
   //   (α_s < kThinAlbedo) keep 32 bounces below 10 mean free paths, none from 20,
   //   linear between. A ball 25 grains across (6 mfp deep, α_s 0.89) measured −1.3%
   //   with 9 bounces, −0.4% with 16, −0.1% with 32; 50 across (15 mfp) −0.7% with 9.
-  static int explicitBouncesFor(const Vec3& albedo, const Vec3& g = Vec3(0.0f), float depthMfp = kInf);
+  static int explicitBouncesFor(const Vec3& albedo, const Vec3& g, float depthMfp = kInf);
   static constexpr float kThinAlbedo = 0.96f;
   // A new view or new settings without rebuilding geometry, tiles, distance fields or TT
   // (a camera move in an interactive host). Not thread-safe: no render may be running.
