@@ -18,7 +18,8 @@ EmbreeScene makeEmbreeScene(const EmbreeDevice& device) {
   return EmbreeScene(s, [](RTCScene x) { rtcReleaseScene(x); });
 }
 
-unsigned attachTriangleMesh(RTCDevice device, RTCScene scene, const TriangleMesh& mesh) {
+unsigned attachTriangleMesh(RTCDevice device, RTCScene scene, const TriangleMesh& mesh, RTCFilterFunctionN filter,
+                            void* filterData) {
   RTCGeometry g = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
   auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
                                                         3 * sizeof(float), mesh.points.size()));
@@ -28,6 +29,11 @@ unsigned attachTriangleMesh(RTCDevice device, RTCScene scene, const TriangleMesh
   auto* idx = static_cast<unsigned*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
                                                              3 * sizeof(unsigned), mesh.numTriangles()));
   std::copy(mesh.indices.begin(), mesh.indices.end(), idx);
+  if (filter) {
+    rtcSetGeometryUserData(g, filterData);
+    rtcSetGeometryIntersectFilterFunction(g, filter);
+    rtcSetGeometryOccludedFilterFunction(g, filter);
+  }
   rtcCommitGeometry(g);
   unsigned id = rtcAttachGeometry(scene, g);
   rtcReleaseGeometry(g);

@@ -18,7 +18,10 @@ using EmbreeScene = std::shared_ptr<std::remove_pointer_t<RTCScene>>;
 EmbreeDevice makeEmbreeDevice();
 EmbreeScene makeEmbreeScene(const EmbreeDevice& device);
 // Adds mesh as a triangle geometry to scene (not committed); returns its geometry id.
-unsigned attachTriangleMesh(RTCDevice device, RTCScene scene, const TriangleMesh& mesh);
+// A filter (with its user data), if given, sees every candidate hit of intersection and
+// occlusion rays and may reject it (cut-outs).
+unsigned attachTriangleMesh(RTCDevice device, RTCScene scene, const TriangleMesh& mesh,
+                            RTCFilterFunctionN filter = nullptr, void* filterData = nullptr);
 EmbreeScene buildTriangleScene(const EmbreeDevice& device, const TriangleMesh& mesh);
 
 // Unit outward normal of triangle prim (counter-clockwise winding seen from outside).

@@ -71,7 +71,8 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
   const auto& lights = scene.lights();
   const float lightPick = lightPickProb(scene);
   const Ray& ray = path.ray;
-  const Material& m = scene.material(hit.material);
+  Material textured;  // empty for untextured hits: no allocation
+  const Material& m = scene.shadingMaterial(hit, std::fabs(path.coneWidth + path.coneSpread * hit.t), textured);
   bool inside = dot(ray.d, hit.ng) > 0;
   if (inside && m.type == MaterialType::Dielectric && !isBlack(m.absorption)) {
     // Beer–Lambert over the segment just travelled inside (object units -> world).

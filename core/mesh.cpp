@@ -52,6 +52,7 @@ TriangleMesh TriangleMesh::transformed(const Transform& xf) const {
   r.points.reserve(points.size());
   for (const Vec3& p : points) r.points.push_back(xf.point(p));
   r.indices = indices;
+  r.uvs = uvs;
   // A mirroring transform turns outward-facing winding inward; undo that.
   if (xf.determinant3() < 0) r.flip();
   return r;
@@ -59,9 +60,18 @@ TriangleMesh TriangleMesh::transformed(const Transform& xf) const {
 
 void TriangleMesh::flip() {
   for (size_t t = 0; t + 2 < indices.size(); t += 3) std::swap(indices[t + 1], indices[t + 2]);
+  if (uvs.size() == 2 * indices.size())
+    for (size_t t = 0; t + 2 < indices.size(); t += 3) {
+      std::swap(uvs[2 * (t + 1)], uvs[2 * (t + 2)]);
+      std::swap(uvs[2 * (t + 1) + 1], uvs[2 * (t + 2) + 1]);
+    }
 }
 
 void validateMesh(const TriangleMesh& mesh, const std::string& object, const std::string& attribute) {
+  if (!mesh.uvs.empty() && mesh.uvs.size() != 2 * mesh.indices.size())
+    throw InputError(object, "uvs", str(mesh.uvs.size(), " values for ", mesh.indices.size(), " triangle corners (2 each needed)"));
+  for (size_t i = 0; i < mesh.uvs.size(); ++i)
+    if (!std::isfinite(mesh.uvs[i])) throw InputError(object, "uvs", str("value ", i, " is not finite"));
   for (size_t i = 0; i < mesh.points.size(); ++i)
     if (!isFinite(mesh.points[i]))
       throw InputError(object, attribute, str("point ", i, " is not finite ", fmtPoint(mesh.points[i])));
@@ -177,6 +187,20 @@ TriangleMesh triangulate(const std::vector<Vec3>& points, const std::vector<int>
     base += size_t(c);
   }
   return m;
+}
+
+std::vector<uint32_t> triangulatedCorners(const std::vector<int>& faceVertexCounts) {
+  std::vector<uint32_t> corners;
+  uint32_t base = 0;
+  for (int c : faceVertexCounts) {
+    for (int k = 1; k + 1 < c; ++k) {  // the fan of triangulate()
+      corners.push_back(base);
+      corners.push_back(base + uint32_t(k));
+      corners.push_back(base + uint32_t(k) + 1);
+    }
+    base += uint32_t(std::max(c, 0));
+  }
+  return corners;
 }
 
 }  // namespace granular

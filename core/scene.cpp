@@ -2,9 +2,11 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cstring>
 
 #include "error.h"
 #include "microfacet.h"
+#include "rng.h"
 
 namespace granular {
 
@@ -83,7 +85,8 @@ bool sameMaterial(const MaterialDesc& a, const MaterialDesc& b) {
 }
 
 bool isEmitter(const SceneDesc& desc, const MeshDesc& m) {
-  return m.visible && m.material >= 0 && !isBlack(desc.materials[m.material].emission);
+  return m.visible && m.material >= 0 &&
+         (!isBlack(desc.materials[m.material].emission) || desc.materials[m.material].emissionTexture.enabled());
 }
 
 bool hasEmissiveSurface(const SceneDesc& desc) {
@@ -105,6 +108,83 @@ bool hasSmoothDielectricGrains(const SceneDesc& desc) {
 }
 
 }  // namespace
+
+// Embree's filter for cut-out meshes: rejects a candidate hit where the surface is absent.
+// The draw hashes the ray (origin, direction) and the triangle: reproducible, and
+// independent between rays and between the surfaces one ray crosses.
+void Scene::cutoutFilter(const RTCFilterFunctionNArguments* args) {
+  const auto* data = static_cast<const CutoutFilterData*>(args->geometryUserPtr);
+  for (unsigned i = 0; i < args->N; ++i) {
+    if (args->valid[i] != -1) continue;
+    const unsigned prim = RTCHitN_primID(args->hit, args->N, i);
+    const float p = data->scene->presence(data->geom, prim, RTCHitN_u(args->hit, args->N, i),
+                                          RTCHitN_v(args->hit, args->N, i));
+    if (p >= 1) continue;
+    uint64_t h = hashInts(uint64_t(data->geom), uint64_t(prim));
+    for (float x : {RTCRayN_org_x(args->ray, args->N, i), RTCRayN_org_y(args->ray, args->N, i),
+                    RTCRayN_org_z(args->ray, args->N, i), RTCRayN_dir_x(args->ray, args->N, i),
+                    RTCRayN_dir_y(args->ray, args->N, i), RTCRayN_dir_z(args->ray, args->N, i)}) {
+      uint32_t bits;
+      std::memcpy(&bits, &x, sizeof bits);
+      h = hashCombine(h, bits);
+    }
+    if (p <= 0 || toUnitFloat(h) >= p) args->valid[i] = 0;
+  }
+}
+
+void Scene::surfaceUv(int geom, unsigned prim, float bu, float bv, float& u, float& v) const {
+  const std::vector<float>& uv = worldMeshes_[size_t(geom)].uvs;
+  if (uv.empty()) {  // no texture coordinates: the primvar reader's fallback (0, 0)
+    u = v = 0;
+    return;
+  }
+  const size_t c = 6 * size_t(prim);
+  const float b0 = 1.0f - bu - bv;
+  u = b0 * uv[c] + bu * uv[c + 2] + bv * uv[c + 4];
+  v = b0 * uv[c + 1] + bu * uv[c + 3] + bv * uv[c + 5];
+}
+
+float Scene::presence(int geom, unsigned prim, float bu, float bv) const {
+  const SurfaceMaps& maps = surfaceMaps_[size_t(meshMaterial_[size_t(geom)])];
+  if (!maps.cutout) return 1.0f;
+  float p = maps.opacityConstant;
+  if (maps.opacity >= 0) {
+    float u, v;
+    surfaceUv(geom, prim, bu, bv, u, v);
+    p = textures_->lookupChannel(maps.opacity, u, v, 0.0f);
+  }
+  if (maps.opacityThreshold > 0) return p >= maps.opacityThreshold ? 1.0f : 0.0f;
+  return std::clamp(p, 0.0f, 1.0f);
+}
+
+const Material& Scene::shadingMaterial(const Hit& hit, float footprint, Material& storage) const {
+  const Material& m = materials_[size_t(hit.material)];
+  if (hit.kind != Hit::Surface || hit.geom < 0) return m;
+  const SurfaceMaps& maps = surfaceMaps_[size_t(hit.material)];
+  if (maps.albedo < 0 && maps.emission < 0) return m;
+  float u, v;
+  surfaceUv(hit.geom, hit.prim, hit.bu, hit.bv, u, v);
+  // The filter width in uv: the footprint times the triangle's uv length per world length.
+  float width = 0;
+  const TriangleMesh& mesh = worldMeshes_[size_t(hit.geom)];
+  if (footprint > 0 && mesh.hasUvs()) {
+    const size_t t = 3 * size_t(hit.prim);
+    const Vec3 &a = mesh.points[mesh.indices[t]], &b = mesh.points[mesh.indices[t + 1]], &c = mesh.points[mesh.indices[t + 2]];
+    const float* uv = &mesh.uvs[2 * t];
+    const float uvArea = std::fabs((uv[2] - uv[0]) * (uv[5] - uv[1]) - (uv[4] - uv[0]) * (uv[3] - uv[1]));
+    const float worldArea = length(cross(b - a, c - a));
+    if (worldArea > 0) width = footprint * std::sqrt(uvArea / worldArea);
+  }
+  storage = m;
+  if (maps.albedo >= 0) storage.albedo = vmin(vmax(textures_->lookupRgb(maps.albedo, u, v, width), Vec3(0.0f)), Vec3(1.0f));
+  if (maps.emission >= 0) storage.emission = vmax(textures_->lookupRgb(maps.emission, u, v, width), Vec3(0.0f));
+  return storage;
+}
+
+const std::vector<std::string>& Scene::textureWarnings() const {
+  static const std::vector<std::string> none;
+  return textures_ ? textures_->warnings() : none;
+}
 
 const Scene::BuiltAggregate* Scene::findBuilt(const AggregateDesc& desc, const std::vector<int>& materials,
                                               const std::vector<MaterialDesc>& materialDescs) const {
@@ -140,14 +220,37 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc, const Scene* previous
   s->diffusionExitMaterial_ = int(s->materials_.size());
   s->materials_.push_back(Material::fromDesc(white));
 
+  // Textures and cut-outs of ordinary surfaces: only a scene that has them opens a
+  // TextureSystem.
+  s->surfaceMaps_.resize(s->materials_.size());
+  for (size_t i = 0; i < desc.materials.size(); ++i) {
+    const MaterialDesc& m = desc.materials[i];
+    SurfaceMaps& maps = s->surfaceMaps_[i];
+    if (m.type != MaterialType::Lambert) continue;
+    if (m.hasTextures() && !s->textures_) s->textures_.reset(new Textures());
+    if (m.albedoTexture.enabled()) maps.albedo = s->textures_->add(m.albedoTexture);
+    if (m.emissionTexture.enabled()) maps.emission = s->textures_->add(m.emissionTexture);
+    if (m.opacityTexture.enabled()) maps.opacity = s->textures_->add(m.opacityTexture);
+    maps.opacityConstant = m.opacity;
+    maps.opacityThreshold = m.opacityThreshold;
+    maps.cutout = m.hasCutouts();
+  }
+
   s->device_ = makeEmbreeDevice();
   s->surfaces_ = makeEmbreeScene(s->device_);
+  s->cutoutData_.reserve(desc.meshes.size());
   Bounds3 all;
   for (const auto& m : desc.meshes) {
     if (!m.visible) continue;
     TriangleMesh w = m.mesh.transformed(m.xf);
     all.extend(w.bounds());
-    attachTriangleMesh(s->device_.get(), s->surfaces_.get(), w);
+    const int material = m.material >= 0 ? m.material : defaultSurface;
+    if (s->surfaceMaps_[material].cutout) {
+      s->cutoutData_.push_back({s.get(), int(s->worldMeshes_.size())});
+      attachTriangleMesh(s->device_.get(), s->surfaces_.get(), w, cutoutFilter, &s->cutoutData_.back());
+    } else {
+      attachTriangleMesh(s->device_.get(), s->surfaces_.get(), w);
+    }
     s->worldMeshes_.push_back(std::move(w));
     s->meshMaterial_.push_back(m.material >= 0 ? m.material : defaultSurface);
     s->meshId_.push_back(m.id);
@@ -270,6 +373,10 @@ bool Scene::intersectSurfaces(const Ray& ray, Hit& hit, float& tmax) const {
   hit.ng = triangleNormal(worldMeshes_[rh.hit.geomID], rh.hit.primID);
   hit.material = meshMaterial_[rh.hit.geomID];
   hit.primId = meshId_[rh.hit.geomID];
+  hit.geom = int(rh.hit.geomID);
+  hit.prim = rh.hit.primID;
+  hit.bu = rh.hit.u;
+  hit.bv = rh.hit.v;
   hit.lengthScale = 1.0f;
   hit.eps = 0;
   return true;

@@ -22,6 +22,7 @@
 #include "light.h"
 #include "material.h"
 #include "scene_desc.h"
+#include "texture.h"
 #include "tt.h"
 #include "vpt.h"
 
@@ -38,6 +39,11 @@ struct Hit {
   float eps = 0;            // ray-offset scale at this hit
   float lengthScale = 1;    // world length of one unit of the object's own space (absorption)
   int primId = -1;          // the front end's id of the mesh or aggregate (primId AOV)
+  // Surface: the mesh (Embree geometry id), its triangle and the barycentrics there
+  // (textures).
+  int geom = -1;
+  unsigned prim = 0;
+  float bu = 0, bv = 0;
 };
 
 class Scene {
@@ -100,6 +106,17 @@ class Scene {
   const Camera& camera() const { return camera_; }
   const RenderSettings& settings() const { return settings_; }
   const Material& material(int i) const { return materials_[i]; }
+  // The material at a hit with its textures applied (albedo, emission; Hit::Surface of a
+  // textured mesh, written to storage), else material(hit.material). footprint: the ray
+  // cone's width there in world units, the texture filter's width.
+  const Material& shadingMaterial(const Hit& hit, float footprint, Material& storage) const;
+  // Probability that a cut-out surface is there (MaterialDesc::opacity, opacityThreshold)
+  // at barycentrics (bu, bv) of triangle prim of mesh geom; 1 for other surfaces. Rays and
+  // shadow rays pass a cut-out surface by a hash of the ray and the triangle, so a pass is
+  // reproducible and independent between rays.
+  float presence(int geom, unsigned prim, float bu, float bv) const;
+  // Warnings from textures (texture.h) for the front ends to show.
+  const std::vector<std::string>& textureWarnings() const;
   const std::vector<Light>& lights() const { return lights_; }
   const std::vector<int>& infiniteLights() const { return infiniteLights_; }
   const std::vector<std::shared_ptr<const Aggregate>>& aggregates() const { return aggregates_; }
@@ -161,6 +178,22 @@ class Scene {
   int explicitBounces_ = 0;
   void updateExplicitBounces();  // from the settings and the media
   std::vector<TriangleMesh> worldMeshes_;   // per Embree geometry id
+  // Textures and cut-outs (indices into textures_; -1: none) of each material.
+  struct SurfaceMaps {
+    int albedo = -1, emission = -1, opacity = -1;
+    float opacityConstant = 1, opacityThreshold = 0;
+    bool cutout = false;
+  };
+  std::vector<SurfaceMaps> surfaceMaps_;
+  std::unique_ptr<Textures> textures_;
+  // The Embree filter of a cut-out mesh finds the scene and its geometry id here.
+  struct CutoutFilterData {
+    const Scene* scene;
+    int geom;
+  };
+  std::vector<CutoutFilterData> cutoutData_;  // one per mesh, reserved before any is used
+  static void cutoutFilter(const RTCFilterFunctionNArguments* args);
+  void surfaceUv(int geom, unsigned prim, float bu, float bv, float& u, float& v) const;
   std::vector<int> meshMaterial_, meshId_;
   std::vector<int> aggregateId_;
   EmbreeDevice device_;

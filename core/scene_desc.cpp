@@ -239,6 +239,23 @@ void validateMaterialDesc(const MaterialDesc& m, const std::string& obj) {
   checkNonNegative(m.emission, obj, "emission");
   if (!std::isfinite(m.roughness) || m.roughness < 0 || m.roughness > 1)
     throw InputError(obj, "roughness", str(m.roughness, " is outside [0, 1]"));
+  if (!std::isfinite(m.opacity) || m.opacity < 0 || m.opacity > 1)
+    throw InputError(obj, "opacity", str(m.opacity, " is outside [0, 1]"));
+  if (!std::isfinite(m.opacityThreshold) || m.opacityThreshold < 0 || m.opacityThreshold > 1)
+    throw InputError(obj, "opacityThreshold", str(m.opacityThreshold, " is outside [0, 1]"));
+  const std::pair<const TextureDesc*, const char*> textures[] = {
+      {&m.albedoTexture, "albedoTexture"}, {&m.emissionTexture, "emissionTexture"}, {&m.opacityTexture, "opacityTexture"}};
+  for (const auto& [t, attr] : textures) {
+    if (!t->enabled()) continue;
+    const std::string& o = t->source.empty() ? obj : t->source;
+    if (m.type != MaterialType::Lambert)
+      throw InputError(obj, attr, "textures apply to Lambert (diffuse) materials only");
+    for (int c = 0; c < 4; ++c) {
+      if (!std::isfinite(t->scale[c])) throw InputError(o, "inputs:scale", str(t->scale[c], " is not finite"));
+      if (!std::isfinite(t->bias[c])) throw InputError(o, "inputs:bias", str(t->bias[c], " is not finite"));
+    }
+    if (t->channel < -1 || t->channel > 3) throw InputError(o, "outputs", str("channel ", t->channel, " is not r, g, b, a or rgb"));
+  }
 }
 
 void validateAggregateParameters(const AggregateDesc& a, const std::string& obj) {

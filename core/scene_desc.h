@@ -40,6 +40,27 @@ inline float lensRadiusFromFStop(float focalLength, float fStop) {
   return fStop > 0 ? 0.05f * focalLength / fStop : 0.0f;
 }
 
+// A UsdUVTexture feeding one material input, looked up at the mesh's texture coordinates
+// (TriangleMesh::uvs; USD's st, origin at the image's lower left) through OpenImageIO's
+// TextureSystem (texture.h). value = texel × scale + bias per channel (r, g, b, a), the
+// texel decoded from sRGB first where the colour space says so (rgb only, not alpha).
+// The front ends take `file` from inputs:file (resolved), the rest from the shader's inputs
+// of the same names; `source` is the shader's path, for messages.
+enum class TextureWrap { UseMetadata, Black, Clamp, Repeat, Mirror };
+// Auto: sRGB for 8-bit images, raw otherwise (UsdUVTexture's rule).
+enum class TextureColorSpace { Auto, Raw, SRGB };
+
+struct TextureDesc {
+  std::string file;                   // empty: no texture (the material's constant applies)
+  std::string source;                 // e.g. "/World/Looks/Ground/Diffuse"
+  TextureWrap wrapS = TextureWrap::UseMetadata, wrapT = TextureWrap::UseMetadata;
+  float scale[4] = {1, 1, 1, 1};
+  float bias[4] = {0, 0, 0, 0};
+  TextureColorSpace colorSpace = TextureColorSpace::Auto;
+  int channel = -1;                   // -1: the rgb output; 0..3: the r, g, b or a output
+  bool enabled() const { return !file.empty(); }
+};
+
 // DiffusionExit is internal: the lobe of light leaving a diffusing medium (diffusion.h).
 enum class MaterialType { Lambert, Dielectric, DiffusionExit };
 
@@ -59,6 +80,18 @@ struct MaterialDesc {
   // is lost (material.h). Off only to compare with renderers that lose it (Mitsuba's
   // roughdielectric); JSON "energy_compensation".
   bool energyCompensation = true;
+  // Lambert textures: albedo (UsdPreviewSurface diffuseColor) and emission from an rgb
+  // output; opacity from one channel.
+  TextureDesc albedoTexture, emissionTexture, opacityTexture;
+  // Lambert presence (cut-outs): the surface is there with probability `opacity` at a
+  // point, or where opacity >= opacityThreshold when the threshold is > 0 (UsdPreviewSurface
+  // masking); light passes straight through elsewhere. opacityTexture, when set, gives the
+  // opacity. (The front ends read an untextured opacity < 1 without a threshold as glass,
+  // a Dielectric, instead.)
+  float opacity = 1.0f;
+  float opacityThreshold = 0.0f;
+  bool hasTextures() const { return albedoTexture.enabled() || emissionTexture.enabled() || opacityTexture.enabled(); }
+  bool hasCutouts() const { return type == MaterialType::Lambert && (opacity < 1 || opacityTexture.enabled()); }
 };
 
 enum class LightType { Distant, Sphere, Rect, Dome };

@@ -240,6 +240,19 @@ std::string resolvePath(const Context& ctx, const std::string& p) {
   return (path.is_absolute() || ctx.base.empty()) ? path.string() : (ctx.base / path).string();
 }
 
+struct Vec2f {
+  float u, v;
+};
+
+std::vector<Vec2f> parseUvs(const json& v, const std::string& obj, const std::string& key) {
+  std::vector<Vec2f> out;
+  for (const json& e : toArray(v, obj, key)) {
+    if (!e.is_array() || e.size() != 2) throw InputError(obj, key, "expected [u, v] pairs, got " + describe(e));
+    out.push_back({toFloat(e[0], obj, key), toFloat(e[1], obj, key)});
+  }
+  return out;
+}
+
 std::vector<Vec3> parsePoints(const json& v, const std::string& obj, const std::string& key) {
   const json& a = toArray(v, obj, key);
   std::vector<Vec3> pts;
@@ -317,7 +330,7 @@ TriangleMesh parseShape(const json& v, const std::string& parent, const std::str
     return relabel(sub, [&] { return makeEllipsoid(radii, n); });
   }
   if (kind == "mesh") {
-    Obj o(p, label, kind, sub, {"points", "face_vertex_indices", "face_vertex_counts"});
+    Obj o(p, label, kind, sub, {"points", "face_vertex_indices", "face_vertex_counts", "st", "st_interpolation"});
     std::vector<Vec3> pts = parsePoints(o.required("points"), sub, "points");
     std::vector<int> idx = parseInts(o.required("face_vertex_indices"), sub, "face_vertex_indices");
     std::vector<int> counts;
@@ -329,7 +342,23 @@ TriangleMesh parseShape(const json& v, const std::string& parent, const std::str
                          str("has ", idx.size(), " entries, not a multiple of 3 (give face_vertex_counts for polygons)"));
       counts.assign(idx.size() / 3, 3);
     }
-    return relabel(sub, [&] { return triangulate(pts, counts, idx, sub); });
+    TriangleMesh mesh = relabel(sub, [&] { return triangulate(pts, counts, idx, sub); });
+    if (const json* st = o.find("st")) {
+      // Texture coordinates, per point ("vertex", the default) or per face vertex.
+      std::vector<Vec2f> uv = parseUvs(*st, sub, "st");
+      std::string interp = o.string("st_interpolation", "vertex");
+      if (interp != "vertex" && interp != "faceVarying")
+        throw InputError(sub, "st_interpolation", str("\"", interp, "\" is not vertex or faceVarying"));
+      const size_t expected = interp == "vertex" ? pts.size() : idx.size();
+      if (uv.size() != expected)
+        throw InputError(sub, "st", str(uv.size(), " values for ", expected, interp == "vertex" ? " points" : " face vertices"));
+      for (uint32_t c : triangulatedCorners(counts)) {
+        const Vec2f& t = uv[interp == "vertex" ? size_t(idx[c]) : size_t(c)];
+        mesh.uvs.push_back(t.u);
+        mesh.uvs.push_back(t.v);
+      }
+    }
+    return mesh;
   }
   throw InputError(parent, key, str("unknown shape \"", kind, "\" (expected one of ", join(kinds), ")"));
 }
@@ -426,7 +455,54 @@ void parseCamera(const Obj& o, CameraDesc& c) {
   }
 }
 
-void parseMaterials(const json& v, SceneDesc& desc, MaterialIndex& index) {
+TextureWrap parseWrap(const Obj& o, const std::string& key) {
+  const std::string w = o.string(key, "useMetadata");
+  static const std::map<std::string, TextureWrap> names = {{"useMetadata", TextureWrap::UseMetadata},
+                                                          {"black", TextureWrap::Black},
+                                                          {"clamp", TextureWrap::Clamp},
+                                                          {"repeat", TextureWrap::Repeat},
+                                                          {"mirror", TextureWrap::Mirror}};
+  auto it = names.find(w);
+  if (it == names.end())
+    throw InputError(o.label(), key, str("\"", w, "\" is not black, clamp, repeat, mirror or useMetadata"));
+  return it->second;
+}
+
+// A UsdUVTexture as JSON: {"file", "wrap_s", "wrap_t", "scale", "bias", "color_space",
+// "channel"}, names and meanings as in USD (texture.h).
+TextureDesc parseTexture(const json& v, const std::string& material, const std::string& key, const Context& ctx,
+                         bool colour) {
+  const std::string label = material + "." + key;
+  Obj o(v, material, key, label, {"file", "wrap_s", "wrap_t", "scale", "bias", "color_space", "channel"});
+  TextureDesc t;
+  t.source = label;
+  t.file = resolvePath(ctx, toString(o.required("file"), label, "file"));
+  std::error_code ec;
+  if (!fs::is_regular_file(t.file, ec)) throw InputError(label, "file", str("\"", t.file, "\" does not exist"));
+  t.wrapS = parseWrap(o, "wrap_s");
+  t.wrapT = parseWrap(o, "wrap_t");
+  for (const char* k : {"scale", "bias"}) {
+    if (const json* a = o.find(k)) {
+      const json& arr = toArray(*a, label, k);
+      if (arr.size() != 4) throw InputError(label, k, "expected 4 numbers (r, g, b, a), got " + describe(*a));
+      for (int c = 0; c < 4; ++c) (std::string(k) == "scale" ? t.scale : t.bias)[c] = toFloat(arr[c], label, k);
+    }
+  }
+  const std::string cs = o.string("color_space", "auto");
+  if (cs == "auto") t.colorSpace = TextureColorSpace::Auto;
+  else if (cs == "raw") t.colorSpace = TextureColorSpace::Raw;
+  else if (cs == "sRGB") t.colorSpace = TextureColorSpace::SRGB;
+  else throw InputError(label, "color_space", str("\"", cs, "\" is not auto, raw or sRGB"));
+  const std::string ch = o.string("channel", colour ? "rgb" : "r");
+  static const std::map<std::string, int> channels = {{"rgb", -1}, {"r", 0}, {"g", 1}, {"b", 2}, {"a", 3}};
+  auto it = channels.find(ch);
+  if (it == channels.end()) throw InputError(label, "channel", str("\"", ch, "\" is not rgb, r, g, b or a"));
+  if (!colour && it->second < 0) throw InputError(label, "channel", "a float input takes r, g, b or a, not rgb");
+  t.channel = it->second;
+  return t;
+}
+
+void parseMaterials(const json& v, SceneDesc& desc, MaterialIndex& index, const Context& ctx) {
   if (!v.is_object())
     throw InputError("scene", "materials", "expected an object mapping names to materials, got " + describe(v));
   for (auto it = v.begin(); it != v.end(); ++it) {
@@ -438,10 +514,17 @@ void parseMaterials(const json& v, SceneDesc& desc, MaterialIndex& index) {
     MaterialDesc md;
     md.name = name;
     if (type == "lambert") {
-      Obj o(m, "materials", name, name, {"type", "albedo", "emission"});
+      Obj o(m, "materials", name, name,
+            {"type", "albedo", "emission", "albedo_texture", "emission_texture", "opacity", "opacity_texture",
+             "opacity_threshold"});
       md.type = MaterialType::Lambert;
       md.albedo = o.vec3("albedo", md.albedo, true);
       md.emission = o.vec3("emission", md.emission, true);
+      md.opacity = o.num("opacity", md.opacity);
+      md.opacityThreshold = o.num("opacity_threshold", md.opacityThreshold);
+      if (const json* t = o.find("albedo_texture")) md.albedoTexture = parseTexture(*t, name, "albedo_texture", ctx, true);
+      if (const json* t = o.find("emission_texture")) md.emissionTexture = parseTexture(*t, name, "emission_texture", ctx, true);
+      if (const json* t = o.find("opacity_texture")) md.opacityTexture = parseTexture(*t, name, "opacity_texture", ctx, false);
     } else if (type == "dielectric") {
       Obj o(m, "materials", name, name, {"type", "ior", "absorption", "roughness", "energy_compensation"});
       md.type = MaterialType::Dielectric;
@@ -730,7 +813,7 @@ SceneDesc parseSceneJson(const std::string& text, const std::string& sourceName)
                        "focus_distance"}),
                   desc.camera);
     MaterialIndex mats;
-    if (const json* m = top.find("materials")) parseMaterials(*m, desc, mats);
+    if (const json* m = top.find("materials")) parseMaterials(*m, desc, mats, ctx);
     if (const json* m = top.find("meshes")) parseMeshes(*m, desc, mats, ctx);
     if (const json* l = top.find("lights")) parseLights(*l, desc, ctx);
     if (const json* a = top.find("aggregates")) parseAggregates(*a, desc, mats, ctx);
