@@ -9,7 +9,8 @@ Each scene: a /World with a camera, UsdLux lights, a ground with a UsdPreviewSur
 aggregates (Meshes with GranularAggregateAPI) and their grain prototypes (invisible Meshes
 with GranularGrainAPI under the /World/Grains scope), and render settings with the
 resolution. Shapes come from core's procedural meshes, so the files are deterministic.
-`animated` is a short shot (frames 1 to 3) for `granular render --frames`: its camera moves
+The sand castle's beach is a UsdUVTexture (textures/beach.png, written here) on the
+ground's st. `animated` is a short shot (frames 1 to 3) for `granular render --frames`: its camera moves
 (time samples on its transform) and its sun brightens between frames 2 and 3. `macro` is
 a close-up with depth of field (fStop, focusDistance): the front grains of a heap sharp,
 the heap behind them soft. `frosted` is sea glass: rough grains (GranularGrainAPI's
@@ -93,6 +94,52 @@ def preview_material(stage, name, diffuse=None, opacity=None, ior=None):
     return mat
 
 
+def textured_quad(stage, path, size, tiles, y=0.0):
+    """quad() with texture coordinates st from (0, 0) to (tiles, tiles), per vertex."""
+    m = quad(stage, path, size, y)
+    st = UsdGeom.PrimvarsAPI(m).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
+    st.Set(Vt.Vec2fArray([Gf.Vec2f(0, tiles), Gf.Vec2f(0, 0), Gf.Vec2f(tiles, 0), Gf.Vec2f(tiles, tiles)]))
+    return m
+
+
+def textured_material(stage, name, file):
+    """A UsdPreviewSurface whose diffuseColor is a UsdUVTexture (repeating, sRGB) of file,
+    read at the primvar st."""
+    mat = UsdShade.Material.Define(stage, f"/World/Looks/{name}")
+    sh = UsdShade.Shader.Define(stage, f"/World/Looks/{name}/Surface")
+    sh.CreateIdAttr("UsdPreviewSurface")
+    sh.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.8)
+    reader = UsdShade.Shader.Define(stage, f"/World/Looks/{name}/St")
+    reader.CreateIdAttr("UsdPrimvarReader_float2")
+    reader.CreateInput("varname", Sdf.ValueTypeNames.Token).Set("st")
+    tex = UsdShade.Shader.Define(stage, f"/World/Looks/{name}/Texture")
+    tex.CreateIdAttr("UsdUVTexture")
+    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(file)
+    tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("repeat")
+    tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("repeat")
+    tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
+    tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
+    sh.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(tex.ConnectableAPI(), "rgb")
+    mat.CreateSurfaceOutput().ConnectToSource(sh.ConnectableAPI(), "surface")
+    return mat
+
+
+def beach_texture(path, size=256):
+    """Wind ripples in damp sand: a sRGB PNG, seamless (it repeats), deterministic."""
+    y, x = np.mgrid[0:size, 0:size] / size
+    two_pi = 2 * np.pi
+    # Crests of 8 ripples per tile, bent by a slow wave; fine speckle from seeded noise.
+    phase = two_pi * (8 * x + 0.35 * np.sin(two_pi * 2 * y) + 0.12 * np.sin(two_pi * 3 * (x + y)))
+    crest = 0.5 + 0.5 * np.sin(phase)
+    rng = np.random.default_rng(7)
+    speckle = rng.normal(0.0, 0.06, (size, size))
+    shade = 0.78 + 0.3 * crest ** 3 + speckle
+    base = np.array([0.42, 0.36, 0.28])
+    rgb = np.clip(base[None, None, :] * shade[..., None], 0.0, 1.0).astype(np.float32)
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    core.write_png(path, core.Image(rgb, ["R", "G", "B"]))
+
+
 def bind(prim, mat):
     UsdShade.MaterialBindingAPI.Apply(prim.GetPrim()).Bind(mat)
 
@@ -150,8 +197,10 @@ def sandcastle(path):
     camera(stage, eye=(2.5, 1.75, 3.1), target=(0.0, 0.5, 0.0))
     sun(stage, direction=(-0.45, -0.8, -0.35), intensity=14.0)
     sky(stage, (0.6, 0.75, 1.0), 0.8)
-    ground = quad(stage, "/World/Ground", 12.0)
-    bind(ground, preview_material(stage, "Beach", diffuse=(0.42, 0.36, 0.28)))
+    # A beach of rippled damp sand: a repeating texture, one tile per 2 units.
+    beach_texture(os.path.join(os.path.dirname(path), "textures", "beach.png"))
+    ground = textured_quad(stage, "/World/Ground", 12.0, tiles=6)
+    bind(ground, textured_material(stage, "Beach", "./textures/beach.png"))
 
     # Quartz sand: index 1.55, absorbing more blue than red (a yellow-brown tint).
     round_ = grain(stage, "Round", core.make_rock(2, 0.2, 1), 1.55, (0.12, 0.24, 0.65))

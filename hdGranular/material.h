@@ -1,6 +1,8 @@
 // material.h — a UsdPreviewSurface subset as a Hydra material: diffuseColor gives a
 // Lambert surface; opacity < 1 a smooth dielectric of inputs:ior; emissiveColor
-// emission (the usd-core front end's rules, README.md).
+// emission; diffuseColor, emissiveColor and opacity fed by a UsdUVTexture (its st from a
+// UsdPrimvarReader_float2) become core textures, and a textured opacity or an
+// opacityThreshold > 0 a Lambert cut-out (the usd-core front end's rules, README.md).
 #ifndef HDGRANULAR_MATERIAL_H
 #define HDGRANULAR_MATERIAL_H
 

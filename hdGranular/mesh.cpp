@@ -4,6 +4,7 @@
 
 #include "instancer.h"
 #include "pxr/base/gf/vec3d.h"
+#include "pxr/base/gf/vec2f.h"
 #include "pxr/base/gf/vec3f.h"
 #include "pxr/base/gf/half.h"
 #include "pxr/base/vt/array.h"
@@ -70,6 +71,51 @@ granular::PrimvarValue toPrimvarValue(VtValue const& v) {
 
 }  // namespace
 
+// Every float2 primvar (texture coordinates) at the corners of the triangles kept, in
+// their order and winding (HdMeshUtil's, for faceVarying too), whatever its interpolation.
+void HdGranularMesh::ReadUvSets(HdSceneDelegate* delegate, HdMeshUtil& util, VtVec3iArray const& triangles,
+                                VtIntArray const& primitiveParams, std::vector<size_t> const& kept,
+                                HdGranularRenderParam::Mesh& m) {
+  const SdfPath& id = GetId();
+  for (HdInterpolation interp : {HdInterpolationConstant, HdInterpolationUniform, HdInterpolationVarying,
+                                 HdInterpolationVertex, HdInterpolationFaceVarying}) {
+    for (HdPrimvarDescriptor const& pv : delegate->GetPrimvarDescriptors(id, interp)) {
+      if (pv.name == HdTokens->points || pv.name.GetString().rfind("granular:", 0) == 0) continue;
+      VtValue value = delegate->Get(id, pv.name);
+      if (!value.IsHolding<VtVec2fArray>()) continue;
+      VtVec2fArray values = value.UncheckedGet<VtVec2fArray>();
+      if (interp == HdInterpolationFaceVarying) {
+        VtValue corners;
+        if (!util.ComputeTriangulatedFaceVaryingPrimvar(values.cdata(), int(values.size()), HdTypeFloatVec2, &corners) ||
+            !corners.IsHolding<VtVec2fArray>())
+          continue;
+        values = corners.UncheckedGet<VtVec2fArray>();
+      }
+      std::vector<float> uvs;
+      uvs.reserve(kept.size() * 6);
+      bool ok = true;
+      for (size_t k : kept) {
+        for (int c = 0; c < 3; ++c) {
+          size_t i = 0;
+          if (interp == HdInterpolationUniform)
+            i = size_t(HdMeshUtil::DecodeFaceIndexFromCoarseFaceParam(primitiveParams[k]));
+          else if (interp == HdInterpolationVertex || interp == HdInterpolationVarying) i = size_t(triangles[k][c]);
+          else if (interp == HdInterpolationFaceVarying) i = 3 * k + size_t(c);
+          if (i >= values.size()) {
+            ok = false;
+            break;
+          }
+          uvs.push_back(values[i][0]);
+          uvs.push_back(values[i][1]);
+        }
+        if (!ok) break;
+      }
+      if (ok) m.uvSets[pv.name.GetString()] = std::move(uvs);
+      else TF_WARN("%s.primvars:%s: too few values for its interpolation; not used", id.GetText(), pv.name.GetText());
+    }
+  }
+}
+
 HdGranularMesh::HdGranularMesh(SdfPath const& id) : HdMesh(id) {}
 
 HdDirtyBits HdGranularMesh::GetInitialDirtyBitsMask() const {
@@ -109,15 +155,19 @@ void HdGranularMesh::Sync(HdSceneDelegate* delegate, HdRenderParam* renderParam,
     VtVec3iArray triangles;
     VtIntArray primitiveParams;
     util.ComputeTriangleIndices(&triangles, &primitiveParams);
-    const bool flip = topology.GetOrientation() == HdTokens->leftHanded;
-    for (GfVec3i const& t : triangles) {
+    // HdMeshUtil winds left-handed faces' triangles counter-clockwise already (as core
+    // wants them): taken as they are. (Flipping them again turned left-handed meshes
+    // inside out in Hydra: tests/hydra/textured.usda's card.)
+    std::vector<size_t> kept;  // the triangles taken, for the texture coordinates below
+    for (size_t k = 0; k < triangles.size(); ++k) {
+      GfVec3i const& t = triangles[k];
       bool valid = t[0] >= 0 && t[1] >= 0 && t[2] >= 0 && size_t(t[0]) < pts.size() && size_t(t[1]) < pts.size() &&
                    size_t(t[2]) < pts.size();
       if (!valid) continue;  // core reports a mesh left empty or open
-      m.prim.mesh.indices.push_back(uint32_t(t[0]));
-      m.prim.mesh.indices.push_back(uint32_t(flip ? t[2] : t[1]));
-      m.prim.mesh.indices.push_back(uint32_t(flip ? t[1] : t[2]));
+      kept.push_back(k);
+      for (int c = 0; c < 3; ++c) m.prim.mesh.indices.push_back(uint32_t(t[c]));
     }
+    ReadUvSets(delegate, util, triangles, primitiveParams, kept, m);
   }
 
   const GfMatrix4d xf = delegate->GetTransform(id);

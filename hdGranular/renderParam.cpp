@@ -16,9 +16,10 @@ void HdGranularRenderParam::SetLight(SdfPath const& id, granular::LightDesc ligh
   ++_version;
 }
 
-void HdGranularRenderParam::SetMaterial(SdfPath const& id, granular::MaterialDesc material) {
+void HdGranularRenderParam::SetMaterial(SdfPath const& id, granular::MaterialDesc material, std::string st) {
   std::lock_guard<std::mutex> lock(_mutex);
   _materials[id] = std::move(material);
+  _materialSt[id] = std::move(st);
   ++_version;
 }
 
@@ -30,6 +31,7 @@ void HdGranularRenderParam::Remove(SdfPath const& id) {
   std::lock_guard<std::mutex> lock(_mutex);
   // Only a real removal is a scene edit: hosts re-sync prims we do not keep (usdview's
   // camera light follows the camera), and a rebuild on every camera move would be wrong.
+  _materialSt.erase(id);
   if (_meshes.erase(id) + _lights.erase(id) + _materials.erase(id)) ++_version;
 }
 
@@ -47,8 +49,16 @@ granular::SceneDesc HdGranularRenderParam::Assemble() const {
   for (auto const& [path, m] : _meshes) {
     granular::MeshPrim p = m.prim;
     auto it = materialIndex.find(m.materialId);
-    if (it != materialIndex.end()) p.material = it->second;
-    else if (m.hasDisplayColor)  // core makes it Lambert, for ordinary meshes only
+    if (it != materialIndex.end()) {
+      p.material = it->second;
+      auto st = _materialSt.find(m.materialId);
+      if (st != _materialSt.end() && !st->second.empty()) {
+        auto uv = m.uvSets.find(st->second);
+        if (uv != m.uvSets.end()) p.mesh.uvs = uv->second;
+        else TF_WARN("%s: has no primvars:%s for its material's textures; they read st (0, 0) everywhere",
+                     path.GetText(), st->second.c_str());
+      }
+    } else if (m.hasDisplayColor)  // core makes it Lambert, for ordinary meshes only
       p.displayColor = granular::Vec3(m.displayColor[0], m.displayColor[1], m.displayColor[2]);
     prims.push_back(std::move(p));
   }

@@ -46,11 +46,15 @@ class HdGranularRenderParam final : public HdRenderParam {
     SdfPath materialId;
     bool hasDisplayColor = false;
     GfVec3f displayColor{0.18f, 0.18f, 0.18f};
+    // Texture coordinates: each float2 primvar at the corners of prim.mesh's triangles
+    // (TriangleMesh::uvs), by name; the bound material's textures pick theirs.
+    std::map<std::string, std::vector<float>> uvSets;
   };
 
   void SetMesh(SdfPath const& id, Mesh mesh);
   void SetLight(SdfPath const& id, granular::LightDesc light);
-  void SetMaterial(SdfPath const& id, granular::MaterialDesc material);
+  // st: the primvar the material's textures read ("" when it has none).
+  void SetMaterial(SdfPath const& id, granular::MaterialDesc material, std::string st = "");
   void Remove(SdfPath const& id);  // any kind
 
   // The scene as the core sees it; throws granular::InputError on bad granular data.
@@ -68,6 +72,7 @@ class HdGranularRenderParam final : public HdRenderParam {
   std::map<SdfPath, Mesh> _meshes;
   std::map<SdfPath, granular::LightDesc> _lights;
   std::map<SdfPath, granular::MaterialDesc> _materials;
+  std::map<SdfPath, std::string> _materialSt;
   std::atomic<int> _version{0};
   HdGranularRenderer* _renderer = nullptr;
 };

@@ -250,8 +250,31 @@ PYBIND11_MODULE(granular_core, m) {
       .def_property_readonly("num_triangles", &TriangleMesh::numTriangles)
       .def("bounds", [](const TriangleMesh& t) { return boundsDict(t.bounds()); })
       .def("signed_volume", &TriangleMesh::signedVolume)
+      .def_property(
+          "uvs",
+          [](const TriangleMesh& t) {
+            py::array_t<float> a({py::ssize_t(t.uvs.size() / 2), py::ssize_t(2)});
+            std::copy(t.uvs.begin(), t.uvs.end(), a.mutable_data());
+            return a;
+          },
+          [](TriangleMesh& t, const FloatArray& a) {
+            if (a.size() % 2 != 0) throw InputError("mesh", "uvs", "expected (corners, 2) values");
+            t.uvs.assign(a.data(), a.data() + a.size());
+          },
+          "texture coordinates, one (u, v) per triangle corner (3 per triangle), or empty")
       .def("transformed", &TriangleMesh::transformed, py::arg("xf"))
       .def("flip", &TriangleMesh::flip);
+
+  m.def(
+      "triangulated_corners",
+      [](const IntArray& counts) {
+        std::vector<uint32_t> c = triangulatedCorners(toInt32(toInts(counts, "faceVertexCounts")));
+        py::array_t<uint32_t> a(py::ssize_t(c.size()));
+        std::copy(c.begin(), c.end(), a.mutable_data());
+        return a;
+      },
+      py::arg("face_vertex_counts"),
+      "The face-vertex index of each corner of triangulate()'s triangles (expands primvars).");
 
   m.def(
       "triangulate",
@@ -288,8 +311,44 @@ PYBIND11_MODULE(granular_core, m) {
   py::enum_<MaterialType>(m, "MaterialType")
       .value("Lambert", MaterialType::Lambert)
       .value("Dielectric", MaterialType::Dielectric);
+  py::enum_<TextureWrap>(m, "TextureWrap")
+      .value("UseMetadata", TextureWrap::UseMetadata)
+      .value("Black", TextureWrap::Black)
+      .value("Clamp", TextureWrap::Clamp)
+      .value("Repeat", TextureWrap::Repeat)
+      .value("Mirror", TextureWrap::Mirror);
+  py::enum_<TextureColorSpace>(m, "TextureColorSpace")
+      .value("Auto", TextureColorSpace::Auto)
+      .value("Raw", TextureColorSpace::Raw)
+      .value("SRGB", TextureColorSpace::SRGB);
+  auto float4 = [](const float* v) { return py::make_tuple(v[0], v[1], v[2], v[3]); };
+  auto setFloat4 = [](float* v, const std::vector<float>& x, const char* name) {
+    if (x.size() != 4) throw InputError("texture", name, "expected 4 numbers");
+    std::copy(x.begin(), x.end(), v);
+  };
+  py::class_<TextureDesc>(m, "TextureDesc")
+      .def(py::init<>())
+      .def_readwrite("file", &TextureDesc::file)
+      .def_readwrite("source", &TextureDesc::source)
+      .def_readwrite("wrap_s", &TextureDesc::wrapS)
+      .def_readwrite("wrap_t", &TextureDesc::wrapT)
+      .def_property(
+          "scale", [float4](const TextureDesc& t) { return float4(t.scale); },
+          [setFloat4](TextureDesc& t, const std::vector<float>& x) { setFloat4(t.scale, x, "scale"); })
+      .def_property(
+          "bias", [float4](const TextureDesc& t) { return float4(t.bias); },
+          [setFloat4](TextureDesc& t, const std::vector<float>& x) { setFloat4(t.bias, x, "bias"); })
+      .def_readwrite("color_space", &TextureDesc::colorSpace)
+      .def_readwrite("channel", &TextureDesc::channel)
+      .def_property_readonly("enabled", &TextureDesc::enabled);
+
   py::class_<MaterialDesc>(m, "MaterialDesc")
       .def(py::init<>())
+      .def_readwrite("albedo_texture", &MaterialDesc::albedoTexture)
+      .def_readwrite("emission_texture", &MaterialDesc::emissionTexture)
+      .def_readwrite("opacity_texture", &MaterialDesc::opacityTexture)
+      .def_readwrite("opacity", &MaterialDesc::opacity)
+      .def_readwrite("opacity_threshold", &MaterialDesc::opacityThreshold)
       .def_readwrite("name", &MaterialDesc::name)
       .def_readwrite("type", &MaterialDesc::type)
       .def_readwrite("albedo", &MaterialDesc::albedo)

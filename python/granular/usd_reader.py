@@ -17,6 +17,10 @@ the granular primvars and the render settings' resolution.
   intensity, exposure, color, color temperature and normalize;
 - a UsdPreviewSurface subset: diffuseColor -> Lambert, opacity < 1 -> dielectric of
   inputs:ior, emissiveColor -> emission; without a material, displayColor -> Lambert;
+  diffuseColor, emissiveColor and opacity connected to a UsdUVTexture (file, wrapS/T,
+  scale, bias, sourceColorSpace, st from a UsdPrimvarReader_float2's primvar of any
+  interpolation) -> core textures; a textured opacity or an opacityThreshold > 0 makes a
+  Lambert cut-out instead of glass;
 - the render settings prim's resolution and camera, and its first product's
   dataWindowNDC (a crop).
 Every problem a user can cause raises UserError naming the prim and the attribute;
@@ -37,7 +41,8 @@ from .errors import UserError
 DEFAULT_WIDTH, DEFAULT_HEIGHT = 640, 480
 
 # UsdPreviewSurface fallbacks (its specification).
-_PREVIEW_DEFAULTS = {"diffuseColor": (0.18, 0.18, 0.18), "emissiveColor": (0.0, 0.0, 0.0), "opacity": 1.0, "ior": 1.5}
+_PREVIEW_DEFAULTS = {"diffuseColor": (0.18, 0.18, 0.18), "emissiveColor": (0.0, 0.0, 0.0), "opacity": 1.0,
+                     "opacityThreshold": 0.0, "ior": 1.5}
 
 
 class StageScene:
@@ -51,6 +56,7 @@ class StageScene:
         self.camera_path = None
         self.aggregates = []     # per desc.aggregates entry: {"prim", "world_boundary", "prototypes"}
         self.warnings = []
+        self.material_st = {}    # material index -> the primvar its textures read (None: none)
         # core object name -> {core attribute: (prim path, USD attribute)}, "*": prim path
         self.names = {}
 
@@ -250,6 +256,47 @@ def read_mesh(prim, time):
     return tri
 
 
+def read_st(scene, prim, name, time):
+    """Primvar `name` (texture coordinates, any interpolation) at each corner of read_mesh's
+    triangles, as (corners, 2) floats; None with a warning when the mesh has no such primvar."""
+    path = str(prim.GetPath())
+    pv = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance(name)
+    if not (pv and pv.HasAuthoredValue()):
+        scene.warn(f"{path}: has no primvars:{name} for its material's textures; they read st (0, 0) everywhere")
+        return None
+    attr = pv.GetAttr()
+    src, attr_name = _where(attr)
+    try:
+        v = np.asarray(pv.ComputeFlattened(time), dtype=np.float64)
+        if v.ndim != 2 or v.shape[1] != 2:
+            raise TypeError
+    except (TypeError, ValueError):
+        raise UserError(src, attr_name, f"has a {attr.GetTypeName()} value, expected texCoord2f[]") from None
+    if not np.all(np.isfinite(v)):
+        raise UserError(src, attr_name, "has values that are not finite")
+    mesh = UsdGeom.Mesh(prim)
+    counts = get_array(mesh.GetFaceVertexCountsAttr(), time, 0, np.int64, "int[]")
+    indices = get_array(mesh.GetFaceVertexIndicesAttr(), time, 0, np.int64, "int[]")
+    corners = core.triangulated_corners(counts).astype(np.int64)
+    interp = pv.GetInterpolation()
+    if interp == UsdGeom.Tokens.constant:
+        where, expected = np.zeros_like(corners), 1
+    elif interp == UsdGeom.Tokens.uniform:
+        face = np.repeat(np.arange(len(counts)), np.maximum(counts - 2, 0) * 3)
+        where, expected = face, len(counts)
+    elif interp in (UsdGeom.Tokens.vertex, UsdGeom.Tokens.varying):
+        where = indices[corners]
+        expected = len(get_array(mesh.GetPointsAttr(), time, 3, np.float64, "point3f[]"))
+    else:  # faceVarying
+        where, expected = corners, len(indices)
+    if len(v) != expected:
+        raise UserError(src, attr_name, f"has {len(v)} values; {interp} interpolation needs {expected}")
+    uv = v[where].reshape(-1, 3, 2)
+    if get_token(mesh.GetOrientationAttr(), time) == UsdGeom.Tokens.leftHanded:
+        uv = uv[:, [0, 2, 1]]  # read_mesh flipped these triangles
+    return uv.reshape(-1, 2).astype(np.float32)
+
+
 def _tessellated(prim, time):
     """UsdGeomCube / UsdGeomSphere as triangles in their own space."""
     if prim.IsA(UsdGeom.Cube):
@@ -268,12 +315,106 @@ def _tessellated(prim, time):
 
 # ---- materials ------------------------------------------------------------------------------
 
+# UsdUVTexture's tokens and outputs (its specification) in core's terms.
+_WRAPS = {"useMetadata": core.TextureWrap.UseMetadata, "black": core.TextureWrap.Black,
+          "clamp": core.TextureWrap.Clamp, "repeat": core.TextureWrap.Repeat, "mirror": core.TextureWrap.Mirror}
+_COLOR_SPACES = {"auto": core.TextureColorSpace.Auto, "raw": core.TextureColorSpace.Raw,
+                 "sRGB": core.TextureColorSpace.SRGB}
+_CHANNELS = {"rgb": -1, "r": 0, "g": 1, "b": 2, "a": 3}
+# The UsdPreviewSurface inputs read from a texture.
+_TEXTURED_INPUTS = ("diffuseColor", "emissiveColor", "opacity")
+
+
+def _source_shader(inp):
+    """The shader output that produces inp's value (through node graphs), or None."""
+    attrs = inp.GetValueProducingAttributes(shaderOutputsOnly=True)
+    return attrs[0] if attrs else None
+
+
+def _texture_st(scene, tex, time):
+    """The primvar name a UsdUVTexture's st reads (a UsdPrimvarReader_float2's varname), or
+    None: its st is then the constant fallback (0, 0)."""
+    path = str(tex.GetPath())
+    inp = tex.GetInput("st")
+    if not inp or not inp.HasConnectedSource():
+        scene.warn(f"{path}.inputs:st: not connected to a UsdPrimvarReader_float2; the texture reads st (0, 0) everywhere")
+        return None
+    out = _source_shader(inp)
+    reader = UsdShade.Shader(out.GetPrim()) if out else None
+    sid = reader.GetIdAttr().Get(time) if reader else None
+    if sid == "UsdTransform2d":
+        scene.warn(f"{reader.GetPath()}: UsdTransform2d is not supported; st is read untransformed")
+        return _texture_st(scene, reader, time) if reader.GetInput("in") else None
+    if sid != "UsdPrimvarReader_float2":
+        scene.warn(f"{path}.inputs:st: {sid!r} is not supported (only UsdPrimvarReader_float2); "
+                   f"the texture reads st (0, 0) everywhere")
+        return None
+    v = reader.GetInput("varname")
+    name = v.Get(time) if v else None
+    if not name:
+        raise UserError(str(reader.GetPath()), "inputs:varname", "names no primvar")
+    return str(name)
+
+
+def _texture(scene, shader, name, time):
+    """The UsdUVTexture feeding shader's input `name` as (core.TextureDesc, st primvar name),
+    or None when the input is not connected to one."""
+    inp = shader.GetInput(name)
+    if not inp or not inp.HasConnectedSource():
+        return None
+    out = _source_shader(inp)
+    tex = UsdShade.Shader(out.GetPrim()) if out else None
+    sid = tex.GetIdAttr().Get(time) if tex else None
+    if sid != "UsdUVTexture":
+        scene.warn(f"{shader.GetPath()}.inputs:{name}: connected to {sid!r}, which is not supported "
+                   f"(only UsdUVTexture); using the input's own value")
+        return None
+    path = str(tex.GetPath())
+    td = core.TextureDesc()
+    td.source = path
+    asset = get_asset(tex.GetInput("file").GetAttr() if tex.GetInput("file") else None, time)
+    if asset is None or not asset.path:
+        raise UserError(path, "inputs:file", "names no image")
+    if "<UDIM>" in asset.path:
+        raise UserError(path, "inputs:file", f'"{asset.path}": UDIM textures are not supported')
+    resolved = asset.resolvedPath
+    if not resolved or not os.path.isfile(resolved):
+        raise UserError(path, "inputs:file", f'"{asset.path}" cannot be found')
+    td.file = resolved
+    for attr, field in (("wrapS", "wrap_s"), ("wrapT", "wrap_t")):
+        i = tex.GetInput(attr)
+        w = get_token(i.GetAttr() if i else None, time, "useMetadata")
+        if w not in _WRAPS:
+            raise UserError(path, f"inputs:{attr}", f'"{w}" is not one of {", ".join(_WRAPS)}')
+        setattr(td, field, _WRAPS[w])
+    for attr, default in (("scale", (1.0, 1.0, 1.0, 1.0)), ("bias", (0.0, 0.0, 0.0, 0.0))):
+        i = tex.GetInput(attr)
+        v = get_vec(i.GetAttr() if i else None, time, 4, default)
+        if not all(_finite(x) for x in v):
+            raise UserError(path, f"inputs:{attr}", f"{v} is not finite")
+        setattr(td, attr, list(v))
+    i = tex.GetInput("sourceColorSpace")
+    cs = get_token(i.GetAttr() if i else None, time, "auto")
+    if cs not in _COLOR_SPACES:
+        raise UserError(path, "inputs:sourceColorSpace", f'"{cs}" is not one of {", ".join(_COLOR_SPACES)}')
+    td.color_space = _COLOR_SPACES[cs]
+    output = out.GetBaseName()
+    if output not in _CHANNELS:
+        raise UserError(path, f"outputs:{output}", "is not an output of UsdUVTexture (rgb, r, g, b, a)")
+    channel = _CHANNELS[output]
+    if name == "opacity" and channel < 0:
+        scene.warn(f"{shader.GetPath()}.inputs:opacity: connected to {path}.outputs:rgb; its r channel is used")
+        channel = 0
+    td.channel = channel
+    return td, _texture_st(scene, tex, time)
+
+
 def _input_value(scene, shader, name, time):
     inp = shader.GetInput(name)
     if not inp:
         return _PREVIEW_DEFAULTS[name], f"inputs:{name}"
-    if inp.HasConnectedSource():
-        scene.warn(f"{shader.GetPath()}.inputs:{name}: connections (textures) are not supported; "
+    if inp.HasConnectedSource() and name not in _TEXTURED_INPUTS:
+        scene.warn(f"{shader.GetPath()}.inputs:{name}: connections are not supported; "
                    f"using its own value or the fallback")
     default = _PREVIEW_DEFAULTS[name]
     attr = inp.GetAttr()
@@ -301,18 +442,40 @@ def _preview_surface(scene, prim, time, cache):
     emissive, _ = _input_value(scene, shader, "emissiveColor", time)
     opacity, _ = _input_value(scene, shader, "opacity", time)
     ior, _ = _input_value(scene, shader, "ior", time)
+    threshold, _ = _input_value(scene, shader, "opacityThreshold", time)
     if not _finite(opacity) or not 0 <= opacity <= 1:
         raise UserError(key, "inputs:opacity", f"{opacity} is outside [0, 1]")
+    if not _finite(threshold) or not 0 <= threshold <= 1:
+        raise UserError(key, "inputs:opacityThreshold", f"{threshold} is outside [0, 1]")
+    textures = {n: _texture(scene, shader, n, time) for n in _TEXTURED_INPUTS}
     md = core.MaterialDesc()
     md.name = key
-    if opacity < 1:
+    st = None
+    if opacity < 1 and threshold == 0 and textures["opacity"] is None:
+        # An untextured opacity without a threshold is glass.
         md.type = core.MaterialType.Dielectric
         md.ior = ior
+        for n in ("diffuseColor", "emissiveColor"):
+            if textures[n] is not None:
+                scene.warn(f"{key}.inputs:{n}: a texture on a transparent (glass) material is ignored")
     else:
+        # Lambert; a textured opacity or a threshold makes a cut-out (core: MaterialDesc.opacity).
         md.type = core.MaterialType.Lambert
         md.albedo = diffuse
         md.emission = emissive
+        md.opacity = opacity
+        md.opacity_threshold = threshold
+        for n, field in (("diffuseColor", "albedo_texture"), ("emissiveColor", "emission_texture"),
+                         ("opacity", "opacity_texture")):
+            if textures[n] is None:
+                continue
+            td, name = textures[n]
+            setattr(md, field, td)
+            if name is not None and st is not None and name != st:
+                scene.warn(f"{key}: textures read different primvars ({st!r}, {name!r}); {st!r} is used")
+            st = st or name
     idx = scene.desc.add_material(md)
+    scene.material_st[idx] = st
     scene.name(key, key, {"albedo": (key, "inputs:diffuseColor"), "ior": (key, "inputs:ior"),
                           "emission": (key, "inputs:emissiveColor")})
     cache[key] = idx
@@ -365,6 +528,11 @@ def _mesh_prim(scene, prim, xf_cache, material_cache, drawn):
         if idx is None and drawn:
             mp.display_color = _display_color(scene, prim, time)
         mp.material = -1 if idx is None else idx
+        st = scene.material_st.get(idx)
+        if st is not None and is_mesh:
+            uvs = read_st(scene, prim, st, time)
+            if uvs is not None:
+                mp.mesh.uvs = uvs
     return mp
 
 
