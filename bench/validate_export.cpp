@@ -47,7 +47,32 @@ using namespace granular;
 
 namespace {
 
+// A mesh with uvs is written unwelded (three vertices per triangle) with u, v per vertex:
+// PLY, like Mitsuba's meshes, holds texture coordinates per vertex, ours are per corner.
+// v is written as 1 − v: Mitsuba's bitmap puts v = 0 on the image's top row (its OBJ loader
+// flips v for that), USD's st on the bottom row.
+void writePlyWithUvs(const std::string& path, const TriangleMesh& m) {
+  std::ofstream out(path, std::ios::binary);
+  if (!out) throw std::runtime_error("cannot write " + path);
+  out << "ply\nformat binary_little_endian 1.0\nelement vertex " << m.indices.size()
+      << "\nproperty float x\nproperty float y\nproperty float z\nproperty float u\nproperty float v\nelement face "
+      << m.numTriangles() << "\nproperty list uchar int vertex_indices\nend_header\n";
+  for (size_t c = 0; c < m.indices.size(); ++c) {
+    const Vec3& p = m.points[m.indices[c]];
+    float v[5] = {p.x, p.y, p.z, m.uvs[2 * c], 1.0f - m.uvs[2 * c + 1]};
+    out.write(reinterpret_cast<const char*>(v), sizeof v);
+  }
+  for (size_t t = 0; t < m.numTriangles(); ++t) {
+    unsigned char n = 3;
+    int idx[3] = {int(3 * t), int(3 * t + 1), int(3 * t + 2)};
+    out.write(reinterpret_cast<const char*>(&n), 1);
+    out.write(reinterpret_cast<const char*>(idx), sizeof idx);
+  }
+  if (!out) throw std::runtime_error("cannot write " + path);
+}
+
 void writePly(const std::string& path, const TriangleMesh& m) {
+  if (m.hasUvs()) return writePlyWithUvs(path, m);
   std::ofstream out(path, std::ios::binary);
   if (!out) throw std::runtime_error("cannot write " + path);
   out << "ply\nformat binary_little_endian 1.0\nelement vertex " << m.points.size()
@@ -144,11 +169,25 @@ int exportScene(const std::string& scenePath, const std::string& dir) {
   for (size_t i = 0; i < mats.size(); ++i) {
     const MaterialDesc& m = mats[i];
     if (!isBlack(m.emission)) throw InputError(m.name, "emission", "the exporter supports no emission");
+    if (m.emissionTexture.enabled() || m.opacityTexture.enabled() || m.opacity < 1)
+      throw InputError(m.name, "emissionTexture", "the exporter supports albedo textures only");
     j += i ? ",\n    " : "\n    ";
     j += "{\"name\": \"" + m.name + "\", \"type\": \"" +
          std::string(m.type == MaterialType::Lambert ? "lambert" : "dielectric") + "\", \"albedo\": " + vec(m.albedo) +
          ", \"ior\": " + num(m.ior) + ", \"absorption\": " + vec(m.absorption) +
-         ", \"ggx_alpha\": " + num(m.type == MaterialType::Dielectric ? alphaFromRoughness(m.roughness) : 0.0f) + "}";
+         ", \"ggx_alpha\": " + num(m.type == MaterialType::Dielectric ? alphaFromRoughness(m.roughness) : 0.0f);
+    if (m.albedoTexture.enabled()) {
+      // Mitsuba's bitmap: bilinear, one wrap mode for both axes, sRGB decoding (raw false)
+      // of 8-bit images; no scale or bias.
+      const TextureDesc& t = m.albedoTexture;
+      for (int c = 0; c < 4; ++c)
+        if (t.scale[c] != 1 || t.bias[c] != 0) throw InputError(t.source, "scale", "the exporter supports no scale or bias");
+      if (t.wrapS != t.wrapT) throw InputError(t.source, "wrap", "the exporter supports one wrap mode for s and t");
+      static const char* wraps[] = {"repeat", "black", "clamp", "repeat", "mirror"};
+      j += ", \"albedo_texture\": {\"file\": \"" + t.file + "\", \"wrap\": \"" + wraps[int(t.wrapS)] +
+           "\", \"raw\": " + (t.colorSpace == TextureColorSpace::Raw ? "true" : "false") + "}";
+    }
+    j += "}";
   }
   j += "\n  ],\n";
 

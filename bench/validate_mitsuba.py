@@ -23,6 +23,11 @@ Cases (bench/scenes/validate_<case>.json):
        long total-internal-reflection paths.
   ept_dof  validate_ept_dof.json: the ept scene through a thin lens focused in front of
        the grains; Mitsuba's `thinlens` sensor (aperture_radius, focus_distance).
+  texture  validate_texture.json: a Lambert floor whose albedo is an sRGB PNG (a 16 x 16
+       pattern of colour ramps, mirrored beyond its edges: st from -0.5 to 1.5) seen at
+       an angle, texels 1 to 4 pixels wide, no grains. Mitsuba: `bitmap` (bilinear, the
+       same wrap mode, sRGB decoded) on the exported quad's per-vertex uv.
+  texture_flat  its control: the same floor with a constant albedo.
   ept_furnace  those clear grains alone under a white dome: every pixel is 1 in
        expectation (and, without Russian roulette, in every sample up to rounding).
   vpt  validate_vpt.json: the homogeneous medium our TT estimation derives for a ball of
@@ -147,6 +152,10 @@ def mitsuba_scene(mi, exp, base, spp, case, integrator, phase_channel=0):
         m = mats[k]
         if m["type"] != "lambert":
             raise SystemExit(f"mesh material {m['name']} is not lambert")
+        if "albedo_texture" in m:
+            t = m["albedo_texture"]
+            return {"type": "diffuse", "reflectance": {"type": "bitmap", "filename": t["file"], "filter_type": "bilinear",
+                                                       "wrap_mode": t["wrap"], "raw": t["raw"]}}
         return {"type": "diffuse", "reflectance": rgb(m["albedo"])}
 
     for i, m in enumerate(exp["meshes"]):
@@ -191,7 +200,7 @@ def read_exr_rgb(mi, path):
 
 def render_ours(mi, args, case, scene_path, k, tmp):
     out = os.path.join(tmp, f"ours_{k}.exr")
-    if case.startswith("ept"):
+    if not case.startswith("vpt"):
         cmd = [os.path.join(args.build, "core", "granular-render"), scene_path, "-o", out, "--technique", "ept",
                "--spp", str(args.spp), "--seed", str(k), "--quiet"]
     else:
@@ -248,7 +257,7 @@ def main():
     ap.add_argument("--build", default="build")
     ap.add_argument("--renders", type=int, default=32, help="independent renders per side (K)")
     ap.add_argument("--spp", type=int, default=32, help="samples per pixel of each render")
-    ap.add_argument("--cases", default="ept,ept_clear,ept_furnace,vpt,ept_dof,ept_rough")
+    ap.add_argument("--cases", default="ept,ept_clear,ept_furnace,vpt,ept_dof,ept_rough,texture,texture_flat")
     ap.add_argument("--out", default="out/validate")
     ap.add_argument("--integrator", default="volpathmis",
                     help="Mitsuba integrator: volpathmis (spectral MIS, default) or volpath (hero channel)")

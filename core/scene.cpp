@@ -164,8 +164,12 @@ const Material& Scene::shadingMaterial(const Hit& hit, float footprint, Material
   if (maps.albedo < 0 && maps.emission < 0) return m;
   float u, v;
   surfaceUv(hit.geom, hit.prim, hit.bu, hit.bv, u, v);
-  // The filter width in uv: the footprint times the triangle's uv length per world length.
+  // The filter width in uv: the footprint times the triangle's uv length per world length,
+  // narrowed as pbrt-v4 narrows its ray differentials, by max(1/8, 1/√spp): the pixel's
+  // samples already average over its area, and a filter a whole footprint wide on top of
+  // them would blur twice; the filter only has to keep each sample from aliasing.
   float width = 0;
+  footprint *= std::max(0.125f, 1.0f / std::sqrt(float(std::max(1, settings_.spp))));
   const TriangleMesh& mesh = worldMeshes_[size_t(hit.geom)];
   if (footprint > 0 && mesh.hasUvs()) {
     const size_t t = 3 * size_t(hit.prim);
