@@ -2,6 +2,7 @@
 // reported as an InputError naming the object and the key.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -9,6 +10,7 @@
 #include <nlohmann/json.hpp>
 
 #include "error.h"
+#include "image_io.h"
 #include "scene_io.h"
 #include "shapes.h"
 
@@ -438,4 +440,60 @@ TEST(SceneIo, NormalisedLightsMustKeepAFiniteRadiance) {
     j["lights"][1]["normalize"] = true;
   });
   EXPECT_NE(e.find("radius"), std::string::npos) << e;
+}
+
+TEST(SceneIo, TexturesAndTextureCoordinates) {
+  namespace fs = std::filesystem;
+  fs::path dir = fs::temp_directory_path() / ("granular_scene_io_tex_" + std::to_string(::getpid()));
+  fs::create_directories(dir / "maps");
+  Image img(2, 1, {"R", "G", "B"});
+  writeExr((dir / "maps" / "albedo.exr").string(), img);
+  json j = base();
+  j["materials"]["floor"] = json::parse(R"({"type": "lambert", "opacity": 0.5, "opacity_threshold": 0.25,
+      "albedo_texture": {"file": "maps/albedo.exr", "wrap_s": "repeat", "wrap_t": "clamp",
+                         "scale": [2, 2, 2, 1], "bias": [0, 0.1, 0, 0], "color_space": "raw"},
+      "opacity_texture": {"file": "maps/albedo.exr", "channel": "a"}})");
+  // A quad with per-face-vertex st: the fan (0 1 2), (0 2 3) takes the corners' values.
+  j["meshes"][1]["shape"]["mesh"]["st"] = json::parse("[[0, 0], [1, 0], [1, 1], [0, 1]]");
+  j["meshes"][1]["shape"]["mesh"]["st_interpolation"] = "faceVarying";
+  j["meshes"][1]["material"] = "floor";
+  std::ofstream(dir / "scene.json") << j.dump(2);
+  SceneDesc d = loadSceneJson((dir / "scene.json").string());
+  const MaterialDesc& m = *std::find_if(d.materials.begin(), d.materials.end(),
+                                        [](const MaterialDesc& x) { return x.name == "floor"; });
+  EXPECT_EQ(m.albedoTexture.file, (dir / "maps" / "albedo.exr").string());
+  EXPECT_EQ(m.albedoTexture.source, "floor.albedo_texture");
+  EXPECT_EQ(m.albedoTexture.wrapS, TextureWrap::Repeat);
+  EXPECT_EQ(m.albedoTexture.wrapT, TextureWrap::Clamp);
+  EXPECT_EQ(m.albedoTexture.colorSpace, TextureColorSpace::Raw);
+  EXPECT_EQ(m.albedoTexture.channel, -1);
+  EXPECT_FLOAT_EQ(m.albedoTexture.scale[0], 2.0f);
+  EXPECT_FLOAT_EQ(m.albedoTexture.bias[1], 0.1f);
+  EXPECT_EQ(m.opacityTexture.channel, 3);
+  EXPECT_FLOAT_EQ(m.opacity, 0.5f);
+  EXPECT_FLOAT_EQ(m.opacityThreshold, 0.25f);
+  const std::vector<float> expected = {0, 0, 1, 0, 1, 1, 0, 0, 1, 1, 0, 1};
+  EXPECT_EQ(d.meshes[1].mesh.uvs, expected);
+
+  auto errorIn = [&](const std::function<void(json&)>& edit) {
+    json k = j;
+    edit(k);
+    std::ofstream(dir / "scene.json") << k.dump(2);
+    try {
+      loadSceneJson((dir / "scene.json").string());
+    } catch (const InputError& e) {
+      return std::string(e.what());
+    }
+    return std::string("NO ERROR");
+  };
+  EXPECT_CONTAINS(errorIn([](json& k) { k["materials"]["floor"]["albedo_texture"]["file"] = "maps/nope.png"; }),
+                  "floor.albedo_texture.file");
+  EXPECT_CONTAINS(errorIn([](json& k) { k["materials"]["floor"]["albedo_texture"]["wrap_s"] = "tile"; }),
+                  "floor.albedo_texture.wrap_s: \"tile\" is not black, clamp, repeat, mirror or useMetadata");
+  EXPECT_CONTAINS(errorIn([](json& k) { k["materials"]["floor"]["opacity_texture"]["channel"] = "rgb"; }),
+                  "floor.opacity_texture.channel: a float input takes r, g, b or a, not rgb");
+  EXPECT_CONTAINS(errorIn([](json& k) { k["meshes"][1]["shape"]["mesh"]["st"] = json::parse("[[0, 0]]"); }),
+                  "1 values for 4 face vertices");
+  EXPECT_CONTAINS(errorIn([](json& k) { k["materials"]["floor"]["opacity"] = 2; }), "floor.opacity: 2 is outside [0, 1]");
+  fs::remove_all(dir);
 }
