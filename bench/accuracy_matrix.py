@@ -7,7 +7,7 @@ The scene: a ball (radius 1) of grains over a grey floor, seen close enough to f
 of a small image, lit by a white dome (radiance 1) and optionally a sun. One factor at a
 time is varied around a base case (rock grains, IOR 1.55, absorption 0.05 per grain
 radius, packing rate 0.6, 100 grains across, dome only): grain shape, IOR, absorption,
-packing rate, surface roughness, mixture, size, lighting. A case "A/B" applies both
+packing rate, surface roughness, mixture, size, grains of many sizes (polydisperse), lighting. A case "A/B" applies both
 cases' edits (e.g. size-25/absorption-0.0).
 
 Per case and technique, `--seeds` independent renders (different seeds) give the mean
@@ -98,6 +98,28 @@ def _amber_flint(s):
     ag["packing_rate"] = 0.55
 
 
+def _two_sizes(s):
+    # polydisperse: the rocks and rocks half their size, half of each by number
+    ag = s["aggregates"][0]
+    ag["prototypes"].append({"name": "small", "shape": SHAPES["rock"], "material": "grain"})
+    ag["weights"] = [0.5, 0.5]
+    ag["sizes"] = [1.0, 0.5]
+
+
+def _spread(s):
+    # polydisperse: every rock's radius spread uniformly by ±30%
+    s["aggregates"][0]["size_spread"] = 0.3
+
+
+def _amber_flint_sizes(s):
+    # the amber+flint mixture with flint flakes half the rocks' size and a ±20% spread: the
+    # absorption per grainRadius makes the small flakes absorb half as much across
+    _amber_flint(s)
+    ag = s["aggregates"][0]
+    ag["sizes"] = [1.0, 0.5]
+    ag["size_spread"] = 0.2
+
+
 def _size(across):
     def apply(s):
         s["aggregates"][0]["grain_radius"] = 1.0 / across
@@ -120,6 +142,9 @@ for roughness in (0.3, 0.7):
     CASES[f"roughness-{roughness}"] = [_set(("materials", "grain", "roughness"), roughness)]
 CASES["mixture-clear+absorbing"] = [_mixture]
 CASES["mixture-amber+flint"] = [_amber_flint]
+CASES["polydisperse-two-sizes"] = [_two_sizes]
+CASES["polydisperse-spread"] = [_spread]
+CASES["polydisperse-amber+flint"] = [_amber_flint_sizes]
 for across in (25, 50, 100, 400):
     CASES[f"size-{across}"] = [_size(across)]
 CASES["sun-10deg"] = [_sun(10.0)]

@@ -66,10 +66,10 @@ bool Aggregate::traceGrain(const TileSphere& s, const int64_t cell[3], const Vec
   // that lists this sphere makes the same inside decision.
   Vec3 worldCenter = origin_ + Vec3(float(home[0]), float(home[1]), float(home[2])) * L_ + tile_.centers[s.id] * L_;
   if (!knownInside && !sphereIsInside(home, worldCenter)) return false;
-  GrainChoice g = selector_.choose(home[0], home[1], home[2], s.id);
+  GrainChoice g = selector_.choose(home[0], home[1], home[2], s.id, tile_.sizeClass(s.id));
   const GrainPrototype& proto = prototypes_[g.prototype];
   // Into the grain frame; t is unchanged because the direction is scaled by 1/R too.
-  float invR = 1.0f / R_;
+  float invR = 1.0f / s.radius;
   Vec3 ol = g.rotation.transposeMul(oc) * invR, dl = g.rotation.transposeMul(d) * invR;
   RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
@@ -81,6 +81,7 @@ bool Aggregate::traceGrain(const TileSphere& s, const int64_t cell[3], const Vec
   best.prototype = g.prototype;
   best.cell[0] = home[0]; best.cell[1] = home[1]; best.cell[2] = home[2];
   best.sphere = s.id;
+  best.radius = s.radius;
   return true;
 }
 
@@ -94,16 +95,34 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
   boundary_ = desc.boundary.transformed(desc.xf);
   if (boundary_.signedVolume() < 0) boundary_.flip();
 
-  // Tile: periodic packing at the requested rate, scaled so its spheres have radius R.
+  // Tile: periodic packing at the requested rate, scaled so its spheres of size 1 have
+  // radius R; polydisperse aggregates pack their size classes (grain.h) together.
   auto tt = std::chrono::steady_clock::now();
-  tile_ = loadOrGenerateTile(desc.tileSpheres, desc.packingRate, desc.seed);
+  const SizeClasses classes = sizeClassesOf(desc);
+  TileSizes sizes;
+  if (!(classes.size.size() == 1 && classes.size[0] == 1.0f && desc.sizeSpread == 0)) {
+    sizes.classSize.assign(classes.size.begin(), classes.size.end());
+    sizes.classWeight = classes.weight;
+    sizes.spread = desc.sizeSpread;
+  }
+  try {
+    tile_ = loadOrGenerateTile(desc.tileSpheres, desc.packingRate, desc.seed, sizes);
+  } catch (const InputError& e) {
+    // The tile's words for the aggregate's attributes.
+    const std::string& a = e.attribute();
+    throw InputError(desc.name, a == "numSpheres" ? "tileSpheres" : a, e.detail());
+  }
   stats_.tileSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - tt).count();
   L_ = float(R_ / tile_.radius);
+  Rmax_ = R_ * tile_.maxSize();
+  double meanSize = 0;
+  for (int k = 0; k < tile_.numSpheres; ++k) meanSize += tile_.size(k) / double(tile_.numSpheres);
 
-  // Grid over the boundary's bounds grown by R (spheres centred inside may poke out).
+  // Grid over the boundary's bounds grown by the largest radius (spheres centred inside
+  // may poke out).
   Bounds3 mb = boundary_.bounds();
-  bounds_.lo = mb.lo - Vec3(R_);
-  bounds_.hi = mb.hi + Vec3(R_);
+  bounds_.lo = mb.lo - Vec3(Rmax_);
+  bounds_.hi = mb.hi + Vec3(Rmax_);
   origin_ = bounds_.lo;
   double cells = 1;
   for (int a = 0; a < 3; ++a) {
@@ -122,7 +141,7 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
   auto ts = std::chrono::steady_clock::now();
   float extent = maxComponent(mb.extent());
   float voxel = std::max(0.5f * L_, extent / 1024.0f);
-  float margin = 0.8661f * L_ + R_ + 1.5f * voxel;
+  float margin = 0.8661f * L_ + Rmax_ + 1.5f * voxel;
   sdf_.build(boundary_, voxel, margin + voxel);
   stats_.sdfSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - ts).count();
 
@@ -190,13 +209,13 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
     prototypes_.push_back(makeGrainPrototype(device, desc.prototypes[i]));
     prototypes_.back().material = prototypeMaterials[i];
   }
-  selector_ = GrainSelector(desc.weights, desc.seed);
+  selector_ = GrainSelector(desc.weights, classes, desc.seed);
 
   // The tile's spheres plus every periodic image that reaches into the unit cell.
   spheres_.clear();
-  double r = tile_.radius;
   for (int s = 0; s < tile_.numSpheres; ++s) {
     const Vec3& c = tile_.centers[s];
+    const double r = tile_.radius * tile_.size(s);
     for (int dz = -1; dz <= 1; ++dz)
       for (int dy = -1; dy <= 1; ++dy)
         for (int dx = -1; dx <= 1; ++dx) {
@@ -211,6 +230,7 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
           ts.center = Vec3(float(p[0] * L_), float(p[1] * L_), float(p[2] * L_));
           ts.home[0] = int8_t(dx); ts.home[1] = int8_t(dy); ts.home[2] = int8_t(dz);
           ts.id = s;
+          ts.radius = R_ * tile_.size(s);
           spheres_.push_back(ts);
         }
   }
@@ -218,12 +238,14 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
   // each listing the spheres (and images) that overlap it, for the front-to-back walk.
   // A list then holds about 8 spheres whatever the tile (at most ~20 from 8 to 10^5
   // spheres per tile); the walk's buffers hold kMaxSubList.
-  sub_ = std::clamp(int(std::lround(L_ / (2.0f * R_))), 1, 32);
-  const float Ls = L_ / float(sub_), reach = R_ + 1e-3f * R_;
+  // (Polydisperse: M from the mean radius.)
+  sub_ = std::clamp(int(std::lround(L_ / (2.0f * R_ * float(meanSize)))), 1, 32);
+  const float Ls = L_ / float(sub_);
   std::vector<std::vector<uint32_t>> lists(size_t(sub_) * sub_ * sub_);
   size_t longest = 0;
   for (size_t i = 0; i < spheres_.size(); ++i) {
     const Vec3& c = spheres_[i].center;
+    const float reach = spheres_[i].radius * (1.0f + 1e-3f);
     int lo[3], hi[3];
     for (int a = 0; a < 3; ++a) {
       lo[a] = std::clamp(int(std::floor((c[a] - reach) / Ls)), 0, sub_ - 1);
@@ -253,11 +275,13 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
     subStart_.push_back(uint32_t(subList_.size()));
   }
   // The listed centres again, one array per axis, for the walk's vectorised sphere tests.
-  for (auto* v : {&subX_, &subY_, &subZ_}) v->resize(subList_.size());
+  for (auto* v : {&subX_, &subY_, &subZ_, &subR2_}) v->resize(subList_.size());
   for (size_t k = 0; k < subList_.size(); ++k) {
-    subX_[k] = spheres_[subList_[k]].center.x;
-    subY_[k] = spheres_[subList_[k]].center.y;
-    subZ_[k] = spheres_[subList_[k]].center.z;
+    const TileSphere& t = spheres_[subList_[k]];
+    subX_[k] = t.center.x;
+    subY_[k] = t.center.y;
+    subZ_[k] = t.center.z;
+    subR2_[k] = t.radius * t.radius;
   }
 
   stats_.memoryBytes = classes_.size() * sizeof(CellClass) + sdf_.memoryBytes() +
@@ -388,7 +412,7 @@ bool Aggregate::walkCell(const int64_t cell[3], bool partial, const Vec3& o, con
   // traced in the sub-cell where the ray enters it (its entry t within the sub-cell's
   // span, padded against rounding: at worst traced twice, never missed).
   const int64_t M = sub_, nSub[3] = {M, M, M};
-  const float Ls = L_ / float(M), pad = 1e-4f * Ls, R2 = R_ * R_;
+  const float Ls = L_ / float(M), pad = 1e-4f * Ls;
   // The entry t and the sub-cells' spans are each a few ulps of t off (they are computed
   // from different origins): pads of 1e-5 t (~80 ulps) on top of 1e-4 of a sub-cell.
   constexpr float kRelPad = 1e-5f;
@@ -401,7 +425,7 @@ bool Aggregate::walkCell(const int64_t cell[3], bool partial, const Vec3& o, con
   // of its centre, whose distance the nearest voxel gives within 0.87 voxel. Further
   // outside than that: no sphere centred inside (skip the sub-cell); further inside than
   // that and sphereIsInside's 2 voxels: every one inside (no test per sphere).
-  const float skipBeyond = 0.8661f * Ls + R_ + sdf_.voxelSize(), sureWithin = -(skipBeyond + 2.0f * sdf_.voxelSize());
+  const float skipBeyond = 0.8661f * Ls + Rmax_ + sdf_.voxelSize(), sureWithin = -(skipBeyond + 2.0f * sdf_.voxelSize());
   for (;;) {
     const int axis = w.axis();
     const float sExit = std::min(w.tNext[axis], tExit);
@@ -421,7 +445,7 @@ bool Aggregate::walkCell(const int64_t cell[3], bool partial, const Vec3& o, con
         const float b = ox * d.x + oy * d.y + oz * d.z;
         const float wx = ox - d.x * b, wy = oy - d.y * b, wz = oz - d.z * b;
         bs[i] = b;
-        disc[i] = R2 - (wx * wx + wy * wy + wz * wz);
+        disc[i] = subR2_[k0 + i] - (wx * wx + wy * wy + wz * wz);
       }
       for (uint32_t i = 0; i < n; ++i) {
         if (disc[i] < 0) continue;
@@ -446,8 +470,8 @@ bool Aggregate::walkCell(const int64_t cell[3], bool partial, const Vec3& o, con
 void Aggregate::forEachGrain(const Bounds3& box, const std::function<void(const GrainInstance&)>& fn) const {
   int64_t lo[3], hi[3];
   for (int a = 0; a < 3; ++a) {
-    lo[a] = std::max<int64_t>(0, int64_t(std::floor((box.lo[a] - R_ - origin_[a]) / L_)));
-    hi[a] = std::min<int64_t>(n_[a] - 1, int64_t(std::floor((box.hi[a] + R_ - origin_[a]) / L_)));
+    lo[a] = std::max<int64_t>(0, int64_t(std::floor((box.lo[a] - Rmax_ - origin_[a]) / L_)));
+    hi[a] = std::min<int64_t>(n_[a] - 1, int64_t(std::floor((box.hi[a] + Rmax_ - origin_[a]) / L_)));
   }
   for (int64_t k = lo[2]; k <= hi[2]; ++k)
     for (int64_t j = lo[1]; j <= hi[1]; ++j)
@@ -458,8 +482,8 @@ void Aggregate::forEachGrain(const Bounds3& box, const std::function<void(const 
         for (int s = 0; s < tile_.numSpheres; ++s) {
           Vec3 c = cellOrigin + tile_.centers[s] * L_;  // as traceGrain computes it
           if (!sphereIsInside(home, c)) continue;
-          GrainChoice g = selector_.choose(i, j, k, s);
-          fn(GrainInstance{c, R_, g.prototype, g.rotation, {i, j, k}, s});
+          GrainChoice g = selector_.choose(i, j, k, s, tile_.sizeClass(s));
+          fn(GrainInstance{c, R_ * tile_.size(s), g.prototype, g.rotation, {i, j, k}, s});
         }
       }
 }

@@ -37,6 +37,7 @@ struct GrainHit {
   int prototype = -1;
   int64_t cell[3] = {0, 0, 0};
   int sphere = -1;
+  float radius = 0;        // the grain's bounding radius (polydisperse: its own)
 };
 
 // One grain, as the brute-force reference and the exporters see it.
@@ -87,7 +88,9 @@ class Aggregate {
 
   const std::string& name() const { return name_; }
   const Bounds3& bounds() const { return bounds_; }
+  // The radius of size 1 (AggregateDesc::grainRadius), and the largest grain's.
   float grainRadius() const { return R_; }
+  float maxGrainRadius() const { return Rmax_; }
   float cellSize() const { return L_; }
   const Tile& tile() const { return tile_; }
   const std::vector<GrainPrototype>& prototypes() const { return prototypes_; }
@@ -102,6 +105,7 @@ class Aggregate {
     Vec3 center;            // relative to the cell's origin, world units
     int8_t home[3];         // offset of the cell that holds the centre
     int id;                 // sphere index in the tile
+    float radius;           // world units
   };
   bool sphereIsInside(const int64_t home[3], const Vec3& worldCenter) const;
   // The sub-cell walk of intersect() through one non-outside (partial or inside) cell
@@ -118,13 +122,14 @@ class Aggregate {
 
   EmbreeDevice device_;  // first: it outlives the BVHs below (scenes share aggregates)
   std::string name_;
-  float R_ = 0, L_ = 0, f_ = 0;
+  float R_ = 0, Rmax_ = 0, L_ = 0, f_ = 0;
   Tile tile_;
   std::vector<TileSphere> spheres_;
   int sub_ = 1;                        // sub-cells per cell edge
   std::vector<uint32_t> subStart_;     // per sub-cell, its first entry in subList_ (CSR)
   std::vector<uint32_t> subList_;      // indices into spheres_
   std::vector<float> subX_, subY_, subZ_;  // their centres (parallel to subList_)
+  std::vector<float> subR2_;               // and squared radii
   static constexpr uint32_t kMaxSubList = 256;  // longest list (M >= 1 keeps it far below)
   std::vector<GrainPrototype> prototypes_;
   std::vector<int> prototypeMaterials_;

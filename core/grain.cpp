@@ -1,5 +1,7 @@
 #include "grain.h"
 
+#include <algorithm>
+
 namespace granular {
 
 namespace {
@@ -53,6 +55,35 @@ GrainPrototype makeGrainPrototype(const EmbreeDevice& device, const GrainPrototy
   return p;
 }
 
-GrainSelector::GrainSelector(const std::vector<float>& weights, uint64_t seed) : weights_(weights), seed_(seed) {}
+SizeClasses sizeClassesOf(const AggregateDesc& desc) {
+  SizeClasses c;
+  for (size_t i = 0; i < desc.weights.size(); ++i) {
+    const float s = desc.sizes.empty() ? 1.0f : desc.sizes[i];
+    if (!(desc.weights[i] > 0)) {
+      c.classOf.push_back(-1);
+      continue;
+    }
+    auto it = std::find(c.size.begin(), c.size.end(), s);
+    if (it == c.size.end()) {
+      c.size.push_back(s);
+      c.weight.push_back(0.0);
+      it = c.size.end() - 1;
+    }
+    const int k = int(it - c.size.begin());
+    c.weight[size_t(k)] += desc.weights[i];
+    c.classOf.push_back(k);
+  }
+  return c;
+}
+
+GrainSelector::GrainSelector(const std::vector<float>& weights, const SizeClasses& classes, uint64_t seed)
+    : classOf_(classes.classOf), seed_(seed) {
+  for (size_t k = 0; k < classes.size.size(); ++k) {
+    std::vector<float> w(weights.size(), 0.0f);
+    for (size_t i = 0; i < weights.size(); ++i)
+      if (classes.classOf[i] == int(k)) w[i] = weights[i];
+    perClass_.emplace_back(w);
+  }
+}
 
 }  // namespace granular

@@ -5,7 +5,8 @@
 // a grain of bounding radius R at centre c with rotation Q maps a local point q to
 // c + R Q q. GrainSelector draws a grain's prototype (by the mixing weights) and its
 // uniform random rotation from a hash of (tile cell, sphere id, seed): deterministic,
-// nothing stored per grain.
+// nothing stored per grain. Polydisperse aggregates: a tile sphere belongs to a size class
+// (packing.h), and its grain is drawn among the prototypes of that size, by their weights.
 #pragma once
 
 #include <string>
@@ -37,23 +38,40 @@ struct GrainChoice {
   Mat3 rotation;
 };
 
+// An aggregate's size classes: its distinct prototype sizes (AggregateDesc::sizes, 1 when
+// empty) among prototypes of weight > 0, in order of first appearance, each with the summed
+// weight of its prototypes; classOf[i] is prototype i's class (-1: weight 0, never drawn).
+// One class of size 1 is the monodisperse aggregate.
+struct SizeClasses {
+  std::vector<float> size;
+  std::vector<double> weight;
+  std::vector<int> classOf;
+};
+SizeClasses sizeClassesOf(const AggregateDesc& desc);
+
 class GrainSelector {
  public:
   GrainSelector() = default;
-  GrainSelector(const std::vector<float>& weights, uint64_t seed);
-  // cell: the tile cell holding the sphere's centre; sphere: its index in the tile.
-  GrainChoice choose(int64_t cx, int64_t cy, int64_t cz, int sphere) const {
+  GrainSelector(const std::vector<float>& weights, const SizeClasses& classes, uint64_t seed);
+  // cell: the tile cell holding the sphere's centre; sphere: its index in the tile; cls:
+  // its size class.
+  GrainChoice choose(int64_t cx, int64_t cy, int64_t cz, int sphere, int cls = 0) const {
     uint64_t h = hashInts(seed_, uint64_t(cx), uint64_t(cy), uint64_t(cz), uint64_t(sphere));
     GrainChoice c;
-    c.prototype = weights_.sampleDiscrete(toUnitFloat(h));
+    c.prototype = perClass_[size_t(cls)].sampleDiscrete(toUnitFloat(h));
     uint64_t h2 = mix64(h + 1), h3 = mix64(h + 2);
     c.rotation = sampleUniformRotation(toUnitFloat(h2), toUnitFloat(h2 << 24), toUnitFloat(h3));
     return c;
   }
-  float probability(int prototype) const { return weights_.discreteProb(prototype); }
+  // Probability of the prototype in a sphere of its class.
+  float probability(int prototype) const {
+    int c = classOf_[size_t(prototype)];
+    return c < 0 ? 0.0f : perClass_[size_t(c)].discreteProb(prototype);
+  }
 
  private:
-  Distribution1D weights_;
+  std::vector<Distribution1D> perClass_;  // over all prototypes, the other classes' at 0
+  std::vector<int> classOf_;
   uint64_t seed_ = 0;
 };
 

@@ -16,7 +16,8 @@ namespace granular {
 
 namespace {
 
-const char* const kAggregatePrimvars[] = {"grainRadius", "packingRate", "prototypes", "weights", "seed", "tileSpheres"};
+const char* const kAggregatePrimvars[] = {"grainRadius", "packingRate", "prototypes", "weights",
+                                          "seed",        "tileSpheres", "sizes",      "sizeSpread"};
 const char* const kGrainPrimvars[] = {"ior", "absorption", "roughness"};
 
 std::string usdName(const std::string& base) { return kGranularNamespace + base; }
@@ -433,6 +434,8 @@ class Assembler {
     a.packingRate = v.packingRate;
     a.seed = uint64_t(v.seed);
     a.tileSpheres = int(std::clamp<int64_t>(v.tileSpheres, INT_MIN, INT_MAX));
+    a.sizes = v.sizes;
+    a.sizeSpread = v.sizeSpread;
     a.id = prim.id;
     std::vector<Transform> xfs = prim.instances.empty() ? std::vector<Transform>(1) : prim.instances;
     for (const Transform& xf : xfs) {
@@ -540,6 +543,8 @@ AggregateValues readAggregateValues(const MeshPrim& prim) {
     v.weights.assign(x->numbers.begin(), x->numbers.end());
   if (const PrimvarValue* x = typed(prim, "seed", Kind::Int)) v.seed = toInt64(x->numbers[0]);
   if (const PrimvarValue* x = typed(prim, "tileSpheres", Kind::Int)) v.tileSpheres = toInt64(x->numbers[0]);
+  if (const PrimvarValue* x = typed(prim, "sizes", Kind::FloatArray)) v.sizes.assign(x->numbers.begin(), x->numbers.end());
+  if (const PrimvarValue* x = typed(prim, "sizeSpread", Kind::Float)) v.sizeSpread = float(x->numbers[0]);
   return v;
 }
 

@@ -101,6 +101,8 @@ struct AggregateValues {
   std::vector<float> weights;  // as authored: [] = equal
   int64_t seed = 1;
   int64_t tileSpheres = 512;
+  std::vector<float> sizes;  // as authored: [] = all 1
+  float sizeSpread = 0;
 };
 AggregateValues readAggregateValues(const MeshPrim& prim);
 

@@ -95,7 +95,11 @@ double contactTime(const double dx[3], const double dv[3], double D, double g) {
 class LsSystem {
  public:
   // dStop: diameter at which growth stops; gamma: dimensionless growth rate.
-  LsSystem(int n, double dStop, double gamma, uint64_t seed) : n_(n), dStop_(dStop) {
+  // a: each sphere's diameter relative to the largest (empty: all 1); a pair touches when
+  // its centres are (a_i + a_j)/2 · D apart, D the largest diameter.
+  LsSystem(int n, double dStop, double gamma, uint64_t seed, std::vector<double> a = {})
+      : n_(n), dStop_(dStop), a_(std::move(a)) {
+    if (a_.empty()) a_.assign(size_t(n), 1.0);
     g_ = gamma * dStop;
     tStop_ = dStop_ / g_;
     // Cells at least one final diameter wide (with a margin for rounding), and not many more
@@ -217,7 +221,7 @@ class LsSystem {
         best.dir = int8_t(a.v[k] > 0 ? 1 : -1);
       }
     }
-    const double D = diameter();
+    const double Dmax = diameter();
     // The 27 neighbour cells of the infinite periodic grid; with fewer than 3 cells a side the
     // same cell appears under different shifts, i.e. as different images, as it should.
     for (int dz = -1; dz <= 1; ++dz)
@@ -233,6 +237,8 @@ class LsSystem {
           for (int j : cells_[cellIndex(c)]) {
             if (j == i) continue;  // own images stay >= 1 apart, and D <= 1 is checked up front
             const Sphere& b = s_[j];
+            const double pair = 0.5 * (a_[size_t(i)] + a_[size_t(j)]);  // exactly 1 for equal spheres
+            const double D = pair * Dmax, g = pair * g_;
             double xb[3], d[3], dv[3];
             positionAt(b, now_, xb);
             for (int k = 0; k < 3; ++k) {
@@ -240,13 +246,13 @@ class LsSystem {
               dv[k] = b.v[k] - a.v[k];
             }
             // Cheap rejections first; contactTime is the exact answer for the rest.
-            double B = d[0] * dv[0] + d[1] * dv[1] + d[2] * dv[2] - D * g_;
-            double A = dv[0] * dv[0] + dv[1] * dv[1] + dv[2] * dv[2] - g_ * g_;
+            double B = d[0] * dv[0] + d[1] * dv[1] + d[2] * dv[2] - D * g;
+            double A = dv[0] * dv[0] + dv[1] * dv[1] + dv[2] * dv[2] - g * g;
             if (B >= 0 && A >= 0) continue;  // separating faster than the surfaces grow
             // For A >= 0 the contact time is at least C / (-2B): skip if that is too late.
             double C = d[0] * d[0] + d[1] * d[1] + d[2] * d[2] - D * D;
             if (A >= 0 && C > 0 && C >= -2.0 * B * (best.t - now_)) continue;
-            double t = now_ + contactTime(d, dv, D, g_);
+            double t = now_ + contactTime(d, dv, D, g);
             if (t < best.t) {
               best.t = t;
               best.j = j;
@@ -295,10 +301,12 @@ class LsSystem {
     if (!(len > 0)) return;
     double u = 0;
     for (int k = 0; k < 3; ++k) u += (b.v[k] - a.v[k]) * d[k] / len;
+    // The pair's contact distance grows at g = (a_i + a_j)/2 · g_.
+    const double pair = 0.5 * (a_[size_t(i)] + a_[size_t(j)]), g = pair * g_;
     // Never leave a pair that would touch again at once (rounding, grazing contacts): the
     // floor keeps the contact-time numerator B = |d| u' - D g clearly positive.
-    double uMin = g_ * diameter() / len + 1e-3 * g_;
-    double u2 = std::max(u, std::max(2.0 * g_ - u, uMin));
+    double uMin = g * pair * diameter() / len + 1e-3 * g;
+    double u2 = std::max(u, std::max(2.0 * g - u, uMin));
     double impulse = 0.5 * (u2 - u);
     for (int k = 0; k < 3; ++k) {
       a.v[k] -= impulse * d[k] / len;
@@ -330,6 +338,7 @@ class LsSystem {
 
   int n_;
   double dStop_;
+  std::vector<double> a_;  // relative diameters
   double g_ = 0;       // diameter growth per unit time
   double d0_ = 0;      // diameter at time 0 of the current epoch
   double now_ = 0;
@@ -353,7 +362,7 @@ double pairDistance(const Vec3& a, const Vec3& b) {
 // Same quantity as minPeriodicGap, with a cell grid so it is cheap enough to run on every tile.
 double minPeriodicGapFast(const Tile& t) {
   int n = int(t.centers.size());
-  double D = 2.0 * t.radius;
+  const double r = t.radius, D = 2.0 * r * t.maxSize();
   int nc = D > 0 ? int(std::floor(1.0 / (D * (1.0 + 1e-9)))) : 1;
   nc = std::min(nc, std::max(1, int(std::cbrt(2.0 * n))));
   if (nc < 3) return minPeriodicGap(t);
@@ -374,7 +383,7 @@ double minPeriodicGapFast(const Tile& t) {
         for (int dx = -1; dx <= 1; ++dx) {
           int idx = (((cz + dz + nc) % nc) * nc + (cy + dy + nc) % nc) * nc + (cx + dx + nc) % nc;
           for (int j = head[idx]; j >= 0; j = next[j])
-            if (j > i) best = std::min(best, pairDistance(c, t.centers[j]) - D);
+            if (j > i) best = std::min(best, pairDistance(c, t.centers[j]) - r * (double(t.size(i)) + t.size(j)));
         }
   }
   return best;
@@ -382,7 +391,7 @@ double minPeriodicGapFast(const Tile& t) {
 
 // Cache entry layout (native endianness; a cache is per machine).
 constexpr char kMagic[8] = {'G', 'R', 'T', 'I', 'L', 'E', '\0', '\0'};
-constexpr uint32_t kTileFormatVersion = 1;
+constexpr uint32_t kTileFormatVersion = 3;  // 2: sizes and classes of polydisperse tiles; 3: stratified sizes
 
 uint64_t checksum(const char* data, size_t size) {
   uint64_t h = mix64(size);
@@ -396,8 +405,16 @@ uint64_t bitsOf(double d) {
   return b;
 }
 
-std::string cacheName(int n, double targetF, uint64_t seed) {
-  return str("tile-v", kTileFormatVersion, "-n", n, "-f", std::hex, bitsOf(targetF), "-s", seed, ".bin");
+uint64_t sizesKey(const TileSizes& z) {
+  if (z.monodisperse()) return 0;
+  uint64_t h = hashInts(z.classSize.size(), bitsOf(z.spread));
+  for (size_t c = 0; c < z.classSize.size(); ++c) h = hashInts(h, bitsOf(z.classSize[c]), bitsOf(z.classWeight[c]));
+  return h;
+}
+
+std::string cacheName(int n, double targetF, uint64_t seed, const TileSizes& z) {
+  return str("tile-v", kTileFormatVersion, "-n", n, "-f", std::hex, bitsOf(targetF), "-s", seed, "-z", sizesKey(z),
+             ".bin");
 }
 
 std::vector<char> serialise(const Tile& t, double targetF) {
@@ -413,12 +430,17 @@ std::vector<char> serialise(const Tile& t, double targetF) {
     appendBytes(out, c.y);
     appendBytes(out, c.z);
   }
+  appendBytes(out, uint32_t(t.sizes.size()));
+  for (size_t k = 0; k < t.sizes.size(); ++k) {
+    appendBytes(out, t.sizes[k]);
+    appendBytes(out, t.classes[k]);
+  }
   appendBytes(out, checksum(out.data(), out.size()));
   return out;
 }
 
-bool deserialise(const std::vector<char>& in, int n, double targetF, uint64_t seed, Tile& t) {
-  size_t expected = sizeof kMagic + 4 + 4 + 8 + 8 + 8 + 8 + size_t(n) * 12 + 8;
+bool deserialise(const std::vector<char>& in, int n, double targetF, uint64_t seed, bool poly, Tile& t) {
+  size_t expected = sizeof kMagic + 4 + 4 + 8 + 8 + 8 + 8 + size_t(n) * 12 + 4 + (poly ? size_t(n) * 5 : 0) + 8;
   if (in.size() != expected || std::memcmp(in.data(), kMagic, sizeof kMagic) != 0) return false;
   uint64_t sum;
   std::memcpy(&sum, in.data() + expected - 8, 8);
@@ -444,34 +466,138 @@ bool deserialise(const std::vector<char>& in, int n, double targetF, uint64_t se
     for (int k = 0; k < 3; ++k)
       if (!(c[k] >= 0.0f && c[k] < 1.0f)) return false;
   }
+  uint32_t sized;
+  readBytes(in, pos, sized);
+  if (sized != (poly ? uint32_t(n) : 0u)) return false;
+  t.sizes.resize(sized);
+  t.classes.resize(sized);
+  for (size_t k = 0; k < sized; ++k) {
+    readBytes(in, pos, t.sizes[k]);
+    readBytes(in, pos, t.classes[k]);
+    if (!(t.sizes[k] > 0 && t.sizes[k] < 1e3f)) return false;
+  }
   return true;
+}
+
+// Each sphere's class and size: classes by number (largest remainder, every class with a
+// weight > 0 at least one sphere), sizes spread uniformly within a class — stratified (the
+// midpoints of n_c equal quantiles, shuffled), so that a class of a few dozen spheres
+// already has the spread's moments (random draws of 38 spheres missed E[s³]/E[s²] by 3%,
+// which the medium, derived from the distribution, then missed too).
+void assignSizes(int n, const TileSizes& z, uint64_t seed, Tile& t) {
+  const size_t nc = z.classSize.size();
+  double wsum = 0;
+  for (double w : z.classWeight) wsum += w;
+  std::vector<int> count(nc, 0);
+  std::vector<std::pair<double, size_t>> remainders;
+  int assigned = 0;
+  for (size_t c = 0; c < nc; ++c) {
+    double share = n * z.classWeight[c] / wsum;
+    count[c] = int(std::floor(share));
+    if (z.classWeight[c] > 0 && count[c] == 0) count[c] = 1;
+    assigned += count[c];
+    remainders.push_back({-(share - std::floor(share)), c});
+  }
+  std::sort(remainders.begin(), remainders.end());
+  for (size_t k = 0; assigned < n; k = (k + 1) % nc)
+    if (z.classWeight[remainders[k].second] > 0) ++count[remainders[k].second], ++assigned;
+  for (size_t c = nc; assigned > n && c-- > 0;)  // the minimum of one made too many
+    while (assigned > n && count[c] > 1) --count[c], --assigned;
+  t.sizes.clear();
+  t.classes.clear();
+  for (size_t c = 0; c < nc; ++c) {
+    std::vector<int> order(size_t(count[c]));
+    for (int k = 0; k < count[c]; ++k) order[size_t(k)] = k;
+    for (int k = count[c] - 1; k > 0; --k) {  // Fisher–Yates, seeded
+      const uint64_t h = hashInts(seed, 0x53495a45u /* "SIZE" */, c, uint64_t(k));
+      std::swap(order[size_t(k)], order[size_t(h % uint64_t(k + 1))]);
+    }
+    for (int k = 0; k < count[c]; ++k) {
+      const double u = (order[size_t(k)] + 0.5) / count[c];
+      t.sizes.push_back(float(z.classSize[c] * (1.0 + z.spread * (2.0 * u - 1.0))));
+      t.classes.push_back(uint8_t(c));
+    }
+  }
 }
 
 }  // namespace
 
-Tile generateTile(int n, double targetF, uint64_t seed) {
+float Tile::maxSize() const {
+  float m = sizes.empty() ? 1.0f : 0.0f;
+  for (float x : sizes) m = std::max(m, x);
+  return m;
+}
+
+double Tile::sauterSize() const {
+  double s2 = 0, s3 = 0;
+  for (int k = 0; k < numSpheres; ++k) {
+    const double x = size(k);
+    s2 += x * x;
+    s3 += x * x * x;
+  }
+  return s2 > 0 ? s3 / s2 : 1.0;
+}
+
+bool TileSizes::monodisperse() const {
+  return classSize.empty() || (classSize.size() == 1 && classSize[0] == 1.0 && spread == 0);
+}
+
+namespace {
+
+void checkTileInputs(int n, double targetF, const TileSizes& z) {
   if (!(targetF > 0 && targetF <= kMaxPackingRate))
     throw InputError("tile", "packingRate", str(targetF, " is outside (0, ", kMaxPackingRate, "]"));
   if (n < 1 || n > kMaxSpheres)
     throw InputError("tile", "numSpheres", str(n, " is outside [1, ", kMaxSpheres, "]"));
+  if (z.monodisperse()) return;
+  if (z.classWeight.size() != z.classSize.size())
+    throw InputError("tile", "sizes", str(z.classWeight.size(), " weights for ", z.classSize.size(), " size classes"));
+  if (int(z.classSize.size()) > std::min(n, TileSizes::kMaxClasses))
+    throw InputError("tile", "sizes", str(z.classSize.size(), " size classes for ", n, " spheres (at most ",
+                                          std::min(n, TileSizes::kMaxClasses), ")"));
+  double wsum = 0;
+  for (size_t c = 0; c < z.classSize.size(); ++c) {
+    if (!(z.classSize[c] >= 0.01 && z.classSize[c] <= 100))
+      throw InputError("tile", "sizes", str("size ", z.classSize[c], " is outside [0.01, 100]"));
+    if (!(std::isfinite(z.classWeight[c]) && z.classWeight[c] >= 0))
+      throw InputError("tile", "sizes", str("weight ", z.classWeight[c], " must be finite and >= 0"));
+    wsum += z.classWeight[c];
+  }
+  if (!(wsum > 0)) throw InputError("tile", "sizes", "the size classes' weights are all zero");
+  if (!(z.spread >= 0 && z.spread <= 0.5)) throw InputError("tile", "sizeSpread", str(z.spread, " is outside [0, 0.5]"));
+}
 
-  const double radius = std::cbrt(3.0 * targetF / (4.0 * kPiD * n));
-  // Grow a hair past 2r so that every gap at radius r is at least the float rounding of the
-  // stored centres; the reported radius is exactly the requested one.
-  const double D = 2.0 * radius;
+}  // namespace
+
+Tile generateTile(int n, double targetF, uint64_t seed, const TileSizes& sizes) {
+  checkTileInputs(n, targetF, sizes);
+  Tile shape;  // sizes and classes, before any position
+  if (!sizes.monodisperse()) assignSizes(n, sizes, seed, shape);
+  double sumCubes = 0;
+  for (int k = 0; k < n; ++k) sumCubes += std::pow(double(shape.size(k)), 3);
+  const double sMax = shape.maxSize();
+  // Reference radius r (size 1) at the target: f = (4/3)π r³ Σ s_k³.
+  const double radius = std::cbrt(3.0 * targetF / (4.0 * kPiD * sumCubes));
+  std::vector<double> rel;  // diameters relative to the largest
+  if (!shape.sizes.empty())
+    for (float x : shape.sizes) rel.push_back(double(x) / sMax);
+  // Grow a hair past the largest diameter so that every gap at radius r is at least the
+  // float rounding of the stored centres; the reported radius is exactly the requested one.
+  const double D = 2.0 * radius * sMax;
   const double dStop = D + std::max(1e-9 * D, 2.0 * kFloatRoundingGap);
   if (dStop > 1.0)
     throw InputError("tile", "numSpheres",
                      str(n, " sphere(s) cannot reach packing rate ", targetF, ": a sphere would not fit in the tile"));
+  auto rateOf = [&](double r) { return (4.0 / 3.0) * kPiD * r * r * r * sumCubes; };
 
   double gamma = kGrowthRate, jammedAt = 0;
   for (int attempt = 0; attempt < kAttempts; ++attempt, gamma /= kSlowdown) {
-    LsSystem sys(n, dStop, gamma, seed);
+    LsSystem sys(n, dStop, gamma, seed, rel);
     if (!sys.run()) {
-      jammedAt = std::max(jammedAt, packingRateOf(n, 0.5 * sys.diameter()));
+      jammedAt = std::max(jammedAt, rateOf(0.5 * sys.diameter() / sMax));
       continue;
     }
-    Tile tile;
+    Tile tile = shape;
     tile.numSpheres = n;
     tile.radius = radius;
     tile.seed = seed;
@@ -488,11 +614,13 @@ Tile generateTile(int n, double targetF, uint64_t seed) {
     // Safety net: the margin above makes this a no-op; shrink rather than hand out overlaps.
     double gap = minPeriodicGapFast(tile);
     if (gap < 0) {
-      tile.radius = std::nextafter(radius + 0.5 * gap, 0.0);
-      if (!(std::fabs(packingRateOf(n, tile.radius) - targetF) <= 1e-6 * targetF))
+      // Every pair's gap is >= gap, and its radii sum >= 2 s_min: this radius clears all.
+      double sMin = shape.sizes.empty() ? 1.0 : double(*std::min_element(shape.sizes.begin(), shape.sizes.end()));
+      tile.radius = std::nextafter(radius + 0.5 * gap / sMin, 0.0);
+      if (!(std::fabs(rateOf(tile.radius) - targetF) <= 1e-6 * targetF))
         throw std::runtime_error(str("tile: spheres overlap by ", -gap, " after growth (a bug)"));
     }
-    tile.packingRate = packingRateOf(n, tile.radius);
+    tile.packingRate = rateOf(tile.radius);
     return tile;
   }
   throw InputError("tile", "packingRate",
@@ -500,17 +628,14 @@ Tile generateTile(int n, double targetF, uint64_t seed) {
                        " (random close packing is about 0.64); use a lower packing rate or more spheres"));
 }
 
-Tile loadOrGenerateTile(int n, double targetF, uint64_t seed) {
+Tile loadOrGenerateTile(int n, double targetF, uint64_t seed, const TileSizes& sizes) {
   // Validate first so that bad input never touches the cache.
-  if (!(targetF > 0 && targetF <= kMaxPackingRate))
-    throw InputError("tile", "packingRate", str(targetF, " is outside (0, ", kMaxPackingRate, "]"));
-  if (n < 1 || n > kMaxSpheres)
-    throw InputError("tile", "numSpheres", str(n, " is outside [1, ", kMaxSpheres, "]"));
-  const std::string name = cacheName(n, targetF, seed);
+  checkTileInputs(n, targetF, sizes);
+  const std::string name = cacheName(n, targetF, seed, sizes);
   std::vector<char> bytes;
   Tile tile;
-  if (readCacheFile(name, bytes) && deserialise(bytes, n, targetF, seed, tile)) return tile;
-  tile = generateTile(n, targetF, seed);
+  if (readCacheFile(name, bytes) && deserialise(bytes, n, targetF, seed, !sizes.monodisperse(), tile)) return tile;
+  tile = generateTile(n, targetF, seed, sizes);
   writeCacheFile(name, serialise(tile, targetF));
   return tile;
 }
@@ -518,10 +643,11 @@ Tile loadOrGenerateTile(int n, double targetF, uint64_t seed) {
 double minPeriodicGap(const Tile& t) {
   size_t n = t.centers.size();
   if (n == 0) return kInfD;
-  double D = 2.0 * t.radius;
-  double best = 1.0 - D;  // each sphere against its own images one tile away
+  const double r = t.radius;
+  double best = 1.0 - 2.0 * r * t.maxSize();  // each sphere against its own images one tile away
   for (size_t i = 0; i < n; ++i)
-    for (size_t j = i + 1; j < n; ++j) best = std::min(best, pairDistance(t.centers[i], t.centers[j]) - D);
+    for (size_t j = i + 1; j < n; ++j)
+      best = std::min(best, pairDistance(t.centers[i], t.centers[j]) - r * (double(t.size(int(i))) + t.size(int(j))));
   return best;
 }
 

@@ -70,7 +70,8 @@ bool sameTransform(const Transform& a, const Transform& b) {
 bool sameAggregate(const AggregateDesc& a, const AggregateDesc& b) {
   if (a.name != b.name || !sameMesh(a.boundary, b.boundary) || !sameTransform(a.xf, b.xf) || a.weights != b.weights ||
       a.grainRadius != b.grainRadius || a.packingRate != b.packingRate || a.seed != b.seed ||
-      a.tileSpheres != b.tileSpheres || a.prototypes.size() != b.prototypes.size())
+      a.tileSpheres != b.tileSpheres || a.sizes != b.sizes || a.sizeSpread != b.sizeSpread ||
+      a.prototypes.size() != b.prototypes.size())
     return false;
   for (size_t i = 0; i < a.prototypes.size(); ++i)
     if (a.prototypes[i].name != b.prototypes[i].name || a.prototypes[i].material != b.prototypes[i].material ||
@@ -283,14 +284,18 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc, const Scene* previous
     const Aggregate& agg = *entry.aggregate;
     s->aggregateId_.push_back(a.id);
     all.extend(agg.bounds());
-    s->maxGrainRadius_ = std::max(s->maxGrainRadius_, agg.grainRadius());
+    s->maxGrainRadius_ = std::max(s->maxGrainRadius_, agg.maxGrainRadius());
     if (desc.settings.technique != Technique::Ept) {
       if (!entry.hasMedium) {
-        // TT parameters per prototype (cached on disk), combined per aggregate (seed §2.2).
-        std::vector<GrainTransport> gts;
-        for (size_t i = 0; i < agg.prototypes().size(); ++i)
-          gts.push_back(estimateGrainTransport(agg.prototypes()[i].mesh, s->materials_[entry.materials[i]]));
-        entry.medium = deriveMedium(gts, a.weights, a.grainRadius, a.packingRate);
+        // TT parameters per grain kind (cached on disk), combined per aggregate (seed §2.2;
+        // tt.h: aggregateMedium), the flights between spheres by the tile's own sizes.
+        std::vector<const TriangleMesh*> meshes;
+        std::vector<Material> mats;
+        for (size_t i = 0; i < agg.prototypes().size(); ++i) {
+          meshes.push_back(&agg.prototypes()[i].mesh);
+          mats.push_back(s->materials_[entry.materials[i]]);
+        }
+        entry.medium = aggregateMedium(meshes, mats, a, agg.tile().sauterSize());
         entry.hasMedium = true;
         ++s->mediaDerived_;
       }
@@ -428,9 +433,9 @@ bool Scene::intersect(const Ray& ray, Hit& hit) const {
       hit.aggregate = int(a);
       const Aggregate& agg = *aggregates_[a];
       hit.material = agg.prototypes()[g.prototype].material;
-      hit.lengthScale = agg.grainRadius();
+      hit.lengthScale = agg.grainRadius();  // absorption is per R, whatever the grain's size
       hit.primId = aggregateId_[a];
-      hit.eps = 2e-4f * agg.grainRadius();
+      hit.eps = 2e-4f * g.radius;
     }
   }
   found |= intersectAreaLights(ray, hit, tmax);

@@ -276,6 +276,21 @@ void validateAggregateParameters(const AggregateDesc& a, const std::string& obj)
     anyPositive |= w > 0;
   }
   if (!anyPositive) throw InputError(obj, "weights", "are all zero");
+  if (!a.sizes.empty()) {
+    if (a.sizes.size() != a.prototypes.size())
+      throw InputError(obj, "sizes", str("has ", a.sizes.size(), " entries but there are ", a.prototypes.size(), " prototypes"));
+    float lo = kInf, hi = 0;
+    for (size_t k = 0; k < a.sizes.size(); ++k) {
+      float x = a.sizes[k];
+      if (!std::isfinite(x) || x < 0.1f || x > 10.0f)
+        throw InputError(obj, "sizes", str("size ", k, " = ", x, " is outside [0.1, 10]"));
+      if (a.weights[k] > 0) lo = std::min(lo, x), hi = std::max(hi, x);
+    }
+    if (hi > 10.0f * lo)
+      throw InputError(obj, "sizes", str("the largest grain (", hi, ") is more than 10 times the smallest (", lo, ")"));
+  }
+  if (!std::isfinite(a.sizeSpread) || a.sizeSpread < 0 || a.sizeSpread > 0.5f)
+    throw InputError(obj, "sizeSpread", str(a.sizeSpread, " is outside [0, 0.5]"));
 }
 
 Technique techniqueFromName(const std::string& name, const std::string& obj) {

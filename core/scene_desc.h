@@ -130,8 +130,15 @@ struct AggregateDesc {
   TriangleMesh boundary;     // closed, object space
   Transform xf;              // object-to-world
   std::vector<GrainPrototypeDesc> prototypes;
-  std::vector<float> weights;  // one per prototype, >= 0, not all zero
-  float grainRadius = 0.01f;   // bounding-sphere radius in world units
+  std::vector<float> weights;  // one per prototype, >= 0, not all zero: a grain's probability (by number)
+  float grainRadius = 0.01f;   // bounding-sphere radius in world units (of size 1)
+  // Polydisperse grains: each prototype's bounding radius relative to grainRadius (empty:
+  // all 1; [0.1, 10], the largest at most 10 times the smallest), and the spread of each
+  // grain's radius about its prototype's: a factor uniform in [1 − spread, 1 + spread]
+  // ([0, 0.5]). Absorption stays per grainRadius, so a larger grain of one material
+  // absorbs more across (packing.h, tt.h).
+  std::vector<float> sizes;
+  float sizeSpread = 0;
   float packingRate = 0.6f;    // f in (0, 0.64]
   uint64_t seed = 1;
   int tileSpheres = 512;       // spheres per periodic tile

@@ -624,7 +624,7 @@ void parseAggregates(const json& v, SceneDesc& desc, const MaterialIndex& mats, 
     std::string label = itemLabel(a[i], "aggregates", i);
     Obj o(a[i], "aggregates", str("[", i, "]"), label,
           {"name", "boundary", "transform", "grain_radius", "packing_rate", "seed", "tile_spheres", "prototypes",
-           "weights"});
+           "weights", "sizes", "size_spread"});
     checkUnique(seen, label, "aggregates", i);
     AggregateDesc ag;
     ag.name = label;
@@ -656,6 +656,9 @@ void parseAggregates(const json& v, SceneDesc& desc, const MaterialIndex& mats, 
       ag.weights = toFloats(*w, label, "weights");
     else
       ag.weights.assign(ag.prototypes.size(), 1.0f);
+    // Polydisperse grains: each prototype's radius relative to grain_radius, and a spread.
+    if (const json* z = o.find("sizes")) ag.sizes = toFloats(*z, label, "sizes");
+    ag.sizeSpread = o.num("size_spread", ag.sizeSpread);
     desc.aggregates.push_back(std::move(ag));
   }
 }

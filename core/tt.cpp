@@ -388,6 +388,11 @@ GrainTransport estimateGrainTransport(const TriangleMesh& mesh, const Material& 
 
 MediumParams deriveMedium(const std::vector<GrainTransport>& prototypes, const std::vector<float>& weights,
                           float grainRadius, float packingRate) {
+  return deriveMedium(prototypes, weights, std::vector<float>(prototypes.size(), 1.0f), grainRadius, packingRate);
+}
+
+MediumParams deriveMedium(const std::vector<GrainTransport>& prototypes, const std::vector<float>& weights,
+                          const std::vector<float>& sizes, float grainRadius, float packingRate, double sauterSize) {
   const char* obj = "medium";
   if (prototypes.empty()) throw InputError(obj, "prototypes", "no grain prototypes");
   if (weights.size() != prototypes.size())
@@ -398,15 +403,27 @@ MediumParams deriveMedium(const std::vector<GrainTransport>& prototypes, const s
     wsum += w;
   }
   if (!(wsum > 0)) throw InputError(obj, "weights", "all weights are zero");
+  if (sizes.size() != prototypes.size())
+    throw InputError(obj, "sizes", str(sizes.size(), " sizes for ", prototypes.size(), " prototypes"));
+  for (float x : sizes)
+    if (!(std::isfinite(x) && x > 0)) throw InputError(obj, "sizes", str(x, " is not a finite size > 0"));
   if (!(std::isfinite(grainRadius) && grainRadius > 0))
     throw InputError(obj, "grainRadius", str(grainRadius, " is not > 0"));
   if (!(packingRate > 0 && packingRate <= 0.64f))
     throw InputError(obj, "packingRate", str(packingRate, " is outside (0, 0.64]"));
 
-  // Mixture rules of tt.h (a sphere holds prototype i with probability w_i).
+  // Mixture rules of tt.h: a sphere holds prototype i with probability n_i (by number); a
+  // flight meets it with probability w_i = n_i s_i² / Σ n s² (its cross-section), and its
+  // lengths scale with s_i.
   const size_t np = prototypes.size();
-  std::vector<double> w(np);
-  for (size_t i = 0; i < np; ++i) w[i] = weights[i] / wsum;
+  std::vector<double> w(np), sz(np);
+  double area = 0, volume = 0;
+  for (size_t i = 0; i < np; ++i) {
+    sz[i] = sizes[i];
+    area += weights[i] / wsum * sz[i] * sz[i];
+    volume += weights[i] / wsum * sz[i] * sz[i] * sz[i];
+  }
+  for (size_t i = 0; i < np; ++i) w[i] = weights[i] / wsum * sz[i] * sz[i] / area;
   GrainTransport mix;
   double missW = 0, betaVar = 0, deltaVar = 0;
   mix.beta = 0;
@@ -416,8 +433,8 @@ MediumParams deriveMedium(const std::vector<GrainTransport>& prototypes, const s
     mix.beta += w[i] * b;
     betaVar += std::pow(w[i] * p.betaSE, 2);
     missW += w[i] * (1.0 - b);
-    mix.lambdaDelta += w[i] * (1.0 - b) * p.lambdaDelta;
-    deltaVar += std::pow(w[i] * (1.0 - b) * p.lambdaDeltaSE, 2);
+    mix.lambdaDelta += w[i] * (1.0 - b) * p.lambdaDelta * sz[i];
+    deltaVar += std::pow(w[i] * (1.0 - b) * p.lambdaDeltaSE * sz[i], 2);
     mix.rays += p.rays;
     mix.truncated += p.truncated;
   }
@@ -444,8 +461,8 @@ MediumParams deriveMedium(const std::vector<GrainTransport>& prototypes, const s
       a += hw * alpha;
       aVar += std::pow(hw * p.albedoSE[c], 2);
       exitW += ew;
-      ls += ew * p.lambdaS[c];
-      sVar += std::pow(ew * p.lambdaSSE[c], 2);
+      ls += ew * p.lambdaS[c] * sz[i];
+      sVar += std::pow(ew * p.lambdaSSE[c] * sz[i], 2);
       g += ew * p.g[c];
       gVar += std::pow(ew * p.gSE[c], 2);
       if (ew > 0)
@@ -469,7 +486,11 @@ MediumParams deriveMedium(const std::vector<GrainTransport>& prototypes, const s
   mp.grainRadius = grainRadius;
   mp.packingRate = packingRate;
   const double R = grainRadius, f = packingRate;
-  const double sigmaB = 3.0 / (4.0 * R) * f / (1.0 - f);  // Dixmier (seed §2.1.1, NOTES item 2)
+  // Dixmier (seed §2.1.1, NOTES item 2): σ_b = S_v / (4(1−f)), S_v the spheres' area per
+  // volume, 3f/R for equal spheres; of mixed sizes 3f/(R s_32), s_32 = Σ n s³ / Σ n s² the
+  // Sauter mean size (the stereological mean chord 4 V/S of the space between spheres).
+  const double s32 = sauterSize > 0 ? sauterSize : volume / area;
+  const double sigmaB = 3.0 / (4.0 * R * s32) * f / (1.0 - f);
   const double lambdaB = 1.0 / sigmaB;
   mp.sigmaB = float(sigmaB);
   // λ_β = λ_b + (λ_b + λ_δ)(1−β)/β (NOTES item 1); "never" (FLT_MAX) when no ray hits.
@@ -504,6 +525,26 @@ MediumParams deriveMedium(const std::vector<GrainTransport>& prototypes, const s
   mp.phase = mix.phase;
   mp.combined = mix;
   return mp;
+}
+
+MediumParams aggregateMedium(const std::vector<const TriangleMesh*>& prototypeMeshes,
+                             const std::vector<Material>& materials, const AggregateDesc& desc, double sauterSize,
+                             const TTOptions& options) {
+  static const double kNodes[3] = {-0.7745966692414834, 0.0, 0.7745966692414834};
+  static const double kNodeWeights[3] = {5.0 / 18.0, 8.0 / 18.0, 5.0 / 18.0};
+  const bool spread = desc.sizeSpread > 0;
+  std::vector<GrainTransport> kinds;
+  std::vector<float> weights, sizes;
+  for (size_t i = 0; i < prototypeMeshes.size(); ++i)
+    for (int q = spread ? 0 : 1; q < (spread ? 3 : 2); ++q) {
+      const double size = (desc.sizes.empty() ? 1.0 : desc.sizes[i]) * (1.0 + desc.sizeSpread * kNodes[q]);
+      Material m = materials[i];
+      m.absorption = m.absorption * float(size);  // absorption is per R: a larger grain absorbs more across
+      kinds.push_back(estimateGrainTransport(*prototypeMeshes[i], m, options));
+      weights.push_back(float(desc.weights[i] * (spread ? kNodeWeights[q] : 1.0)));
+      sizes.push_back(float(size));
+    }
+  return deriveMedium(kinds, weights, sizes, desc.grainRadius, desc.packingRate, sauterSize);
 }
 
 }  // namespace granular

@@ -45,6 +45,7 @@
 #include "material.h"
 #include "math.h"
 #include "mesh.h"
+#include "scene_desc.h"
 
 namespace granular {
 
@@ -129,5 +130,33 @@ struct MediumParams {
 // radius ≤ 0 or packing rate outside (0, 0.64].
 MediumParams deriveMedium(const std::vector<GrainTransport>& prototypes, const std::vector<float>& weights,
                           float grainRadius, float packingRate);
+
+// Grains of many sizes (polydisperse; Müller et al. 2016 render such mixtures): kind i has
+// number fraction n_i (weights, normalised) and bounding radius s_i R (sizes); its
+// transport is traced in its unit bounding sphere with its absorption scaled by s_i
+// (absorption is per R). A flight between spheres ends in a sphere of kind i with
+// probability proportional to its cross-section, so the mixture above runs over
+//   w_i = n_i s_i² / Σ_j n_j s_j²,
+// and the lengths measured in unit spheres scale by s_i: λ_δ = Σ w_i (1−β_i) s_i λ_δ,i /
+// Σ w_i (1−β_i), λ_s likewise over exiting energy. The flights themselves follow the
+// spheres' surface area per volume S_v (stereology: the mean chord of the space between
+// them is 4(1−f)/S_v), S_v = 3f / (R s_32) with the Sauter mean size s_32 = Σ n s³ / Σ n s²:
+//   σ_b = 3/(4 R s_32) · f/(1−f)
+// (all s_i = 1: Dixmier's formula and the equal-size mixture above). sauterSize > 0 gives
+// s_32 directly (the tile's own spheres); 0 takes it from the kinds. Traced through
+// polydisperse aggregates (test_tt.cpp, TTAggregate), λ_β and λ_t agree with explicit
+// walks within 2%.
+MediumParams deriveMedium(const std::vector<GrainTransport>& kinds, const std::vector<float>& weights,
+                          const std::vector<float>& sizes, float grainRadius, float packingRate,
+                          double sauterSize = 0);
+
+// An aggregate's medium (what Scene::build derives): its prototypes (meshes normalised into
+// their unit bounding spheres, and materials) as grain kinds — each prototype at its size,
+// or with a size spread at the three Gauss–Legendre nodes of the uniform spread, which
+// weigh s² and s³ exactly — traced by estimateGrainTransport (cached) and mixed by
+// deriveMedium with the tile's Sauter mean size.
+MediumParams aggregateMedium(const std::vector<const TriangleMesh*>& prototypeMeshes,
+                             const std::vector<Material>& materials, const AggregateDesc& desc, double sauterSize,
+                             const TTOptions& options = TTOptions());
 
 }  // namespace granular

@@ -14,7 +14,7 @@ ground's st. `animated` is a short shot (frames 1 to 3) for `granular render --f
 (time samples on its transform) and its sun brightens between frames 2 and 3. `macro` is
 a close-up with depth of field (fStop, focusDistance): the front grains of a heap sharp,
 the heap behind them soft. `frosted` is sea glass: rough grains (GranularGrainAPI's
-roughness).
+roughness). `mixture` holds grains of many sizes (GranularAggregateAPI sizes, sizeSpread).
 """
 import math
 import os
@@ -295,8 +295,11 @@ def mixture(path):
     bind(pepper, preview_material(stage, "Pepper", diffuse=(0.05, 0.04, 0.03)))
     heap = mesh_from(stage, "/World/Heap", core.make_lathe(
         [(0.55, 0.0), (0.5, 0.06), (0.38, 0.2), (0.22, 0.33), (0.0, 0.4)], 48))
+    # Grains of many sizes: beads 1.4 times the white rocks, pepper 0.6 of them, every
+    # grain's size spread by ±15% (weights count grains by number).
     schema.apply_aggregate(heap, [red, green, white, pepper], grain_radius=0.009, packing_rate=0.58,
-                           weights=[0.25, 0.25, 0.4, 0.1], seed=5, tile_spheres=512)
+                           weights=[0.15, 0.15, 0.45, 0.25], seed=5, tile_spheres=512,
+                           sizes=[1.4, 1.4, 1.0, 0.6], size_spread=0.15)
     stage.GetRootLayer().Save()
 
 

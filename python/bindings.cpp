@@ -165,6 +165,7 @@ py::dict aggregateInfo(const Aggregate& a, int tileSpheres) {
   d["tile_seconds"] = s.tileSeconds;
   d["sdf_seconds"] = s.sdfSeconds;
   d["grain_radius"] = a.grainRadius();
+  d["max_grain_radius"] = a.maxGrainRadius();
   d["cell_size"] = a.cellSize();
   d["packing_rate"] = a.packingRate();
   d["tile_spheres"] = tileSpheres;
@@ -402,6 +403,8 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("packing_rate", &AggregateDesc::packingRate)
       .def_readwrite("seed", &AggregateDesc::seed)
       .def_readwrite("tile_spheres", &AggregateDesc::tileSpheres)
+      .def_readwrite("sizes", &AggregateDesc::sizes)
+      .def_readwrite("size_spread", &AggregateDesc::sizeSpread)
       .def_readwrite("id", &AggregateDesc::id);
 
   py::enum_<Technique>(m, "Technique")
@@ -500,7 +503,9 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readonly("prototypes", &AggregateValues::prototypes)
       .def_readonly("weights", &AggregateValues::weights)
       .def_readonly("seed", &AggregateValues::seed)
-      .def_readonly("tile_spheres", &AggregateValues::tileSpheres);
+      .def_readonly("tile_spheres", &AggregateValues::tileSpheres)
+      .def_readonly("sizes", &AggregateValues::sizes)
+      .def_readonly("size_spread", &AggregateValues::sizeSpread);
   py::class_<GrainValues>(m, "GrainValues")
       .def_readonly("ior", &GrainValues::ior)
       .def_readonly("absorption", &GrainValues::absorption)

@@ -45,7 +45,10 @@ def _report(scene, built, media):
             "prim": src["prim"],
             "prototypes": src["prototypes"],
             "weights": [_f32(w) for w in a.weights],
+            "sizes": [_f32(x) for x in a.sizes] or [1.0] * len(a.weights),
+            "size_spread": _f32(a.size_spread),
             "grain_radius": _f32(a.grain_radius),
+            "max_grain_radius": _f32(info["max_grain_radius"]),
             "packing_rate": _f32(a.packing_rate),
             "seed": a.seed,
             "tile_spheres": a.tile_spheres,
@@ -80,6 +83,9 @@ def report_lines(r):
     return [
         r["prim"],
         f"  prototypes    {', '.join(r['prototypes'])}  (weights {', '.join(f'{w:g}' for w in r['weights'])})",
+        *([f"  sizes         {', '.join(f'{x:g}' for x in r['sizes'])} x radius, spread ±{r['size_spread']:g} "
+           f"(largest grain {r['max_grain_radius']:.4g})"] if r["size_spread"] > 0 or any(x != 1 for x in r["sizes"])
+          else []),
         f"  grains        ~{r['grains']:.4g}  (radius {r['grain_radius']:g}, packing rate {r['packing_rate']:g}, "
         f"seed {r['seed']})",
         f"  tiles         {t['cells']} of edge {t['edge']:.4g}: {t['inside']} inside, {t['partial']} partial "

@@ -367,7 +367,11 @@ def _feed(h, *values):
 
 
 def _feed_mesh(h, mesh):
-    _feed(h, mesh.points, mesh.indices)
+    _feed(h, mesh.points, mesh.indices, mesh.uvs)
+
+
+def _texture_key(t):
+    return (t.file, t.source, t.wrap_s, t.wrap_t, tuple(t.scale), tuple(t.bias), t.color_space, t.channel)
 
 
 def fingerprint(desc):
@@ -377,7 +381,8 @@ def fingerprint(desc):
     parts = {name: hashlib.blake2b(digest_size=20) for name in (*_SCENE_PARTS, "camera", "settings")}
     h = parts["materials"]
     for m in desc.materials:
-        _feed(h, m.name, m.type, m.albedo, m.ior, m.absorption, m.emission)
+        _feed(h, m.name, m.type, m.albedo, m.ior, m.absorption, m.emission, m.opacity, m.opacity_threshold,
+              _texture_key(m.albedo_texture), _texture_key(m.emission_texture), _texture_key(m.opacity_texture))
     h = parts["meshes"]
     for m in desc.meshes:
         _feed(h, m.name, m.xf, m.material, m.visible, m.id)
@@ -388,7 +393,8 @@ def fingerprint(desc):
               light.angle, light.radius, light.width, light.height, light.texture_file)
     h = parts["aggregates"]
     for a in desc.aggregates:
-        _feed(h, a.name, a.xf, a.weights, a.grain_radius, a.packing_rate, a.seed, a.tile_spheres, a.id)
+        _feed(h, a.name, a.xf, a.weights, a.grain_radius, a.packing_rate, a.seed, a.tile_spheres, a.id,
+              list(a.sizes), a.size_spread)
         _feed_mesh(h, a.boundary)
         for p in a.prototypes:
             _feed(h, p.name, p.material)

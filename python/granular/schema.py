@@ -25,6 +25,8 @@ AGGREGATE_PROPERTIES = {
     "weights": ("float[]", ()),
     "seed": ("int", 1),
     "tileSpheres": ("int", 512),
+    "sizes": ("float[]", ()),
+    "sizeSpread": ("float", 0.0),
 }
 GRAIN_PROPERTIES = {
     "ior": ("float", 1.5),
@@ -51,13 +53,15 @@ def _create(prim, base, table, value):
 
 
 def apply_aggregate(mesh, prototypes, grain_radius=None, packing_rate=None, weights=None, seed=None,
-                    tile_spheres=None, relative_paths=True, author_fallbacks=True):
+                    tile_spheres=None, relative_paths=True, author_fallbacks=True, sizes=None, size_spread=None):
     """Makes `mesh` (a UsdGeom.Mesh or its prim) an aggregate boundary.
 
     prototypes: prims or paths of the grain prototype meshes; written as paths relative
     to the aggregate when relative_paths (they then survive referencing the asset under
     another prim). With author_fallbacks every property is authored, so that Hydra, which
-    does not see schema fallbacks, gets a complete description. Returns the prim.
+    does not see schema fallbacks, gets a complete description — but sizes and size_spread
+    only when given: their fallbacks are the equal-sized grains every renderer assumes.
+    Returns the prim.
     """
     prim = _prim(mesh)
     if not prim.IsA(UsdGeom.Mesh):
@@ -76,9 +80,11 @@ def apply_aggregate(mesh, prototypes, grain_radius=None, packing_rate=None, weig
         "weights": None if weights is None else Vt.FloatArray([float(w) for w in weights]),
         "seed": seed,
         "tileSpheres": tile_spheres,
+        "sizes": None if sizes is None else Vt.FloatArray([float(x) for x in sizes]),
+        "sizeSpread": size_spread,
     }
     for base, value in values.items():
-        if value is None and author_fallbacks:
+        if value is None and author_fallbacks and base not in ("sizes", "sizeSpread"):
             value = AGGREGATE_PROPERTIES[base][1]
             if base == "weights":
                 value = Vt.FloatArray([])

@@ -100,12 +100,13 @@ TEST(Aggregate, GrainsAreExactlyTheSpheresCentredInside) {
   EXPECT_NEAR(counts[0] / total, p, 4 * se);
 }
 
-TEST(Aggregate, RayIntersectionMatchesBruteForceOverEveryGrain) {
-  AggregateDesc d = smallAggregate(0.1f, 0.5f);
+namespace {
+
+void checkRaysAgainstBruteForce(const AggregateDesc& d) {
   Built b(d);
   const Aggregate& a = b.agg;
   // Every grain instantiated explicitly, in world space.
-  struct WorldGrain { std::vector<Vec3> pts; const TriangleMesh* mesh; int64_t cell[3]; int sphere; };
+  struct WorldGrain { std::vector<Vec3> pts; const TriangleMesh* mesh; int64_t cell[3]; int sphere; float radius; };
   std::vector<WorldGrain> grains;
   a.forEachGrain(a.bounds(), [&](const GrainInstance& g) {
     WorldGrain w;
@@ -113,6 +114,7 @@ TEST(Aggregate, RayIntersectionMatchesBruteForceOverEveryGrain) {
     for (const Vec3& q : w.mesh->points) w.pts.push_back(g.center + (g.rotation * q) * g.radius);
     std::copy(g.cell, g.cell + 3, w.cell);
     w.sphere = g.sphere;
+    w.radius = g.radius;
     grains.push_back(std::move(w));
   });
   ASSERT_GT(grains.size(), 100u);
@@ -143,9 +145,42 @@ TEST(Aggregate, RayIntersectionMatchesBruteForceOverEveryGrain) {
     EXPECT_EQ(h.cell[1], bg->cell[1]);
     EXPECT_EQ(h.cell[2], bg->cell[2]);
     EXPECT_NEAR(length(h.ng), 1.0f, 1e-4f);
+    EXPECT_EQ(h.radius, bg->radius);
   }
   EXPECT_GT(hits, 100);
   EXPECT_GT(misses, 5);
+}
+
+}  // namespace
+
+TEST(Aggregate, RayIntersectionMatchesBruteForceOverEveryGrain) { checkRaysAgainstBruteForce(smallAggregate(0.1f, 0.5f)); }
+
+TEST(Aggregate, GrainsOfManySizesIntersectAsTheirOwnSpheres) {
+  // Rocks 1.3 and boxes 0.6 of grainRadius, every grain spread by ±20%: each size class
+  // holds one prototype, so a grain's radius says which it is.
+  AggregateDesc d = smallAggregate(0.08f, 0.5f);
+  d.sizes = {1.3f, 0.6f};
+  d.sizeSpread = 0.2f;
+  {
+    Built b(d);
+    int rocks = 0, boxes = 0;
+    b.agg.forEachGrain(b.agg.bounds(), [&](const GrainInstance& g) {
+      const float s = g.radius / d.grainRadius;
+      if (g.prototype == 0) {
+        ++rocks;
+        EXPECT_GE(s, 1.3f * 0.8f - 1e-5f);
+        EXPECT_LE(s, 1.3f * 1.2f + 1e-5f);
+      } else {
+        ++boxes;
+        EXPECT_GE(s, 0.6f * 0.8f - 1e-5f);
+        EXPECT_LE(s, 0.6f * 1.2f + 1e-5f);
+      }
+    });
+    EXPECT_GT(rocks, 50);
+    EXPECT_GT(boxes, 10);
+    EXPECT_NEAR(b.agg.maxGrainRadius(), d.grainRadius * 1.3f * b.agg.tile().maxSize() / 1.3f, 1e-6f);
+  }
+  checkRaysAgainstBruteForce(d);
 }
 
 TEST(Aggregate, MemoryDoesNotGrowWithGrainsPerTile) {

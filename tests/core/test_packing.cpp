@@ -91,3 +91,98 @@ TEST(Packing, BadRequestsAreInputErrors) {
   EXPECT_THROW(generateTile(0, 0.5, 1), InputError);
   EXPECT_THROW(generateTile(1000000, 0.5, 1), InputError);
 }
+
+// ---- polydisperse tiles ----------------------------------------------------------------
+
+namespace {
+
+double polyRateOf(const Tile& t) {
+  double sum = 0;
+  for (int k = 0; k < t.numSpheres; ++k) sum += std::pow(t.radius * t.size(k), 3);
+  return (4.0 / 3.0) * 3.14159265358979323846 * sum;
+}
+
+// Brute-force gap of two spheres' surfaces, radii from the tile, minimum image.
+double brutePolyGap(const Tile& t) {
+  double best = 1e9;
+  for (int i = 0; i < t.numSpheres; ++i) {
+    best = std::min(best, 1.0 - 2.0 * t.radius * t.size(i));
+    for (int j = i + 1; j < t.numSpheres; ++j) {
+      double d2 = 0;
+      for (int a = 0; a < 3; ++a) {
+        double d = double(t.centers[j][a]) - t.centers[i][a];
+        d -= std::round(d);
+        d2 += d * d;
+      }
+      best = std::min(best, std::sqrt(d2) - t.radius * (double(t.size(i)) + t.size(j)));
+    }
+  }
+  return best;
+}
+
+}  // namespace
+
+TEST(Packing, PolydisperseTilesPackEverySizeWithoutOverlap) {
+  // Half the spheres of size 1, half of size 0.5, each spread by ±20%; f counts both.
+  TileSizes z;
+  z.classSize = {1.0, 0.5};
+  z.classWeight = {1.0, 1.0};
+  z.spread = 0.2;
+  Tile t = generateTile(256, 0.6, 5, z);
+  ASSERT_EQ(t.sizes.size(), 256u);
+  EXPECT_NEAR(polyRateOf(t), 0.6, 1e-6);
+  EXPECT_NEAR(t.packingRate, polyRateOf(t), 1e-12);
+  EXPECT_GE(brutePolyGap(t), -1e-6 * t.radius);
+  EXPECT_NEAR(minPeriodicGap(t), brutePolyGap(t), 1e-12);
+  int small = 0;
+  for (int k = 0; k < 256; ++k) {
+    const double base = t.sizeClass(k) == 0 ? 1.0 : 0.5;
+    small += t.sizeClass(k) == 1;
+    EXPECT_GE(t.size(k), base * 0.8 - 1e-6);
+    EXPECT_LE(t.size(k), base * 1.2 + 1e-6);
+  }
+  EXPECT_EQ(small, 128);  // classes by number
+  // A real jammed-ish packing: the closest pair nearly touches.
+  EXPECT_LT(brutePolyGap(t), 0.05 * t.radius);
+  EXPECT_NEAR(t.maxSize(), 1.2, 0.01);
+  // Deterministic, and the cache keeps sizes and classes.
+  Tile again = generateTile(256, 0.6, 5, z);
+  EXPECT_EQ(again.centers, t.centers);
+  EXPECT_EQ(again.sizes, t.sizes);
+  Tile cached = loadOrGenerateTile(256, 0.6, 5, z), reread = loadOrGenerateTile(256, 0.6, 5, z);
+  EXPECT_EQ(cached.sizes, t.sizes);
+  EXPECT_EQ(reread.classes, t.classes);
+  EXPECT_EQ(reread.centers, t.centers);
+  // Another size mix is another tile (another cache entry).
+  z.spread = 0.1;
+  EXPECT_NE(loadOrGenerateTile(256, 0.6, 5, z).sizes, t.sizes);
+}
+
+TEST(Packing, EqualSizesAreTheMonodisperseTile) {
+  // One class of size 1 without spread is the ordinary tile, bit for bit.
+  TileSizes z;
+  z.classSize = {1.0};
+  z.classWeight = {3.0};
+  Tile a = generateTile(64, 0.5, 3, z), b = generateTile(64, 0.5, 3);
+  EXPECT_EQ(a.centers, b.centers);
+  EXPECT_EQ(a.radius, b.radius);
+  EXPECT_TRUE(a.sizes.empty());
+}
+
+TEST(Packing, SmallClassesGetASphereAndBadSizesAreRefused) {
+  TileSizes z;
+  z.classSize = {1.0, 0.4};
+  z.classWeight = {0.999, 0.001};
+  Tile t = generateTile(64, 0.4, 2, z);
+  int small = 0;
+  for (int k = 0; k < 64; ++k) small += t.sizeClass(k) == 1;
+  EXPECT_EQ(small, 1);
+  z.classWeight = {0, 0};
+  EXPECT_THROW(generateTile(64, 0.4, 2, z), InputError);
+  z.classWeight = {1, 1};
+  z.spread = 0.7;
+  EXPECT_THROW(generateTile(64, 0.4, 2, z), InputError);
+  z.spread = 0;
+  z.classSize = {1.0, -1.0};
+  EXPECT_THROW(generateTile(64, 0.4, 2, z), InputError);
+}

@@ -497,3 +497,20 @@ TEST(SceneIo, TexturesAndTextureCoordinates) {
   EXPECT_CONTAINS(errorIn([](json& k) { k["materials"]["floor"]["opacity"] = 2; }), "floor.opacity: 2 is outside [0, 1]");
   fs::remove_all(dir);
 }
+
+TEST(SceneIo, GrainSizesAndSpread) {
+  json j = base();
+  j["aggregates"][0]["sizes"] = json::parse("[1.0, 0.5]");
+  j["aggregates"][0]["size_spread"] = 0.2;
+  SceneDesc d = parseSceneJson(j.dump(), "scenes/test.json");
+  EXPECT_EQ(d.aggregates[0].sizes, (std::vector<float>{1.0f, 0.5f}));
+  EXPECT_FLOAT_EQ(d.aggregates[0].sizeSpread, 0.2f);
+  EXPECT_CONTAINS(errorAfter([](json& k) { k["aggregates"][0]["sizes"] = json::parse("[1.0]"); }),
+                  "castle.sizes: has 1 entries but there are 2 prototypes");
+  EXPECT_CONTAINS(errorAfter([](json& k) { k["aggregates"][0]["sizes"] = json::parse("[1.0, 0.0]"); }),
+                  "castle.sizes: size 1 = 0 is outside [0.1, 10]");
+  EXPECT_CONTAINS(errorAfter([](json& k) { k["aggregates"][0]["sizes"] = json::parse("[8.0, 0.5]"); }),
+                  "more than 10 times the smallest");
+  EXPECT_CONTAINS(errorAfter([](json& k) { k["aggregates"][0]["size_spread"] = 0.7; }),
+                  "castle.size_spread: 0.7 is outside [0, 0.5]");
+}

@@ -60,7 +60,9 @@ def test_info_reports_grains_tiles_and_transport(capsys):
     assert heap["prim"] == "/World/Heap"
     assert heap["prototypes"] == ["/World/Grains/Red", "/World/Grains/Green", "/World/Grains/White",
                                   "/World/Grains/Pepper"]
-    assert heap["weights"] == [0.25, 0.25, 0.4, 0.1]
+    assert heap["weights"] == pytest.approx([0.15, 0.15, 0.45, 0.25])
+    assert heap["sizes"] == pytest.approx([1.4, 1.4, 1.0, 0.6]) and heap["size_spread"] == pytest.approx(0.15)
+    assert heap["max_grain_radius"] == pytest.approx(0.009 * 1.4 * 1.15, rel=0.02)
     assert heap["grains"] > 10000
     t = heap["tiles"]
     assert t["cells"] >= t["inside"] + t["partial"] and t["partial"] > 0
@@ -75,7 +77,7 @@ def test_info_reports_grains_tiles_and_transport(capsys):
     assert heap["explicit_bounces"] == core.Scene.build(scene.desc).explicit_bounces > 0
     assert main(["info", str(EXAMPLES / "mixture.usda")]) == 0
     text = capsys.readouterr().out
-    for word in ("/World/Heap", "grains", "tiles", "inside", "partial", "TT", "RTE", "mean free path",
+    for word in ("/World/Heap", "grains", "tiles", "inside", "partial", "TT", "RTE", "mean free path", "sizes",
                  f"after {heap['explicit_bounces']} explicit bounces"):
         assert word in text
 

@@ -187,3 +187,23 @@ def test_prototypes_inside_an_instanceable_asset_and_relative_paths_survive_refe
     b = [a for a in scene.desc.aggregates if a.name == "/Shot/CastleB/Castle"][0]
     assert [p.name for p in b.prototypes] == ["/Shot/CastleB/Grains/A", "/Shot/CastleB/Grains/B"]
     assert np.array(b.xf)[0, 3] == pytest.approx(2.0)
+
+
+def test_grain_sizes_and_spread_reach_the_aggregate(tmp_path):
+    """GranularAggregateAPI sizes and sizeSpread (polydisperse grains) in core's terms; the
+    same primvars reach hdGranular through core's granular_prims (one meaning)."""
+    def mutate(stage):
+        api = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/World/Castle"))
+        api.CreatePrimvar("granular:sizes", Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.constant).Set(
+            Vt.FloatArray([1.0, 0.4]))
+        api.CreatePrimvar("granular:sizeSpread", Sdf.ValueTypeNames.Float, UsdGeom.Tokens.constant).Set(0.25)
+
+    scene = read_stage(str(small_scene(tmp_path / "s.usda", mutate)))
+    validate(scene)
+    agg = scene.desc.aggregates[0]
+    assert agg.sizes == pytest.approx([1.0, 0.4])
+    assert agg.size_spread == pytest.approx(0.25)
+    # Unauthored: equal sizes.
+    plain = read_stage(str(small_scene(tmp_path / "p.usda"))).desc.aggregates[0]
+    assert list(plain.sizes) == [] and plain.size_spread == 0
+

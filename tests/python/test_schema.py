@@ -97,7 +97,13 @@ def test_authoring_writes_constant_primvars_that_read_back():
     assert [str(schema.resolve_prototype_path(prim, p)) for p in protos] == ["/World/Grains/A", "/World/Grains/B"]
     # Everything is an authored constant primvar: what Hydra delivers to a delegate.
     authored = {pv.GetPrimvarName() for pv in UsdGeom.PrimvarsAPI(prim).GetPrimvarsWithAuthoredValues()}
-    assert {"granular:" + k for k in schema.AGGREGATE_PROPERTIES} <= authored
+    # (All but sizes and sizeSpread, authored only when given: equal sizes are the default
+    # every renderer assumes.)
+    assert {"granular:" + k for k in schema.AGGREGATE_PROPERTIES if k not in ("sizes", "sizeSpread")} <= authored
+    assert "granular:sizes" not in authored
+    schema.apply_aggregate(box, [a, b], sizes=[1.0, 0.5], size_spread=0.1, author_fallbacks=False)
+    sized = schema.read_aggregate(prim)
+    assert list(sized["sizes"].value) == pytest.approx([1.0, 0.5]) and sized["sizeSpread"].value == pytest.approx(0.1)
     for pv in UsdGeom.PrimvarsAPI(prim).GetPrimvarsWithAuthoredValues():
         assert pv.GetInterpolation() == UsdGeom.Tokens.constant
     v = schema.read_aggregate(prim)
