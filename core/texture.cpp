@@ -10,6 +10,8 @@
 
 #include <cstdio>
 #include <functional>
+#include <map>
+#include <mutex>
 
 #include "cache.h"
 #include "error.h"
@@ -19,14 +21,33 @@ namespace granular {
 
 namespace OIIO = OIIO_NAMESPACE;
 
+// The process's one shared TextureSystem (OIIO's recommended use: one tile cache for every
+// scene). Never destroyed: OIIO 2.4's TextureSystem::destroy deletes through the wrong type
+// (AddressSanitizer: new-delete-type-mismatch inside libOpenImageIO), and a process keeps
+// one anyway. A file rewritten between scenes is invalidated by its modification time.
 struct Textures::System {
   OIIO::TextureSystem* ts = nullptr;
   System() {
-    ts = OIIO::TextureSystem::create(false);  // private to this scene: no state shared between renders
-    ts->attribute("automip", 1);              // MIP-map untiled raw images in memory
-    ts->attribute("max_memory_MB", 1024.0f);
+    static OIIO::TextureSystem* shared = [] {
+      OIIO::TextureSystem* t = OIIO::TextureSystem::create(true);
+      t->attribute("automip", 1);  // MIP-map untiled raw images in memory
+      t->attribute("max_memory_MB", 1024.0f);
+      return t;
+    }();
+    ts = shared;
   }
-  ~System() { OIIO::TextureSystem::destroy(ts); }
+  // Drops the cache's copy of a file rewritten since it was last opened.
+  void refresh(const std::string& file) {
+    static std::mutex mutex;
+    static std::map<std::string, long long> seen;  // file -> modification time (ns)
+    struct stat st;
+    if (stat(file.c_str(), &st) != 0) return;
+    const long long mtime = (long long)st.st_mtim.tv_sec * 1000000000LL + st.st_mtim.tv_nsec;
+    std::lock_guard<std::mutex> lock(mutex);
+    auto it = seen.find(file);
+    if (it != seen.end() && it->second != mtime) ts->invalidate(OIIO::ustring(file), true);
+    seen[file] = mtime;
+  }
 };
 
 namespace {
@@ -115,6 +136,7 @@ int Textures::add(const TextureDesc& desc) {
       file = linear;
     }
   }
+  system_->refresh(file);
   e.handle = system_->ts->get_texture_handle(OIIO::ustring(file));
   if (!e.handle || !system_->ts->good(static_cast<OIIO::TextureSystem::TextureHandle*>(e.handle)))
     throw InputError(desc.source, "inputs:file",

@@ -1,7 +1,8 @@
 // texture.h — image textures on ordinary surfaces (UsdUVTexture), through OpenImageIO.
 //
-// Contract: a Textures owns one OIIO TextureSystem (its tile cache, MIP maps and
-// filtering) for a scene. add() opens a TextureDesc's file, or throws InputError naming
+// Contract: a Textures looks textures up through the process's shared OIIO TextureSystem
+// (its tile cache, MIP maps and filtering) for a scene; a file rewritten since an earlier
+// scene opened it is read anew. add() opens a TextureDesc's file, or throws InputError naming
 // desc.source and "inputs:file". Filtering must average linear values (an sRGB image
 // filtered first and decoded after darkens every edge between texels), so an sRGB image is
 // decoded once into a tiled, MIP-mapped linear texture in the cache directory (what maketx

@@ -142,6 +142,26 @@ TEST(Texture, AMissingFileIsRefusedByTheShaderAndAttribute) {
   }
 }
 
+TEST(Texture, AFileRewrittenBetweenScenesIsReadAnew) {
+  // The TextureSystem is shared by every scene of the process (texture.h): an artist who
+  // repaints a texture and re-renders must see the new one.
+  std::string file = writeRaw("repainted.exr", 1, 1, {"R", "G", "B"}, {0.25f, 0, 0});
+  {
+    Textures first;
+    EXPECT_NEAR(first.lookupRgb(first.add(desc(file)), 0.5f, 0.5f, 0).x, 0.25f, 1e-6f);
+  }
+  for (int attempt = 0; attempt < 100; ++attempt) {  // until the file's time moves on
+    writeRaw("repainted.exr", 1, 1, {"R", "G", "B"}, {0.75f, 0, 0});
+    Textures second;
+    float v = second.lookupRgb(second.add(desc(file)), 0.5f, 0.5f, 0).x;
+    if (v != 0.25f) {
+      EXPECT_NEAR(v, 0.75f, 1e-6f);
+      return;
+    }
+  }
+  FAIL() << "the rewritten texture was never read anew";
+}
+
 // ---- on surfaces ------------------------------------------------------------------------
 
 // A unit quad in the XZ plane (normal +Y), st (0,0) at (-1, 0, 1) and (1,1) at (1, 0, -1),
