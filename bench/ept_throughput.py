@@ -58,12 +58,19 @@ def throughput(exe, a):
 
 def setup(exe, a):
     print("\n## Aggregate set-up time and memory\n")
-    print("| grains | cells (tiles) | set-up (s) | tile (s) | distance field (s) | aggregate memory (MiB) | process peak RSS (MiB) |")
-    print("|---|---|---|---|---|---|---|")
+    print("| grains | tile spheres | cells (tiles) | set-up (s) | tile (s) | distance field (s) | aggregate memory (MiB) "
+          "| process peak RSS (MiB) |")
+    print("|---|---|---|---|---|---|---|---|")
     for n in a.sizes.split(","):
-        m = run(exe, "setup", "--grains", n)
-        print(f"| {m['grains']:.3g} | {m['cells']} | {m['setup_s']:.2f} | {m['tile_s']:.2f} | {m['sdf_s']:.2f} | "
-              f"{m['aggregate_mib']:.1f} | {m['peak_rss_mib']:.0f} |")
+        # Beyond 10^10 grains, tiles of 512 spheres would exceed the 2^28 cells an aggregate
+        # may hold: larger tiles (as a user sets tileSpheres) keep the cells near 4·10^7.
+        grains = float(n)
+        tile = 512
+        while grains / tile > 6e7 and tile * 2 <= 65536:
+            tile *= 2
+        m = run(exe, "setup", "--grains", n, "--tile-spheres", str(tile))
+        print(f"| {m['grains']:.3g} | {m['tile_spheres']} | {m['cells']} | {m['setup_s']:.2f} | {m['tile_s']:.2f} | "
+              f"{m['sdf_s']:.2f} | {m['aggregate_mib']:.1f} | {m['peak_rss_mib']:.0f} |")
 
 
 def renders(a):

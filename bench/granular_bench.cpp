@@ -124,23 +124,23 @@ int throughput(float R, double budget, double rawBudget) {
   return 0;
 }
 
-int setup(double grains) {
+int setup(double grains, int tileSpheres) {
   const float R = 1.0f, f = 0.6f;
   float radius = R * float(std::cbrt(grains / f));  // ball volume * f / grain volume = grains
   long rss0 = maxRssKiB();
   auto t0 = Clock::now();
   EmbreeDevice dev = makeEmbreeDevice();
   Aggregate agg;
-  agg.build(sphereAggregate(radius, R, 512), dev, {0});
+  agg.build(sphereAggregate(radius, R, tileSpheres), dev, {0});
   double t = seconds(t0);
   // Touch the aggregate once so lazy structures count.
   GrainHit h;
   agg.intersect(Vec3(-2 * radius, 0.1f, 0.2f), Vec3(1, 0, 0), 0, kInf, h);
   const AggregateStats& s = agg.stats();
   std::printf(
-      "{\"requested_grains\": %.3g, \"grains\": %.4g, \"cells\": %lld, \"setup_s\": %.3f, \"tile_s\": %.3f, "
+      "{\"requested_grains\": %.3g, \"grains\": %.4g, \"tile_spheres\": %d, \"cells\": %lld, \"setup_s\": %.3f, \"tile_s\": %.3f, "
       "\"sdf_s\": %.3f, \"aggregate_mib\": %.2f, \"peak_rss_mib\": %.1f, \"rss_growth_mib\": %.1f}\n",
-      grains, s.approxGrains, (long long)s.cells, t, s.tileSeconds, s.sdfSeconds, s.memoryBytes / 1048576.0,
+      grains, s.approxGrains, tileSpheres, (long long)s.cells, t, s.tileSeconds, s.sdfSeconds, s.memoryBytes / 1048576.0,
       maxRssKiB() / 1024.0, (maxRssKiB() - rss0) / 1024.0);
   return 0;
 }
@@ -197,7 +197,8 @@ int ttParams(long rays) {
 int main(int argc, char** argv) {
   if (argc < 2) {
     std::fprintf(stderr,
-                 "usage: granular-bench throughput [--grain-radius R] [--seconds S] [--raw-seconds S] | setup --grains N | "
+                 "usage: granular-bench throughput [--grain-radius R] [--seconds S] [--raw-seconds S] | setup --grains N "
+                 "[--tile-spheres T] | "
                  "tt [--rays N]\n");
     return 2;
   }
@@ -205,6 +206,7 @@ int main(int argc, char** argv) {
   float R = 0.01f;
   double secs = 2.0, rawSecs = -1, grains = 1e6;
   long rays = 1L << 18;
+  int tileSpheres = 512;
   for (int i = 2; i + 1 < argc; i += 2) {
     std::string a = argv[i];
     if (a == "--grain-radius") R = std::strtof(argv[i + 1], nullptr);
@@ -212,10 +214,11 @@ int main(int argc, char** argv) {
     else if (a == "--raw-seconds") rawSecs = std::strtod(argv[i + 1], nullptr);
     else if (a == "--grains") grains = std::strtod(argv[i + 1], nullptr);
     else if (a == "--rays") rays = std::strtol(argv[i + 1], nullptr, 10);
+    else if (a == "--tile-spheres") tileSpheres = int(std::strtol(argv[i + 1], nullptr, 10));
   }
   try {
     if (mode == "throughput") return throughput(R, secs, rawSecs < 0 ? secs : rawSecs);
-    if (mode == "setup") return setup(grains);
+    if (mode == "setup") return setup(grains, tileSpheres);
     if (mode == "tt") return ttParams(rays);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "error: %s\n", e.what());
