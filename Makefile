@@ -32,7 +32,7 @@ build: venv
 
 demo: build
 	@mkdir -p out
-	$(VENV)/bin/granular render examples/sandcastle.usda -o out/demo.exr --png out/demo.png
+	$(VENV)/bin/granular render examples/sandcastle_paper.usda --spp 32 -o out/demo.exr --png out/demo.png
 
 # Every USD example at presentation quality into out/gallery/, with a contact sheet
 # (scripts/gallery.py; GALLERY_ARGS="--width 640 --spp 256 --docs" and so on).

@@ -373,8 +373,39 @@ def frosted(path):
     stage.GetRootLayer().Save()
 
 
+def sandcastle_paper(path):
+    """The sand castle at the paper's scale: the same castle (sandcastle.usda, a sublayer)
+    of quarter-millimetre grains of light quartz sand — 1.3·10^10 of them — under the
+    physical sun (0.53°, normalised: the 20° sun's irradiance) and the same sky, at 640 x 480."""
+    stage = Usd.Stage.CreateNew(path)
+    stage.GetRootLayer().subLayerPaths.append("./sandcastle.usda")
+    stage.SetDefaultPrim(stage.GetPrimAtPath("/World"))
+    for part in ["Base", "Keep", "KeepRoof"] + [f"Tower{k}" for k in range(1, 5)] + [f"TowerRoof{k}" for k in range(1, 5)]:
+        over = stage.OverridePrim(f"/World/Castle/{part}")
+        UsdGeom.PrimvarsAPI(over).CreatePrimvar("granular:grainRadius", Sdf.ValueTypeNames.Float,
+                                                UsdGeom.Tokens.constant).Set(0.00025)
+    # Light quartz sand: nearly clear grains with a tenth of darker ones, so that a thick
+    # layer reflects (0.38, 0.32, 0.23) under a white sky (bench/README.md, "Sand colour at
+    # paper scale"; by eye, not yet from a measured spectrum). The pebble-sized castle's
+    # absorption would make quarter-millimetre sand dark brown (0.12, 0.07, 0.03).
+    for name, absorption in (("Round", (0.004, 0.009, 0.028)), ("Flat", (0.004, 0.009, 0.028)),
+                             ("Dark", (0.4, 0.6, 1.1))):
+        UsdGeom.PrimvarsAPI(stage.OverridePrim(f"/World/Grains/{name}")).CreatePrimvar(
+            "granular:absorption", Sdf.ValueTypeNames.Color3f, UsdGeom.Tokens.constant).Set(Gf.Vec3f(*absorption))
+    sun_ = UsdLux.DistantLight(stage.OverridePrim("/World/Sun"))
+    sun_.CreateAngleAttr(0.53)
+    sun_.CreateNormalizeAttr(True)
+    # The 20° sun of intensity 14 delivers 14 · 2π(1 − cos 10°) = 1.337 of irradiance.
+    sun_.CreateIntensityAttr(round(14.0 * 2.0 * math.pi * (1.0 - math.cos(math.radians(10.0))), 4))
+    cam = UsdGeom.Camera(stage.OverridePrim("/World/Camera"))
+    cam.CreateVerticalApertureAttr(27.0)  # 4:3
+    settings = UsdRender.Settings(stage.OverridePrim("/Render/Settings"))
+    settings.CreateResolutionAttr(Gf.Vec2i(640, 480))
+    stage.GetRootLayer().Save()
+
+
 SCENES = {"sandcastle": sandcastle, "snowslab": snowslab, "sugarcube": sugarcube, "mixture": mixture,
-          "animated": animated, "macro": macro, "frosted": frosted}
+          "animated": animated, "macro": macro, "frosted": frosted, "sandcastle_paper": sandcastle_paper}
 
 
 def main(argv):
