@@ -331,20 +331,21 @@ def _source_shader(inp):
     return attrs[0] if attrs else None
 
 
-def _texture_st(scene, tex, time):
-    """The primvar name a UsdUVTexture's st reads (a UsdPrimvarReader_float2's varname), or
-    None: its st is then the constant fallback (0, 0)."""
+def _texture_st(scene, tex, time, input_name="st"):
+    """The primvar name a UsdUVTexture's st reads (a UsdPrimvarReader_float2's varname, also
+    through a UsdTransform2d's `in`), or None: its st is then the constant fallback (0, 0)."""
     path = str(tex.GetPath())
-    inp = tex.GetInput("st")
+    inp = tex.GetInput(input_name)
     if not inp or not inp.HasConnectedSource():
-        scene.warn(f"{path}.inputs:st: not connected to a UsdPrimvarReader_float2; the texture reads st (0, 0) everywhere")
+        scene.warn(f"{path}.inputs:{input_name}: not connected to a UsdPrimvarReader_float2; "
+                   f"the texture reads st (0, 0) everywhere")
         return None
     out = _source_shader(inp)
     reader = UsdShade.Shader(out.GetPrim()) if out else None
     sid = reader.GetIdAttr().Get(time) if reader else None
     if sid == "UsdTransform2d":
         scene.warn(f"{reader.GetPath()}: UsdTransform2d is not supported; st is read untransformed")
-        return _texture_st(scene, reader, time) if reader.GetInput("in") else None
+        return _texture_st(scene, reader, time, "in")
     if sid != "UsdPrimvarReader_float2":
         scene.warn(f"{path}.inputs:st: {sid!r} is not supported (only UsdPrimvarReader_float2); "
                    f"the texture reads st (0, 0) everywhere")

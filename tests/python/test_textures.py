@@ -226,3 +226,25 @@ def test_bad_textures_exit_2_naming_the_shader_and_input(case, tmp_path, capsys)
     assert rc == 2, err
     assert err.strip().splitlines() == [expected]
     assert not exr.exists()
+
+
+def test_a_transform2d_between_reader_and_texture_is_read_through_with_a_warning(tmp_path):
+    """UsdTransform2d is not applied (said once); the primvar behind its `in` still is
+    (hdGranular follows the same `in` connection)."""
+    png = _texture_png(tmp_path / "t.png", [(1, 0, 0), (0, 1, 0)])
+
+    def mutate(stage):
+        mat, _ = _network(stage, "/World/Looks/Beach", png)
+        xf = UsdShade.Shader.Define(stage, "/World/Looks/Beach/Transform")
+        xf.CreateIdAttr("UsdTransform2d")
+        reader = UsdShade.Shader.Get(stage, "/World/Looks/Beach/St")
+        xf.CreateInput("in", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
+        xf.CreateInput("scale", Sdf.ValueTypeNames.Float2).Set(Gf.Vec2f(2, 2))
+        tex = UsdShade.Shader.Get(stage, "/World/Looks/Beach/Texture")
+        tex.GetInput("st").ConnectToSource(xf.ConnectableAPI(), "result")
+        UsdShade.MaterialBindingAPI.Apply(_ground(stage, VERTEX_ST).GetPrim()).Bind(mat)
+
+    scene, ground = _read(tmp_path, mutate)
+    np.testing.assert_allclose(ground.mesh.uvs, np.asarray(VERTEX_ST)[CORNER_POINTS])
+    assert any("UsdTransform2d is not supported" in w for w in scene.warnings)
+
