@@ -1,5 +1,7 @@
 #include "ept.h"
 
+#include <optional>
+
 #include "vpt.h"
 
 namespace granular {
@@ -71,8 +73,11 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
   const auto& lights = scene.lights();
   const float lightPick = lightPickProb(scene);
   const Ray& ray = path.ray;
-  Material textured;  // empty for untextured hits: no allocation
-  const Material& m = scene.shadingMaterial(hit, std::fabs(path.coneWidth + path.coneSpread * hit.t), textured);
+  // Ray cone: the footprint here (|·|: a lens's cone crosses its focus), the texture
+  // filter's width and the next segment's starting width.
+  const float footprint = std::fabs(path.coneWidth + path.coneSpread * hit.t);
+  std::optional<Material> textured;  // made only for a textured hit
+  const Material& m = scene.shadingMaterial(hit, footprint, textured);
   bool inside = dot(ray.d, hit.ng) > 0;
   if (inside && m.type == MaterialType::Dielectric && !isBlack(m.absorption)) {
     // Beer–Lambert over the segment just travelled inside (object units -> world).
@@ -127,7 +132,7 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
   Vec3 wi = frame.toWorld(bs.wi);
   // Ray cone: the footprint grows along the segment; delta bounces keep the spread
   // (flat-interface approximation), others widen it.
-  path.coneWidth = std::fabs(path.coneWidth + path.coneSpread * hit.t);  // |·|: a lens's cone crosses its focus
+  path.coneWidth = footprint;
   if (!bs.delta) path.coneSpread = std::max(path.coneSpread, std::min(kDiffuseConeSpread, m.lobeSpread()));
   path.lastDelta = bs.delta;
   path.lastPdf = bs.pdf;

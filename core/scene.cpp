@@ -108,6 +108,12 @@ bool hasSmoothDielectricGrains(const SceneDesc& desc) {
   return false;
 }
 
+// The share of a ray cone's footprint a texture filters over, narrowed as pbrt-v4 narrows
+// its ray differentials, by max(1/8, 1/√spp): the pixel's samples already average over its
+// area, and a filter a whole footprint wide on top of them would blur twice; the filter
+// only has to keep each sample from aliasing.
+float textureFilterScale(int spp) { return std::max(0.125f, 1.0f / std::sqrt(float(std::max(1, spp)))); }
+
 }  // namespace
 
 // Embree's filter for cut-out meshes: rejects a candidate hit where the surface is absent.
@@ -158,19 +164,17 @@ float Scene::presence(int geom, unsigned prim, float bu, float bv) const {
   return std::clamp(p, 0.0f, 1.0f);
 }
 
-const Material& Scene::shadingMaterial(const Hit& hit, float footprint, Material& storage) const {
+const Material& Scene::shadingMaterial(const Hit& hit, float footprint, std::optional<Material>& storage) const {
   const Material& m = materials_[size_t(hit.material)];
   if (hit.kind != Hit::Surface || hit.geom < 0) return m;
   const SurfaceMaps& maps = surfaceMaps_[size_t(hit.material)];
   if (maps.albedo < 0 && maps.emission < 0) return m;
   float u, v;
   surfaceUv(hit.geom, hit.prim, hit.bu, hit.bv, u, v);
-  // The filter width in uv: the footprint times the triangle's uv length per world length,
-  // narrowed as pbrt-v4 narrows its ray differentials, by max(1/8, 1/√spp): the pixel's
-  // samples already average over its area, and a filter a whole footprint wide on top of
-  // them would blur twice; the filter only has to keep each sample from aliasing.
+  // The filter width in uv: the (narrowed) footprint times the triangle's uv length per
+  // world length.
   float width = 0;
-  footprint *= std::max(0.125f, 1.0f / std::sqrt(float(std::max(1, settings_.spp))));
+  footprint *= textureFilterScale_;
   const TriangleMesh& mesh = worldMeshes_[size_t(hit.geom)];
   if (footprint > 0 && mesh.hasUvs()) {
     const size_t t = 3 * size_t(hit.prim);
@@ -180,10 +184,10 @@ const Material& Scene::shadingMaterial(const Hit& hit, float footprint, Material
     const float worldArea = length(cross(b - a, c - a));
     if (worldArea > 0) width = footprint * std::sqrt(uvArea / worldArea);
   }
-  storage = m;
-  if (maps.albedo >= 0) storage.albedo = vmin(vmax(textures_->lookupRgb(maps.albedo, u, v, width), Vec3(0.0f)), Vec3(1.0f));
-  if (maps.emission >= 0) storage.emission = vmax(textures_->lookupRgb(maps.emission, u, v, width), Vec3(0.0f));
-  return storage;
+  Material& t = storage.emplace(m);
+  if (maps.albedo >= 0) t.albedo = vmin(vmax(textures_->lookupRgb(maps.albedo, u, v, width), Vec3(0.0f)), Vec3(1.0f));
+  if (maps.emission >= 0) t.emission = vmax(textures_->lookupRgb(maps.emission, u, v, width), Vec3(0.0f));
+  return t;
 }
 
 const std::vector<std::string>& Scene::textureWarnings() const {
@@ -207,6 +211,7 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc, const Scene* previous
   validateSceneDesc(desc);
   auto s = std::unique_ptr<Scene>(new Scene());
   s->settings_ = desc.settings;
+  s->textureFilterScale_ = textureFilterScale(desc.settings.spp);
   s->camera_ = Camera(desc.camera, desc.settings.width, desc.settings.height);
   for (const auto& m : desc.materials) s->materials_.push_back(Material::fromDesc(m));
   // Defaults for unassigned surfaces and grains.
@@ -452,6 +457,7 @@ void Scene::setView(const CameraDesc& camera, const RenderSettings& settings) {
   if ((settings.technique == Technique::Ept) != (settings_.technique == Technique::Ept) && !aggregates_.empty())
     throw InputError("render", "technique", "a change between ept and the hybrid needs the scene built anew");
   settings_ = settings;
+  textureFilterScale_ = textureFilterScale(settings.spp);
   camera_ = Camera(camera, settings.width, settings.height);
   updateDiffusionDepths();  // the camera may have moved into or out of an aggregate
   updateExplicitBounces();

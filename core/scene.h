@@ -12,6 +12,7 @@
 #pragma once
 
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -107,9 +108,9 @@ class Scene {
   const RenderSettings& settings() const { return settings_; }
   const Material& material(int i) const { return materials_[i]; }
   // The material at a hit with its textures applied (albedo, emission; Hit::Surface of a
-  // textured mesh, written to storage), else material(hit.material). footprint: the ray
-  // cone's width there in world units, the texture filter's width.
-  const Material& shadingMaterial(const Hit& hit, float footprint, Material& storage) const;
+  // textured mesh, made in storage), else material(hit.material). footprint: the ray
+  // cone's width there in world units, from which the texture filter's width follows.
+  const Material& shadingMaterial(const Hit& hit, float footprint, std::optional<Material>& storage) const;
   // Probability that a cut-out surface is there (MaterialDesc::opacity, opacityThreshold)
   // at barycentrics (bu, bv) of triangle prim of mesh geom; 1 for other surfaces. Rays and
   // shadow rays pass a cut-out surface by a hash of the ray and the triangle, so a pass is
@@ -186,6 +187,8 @@ class Scene {
   };
   std::vector<SurfaceMaps> surfaceMaps_;
   std::unique_ptr<Textures> textures_;
+  // Of a ray cone's footprint, the texture filter's share: max(1/8, 1/√spp) (scene.cpp).
+  float textureFilterScale_ = 1;
   // The Embree filter of a cut-out mesh finds the scene and its geometry id here.
   struct CutoutFilterData {
     const Scene* scene;
