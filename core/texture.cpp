@@ -36,17 +36,31 @@ struct Textures::System {
     }();
     ts = shared;
   }
-  // Drops the cache's copy of a file rewritten since it was last opened.
-  void refresh(const std::string& file) {
+  // The number of texel values of `file` that are not finite (0 for integer formats),
+  // known per modification time: a file is scanned once, not once per scene (a Hydra host
+  // rebuilds the scene on every edit), and one rewritten since it was last seen is dropped
+  // from the cache and scanned anew.
+  uint64_t nonFiniteTexels(const std::string& file, bool floatingPoint) {
+    struct Record {
+      long long mtime = 0;
+      uint64_t nonFinite = 0;
+    };
     static std::mutex mutex;
-    static std::map<std::string, long long> seen;  // file -> modification time (ns)
+    static std::map<std::string, Record> seen;
     struct stat st;
-    if (stat(file.c_str(), &st) != 0) return;
+    if (stat(file.c_str(), &st) != 0) return 0;  // the open that follows reports it
     const long long mtime = (long long)st.st_mtim.tv_sec * 1000000000LL + st.st_mtim.tv_nsec;
     std::lock_guard<std::mutex> lock(mutex);
     auto it = seen.find(file);
-    if (it != seen.end() && it->second != mtime) ts->invalidate(OIIO::ustring(file), true);
-    seen[file] = mtime;
+    if (it != seen.end() && it->second.mtime == mtime) return it->second.nonFinite;
+    if (it != seen.end()) ts->invalidate(OIIO::ustring(file), true);
+    Record r{mtime, 0};
+    if (floatingPoint) {
+      const OIIO::ImageBufAlgo::PixelStats stats = OIIO::ImageBufAlgo::computePixelStats(OIIO::ImageBuf(file));
+      for (size_t c = 0; c < stats.nancount.size(); ++c) r.nonFinite += stats.nancount[c] + stats.infcount[c];
+    }
+    seen[file] = r;
+    return r.nonFinite;
   }
 };
 
@@ -119,6 +133,10 @@ int Textures::add(const TextureDesc& desc) {
   Entry e;
   e.channels = spec.nchannels;
   if (e.channels < 1) throw InputError(desc.source, "inputs:file", str("\"", desc.file, "\" has no channels"));
+  // A NaN or infinite texel would become a NaN or infinite pixel: refused here, by name.
+  if (uint64_t bad = system_->nonFiniteTexels(desc.file, spec.format.is_floating_point()))
+    throw InputError(desc.source, "inputs:file",
+                     str("\"", desc.file, "\" has ", bad, " texel values that are not finite (NaN or infinity)"));
   for (int c = 0; c < 4; ++c) e.scale[c] = desc.scale[c], e.bias[c] = desc.bias[c];
   e.channel = desc.channel;
   e.wrapS = oiioWrap(desc.wrapS);
@@ -136,7 +154,6 @@ int Textures::add(const TextureDesc& desc) {
       file = linear;
     }
   }
-  system_->refresh(file);
   e.handle = system_->ts->get_texture_handle(OIIO::ustring(file));
   if (!e.handle || !system_->ts->good(static_cast<OIIO::TextureSystem::TextureHandle*>(e.handle)))
     throw InputError(desc.source, "inputs:file",

@@ -29,7 +29,8 @@ class Textures {
   Textures(const Textures&) = delete;
   Textures& operator=(const Textures&) = delete;
 
-  // Prepares desc's file (above); returns the index lookup() takes.
+  // Prepares desc's file (above); returns the index lookup() takes. A float image with a
+  // NaN or infinite texel is an InputError too.
   int add(const TextureDesc& desc);
   // rgba: texel × scale + bias. An image of one channel gives (v, v, v, 1), of two (v, v,
   // v, a), of three (r, g, b, 1).

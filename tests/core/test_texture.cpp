@@ -142,6 +142,20 @@ TEST(Texture, AMissingFileIsRefusedByTheShaderAndAttribute) {
   }
 }
 
+TEST(Texture, NonFiniteTexelsAreRefusedByTheShaderAndAttribute) {
+  // A NaN texel would make NaN pixels wherever it is filtered in.
+  std::string file = writeRaw("nan.exr", 2, 1, {"R", "G", "B"}, {0.5f, 0.5f, 0.5f, std::nanf(""), 0.5f, 0.5f});
+  Textures tx;
+  try {
+    tx.add(desc(file));
+    FAIL() << "no error";
+  } catch (const InputError& e) {
+    std::string what = e.what();
+    EXPECT_NE(what.find("/Looks/Tex.inputs:file"), std::string::npos) << what;
+    EXPECT_NE(what.find("1 texel values that are not finite"), std::string::npos) << what;
+  }
+}
+
 TEST(Texture, AFileRewrittenBetweenScenesIsReadAnew) {
   // The TextureSystem is shared by every scene of the process (texture.h): an artist who
   // repaints a texture and re-renders must see the new one.
