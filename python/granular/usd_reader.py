@@ -256,9 +256,10 @@ def read_mesh(prim, time):
     return tri
 
 
-def read_st(scene, prim, name, time):
+def read_st(scene, prim, name, time, num_points):
     """Primvar `name` (texture coordinates, any interpolation) at each corner of read_mesh's
-    triangles, as (corners, 2) floats; None with a warning when the mesh has no such primvar."""
+    triangles (of num_points points), as (corners, 2) floats; None with a warning when the
+    mesh has no such primvar."""
     path = str(prim.GetPath())
     pv = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance(name)
     if not (pv and pv.HasAuthoredValue()):
@@ -285,8 +286,7 @@ def read_st(scene, prim, name, time):
         face = np.repeat(np.arange(len(counts)), np.maximum(counts - 2, 0) * 3)
         where, expected = face, len(counts)
     elif interp in (UsdGeom.Tokens.vertex, UsdGeom.Tokens.varying):
-        where = indices[corners]
-        expected = len(get_array(mesh.GetPointsAttr(), time, 3, np.float64, "point3f[]"))
+        where, expected = indices[corners], num_points
     else:  # faceVarying
         where, expected = corners, len(indices)
     if len(v) != expected:
@@ -325,6 +325,20 @@ _CHANNELS = {"rgb": -1, "r": 0, "g": 1, "b": 2, "a": 3}
 _TEXTURED_INPUTS = ("diffuseColor", "emissiveColor", "opacity")
 
 
+def _input_attr(shader, name):
+    """The attribute of shader's input `name`, or None when it has no such input."""
+    inp = shader.GetInput(name)
+    return inp.GetAttr() if inp else None
+
+
+def _existing_file(prim_path, attr_name, asset):
+    """An asset's resolved path; UserError naming the attribute when it cannot be found."""
+    resolved = asset.resolvedPath
+    if not resolved or not os.path.isfile(resolved):
+        raise UserError(prim_path, attr_name, f'"{asset.path}" cannot be found')
+    return resolved
+
+
 def _source_shader(inp):
     """The shader output that produces inp's value (through node graphs), or None."""
     attrs = inp.GetValueProducingAttributes(shaderOutputsOnly=True)
@@ -350,7 +364,7 @@ def _texture_st(scene, tex, time, input_name="st"):
         scene.warn(f"{path}.inputs:st: {sid!r} is not supported (only UsdPrimvarReader_float2); "
                    f"the texture reads st (0, 0) everywhere")
         return None
-    v = reader.GetInput("varname")
+    v = _input_attr(reader, "varname")
     name = v.Get(time) if v else None
     if not name:
         raise UserError(str(reader.GetPath()), "inputs:varname", "names no primvar")
@@ -373,29 +387,23 @@ def _texture(scene, shader, name, time):
     path = str(tex.GetPath())
     td = core.TextureDesc()
     td.source = path
-    asset = get_asset(tex.GetInput("file").GetAttr() if tex.GetInput("file") else None, time)
+    asset = get_asset(_input_attr(tex, "file"), time)
     if asset is None or not asset.path:
         raise UserError(path, "inputs:file", "names no image")
     if "<UDIM>" in asset.path:
         raise UserError(path, "inputs:file", f'"{asset.path}": UDIM textures are not supported')
-    resolved = asset.resolvedPath
-    if not resolved or not os.path.isfile(resolved):
-        raise UserError(path, "inputs:file", f'"{asset.path}" cannot be found')
-    td.file = resolved
+    td.file = _existing_file(path, "inputs:file", asset)
     for attr, field in (("wrapS", "wrap_s"), ("wrapT", "wrap_t")):
-        i = tex.GetInput(attr)
-        w = get_token(i.GetAttr() if i else None, time, "useMetadata")
+        w = get_token(_input_attr(tex, attr), time, "useMetadata")
         if w not in _WRAPS:
             raise UserError(path, f"inputs:{attr}", f'"{w}" is not one of {", ".join(_WRAPS)}')
         setattr(td, field, _WRAPS[w])
     for attr, default in (("scale", (1.0, 1.0, 1.0, 1.0)), ("bias", (0.0, 0.0, 0.0, 0.0))):
-        i = tex.GetInput(attr)
-        v = get_vec(i.GetAttr() if i else None, time, 4, default)
+        v = get_vec(_input_attr(tex, attr), time, 4, default)
         if not all(_finite(x) for x in v):
             raise UserError(path, f"inputs:{attr}", f"{v} is not finite")
         setattr(td, attr, list(v))
-    i = tex.GetInput("sourceColorSpace")
-    cs = get_token(i.GetAttr() if i else None, time, "auto")
+    cs = get_token(_input_attr(tex, "sourceColorSpace"), time, "auto")
     if cs not in _COLOR_SPACES:
         raise UserError(path, "inputs:sourceColorSpace", f'"{cs}" is not one of {", ".join(_COLOR_SPACES)}')
     td.color_space = _COLOR_SPACES[cs]
@@ -531,7 +539,7 @@ def _mesh_prim(scene, prim, xf_cache, material_cache, drawn):
         mp.material = -1 if idx is None else idx
         st = scene.material_st.get(idx)
         if st is not None and is_mesh:
-            uvs = read_st(scene, prim, st, time)
+            uvs = read_st(scene, prim, st, time, len(mp.mesh.points))
             if uvs is not None:
                 mp.mesh.uvs = uvs
     return mp
@@ -622,9 +630,7 @@ def read_light(scene, prim, xf_cache):
             raise UserError(path, "inputs:texture:format", f'"{fmt}" is not supported (use latlong)')
         asset = get_asset(prim.GetAttribute("inputs:texture:file"), time)
         if asset is not None and asset.path:
-            resolved = asset.resolvedPath
-            if not resolved or not os.path.isfile(resolved):
-                raise UserError(path, "inputs:texture:file", f'"{asset.path}" cannot be found')
+            resolved = _existing_file(path, "inputs:texture:file", asset)
             ld.texture_file = resolved
             scene.names[resolved] = {"*": (path, ""), "": (path, "inputs:texture:file")}
     elif prim.IsA(UsdLux.RectLight):
