@@ -293,6 +293,31 @@ void validateAggregateParameters(const AggregateDesc& a, const std::string& obj)
     throw InputError(obj, "sizeSpread", str(a.sizeSpread, " is outside [0, 0.5]"));
 }
 
+TextureWrap textureWrapFromName(const std::string& name, const std::string& obj, const std::string& attr) {
+  if (name == "useMetadata") return TextureWrap::UseMetadata;
+  if (name == "black") return TextureWrap::Black;
+  if (name == "clamp") return TextureWrap::Clamp;
+  if (name == "repeat") return TextureWrap::Repeat;
+  if (name == "mirror") return TextureWrap::Mirror;
+  throw InputError(obj, attr, str("\"", name, "\" is not black, clamp, repeat, mirror or useMetadata"));
+}
+
+TextureColorSpace textureColorSpaceFromName(const std::string& name, const std::string& obj, const std::string& attr) {
+  if (name == "auto") return TextureColorSpace::Auto;
+  if (name == "raw") return TextureColorSpace::Raw;
+  if (name == "sRGB") return TextureColorSpace::SRGB;
+  throw InputError(obj, attr, str("\"", name, "\" is not auto, raw or sRGB"));
+}
+
+int textureChannelFromName(const std::string& name, const std::string& obj, const std::string& attr) {
+  if (name == "rgb") return -1;
+  if (name.size() == 1) {
+    const size_t c = std::string("rgba").find(name[0]);
+    if (c != std::string::npos) return int(c);
+  }
+  throw InputError(obj, attr, str("\"", name, "\" is not rgb, r, g, b or a"));
+}
+
 Technique techniqueFromName(const std::string& name, const std::string& obj) {
   if (name == "ept") return Technique::Ept;
   if (name == "ept+vpt") return Technique::EptVpt;

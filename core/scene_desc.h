@@ -228,6 +228,14 @@ struct SceneDesc {
   RenderSettings settings;
 };
 
+// UsdUVTexture's tokens, for every front end: wrapS/T ("useMetadata", "black", "clamp",
+// "repeat", "mirror"), sourceColorSpace ("auto", "raw", "sRGB") and its outputs as a
+// TextureDesc::channel ("rgb" -1, "r" 0, "g" 1, "b" 2, "a" 3). Anything else is an
+// InputError on obj.attr listing what is allowed.
+TextureWrap textureWrapFromName(const std::string& name, const std::string& obj, const std::string& attr);
+TextureColorSpace textureColorSpaceFromName(const std::string& name, const std::string& obj, const std::string& attr);
+int textureChannelFromName(const std::string& name, const std::string& obj, const std::string& attr);
+
 // "ept", "ept+vpt", "hybrid"; anything else is an InputError on obj.technique.
 Technique techniqueFromName(const std::string& name, const std::string& obj);
 const char* techniqueName(Technique t);

@@ -455,19 +455,6 @@ void parseCamera(const Obj& o, CameraDesc& c) {
   }
 }
 
-TextureWrap parseWrap(const Obj& o, const std::string& key) {
-  const std::string w = o.string(key, "useMetadata");
-  static const std::map<std::string, TextureWrap> names = {{"useMetadata", TextureWrap::UseMetadata},
-                                                          {"black", TextureWrap::Black},
-                                                          {"clamp", TextureWrap::Clamp},
-                                                          {"repeat", TextureWrap::Repeat},
-                                                          {"mirror", TextureWrap::Mirror}};
-  auto it = names.find(w);
-  if (it == names.end())
-    throw InputError(o.label(), key, str("\"", w, "\" is not black, clamp, repeat, mirror or useMetadata"));
-  return it->second;
-}
-
 // A UsdUVTexture as JSON: {"file", "wrap_s", "wrap_t", "scale", "bias", "color_space",
 // "channel"}, names and meanings as in USD (texture.h).
 TextureDesc parseTexture(const json& v, const std::string& material, const std::string& key, const Context& ctx,
@@ -479,8 +466,8 @@ TextureDesc parseTexture(const json& v, const std::string& material, const std::
   t.file = resolvePath(ctx, toString(o.required("file"), label, "file"));
   std::error_code ec;
   if (!fs::is_regular_file(t.file, ec)) throw InputError(label, "file", str("\"", t.file, "\" does not exist"));
-  t.wrapS = parseWrap(o, "wrap_s");
-  t.wrapT = parseWrap(o, "wrap_t");
+  t.wrapS = textureWrapFromName(o.string("wrap_s", "useMetadata"), label, "wrap_s");
+  t.wrapT = textureWrapFromName(o.string("wrap_t", "useMetadata"), label, "wrap_t");
   for (const char* k : {"scale", "bias"}) {
     if (const json* a = o.find(k)) {
       const json& arr = toArray(*a, label, k);
@@ -488,17 +475,9 @@ TextureDesc parseTexture(const json& v, const std::string& material, const std::
       for (int c = 0; c < 4; ++c) (std::string(k) == "scale" ? t.scale : t.bias)[c] = toFloat(arr[c], label, k);
     }
   }
-  const std::string cs = o.string("color_space", "auto");
-  if (cs == "auto") t.colorSpace = TextureColorSpace::Auto;
-  else if (cs == "raw") t.colorSpace = TextureColorSpace::Raw;
-  else if (cs == "sRGB") t.colorSpace = TextureColorSpace::SRGB;
-  else throw InputError(label, "color_space", str("\"", cs, "\" is not auto, raw or sRGB"));
-  const std::string ch = o.string("channel", colour ? "rgb" : "r");
-  static const std::map<std::string, int> channels = {{"rgb", -1}, {"r", 0}, {"g", 1}, {"b", 2}, {"a", 3}};
-  auto it = channels.find(ch);
-  if (it == channels.end()) throw InputError(label, "channel", str("\"", ch, "\" is not rgb, r, g, b or a"));
-  if (!colour && it->second < 0) throw InputError(label, "channel", "a float input takes r, g, b or a, not rgb");
-  t.channel = it->second;
+  t.colorSpace = textureColorSpaceFromName(o.string("color_space", "auto"), label, "color_space");
+  t.channel = textureChannelFromName(o.string("channel", colour ? "rgb" : "r"), label, "channel");
+  if (!colour && t.channel < 0) throw InputError(label, "channel", "a float input takes r, g, b or a, not rgb");
   return t;
 }
 

@@ -3,6 +3,7 @@
 #include "pxr/base/gf/vec3f.h"
 #include "pxr/base/gf/vec4f.h"
 #include "pxr/imaging/hd/sceneDelegate.h"
+#include "error.h"
 #include "pxr/usd/sdf/assetPath.h"
 #include "renderParam.h"
 
@@ -41,15 +42,16 @@ HdMaterialNode const* upstream(HdMaterialNetwork const& net, HdMaterialNode cons
   return nullptr;
 }
 
-// UsdUVTexture's meaning, as python/granular/usd_reader.py reads it (one meaning in both
-// front ends). Values core cannot take are left for its validation to name.
-granular::TextureWrap wrap(std::string const& w, SdfPath const& source, const char* attr) {
-  if (w == "black") return granular::TextureWrap::Black;
-  if (w == "clamp") return granular::TextureWrap::Clamp;
-  if (w == "repeat") return granular::TextureWrap::Repeat;
-  if (w == "mirror") return granular::TextureWrap::Mirror;
-  if (w != "useMetadata") TF_WARN("%s.inputs:%s: \"%s\" is not a wrap mode; useMetadata is used", source.GetText(), attr, w.c_str());
-  return granular::TextureWrap::UseMetadata;
+// A UsdUVTexture token in core's terms (granular::texture*FromName, as every front end
+// reads it); an unknown one is warned about and the fallback used.
+template <typename T, typename Parse>
+T token(HdMaterialNode const& node, const char* name, const char* fallback, T fallbackValue, Parse parse) {
+  try {
+    return parse(text(node, name, fallback), node.path.GetString(), std::string("inputs:") + name);
+  } catch (const granular::InputError& e) {
+    TF_WARN("%s; %s is used", e.what(), fallback);
+    return fallbackValue;
+  }
 }
 
 // The UsdUVTexture feeding preview's input `name` as a TextureDesc (and the primvar its st
@@ -74,17 +76,18 @@ granular::TextureDesc texture(HdMaterialNetwork const& net, HdMaterialNode const
     t.file = file->second.UncheckedGet<std::string>();
   }
   if (t.file.empty()) t.file = "(no file)";  // core refuses it, naming the shader's inputs:file
-  t.wrapS = wrap(text(*tex, "wrapS", "useMetadata"), tex->path, "wrapS");
-  t.wrapT = wrap(text(*tex, "wrapT", "useMetadata"), tex->path, "wrapT");
+  t.wrapS = token(*tex, "wrapS", "useMetadata", granular::TextureWrap::UseMetadata, granular::textureWrapFromName);
+  t.wrapT = token(*tex, "wrapT", "useMetadata", granular::TextureWrap::UseMetadata, granular::textureWrapFromName);
   GfVec4f scale = input<GfVec4f>(*tex, "scale", GfVec4f(1.0f)), bias = input<GfVec4f>(*tex, "bias", GfVec4f(0.0f));
   for (int c = 0; c < 4; ++c) t.scale[c] = scale[c], t.bias[c] = bias[c];
-  std::string cs = text(*tex, "sourceColorSpace", "auto");
-  t.colorSpace = cs == "raw" ? granular::TextureColorSpace::Raw
-                 : cs == "sRGB" ? granular::TextureColorSpace::SRGB
-                                : granular::TextureColorSpace::Auto;
-  static const std::map<std::string, int> channels = {{"rgb", -1}, {"r", 0}, {"g", 1}, {"b", 2}, {"a", 3}};
-  auto ch = channels.find(output.GetString());
-  t.channel = ch == channels.end() ? -1 : ch->second;
+  t.colorSpace =
+      token(*tex, "sourceColorSpace", "auto", granular::TextureColorSpace::Auto, granular::textureColorSpaceFromName);
+  try {
+    t.channel = granular::textureChannelFromName(output.GetString(), t.source, "outputs:" + output.GetString());
+  } catch (const granular::InputError& e) {
+    TF_WARN("%s; rgb is used", e.what());
+    t.channel = -1;
+  }
   if (!colour && t.channel < 0) t.channel = 0;  // a float input reads r, as usd_reader.py
   TfToken readerOutput;
   HdMaterialNode const* reader = upstream(net, *tex, "st", &readerOutput);
