@@ -171,8 +171,21 @@ void eptStep(const Scene& scene, PathState& path) {
     // Level of detail: grains well below the footprint here look like their medium.
     float lod = scene.settings().lod;
     float footprint = std::fabs(path.coneWidth + path.coneSpread * hit.t);
-    if (lod > 0 && scene.hasMedia() && scene.aggregates()[hit.aggregate]->grainRadius() < lod * footprint)
+    if (lod > 0 && scene.hasMedia() && scene.aggregates()[hit.aggregate]->grainRadius() < lod * footprint) {
       path.shortcut = true;
+      // Under a narrow sun the medium takes the path at the first grain's surface (the
+      // ray goes on from there): only the medium can sample the sun (Scene::narrowSun).
+      // A grain of the surface layer may stick out of the boundary: the path then enters
+      // the medium where its ray crosses the boundary.
+      if (scene.narrowSun()) {
+        path.mode = path.credit = kVpt;
+        path.medium = scene.mediumAt(hit.p);
+        path.ray.o = hit.p;
+        path.ray.tmin = 0;
+        path.ray.tmax = kInf;
+        return;
+      }
+    }
   }
   shadeSurface(scene, path, hit, false);
   // The shortcut keeps the first grain and the low orders explicit (Scene::explicitBounces:

@@ -336,7 +336,9 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc, const Scene* previous
       l.normalize = true;  // a delta light's intensity is its irradiance: keep it
       s->widenedSuns_.push_back(l.name);
     }
+  const bool smooth = hasSmoothDielectricGrains(desc);
   for (const auto& l : lights) {
+    if (smooth && l.type == LightType::Distant && l.angle < Scene::kNarrowSunAngle) s->narrowSun_ = true;
     int idx = int(s->lights_.size());
     s->lights_.push_back(Light::fromDesc(l));
     (s->lights_.back().isInfinite() ? s->infiniteLights_ : s->areaLights_).push_back(idx);

@@ -26,6 +26,11 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdRender, UsdShade, Vt
 import granular  # noqa: F401  (registers the schema)
 import granular_core as core
 from granular import schema
+from granular.materials import ICE, QUARTZ_SAND, SUCROSE
+
+SNOW_RADIUS = 0.0004  # snow grains of 0.4 mm (aged snow; fresh snow's are finer)
+SAND_RADIUS = 0.00025  # fine beach sand
+SUGAR_RADIUS = 0.00025  # granulated sugar
 
 
 def new_stage(path, resolution):
@@ -156,11 +161,14 @@ def camera(stage, eye, target, focal=35.0, aperture=(36.0, 24.0)):
     return cam
 
 
-def sun(stage, direction, intensity, color=(1.0, 0.93, 0.82), angle=20.0):
-    """A distant light travelling along `direction`."""
+def sun(stage, direction, irradiance, color=(1.0, 0.93, 0.82)):
+    """The physical sun: a distant light of 0.53 degrees (USD's default angle) travelling
+    along `direction`, normalised, so that `irradiance` is what it delivers to a surface
+    facing it, whatever its angle."""
     light = UsdLux.DistantLight.Define(stage, "/World/Sun")
-    light.CreateIntensityAttr(intensity)
-    light.CreateAngleAttr(angle)
+    light.CreateIntensityAttr(irradiance)
+    light.CreateAngleAttr(0.53)
+    light.CreateNormalizeAttr(True)
     light.CreateColorAttr(Gf.Vec3f(*color))
     d = Gf.Vec3d(*direction).GetNormalized()
     # Rotate local -Z onto d.
@@ -195,8 +203,9 @@ def cone(radius, height, segments=48):
 def sandcastle(path):
     stage, _ = new_stage(path, (480, 320))
     camera(stage, eye=(2.5, 1.75, 3.1), target=(0.0, 0.5, 0.0))
-    sun(stage, direction=(-0.45, -0.8, -0.35), intensity=14.0)
-    sky(stage, (0.6, 0.75, 1.0), 0.8)
+    # As on a clear day: the sun gives about four times the sky's light on the ground.
+    sun(stage, direction=(-0.45, -0.8, -0.35), irradiance=3.2)
+    sky(stage, (0.6, 0.75, 1.0), 0.25)
     # A beach of rippled damp sand: a repeating texture, one tile per 2 units.
     beach_texture(os.path.join(os.path.dirname(path), "textures", "beach.png"))
     ground = textured_quad(stage, "/World/Ground", 12.0, tiles=6)
@@ -239,49 +248,55 @@ def snow_ground(stage):
 
 
 def snow_grains(stage):
-    """Ice flakes and pellets: index 1.31, almost no absorption (a faint blue with depth)."""
-    return (grain(stage, "Flake", core.make_ellipsoid((1.0, 0.35, 0.9), 2), 1.31, (0.004, 0.0015, 0.0006)),
-            grain(stage, "Pellet", core.make_rock(2, 0.25, 11), 1.31, (0.004, 0.0015, 0.0006)))
+    """Ice flakes and pellets of 0.4 mm: ice's measured index and absorption
+    (granular.materials.ICE: a faint blue only deep inside)."""
+    absorption = ICE.absorption_per_radius(SNOW_RADIUS)
+    return (grain(stage, "Flake", core.make_ellipsoid((1.0, 0.35, 0.9), 2), ICE.ior, absorption),
+            grain(stage, "Pellet", core.make_rock(2, 0.25, 11), ICE.ior, absorption))
 
 
 def snowslab(path):
     stage, _ = new_stage(path, (400, 260))
     camera(stage, eye=(1.7, 1.05, 2.2), target=(0.0, 0.12, 0.0))
-    sun(stage, direction=(-0.3, -0.55, -0.75), intensity=10.0, color=(1.0, 0.97, 0.92), angle=5.0)
-    sky(stage, (0.55, 0.7, 1.0), 0.8)
+    sun(stage, direction=(-0.3, -0.55, -0.75), irradiance=1.2, color=(1.0, 0.97, 0.92))
+    sky(stage, (0.55, 0.7, 1.0), 0.35)
     snow_ground(stage)
     flake, pellet = snow_grains(stage)
     slab = mesh_from(stage, "/World/Snow", core.make_box((-0.9, 0.0, -0.55), (0.9, 0.3, 0.55)))
-    schema.apply_aggregate(slab, [flake, pellet], grain_radius=0.014, packing_rate=0.45, weights=[0.5, 0.5],
-                           seed=4, tile_spheres=512)
+    schema.apply_aggregate(slab, [flake, pellet], grain_radius=SNOW_RADIUS, packing_rate=ICE.packing_rate,
+                           weights=[0.5, 0.5], seed=4, tile_spheres=512)
     stage.GetRootLayer().Save()
 
 
 def sugarcube(path):
+    """A sugar cube of 16 mm (about 30,000 crystals of 0.5 mm) on a wooden table, seen from
+    10 cm: a crystal is about two pixels wide."""
     stage, _ = new_stage(path, (360, 270))
-    camera(stage, eye=(0.75, 0.62, 0.95), target=(0.0, 0.11, 0.0), aperture=(36.0, 27.0))
-    sun(stage, direction=(-0.5, -0.7, -0.3), intensity=8.0, angle=10.0)
-    sky(stage, (0.8, 0.85, 1.0), 0.7)
+    k = 0.016 / 0.22  # the cube's edge over the camera's framing distance below
+    camera(stage, eye=(0.75 * k, 0.62 * k, 0.95 * k), target=(0.0, 0.11 * k, 0.0), aperture=(36.0, 27.0))
+    sun(stage, direction=(-0.5, -0.7, -0.3), irradiance=1.2)
+    sky(stage, (0.8, 0.85, 1.0), 0.4)
     # A table from a UsdGeomCube (tessellated by the reader).
     table = UsdGeom.Cube.Define(stage, "/World/Table")
     table.CreateSizeAttr(1.0)
     UsdGeom.Xformable(table).AddTranslateOp().Set(Gf.Vec3d(0, -0.05, 0))
     UsdGeom.Xformable(table).AddScaleOp().Set(Gf.Vec3f(4.0, 0.1, 4.0))
     bind(table, preview_material(stage, "Wood", diffuse=(0.25, 0.13, 0.06)))
-    # Sucrose crystals: clear, index 1.54, box-like.
-    crystal = grain(stage, "Crystal", core.make_box((-1.0, -0.7, -0.55), (1.0, 0.7, 0.55)), 1.54, (0.0, 0.0, 0.0))
-    chip = grain(stage, "Chip", core.make_box((-0.8, -0.8, -0.4), (0.8, 0.8, 0.4)), 1.54, (0.0, 0.0, 0.0))
-    cube = mesh_from(stage, "/World/SugarCube", core.make_box((-0.11, 0.0, -0.11), (0.11, 0.22, 0.11)),
+    # Sucrose crystals (granular.materials.SUCROSE): clear, index 1.56, box-like.
+    absorption = SUCROSE.absorption_per_radius(SUGAR_RADIUS)
+    crystal = grain(stage, "Crystal", core.make_box((-1.0, -0.7, -0.55), (1.0, 0.7, 0.55)), SUCROSE.ior, absorption)
+    chip = grain(stage, "Chip", core.make_box((-0.8, -0.8, -0.4), (0.8, 0.8, 0.4)), SUCROSE.ior, absorption)
+    cube = mesh_from(stage, "/World/SugarCube", core.make_box((-0.008, 0.0, -0.008), (0.008, 0.016, 0.008)),
                      rotate_y=25.0)
-    schema.apply_aggregate(cube, [crystal, chip], grain_radius=0.004, packing_rate=0.55, weights=[0.7, 0.3],
-                           seed=9, tile_spheres=512)
+    schema.apply_aggregate(cube, [crystal, chip], grain_radius=SUGAR_RADIUS, packing_rate=SUCROSE.packing_rate,
+                           weights=[0.7, 0.3], seed=9, tile_spheres=512)
     stage.GetRootLayer().Save()
 
 
 def mixture(path):
     stage, _ = new_stage(path, (400, 300))
     camera(stage, eye=(1.25, 0.95, 1.55), target=(0.0, 0.18, 0.0), aperture=(36.0, 27.0))
-    sun(stage, direction=(-0.4, -0.75, -0.45), intensity=10.0)
+    sun(stage, direction=(-0.4, -0.75, -0.45), irradiance=0.9546)
     sky(stage, (0.7, 0.8, 1.0), 0.8)
     ground = quad(stage, "/World/Ground", 12.0)
     bind(ground, preview_material(stage, "Slate", diffuse=(0.3, 0.3, 0.32)))
@@ -297,7 +312,7 @@ def mixture(path):
         [(0.55, 0.0), (0.5, 0.06), (0.38, 0.2), (0.22, 0.33), (0.0, 0.4)], 48))
     # Grains of many sizes: beads 1.4 times the white rocks, pepper 0.6 of them, every
     # grain's size spread by ±15% (weights count grains by number).
-    schema.apply_aggregate(heap, [red, green, white, pepper], grain_radius=0.009, packing_rate=0.58,
+    schema.apply_aggregate(heap, [red, green, white, pepper], grain_radius=0.0015, packing_rate=0.58,
                            weights=[0.15, 0.15, 0.45, 0.25], seed=5, tile_spheres=512,
                            sizes=[1.4, 1.4, 1.0, 0.6], size_spread=0.15)
     stage.GetRootLayer().Save()
@@ -317,17 +332,17 @@ def animated(path):
         a = math.radians(angle)
         eye = Gf.Vec3d(1.9 * math.sin(a), 0.8, 1.9 * math.cos(a))
         op.Set(Gf.Matrix4d().SetLookAt(eye, Gf.Vec3d(0.0, 0.1, 0.0), Gf.Vec3d(0, 1, 0)).GetInverse(), frame)
-    light = sun(stage, direction=(-0.3, -0.55, -0.75), intensity=8.0, color=(1.0, 0.97, 0.92), angle=5.0)
+    light = sun(stage, direction=(-0.3, -0.55, -0.75), irradiance=1.0, color=(1.0, 0.97, 0.92))
     intensity = light.GetIntensityAttr()
     intensity.Clear()
-    for frame, value in ((1, 8.0), (2, 8.0), (3, 14.0)):
+    for frame, value in ((1, 1.0), (2, 1.0), (3, 1.75)):
         intensity.Set(value, frame)
-    sky(stage, (0.55, 0.7, 1.0), 0.8)
+    sky(stage, (0.55, 0.7, 1.0), 0.35)
     snow_ground(stage)
     flake, pellet = snow_grains(stage)
     drift = mesh_from(stage, "/World/Drift", core.make_box((-0.35, 0.0, -0.25), (0.35, 0.22, 0.25)))
-    schema.apply_aggregate(drift, [flake, pellet], grain_radius=0.014, packing_rate=0.45, weights=[0.5, 0.5],
-                           seed=4, tile_spheres=512)
+    schema.apply_aggregate(drift, [flake, pellet], grain_radius=SNOW_RADIUS, packing_rate=ICE.packing_rate,
+                           weights=[0.5, 0.5], seed=4, tile_spheres=512)
     stage.GetRootLayer().Save()
 
 
@@ -339,7 +354,7 @@ def macro(path):
     cam = camera(stage, eye=(0.0, 0.22, 0.75), target=(0.0, 0.2, 0.0), focal=8.0, aperture=(7.2, 4.8))
     cam.CreateFStopAttr(16.0)
     cam.CreateFocusDistanceAttr(0.45)
-    sun(stage, direction=(-0.4, -0.75, -0.45), intensity=10.0)
+    sun(stage, direction=(-0.4, -0.75, -0.45), irradiance=0.9546)
     sky(stage, (0.7, 0.8, 1.0), 0.8)
     ground = quad(stage, "/World/Ground", 12.0)
     bind(ground, preview_material(stage, "Slate", diffuse=(0.3, 0.3, 0.32)))
@@ -357,8 +372,8 @@ def frosted(path):
     white, worn smooth-edged, in a heap on slate beside a few clear, polished ones."""
     stage, _ = new_stage(path, (400, 300))
     camera(stage, eye=(0.62, 0.55, 0.78), target=(0.0, 0.12, 0.0), aperture=(36.0, 27.0))
-    sun(stage, direction=(-0.45, -0.7, -0.5), intensity=10.0, angle=5.0)
-    sky(stage, (0.7, 0.8, 1.0), 0.8)
+    sun(stage, direction=(-0.45, -0.7, -0.5), irradiance=1.0)
+    sky(stage, (0.7, 0.8, 1.0), 0.5)
     ground = quad(stage, "/World/Ground", 12.0)
     bind(ground, preview_material(stage, "Slate", diffuse=(0.3, 0.3, 0.32)))
     pebble = core.make_ellipsoid((1.0, 0.55, 0.8), 2)
@@ -375,28 +390,32 @@ def frosted(path):
 
 def sandcastle_paper(path):
     """The sand castle at the paper's scale: the same castle (sandcastle.usda, a sublayer)
-    of quarter-millimetre grains of light quartz sand — 1.3·10^10 of them — under the
-    physical sun (0.53°, normalised: the 20° sun's irradiance) and the same sky, at 640 x 480."""
+    of quarter-millimetre grains of light quartz sand (granular.materials.QUARTZ_SAND) —
+    1.3·10^10 of them — standing on a beach that is itself an aggregate of the same sand
+    (12 x 12 m, 5 cm deep: 6.6·10^10 grains) instead of the textured plane, under the
+    physical sun and the same sky, at 640 x 480."""
     stage = Usd.Stage.CreateNew(path)
     stage.GetRootLayer().subLayerPaths.append("./sandcastle.usda")
     stage.SetDefaultPrim(stage.GetPrimAtPath("/World"))
-    for part in ["Base", "Keep", "KeepRoof"] + [f"Tower{k}" for k in range(1, 5)] + [f"TowerRoof{k}" for k in range(1, 5)]:
+    parts = ["Base", "Keep", "KeepRoof"] + [f"Tower{k}" for k in range(1, 5)] + [f"TowerRoof{k}" for k in range(1, 5)]
+    for part in parts:
         over = stage.OverridePrim(f"/World/Castle/{part}")
         UsdGeom.PrimvarsAPI(over).CreatePrimvar("granular:grainRadius", Sdf.ValueTypeNames.Float,
-                                                UsdGeom.Tokens.constant).Set(0.00025)
-    # Light quartz sand: nearly clear grains with a tenth of darker ones, so that a thick
-    # layer reflects (0.38, 0.32, 0.23) under a white sky (bench/README.md, "Sand colour at
-    # paper scale"; by eye, not yet from a measured spectrum). The pebble-sized castle's
-    # absorption would make quarter-millimetre sand dark brown (0.12, 0.07, 0.03).
-    for name, absorption in (("Round", (0.004, 0.009, 0.028)), ("Flat", (0.004, 0.009, 0.028)),
-                             ("Dark", (0.4, 0.6, 1.1))):
+                                                UsdGeom.Tokens.constant).Set(SAND_RADIUS)
+    # Light quartz sand whose thick layer reflects what dry beach sand does (0.40, 0.33,
+    # 0.24; examples/README.md, "Materials"). The pebble castle's absorption would make
+    # quarter-millimetre sand dark brown (0.12, 0.07, 0.03).
+    light, dark = QUARTZ_SAND.absorption_per_radius(SAND_RADIUS), QUARTZ_SAND.dark_per_radius
+    for name, absorption in (("Round", light), ("Flat", light), ("Dark", dark)):
         UsdGeom.PrimvarsAPI(stage.OverridePrim(f"/World/Grains/{name}")).CreatePrimvar(
             "granular:absorption", Sdf.ValueTypeNames.Color3f, UsdGeom.Tokens.constant).Set(Gf.Vec3f(*absorption))
-    sun_ = UsdLux.DistantLight(stage.OverridePrim("/World/Sun"))
-    sun_.CreateAngleAttr(0.53)
-    sun_.CreateNormalizeAttr(True)
-    # The 20° sun of intensity 14 delivers 14 · 2π(1 − cos 10°) = 1.337 of irradiance.
-    sun_.CreateIntensityAttr(round(14.0 * 2.0 * math.pi * (1.0 - math.cos(math.radians(10.0))), 4))
+    # The beach: a slab of the castle's sand just below its base (a gap of one grain, so
+    # that the two boundaries never share a face); the textured plane is hidden.
+    UsdGeom.Imageable(stage.OverridePrim("/World/Ground")).CreateVisibilityAttr(UsdGeom.Tokens.invisible)
+    beach = mesh_from(stage, "/World/Beach", core.make_box((-6.0, -0.25, -6.0), (6.0, -SAND_RADIUS, 6.0)))
+    schema.apply_aggregate(beach, [stage.GetPrimAtPath(f"/World/Grains/{n}") for n in ("Round", "Flat", "Dark")],
+                           grain_radius=SAND_RADIUS, packing_rate=QUARTZ_SAND.packing_rate, weights=[0.6, 0.3, 0.1],
+                           seed=30, tile_spheres=4096)
     cam = UsdGeom.Camera(stage.OverridePrim("/World/Camera"))
     cam.CreateVerticalApertureAttr(27.0)  # 4:3
     settings = UsdRender.Settings(stage.OverridePrim("/Render/Settings"))

@@ -62,7 +62,7 @@ def test_info_reports_grains_tiles_and_transport(capsys):
                                   "/World/Grains/Pepper"]
     assert heap["weights"] == pytest.approx([0.15, 0.15, 0.45, 0.25])
     assert heap["sizes"] == pytest.approx([1.4, 1.4, 1.0, 0.6]) and heap["size_spread"] == pytest.approx(0.15)
-    assert heap["max_grain_radius"] == pytest.approx(0.009 * 1.4 * 1.15, rel=0.02)
+    assert heap["max_grain_radius"] == pytest.approx(0.0015 * 1.4 * 1.15, rel=0.02)
     assert heap["grains"] > 10000
     t = heap["tiles"]
     assert t["cells"] >= t["inside"] + t["partial"] and t["partial"] > 0
