@@ -146,7 +146,9 @@ class Scene {
   // light (a slab of light sand under the 0.53° sun: 55% too dark at 64 spp with 18
   // explicit bounces, 9% with the first grain alone; bench/README.md, "Narrow suns").
   // Paths that take the level-of-detail shortcut then enter the medium at their first
-  // grain instead of after it and the explicit bounces: the medium samples the sun.
+  // grain instead of after it and the explicit bounces: the medium samples the sun. It
+  // is 4–9% darker than explicit grains under a directional sun (the first grains'
+  // shadowing, which the medium averages), against 55% lost at 64 spp before.
   bool narrowSun() const { return narrowSun_; }
   static constexpr float kNarrowSunAngle = 5.0f;
 

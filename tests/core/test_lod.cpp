@@ -197,9 +197,9 @@ TEST(Lod, ALensThatBlursTheGrainsWidensTheFootprint) {
 
 // Under a sun narrower than Scene::kNarrowSunAngle, over smooth grains, a path that takes
 // the shortcut enters the medium at its first grain: explicit grains would reach the sun
-// only by hitting its disk. The medium samples the sun, so its size no longer matters: a 0.53° and a 3° sun of the same irradiance agree
-// within noise, where explicit first grains lost the 3° sun's hits at 0.53° (bench/README.md,
-// "Narrow suns").
+// only by hitting its disk. The medium samples the sun, so its size no longer matters: a
+// 0.53° and a 3° sun of the same irradiance agree within noise (bench/README.md, "Narrow
+// suns"; a 20° sun keeps the first grain explicit).
 TEST(Lod, UnderANarrowSunTheMediumTakesPathsAtTheirFirstGrain) {
   auto withSun = [](float angle) {
     SceneDesc d = sandBall(40.0f, 0.0005f, 0.5f, 24, Technique::EptVpt);
