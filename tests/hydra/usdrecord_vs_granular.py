@@ -21,6 +21,10 @@ import os
 import subprocess
 import sys
 
+import numpy as np
+
+import granular_core as core
+
 from pxr import Usd, UsdGeom, UsdLux
 
 
@@ -45,12 +49,23 @@ def widened_sun(scene, outdir):
 from usdrecord_run import run_usdrecord
 
 
+def mean_tolerance(ours, other):
+    """The relative tolerance on the image mean: 1%, or four standard errors of the mean
+    of `ours`, estimated from an independent render `other` (each pixel's variance is half
+    the expected square of the two images' difference; pixels are independent)."""
+    a = np.asarray(core.read_image_rgb(ours).pixels, dtype=np.float64)[..., :3]
+    b = np.asarray(core.read_image_rgb(other).pixels, dtype=np.float64)[..., :3]
+    n = a.size
+    se = np.sqrt(np.sum((a - b) ** 2) / 2.0) / n
+    return max(0.01, 4.0 * se / max(abs(a.mean()), 1e-12))
+
+
 def main():
     usdrecord, granular, compare, outdir, *scenes = sys.argv[1:]
     os.makedirs(outdir, exist_ok=True)
     width, spp, failed = 64, 16, False  # 16: the delegate's default samples per pixel
-    print("| scene | bias | relMSE (Hydra vs granular) | relMSE (granular, two seeds) |")
-    print("|---|---|---|---|")
+    print("| scene | bias | tolerance | relMSE (Hydra vs granular) | relMSE (granular, two seeds) |")
+    print("|---|---|---|---|---|")
     wide = os.path.join(outdir, "wide_sun")
     os.makedirs(wide, exist_ok=True)
     for scene in scenes:
@@ -75,14 +90,16 @@ def main():
                            check=True)
         r = json.loads(subprocess.run([compare, hydra, ours], check=True, capture_output=True, text=True).stdout)
         noise = json.loads(subprocess.run([compare, other, ours], check=True, capture_output=True, text=True).stdout)
-        print(f"| {name} | {r['bias']:+.5f} | {r['relmse']:.3g} | {noise['relmse']:.3g} |")
+        tol = mean_tolerance(ours, other)
+        print(f"| {name} | {r['bias']:+.5f} | {tol:.5f} | {r['relmse']:.3g} | {noise['relmse']:.3g} |")
         # Same seed: Hydra's camera differs from ours only by rounding, so the images
-        # must differ less than two independent renders do; the means within 1.5%. (Under
-        # the strong suns of the real-scale examples, 2026-12-02, the sub-pixel snow and
-        # sugar differ by -1.1% in the mean, the paper castle by +0.9%, the same with
-        # either seed: a small systematic difference between the front ends not yet
-        # explained; it was under 1% with the former, sky-lit examples.)
-        failed |= abs(r["bias"]) > 0.015 or r["relmse"] > noise["relmse"]
+        # must differ less than two independent renders do, and the means by less than
+        # 1% or four standard errors of the mean. A path through many grains is chaotic:
+        # a rounding difference in its camera ray makes it an independent sample, so where
+        # such paths carry the light (the sub-pixel snow and sugar, 2026-12-02: -1.1% with
+        # the same seed, -0.3% and -1.2% between two seeds) the same seed no longer
+        # holds the means closer than the noise does.
+        failed |= abs(r["bias"]) > tol or r["relmse"] > noise["relmse"]
     return 1 if failed else 0
 
 
