@@ -392,8 +392,8 @@ def sandcastle_paper(path):
     """The sand castle at the paper's scale: the same castle (sandcastle.usda, a sublayer)
     of quarter-millimetre grains of light quartz sand (granular.materials.QUARTZ_SAND) —
     1.3·10^10 of them — standing on a beach that is itself an aggregate of the same sand
-    (12 x 12 m, 5 cm deep: 6.6·10^10 grains) instead of the textured plane, under the
-    physical sun and the same sky, at 640 x 480."""
+    (12 x 12 m, 25 cm deep: 3.3·10^11 grains, in tiles of 4096) instead of the textured
+    plane, under the physical sun and the same sky, at 640 x 480."""
     stage = Usd.Stage.CreateNew(path)
     stage.GetRootLayer().subLayerPaths.append("./sandcastle.usda")
     stage.SetDefaultPrim(stage.GetPrimAtPath("/World"))
