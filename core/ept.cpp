@@ -49,11 +49,7 @@ Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir)
   for (int li : scene.infiniteLights()) {
     const Light& light = scene.lights()[li];
     if (camera && light.type() == LightType::Dome && !scene.settings().domeCameraVisible) continue;
-    // After a specular bounce a path reaches a narrow sun only by hitting its disk, with
-    // probability ~ its solid angle: it sees the sun widened to Scene::kNarrowSunAngle
-    // with the same irradiance (Scene::narrowSun), a few hundred times likelier to hit.
-    const bool widen = path.lastDelta && !camera && scene.narrowSun() && light.type() == LightType::Distant;
-    Vec3 Le = widen ? light.escapedLeWidened(dir, Scene::kExplicitSunSin2) : light.escapedLe(dir);
+    Vec3 Le = light.escapedLe(dir);
     if (isBlack(Le)) continue;
     float w = 1.0f;
     if (!path.lastDelta) w = powerHeuristic(path.lastPdf, light.pdfLi(path.lastP, dir, kInf) * lightPick);

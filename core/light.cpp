@@ -198,12 +198,6 @@ Vec3 Light::escapedLe(const Vec3& dir) const {
   return Vec3(0.0f);
 }
 
-Vec3 Light::escapedLeWidened(const Vec3& dir, double sin2) const {
-  if (type_ != LightType::Distant || cosMax_ >= 1.0f || !(sin2 > sunSin2_)) return escapedLe(dir);
-  const float cosWide = float(std::sqrt(std::max(0.0, 1.0 - sin2)));
-  return dot(dir, dir_) >= cosWide ? radiance_ * float(sunSin2_ / sin2) : Vec3(0.0f);
-}
-
 float Light::pdfLi(const Vec3& p, const Vec3& wi, float dist) const {
   switch (type_) {
     case LightType::Distant:

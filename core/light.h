@@ -42,10 +42,6 @@ class Light {
   bool sampleLi(const Vec3& p, float u1, float u2, LightSample& s) const;
   // For infinite lights: radiance and solid-angle pdf for an escaping direction.
   Vec3 escapedLe(const Vec3& dir) const;
-  // escapedLe of a sun widened to a cone of sin² half-angle `sin2` (when that is wider
-  // than its own) with the same irradiance: radiance × own sin² / sin2 inside the wider
-  // cone. For paths that can only hit the sun by chance (Scene::narrowSun).
-  Vec3 escapedLeWidened(const Vec3& dir, double sin2) const;
   float pdfLi(const Vec3& p, const Vec3& wi, float dist) const;
   // For area lights: nearest hit of the emitting shape in (tmin, tmax).
   bool intersect(const Ray& r, float& t) const;

@@ -149,14 +149,8 @@ class Scene {
   // grain instead of after it and the explicit bounces: the medium samples the sun. It
   // is 4–9% darker than explicit grains under a directional sun (the first grains'
   // shadowing, which the medium averages), against 55% lost at 64 spp before.
-  // Paths that stay explicit and reach the sun after a specular bounce (where no light
-  // connection exists) see it widened to kNarrowSunAngle with the same irradiance
-  // (ept.cpp, escapedRadiance): a biased but consistent regularisation that blurs glints
-  // and the sun's light through grains by ±2.5° and finds it at practical sample counts
-  // (bench/README.md, "Narrow suns").
   bool narrowSun() const { return narrowSun_; }
   static constexpr float kNarrowSunAngle = 5.0f;
-  static constexpr double kExplicitSunSin2 = 0.0019026509541272;  // sin²(2.5°)
 
  private:
   // Parts of intersect()/intersectMedium(): nearest hit below tmax (which they lower).

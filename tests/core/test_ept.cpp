@@ -168,36 +168,3 @@ TEST(EptView, HiddenDomeStillLightsTheScene) {
   EXPECT_GT(background, 0);
   EXPECT_GT(lit, 0);
 }
-
-// Explicit grains under a narrow sun (Scene::narrowSun): after a specular bounce a path
-// sees the sun widened to 5° with the same irradiance, so a 0.53° sun renders as a 5° sun
-// does, within noise, where most of its light through the grains was missed
-// (examples/README.md, "What the narrow sun costs").
-TEST(EptNarrowSun, ExplicitGrainsFindTheSunAsUnderAFiveDegreeSun) {
-  auto ball = [](float angle, uint64_t seed) {
-    SceneDesc s = granular::testing::sandBallScene(Vec3(0.2f, 0.3f, 4.0f), 30.0f, 0.05f, 1);
-    s.settings.width = s.settings.height = 24;
-    s.settings.spp = 64;
-    s.settings.seed = seed;
-    s.settings.technique = Technique::Ept;
-    for (auto& l : s.lights)
-      if (l.type == LightType::Distant) {
-        l.angle = angle;
-        l.normalize = true;
-      }
-    return s;
-  };
-  auto narrow = Scene::build(ball(0.53f, 1));
-  ASSERT_TRUE(narrow->narrowSun());
-  ASSERT_FALSE(Scene::build(ball(5.0f, 2))->narrowSun());
-  double m[2], se[2];
-  int k = 0;
-  for (float angle : {0.53f, 5.0f}) {
-    auto scene = Scene::build(ball(angle, 1 + k));
-    Renderer r(*scene);
-    ASSERT_TRUE(r.render(64));
-    imageStats(r.film(), m[k], se[k]);
-    ++k;
-  }
-  EXPECT_NEAR(m[0], m[1], 4.0 * std::hypot(se[0], se[1])) << "0.53 deg " << m[0] << ", 5 deg " << m[1];
-}

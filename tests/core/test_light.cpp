@@ -265,29 +265,3 @@ TEST(PhysicalSun, LambertGrainsOrTheSettingOffKeepTheDeltaSun) {
   EXPECT_NEAR(mb, expected, 1e-5 * expected);  // float sums of exact values
   EXPECT_NEAR(ma, expected, 4 * tanSun * h / std::sqrt(3.0) / std::sqrt(samples) * expected);
 }
-
-// The widened sun of explicit paths (Scene::narrowSun): the same irradiance over a wider
-// cone, and the sun itself untouched when it is already wider.
-TEST(Light, AWidenedSunKeepsItsIrradiance) {
-  LightDesc d;
-  d.type = LightType::Distant;
-  d.angle = 0.53f;
-  d.normalize = true;
-  d.intensity = 2.0f;  // irradiance, normalised
-  Light sun = Light::fromDesc(d);
-  const double sin2 = Scene::kExplicitSunSin2;
-  const Vec3 axis(0, 0, 1);
-  auto tilted = [](float degrees) {
-    float a = degrees * kPi / 180.0f;
-    return Vec3(std::sin(a), 0.0f, std::cos(a));
-  };
-  Vec3 wide = sun.escapedLeWidened(axis, sin2);
-  EXPECT_NEAR(wide.x * kPiD * sin2, 2.0, 2e-3);  // E = L π sin²θ
-  EXPECT_EQ(sun.escapedLeWidened(tilted(2.4f), sin2).x, wide.x);
-  EXPECT_EQ(sun.escapedLeWidened(tilted(2.6f), sin2).x, 0.0f);
-  EXPECT_EQ(sun.escapedLe(tilted(2.4f)).x, 0.0f);  // outside the true disk
-  EXPECT_NEAR(sun.escapedLe(axis).x * kPiD * std::pow(std::sin(0.265 * kPiD / 180.0), 2), 2.0, 2e-3);
-  d.angle = 10.0f;
-  Light broad = Light::fromDesc(d);
-  EXPECT_EQ(broad.escapedLeWidened(tilted(4.0f), sin2).x, broad.escapedLe(tilted(4.0f)).x);
-}
