@@ -99,12 +99,10 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
   // radius R; polydisperse aggregates pack their size classes (grain.h) together.
   auto tt = std::chrono::steady_clock::now();
   const SizeClasses classes = sizeClassesOf(desc);
-  TileSizes sizes;
-  if (!(classes.size.size() == 1 && classes.size[0] == 1.0f && desc.sizeSpread == 0)) {
-    sizes.classSize.assign(classes.size.begin(), classes.size.end());
-    sizes.classWeight = classes.weight;
-    sizes.spread = desc.sizeSpread;
-  }
+  TileSizes sizes;  // one class of size 1 without spread: monodisperse (TileSizes::monodisperse)
+  sizes.classSize.assign(classes.size.begin(), classes.size.end());
+  sizes.classWeight = classes.weight;
+  sizes.spread = desc.sizeSpread;
   try {
     tile_ = loadOrGenerateTile(desc.tileSpheres, desc.packingRate, desc.seed, sizes);
   } catch (const InputError& e) {

@@ -179,7 +179,7 @@ void eptStep(const Scene& scene, PathState& path) {
       // the medium where its ray crosses the boundary.
       if (scene.narrowSun()) {
         path.mode = path.credit = kVpt;
-        path.medium = scene.mediumAt(hit.p);
+        path.medium = scene.aggregates()[hit.aggregate]->insideBoundary(hit.p) ? hit.aggregate : -1;
         path.ray.o = hit.p;
         path.ray.tmin = 0;
         path.ray.tmax = kInf;

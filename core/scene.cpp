@@ -329,14 +329,14 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc, const Scene* previous
     lights.push_back(dome);
     s->defaultLightAdded_ = true;
   }
-  const bool widen = desc.settings.physicalSun && hasSmoothDielectricGrains(desc);
+  const bool smooth = hasSmoothDielectricGrains(desc);
+  const bool widen = desc.settings.physicalSun && smooth;
   for (auto& l : lights)
     if (widen && isDeltaSun(l)) {  // widenedSuns()
       l.angle = kSunAngle;
       l.normalize = true;  // a delta light's intensity is its irradiance: keep it
       s->widenedSuns_.push_back(l.name);
     }
-  const bool smooth = hasSmoothDielectricGrains(desc);
   for (const auto& l : lights) {
     if (smooth && l.type == LightType::Distant && l.angle < Scene::kNarrowSunAngle) s->narrowSun_ = true;
     int idx = int(s->lights_.size());

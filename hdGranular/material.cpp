@@ -1,9 +1,9 @@
 #include "material.h"
 
+#include "error.h"
 #include "pxr/base/gf/vec3f.h"
 #include "pxr/base/gf/vec4f.h"
 #include "pxr/imaging/hd/sceneDelegate.h"
-#include "error.h"
 #include "pxr/usd/sdf/assetPath.h"
 #include "renderParam.h"
 
