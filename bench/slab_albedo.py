@@ -26,9 +26,6 @@ sys.path.insert(0, os.path.join(ROOT, "build", "python"))
 sys.path.insert(0, os.path.join(ROOT, "python"))
 from granular.materials import MATERIALS, QUARTZ_SAND, slab_albedo  # noqa: E402
 
-# The grain radii of the examples (examples/make_examples.py) each material is shown at.
-EXAMPLE_RADIUS = {"quartz_sand": 0.00025, "ice": 0.0004, "sucrose": 0.00025}
-
 
 def fmt(v, digits=3):
     return " ".join(f"{x:.{digits}f}" for x in v)
@@ -73,8 +70,8 @@ def main():
           "target (R G B) |")
     print("|---|---|---|---|---|---|")
     for name, m in MATERIALS.items():
-        r = EXAMPLE_RADIUS[name]
-        albedo, se = slab_albedo(m, r, spp=args.spp)
+        r = m.grain_radius_m  # the examples' grain size
+        albedo, se = slab_albedo(m, spp=args.spp)
         target = " ".join(f"{lo:.3g}–{hi:.3g}" for lo, hi in m.target)
         print(f"| {name} | {r * 1000:g} mm | {', '.join(f'{x:.2g}' for x in m.absorption_per_radius(r))} | "
               f"{fmt(albedo)} | {fmt(se, 4)} | {target} |", flush=True)

@@ -28,10 +28,6 @@ import granular_core as core
 from granular import schema
 from granular.materials import ICE, QUARTZ_SAND, SUCROSE
 
-SNOW_RADIUS = 0.0004  # snow grains of 0.4 mm (aged snow; fresh snow's are finer)
-SAND_RADIUS = 0.00025  # fine beach sand
-SUGAR_RADIUS = 0.00025  # granulated sugar
-
 
 def new_stage(path, resolution):
     stage = Usd.Stage.CreateNew(path)
@@ -190,6 +186,18 @@ def grain(stage, name, tri, ior, absorption, roughness=0.0):
     return m
 
 
+def material_grains(stage, material, names, absorption=None, dark_absorption=None):
+    """The material's prototypes (granular.materials: the shapes, index and weights its slab
+    test renders) as grain prims named `names`, absorbing as the material does at the
+    examples' grain size unless absorption (and dark_absorption) are given. Returns the
+    prims and their weights."""
+    light = material.absorption_per_radius(material.grain_radius_m) if absorption is None else absorption
+    dark = (material.dark_per_radius if dark_absorption is None else dark_absorption) or light
+    prims = [grain(stage, name, p.mesh(), material.ior, dark if p.dark else light)
+             for p, name in zip(material.prototypes, names)]
+    return prims, [p.weight for p in material.prototypes]
+
+
 def cylinder(radius, height, segments=48):
     return core.make_lathe([(radius, 0.0), (radius, height)], segments)
 
@@ -211,11 +219,10 @@ def sandcastle(path):
     ground = textured_quad(stage, "/World/Ground", 12.0, tiles=6)
     bind(ground, textured_material(stage, "Beach", "./textures/beach.png"))
 
-    # Quartz sand: index 1.55, absorbing more blue than red (a yellow-brown tint).
-    round_ = grain(stage, "Round", core.make_rock(2, 0.2, 1), 1.55, (0.12, 0.24, 0.65))
-    flat = grain(stage, "Flat", core.make_ellipsoid((1.0, 0.55, 0.8), 2), 1.55, (0.12, 0.24, 0.65))
-    dark = grain(stage, "Dark", core.make_rock(2, 0.3, 5), 1.55, (0.7, 0.9, 1.5))
-    protos = [round_, flat, dark]
+    # Quartz sand's grains, absorbing more (for pebbles: by eye) and more blue than red (a
+    # yellow-brown tint).
+    protos, weights = material_grains(stage, QUARTZ_SAND, ("Round", "Flat", "Dark"), (0.12, 0.24, 0.65),
+                                      (0.7, 0.9, 1.5))
 
     # The values are authored on each part: Hydra (OpenUSD 24.08's UsdImaging) does not
     # hand a delegate the granular primvars a part would inherit from the castle Xform,
@@ -230,7 +237,7 @@ def sandcastle(path):
         api.CreatePrimvar("granular:grainRadius", Sdf.ValueTypeNames.Float, UsdGeom.Tokens.constant).Set(0.012)
         api.CreatePrimvar("granular:packingRate", Sdf.ValueTypeNames.Float, UsdGeom.Tokens.constant).Set(0.6)
         api.CreatePrimvar("granular:weights", Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.constant).Set(
-            Vt.FloatArray([0.6, 0.3, 0.1]))
+            Vt.FloatArray(weights))
         return m
 
     part("Base", core.make_box((-0.8, 0.0, -0.8), (0.8, 0.3, 0.8)), None, 1)
@@ -249,10 +256,8 @@ def snow_ground(stage):
 
 def snow_grains(stage):
     """Ice flakes and pellets of 0.4 mm: ice's measured index and absorption
-    (granular.materials.ICE: a faint blue only deep inside)."""
-    absorption = ICE.absorption_per_radius(SNOW_RADIUS)
-    return (grain(stage, "Flake", core.make_ellipsoid((1.0, 0.35, 0.9), 2), ICE.ior, absorption),
-            grain(stage, "Pellet", core.make_rock(2, 0.25, 11), ICE.ior, absorption))
+    (granular.materials.ICE: a faint blue only deep inside). Returns the prims and weights."""
+    return material_grains(stage, ICE, ("Flake", "Pellet"))
 
 
 def snowslab(path):
@@ -261,10 +266,10 @@ def snowslab(path):
     sun(stage, direction=(-0.3, -0.55, -0.75), irradiance=1.2, color=(1.0, 0.97, 0.92))
     sky(stage, (0.55, 0.7, 1.0), 0.35)
     snow_ground(stage)
-    flake, pellet = snow_grains(stage)
+    grains, weights = snow_grains(stage)
     slab = mesh_from(stage, "/World/Snow", core.make_box((-0.9, 0.0, -0.55), (0.9, 0.3, 0.55)))
-    schema.apply_aggregate(slab, [flake, pellet], grain_radius=SNOW_RADIUS, packing_rate=ICE.packing_rate,
-                           weights=[0.5, 0.5], seed=4, tile_spheres=512)
+    schema.apply_aggregate(slab, grains, grain_radius=ICE.grain_radius_m, packing_rate=ICE.packing_rate,
+                           weights=weights, seed=4, tile_spheres=512)
     stage.GetRootLayer().Save()
 
 
@@ -283,13 +288,11 @@ def sugarcube(path):
     UsdGeom.Xformable(table).AddScaleOp().Set(Gf.Vec3f(4.0, 0.1, 4.0))
     bind(table, preview_material(stage, "Wood", diffuse=(0.25, 0.13, 0.06)))
     # Sucrose crystals (granular.materials.SUCROSE): clear, index 1.56, box-like.
-    absorption = SUCROSE.absorption_per_radius(SUGAR_RADIUS)
-    crystal = grain(stage, "Crystal", core.make_box((-1.0, -0.7, -0.55), (1.0, 0.7, 0.55)), SUCROSE.ior, absorption)
-    chip = grain(stage, "Chip", core.make_box((-0.8, -0.8, -0.4), (0.8, 0.8, 0.4)), SUCROSE.ior, absorption)
+    crystals, weights = material_grains(stage, SUCROSE, ("Crystal", "Chip"))
     cube = mesh_from(stage, "/World/SugarCube", core.make_box((-0.008, 0.0, -0.008), (0.008, 0.016, 0.008)),
                      rotate_y=25.0)
-    schema.apply_aggregate(cube, [crystal, chip], grain_radius=SUGAR_RADIUS, packing_rate=SUCROSE.packing_rate,
-                           weights=[0.7, 0.3], seed=9, tile_spheres=512)
+    schema.apply_aggregate(cube, crystals, grain_radius=SUCROSE.grain_radius_m, packing_rate=SUCROSE.packing_rate,
+                           weights=weights, seed=9, tile_spheres=512)
     stage.GetRootLayer().Save()
 
 
@@ -339,10 +342,10 @@ def animated(path):
         intensity.Set(value, frame)
     sky(stage, (0.55, 0.7, 1.0), 0.35)
     snow_ground(stage)
-    flake, pellet = snow_grains(stage)
+    grains, weights = snow_grains(stage)
     drift = mesh_from(stage, "/World/Drift", core.make_box((-0.35, 0.0, -0.25), (0.35, 0.22, 0.25)))
-    schema.apply_aggregate(drift, [flake, pellet], grain_radius=SNOW_RADIUS, packing_rate=ICE.packing_rate,
-                           weights=[0.5, 0.5], seed=4, tile_spheres=512)
+    schema.apply_aggregate(drift, grains, grain_radius=ICE.grain_radius_m, packing_rate=ICE.packing_rate,
+                           weights=weights, seed=4, tile_spheres=512)
     stage.GetRootLayer().Save()
 
 
@@ -401,20 +404,23 @@ def sandcastle_paper(path):
     for part in parts:
         over = stage.OverridePrim(f"/World/Castle/{part}")
         UsdGeom.PrimvarsAPI(over).CreatePrimvar("granular:grainRadius", Sdf.ValueTypeNames.Float,
-                                                UsdGeom.Tokens.constant).Set(SAND_RADIUS)
+                                                UsdGeom.Tokens.constant).Set(QUARTZ_SAND.grain_radius_m)
     # Light quartz sand whose thick layer reflects what dry beach sand does (0.40, 0.33,
     # 0.24; examples/README.md, "Materials"). The pebble castle's absorption would make
     # quarter-millimetre sand dark brown (0.12, 0.07, 0.03).
-    light, dark = QUARTZ_SAND.absorption_per_radius(SAND_RADIUS), QUARTZ_SAND.dark_per_radius
-    for name, absorption in (("Round", light), ("Flat", light), ("Dark", dark)):
+    names = ("Round", "Flat", "Dark")  # sandcastle's grains, QUARTZ_SAND's prototypes
+    light = QUARTZ_SAND.absorption_per_radius(QUARTZ_SAND.grain_radius_m)
+    for proto, name in zip(QUARTZ_SAND.prototypes, names):
+        absorption = QUARTZ_SAND.dark_per_radius if proto.dark else light
         UsdGeom.PrimvarsAPI(stage.OverridePrim(f"/World/Grains/{name}")).CreatePrimvar(
             "granular:absorption", Sdf.ValueTypeNames.Color3f, UsdGeom.Tokens.constant).Set(Gf.Vec3f(*absorption))
     # The beach: a slab of the castle's sand just below its base (a gap of one grain, so
     # that the two boundaries never share a face); the textured plane is hidden.
     UsdGeom.Imageable(stage.OverridePrim("/World/Ground")).CreateVisibilityAttr(UsdGeom.Tokens.invisible)
-    beach = mesh_from(stage, "/World/Beach", core.make_box((-6.0, -0.25, -6.0), (6.0, -SAND_RADIUS, 6.0)))
-    schema.apply_aggregate(beach, [stage.GetPrimAtPath(f"/World/Grains/{n}") for n in ("Round", "Flat", "Dark")],
-                           grain_radius=SAND_RADIUS, packing_rate=QUARTZ_SAND.packing_rate, weights=[0.6, 0.3, 0.1],
+    r = QUARTZ_SAND.grain_radius_m
+    beach = mesh_from(stage, "/World/Beach", core.make_box((-6.0, -0.25, -6.0), (6.0, -r, 6.0)))
+    schema.apply_aggregate(beach, [stage.GetPrimAtPath(f"/World/Grains/{n}") for n in names], grain_radius=r,
+                           packing_rate=QUARTZ_SAND.packing_rate, weights=[p.weight for p in QUARTZ_SAND.prototypes],
                            seed=30, tile_spheres=4096)
     cam = UsdGeom.Camera(stage.OverridePrim("/World/Camera"))
     cam.CreateVerticalApertureAttr(27.0)  # 4:3

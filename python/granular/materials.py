@@ -25,12 +25,25 @@ class Prototype:
     weight: float
     dark: bool = False  # the material's darker minority grains (sand's heavy minerals)
 
+    def mesh(self):
+        """The shape as a core.TriangleMesh (what the examples author as the prototype)."""
+        import granular_core as core
+        (kind, p), = self.shape.items()
+        if kind == "rock":
+            return core.make_rock(p["subdivisions"], p["roughness"], p["seed"])
+        if kind == "ellipsoid":
+            return core.make_ellipsoid(tuple(p["radii"]), p["subdivisions"])
+        if kind == "box":
+            return core.make_box(tuple(p["lo"]), tuple(p["hi"]))
+        raise ValueError(f"{self.name}: no mesh for shape {kind!r}")
+
 
 @dataclass(frozen=True)
 class Material:
     name: str
     ior: float
     packing_rate: float
+    grain_radius_m: float  # the grain size the examples use (and slab_albedo's default)
     prototypes: tuple
     source: str
     # Either a bulk coefficient measured in 1/m at CHANNEL_NM...
@@ -55,6 +68,7 @@ QUARTZ_SAND = Material(
     name="quartz_sand",
     ior=1.55,  # quartz: ordinary 1.544, extraordinary 1.553 at 589 nm
     packing_rate=0.6,
+    grain_radius_m=0.00025,  # fine beach sand
     prototypes=(Prototype("round", {"rock": {"subdivisions": 2, "roughness": 0.2, "seed": 1}}, 0.6),
                 Prototype("flat", {"ellipsoid": {"radii": [1.0, 0.55, 0.8], "subdivisions": 2}}, 0.3),
                 Prototype("dark", {"rock": {"subdivisions": 2, "roughness": 0.3, "seed": 5}}, 0.1, dark=True)),
@@ -75,6 +89,7 @@ ICE = Material(
     name="ice",
     ior=1.31,  # ice Ih at 550 nm (Warren & Brandt 2008)
     packing_rate=0.45,  # snow of density 0.41 g/cm^3 (ice 0.917)
+    grain_radius_m=0.0004,  # aged snow (fresh snow's grains are finer)
     prototypes=(Prototype("flake", {"ellipsoid": {"radii": [1.0, 0.35, 0.9], "subdivisions": 2}}, 0.5),
                 Prototype("pellet", {"rock": {"subdivisions": 2, "roughness": 0.25, "seed": 11}}, 0.5)),
     # Bulk absorption of pure ice: above 600 nm Warren & Brandt (2008, JGR 113, D14220; with
@@ -93,6 +108,7 @@ SUCROSE = Material(
     name="sucrose",
     ior=1.56,  # sucrose crystal's principal indices 1.540, 1.567, 1.572 (mean 1.56)
     packing_rate=0.55,
+    grain_radius_m=0.00025,  # granulated sugar
     prototypes=(Prototype("crystal", {"box": {"lo": [-1.0, -0.7, -0.55], "hi": [1.0, 0.7, 0.55]}}, 0.7),
                 Prototype("chip", {"box": {"lo": [-0.8, -0.8, -0.4], "hi": [0.8, 0.8, 0.4]}}, 0.3)),
     # Clear crystals: pure sucrose does not absorb in the visible; the colour of refined
@@ -107,14 +123,16 @@ SUCROSE = Material(
 MATERIALS = {m.name: m for m in (QUARTZ_SAND, ICE, SUCROSE)}
 
 
-def slab_scene(material, grain_radius_m, spp=64, seed=1, per_radius=None, dark_per_radius=None):
+def slab_scene(material, grain_radius_m=None, spp=64, seed=1, per_radius=None, dark_per_radius=None):
     """The scene (core's JSON description, a dict) of a thick layer under a white dome of
     radiance 1, seen from straight above: the mean radiance over the image is the layer's
     white-sky albedo. The slab is 4000 grain radii deep and ten times wider than the view,
     so that what leaks through its bottom and sides is a fraction of a percent. Lengths are
     in grain radii (the albedo does not depend on the scale), the absorption is the
-    material's at grain_radius_m unless per_radius (and dark_per_radius) are given."""
+    material's at grain_radius_m (default: the examples' size) unless per_radius (and
+    dark_per_radius) are given."""
     r = 0.001
+    grain_radius_m = material.grain_radius_m if grain_radius_m is None else grain_radius_m
     absorption = list(per_radius if per_radius is not None else material.absorption_per_radius(grain_radius_m))
     dark = list(dark_per_radius if dark_per_radius is not None else (material.dark_per_radius or absorption))
     mats = {"grain": {"type": "dielectric", "ior": material.ior, "absorption": absorption},
@@ -132,7 +150,7 @@ def slab_scene(material, grain_radius_m, spp=64, seed=1, per_radius=None, dark_p
                             "weights": [p.weight for p in material.prototypes]}]}
 
 
-def slab_albedo(material, grain_radius_m=0.00025, spp=64, seed=1, **absorption):
+def slab_albedo(material, grain_radius_m=None, spp=64, seed=1, **absorption):
     """Renders slab_scene; returns (albedo, standard error), each per channel. The pixels
     are independent estimates, so the standard error is their spread over sqrt(pixels)."""
     import json

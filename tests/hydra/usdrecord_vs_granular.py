@@ -26,6 +26,7 @@ import numpy as np
 import granular_core as core
 
 from pxr import Usd, UsdGeom, UsdLux
+from usdrecord_run import run_usdrecord
 
 
 def widened_sun(scene, outdir):
@@ -46,7 +47,6 @@ def widened_sun(scene, outdir):
                 UsdLux.DistantLight(stage.OverridePrim(prim.GetPath())).CreateAngleAttr(20.0)
     stage.GetRootLayer().Save()
     return path
-from usdrecord_run import run_usdrecord
 
 
 def mean_tolerance(ours, other):
