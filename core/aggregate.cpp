@@ -60,13 +60,22 @@ bool closestPointCallback(RTCPointQueryFunctionArguments* args) {
 }  // namespace
 
 bool Aggregate::traceGrain(const TileSphere& s, const int64_t cell[3], const Vec3& oc, const Vec3& d, float tmin,
-                           float tmax, bool knownInside, GrainHit& best) const {
+                           float tmax, bool knownInside, GrainHit& best, const GrainHit* skip) const {
   int64_t home[3] = {cell[0] + s.home[0], cell[1] + s.home[1], cell[2] + s.home[2]};
+  if (skip && skip->sphere == s.id && skip->cell[0] == home[0] && skip->cell[1] == home[1] && skip->cell[2] == home[2])
+    return false;
   // The centre from the home cell, computed as forEachGrain does, so that every cell
   // that lists this sphere makes the same inside decision.
-  Vec3 worldCenter = origin_ + Vec3(float(home[0]), float(home[1]), float(home[2])) * L_ + tile_.centers[s.id] * L_;
-  if (!knownInside && !sphereIsInside(home, worldCenter)) return false;
-  GrainChoice g = selector_.choose(home[0], home[1], home[2], s.id, tile_.sizeClass(s.id));
+  if (!knownInside) {
+    const Vec3 worldCenter = origin_ + Vec3(float(home[0]), float(home[1]), float(home[2])) * L_ + tile_.centers[s.id] * L_;
+    if (!sphereIsInside(home, worldCenter)) return false;
+  }
+  return traceChosen(s, home, selector_.choose(home[0], home[1], home[2], s.id, tile_.sizeClass(s.id)), oc, d, tmin,
+                     tmax, best);
+}
+
+bool Aggregate::traceChosen(const TileSphere& s, const int64_t home[3], const GrainChoice& g, const Vec3& oc,
+                            const Vec3& d, float tmin, float tmax, GrainHit& best) const {
   const GrainPrototype& proto = prototypes_[g.prototype];
   // Into the grain frame; t is unchanged because the direction is scaled by 1/R too.
   float invR = 1.0f / s.radius;
@@ -82,6 +91,7 @@ bool Aggregate::traceGrain(const TileSphere& s, const int64_t cell[3], const Vec
   best.cell[0] = home[0]; best.cell[1] = home[1]; best.cell[2] = home[2];
   best.sphere = s.id;
   best.radius = s.radius;
+  best.rotation = g.rotation;
   return true;
 }
 
@@ -229,12 +239,8 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
             d2 += e * e;
           }
           if (d2 >= r * r) continue;
-          TileSphere ts;
-          ts.center = Vec3(float(p[0] * L_), float(p[1] * L_), float(p[2] * L_));
-          ts.home[0] = int8_t(dx); ts.home[1] = int8_t(dy); ts.home[2] = int8_t(dz);
-          ts.id = s;
-          ts.radius = R_ * tile_.size(s);
-          spheres_.push_back(ts);
+          const int shift[3] = {dx, dy, dz};
+          spheres_.push_back(imageOf(s, shift));
         }
   }
   // Sub-cells: an M^3 grid over the unit cell, M ≈ L / 2R (one or two spheres across),
@@ -292,6 +298,18 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
                        boundary_.points.size() * 40;
   for (const auto& p : prototypes_) stats_.memoryBytes += p.mesh.points.size() * 40 + p.mesh.indices.size() * 8;
   stats_.setupSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+Aggregate::TileSphere Aggregate::imageOf(int id, const int shift[3]) const {
+  const Vec3& c = tile_.centers[id];
+  // The sum in float, the product in double: the listed centres' own rounding.
+  const double p[3] = {c.x + shift[0], c.y + shift[1], c.z + shift[2]};
+  TileSphere ts;
+  ts.center = Vec3(float(p[0] * L_), float(p[1] * L_), float(p[2] * L_));
+  for (int a = 0; a < 3; ++a) ts.home[a] = int8_t(shift[a]);
+  ts.id = id;
+  ts.radius = R_ * tile_.size(id);
+  return ts;
 }
 
 CellClass Aggregate::cellClass(int64_t i, int64_t j, int64_t k) const {
@@ -386,10 +404,13 @@ struct GridWalk {
 
 }  // namespace
 
-bool Aggregate::intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, GrainHit& hit) const {
+bool Aggregate::intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, GrainHit& hit, const GrainHit* from,
+                          bool inside) const {
   // A non-finite ray (a numerical failure upstream) hits nothing: the cell walk below
   // would convert NaN to an integer (undefined behaviour; found by the USD fuzzer).
   if (!isFinite(o) || !isFinite(d)) return false;
+  if (from && inside && traceFromInside(*from, o, d, tmin, tmax, hit)) return true;
+  const GrainHit* skip = from && !inside && prototypes_[size_t(from->prototype)].convex ? from : nullptr;
   Vec3 invD(1.0f / d.x, 1.0f / d.y, 1.0f / d.z);
   float t0, t1;
   if (!bounds_.intersect(o, invD, tmin, tmax, t0, t1)) return false;
@@ -401,7 +422,7 @@ bool Aggregate::intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, 
     const float tExit = std::min(w.tNext[axis], t1);
     const CellClass c = cellClass(w.cell[0], w.cell[1], w.cell[2]);
     if (c != CellClass::Outside &&
-        walkCell(w.cell, c == CellClass::Partial, o, d, invD, tmin, tEnter, tExit, best, found, hit))
+        walkCell(w.cell, c == CellClass::Partial, o, d, invD, tmin, tEnter, tExit, best, found, hit, skip))
       return true;
     if (tExit >= t1) return found;
     tEnter = w.tNext[axis];
@@ -410,7 +431,8 @@ bool Aggregate::intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, 
 }
 
 bool Aggregate::walkCell(const int64_t cell[3], bool partial, const Vec3& o, const Vec3& d, const Vec3& invD,
-                         float tmin, float tEnter, float tExit, float& best, bool& found, GrainHit& hit) const {
+                         float tmin, float tEnter, float tExit, float& best, bool& found, GrainHit& hit,
+                         const GrainHit* skip) const {
   // 3-D DDA over the cell's sub-cells from tEnter to tExit, front to back. A sphere is
   // traced in the sub-cell where the ray enters it (its entry t within the sub-cell's
   // span, padded against rounding: at worst traced twice, never missed).
@@ -456,7 +478,7 @@ bool Aggregate::walkCell(const int64_t cell[3], bool partial, const Vec3& o, con
         const float te = std::max(-b - sq, tmin);
         if (-b + sq < tmin || te >= best || te < lo || te >= hi) continue;
         const TileSphere& s = spheres_[subList_[k0 + i]];
-        if (traceGrain(s, cell, oCell - s.center, d, tmin, best, dSub < sureWithin, hit)) {
+        if (traceGrain(s, cell, oCell - s.center, d, tmin, best, dSub < sureWithin, hit, skip)) {
           best = hit.t;
           found = true;
         }
@@ -468,6 +490,28 @@ bool Aggregate::walkCell(const int64_t cell[3], bool partial, const Vec3& o, con
     sEnter = w.tNext[axis];
     if (!w.advance(axis, nSub)) return false;
   }
+}
+
+bool Aggregate::traceFromInside(const GrainHit& g, const Vec3& o, const Vec3& d, float tmin, float tmax,
+                                GrainHit& hit) const {
+  // The cell the walk starts in (intersect(): the origin is within the bounds, so the
+  // walk starts at tmin), and the grain's image listed there.
+  const Vec3 p = o + d * tmin;
+  if (!bounds_.contains(p)) return false;
+  int64_t cell[3];
+  int shift[3];
+  for (int a = 0; a < 3; ++a) {
+    cell[a] = std::min<int64_t>(std::max<int64_t>(int64_t(std::floor((p[a] - origin_[a]) / L_)), 0), n_[a] - 1);
+    const int64_t s = g.cell[a] - cell[a];
+    if (s < -1 || s > 1) return false;
+    shift[a] = int(s);
+  }
+  const TileSphere s = imageOf(g.sphere, shift);
+  const Vec3 oCell = o - (origin_ + Vec3(float(cell[0]), float(cell[1]), float(cell[2])) * L_);
+  GrainChoice choice;
+  choice.prototype = g.prototype;
+  choice.rotation = g.rotation;
+  return traceChosen(s, g.cell, choice, oCell - s.center, d, tmin, tmax, hit);
 }
 
 void Aggregate::forEachGrain(const Bounds3& box, const std::function<void(const GrainInstance&)>& fn) const {

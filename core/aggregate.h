@@ -38,6 +38,7 @@ struct GrainHit {
   int64_t cell[3] = {0, 0, 0};
   int sphere = -1;
   float radius = 0;        // the grain's bounding radius (polydisperse: its own)
+  Mat3 rotation;           // its frame (GrainSelector::choose), kept for a ray from inside it
 };
 
 // One grain, as the brute-force reference and the exporters see it.
@@ -70,7 +71,14 @@ class Aggregate {
   // prototypeMaterials: scene material index of each prototype.
   void build(const AggregateDesc& desc, const EmbreeDevice& device, const std::vector<int>& prototypeMaterials);
 
-  bool intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, GrainHit& hit) const;
+  // from: the grain the ray starts at (its path's last hit, or null), inside it or leaving
+  // it. A ray inside a grain leaves it before meeting any other (grains lie in disjoint
+  // bounding spheres): only that grain is traced, the walk only if the ray misses it
+  // (an origin rounded out of it). One leaving a convex grain cannot meet it again: the
+  // walk skips it. Both give the walk's own hits (the grain is traced as from the cell
+  // the walk starts in).
+  bool intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, GrainHit& hit, const GrainHit* from = nullptr,
+                 bool inside = false) const;
   // Exact inside test of a world point against the boundary mesh (ray parity by the
   // orientation of the first hit).
   bool insideBoundary(const Vec3& p) const;
@@ -113,12 +121,19 @@ class Aggregate {
   // found set). True when a hit is found and no later sphere can be nearer: the walk may
   // stop.
   bool walkCell(const int64_t cell[3], bool partial, const Vec3& o, const Vec3& d, const Vec3& invD, float tmin,
-                float tEnter, float tExit, float& best, bool& found, GrainHit& hit) const;
+                float tEnter, float tExit, float& best, bool& found, GrainHit& hit, const GrainHit* skip) const;
   // The grain of tile sphere s listed by `cell`, if its centre is inside (knownInside:
   // the caller knows it is): its nearest hit in [tmin, tmax] along oc + t d (oc: the
-  // ray's origin relative to the sphere's centre).
+  // ray's origin relative to the sphere's centre). skip: a grain not to trace, or null.
   bool traceGrain(const TileSphere& s, const int64_t cell[3], const Vec3& oc, const Vec3& d, float tmin, float tmax,
-                  bool knownInside, GrainHit& best) const;
+                  bool knownInside, GrainHit& best, const GrainHit* skip = nullptr) const;
+  // The grain of sphere s (home: its cell) with its prototype and rotation chosen.
+  bool traceChosen(const TileSphere& s, const int64_t home[3], const GrainChoice& g, const Vec3& oc, const Vec3& d,
+                   float tmin, float tmax, GrainHit& best) const;
+  // Tile sphere `id`'s periodic image offset by `shift` cells (in -1..1): as build() lists it.
+  TileSphere imageOf(int id, const int shift[3]) const;
+  // The ray from inside grain `g`: its exit, traced as the walk would from its first cell.
+  bool traceFromInside(const GrainHit& g, const Vec3& o, const Vec3& d, float tmin, float tmax, GrainHit& hit) const;
 
   EmbreeDevice device_;  // first: it outlives the BVHs below (scenes share aggregates)
   std::string name_;

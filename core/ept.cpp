@@ -139,6 +139,11 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
   path.lastP = hit.p;
   // Inside a grain after this bounce when the new direction heads into it.
   path.inGrain = hit.kind == Hit::Grain && dot(wi, hit.ng) < 0;
+  path.from.aggregate = hit.kind == Hit::Grain ? hit.aggregate : -1;
+  if (hit.kind == Hit::Grain) {
+    path.from.grain = hit.grain;
+    path.from.inside = path.inGrain;
+  }
   path.ray.o = offsetRayOrigin(hit.p, hit.ng, wi, hit.eps);
   path.ray.d = wi;
   path.ray.tmin = 0;
@@ -153,7 +158,7 @@ void eptStep(const Scene& scene, PathState& path) {
     return;
   }
   Hit hit;
-  bool found = scene.intersect(path.ray, hit);
+  bool found = scene.intersect(path.ray, hit, &path.from);
   path.cost[0] += scene.aggregates().empty() ? 1 : kGrainCastCost;
   if (!found) {
     path.L[path.credit] += path.beta * escapedRadiance(scene, path, path.ray.d);

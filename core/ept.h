@@ -39,6 +39,7 @@ struct PathState {
   float lastPdf = 0;       // solid-angle pdf of the last sampled direction
   Vec3 lastP;              // where that direction was sampled (for area-light MIS)
   bool inGrain = false;    // between entering and leaving a grain (EPT)
+  GrainStart from;         // the grain the ray starts at (EPT: Scene::intersect's hint)
   Transport mode = kEpt;   // kEpt: explicit grains; kVpt: equivalent media
   Transport credit = kEpt; // which AOV the path's radiance goes to (kDa after a DA step)
   int medium = -1;         // aggregate whose medium holds the path (kVpt), or -1

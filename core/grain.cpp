@@ -52,7 +52,18 @@ GrainPrototype makeGrainPrototype(const EmbreeDevice& device, const GrainPrototy
   for (Vec3& q : p.mesh.points) q = (q - p.fitCenter) * inv;
   if (p.mesh.signedVolume() < 0) p.mesh.flip();
   p.bvh = buildTriangleScene(device, p.mesh);
+  p.convex = isConvex(p.mesh, 1e-5f);
   return p;
+}
+
+bool isConvex(const TriangleMesh& mesh, float tolerance) {
+  for (size_t t = 0; 3 * t < mesh.indices.size(); ++t) {
+    const Vec3& a = mesh.points[mesh.indices[3 * t]];
+    const Vec3 n = triangleNormal(mesh, unsigned(t));
+    for (const Vec3& v : mesh.points)
+      if (dot(n, v - a) > tolerance) return false;
+  }
+  return true;
 }
 
 SizeClasses sizeClassesOf(const AggregateDesc& desc) {

@@ -27,7 +27,12 @@ struct GrainPrototype {
   EmbreeScene bvh;
   Vec3 fitCenter;           // bounding-sphere centre in the description's space
   float fitRadius = 1.0f;   // its radius there
+  bool convex = false;      // every vertex behind every face's plane (a ray leaving it cannot return)
 };
+
+// Whether a closed, outward-wound mesh is convex: no vertex in front of a face's plane by
+// more than `tolerance` (in the mesh's units).
+bool isConvex(const TriangleMesh& mesh, float tolerance);
 
 // Normalises desc.mesh into its bounding sphere (Ritter's approximate minimal sphere,
 // refined) and builds its BVH. The mesh must already be validated as closed.

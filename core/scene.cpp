@@ -426,12 +426,14 @@ void Scene::finishHit(const Ray& ray, Hit& hit) const {
   if (hit.kind == Hit::Surface) hit.eps = std::max(hit.eps, 1e-5f * coordScale);
 }
 
-bool Scene::intersect(const Ray& ray, Hit& hit) const {
+bool Scene::intersect(const Ray& ray, Hit& hit, const GrainStart* from) const {
   float tmax = ray.tmax;
   bool found = intersectSurfaces(ray, hit, tmax);
   for (size_t a = 0; a < aggregates_.size(); ++a) {
     GrainHit g;
-    if (aggregates_[a]->intersect(ray.o, ray.d, ray.tmin, tmax, g) && g.t < tmax) {
+    const bool own = from && from->aggregate == int(a);
+    if (aggregates_[a]->intersect(ray.o, ray.d, ray.tmin, tmax, g, own ? &from->grain : nullptr, own && from->inside) &&
+        g.t < tmax) {
       found = true;
       tmax = g.t;
       hit.kind = Hit::Grain;
@@ -443,6 +445,7 @@ bool Scene::intersect(const Ray& ray, Hit& hit) const {
       hit.lengthScale = agg.grainRadius();  // absorption is per R, whatever the grain's size
       hit.primId = aggregateId_[a];
       hit.eps = 2e-4f * g.radius;
+      hit.grain = g;
     }
   }
   found |= intersectAreaLights(ray, hit, tmax);

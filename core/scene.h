@@ -45,6 +45,15 @@ struct Hit {
   int geom = -1;
   unsigned prim = 0;
   float bu = 0, bv = 0;
+  GrainHit grain;           // Grain: which grain of the aggregate
+};
+
+// The grain a path's next ray starts at (its last hit), inside it or leaving it: a hint
+// that lets intersect() trace that grain alone or skip it (Aggregate::intersect).
+struct GrainStart {
+  int aggregate = -1;       // -1: the ray does not start at a grain
+  GrainHit grain;
+  bool inside = false;
 };
 
 class Scene {
@@ -52,7 +61,7 @@ class Scene {
   static std::unique_ptr<Scene> build(const SceneDesc& desc, const Scene* previous = nullptr);
 
   // Explicit grains (EPT): nearest surface, grain or area light.
-  bool intersect(const Ray& ray, Hit& hit) const;
+  bool intersect(const Ray& ray, Hit& hit, const GrainStart* from = nullptr) const;
   bool occluded(const Vec3& p, const Vec3& dir, float dist) const;
 
   // The equivalent media (VPT, DA): nearest surface, area light or aggregate boundary
