@@ -60,7 +60,8 @@ bool closestPointCallback(RTCPointQueryFunctionArguments* args) {
 }  // namespace
 
 bool Aggregate::traceGrain(const TileSphere& s, const int64_t cell[3], const Vec3& oc, const Vec3& d, float tmin,
-                           float tmax, bool knownInside, GrainHit& best, const GrainHit* skip) const {
+                           float tmax, bool knownInside, GrainHit& best, const GrainHit* skip,
+                           DistanceField::NearestProbe& probe) const {
   int64_t home[3] = {cell[0] + s.home[0], cell[1] + s.home[1], cell[2] + s.home[2]};
   if (skip && skip->sphere == s.id && skip->cell[0] == home[0] && skip->cell[1] == home[1] && skip->cell[2] == home[2])
     return false;
@@ -68,7 +69,7 @@ bool Aggregate::traceGrain(const TileSphere& s, const int64_t cell[3], const Vec
   // that lists this sphere makes the same inside decision.
   if (!knownInside) {
     const Vec3 worldCenter = origin_ + Vec3(float(home[0]), float(home[1]), float(home[2])) * L_ + tile_.centers[s.id] * L_;
-    if (!sphereIsInside(home, worldCenter)) return false;
+    if (!sphereIsInside(home, worldCenter, probe)) return false;
   }
   return traceChosen(s, home, selector_.choose(home[0], home[1], home[2], s.id, tile_.sizeClass(s.id)), oc, d, tmin,
                      tmax, best);
@@ -350,7 +351,8 @@ float Aggregate::closestBoundaryPoint(const Vec3& p, Vec3& closest) const {
   return length(closest - p);
 }
 
-bool Aggregate::sphereIsInside(const int64_t home[3], const Vec3& worldCenter) const {
+bool Aggregate::sphereIsInside(const int64_t home[3], const Vec3& worldCenter,
+                               DistanceField::NearestProbe& probe) const {
   switch (cellClass(home[0], home[1], home[2])) {
     case CellClass::Inside: return true;
     case CellClass::Outside: return false;
@@ -358,7 +360,7 @@ bool Aggregate::sphereIsInside(const int64_t home[3], const Vec3& worldCenter) c
   }
   // Far enough from the surface, the field's sign is certain (the nearest voxel's value
   // is within 0.87 voxel of the field there); near it, cast a ray.
-  float d = sdf_.nearestDistance(worldCenter);
+  float d = probe(worldCenter);
   if (std::fabs(d) > 2.0f * sdf_.voxelSize()) return d < 0;
   return insideBoundary(worldCenter);
 }
@@ -417,14 +419,25 @@ bool Aggregate::intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, 
   GridWalk w(o + d * t0, t0, d, invD, origin_, L_, n_);
   float tEnter = t0, best = tmax;
   bool found = false;
+  DistanceField::NearestProbe probe(sdf_);
   for (;;) {
     const int axis = w.axis();
     const float tExit = std::min(w.tNext[axis], t1);
     const CellClass c = cellClass(w.cell[0], w.cell[1], w.cell[2]);
+    float resume = -kInf;  // where a partial cell's walk found the ray may jump to
     if (c != CellClass::Outside &&
-        walkCell(w.cell, c == CellClass::Partial, o, d, invD, tmin, tEnter, tExit, best, found, hit, skip))
+        walkCell(w.cell, c == CellClass::Partial, o, d, invD, tmin, tEnter, tExit, best, found, hit, skip, probe,
+                 resume))
       return true;
     if (tExit >= t1) return found;
+    if (resume > tExit + 1e-3f * L_) {
+      // Nothing to meet before `resume`: restart the walk there (past rounding's reach
+      // of this cell's exit, so it never lands back in this cell).
+      if (resume >= t1 || (found && resume >= best)) return found;
+      w = GridWalk(o + d * resume, resume, d, invD, origin_, L_, n_);
+      tEnter = resume;
+      continue;
+    }
     tEnter = w.tNext[axis];
     if (!w.advance(axis, n_)) return found;
   }
@@ -432,7 +445,7 @@ bool Aggregate::intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, 
 
 bool Aggregate::walkCell(const int64_t cell[3], bool partial, const Vec3& o, const Vec3& d, const Vec3& invD,
                          float tmin, float tEnter, float tExit, float& best, bool& found, GrainHit& hit,
-                         const GrainHit* skip) const {
+                         const GrainHit* skip, DistanceField::NearestProbe& probe, float& resume) const {
   // 3-D DDA over the cell's sub-cells from tEnter to tExit, front to back. A sphere is
   // traced in the sub-cell where the ray enters it (its entry t within the sub-cell's
   // span, padded against rounding: at worst traced twice, never missed).
@@ -456,35 +469,53 @@ bool Aggregate::walkCell(const int64_t cell[3], bool partial, const Vec3& o, con
     const float sExit = std::min(w.tNext[axis], tExit);
     const int64_t* sc = w.cell;
     const float dSub =
-        partial ? sdf_.nearestDistance(cellOrigin + Vec3(sc[0] + 0.5f, sc[1] + 0.5f, sc[2] + 0.5f) * Ls) : -kInf;
+        partial ? probe(cellOrigin + Vec3(sc[0] + 0.5f, sc[1] + 0.5f, sc[2] + 0.5f) * Ls) : -kInf;
     if (dSub <= skipBeyond) {
       const size_t sub = size_t((sc[2] * M + sc[1]) * M + sc[0]);
       const float lo = sEnter - pad - kRelPad * std::fabs(sEnter), hi = sExit + pad + kRelPad * std::fabs(sExit);
       // Ray–sphere by the closest approach (b² − c would cancel catastrophically for a
-      // sphere far along the ray): disc = R² − |oc − b d|². First for the whole list (a
-      // loop the compiler vectorises), then the spheres the ray enters here, in list order.
+      // sphere far along the ray): disc = R² − |oc − b d|². First for the whole list,
+      // branch-free (a loop the compiler vectorises): the entry t of each sphere the ray
+      // enters here before `best`, else +inf. Then those spheres, in list order (a rare,
+      // well-predicted branch: about one sphere is entered per sub-cell).
       const uint32_t k0 = subStart_[sub], n = subStart_[sub + 1] - k0;
-      float disc[kMaxSubList], bs[kMaxSubList];
+      float entry[kMaxSubList];
+      const float bestHere = best;
       for (uint32_t i = 0; i < n; ++i) {
         const float ox = oCell.x - subX_[k0 + i], oy = oCell.y - subY_[k0 + i], oz = oCell.z - subZ_[k0 + i];
         const float b = ox * d.x + oy * d.y + oz * d.z;
         const float wx = ox - d.x * b, wy = oy - d.y * b, wz = oz - d.z * b;
-        bs[i] = b;
-        disc[i] = subR2_[k0 + i] - (wx * wx + wy * wy + wz * wz);
+        const float disc = subR2_[k0 + i] - (wx * wx + wy * wy + wz * wz);
+        const float sq = std::sqrt(std::max(disc, 0.0f));
+        const float te = std::max(-b - sq, tmin);
+        const bool enters = (disc >= 0) & (-b + sq >= tmin) & (te < bestHere) & (te >= lo) & (te < hi);
+        entry[i] = enters ? te : kInf;
       }
       for (uint32_t i = 0; i < n; ++i) {
-        if (disc[i] < 0) continue;
-        const float b = bs[i], sq = std::sqrt(disc[i]);
-        const float te = std::max(-b - sq, tmin);
-        if (-b + sq < tmin || te >= best || te < lo || te >= hi) continue;
+        if (!(entry[i] < best)) continue;
         const TileSphere& s = spheres_[subList_[k0 + i]];
-        if (traceGrain(s, cell, oCell - s.center, d, tmin, best, dSub < sureWithin, hit, skip)) {
+        if (traceGrain(s, cell, oCell - s.center, d, tmin, best, dSub < sureWithin, hit, skip, probe)) {
           best = hit.t;
           found = true;
         }
       }
       // Spheres not traced yet enter at t >= hi: none can be nearer.
       if (found && best <= hi) return true;
+    } else {
+      // Outside by dSub: along the ray, no point is within Rmax of the boundary's inside
+      // before sEnter + dSub − skipBeyond (the field is 1-Lipschitz; the sub-cell's point
+      // at sEnter lies within its half diagonal of the probe): no sphere centred inside
+      // is entered there. Jump (sphere tracing), within the cell or beyond it.
+      const float jumpTo = sEnter + (dSub - skipBeyond) - pad - kRelPad * std::fabs(sEnter);
+      if (jumpTo >= tExit) {
+        resume = jumpTo;
+        return false;
+      }
+      if (jumpTo > sExit) {
+        w = GridWalk(oCell + d * jumpTo, jumpTo, d, invD, Vec3(0.0f), Ls, nSub);
+        sEnter = jumpTo;
+        continue;
+      }
     }
     if (sExit >= tExit) return false;
     sEnter = w.tNext[axis];
@@ -520,6 +551,7 @@ void Aggregate::forEachGrain(const Bounds3& box, const std::function<void(const 
     lo[a] = std::max<int64_t>(0, int64_t(std::floor((box.lo[a] - Rmax_ - origin_[a]) / L_)));
     hi[a] = std::min<int64_t>(n_[a] - 1, int64_t(std::floor((box.hi[a] + Rmax_ - origin_[a]) / L_)));
   }
+  DistanceField::NearestProbe probe(sdf_);
   for (int64_t k = lo[2]; k <= hi[2]; ++k)
     for (int64_t j = lo[1]; j <= hi[1]; ++j)
       for (int64_t i = lo[0]; i <= hi[0]; ++i) {
@@ -528,7 +560,7 @@ void Aggregate::forEachGrain(const Bounds3& box, const std::function<void(const 
         Vec3 cellOrigin = origin_ + Vec3(float(i), float(j), float(k)) * L_;
         for (int s = 0; s < tile_.numSpheres; ++s) {
           Vec3 c = cellOrigin + tile_.centers[s] * L_;  // as traceGrain computes it
-          if (!sphereIsInside(home, c)) continue;
+          if (!sphereIsInside(home, c, probe)) continue;
           GrainChoice g = selector_.choose(i, j, k, s, tile_.sizeClass(s));
           fn(GrainInstance{c, R_ * tile_.size(s), g.prototype, g.rotation, {i, j, k}, s});
         }

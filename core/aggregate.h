@@ -115,18 +115,19 @@ class Aggregate {
     int id;                 // sphere index in the tile
     float radius;           // world units
   };
-  bool sphereIsInside(const int64_t home[3], const Vec3& worldCenter) const;
+  bool sphereIsInside(const int64_t home[3], const Vec3& worldCenter, DistanceField::NearestProbe& probe) const;
   // The sub-cell walk of intersect() through one non-outside (partial or inside) cell
   // between tEnter and tExit; best: the nearest hit's t so far (lowered, hit written,
   // found set). True when a hit is found and no later sphere can be nearer: the walk may
-  // stop.
+  // stop. resume: set beyond tExit when the distance field shows nothing to meet before it.
   bool walkCell(const int64_t cell[3], bool partial, const Vec3& o, const Vec3& d, const Vec3& invD, float tmin,
-                float tEnter, float tExit, float& best, bool& found, GrainHit& hit, const GrainHit* skip) const;
+                float tEnter, float tExit, float& best, bool& found, GrainHit& hit, const GrainHit* skip,
+                DistanceField::NearestProbe& probe, float& resume) const;
   // The grain of tile sphere s listed by `cell`, if its centre is inside (knownInside:
   // the caller knows it is): its nearest hit in [tmin, tmax] along oc + t d (oc: the
   // ray's origin relative to the sphere's centre). skip: a grain not to trace, or null.
   bool traceGrain(const TileSphere& s, const int64_t cell[3], const Vec3& oc, const Vec3& d, float tmin, float tmax,
-                  bool knownInside, GrainHit& best, const GrainHit* skip = nullptr) const;
+                  bool knownInside, GrainHit& best, const GrainHit* skip, DistanceField::NearestProbe& probe) const;
   // The grain of sphere s (home: its cell) with its prototype and rotation chosen.
   bool traceChosen(const TileSphere& s, const int64_t home[3], const GrainChoice& g, const Vec3& oc, const Vec3& d,
                    float tmin, float tmax, GrainHit& best) const;

@@ -78,6 +78,13 @@ float DistanceField::distance(const Vec3& p) const {
   return value * voxel_;
 }
 
+float DistanceField::voxelValue(const int ijk[3], const void*& accessor) const {
+  if (!accessor) accessor = &threadAccessor(*impl_->grid, impl_->id);
+  return static_cast<const openvdb::FloatGrid::ConstUnsafeAccessor*>(accessor)->getValue(
+             openvdb::Coord(ijk[0], ijk[1], ijk[2])) *
+         voxel_;
+}
+
 float DistanceField::nearestDistance(const Vec3& p) const {
   const double inv = 1.0 / double(voxel_);
   const openvdb::Coord ijk(int(std::floor(p.x * inv + 0.5)), int(std::floor(p.y * inv + 0.5)),

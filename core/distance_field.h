@@ -7,6 +7,7 @@
 // VPT→DA switch) and for coarse-density export. Thread-safe for queries.
 #pragma once
 
+#include <cmath>
 #include <memory>
 
 #include "math.h"
@@ -28,6 +29,31 @@ class DistanceField {
   // The value at the voxel centre nearest p: within √3/2 voxel of distance(p)'s field
   // (1-Lipschitz), an eighth of its cost; for sign tests with a margin.
   float nearestDistance(const Vec3& p) const;
+  // nearestDistance() for many probes in a row by one thread (a ray's walk through its
+  // cells): the thread's accessor found once, the last voxel's value kept (neighbouring
+  // sub-cells mostly share a voxel). The same values as nearestDistance().
+  class NearestProbe {
+   public:
+    explicit NearestProbe(const DistanceField& field) : field_(field), inv_(1.0 / double(field.voxel_)) {}
+    float operator()(const Vec3& p) {
+      const int ijk[3] = {int(std::floor(p.x * inv_ + 0.5)), int(std::floor(p.y * inv_ + 0.5)),
+                          int(std::floor(p.z * inv_ + 0.5))};
+      if (!valid_ || ijk[0] != last_[0] || ijk[1] != last_[1] || ijk[2] != last_[2]) {
+        value_ = field_.voxelValue(ijk, accessor_);
+        last_[0] = ijk[0]; last_[1] = ijk[1]; last_[2] = ijk[2];
+        valid_ = true;
+      }
+      return value_;
+    }
+
+   private:
+    const DistanceField& field_;
+    double inv_;
+    const void* accessor_ = nullptr;
+    int last_[3] = {0, 0, 0};
+    bool valid_ = false;
+    float value_ = 0;
+  };
   Vec3 gradient(const Vec3& p) const;   // central differences, unit length where defined
   float voxelSize() const { return voxel_; }
   float bandWidth() const { return band_; }
@@ -36,6 +62,8 @@ class DistanceField {
 
  private:
   struct Impl;
+  // The distance at voxel ijk through this thread's accessor (found on first use).
+  float voxelValue(const int ijk[3], const void*& accessor) const;
   std::unique_ptr<Impl> impl_;
   float voxel_ = 0, band_ = 0;
 };

@@ -157,6 +157,12 @@ void checkRaysAgainstBruteForce(const AggregateDesc& d) {
 
 TEST(Aggregate, RayIntersectionMatchesBruteForceOverEveryGrain) { checkRaysAgainstBruteForce(smallAggregate(0.1f, 0.5f)); }
 
+TEST(Aggregate, JumpsOverEmptySubCellsMissNoGrain) {
+  // Smaller grains: the band of partial cells is many sub-cells deep, and rays from
+  // outside jump through it by the distance field (sphere tracing) before the surface.
+  checkRaysAgainstBruteForce(smallAggregate(0.035f, 0.5f));
+}
+
 TEST(Aggregate, GrainsOfManySizesIntersectAsTheirOwnSpheres) {
   // Rocks 1.3 and boxes 0.6 of grainRadius, every grain spread by ±20%: each size class
   // holds one prototype, so a grain's radius says which it is.
