@@ -266,6 +266,12 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& desc, const Scene* previous
     s->meshId_.push_back(m.id);
   }
   rtcCommitScene(s->surfaces_.get());
+  if (!s->worldMeshes_.empty()) {
+    // Padded a little: the slab test must not cull a hit that Embree finds on the bounds.
+    const Vec3 pad = all.extent() * 1e-4f + Vec3(1e-6f * std::max(maxComponent(vabs(all.lo)), maxComponent(vabs(all.hi))));
+    s->surfaceBounds_.lo = all.lo - pad;
+    s->surfaceBounds_.hi = all.hi + pad;
+  }
 
   for (const auto& a : desc.aggregates) {
     BuiltAggregate entry;
@@ -378,6 +384,10 @@ std::string Scene::widenedSunsWarning() const {
 }
 
 bool Scene::intersectSurfaces(const Ray& ray, Hit& hit, float& tmax) const {
+  float t0, t1;
+  if (surfaceBounds_.empty() ||
+      !surfaceBounds_.intersect(ray.o, Vec3(1.0f / ray.d.x, 1.0f / ray.d.y, 1.0f / ray.d.z), ray.tmin, tmax, t0, t1))
+    return false;
   RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
   RTCRayHit rh = makeRayHit(ray.o, ray.d, ray.tmin, tmax);
@@ -428,7 +438,11 @@ void Scene::finishHit(const Ray& ray, Hit& hit) const {
 
 bool Scene::intersect(const Ray& ray, Hit& hit, const GrainStart* from) const {
   float tmax = ray.tmax;
-  bool found = intersectSurfaces(ray, hit, tmax);
+  // A ray that starts at a grain mostly meets a grain next: the surfaces are then asked
+  // over the segment up to it (and not at all when it misses their bounds). Others ask
+  // the surfaces first, whose hit shortens the walk through the aggregates.
+  const bool grainsFirst = from && from->aggregate >= 0;
+  bool found = !grainsFirst && intersectSurfaces(ray, hit, tmax);
   for (size_t a = 0; a < aggregates_.size(); ++a) {
     GrainHit g;
     const bool own = from && from->aggregate == int(a);
@@ -448,6 +462,7 @@ bool Scene::intersect(const Ray& ray, Hit& hit, const GrainStart* from) const {
       hit.grain = g;
     }
   }
+  if (grainsFirst) found |= intersectSurfaces(ray, hit, tmax);
   found |= intersectAreaLights(ray, hit, tmax);
   if (!found) return false;
   finishHit(ray, hit);

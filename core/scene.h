@@ -221,6 +221,7 @@ class Scene {
   std::vector<int> aggregateId_;
   EmbreeDevice device_;
   EmbreeScene surfaces_;
+  Bounds3 surfaceBounds_;  // of every visible mesh (empty: none), to skip surfaces_ cheaply
   float sceneScale_ = 1;
   double buildSeconds_ = 0;
   bool defaultLightAdded_ = false;
