@@ -413,50 +413,59 @@ bool Aggregate::intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, 
   if (!isFinite(o) || !isFinite(d)) return false;
   if (from && inside && traceFromInside(*from, o, d, tmin, tmax, hit)) return true;
   const GrainHit* skip = from && !inside && prototypes_[size_t(from->prototype)].convex ? from : nullptr;
-  Vec3 invD(1.0f / d.x, 1.0f / d.y, 1.0f / d.z);
+  RayWalk r{o, d, Vec3(1.0f / d.x, 1.0f / d.y, 1.0f / d.z), tmin, tmax, hit, skip, false,
+            DistanceField::NearestProbe(sdf_)};
+  return walk(r, tmax);
+}
+
+bool Aggregate::occluded(const Vec3& o, const Vec3& d, float tmin, float tmax) const {
+  if (!isFinite(o) || !isFinite(d)) return false;
+  GrainHit hit;
+  RayWalk r{o, d, Vec3(1.0f / d.x, 1.0f / d.y, 1.0f / d.z), tmin, tmax, hit, nullptr, true,
+            DistanceField::NearestProbe(sdf_)};
+  return walk(r, tmax);
+}
+
+bool Aggregate::walk(RayWalk& r, float tmax) const {
   float t0, t1;
-  if (!bounds_.intersect(o, invD, tmin, tmax, t0, t1)) return false;
-  GridWalk w(o + d * t0, t0, d, invD, origin_, L_, n_);
-  float tEnter = t0, best = tmax;
-  bool found = false;
-  DistanceField::NearestProbe probe(sdf_);
+  if (!bounds_.intersect(r.o, r.invD, r.tmin, tmax, t0, t1)) return false;
+  GridWalk w(r.o + r.d * t0, t0, r.d, r.invD, origin_, L_, n_);
+  float tEnter = t0;
   for (;;) {
     const int axis = w.axis();
     const float tExit = std::min(w.tNext[axis], t1);
     const CellClass c = cellClass(w.cell[0], w.cell[1], w.cell[2]);
     float resume = -kInf;  // where a partial cell's walk found the ray may jump to
-    if (c != CellClass::Outside &&
-        walkCell(w.cell, c == CellClass::Partial, o, d, invD, tmin, tEnter, tExit, best, found, hit, skip, probe,
-                 resume))
-      return true;
-    if (tExit >= t1) return found;
+    if (c != CellClass::Outside && walkCell(r, w.cell, c == CellClass::Partial, tEnter, tExit, resume)) return true;
+    if (tExit >= t1) return r.found;
     if (resume > tExit + 1e-3f * L_) {
       // Nothing to meet before `resume`: restart the walk there (past rounding's reach
       // of this cell's exit, so it never lands back in this cell).
-      if (resume >= t1 || (found && resume >= best)) return found;
-      w = GridWalk(o + d * resume, resume, d, invD, origin_, L_, n_);
+      if (resume >= t1 || (r.found && resume >= r.best)) return r.found;
+      w = GridWalk(r.o + r.d * resume, resume, r.d, r.invD, origin_, L_, n_);
       tEnter = resume;
       continue;
     }
     tEnter = w.tNext[axis];
-    if (!w.advance(axis, n_)) return found;
+    if (!w.advance(axis, n_)) return r.found;
   }
 }
 
-bool Aggregate::walkCell(const int64_t cell[3], bool partial, const Vec3& o, const Vec3& d, const Vec3& invD,
-                         float tmin, float tEnter, float tExit, float& best, bool& found, GrainHit& hit,
-                         const GrainHit* skip, DistanceField::NearestProbe& probe, float& resume) const {
+bool Aggregate::walkCell(RayWalk& r, const int64_t cell[3], bool partial, float tEnter, float tExit,
+                         float& resume) const {
   // 3-D DDA over the cell's sub-cells from tEnter to tExit, front to back. A sphere is
   // traced in the sub-cell where the ray enters it (its entry t within the sub-cell's
   // span, padded against rounding: at worst traced twice, never missed).
+  const Vec3& d = r.d;
+  const float tmin = r.tmin;
   const int64_t M = sub_, nSub[3] = {M, M, M};
   const float Ls = L_ / float(M), pad = 1e-4f * Ls;
   // The entry t and the sub-cells' spans are each a few ulps of t off (they are computed
   // from different origins): pads of 1e-5 t (~80 ulps) on top of 1e-4 of a sub-cell.
   constexpr float kRelPad = 1e-5f;
   const Vec3 cellOrigin = origin_ + Vec3(float(cell[0]), float(cell[1]), float(cell[2])) * L_;
-  const Vec3 oCell = o - cellOrigin;
-  GridWalk w(oCell + d * tEnter, tEnter, d, invD, Vec3(0.0f), Ls, nSub);
+  const Vec3 oCell = r.o - cellOrigin;
+  GridWalk w(oCell + d * tEnter, tEnter, d, r.invD, Vec3(0.0f), Ls, nSub);
   float sEnter = tEnter;
   // In a partial cell, one distance per sub-cell decides for all its spheres where it
   // can: the centres of the spheres that overlap it lie within its half diagonal plus R
@@ -469,7 +478,7 @@ bool Aggregate::walkCell(const int64_t cell[3], bool partial, const Vec3& o, con
     const float sExit = std::min(w.tNext[axis], tExit);
     const int64_t* sc = w.cell;
     const float dSub =
-        partial ? probe(cellOrigin + Vec3(sc[0] + 0.5f, sc[1] + 0.5f, sc[2] + 0.5f) * Ls) : -kInf;
+        partial ? r.probe(cellOrigin + Vec3(sc[0] + 0.5f, sc[1] + 0.5f, sc[2] + 0.5f) * Ls) : -kInf;
     if (dSub <= skipBeyond) {
       const size_t sub = size_t((sc[2] * M + sc[1]) * M + sc[0]);
       const float lo = sEnter - pad - kRelPad * std::fabs(sEnter), hi = sExit + pad + kRelPad * std::fabs(sExit);
@@ -480,7 +489,7 @@ bool Aggregate::walkCell(const int64_t cell[3], bool partial, const Vec3& o, con
       // well-predicted branch: about one sphere is entered per sub-cell).
       const uint32_t k0 = subStart_[sub], n = subStart_[sub + 1] - k0;
       float entry[kMaxSubList];
-      const float bestHere = best;
+      const float bestHere = r.best;
       for (uint32_t i = 0; i < n; ++i) {
         const float ox = oCell.x - subX_[k0 + i], oy = oCell.y - subY_[k0 + i], oz = oCell.z - subZ_[k0 + i];
         const float b = ox * d.x + oy * d.y + oz * d.z;
@@ -492,15 +501,16 @@ bool Aggregate::walkCell(const int64_t cell[3], bool partial, const Vec3& o, con
         entry[i] = enters ? te : kInf;
       }
       for (uint32_t i = 0; i < n; ++i) {
-        if (!(entry[i] < best)) continue;
+        if (!(entry[i] < r.best)) continue;
         const TileSphere& s = spheres_[subList_[k0 + i]];
-        if (traceGrain(s, cell, oCell - s.center, d, tmin, best, dSub < sureWithin, hit, skip, probe)) {
-          best = hit.t;
-          found = true;
+        if (traceGrain(s, cell, oCell - s.center, d, tmin, r.best, dSub < sureWithin, r.hit, r.skip, r.probe)) {
+          r.best = r.hit.t;
+          r.found = true;
+          if (r.anyHit) return true;
         }
       }
       // Spheres not traced yet enter at t >= hi: none can be nearer.
-      if (found && best <= hi) return true;
+      if (r.found && r.best <= hi) return true;
     } else {
       // Outside by dSub: along the ray, no point is within Rmax of the boundary's inside
       // before sEnter + dSub − skipBeyond (the field is 1-Lipschitz; the sub-cell's point
@@ -512,7 +522,7 @@ bool Aggregate::walkCell(const int64_t cell[3], bool partial, const Vec3& o, con
         return false;
       }
       if (jumpTo > sExit) {
-        w = GridWalk(oCell + d * jumpTo, jumpTo, d, invD, Vec3(0.0f), Ls, nSub);
+        w = GridWalk(oCell + d * jumpTo, jumpTo, d, r.invD, Vec3(0.0f), Ls, nSub);
         sEnter = jumpTo;
         continue;
       }

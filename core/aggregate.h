@@ -79,6 +79,9 @@ class Aggregate {
   // the walk starts in).
   bool intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, GrainHit& hit, const GrainHit* from = nullptr,
                  bool inside = false) const;
+  // Whether any grain lies along the ray in [tmin, tmax] (shadow rays): the walk stops at
+  // the first grain it meets, not the nearest.
+  bool occluded(const Vec3& o, const Vec3& d, float tmin, float tmax) const;
   // Exact inside test of a world point against the boundary mesh (ray parity by the
   // orientation of the first hit).
   bool insideBoundary(const Vec3& p) const;
@@ -116,13 +119,24 @@ class Aggregate {
     float radius;           // world units
   };
   bool sphereIsInside(const int64_t home[3], const Vec3& worldCenter, DistanceField::NearestProbe& probe) const;
-  // The sub-cell walk of intersect() through one non-outside (partial or inside) cell
-  // between tEnter and tExit; best: the nearest hit's t so far (lowered, hit written,
-  // found set). True when a hit is found and no later sphere can be nearer: the walk may
-  // stop. resume: set beyond tExit when the distance field shows nothing to meet before it.
-  bool walkCell(const int64_t cell[3], bool partial, const Vec3& o, const Vec3& d, const Vec3& invD, float tmin,
-                float tEnter, float tExit, float& best, bool& found, GrainHit& hit, const GrainHit* skip,
-                DistanceField::NearestProbe& probe, float& resume) const;
+  // One ray's walk through the cells (intersect(), occluded()).
+  struct RayWalk {
+    Vec3 o, d, invD;
+    float tmin;
+    float best;                   // the nearest hit's t so far (the walk's tmax)
+    GrainHit& hit;                // written with each nearer hit
+    const GrainHit* skip;         // a grain not to trace, or null
+    bool anyHit;                  // stop at the first hit (occluded())
+    DistanceField::NearestProbe probe;
+    bool found = false;
+  };
+  // The cell walk (3-D DDA, front to back) over [tmin, tmax]; true when a grain is hit.
+  bool walk(RayWalk& r, float tmax) const;
+  // Its sub-cell walk through one non-outside (partial or inside) cell between tEnter and
+  // tExit, lowering r.best. True when a hit is found and no later sphere can be nearer:
+  // the walk may stop. resume: set beyond tExit when the distance field shows nothing to
+  // meet before it.
+  bool walkCell(RayWalk& r, const int64_t cell[3], bool partial, float tEnter, float tExit, float& resume) const;
   // The grain of tile sphere s listed by `cell`, if its centre is inside (knownInside:
   // the caller knows it is): its nearest hit in [tmin, tmax] along oc + t d (oc: the
   // ray's origin relative to the sphere's centre). skip: a grain not to trace, or null.

@@ -592,10 +592,8 @@ int Scene::mediumAt(const Vec3& p) const {
 
 bool Scene::occluded(const Vec3& p, const Vec3& dir, float dist) const {
   if (surfacesOccluded(p, dir, dist)) return true;
-  for (const auto& a : aggregates_) {
-    GrainHit g;
-    if (a->intersect(p, dir, 0.0f, dist, g)) return true;
-  }
+  for (const auto& a : aggregates_)
+    if (a->occluded(p, dir, 0.0f, dist)) return true;
   // Area lights do not block each other's light: they are emitters, not occluders.
   return false;
 }

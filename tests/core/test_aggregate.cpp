@@ -343,3 +343,25 @@ TEST(Aggregate, AWrongInsideHintFallsBackToTheWalk) {
   }
   EXPECT_GT(checked, 300);
 }
+
+TEST(Aggregate, OccludedAgreesWithTheNearestHit) {
+  // Shadow rays stop at the first grain they meet: the answer must be the nearest hit's,
+  // for rays from outside and inside, with segments that end before, at and after grains.
+  Built b(smallAggregate(0.05f, 0.55f));
+  const Aggregate& a = b.agg;
+  Rng rng(21);
+  const Bounds3 bb = a.bounds();
+  int blocked = 0, clear = 0;
+  for (int r = 0; r < 3000; ++r) {
+    Vec3 o = bb.lo + Vec3(rng.next1D(), rng.next1D(), rng.next1D()) * bb.extent();
+    Vec3 d = sampleUniformSphere(rng.next1D(), rng.next1D());
+    if (r % 2) o = o - d * length(bb.extent());
+    const float tmax = rng.next1D() * 1.5f * length(bb.extent());
+    GrainHit h;
+    const bool hit = a.intersect(o, d, 0.0f, tmax, h);
+    ASSERT_EQ(a.occluded(o, d, 0.0f, tmax), hit) << "ray " << r;
+    (hit ? blocked : clear)++;
+  }
+  EXPECT_GT(blocked, 500);
+  EXPECT_GT(clear, 500);
+}
