@@ -3,7 +3,9 @@
 //   granular-bench throughput [--grain-radius R] [--seconds S] [--raw-seconds S]
 //     EPT ray casts per second through an aggregate against Embree's raw rtcIntersect1
 //     rate on the same prototype mesh (and rtcIntersect16 on the same kind of rays in
-//     packets of 16), single thread, in the same run. One JSON line.
+//     packets of 16), single thread, in the same run: random rays, and rays recorded from
+//     paths through clear glass grains cast with and without the grain they start at.
+//     One JSON line.
 //     --raw-seconds (default: --seconds) shortens the raw part, e.g. to profile the
 //     aggregate alone (perf record ... --raw-seconds 0.01).
 //   granular-bench setup --grains N

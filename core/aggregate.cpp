@@ -87,7 +87,7 @@ bool Aggregate::traceChosen(const TileSphere& s, const int64_t home[3], const Gr
   rtcIntersect1(proto.bvh.get(), &ctx, &local);
   if (local.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
   best.t = local.ray.tfar;
-  best.ng = normalize(g.rotation * triangleNormal(proto.mesh, local.hit.primID));
+  best.ng = normalize(g.rotation * proto.normals[local.hit.primID]);
   best.prototype = g.prototype;
   best.cell[0] = home[0]; best.cell[1] = home[1]; best.cell[2] = home[2];
   best.sphere = s.id;
@@ -297,7 +297,8 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
   stats_.memoryBytes = classes_.size() * sizeof(CellClass) + sdf_.memoryBytes() +
                        spheres_.size() * sizeof(TileSphere) + (subList_.size() + subStart_.size()) * sizeof(uint32_t) +
                        boundary_.points.size() * 40;
-  for (const auto& p : prototypes_) stats_.memoryBytes += p.mesh.points.size() * 40 + p.mesh.indices.size() * 8;
+  for (const auto& p : prototypes_)
+    stats_.memoryBytes += p.mesh.points.size() * 40 + p.mesh.indices.size() * 8 + p.normals.size() * sizeof(Vec3);
   stats_.setupSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 

@@ -53,6 +53,7 @@ GrainPrototype makeGrainPrototype(const EmbreeDevice& device, const GrainPrototy
   if (p.mesh.signedVolume() < 0) p.mesh.flip();
   p.bvh = buildTriangleScene(device, p.mesh);
   p.convex = isConvex(p.mesh, 1e-5f);
+  for (size_t t = 0; t < p.mesh.numTriangles(); ++t) p.normals.push_back(triangleNormal(p.mesh, unsigned(t)));
   return p;
 }
 

@@ -28,6 +28,7 @@ struct GrainPrototype {
   Vec3 fitCenter;           // bounding-sphere centre in the description's space
   float fitRadius = 1.0f;   // its radius there
   bool convex = false;      // every vertex behind every face's plane (a ray leaving it cannot return)
+  std::vector<Vec3> normals;  // unit face normals (triangleNormal), per triangle
 };
 
 // Whether a closed, outward-wound mesh is convex: no vertex in front of a face's plane by
