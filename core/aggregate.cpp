@@ -413,23 +413,25 @@ bool Aggregate::intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, 
   // would convert NaN to an integer (undefined behaviour; found by the USD fuzzer).
   if (!isFinite(o) || !isFinite(d)) return false;
   if (from && inside && traceFromInside(*from, o, d, tmin, tmax, hit)) return true;
+  const Vec3 invD(1.0f / d.x, 1.0f / d.y, 1.0f / d.z);
+  float t0, t1;
+  if (!bounds_.intersect(o, invD, tmin, tmax, t0, t1)) return false;
   const GrainHit* skip = from && !inside && prototypes_[size_t(from->prototype)].convex ? from : nullptr;
-  RayWalk r{o, d, Vec3(1.0f / d.x, 1.0f / d.y, 1.0f / d.z), tmin, tmax, hit, skip, false,
-            DistanceField::NearestProbe(sdf_)};
-  return walk(r, tmax);
+  RayWalk r{o, d, invD, tmin, tmax, hit, skip, false, DistanceField::NearestProbe(sdf_)};
+  return walk(r, t0, t1);
 }
 
 bool Aggregate::occluded(const Vec3& o, const Vec3& d, float tmin, float tmax) const {
   if (!isFinite(o) || !isFinite(d)) return false;
+  const Vec3 invD(1.0f / d.x, 1.0f / d.y, 1.0f / d.z);
+  float t0, t1;
+  if (!bounds_.intersect(o, invD, tmin, tmax, t0, t1)) return false;
   GrainHit hit;
-  RayWalk r{o, d, Vec3(1.0f / d.x, 1.0f / d.y, 1.0f / d.z), tmin, tmax, hit, nullptr, true,
-            DistanceField::NearestProbe(sdf_)};
-  return walk(r, tmax);
+  RayWalk r{o, d, invD, tmin, tmax, hit, nullptr, true, DistanceField::NearestProbe(sdf_)};
+  return walk(r, t0, t1);
 }
 
-bool Aggregate::walk(RayWalk& r, float tmax) const {
-  float t0, t1;
-  if (!bounds_.intersect(r.o, r.invD, r.tmin, tmax, t0, t1)) return false;
+bool Aggregate::walk(RayWalk& r, float t0, float t1) const {
   GridWalk w(r.o + r.d * t0, t0, r.d, r.invD, origin_, L_, n_);
   float tEnter = t0;
   for (;;) {

@@ -130,8 +130,9 @@ class Aggregate {
     DistanceField::NearestProbe probe;
     bool found = false;
   };
-  // The cell walk (3-D DDA, front to back) over [tmin, tmax]; true when a grain is hit.
-  bool walk(RayWalk& r, float tmax) const;
+  // The cell walk (3-D DDA, front to back) over [t0, t1], the ray's span in the bounds;
+  // true when a grain is hit.
+  bool walk(RayWalk& r, float t0, float t1) const;
   // Its sub-cell walk through one non-outside (partial or inside) cell between tEnter and
   // tExit, lowering r.best. True when a hit is found and no later sphere can be nearer:
   // the walk may stop. resume: set beyond tExit when the distance field shows nothing to

@@ -45,6 +45,7 @@ void DistanceField::build(const TriangleMesh& mesh, float voxelSize, float minBa
   impl_->grid->setName("boundary_sdf");
   impl_->id = nextFieldId++;
   voxel_ = voxelSize;
+  invVoxel_ = 1.0 / double(voxel_);
   band_ = halfWidthVoxels * voxelSize;
 }
 

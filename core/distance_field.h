@@ -34,7 +34,7 @@ class DistanceField {
   // sub-cells mostly share a voxel). The same values as nearestDistance().
   class NearestProbe {
    public:
-    explicit NearestProbe(const DistanceField& field) : field_(field), inv_(1.0 / double(field.voxel_)) {}
+    explicit NearestProbe(const DistanceField& field) : field_(field), inv_(field.invVoxel_) {}
     float operator()(const Vec3& p) {
       const int ijk[3] = {int(std::floor(p.x * inv_ + 0.5)), int(std::floor(p.y * inv_ + 0.5)),
                           int(std::floor(p.z * inv_ + 0.5))};
@@ -66,6 +66,7 @@ class DistanceField {
   float voxelValue(const int ijk[3], const void*& accessor) const;
   std::unique_ptr<Impl> impl_;
   float voxel_ = 0, band_ = 0;
+  double invVoxel_ = 0;  // 1 / voxel_, as nearestDistance() divides
 };
 
 }  // namespace granular

@@ -443,9 +443,12 @@ bool Scene::intersect(const Ray& ray, Hit& hit, const GrainStart* from) const {
   // the surfaces first, whose hit shortens the walk through the aggregates.
   const bool grainsFirst = from && from->aggregate >= 0;
   bool found = !grainsFirst && intersectSurfaces(ray, hit, tmax);
+  const Vec3 invD(1.0f / ray.d.x, 1.0f / ray.d.y, 1.0f / ray.d.z);
   for (size_t a = 0; a < aggregates_.size(); ++a) {
     GrainHit g;
     const bool own = from && from->aggregate == int(a);
+    float t0, t1;  // scenes of many aggregates: most are missed by their bounds
+    if (!own && !aggregates_[a]->bounds().intersect(ray.o, invD, ray.tmin, tmax, t0, t1)) continue;
     if (aggregates_[a]->intersect(ray.o, ray.d, ray.tmin, tmax, g, own ? &from->grain : nullptr, own && from->inside) &&
         g.t < tmax) {
       found = true;
