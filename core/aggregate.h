@@ -10,10 +10,12 @@
 // listed spheres the ray enters there, keeps a sphere only if its centre is inside the
 // boundary (exactly, by a ray cast against the boundary mesh, in partial cells),
 // instantiates its grain from a hash and traces the prototype's BVH in the grain's
-// frame, and stops at the first sub-cell that ends beyond the nearest grain hit. Memory
-// is the tile and its sub-cell lists, the cell
-// classes (one byte per cell) and the narrow-band distance field: independent of the
-// number of grains per cell. Queries are thread-safe.
+// frame, and stops at the first sub-cell that ends beyond the nearest grain hit. Where
+// the distance field shows the boundary's inside further than a grain's reach, the walk
+// jumps ahead (sphere tracing). A ray that starts inside a grain traces that grain
+// alone. Memory is the tile and its sub-cell lists, the cell classes (one byte per cell)
+// and the narrow-band distance field: independent of the number of grains per cell.
+// Queries are thread-safe.
 #pragma once
 
 #include <cstdint>
