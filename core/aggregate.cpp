@@ -93,6 +93,7 @@ bool Aggregate::traceChosen(const TileSphere& s, const int64_t home[3], const Gr
   best.sphere = s.id;
   best.radius = s.radius;
   best.rotation = g.rotation;
+  best.prim = local.hit.primID;
   return true;
 }
 
@@ -416,7 +417,8 @@ bool Aggregate::intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, 
   const Vec3 invD(1.0f / d.x, 1.0f / d.y, 1.0f / d.z);
   float t0, t1;
   if (!bounds_.intersect(o, invD, tmin, tmax, t0, t1)) return false;
-  const GrainHit* skip = from && !inside && prototypes_[size_t(from->prototype)].convex ? from : nullptr;
+  const GrainHit* skip =
+      from && !inside && prototypes_[size_t(from->prototype)].hullFace[from->prim] ? from : nullptr;
   RayWalk r{o, d, invD, tmin, tmax, hit, skip, false, DistanceField::NearestProbe(sdf_)};
   return walk(r, t0, t1);
 }

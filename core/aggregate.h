@@ -41,6 +41,7 @@ struct GrainHit {
   int sphere = -1;
   float radius = 0;        // the grain's bounding radius (polydisperse: its own)
   Mat3 rotation;           // its frame (GrainSelector::choose), kept for a ray from inside it
+  unsigned prim = 0;       // the prototype's triangle hit
 };
 
 // One grain, as the brute-force reference and the exporters see it.
@@ -76,8 +77,8 @@ class Aggregate {
   // from: the grain the ray starts at (its path's last hit, or null), inside it or leaving
   // it. A ray inside a grain leaves it before meeting any other (grains lie in disjoint
   // bounding spheres): only that grain is traced, the walk only if the ray misses it
-  // (an origin rounded out of it). One leaving a convex grain cannot meet it again: the
-  // walk skips it. Both give the walk's own hits (the grain is traced as from the cell
+  // (an origin rounded out of it). One leaving a grain through a face of its convex hull
+  // (every face, for a convex grain) cannot meet it again: the walk skips it. Both give the walk's own hits (the grain is traced as from the cell
   // the walk starts in).
   bool intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, GrainHit& hit, const GrainHit* from = nullptr,
                  bool inside = false) const;

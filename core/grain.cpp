@@ -52,19 +52,29 @@ GrainPrototype makeGrainPrototype(const EmbreeDevice& device, const GrainPrototy
   for (Vec3& q : p.mesh.points) q = (q - p.fitCenter) * inv;
   if (p.mesh.signedVolume() < 0) p.mesh.flip();
   p.bvh = buildTriangleScene(device, p.mesh);
-  p.convex = isConvex(p.mesh, 1e-5f);
+  p.hullFace = hullFaces(p.mesh, 1e-5f);
+  p.convex = std::all_of(p.hullFace.begin(), p.hullFace.end(), [](uint8_t h) { return h != 0; });
   for (size_t t = 0; t < p.mesh.numTriangles(); ++t) p.normals.push_back(triangleNormal(p.mesh, unsigned(t)));
   return p;
 }
 
-bool isConvex(const TriangleMesh& mesh, float tolerance) {
-  for (size_t t = 0; 3 * t < mesh.indices.size(); ++t) {
+std::vector<uint8_t> hullFaces(const TriangleMesh& mesh, float tolerance) {
+  std::vector<uint8_t> hull(mesh.numTriangles(), 1);
+  for (size_t t = 0; t < hull.size(); ++t) {
     const Vec3& a = mesh.points[mesh.indices[3 * t]];
     const Vec3 n = triangleNormal(mesh, unsigned(t));
     for (const Vec3& v : mesh.points)
-      if (dot(n, v - a) > tolerance) return false;
+      if (dot(n, v - a) > tolerance) {
+        hull[t] = 0;
+        break;
+      }
   }
-  return true;
+  return hull;
+}
+
+bool isConvex(const TriangleMesh& mesh, float tolerance) {
+  const std::vector<uint8_t> hull = hullFaces(mesh, tolerance);
+  return std::all_of(hull.begin(), hull.end(), [](uint8_t h) { return h != 0; });
 }
 
 SizeClasses sizeClassesOf(const AggregateDesc& desc) {

@@ -9,6 +9,7 @@
 // (packing.h), and its grain is drawn among the prototypes of that size, by their weights.
 #pragma once
 
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -27,12 +28,16 @@ struct GrainPrototype {
   EmbreeScene bvh;
   Vec3 fitCenter;           // bounding-sphere centre in the description's space
   float fitRadius = 1.0f;   // its radius there
-  bool convex = false;      // every vertex behind every face's plane (a ray leaving it cannot return)
-  std::vector<Vec3> normals;  // unit face normals (triangleNormal), per triangle
+  std::vector<Vec3> normals;     // unit face normals (triangleNormal), per triangle
+  // Per triangle: a face of the convex hull (hullFaces). A ray that leaves the grain
+  // through it cannot meet the grain again: all of it lies behind that plane.
+  std::vector<uint8_t> hullFace;
+  bool convex = false;           // every face a hull face
 };
 
-// Whether a closed, outward-wound mesh is convex: no vertex in front of a face's plane by
-// more than `tolerance` (in the mesh's units).
+// Per triangle of a closed, outward-wound mesh: 1 when no vertex lies in front of its
+// plane by more than `tolerance` (in the mesh's units).
+std::vector<uint8_t> hullFaces(const TriangleMesh& mesh, float tolerance);
 bool isConvex(const TriangleMesh& mesh, float tolerance);
 
 // Normalises desc.mesh into its bounding sphere (Ritter's approximate minimal sphere,

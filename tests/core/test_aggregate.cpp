@@ -249,6 +249,16 @@ TEST(Aggregate, ConvexityOfPrototypes) {
   TriangleMesh dented = makeIcosphere(2);
   dented.points[0] = dented.points[0] * 0.5f;  // one vertex pushed halfway in
   EXPECT_FALSE(isConvex(dented, 1e-5f));
+  // The faces around the dent are not on the hull; every other face is (the dent lies
+  // behind them).
+  const std::vector<uint8_t> hull = hullFaces(dented, 1e-5f);
+  int aroundDent = 0;
+  for (size_t t = 0; t < dented.numTriangles(); ++t) {
+    const bool touches = dented.indices[3 * t] == 0 || dented.indices[3 * t + 1] == 0 || dented.indices[3 * t + 2] == 0;
+    EXPECT_EQ(hull[t] != 0, !touches) << "triangle " << t;
+    aroundDent += touches;
+  }
+  EXPECT_EQ(aroundDent, 5);  // an icosahedron's vertex
   AggregateDesc d = smallAggregate();
   d.prototypes[0].mesh = dented;
   Built b(d);
@@ -258,16 +268,22 @@ TEST(Aggregate, ConvexityOfPrototypes) {
 
 TEST(Aggregate, RaysFromTheirGrainHitWhatTheWalkHits) {
   // Paths through clear glass grains (IOR 1.5), as EPT casts them: each ray with the grain
-  // it starts at (inside it: traced alone; leaving a convex box: skipped) must hit what
-  // the full walk hits without the hint, at the same t.
-  Built b(smallAggregate(0.05f, 0.55f));
+  // it starts at (inside it: traced alone; leaving it through a face of its hull, every
+  // face of a box and most of a dimpled sphere's: skipped) must hit what the full walk
+  // hits without the hint, at the same t.
+  AggregateDesc desc = smallAggregate(0.05f, 0.55f);
+  TriangleMesh dimpled = makeIcosphere(2);  // prototype 0: a sphere with a dimple at every 7th vertex
+  for (size_t v = 0; v < dimpled.points.size(); v += 7) dimpled.points[v] = dimpled.points[v] * 0.85f;
+  desc.prototypes[0].mesh = dimpled;
+  Built b(desc);
   const Aggregate& a = b.agg;
+  ASSERT_FALSE(a.prototypes()[0].convex);
   Material glass;
   glass.type = MaterialType::Dielectric;
   glass.ior = 1.5f;
   Rng rng(3);
   const Bounds3 bb = a.bounds();
-  int inside = 0, leavingBox = 0, rays = 0, sameT = 0;
+  int inside = 0, leavingBox = 0, leavingRockHull = 0, leavingRockDent = 0, rays = 0, sameT = 0;
   while (rays < 6000) {
     Vec3 target = bb.center() + (Vec3(rng.next1D(), rng.next1D(), rng.next1D()) - Vec3(0.5f)) * bb.extent() * 0.5f;
     Vec3 dir = sampleUniformSphere(rng.next1D(), rng.next1D());
@@ -280,6 +296,8 @@ TEST(Aggregate, RaysFromTheirGrainHitWhatTheWalkHits) {
       ASSERT_EQ(found, a.intersect(o, d, 0.0f, kInf, plain)) << "ray " << rays;
       inside += hasFrom && in;
       leavingBox += hasFrom && !in && from.prototype == 1;
+      if (hasFrom && !in && from.prototype == 0)
+        (a.prototypes()[0].hullFace[from.prim] ? leavingRockHull : leavingRockDent)++;
       if (!found) break;
       ASSERT_EQ(h.sphere, plain.sphere) << "ray " << rays;
       for (int ax = 0; ax < 3; ++ax) ASSERT_EQ(h.cell[ax], plain.cell[ax]) << "ray " << rays;
@@ -298,6 +316,8 @@ TEST(Aggregate, RaysFromTheirGrainHitWhatTheWalkHits) {
   }
   EXPECT_GT(inside, rays / 3);
   EXPECT_GT(leavingBox, 100);
+  EXPECT_GT(leavingRockHull, 100);  // skipped
+  EXPECT_GT(leavingRockDent, 20);   // traced again: a dent can catch the ray
   // The grain is traced as from the walk's first cell: the same t to the bit but for
   // origins that round into another cell.
   EXPECT_GE(sameT, int(0.99 * rays * 0.9));
