@@ -372,14 +372,19 @@ namespace {
 // A 3-D DDA (Amanatides & Woo 1987) over a grid of n cells of edge `size` from `origin`,
 // for a ray of direction d entering at t0 at point p: the current cell, and per axis the t
 // of the next crossing and the t between crossings.
+// The cell of a grid of n cells of edge `size` from `origin` that holds p along axis a
+// (clamped into the grid).
+int64_t cellIndex(const Vec3& p, int a, const Vec3& origin, float size, const int64_t n[3]) {
+  return std::min<int64_t>(std::max<int64_t>(int64_t(std::floor((p[a] - origin[a]) / size)), 0), n[a] - 1);
+}
+
 struct GridWalk {
   int64_t cell[3], step[3];
   float tNext[3], tDelta[3];
   GridWalk(const Vec3& p, float t0, const Vec3& d, const Vec3& invD, const Vec3& origin, float size,
            const int64_t n[3]) {
     for (int a = 0; a < 3; ++a) {
-      float rel = (p[a] - origin[a]) / size;
-      cell[a] = std::min<int64_t>(std::max<int64_t>(int64_t(std::floor(rel)), 0), n[a] - 1);
+      cell[a] = cellIndex(p, a, origin, size, n);
       if (d[a] > 0) {
         step[a] = 1;
         tNext[a] = t0 + (origin[a] + float(cell[a] + 1) * size - p[a]) * invD[a];
@@ -547,7 +552,7 @@ bool Aggregate::traceFromInside(const GrainHit& g, const Vec3& o, const Vec3& d,
   int64_t cell[3];
   int shift[3];
   for (int a = 0; a < 3; ++a) {
-    cell[a] = std::min<int64_t>(std::max<int64_t>(int64_t(std::floor((p[a] - origin_[a]) / L_)), 0), n_[a] - 1);
+    cell[a] = cellIndex(p, a, origin_, L_, n_);  // as GridWalk finds it
     const int64_t s = g.cell[a] - cell[a];
     if (s < -1 || s > 1) return false;
     shift[a] = int(s);

@@ -86,13 +86,6 @@ float DistanceField::voxelValue(const int ijk[3], const void*& accessor) const {
          voxel_;
 }
 
-float DistanceField::nearestDistance(const Vec3& p) const {
-  const double inv = 1.0 / double(voxel_);
-  const openvdb::Coord ijk(int(std::floor(p.x * inv + 0.5)), int(std::floor(p.y * inv + 0.5)),
-                           int(std::floor(p.z * inv + 0.5)));
-  return threadAccessor(*impl_->grid, impl_->id).getValue(ijk) * voxel_;
-}
-
 Vec3 DistanceField::gradient(const Vec3& p) const {
   float h = 0.5f * voxel_;
   Vec3 g(distance(p + Vec3(h, 0, 0)) - distance(p - Vec3(h, 0, 0)),

@@ -27,11 +27,10 @@ class DistanceField {
   bool empty() const;
   float distance(const Vec3& p) const;  // trilinear
   // The value at the voxel centre nearest p: within √3/2 voxel of distance(p)'s field
-  // (1-Lipschitz), an eighth of its cost; for sign tests with a margin.
-  float nearestDistance(const Vec3& p) const;
-  // nearestDistance() for many probes in a row by one thread (a ray's walk through its
-  // cells): the thread's accessor found once, the last voxel's value kept (neighbouring
-  // sub-cells mostly share a voxel). The same values as nearestDistance().
+  // (1-Lipschitz), an eighth of its cost; for sign tests with a margin. Made for many
+  // probes in a row by one thread (a ray's walk through its cells): the thread's accessor
+  // is found once and the last voxel's value kept (neighbouring sub-cells mostly share a
+  // voxel).
   class NearestProbe {
    public:
     explicit NearestProbe(const DistanceField& field) : field_(field), inv_(field.invVoxel_) {}
@@ -66,7 +65,7 @@ class DistanceField {
   float voxelValue(const int ijk[3], const void*& accessor) const;
   std::unique_ptr<Impl> impl_;
   float voxel_ = 0, band_ = 0;
-  double invVoxel_ = 0;  // 1 / voxel_, as nearestDistance() divides
+  double invVoxel_ = 0;  // 1 / voxel_ (NearestProbe)
 };
 
 }  // namespace granular

@@ -53,7 +53,6 @@ GrainPrototype makeGrainPrototype(const EmbreeDevice& device, const GrainPrototy
   if (p.mesh.signedVolume() < 0) p.mesh.flip();
   p.bvh = buildTriangleScene(device, p.mesh);
   p.hullFace = hullFaces(p.mesh, 1e-5f);
-  p.convex = std::all_of(p.hullFace.begin(), p.hullFace.end(), [](uint8_t h) { return h != 0; });
   for (size_t t = 0; t < p.mesh.numTriangles(); ++t) p.normals.push_back(triangleNormal(p.mesh, unsigned(t)));
   return p;
 }
@@ -70,11 +69,6 @@ std::vector<uint8_t> hullFaces(const TriangleMesh& mesh, float tolerance) {
       }
   }
   return hull;
-}
-
-bool isConvex(const TriangleMesh& mesh, float tolerance) {
-  const std::vector<uint8_t> hull = hullFaces(mesh, tolerance);
-  return std::all_of(hull.begin(), hull.end(), [](uint8_t h) { return h != 0; });
 }
 
 SizeClasses sizeClassesOf(const AggregateDesc& desc) {

@@ -32,13 +32,11 @@ struct GrainPrototype {
   // Per triangle: a face of the convex hull (hullFaces). A ray that leaves the grain
   // through it cannot meet the grain again: all of it lies behind that plane.
   std::vector<uint8_t> hullFace;
-  bool convex = false;           // every face a hull face
 };
 
 // Per triangle of a closed, outward-wound mesh: 1 when no vertex lies in front of its
 // plane by more than `tolerance` (in the mesh's units).
 std::vector<uint8_t> hullFaces(const TriangleMesh& mesh, float tolerance);
-bool isConvex(const TriangleMesh& mesh, float tolerance);
 
 // Normalises desc.mesh into its bounding sphere (Ritter's approximate minimal sphere,
 // refined) and builds its BVH. The mesh must already be validated as closed.

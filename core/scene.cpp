@@ -383,11 +383,9 @@ std::string Scene::widenedSunsWarning() const {
              "delta light (set its angle to choose another size)");
 }
 
-bool Scene::intersectSurfaces(const Ray& ray, Hit& hit, float& tmax) const {
+bool Scene::intersectSurfaces(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax) const {
   float t0, t1;
-  if (surfaceBounds_.empty() ||
-      !surfaceBounds_.intersect(ray.o, Vec3(1.0f / ray.d.x, 1.0f / ray.d.y, 1.0f / ray.d.z), ray.tmin, tmax, t0, t1))
-    return false;
+  if (surfaceBounds_.empty() || !surfaceBounds_.intersect(ray.o, invD, ray.tmin, tmax, t0, t1)) return false;
   RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
   RTCRayHit rh = makeRayHit(ray.o, ray.d, ray.tmin, tmax);
@@ -442,8 +440,8 @@ bool Scene::intersect(const Ray& ray, Hit& hit, const GrainStart* from) const {
   // over the segment up to it (and not at all when it misses their bounds). Others ask
   // the surfaces first, whose hit shortens the walk through the aggregates.
   const bool grainsFirst = from && from->aggregate >= 0;
-  bool found = !grainsFirst && intersectSurfaces(ray, hit, tmax);
   const Vec3 invD(1.0f / ray.d.x, 1.0f / ray.d.y, 1.0f / ray.d.z);
+  bool found = !grainsFirst && intersectSurfaces(ray, invD, hit, tmax);
   for (size_t a = 0; a < aggregates_.size(); ++a) {
     GrainHit g;
     const bool own = from && from->aggregate == int(a);
@@ -465,7 +463,7 @@ bool Scene::intersect(const Ray& ray, Hit& hit, const GrainStart* from) const {
       hit.grain = g;
     }
   }
-  if (grainsFirst) found |= intersectSurfaces(ray, hit, tmax);
+  if (grainsFirst) found |= intersectSurfaces(ray, invD, hit, tmax);
   found |= intersectAreaLights(ray, hit, tmax);
   if (!found) return false;
   finishHit(ray, hit);
@@ -529,7 +527,7 @@ void Scene::setMedium(int aggregate, const MediumParams& params) {
 
 bool Scene::intersectMedium(const Ray& ray, Hit& hit) const {
   float tmax = ray.tmax;
-  bool found = intersectSurfaces(ray, hit, tmax);
+  bool found = intersectSurfaces(ray, Vec3(1.0f / ray.d.x, 1.0f / ray.d.y, 1.0f / ray.d.z), hit, tmax);
   for (size_t a = 0; a < aggregates_.size(); ++a) {
     float t;
     Vec3 ng;

@@ -163,7 +163,7 @@ class Scene {
 
  private:
   // Parts of intersect()/intersectMedium(): nearest hit below tmax (which they lower).
-  bool intersectSurfaces(const Ray& ray, Hit& hit, float& tmax) const;
+  bool intersectSurfaces(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax) const;  // invD: 1 / ray.d
   bool intersectAreaLights(const Ray& ray, Hit& hit, float& tmax) const;
   void finishHit(const Ray& ray, Hit& hit) const;  // position and ray-offset scale
   bool surfacesOccluded(const Vec3& p, const Vec3& dir, float dist) const;  // meshes only
