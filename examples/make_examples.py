@@ -191,8 +191,7 @@ def material_grains(stage, material, names, absorption=None, dark_absorption=Non
     test renders) as grain prims named `names`, absorbing as the material does at the
     examples' grain size unless absorption (and dark_absorption) are given. Returns the
     prims and their weights."""
-    light = material.absorption_per_radius(material.grain_radius_m) if absorption is None else absorption
-    dark = (material.dark_per_radius if dark_absorption is None else dark_absorption) or light
+    light, dark = material.grain_absorptions(per_radius=absorption, dark_per_radius=dark_absorption)
     prims = [grain(stage, name, p.mesh(), material.ior, dark if p.dark else light)
              for p, name in zip(material.prototypes, names)]
     return prims, [p.weight for p in material.prototypes]
@@ -409,9 +408,9 @@ def sandcastle_paper(path):
     # 0.24; examples/README.md, "Materials"). The pebble castle's absorption would make
     # quarter-millimetre sand dark brown (0.12, 0.07, 0.03).
     names = ("Round", "Flat", "Dark")  # sandcastle's grains, QUARTZ_SAND's prototypes
-    light = QUARTZ_SAND.absorption_per_radius(QUARTZ_SAND.grain_radius_m)
+    light, dark = QUARTZ_SAND.grain_absorptions()
     for proto, name in zip(QUARTZ_SAND.prototypes, names):
-        absorption = QUARTZ_SAND.dark_per_radius if proto.dark else light
+        absorption = dark if proto.dark else light
         UsdGeom.PrimvarsAPI(stage.OverridePrim(f"/World/Grains/{name}")).CreatePrimvar(
             "granular:absorption", Sdf.ValueTypeNames.Color3f, UsdGeom.Tokens.constant).Set(Gf.Vec3f(*absorption))
     # The beach: a slab of the castle's sand just below its base (a gap of one grain, so

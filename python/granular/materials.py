@@ -63,6 +63,18 @@ class Material:
             raise ValueError(f"{self.name}: grain radius must be > 0 m, got {grain_radius_m}")
         return tuple(s * grain_radius_m for s in self.sigma_a_per_m)
 
+    def grain_absorptions(self, grain_radius_m=None, per_radius=None, dark_per_radius=None):
+        """(light, dark): the absorption per grain radius of the material's grains and of
+        its darker minority (the prototypes marked dark). light is per_radius, else the
+        material's at grain_radius_m (default: the examples' size); dark is dark_per_radius,
+        else the material's darker grains', else light."""
+        if per_radius is not None:
+            light = tuple(per_radius)
+        else:
+            light = self.absorption_per_radius(self.grain_radius_m if grain_radius_m is None else grain_radius_m)
+        dark = dark_per_radius if dark_per_radius is not None else (self.dark_per_radius or light)
+        return light, tuple(dark)
+
 
 QUARTZ_SAND = Material(
     name="quartz_sand",
@@ -132,11 +144,9 @@ def slab_scene(material, grain_radius_m=None, spp=64, seed=1, per_radius=None, d
     material's at grain_radius_m (default: the examples' size) unless per_radius (and
     dark_per_radius) are given."""
     r = 0.001
-    grain_radius_m = material.grain_radius_m if grain_radius_m is None else grain_radius_m
-    absorption = list(per_radius if per_radius is not None else material.absorption_per_radius(grain_radius_m))
-    dark = list(dark_per_radius if dark_per_radius is not None else (material.dark_per_radius or absorption))
-    mats = {"grain": {"type": "dielectric", "ior": material.ior, "absorption": absorption},
-            "dark": {"type": "dielectric", "ior": material.ior, "absorption": dark}}
+    absorption, dark = material.grain_absorptions(grain_radius_m, per_radius, dark_per_radius)
+    mats = {"grain": {"type": "dielectric", "ior": material.ior, "absorption": list(absorption)},
+            "dark": {"type": "dielectric", "ior": material.ior, "absorption": list(dark)}}
     protos = [{"name": p.name, "shape": p.shape, "material": "dark" if p.dark else "grain"} for p in material.prototypes]
     return {"render": {"width": 24, "height": 24, "spp": spp, "seed": seed, "technique": "hybrid"},
             "camera": {"look_at": {"eye": [0, 30, 0], "target": [0, 0, 0], "up": [0, 0, -1]},
