@@ -143,7 +143,7 @@ int throughput(float R, double budget, double rawBudget) {
       if (!glass.sample(frame.toLocal(-r.d), rng.next1D(), rng.next1D(), rng.next1D(), bs)) break;
       const Vec3 wi = frame.toWorld(bs.wi);
       r.inside = dot(wi, h.ng) < 0;
-      r.o = offsetRayOrigin(p, h.ng, wi, 2e-4f * h.radius);
+      r.o = offsetRayOrigin(p, h.ng, wi, kGrainEps * h.radius);
       r.d = wi;
       r.from = h;
       r.hasFrom = true;

@@ -21,6 +21,10 @@
 
 namespace granular {
 
+// Rays leave a grain hit offset by this many grain radii along its normal (EPT, the TT
+// estimation in the unit sphere, and whoever traces paths through an aggregate).
+constexpr float kGrainEps = 2e-4f;
+
 struct GrainPrototype {
   std::string name;
   TriangleMesh mesh;        // in the unit bounding sphere

@@ -459,7 +459,7 @@ bool Scene::intersect(const Ray& ray, Hit& hit, const GrainStart* from) const {
       hit.material = agg.prototypes()[g.prototype].material;
       hit.lengthScale = agg.grainRadius();  // absorption is per R, whatever the grain's size
       hit.primId = aggregateId_[a];
-      hit.eps = 2e-4f * g.radius;
+      hit.eps = kGrainEps * g.radius;
       hit.grain = g;
     }
   }

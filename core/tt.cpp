@@ -12,6 +12,7 @@
 #include "cache.h"
 #include "embree_util.h"
 #include "error.h"
+#include "grain.h"
 #include "rng.h"
 #include "sampling.h"
 
@@ -22,8 +23,6 @@ namespace {
 constexpr double kFourPi = 4.0 * kPiD;
 constexpr double kTwoPi = 2.0 * kPiD;
 constexpr int64_t kChunk = 4096;  // rays per chunk: fixed, so results ignore the thread count
-// EPT offsets grain hits by 2e-4 grain radii (scene.cpp); the same here, in unit-sphere units.
-constexpr float kGrainEps = 2e-4f;
 constexpr int kMaxBins = 1 << 16;
 
 int binOf(double mu, int bins) {

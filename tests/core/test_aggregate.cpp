@@ -317,7 +317,7 @@ TEST(Aggregate, RaysFromTheirGrainHitWhatTheWalkHits) {
       if (!glass.sample(frame.toLocal(-d), rng.next1D(), rng.next1D(), rng.next1D(), bs)) break;
       const Vec3 wi = frame.toWorld(bs.wi);
       in = dot(wi, h.ng) < 0;
-      o = offsetRayOrigin(o + d * h.t, h.ng, wi, 2e-4f * h.radius);
+      o = offsetRayOrigin(o + d * h.t, h.ng, wi, kGrainEps * h.radius);
       d = wi;
       from = h;
       hasFrom = true;

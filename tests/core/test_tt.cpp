@@ -626,7 +626,7 @@ WalkStats walkThroughAggregate(const Aggregate& agg, const Material& m, int walk
         w *= bs.weight;
         Vec3 ng = h.ng;
         d = normalize(frame.toWorld(bs.wi));
-        o = offsetRayOrigin(p, ng, d, 2e-4f * r);
+        o = offsetRayOrigin(p, ng, d, kGrainEps * r);
         if (!agg.intersect(o, d, 0.0f, kInf, h)) { escaped = true; break; }
         if (!same(h, grain)) break;  // left this grain's sphere towards another grain
         t = h.t;
