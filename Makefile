@@ -15,7 +15,7 @@ PXR_ARGS := $(if $(PXR_DIR),-Dpxr_DIR=$(PXR_DIR) -DPython3_EXECUTABLE=$(PXR_PYTH
   -DPython3_INCLUDE_DIR=$(shell $(PXR_PYTHON) -c 'import sysconfig; print(sysconfig.get_paths()["include"])' 2>/dev/null) \
   -DPython3_LIBRARY=$(shell $(PXR_PYTHON) -c 'import sysconfig as s; print(s.get_config_var("LIBDIR") + "/" + s.get_config_var("LDLIBRARY"))' 2>/dev/null),)
 
-.PHONY: demo demo-json gallery test deps venv build schemas bench clean sanitize fuzz
+.PHONY: demo demo-json gallery test deps venv build schemas bench clean sanitize fuzz fuzz-usd
 
 deps:
 	@scripts/install-deps.sh
@@ -88,6 +88,19 @@ fuzz: deps
 	    -max_len=16384 -print_final_stats=1 -artifact_prefix=artifacts/$$t- corpus/$$t.run corpus/$$t || exit 1; \
 	  cd - > /dev/null; \
 	done
+
+# Atheris (libFuzzer for Python, installed into the venv here only) on whole USD stages
+# through `granular render`'s own code (fuzz/fuzz_usd_stage.py), for FUZZ_SECONDS, one
+# process; the corpus grows in $(FUZZ_BUILD)/corpus/fuzz_usd_stage.run, seeded with
+# fuzz/regressions/usd_stage_*.usda; findings land in $(FUZZ_BUILD)/artifacts/.
+fuzz-usd: build
+	@scripts/setup-venv.sh $(VENV) $(BUILD) --fuzz
+	@mkdir -p $(FUZZ_BUILD)/corpus/fuzz_usd_stage $(FUZZ_BUILD)/corpus/fuzz_usd_stage.run $(FUZZ_BUILD)/artifacts
+	@cp fuzz/regressions/usd_stage_*.usda $(FUZZ_BUILD)/corpus/fuzz_usd_stage/
+	@cd $(FUZZ_BUILD) && GRANULAR_BUILD_DIR=$(abspath $(BUILD)) GRANULAR_CACHE_DIR=$(abspath $(FUZZ_BUILD))/cache-usd \
+	  $(abspath $(PY)) $(CURDIR)/fuzz/fuzz_usd_stage.py -max_total_time=$(FUZZ_SECONDS) -timeout=30 -rss_limit_mb=3072 \
+	    -max_len=4096 -len_control=0 -print_final_stats=1 -artifact_prefix=artifacts/fuzz_usd_stage- \
+	    corpus/fuzz_usd_stage.run corpus/fuzz_usd_stage
 
 # Regenerates schemas/generatedSchema.usda and plugInfo.json from schemas/schema.usda.
 schemas: venv

@@ -15,7 +15,9 @@ packing rate 0.01–0.64, absorption 0 … 1e30 (exactly 0 included), IOR 1.0–
 accepted range; 2.4 is diamond), grain radius 1e-5–0.5 of the object, the camera and
 lights (sphere, rect) inside the aggregate, grazing rays (camera in the plane of a box
 aggregate's face, axis-aligned rays along the tile grid, a sun 0.006° above the face),
-a sphere light of radius 0.5 at 5000 units, the whole scene scaled to 1e6 and 1e-6 units.
+a sphere light of radius 0.5 at 5000 units, the whole scene scaled to 1e6 and 1e-6 units
+(and 1e9, 1e-9), moved 1e3 to 1e14 units from the origin (render space: scene_desc.h), and
+thin lenses of f/1e-15 to f/0.5.
 
 Usage: python3 bench/stress.py [--build build] [--quick] [--timeout 300] [--only SUBSTR]
        [--techniques ept,ept+vpt,hybrid] [--out out/stress]
@@ -24,6 +26,7 @@ Exit status 1 when any case FAILs. --quick runs a small subset of each sweep.
 import argparse
 import copy
 import json
+import math
 import os
 import signal
 import subprocess
@@ -135,6 +138,46 @@ def axis_aligned(d):
     return d
 
 
+def moved(d, t):
+    """The whole scene moved by t along each axis (camera, lights, meshes, aggregates)."""
+    d = copy.deepcopy(d)
+    # The look-at frame as a matrix (row-major, column vectors), its translation moved in
+    # double: look_at's eye and target are floats, which 1e9 away round to one point.
+    la = d["camera"].pop("look_at")
+    eye, target, up = (la[k] for k in ("eye", "target", "up"))
+
+    def unit(v):
+        n = math.sqrt(sum(x * x for x in v))
+        return [x / n for x in v]
+
+    def cross(a, b):
+        return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    back = unit([e - g for e, g in zip(eye, target)])
+    right = unit(cross(up, back))
+    cols = [right, cross(back, right), back, [e + t for e in eye]]
+    d["camera"]["transform"] = {"matrix": [float(cols[c][r]) for r in range(3) for c in range(4)] + [0, 0, 0, 1.0]}
+    # Translations as matrices too (JSON's translate is float: 1e12 would round by 4096).
+    shift = [1.0, 0, 0, t, 0, 1.0, 0, t, 0, 0, 1.0, t, 0, 0, 0, 1.0]
+    for obj in d.get("meshes", []) + d["aggregates"]:
+        if "transform" in obj:
+            raise ValueError("moved() takes a scene whose meshes and aggregates have no transform")
+        obj["transform"] = {"matrix": shift}
+    for l in d.get("lights", []):
+        if "position" in l:
+            l["position"] = [x + t for x in l["position"]]
+    return d
+
+
+def tiny_aperture(f_stop):
+    # A thin lens faster than any real one (f/0.5): an fStop of 1e-15 once aborted the
+    # process inside Embree; refused now, by name.
+    def fn(d):
+        d["camera"]["f_stop"] = f_stop
+        d["camera"]["focus_distance"] = 0.1
+        return d
+    return fn
+
+
 def cases(quick):
     out = []
     for f in ([0.01, 0.64] if quick else [0.01, 0.05, 0.2, 0.4, 0.6, 0.64]):
@@ -155,7 +198,13 @@ def cases(quick):
     out.append(case("axis-aligned rays", fn=axis_aligned))
     for s in [1e6, 1e-6]:
         out.append(case(f"scale {s:g}", fn=lambda d, s=s: scaled(d, s)))
+    for t in ([1e6, 1e14] if quick else [1e3, 1e5, 1e6, 1e9, 1e12, 1e14]):
+        out.append(case(f"moved {t:g}", fn=lambda d, t=t: moved(d, t)))
+    for f_stop in ([1e-15] if quick else [1e-15, 1e-6, 0.49, 0.5]):
+        out.append(case(f"f-stop {f_stop:g}", fn=tiny_aperture(f_stop)))
     if not quick:
+        out.append(case("scale 1e9", fn=lambda d: scaled(d, 1e9)))
+        out.append(case("scale 1e-9", fn=lambda d: scaled(d, 1e-9)))
         out.append(case("scale 1e6, camera inside", fn=lambda d: scaled(camera_inside(d), 1e6)))
         out.append(case("scale 1e-6, light inside", fn=lambda d: scaled(sphere_light_inside(d), 1e-6)))
     return out

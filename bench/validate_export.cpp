@@ -208,7 +208,9 @@ int exportScene(const std::string& scenePath, const std::string& dir) {
     const Aggregate& agg = *scene->aggregates()[a];
     const AggregateDesc& ad = desc.aggregates[a];
     std::string prefix = "agg" + std::to_string(a);
-    writePly(dir + "/" + prefix + "_boundary.ply", agg.boundary());
+    // The scene holds its aggregates in render space; the export is in world space.
+    const Vec3d origin = scene->renderOrigin();
+    writePly(dir + "/" + prefix + "_boundary.ply", agg.boundary().transformed(Transform::translate(origin.x, origin.y, origin.z)));
     j += a ? ",\n    " : "\n    ";
     j += "{\"name\": \"" + agg.name() + "\", \"boundary_ply\": \"" + prefix + "_boundary.ply\", \"grain_radius\": " +
          num(agg.grainRadius()) + ",\n     \"prototypes\": [";
@@ -224,7 +226,7 @@ int exportScene(const std::string& scenePath, const std::string& dir) {
       Transform xf;
       for (int r = 0; r < 3; ++r) {
         for (int c = 0; c < 3; ++c) xf.m[r][c] = double(g.radius) * g.rotation.m[r][c];
-        xf.m[r][3] = g.center[r];
+        xf.m[r][3] = double(g.center[r]) + origin[r];
       }
       j += (count++ ? ",\n       " : "\n       ") + std::string("{\"prototype\": ") + std::to_string(g.prototype) +
            ", \"matrix\": " + matrix(xf) + "}";

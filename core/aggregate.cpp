@@ -321,6 +321,7 @@ CellClass Aggregate::cellClass(int64_t i, int64_t j, int64_t k) const {
 }
 
 bool Aggregate::insideBoundary(const Vec3& p) const {
+  if (!traceable(p, kInsideProbeDir, 0.0f, kInf)) return false;
   RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
   RTCRayHit rh = makeRayHit(p, kInsideProbeDir, 0.0f, kInf);
@@ -330,6 +331,7 @@ bool Aggregate::insideBoundary(const Vec3& p) const {
 }
 
 bool Aggregate::intersectBoundary(const Vec3& o, const Vec3& d, float tmin, float tmax, float& t, Vec3& ng) const {
+  if (!traceable(o, d, tmin, tmax)) return false;
   RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
   RTCRayHit rh = makeRayHit(o, d, tmin, tmax);

@@ -20,6 +20,7 @@
 #include <openvdb/tools/MeshToVolume.h>
 
 #include "error.h"
+#include "output_file.h"
 
 namespace granular {
 
@@ -125,20 +126,17 @@ DensityExportResult writeDensityVdb(const std::string& path, const TriangleMesh&
     result.worldBounds.extend(Vec3(float(hi.x()), float(hi.y()), float(hi.z())));
   }
 
-  const std::string tmp = path + ".tmp";
+  // Through an OutputFile (output_file.h); OpenVDB writes by name, so by the temporary's.
+  OutputFile out(path);
+  out.close();
   try {
-    openvdb::io::File file(tmp);
+    openvdb::io::File file(out.temporaryPath());
     file.write({density});
     file.close();
   } catch (const openvdb::Exception& e) {
-    std::remove(tmp.c_str());
     throw std::runtime_error(str("cannot write \"", path, "\": ", e.what()));
   }
-  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
-    int err = errno;
-    std::remove(tmp.c_str());
-    throw std::runtime_error(str("cannot write \"", path, "\": ", std::strerror(err)));
-  }
+  result.replacedOther = out.commit();
   return result;
 }
 

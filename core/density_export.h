@@ -7,7 +7,7 @@
 // exactly those whose centre lies inside the boundary, each holding sigmaT; everything
 // else is the background 0. sigmaT is a parameter (the caller derives it, e.g. from the
 // teleportation-transport model), so the export does not depend on how it was obtained.
-// The grid carries the given metadata. The file is written to "<path>.tmp" and renamed,
+// The grid carries the given metadata. The file is written through an OutputFile (output_file.h),
 // so a failure never leaves a partial file at <path>. Bad input (an open mesh, a
 // non-finite or negative sigmaT, a voxel size too small for the boundary) throws
 // InputError naming `object`; I/O failures throw std::runtime_error naming the path.
@@ -42,6 +42,7 @@ struct DensityExportResult {
   float voxelSize = 0;
   int64_t activeVoxels = 0;   // voxels holding sigmaT (tiles counted by their voxels)
   Bounds3 worldBounds;        // of the active voxels' centres
+  bool replacedOther = false; // a claimed output another process wrote meanwhile (output_file.h)
 };
 
 // worldBoundary: closed, in world space. Throws InputError(object, ...) or runtime_error.

@@ -6,6 +6,7 @@
 
 #include <embree3/rtcore.h>
 
+#include <cmath>
 #include <memory>
 
 #include "mesh.h"
@@ -30,6 +31,15 @@ inline Vec3 triangleNormal(const TriangleMesh& m, unsigned prim) {
   const Vec3& b = m.points[m.indices[3 * prim + 1]];
   const Vec3& c = m.points[m.indices[3 * prim + 2]];
   return normalize(cross(b - a, c - a));
+}
+
+// Whether Embree may be given this ray: its own check (finite, coordinates within about
+// 1.8e18, 0 <= tnear, tfar not NaN) is an assertion that aborts the process. Callers answer
+// "no hit" for a ray that fails it, so no input can end a render that way.
+inline bool traceable(const Vec3& o, const Vec3& d, float tnear, float tfar) {
+  constexpr float kLarge = 1e18f;
+  return std::fabs(o.x) <= kLarge && std::fabs(o.y) <= kLarge && std::fabs(o.z) <= kLarge && std::fabs(d.x) <= kLarge &&
+         std::fabs(d.y) <= kLarge && std::fabs(d.z) <= kLarge && tnear >= 0 && tnear <= kInf && !std::isnan(tfar);
 }
 
 inline RTCRayHit makeRayHit(const Vec3& o, const Vec3& d, float tnear, float tfar) {

@@ -366,8 +366,8 @@ class Assembler {
       }
     }
     std::vector<size_t> out;
-    for (size_t i : candidates)
-      if (prims_[i].apiSchemas || !named.count(prims_[i].path)) out.push_back(i);
+    for (size_t i : candidates)  // one named as a grain is refused (addAggregate) if it declares itself one
+      if (prims_[i].apiSchemas || !named.count(prims_[i].path) || declaresAggregate(prims_[i])) out.push_back(i);
     return out;
   }
 
@@ -383,6 +383,14 @@ class Assembler {
       lt = lookedUp_.emplace(path, std::move(found)).first;
     }
     return lt->second ? &*lt->second : nullptr;
+  }
+
+  // Whether a prim is an aggregate in its own right: its API schema where the front end sees
+  // it, else a prototypes primvar authored on the prim itself (not inherited).
+  static bool declaresAggregate(const MeshPrim& p) {
+    if (p.apiSchemas) return hasApi(p, kAggregateApi);
+    auto it = p.granular.find("prototypes");
+    return it != p.granular.end() && (it->second.source.empty() || it->second.source == p.path);
   }
 
   void addAggregate(const MeshPrim& prim) {
@@ -405,6 +413,13 @@ class Assembler {
       if (proto->typeName != "Mesh")
         throw InputError(protoSrc, protoAttr,
                          str(what, " is a ", proto->typeName.empty() ? "typeless prim" : proto->typeName, ", not a Mesh"));
+      // A grain is a plain mesh: an aggregate as a grain (itself, or another, which also
+      // makes cycles) would be drawn in both roles, or in one by one front end and the other
+      // by the other.
+      if (p == path) throw InputError(protoSrc, protoAttr, what + " is this aggregate itself");
+      if (declaresAggregate(*proto))
+        throw InputError(protoSrc, protoAttr,
+                         str(what, " is itself an aggregate (", kAggregateApi, "): a grain prototype is a plain mesh"));
       protos.push_back(proto);
     }
     if (protos.empty()) throw InputError(protoSrc, protoAttr, "is empty (at least one grain prototype mesh is needed)");

@@ -2,6 +2,7 @@
 #include "image_io.h"
 
 #include <OpenColorIO/OpenColorIO.h>
+#include <OpenImageIO/filesystem.h>
 #include <OpenImageIO/imageio.h>
 #include <OpenImageIO/strutil.h>
 
@@ -12,15 +13,24 @@
 #include <cstdint>
 #include <cstdio>
 #include <cstring>
+#include <memory>
 #include <set>
 #include <stdexcept>
 
 #include "error.h"
+#include "output_file.h"
 
 namespace OCIO = OCIO_NAMESPACE;
 
 namespace granular {
 namespace {
+
+// The OpenEXR header attribute that marks our own images.
+constexpr const char* kWriterAttribute = "granular:writer";
+constexpr const char* kWriterName = "granular";
+
+// readExr, and with ours: readTileExr.
+Image readExrFile(const std::string& path, bool ours);
 
 // sRGB piecewise curve: ExponentWithLinear with gamma 2.4 / offset 0.055 is the
 // sRGB EOTF (decode) forward, the encoding inverse. OCIO 2.1 has no built-in
@@ -98,27 +108,33 @@ void checkShape(const std::string& path, const Image& img, int minChannels) {
         failure(path, str("pixel buffer holds ", img.pixels.size(), " floats, expected ", expected)));
 }
 
-// Writes through "<path>.tmp" and renames, so <path> is either the old file or the
-// complete new one. The plugin is chosen by format name because ".tmp" says nothing.
-void writeAtomically(const std::string& path, const char* format, const OIIO::ImageSpec& spec,
-                     OIIO::TypeDesc type, const void* data) {
-  const std::string tmp = path + ".tmp";
+// Writes through an OutputFile (output_file.h): the output is the old file or the complete
+// new one, whatever else writes there. The plugin is chosen by format name because the
+// temporary name says nothing; it writes through the temporary's own stream where it can,
+// else by the temporary's name, which only this process knows. True when another process
+// replaced a claimed output meanwhile.
+bool writeAtomically(const std::string& path, const char* format, const OIIO::ImageSpec& spec, OIIO::TypeDesc type,
+                     const void* data) {
+  OutputFile file(path);
   auto out = OIIO::ImageOutput::create(format);
   if (!out) throw std::runtime_error(failure(path, OIIO::geterror()));
+  std::unique_ptr<OIIO::Filesystem::IOFile> proxy;
+  if (out->supports("ioproxy")) {
+    proxy.reset(new OIIO::Filesystem::IOFile(file.stream(), OIIO::Filesystem::IOProxy::Write));
+    out->set_ioproxy(proxy.get());
+  } else {
+    file.close();
+  }
   auto fail = [&](const std::string& why) {
-    out.reset();  // closes the handle before the unlink
-    std::remove(tmp.c_str());
+    out.reset();  // closes the handle before the temporary goes
     throw std::runtime_error(failure(path, why));
   };
-  if (!out->open(tmp, spec)) fail(out->geterror());
+  if (!out->open(file.temporaryPath(), spec)) fail(out->geterror());
   if (!out->write_image(type, data)) fail(out->geterror());
   if (!out->close()) fail(out->geterror());
   out.reset();
-  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
-    const int err = errno;
-    std::remove(tmp.c_str());
-    throw std::runtime_error(failure(path, str("rename from ", tmp, " failed: ", std::strerror(err))));
-  }
+  proxy.reset();
+  return file.commit();
 }
 
 std::string lowerExtension(const std::string& path) {
@@ -142,12 +158,17 @@ OIIO::ImageInput::unique_ptr openFlatImage(const std::string& path) {
   if (spec.width <= 0 || spec.height <= 0 || spec.depth > 1 || spec.nchannels <= 0)
     throw InputError(path, "", str("cannot read image: unusable size ", spec.width, "x", spec.height, "x",
                                    spec.depth, " with ", spec.nchannels, " channels"));
+  if (spec.width > kMaxImageSide || spec.height > kMaxImageSide || int64_t(spec.width) * spec.height > kMaxImagePixels ||
+      spec.nchannels > 1024)
+    throw InputError(path, "", str("cannot read image: its header says ", spec.width, "x", spec.height, " with ",
+                                   spec.nchannels, " channels, beyond the limit of ", kMaxImageSide,
+                                   " pixels a side, ", kMaxImagePixels, " pixels in all and 1024 channels"));
   return in;
 }
 
 }  // namespace
 
-void writeExr(const std::string& path, const Image& img) {
+bool writeExr(const std::string& path, const Image& img) {
   checkShape(path, img, 1);
   std::set<std::string> seen;
   for (const std::string& name : img.channels)
@@ -168,10 +189,11 @@ void writeExr(const std::string& path, const Image& img) {
   spec.alpha_channel = img.channelIndex("A");
   spec.z_channel = img.channelIndex("Z");
   spec.attribute("compression", "zip");
-  writeAtomically(path, "openexr", spec, OIIO::TypeDesc::FLOAT, img.pixels.data());
+  spec.attribute(kWriterAttribute, kWriterName);  // what merge checks a tile for
+  return writeAtomically(path, "openexr", spec, OIIO::TypeDesc::FLOAT, img.pixels.data());
 }
 
-void writePngSrgb(const std::string& path, const Image& img, float exposure) {
+bool writePngSrgb(const std::string& path, const Image& img, float exposure) {
   checkShape(path, img, 3);
   if (!std::isfinite(exposure)) throw InputError(path, "exposure", str(exposure, " is not finite"));
 
@@ -215,17 +237,17 @@ void writePngSrgb(const std::string& path, const Image& img, float exposure) {
   spec.attribute("oiio:ColorSpace", "sRGB");
   // The bytes are final: stop OIIO from un-premultiplying them a second time.
   spec.attribute("oiio:UnassociatedAlpha", 1);
-  writeAtomically(path, "png", spec, OIIO::TypeDesc::UINT8, bytes.data());
+  return writeAtomically(path, "png", spec, OIIO::TypeDesc::UINT8, bytes.data());
 }
 
-void writeImage(const std::string& path, const Image& img) {
+bool writeImage(const std::string& path, const Image& img) {
   const std::string ext = lowerExtension(path);
   if (ext == "exr") return writeExr(path, img);
   if (ext == "png") return writePngSrgb(path, img);
   throw InputError(path, "", "unsupported image format '" + ext + "' (use .exr or .png)");
 }
 
-Image readImageRGB(const std::string& path) {
+Image readImageRGB(const std::string& path, uint64_t* nonFinite) {
   auto in = openFlatImage(path);
   const OIIO::ImageSpec spec = in->spec();
 
@@ -248,8 +270,14 @@ Image readImageRGB(const std::string& path) {
   else if (nch >= 3) src[0] = 0, src[1] = 1, src[2] = 2;
 
   Image img(spec.width, spec.height, {"R", "G", "B"});
+  uint64_t bad = 0;
   for (size_t i = 0; i < n; ++i)
-    for (int c = 0; c < 3; ++c) img.pixels[3 * i + c] = finiteOrZero(all[i * nch + src[c]]);
+    for (int c = 0; c < 3; ++c) {
+      const float v = all[i * nch + src[c]];
+      bad += !std::isfinite(v);
+      img.pixels[3 * i + c] = finiteOrZero(v);
+    }
+  if (nonFinite) *nonFinite = bad;
 
   // 8-bit PNG/JPEG hold sRGB-encoded values; lighting needs linear radiance.
   if (OIIO::Strutil::iequals(spec.get_string_attribute("oiio:ColorSpace"), "sRGB")) {
@@ -270,9 +298,18 @@ float srgbEncode(float linear) {
   return rgb[0];
 }
 
-Image readExr(const std::string& path) {
+Image readExr(const std::string& path) { return readExrFile(path, false); }
+
+Image readTileExr(const std::string& path) { return readExrFile(path, true); }
+
+namespace {
+
+Image readExrFile(const std::string& path, bool ours) {
   auto in = openFlatImage(path);
   const OIIO::ImageSpec spec = in->spec();
+  if (ours && (std::string(in->format_name()) != "openexr" || spec.get_string_attribute(kWriterAttribute) != kWriterName))
+    throw InputError(path, "", str("is not a tile of granular render (an OpenEXR it wrote, read as ",
+                                   in->format_name(), "): merge joins only those, whose pixels are linear radiance"));
   if (spec.full_x != 0 || spec.full_y != 0 || spec.x < 0 || spec.y < 0 || spec.x + spec.width > spec.full_width ||
       spec.y + spec.height > spec.full_height)
     throw InputError(path, "", str("cannot read image: data window at (", spec.x, ", ", spec.y, ") of size ", spec.width,
@@ -290,6 +327,8 @@ Image readExr(const std::string& path) {
   in->close();
   return img;
 }
+
+}  // namespace
 
 Image mergeTiles(const std::vector<Image>& tiles) {
   if (tiles.empty()) throw InputError("tiles", "", "no tiles to merge");

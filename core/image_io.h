@@ -10,9 +10,12 @@
 #pragma once
 
 #include <cstddef>
+#include <cstdint>
 #include <string>
 #include <utility>
 #include <vector>
+
+#include "output_file.h"
 
 namespace granular {
 
@@ -45,13 +48,21 @@ struct Image {
   }
 };
 
+// Writing: every writer below writes through an OutputFile (output_file.h): the output is
+// the old file or the complete new one, whatever else writes there. Each returns true when
+// the output was claimed (claimOutput) and another process has replaced it since: this
+// one's image is the one that stays, and the caller says so.
+
 // OpenEXR, float32 for every channel, ZIP compression; a crop's data window inside the
-// full image's display window.
-void writeExr(const std::string& path, const Image& img);
+// full image's display window; the header marks it as ours (readTileExr).
+bool writeExr(const std::string& path, const Image& img);
 
 // An OpenEXR file as written by writeExr (any channels, data and display windows kept):
 // float32 of every channel. Throws InputError(path, "", "cannot read image: ...").
 Image readExr(const std::string& path);
+// The same, for a tile to merge: only an OpenEXR that writeExr wrote (another image, such
+// as an 8-bit sRGB PNG, holds no linear radiance), else InputError(path, "", ...).
+Image readTileExr(const std::string& path);
 
 // The rectangle of an image tiled by `tiles` (crops of one image: the same display size and
 // the same channels) as one image — the full image, or a crop of it when the tiles cover
@@ -64,16 +75,23 @@ Image mergeTiles(const std::vector<Image>& tiles);
 // With an "A" channel the PNG is RGBA; colour is taken as premultiplied by A (as the
 // renderer produces it) and un-premultiplied in linear before encoding, because PNG
 // alpha is straight.
-void writePngSrgb(const std::string& path, const Image& img, float exposure = 0.0f);
+bool writePngSrgb(const std::string& path, const Image& img, float exposure = 0.0f);
 
 // .exr -> writeExr, .png -> writePngSrgb (case-insensitive); else InputError.
-void writeImage(const std::string& path, const Image& img);
+bool writeImage(const std::string& path, const Image& img);
 
 // Any OIIO-readable image as 3-channel linear RGB (grey expanded, alpha dropped), for
 // lat-long environment maps. Images tagged sRGB (8-bit PNG/JPEG) are decoded to
-// linear. Non-finite values become 0 and negatives are clamped to 0.
+// linear. Non-finite values become 0 (counted in *nonFinite when given: a caller that
+// lights a scene with the image refuses it instead) and negatives are clamped to 0.
 // Throws InputError(path, "", "cannot read image: ...").
-Image readImageRGB(const std::string& path);
+Image readImageRGB(const std::string& path, uint64_t* nonFinite = nullptr);
+
+// The largest image any reader here allocates: kMaxImageSide pixels a side and
+// kMaxImagePixels in all (a 16k x 16k texture; 60000 x 30000 would take 21 GB as float RGB).
+// A header claiming more is refused before anything is allocated.
+constexpr int kMaxImageSide = 65536;
+constexpr int64_t kMaxImagePixels = int64_t(1) << 28;
 
 // The PNG's encoding of one linear value (exposure 0), through the same OCIO
 // processor, clamped to [0,1] and before 8-bit quantisation.

@@ -88,7 +88,13 @@ Light Light::fromDesc(const LightDesc& d) {
       l.toWorld_ = d.xf;
       if (!d.xf.inverse(l.toLocal_)) throw InputError(d.name, "transform", "is singular");
       if (!d.textureFile.empty()) {
-        Image img = readImageRGB(d.textureFile);
+        uint64_t nonFinite = 0;
+        Image img = readImageRGB(d.textureFile, &nonFinite);
+        // Zeroed, a NaN or infinite texel would be a hole in the sky nobody asked for.
+        if (nonFinite)
+          throw InputError(d.textureFile, "",
+                           str("\"", d.textureFile, "\" has ", nonFinite,
+                               " texel values that are not finite (NaN or infinity)"));
         l.texW_ = img.width;
         l.texH_ = img.height;
         l.texels_ = std::make_shared<std::vector<float>>(std::move(img.pixels));

@@ -50,11 +50,12 @@ bool Transform::inverse(Transform& out) const {
     for (int j = 0; j < 4; ++j) {
       a[i][j] = m[i][j];
       a[i][j + 4] = i == j ? 1.0 : 0.0;
-      scale = std::max(scale, std::fabs(m[i][j]));
+      if (j < 3 || i == 3) scale = std::max(scale, std::fabs(m[i][j]));
     }
   if (scale == 0) return false;
   // Relative tolerance: rounding turns an exactly singular matrix into pivots of
-  // ~1e-16 * scale, which must still count as singular.
+  // ~1e-16 * scale, which must still count as singular. The scale leaves the translation
+  // out: a placement 1e14 units away says nothing about whether the matrix inverts.
   const double tiny = 1e-14 * scale;
   for (int c = 0; c < 4; ++c) {
     int p = c;

@@ -50,7 +50,13 @@ inline float length(const Vec3& a) { return std::sqrt(dot(a, a)); }
 inline float length2(const Vec3& a) { return dot(a, a); }
 inline Vec3 normalize(const Vec3& a) {
   float l = length(a);
-  return l > 0 ? a / l : Vec3(0, 0, 1);
+  if (l > 0 && l < kInf) return a / l;
+  // The squares left float (|a| beyond ~1e19, as the cross product of a triangle's edges
+  // 10^9 units long, or below ~1e-19): rescale by the largest component first.
+  const float m = std::max({std::fabs(a.x), std::fabs(a.y), std::fabs(a.z)});
+  if (!(m > 0) || !(m < kInf)) return Vec3(0, 0, 1);
+  const Vec3 b = a / m;
+  return b / length(b);
 }
 inline Vec3 vmin(const Vec3& a, const Vec3& b) { return {std::min(a.x, b.x), std::min(a.y, b.y), std::min(a.z, b.z)}; }
 inline Vec3 vmax(const Vec3& a, const Vec3& b) { return {std::max(a.x, b.x), std::max(a.y, b.y), std::max(a.z, b.z)}; }
@@ -76,6 +82,14 @@ struct Frame {
   }
   Vec3 toLocal(const Vec3& v) const { return {dot(v, s), dot(v, t), dot(v, n)}; }
   Vec3 toWorld(const Vec3& v) const { return s * v.x + t * v.y + n * v.z; }
+};
+
+// A point in double, for what must stay exact far from the origin (render space).
+struct Vec3d {
+  double x = 0, y = 0, z = 0;
+  double operator[](int i) const { return i == 0 ? x : (i == 1 ? y : z); }
+  bool operator==(const Vec3d& o) const { return x == o.x && y == o.y && z == o.z; }
+  bool operator!=(const Vec3d& o) const { return !(*this == o); }
 };
 
 // Row-major 3x3 matrix (rotations of grains).
@@ -109,6 +123,9 @@ struct Transform {
   static Transform translate(const Vec3& t) {
     Transform r; r.m[0][3] = t.x; r.m[1][3] = t.y; r.m[2][3] = t.z; return r;
   }
+  static Transform translate(double x, double y, double z) {
+    Transform r; r.m[0][3] = x; r.m[1][3] = y; r.m[2][3] = z; return r;
+  }
   static Transform scale(const Vec3& s) {
     Transform r; r.m[0][0] = s.x; r.m[1][1] = s.y; r.m[2][2] = s.z; return r;
   }
@@ -130,6 +147,10 @@ struct Transform {
     double y = m[1][0] * p.x + m[1][1] * p.y + m[1][2] * p.z + m[1][3];
     double z = m[2][0] * p.x + m[2][1] * p.y + m[2][2] * p.z + m[2][3];
     return {float(x), float(y), float(z)};
+  }
+  Vec3d pointD(const Vec3& p) const {
+    return {m[0][0] * p.x + m[0][1] * p.y + m[0][2] * p.z + m[0][3], m[1][0] * p.x + m[1][1] * p.y + m[1][2] * p.z + m[1][3],
+            m[2][0] * p.x + m[2][1] * p.y + m[2][2] * p.z + m[2][3]};
   }
   Vec3 vector(const Vec3& v) const {
     return {float(m[0][0] * v.x + m[0][1] * v.y + m[0][2] * v.z), float(m[1][0] * v.x + m[1][1] * v.y + m[1][2] * v.z),

@@ -206,10 +206,16 @@ const Scene::BuiltAggregate* Scene::findBuilt(const AggregateDesc& desc, const s
   return nullptr;
 }
 
-std::unique_ptr<Scene> Scene::build(const SceneDesc& desc, const Scene* previous) {
+std::unique_ptr<Scene> Scene::build(const SceneDesc& worldDesc, const Scene* previous) {
   auto t0 = std::chrono::steady_clock::now();
-  validateSceneDesc(desc);
+  validateSceneDesc(worldDesc);
+  // Everything below is in render space (scene_desc.h: renderOrigin).
+  const Vec3d origin = granular::renderOrigin(worldDesc);
+  std::optional<SceneDesc> moved;
+  const SceneDesc& desc = origin == Vec3d{} ? worldDesc : moved.emplace(toRenderSpace(worldDesc, origin));
+  for (const auto& a : desc.aggregates) checkGrainPrecision(a, origin);
   auto s = std::unique_ptr<Scene>(new Scene());
+  s->renderOrigin_ = origin;
   s->settings_ = desc.settings;
   s->textureFilterScale_ = textureFilterScale(desc.settings.spp);
   s->camera_ = Camera(desc.camera, desc.settings.width, desc.settings.height);
@@ -386,6 +392,7 @@ std::string Scene::widenedSunsWarning() const {
 bool Scene::intersectSurfaces(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax) const {
   float t0, t1;
   if (surfaceBounds_.empty() || !surfaceBounds_.intersect(ray.o, invD, ray.tmin, tmax, t0, t1)) return false;
+  if (!traceable(ray.o, ray.d, ray.tmin, tmax)) return false;
   RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
   RTCRayHit rh = makeRayHit(ray.o, ray.d, ray.tmin, tmax);
@@ -479,7 +486,7 @@ void Scene::setView(const CameraDesc& camera, const RenderSettings& settings) {
     throw InputError("render", "technique", "a change between ept and the hybrid needs the scene built anew");
   settings_ = settings;
   textureFilterScale_ = textureFilterScale(settings.spp);
-  camera_ = Camera(camera, settings.width, settings.height);
+  camera_ = Camera(toRenderSpace(camera, renderOrigin_), settings.width, settings.height);
   updateDiffusionDepths();  // the camera may have moved into or out of an aggregate
   updateExplicitBounces();
 }
@@ -550,6 +557,7 @@ bool Scene::intersectMedium(const Ray& ray, Hit& hit) const {
 }
 
 bool Scene::surfacesOccluded(const Vec3& p, const Vec3& dir, float dist) const {
+  if (!traceable(p, dir, 0.0f, dist)) return false;
   RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
   RTCRay r;

@@ -1,8 +1,8 @@
 // scene.h — the built scene: BVHs, aggregates, lights, materials and camera.
 //
 // Contract: Scene::build() turns a validated SceneDesc into everything the integrators
-// query: intersect() returns the nearest surface, grain or area light along a ray;
-// occluded() answers shadow rays. Given the previous scene of the same stage, build()
+// query, in render space (world space less renderOrigin()): intersect() returns the
+// nearest surface, grain or area light along a ray; occluded() answers shadow rays. Given the previous scene of the same stage, build()
 // reuses each aggregate whose inputs (its AggregateDesc but the id, its prototypes'
 // materials) are unchanged: no voxelising, no tile, no TT work for it; a light or camera
 // edit then costs only the surfaces' BVH. Built aggregates are shared, immutable, between
@@ -113,6 +113,9 @@ class Scene {
   const DiffusionProfile& diffusionProfile(int aggregate) const { return diffusionProfiles_[aggregate]; }
   int diffusionExitMaterial() const { return diffusionExitMaterial_; }
 
+  // The world position of render space's origin (scene_desc.h: renderOrigin): every
+  // position the scene holds or returns (hits, bounds, lights, camera) is relative to it.
+  const Vec3d& renderOrigin() const { return renderOrigin_; }
   const Camera& camera() const { return camera_; }
   const RenderSettings& settings() const { return settings_; }
   const Material& material(int i) const { return materials_[i]; }
@@ -222,6 +225,7 @@ class Scene {
   EmbreeDevice device_;
   EmbreeScene surfaces_;
   Bounds3 surfaceBounds_;  // of every visible mesh (empty: none), to skip surfaces_ cheaply
+  Vec3d renderOrigin_;
   float sceneScale_ = 1;
   double buildSeconds_ = 0;
   bool defaultLightAdded_ = false;

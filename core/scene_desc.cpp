@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include "error.h"
 #include "light.h"
@@ -141,6 +142,10 @@ void validateSceneDesc(const SceneDesc& desc) {
   checkFinite(c.verticalApertureOffset, "camera", "verticalApertureOffset");
   if (!std::isfinite(c.lensRadius) || c.lensRadius < 0)
     throw InputError("camera", "lensRadius", str(c.lensRadius, " must be finite and >= 0 (0: a pinhole)"));
+  if (c.lensRadius > lensRadiusFromFStop(c.focalLength, kFastestFStop) * (1 + 1e-6f))
+    throw InputError("camera", "lensRadius",
+                     str(c.lensRadius, " is wider than an f/", kFastestFStop, " lens of focal length ", c.focalLength,
+                         " (", lensRadiusFromFStop(c.focalLength, kFastestFStop), "), the fastest a lens in air can be"));
   if (c.lensRadius > 0 && !(std::isfinite(c.focusDistance) && c.focusDistance > 0))
     throw InputError("camera", "focusDistance", str(c.focusDistance, " must be finite and > 0 with a lens"));
   if (!std::isfinite(c.clipNear) || !(c.clipNear > 0))
@@ -316,6 +321,109 @@ int textureChannelFromName(const std::string& name, const std::string& obj, cons
     if (c != std::string::npos) return int(c);
   }
   throw InputError(obj, attr, str("\"", name, "\" is not rgb, r, g, b or a"));
+}
+
+namespace {
+
+// World bounds, in double, of a mesh placed by xf.
+void extendWorldBounds(const TriangleMesh& m, const Transform& xf, Vec3d& lo, Vec3d& hi) {
+  for (const Vec3& p : m.points) {
+    const Vec3d w = xf.pointD(p);
+    lo = {std::min(lo.x, w.x), std::min(lo.y, w.y), std::min(lo.z, w.z)};
+    hi = {std::max(hi.x, w.x), std::max(hi.y, w.y), std::max(hi.z, w.z)};
+  }
+}
+
+Transform toRenderSpace(const Transform& xf, const Vec3d& origin) {
+  if (origin == Vec3d{}) return xf;
+  return Transform::translate(-origin.x, -origin.y, -origin.z) * xf;
+}
+
+}  // namespace
+
+float checkedLensRadius(float focalLength, float fStop, const std::string& object, const std::string& attribute) {
+  if (!std::isfinite(fStop) || fStop < 0)
+    throw InputError(object, attribute, str(fStop, " must be finite and >= 0 (0: no depth of field)"));
+  if (fStop > 0 && fStop < kFastestFStop)
+    throw InputError(object, attribute,
+                     str(fStop, " is below ", kFastestFStop, ", the fastest a lens in air can be (0: no depth of field)"));
+  return lensRadiusFromFStop(focalLength, fStop);
+}
+
+Vec3d renderOrigin(const SceneDesc& desc) {
+  constexpr double inf = std::numeric_limits<double>::infinity();
+  Vec3d lo{inf, inf, inf}, hi{-inf, -inf, -inf};
+  for (const AggregateDesc& a : desc.aggregates) extendWorldBounds(a.boundary, a.xf, lo, hi);
+  if (!(lo.x <= hi.x))
+    for (const MeshDesc& m : desc.meshes)
+      if (m.visible) extendWorldBounds(m.mesh, m.xf, lo, hi);
+  Vec3d c = lo.x <= hi.x ? Vec3d{0.5 * (lo.x + hi.x), 0.5 * (lo.y + hi.y), 0.5 * (lo.z + hi.z)}
+                         : desc.camera.cameraToWorld.pointD(Vec3(0.0f));
+  // On a grid of whole units, as coarse as the content's extent (a power of two): a stage
+  // moved by a multiple of it keeps its render space exactly, and an edit inside the scene
+  // seldom moves the origin (which would build every aggregate anew).
+  const double extent = lo.x <= hi.x ? std::max({hi.x - lo.x, hi.y - lo.y, hi.z - lo.z}) : 0.0;
+  const double grid = extent > 1 && extent < 1e30 ? std::exp2(std::ceil(std::log2(extent))) : 1.0;
+  c = {grid * std::nearbyint(c.x / grid), grid * std::nearbyint(c.y / grid), grid * std::nearbyint(c.z / grid)};
+  if (!(std::isfinite(c.x) && std::isfinite(c.y) && std::isfinite(c.z))) return Vec3d{};
+  return {c.x + 0.0, c.y + 0.0, c.z + 0.0};  // no -0: an origin of zero is recognised as such
+}
+
+CameraDesc toRenderSpace(const CameraDesc& camera, const Vec3d& origin) {
+  CameraDesc c = camera;
+  c.cameraToWorld = toRenderSpace(camera.cameraToWorld, origin);
+  return c;
+}
+
+SceneDesc toRenderSpace(const SceneDesc& desc, const Vec3d& origin) {
+  SceneDesc r = desc;
+  if (origin == Vec3d{}) return r;
+  r.camera = toRenderSpace(desc.camera, origin);
+  for (MeshDesc& m : r.meshes) m.xf = toRenderSpace(m.xf, origin);
+  for (LightDesc& l : r.lights) l.xf = toRenderSpace(l.xf, origin);
+  for (AggregateDesc& a : r.aggregates) a.xf = toRenderSpace(a.xf, origin);
+  return r;
+}
+
+void checkGrainPrecision(const AggregateDesc& a, const Vec3d& origin) {
+  constexpr double inf = std::numeric_limits<double>::infinity();
+  Vec3d lo{inf, inf, inf}, hi{-inf, -inf, -inf};
+  extendWorldBounds(a.boundary, a.xf, lo, hi);
+  if (!(lo.x <= hi.x)) return;
+  double far = 0, originFar = 0;
+  for (int i = 0; i < 3; ++i) {
+    far = std::max({far, std::fabs(lo[i]), std::fabs(hi[i])});
+    originFar = std::max(originFar, std::fabs(origin[i]));
+  }
+  float smallest = 1;
+  for (float s : a.sizes) smallest = std::min(smallest, s);
+  const double radius = double(a.grainRadius) * smallest * (1.0 - a.sizeSpread);
+  // Half a float spacing at the render-space coordinate, half a double spacing at the world one.
+  const double floatRounding = far * std::ldexp(1.0, -24);
+  const double doubleRounding = (far + originFar) * std::ldexp(1.0, -53);
+  const double rounding = floatRounding + doubleRounding;
+  if (!(rounding > kGrainPrecision * radius)) return;
+  // Its own size, not its place, puts it that far: the grains are too small for float.
+  double centreFar = 0, halfExtent = 0;
+  for (int i = 0; i < 3; ++i) {
+    centreFar = std::max(centreFar, std::fabs(0.5 * (lo[i] + hi[i])));
+    halfExtent = std::max(halfExtent, 0.5 * (hi[i] - lo[i]));
+  }
+  if (doubleRounding <= floatRounding && centreFar <= halfExtent)
+    throw InputError(a.name, "grainRadius",
+                     str(radius, " is too small for the boundary's size: float positions across its ", 2 * halfExtent,
+                         " units round by ", rounding, ", more than 1/", int(1 / kGrainPrecision),
+                         " of a grain (raise grainRadius, or split the aggregate)"));
+  const bool worldFar = doubleRounding > floatRounding;
+  const std::string where =
+      worldFar ? str("it lies ", far + originFar, " units from the world origin, where even double precision rounds by ")
+               : str("it reaches ", far, " units from the render origin (the centre of the scene's aggregates), where float "
+                     "rounds by ");
+  throw InputError(a.name, "grainRadius",
+                   str("grains of radius ", radius, " cannot be resolved: ", where, rounding, ", more than 1/",
+                       int(1 / kGrainPrecision), " of a grain; ",
+                       worldFar ? "move the stage nearer the world origin"
+                                : "bring the aggregates nearer each other, or split this one"));
 }
 
 Technique techniqueFromName(const std::string& name, const std::string& obj) {

@@ -39,6 +39,13 @@ struct CameraDesc {
 inline float lensRadiusFromFStop(float focalLength, float fStop) {
   return fStop > 0 ? 0.05f * focalLength / fStop : 0.0f;
 }
+// No lens in air is faster than f/0.5 (N = 1 / (2 sin θ) with θ < 90°): below it the lens
+// is wider than anything a camera can be (an fStop of 1e-15 made rays start 10^15 units
+// away and aborted the render inside Embree).
+constexpr float kFastestFStop = 0.5f;
+// lensRadiusFromFStop for a user's value: InputError on object.attribute for an fStop that
+// is not finite, negative, or in (0, kFastestFStop).
+float checkedLensRadius(float focalLength, float fStop, const std::string& object, const std::string& attribute);
 
 // A UsdUVTexture feeding one material input, looked up at the mesh's texture coordinates
 // (TriangleMesh::uvs; USD's st, origin at the image's lower left) through OpenImageIO's
@@ -227,6 +234,28 @@ struct SceneDesc {
   std::vector<AggregateDesc> aggregates;
   RenderSettings settings;
 };
+
+// Render space (camera-relative rendering's aim, with an origin that does not move with
+// the camera): everything is built and traced in world space translated by −origin, the
+// translation applied in double to each transform, so that what needs float precision —
+// the grains — sits near zero wherever the stage puts it. The origin is the centre of the
+// aggregates' world bounds (else of the visible meshes', else the camera's position),
+// rounded to a grid of whole units as coarse as their extent (a power of two). It does not
+// depend on the camera, so a camera move keeps a built scene; a stage moved by a multiple
+// of the grid keeps its render space, to the double rounding of its transforms; a stage
+// near the world origin renders in world space itself.
+Vec3d renderOrigin(const SceneDesc& desc);
+// The description with every transform (camera, meshes, lights, aggregates) premultiplied
+// by translate(−origin).
+SceneDesc toRenderSpace(const SceneDesc& desc, const Vec3d& origin);
+CameraDesc toRenderSpace(const CameraDesc& camera, const Vec3d& origin);
+
+// Float precision at the grains: an aggregate whose grains lie so far from the render
+// origin that a position there rounds by more than kGrainPrecision of a grain radius
+// (float spacing of the render-space coordinate plus double spacing of the world one)
+// would lose or mangle its grains; InputError on its grainRadius naming the distance.
+constexpr double kGrainPrecision = 1.0 / 64;
+void checkGrainPrecision(const AggregateDesc& renderSpaceAggregate, const Vec3d& origin);
 
 // UsdUVTexture's tokens, for every front end: wrapS/T ("useMetadata", "black", "clamp",
 // "repeat", "mirror"), sourceColorSpace ("auto", "raw", "sRGB") and its outputs as a

@@ -442,10 +442,7 @@ void parseCamera(const Obj& o, CameraDesc& c) {
   c.horizontalApertureOffset = o.num("horizontal_aperture_offset", c.horizontalApertureOffset);
   c.verticalApertureOffset = o.num("vertical_aperture_offset", c.verticalApertureOffset);
   // Depth of field as UsdGeomCamera gives it: f_stop (0: pinhole) and focus_distance.
-  float fStop = o.num("f_stop", 0.0f);
-  if (!std::isfinite(fStop) || fStop < 0)
-    throw InputError(o.label(), "f_stop", str(fStop, " must be finite and >= 0 (0: no depth of field)"));
-  c.lensRadius = lensRadiusFromFStop(c.focalLength, fStop);
+  c.lensRadius = checkedLensRadius(c.focalLength, o.num("f_stop", 0.0f), o.label(), "f_stop");
   c.focusDistance = o.num("focus_distance", c.focusDistance);  // checked with the lens (validateSceneDesc)
   if (const json* cr = o.find("clipping_range")) {
     if (!cr->is_array() || cr->size() != 2)

@@ -15,6 +15,7 @@
 
 #include "cache.h"
 #include "error.h"
+#include "image_io.h"
 #include "rng.h"
 
 namespace granular {
@@ -24,7 +25,34 @@ namespace OIIO = OIIO_NAMESPACE;
 // The process's one shared TextureSystem (OIIO's recommended use: one tile cache for every
 // scene). Never destroyed: OIIO 2.4's TextureSystem::destroy deletes through the wrong type
 // (AddressSanitizer: new-delete-type-mismatch inside libOpenImageIO), and a process keeps
-// one anyway. A file rewritten between scenes is invalidated by its modification time.
+// one anyway. A file rewritten between scenes is invalidated by its version (FileVersion).
+namespace {
+
+// What tells one content of a file from another without reading it: device, inode, size,
+// and the modification and status-change times to the nanosecond. A copy that keeps the
+// modification time (cp -p, rsync -a) still changes the status-change time, which no
+// user call can set back.
+struct FileVersion {
+  uint64_t device = 0, inode = 0, size = 0;
+  int64_t mtimeNs = 0, ctimeNs = 0;
+  bool operator==(const FileVersion& o) const {
+    return device == o.device && inode == o.inode && size == o.size && mtimeNs == o.mtimeNs && ctimeNs == o.ctimeNs;
+  }
+};
+
+bool fileVersion(const std::string& file, FileVersion& v) {
+  struct stat st;
+  if (stat(file.c_str(), &st) != 0) return false;
+  v.device = uint64_t(st.st_dev);
+  v.inode = uint64_t(st.st_ino);
+  v.size = uint64_t(st.st_size);
+  v.mtimeNs = int64_t(st.st_mtim.tv_sec) * 1000000000 + st.st_mtim.tv_nsec;
+  v.ctimeNs = int64_t(st.st_ctim.tv_sec) * 1000000000 + st.st_ctim.tv_nsec;
+  return true;
+}
+
+}  // namespace
+
 struct Textures::System {
   OIIO::TextureSystem* ts = nullptr;
   System() {
@@ -37,24 +65,23 @@ struct Textures::System {
     ts = shared;
   }
   // The number of texel values of `file` that are not finite (0 for integer formats),
-  // known per modification time: a file is scanned once, not once per scene (a Hydra host
+  // known per file version: a file is scanned once, not once per scene (a Hydra host
   // rebuilds the scene on every edit), and one rewritten since it was last seen is dropped
   // from the cache and scanned anew.
   uint64_t nonFiniteTexels(const std::string& file, bool floatingPoint) {
     struct Record {
-      long long mtime = 0;
+      FileVersion version;
       uint64_t nonFinite = 0;
     };
     static std::mutex mutex;
     static std::map<std::string, Record> seen;
-    struct stat st;
-    if (stat(file.c_str(), &st) != 0) return 0;  // the open that follows reports it
-    const long long mtime = (long long)st.st_mtim.tv_sec * 1000000000LL + st.st_mtim.tv_nsec;
+    FileVersion version;
+    if (!fileVersion(file, version)) return 0;  // the open that follows reports it
     std::lock_guard<std::mutex> lock(mutex);
     auto it = seen.find(file);
-    if (it != seen.end() && it->second.mtime == mtime) return it->second.nonFinite;
+    if (it != seen.end() && it->second.version == version) return it->second.nonFinite;
     if (it != seen.end()) ts->invalidate(OIIO::ustring(file), true);
-    Record r{mtime, 0};
+    Record r{version, 0};
     if (floatingPoint) {
       const OIIO::ImageBufAlgo::PixelStats stats = OIIO::ImageBufAlgo::computePixelStats(OIIO::ImageBuf(file));
       for (size_t c = 0; c < stats.nancount.size(); ++c) r.nonFinite += stats.nancount[c] + stats.infcount[c];
@@ -88,11 +115,12 @@ void decodeSrgb(OIIO::ImageBuf& buf) {
 // The cached linear texture of an sRGB image: "" when none can be written.
 std::string linearCopy(const std::string& file, const std::string& source) {
   const std::string dir = cacheDirectory();
-  struct stat st;
-  if (dir.empty() || stat(file.c_str(), &st) != 0) return "";
+  FileVersion v;
+  if (dir.empty() || !fileVersion(file, v)) return "";
   char key[64];
   std::snprintf(key, sizeof key, "%016llx",
-                (unsigned long long)hashInts(std::hash<std::string>()(file), uint64_t(st.st_size), uint64_t(st.st_mtime)));
+                (unsigned long long)hashInts(hashInts(std::hash<std::string>()(file), v.device, v.inode, v.size),
+                                             uint64_t(v.mtimeNs), uint64_t(v.ctimeNs)));
   const std::string out = dir + "/texture-" + key + ".exr";
   if (access(out.c_str(), R_OK) == 0) return out;
   OIIO::ImageSpec config;
@@ -133,6 +161,13 @@ int Textures::add(const TextureDesc& desc) {
   Entry e;
   e.channels = spec.nchannels;
   if (e.channels < 1) throw InputError(desc.source, "inputs:file", str("\"", desc.file, "\" has no channels"));
+  // Scanning and the sRGB copy read the whole image: refuse a size nothing here allocates.
+  if (spec.width > kMaxImageSide || spec.height > kMaxImageSide ||
+      int64_t(spec.width) * spec.height > kMaxImagePixels || spec.nchannels > 1024)
+    throw InputError(desc.source, "inputs:file",
+                     str("\"", desc.file, "\" is ", spec.width, "x", spec.height, " with ", spec.nchannels,
+                         " channels, beyond the limit of ", kMaxImageSide, " pixels a side, ", kMaxImagePixels,
+                         " pixels in all and 1024 channels"));
   // A NaN or infinite texel would become a NaN or infinite pixel: refused here, by name.
   if (uint64_t bad = system_->nonFiniteTexels(desc.file, spec.format.is_floating_point()))
     throw InputError(desc.source, "inputs:file",

@@ -4,6 +4,8 @@
 #include "light.h"
 #include "material.h"
 #include "mesh.h"
+#include "pxr/base/tf/pyLock.h"
+#include "pxr/base/work/detachedTask.h"
 #include "pxr/imaging/hd/camera.h"
 #include "pxr/imaging/hd/tokens.h"
 #include "renderBuffer.h"
@@ -63,6 +65,14 @@ void HdGranularRenderDelegate::_Initialize() {
 HdGranularRenderDelegate::~HdGranularRenderDelegate() {
   _param->SetRenderer(nullptr);
   _renderer.reset();  // stops the render thread before the prims go
+  // A host's engine destroys its scene indices and render index before its delegate, some
+  // of their caches in OpenUSD's detached tasks (WorkSwapDestroyAsync). One still running
+  // when a Python host such as usdrecord finalises its interpreter takes the GIL, is ended
+  // by the interpreter, and aborts the process ("terminate called without an active
+  // exception") after its images are written. Finish them before the engine is gone, with
+  // the GIL released for those that need it.
+  TF_PY_ALLOW_THREADS_IN_SCOPE();
+  Work_GetDetachedDispatcher().Wait();
 }
 
 HdRenderParam* HdGranularRenderDelegate::GetRenderParam() const { return _param.get(); }

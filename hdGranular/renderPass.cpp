@@ -43,11 +43,9 @@ bool cameraFromMatrices(GfMatrix4d const& view, GfMatrix4d const& proj, granular
 // No camera prim (free matrices): a pinhole.
 GfVec2f lensOfCamera(HdCamera const* camera) {
   if (!camera) return GfVec2f(0.0f, 1.0f);
-  const float fStop = camera->GetFStop();
-  if (!std::isfinite(fStop) || fStop < 0)
-    throw granular::InputError(camera->GetId().GetString(), "fStop",
-                               std::to_string(fStop) + " must be finite and >= 0 (0: no depth of field)");
-  return GfVec2f(granular::lensRadiusFromFStop(10.0f * camera->GetFocalLength(), fStop), camera->GetFocusDistance());
+  return GfVec2f(granular::checkedLensRadius(10.0f * camera->GetFocalLength(), camera->GetFStop(),
+                                            camera->GetId().GetString(), "fStop"),
+                 camera->GetFocusDistance());
 }
 
 // A setting of the type we want, whatever numeric type (or token) the host stored.

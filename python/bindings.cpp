@@ -152,7 +152,7 @@ py::dict boundsDict(const Bounds3& b) {
 // so that nothing touches it after the interpreter has shut down.
 py::handle gInputError;
 
-py::dict aggregateInfo(const Aggregate& a, int tileSpheres) {
+py::dict aggregateInfo(const Aggregate& a, int tileSpheres, const Vec3d& renderOrigin) {
   const AggregateStats& s = a.stats();
   py::dict d;
   d["name"] = a.name();
@@ -170,7 +170,13 @@ py::dict aggregateInfo(const Aggregate& a, int tileSpheres) {
   d["packing_rate"] = a.packingRate();
   d["tile_spheres"] = tileSpheres;
   d["tile_packing_rate"] = a.tile().packingRate;
-  d["bounds"] = boundsDict(a.bounds());
+  // In world space: the scene holds it in render space.
+  Bounds3 world = a.bounds();
+  for (int i = 0; i < 3; ++i) {
+    world.lo[i] = float(double(world.lo[i]) + renderOrigin[i]);
+    world.hi[i] = float(double(world.hi[i]) + renderOrigin[i]);
+  }
+  d["bounds"] = boundsDict(world);
   d["max_interior_depth"] = s.maxInteriorDepth;
   return d;
 }
@@ -411,8 +417,10 @@ PYBIND11_MODULE(granular_core, m) {
       .value("Ept", Technique::Ept)
       .value("EptVpt", Technique::EptVpt)
       .value("Hybrid", Technique::Hybrid);
-  m.def("lens_radius_from_f_stop", &lensRadiusFromFStop, py::arg("focal_length"), py::arg("f_stop"),
-        "Thin-lens radius in scene units from UsdGeomCamera's focalLength (tenths of a unit) and fStop.");
+  m.def("lens_radius_from_f_stop", &checkedLensRadius, py::arg("focal_length"), py::arg("f_stop"),
+        py::arg("object") = "camera", py::arg("attribute") = "fStop",
+        "Thin-lens radius in scene units from UsdGeomCamera's focalLength (tenths of a unit) and fStop; "
+        "InputError on object.attribute for an fStop that is negative, not finite or below 0.5.");
   m.def("technique_from_name", &techniqueFromName, py::arg("name"), py::arg("object"),
         "\"ept\", \"ept+vpt\" or \"hybrid\"; else InputError on object.technique");
   m.def("technique_name", &techniqueName, py::arg("technique"));
@@ -583,7 +591,8 @@ PYBIND11_MODULE(granular_core, m) {
       .def_property_readonly("aggregates", [](const PyScene& s) {
         py::list out;
         const auto& aggs = s.scene->aggregates();
-        for (size_t i = 0; i < aggs.size(); ++i) out.append(aggregateInfo(*aggs[i], s.desc.aggregates[i].tileSpheres));
+        for (size_t i = 0; i < aggs.size(); ++i)
+          out.append(aggregateInfo(*aggs[i], s.desc.aggregates[i].tileSpheres, s.scene->renderOrigin()));
         return out;
       });
 
@@ -720,12 +729,18 @@ PYBIND11_MODULE(granular_core, m) {
   m.def("write_png", &writePngSrgb, py::arg("path"), py::arg("image"), py::arg("exposure") = 0.0f,
         py::call_guard<py::gil_scoped_release>());
   m.def("write_image", &writeImage, py::arg("path"), py::arg("image"), py::call_guard<py::gil_scoped_release>());
+  m.def("claim_output", &claimOutput, py::arg("path"),
+        "Records what the output file is now: a later write_* returns True when another process has written it since");
+  m.def("read_tile_exr", &readTileExr, py::arg("path"), py::call_guard<py::gil_scoped_release>(),
+        "read_exr for a tile to merge: only an EXR that write_exr wrote, else InputError naming the file");
   m.def("read_exr", &readExr, py::arg("path"), py::call_guard<py::gil_scoped_release>(),
         "An EXR written by write_exr (every channel, its place in the full image)");
   m.def("merge_tiles", &mergeTiles, py::arg("tiles"), py::call_guard<py::gil_scoped_release>(),
         "The rectangle of an image tiled by crops of it (the full image when they cover it), bit for bit; "
         "InputError on gaps, overlaps, mismatches");
-  m.def("read_image_rgb", &readImageRGB, py::arg("path"), py::call_guard<py::gil_scoped_release>());
+  m.def(
+      "read_image_rgb", [](const std::string& path) { return readImageRGB(path); }, py::arg("path"),
+      py::call_guard<py::gil_scoped_release>());
 
   // ---- coarse density ------------------------------------------------------------------
   m.def(
@@ -746,6 +761,7 @@ PYBIND11_MODULE(granular_core, m) {
         py::dict d;
         d["voxel_size"] = r.voxelSize;
         d["active_voxels"] = r.activeVoxels;
+        d["replaced_other"] = r.replacedOther;
         d["bounds"] = boundsDict(r.worldBounds);
         return d;
       },

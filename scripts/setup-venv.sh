@@ -1,21 +1,25 @@
 #!/usr/bin/env bash
 # Sets up the Python virtual environment of the usd-core front end, only what is missing:
-#   scripts/setup-venv.sh VENV BUILD_DIR
+#   scripts/setup-venv.sh VENV BUILD_DIR [--fuzz]
 # - creates VENV with Debian's /usr/bin/python3 (python3-venv, python3-dev from
 #   install-deps.sh) if it has no interpreter yet;
 # - installs from PyPI, into VENV only, the packages it lacks (asks the venv, not the
-#   network, so a second run is quick);
+#   network, so a second run is quick); with --fuzz also atheris (make fuzz-usd only);
 # - points the venv at the sources (python/) and at the built granular_core module
 #   (BUILD_DIR/python) with a .pth file, and writes the `granular` console script.
 set -euo pipefail
 
-VENV=${1:?usage: setup-venv.sh VENV BUILD_DIR}
-BUILD_DIR=${2:?usage: setup-venv.sh VENV BUILD_DIR}
+VENV=${1:?usage: setup-venv.sh VENV BUILD_DIR [--fuzz]}
+BUILD_DIR=${2:?usage: setup-venv.sh VENV BUILD_DIR [--fuzz]}
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
 # usd-core: USD reading and the schema; numpy: arrays for the bindings; pytest: tests;
 # pybind11: the bindings' build; jinja2: usdGenSchema (make schemas, schema up-to-date test);
 # dask, distributed: granular farm's scheduling (dask[distributed]).
 PY_PACKAGES=(usd-core numpy pytest pybind11 jinja2 dask distributed)
+# atheris: libFuzzer for Python, for fuzz/fuzz_usd_stage.py (make fuzz-usd); no test needs it.
+if [ "${3:-}" = "--fuzz" ]; then
+  PY_PACKAGES+=(atheris)
+fi
 
 # A venv made while python3-venv was missing has no pip: start it again.
 if [ -x "$VENV/bin/python" ] && ! "$VENV/bin/python" -c 'import pip' >/dev/null 2>&1; then

@@ -21,6 +21,7 @@ import json
 import math
 import os
 import re
+import struct
 import sys
 import time
 
@@ -31,10 +32,44 @@ EXIT_OK, EXIT_FAILURE, EXIT_USER, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse that reports a usage error as one `error:` line and exit status 2."""
+    """argparse that reports a usage error as one line `error: command line.OPTION: message`
+    and exit status 2, as the commands report theirs."""
+
+    # argparse's complaints about the shape of the command line rather than a value: these
+    # earn a pointer to the command's --help.
+    _SHAPE = ("expected ", "ignored explicit argument", "not allowed with argument")
 
     def error(self, message):
-        raise UserError("command line", "", message)
+        hint = f" (see {self.prog} --help)"
+        m = re.fullmatch(r"argument (\S+): (.*)", message, re.S)
+        if m:
+            flag, text = m.group(1).split("/")[0], m.group(2)  # -o/--output: -o, as the other checks say
+            if text.startswith("expected one argument"):
+                # argparse takes '-1e3' or '-5:5' for an option, not a value
+                text += f" (for a value that starts with '-', write {flag}=VALUE)"
+            elif text.startswith(self._SHAPE):
+                text += hint
+            raise UserError("command line", flag, text)
+        m = re.fullmatch(r"the following arguments are required: (.*)", message, re.S)
+        if m:
+            names = [n.split("/")[0] for n in m.group(1).split(", ")]
+            others = f" (so are {', '.join(names[1:])})" if len(names) > 1 else ""
+            raise UserError("command line", names[0], f"is required{others}{hint}")
+        m = re.fullmatch(r"unrecognized arguments: (-\S*).*", message, re.S)
+        if m:
+            raise UserError("command line", m.group(1).split("=")[0], f"is not an option{hint}")
+        raise UserError("command line", "", message + hint)
+
+
+class _SubParser(_Parser):
+    """A command's parser: it reports an argument it does not know itself, so that the
+    error points at that command's --help rather than the top level's."""
+
+    def parse_known_args(self, args=None, namespace=None):
+        namespace, extras = super().parse_known_args(args, namespace)
+        if extras:
+            self.error("unrecognized arguments: " + " ".join(extras))
+        return namespace, extras
 
 
 def _int_in(lo, hi):
@@ -49,40 +84,52 @@ def _int_in(lo, hi):
     return parse
 
 
+def _number(text):
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
+
+
+def _single(v, text):
+    """v, refused where the core's 32-bit float would make it infinite, or 0 when it is not
+    (the core would then reject a value the user never typed)."""
+    try:
+        f = struct.unpack("f", struct.pack("f", v))[0]
+    except OverflowError:  # some Pythons raise, others give inf
+        f = math.inf
+    if math.isinf(f):
+        raise argparse.ArgumentTypeError(f"{text} is too large for a 32-bit float")
+    if f == 0 and v != 0:
+        raise argparse.ArgumentTypeError(f"{text} is too small for a 32-bit float (it rounds to 0)")
+    return v
+
+
 def _positive_float():
     def parse(text):
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
+        v = _number(text)
         if not math.isfinite(v) or v <= 0:
             raise argparse.ArgumentTypeError(f"{text} must be finite and > 0")
-        return v
+        return _single(v, text)
     return parse
 
 
 def _non_negative_float():
     def parse(text):
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
+        v = _number(text)
         if not math.isfinite(v) or v < 0:
             raise argparse.ArgumentTypeError(f"{text} must be finite and >= 0")
-        return v
+        return _single(v, text)
     return parse
 
 
-def _finite_float():
-    def parse(text):
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
-        if not math.isfinite(v):
-            raise argparse.ArgumentTypeError(f"{text} is not finite")
-        return v
-    return parse
+def _exposure(text):
+    v = _number(text)
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"{text} is not finite")
+    if abs(v) > 100:  # 2^E must stay a finite, non-zero float, as for a light's exposure
+        raise argparse.ArgumentTypeError(f"{text} is outside [-100, 100]")
+    return v
 
 
 def _crop(text):
@@ -97,13 +144,25 @@ def _crop(text):
 
 
 def _roulette(text):
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
-    if math.isnan(v) or v == 0 or v > 1:
+    v = _number(text)
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"{text} is not finite")
+    if v < 0:
+        return v
+    if not 0 < v <= 1:
         raise argparse.ArgumentTypeError(f"{text} must be in (0, 1], or negative for automatic")
-    return v
+    return _single(v, text)
+
+
+def _prim_path(example):
+    """An absolute prim path (whether the stage has it is for the reader to say)."""
+    def parse(text):
+        from pxr import Sdf
+        ok, _ = Sdf.Path.IsValidPathString(text)
+        if not (ok and Sdf.Path(text).IsAbsolutePath() and Sdf.Path(text).IsPrimPath()):
+            raise argparse.ArgumentTypeError(f'"{text}" is not an absolute prim path such as {example}')
+        return text
+    return parse
 
 
 def _render_options(r):
@@ -112,12 +171,12 @@ def _render_options(r):
                    "settings' resolution, else 640; with only --height, the camera's aspect)")
     r.add_argument("--height", type=_int_in(1, 32768), help="image height (default: as --width)")
     r.add_argument("--spp", type=_int_in(1, 1000000), default=16, help="samples per pixel (16)")
-    r.add_argument("--camera", metavar="PATH", help="camera prim (default: the render settings' camera, "
-                   "else the first camera)")
+    r.add_argument("--camera", type=_prim_path("/World/Camera"), metavar="PATH",
+                   help="camera prim (default: the render settings' camera, else the first camera)")
     r.add_argument("--seed", type=_int_in(0, 2**31 - 1), default=0, help="sampling seed (0)")
     r.add_argument("--threads", type=_int_in(0, 1024), default=0, help="threads (0: all cores)")
-    r.add_argument("--exposure", type=_finite_float(), default=0.0,
-                   help="exposure of the PNG in stops (0)")
+    r.add_argument("--exposure", type=_exposure, default=0.0,
+                   help="exposure of the PNG in stops, in [-100, 100] (0)")
     r.add_argument("--technique", choices=["ept", "ept+vpt", "hybrid"], default="hybrid",
                    help="transports of the multi-scale integrator: explicit grains only (the reference), "
                         "plus volumetric path tracing in the equivalent media, plus diffusion (default)")
@@ -140,7 +199,7 @@ def _render_options(r):
 def build_parser():
     p = _Parser(prog="granular", description="hdGranular: render granular materials from USD stages.")
     p.add_argument("--version", action="version", version=f"granular {__version__}")
-    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_SubParser)
     sub.required = True
 
     r = sub.add_parser("render", help="render a stage to EXR (and PNG)")
@@ -164,7 +223,7 @@ def build_parser():
     g.add_argument("tiles", nargs="+", metavar="TILE.exr")
     g.add_argument("-o", "--output", required=True, metavar="OUT.exr")
     g.add_argument("--png", metavar="OUT.png", help="also an 8-bit sRGB PNG")
-    g.add_argument("--exposure", type=_finite_float(), default=0.0, help="exposure of the PNG in stops (0)")
+    g.add_argument("--exposure", type=_exposure, default=0.0, help="exposure of the PNG in stops, in [-100, 100] (0)")
     g.add_argument("--quiet", action="store_true")
 
     from . import farm
@@ -176,7 +235,8 @@ def build_parser():
 
     e = sub.add_parser("export-vdb", help="coarse density of an aggregate as an OpenVDB grid 'density'")
     e.add_argument("scene", metavar="SCENE")
-    e.add_argument("--prim", required=True, metavar="PATH", help="the aggregate's boundary mesh")
+    e.add_argument("--prim", required=True, type=_prim_path("/World/Sand"), metavar="PATH",
+                   help="the aggregate's boundary mesh")
     e.add_argument("-o", "--output", required=True, metavar="OUT.vdb")
     e.add_argument("--voxel-size", type=_positive_float(), default=0.0,
                    help="world units (default: the boundary's largest extent / 128)")
@@ -185,6 +245,20 @@ def build_parser():
 
 
 # ---- helpers ------------------------------------------------------------------------------
+
+def _name_max(folder):
+    try:
+        return os.pathconf(folder, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        return 255
+
+
+def _name_too_long(path, name_max):
+    """The length of path's file name while it is written (the core writes .NAME.XXXXXX, a
+    new temporary file, then renames it) when the folder cannot hold it, else None."""
+    n = len(os.fsencode("." + os.path.basename(path) + ".XXXXXX"))
+    return n if n > name_max else None
+
 
 def _check_output(path, flag, extensions):
     if not path.lower().endswith(extensions):
@@ -196,6 +270,11 @@ def _check_output(path, flag, extensions):
         raise UserError("command line", flag, f'"{path}" is a folder')
     if not os.access(folder, os.W_OK):
         raise UserError("command line", flag, f'folder "{folder}" is not writable')
+    limit = _name_max(folder)
+    n = _name_too_long(path, limit)
+    if n:
+        raise UserError("command line", flag, f"the file name (with 8 more bytes while it is written) has {n} "
+                                              f"bytes, more than the {limit} its folder allows")
 
 
 class _Progress:
@@ -249,6 +328,22 @@ def _remove(paths):
             pass
 
 
+def claim_outputs(*paths):
+    """Notes what each output is before the render, so that writing it can tell whether
+    another process wrote it meanwhile (core.claim_output)."""
+    import granular_core as core
+    for p in paths:
+        if p:
+            core.claim_output(p)
+
+
+def warn_if_replaced(replaced, path):
+    """The writer's word that another process wrote path during this render."""
+    if replaced:
+        print(f"warning: {path} was written by another process during this render; this render's image replaced "
+              f"it", file=sys.stderr)
+
+
 def _write_images(image, exr, png, exposure):
     """Writes the EXR (and the PNG): each file appears whole or not at all (core writes
     through a temporary name), and a failure removes the one already written (all or
@@ -256,10 +351,10 @@ def _write_images(image, exr, png, exposure):
     import granular_core as core
     written = []
     try:
-        core.write_exr(exr, image)
+        warn_if_replaced(core.write_exr(exr, image), exr)
         written.append(exr)
         if png:
-            core.write_png(png, image, exposure)
+            warn_if_replaced(core.write_png(png, image, exposure), png)
             written.append(png)
     except BaseException:
         _remove(written)
@@ -296,7 +391,10 @@ def parse_frames(spec):
         raise UserError("command line", "--frames", f"start {a:g} is after end {b:g}")
     if step <= 0:
         raise UserError("command line", "--frames", f"step {step:g} must be > 0")
-    count = math.floor((b - a) / step * (1 + 1e-12) + 1e-9) + 1  # B itself despite rounding in (B-A)/STEP
+    span = (b - a) / step
+    if not math.isfinite(span):  # B - A or 1 / STEP overflows
+        raise UserError("command line", "--frames", f"'{spec}' has more than {MAX_FRAMES} frames")
+    count = math.floor(span * (1 + 1e-12) + 1e-9) + 1  # B itself despite rounding in (B-A)/STEP
     if count > MAX_FRAMES:
         raise UserError("command line", "--frames", f"'{spec}' has {count} frames, more than {MAX_FRAMES}")
     # A + k STEP (not a running sum), rid of binary noise (1 + 3 x 0.1 is frame 1.3).
@@ -331,15 +429,25 @@ def frame_path(pattern, flag):
 
 def frame_outputs(args, frames):
     """(exr_name, png_name or None): frame -> file name of -o and --png, checked to give each
-    frame files of its own."""
+    frame files of its own, with names their folders can hold."""
     exr_name = frame_path(args.output, "-o")
     png_name = frame_path(args.png, "--png") if args.png else None
+    names = [(exr_name, _name_max(os.path.dirname(os.path.abspath(args.output))))]
+    if png_name:
+        names.append((png_name, _name_max(os.path.dirname(os.path.abspath(args.png)))))
     seen = {}
     for f in frames:
         other = seen.setdefault(exr_name(f), f)
         if other != f:  # frame numbers in names have 6 decimals at most
             raise UserError("command line", "--frames", f"step too small: frames {other!r} and {f!r} would both "
                                                         f"write {exr_name(f)}")
+        for name, limit in names:  # a large frame number is written out in full
+            claim_outputs(name(f))
+            n = _name_too_long(name(f), limit)
+            if n:
+                raise UserError("command line", "--frames", f"frame {f:g} makes a file name of {n} bytes (with 8 "
+                                                            f"more while it is written), more than the {limit} its "
+                                                            f"folder allows")
     return exr_name, png_name
 
 
@@ -491,6 +599,7 @@ def check_outputs(args):
         _check_output(args.png, "--png", (".png",))
     if args.png and os.path.abspath(args.png) == os.path.abspath(args.output):
         raise UserError("command line", "--png", "is the same file as -o")
+    claim_outputs(args.output, args.png)
 
 
 def cmd_render(args):
@@ -588,7 +697,7 @@ def cmd_merge(args):
             raise UserError("command line", "-o", f'"{path}" is both a tile and an output')
         if not os.path.isfile(path):
             raise UserError(path, "", "no such file")
-        tiles.append(core.read_exr(path))
+        tiles.append(core.read_tile_exr(path))
     try:
         image = core.merge_tiles(tiles)
     except core.InputError as e:  # name the files, not the tiles' indices
@@ -617,7 +726,9 @@ def cmd_info(args):
 
 def cmd_export_vdb(args):
     _check_output(args.output, "-o", (".vdb",))
+    claim_outputs(args.output)
     r = api.export_density(args.prim, args.output, args.voxel_size, path=args.scene)
+    warn_if_replaced(r.get("replaced_other"), args.output)
     _log(args, api.export_summary(args.prim, args.output, r))
     return EXIT_OK
 
@@ -634,7 +745,7 @@ def main(argv=None):
     try:
         args = build_parser().parse_args(argv)
     except UserError as e:
-        print(f"error: {e.message} (see granular --help)", file=sys.stderr)
+        print(f"error: {e}", file=sys.stderr)
         return EXIT_USER
     try:
         import granular_core as core

@@ -21,9 +21,12 @@ stage that cannot be read fails the whole job at once, before any task runs wher
 client can see it, else at its first task: exit 2, one `error:` line, no frame written
 after it.
 """
+import argparse
+import ipaddress
 import logging
 import math
 import os
+import re
 import sys
 import threading
 import time
@@ -31,6 +34,26 @@ import time
 from .errors import UserError
 
 DEFAULT_TILES = 4
+# How long the client keeps trying a --scheduler that does not answer (Dask retries a refused
+# connection meanwhile, so a scheduler may still be starting).
+CONNECT_TIMEOUT = "20s"
+
+_ADDRESS = re.compile(r"(?:tcp://)?(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_](?:[A-Za-z0-9_.-]*[A-Za-z0-9_])?):([0-9]{1,5})")
+
+
+def scheduler_address(text):
+    """--scheduler: tcp://HOST:PORT (HOST:PORT is tcp to Dask too), refused here rather than
+    by Dask, whose ValueError would not name the option."""
+    m = _ADDRESS.fullmatch(text)
+    ok = bool(m) and 1 <= int(m.group(2)) <= 65535
+    if ok and m.group(1).startswith("["):
+        try:
+            ipaddress.IPv6Address(m.group(1)[1:-1])
+        except ValueError:
+            ok = False
+    if not ok:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a scheduler address (tcp://HOST:PORT)")
+    return text
 
 
 def add_parser(sub, render_options):
@@ -46,7 +69,7 @@ def add_parser(sub, render_options):
                    help=f"tiles per frame, each its own task (default {DEFAULT_TILES}): a grid of about "
                         "sqrt(N) x sqrt(N)")
     where = f.add_mutually_exclusive_group()
-    where.add_argument("--scheduler", metavar="ADDRESS",
+    where.add_argument("--scheduler", type=scheduler_address, metavar="ADDRESS",
                        help="a running Dask scheduler (tcp://host:8786); default: a LocalCluster here")
     where.add_argument("--workers", type=_int_in(1, 1024), metavar="K",
                        help="worker processes of the LocalCluster (default: the cores)")
@@ -242,9 +265,10 @@ class _Cluster:
         try:
             if args.scheduler:
                 try:
-                    self.client = Client(args.scheduler, timeout="20s")
-                except (OSError, TimeoutError) as e:
-                    raise UserError("command line", "--scheduler", f"cannot reach {args.scheduler}: {e}") from None
+                    self.client = Client(args.scheduler, timeout=CONNECT_TIMEOUT)
+                except (OSError, TimeoutError, ValueError) as e:
+                    raise UserError("command line", "--scheduler", f"cannot reach {args.scheduler}: "
+                                                                   f"{' '.join(str(e).split())}") from None
                 workers = len(self.client.scheduler_info().get("workers", {}))
                 self.where = f"scheduler {args.scheduler} ({workers} workers now)"
             else:
@@ -275,9 +299,10 @@ class _Cluster:
 def _write_frame(image, exr, png, exposure):
     """The PNG, then the EXR, each written whole or not at all: the EXR marks a finished frame."""
     import granular_core as core
+    from .cli import warn_if_replaced
     if png:
-        core.write_png(png, image, exposure)
-    core.write_exr(exr, image)
+        warn_if_replaced(core.write_png(png, image, exposure), png)
+    warn_if_replaced(core.write_exr(exr, image), exr)
     return [p for p in (png, exr) if p]
 
 

@@ -134,6 +134,24 @@ def to_core_matrix(m):
     return [[float(m[j][i]) for j in range(4)] for i in range(4)]
 
 
+def world_matrix(xf_cache, prim):
+    """prim's local-to-world transform in core's form. An xformOpOrder naming something that
+    is no transform op makes usd-core raise without naming the prim: name the one (prim or
+    ancestor) whose own ops fail."""
+    try:
+        return to_core_matrix(xf_cache.GetLocalToWorldTransform(prim))
+    except Tf.ErrorException as e:
+        message = " ".join(describe_tf_error(e).split())
+        p = prim
+        while p and not p.IsPseudoRoot():
+            try:
+                UsdGeom.XformCache(xf_cache.GetTime()).GetLocalTransformation(p)
+            except Tf.ErrorException:
+                break
+            p = p.GetParent()
+        raise UserError((p if p and not p.IsPseudoRoot() else prim).GetPath(), "xformOpOrder", message) from None
+
+
 def _finite(v):
     return all(math.isfinite(x) for x in (v if isinstance(v, (tuple, list)) else (v,)))
 
@@ -345,9 +363,10 @@ def _source_shader(inp):
     return attrs[0] if attrs else None
 
 
-def _texture_st(scene, tex, time, input_name="st"):
+def _texture_st(scene, tex, time, input_name="st", seen=()):
     """The primvar name a UsdUVTexture's st reads (a UsdPrimvarReader_float2's varname, also
-    through a UsdTransform2d's `in`), or None: its st is then the constant fallback (0, 0)."""
+    through a UsdTransform2d's `in`), or None: its st is then the constant fallback (0, 0).
+    seen: the UsdTransform2d shaders already followed (a cycle of them is an error)."""
     path = str(tex.GetPath())
     inp = tex.GetInput(input_name)
     if not inp or not inp.HasConnectedSource():
@@ -358,8 +377,10 @@ def _texture_st(scene, tex, time, input_name="st"):
     reader = UsdShade.Shader(out.GetPrim()) if out else None
     sid = reader.GetIdAttr().Get(time) if reader else None
     if sid == "UsdTransform2d":
+        if reader.GetPath() in seen:
+            raise UserError(str(reader.GetPath()), "inputs:in", "is connected in a cycle (to its own output)")
         scene.warn(f"{reader.GetPath()}: UsdTransform2d is not supported; st is read untransformed")
-        return _texture_st(scene, reader, time, "in")
+        return _texture_st(scene, reader, time, "in", seen + (reader.GetPath(),))
     if sid != "UsdPrimvarReader_float2":
         scene.warn(f"{path}.inputs:st: {sid!r} is not supported (only UsdPrimvarReader_float2); "
                    f"the texture reads st (0, 0) everywhere")
@@ -498,10 +519,13 @@ def _display_color(scene, prim, time):
     if not (pv and pv.HasAuthoredValue()):
         return None
     v = pv.ComputeFlattened(time)
-    if v is None or len(v) == 0:
+    if v is None:
         return None
     try:
-        c = np.asarray(v, dtype=np.float64).reshape(-1, 3).mean(axis=0)
+        a = np.asarray(v, dtype=np.float64)  # of any authored type: a scalar has no len()
+        if a.size == 0:
+            return None
+        c = a.reshape(-1, 3).mean(axis=0)
     except (TypeError, ValueError):
         prim_path, name = _where(pv.GetAttr())
         raise UserError(prim_path, name, f"has a {type(v).__name__} value, expected color3f[]") from None
@@ -529,7 +553,7 @@ def _mesh_prim(scene, prim, xf_cache, material_cache, drawn):
         return mp  # listed for core's error message only
     mp.granular = schema.primvar_values(prim, time=time)
     mp.mesh = read_mesh(prim, time) if is_mesh else _tessellated(prim, time)
-    mp.instances = [to_core_matrix(xf_cache.GetLocalToWorldTransform(prim))]
+    mp.instances = [world_matrix(xf_cache, prim)]
     scene.name(mp.path, mp.path, {"transform": (mp.path, "transform")})
     # A boundary or grain with its API applied never uses a bound material: not read.
     if not has_api:
@@ -588,7 +612,7 @@ def read_camera(scene, prim, xf_cache):
     if get_token(cam.GetProjectionAttr(), t) == UsdGeom.Tokens.orthographic:
         raise UserError(path, "projection", "orthographic cameras are not supported (use perspective)")
     c = scene.desc.camera
-    c.camera_to_world = to_core_matrix(xf_cache.GetLocalToWorldTransform(prim))
+    c.camera_to_world = world_matrix(xf_cache, prim)
     c.focal_length = get_number(cam.GetFocalLengthAttr(), t, 50.0)
     c.horizontal_aperture = get_number(cam.GetHorizontalApertureAttr(), t, 20.955)
     c.vertical_aperture = get_number(cam.GetVerticalApertureAttr(), t, 15.2908)
@@ -597,9 +621,10 @@ def read_camera(scene, prim, xf_cache):
     c.clip_near, c.clip_far = get_vec(cam.GetClippingRangeAttr(), t, 2, (1.0, 1000000.0))
     # Depth of field: fStop 0 (USD's default) is a pinhole.
     f_stop = get_number(cam.GetFStopAttr(), t, 0.0)
-    if not math.isfinite(f_stop) or f_stop < 0:
-        raise UserError(path, "fStop", f"{f_stop} must be finite and >= 0 (0: no depth of field)")
-    c.lens_radius = core.lens_radius_from_f_stop(c.focal_length, f_stop)
+    try:
+        c.lens_radius = core.lens_radius_from_f_stop(c.focal_length, f_stop, path, "fStop")
+    except core.InputError as e:
+        raise translate_core_error(e) from None
     c.focus_distance = get_number(cam.GetFocusDistanceAttr(), t, 0.0)
     if c.lens_radius > 0 and not (math.isfinite(c.focus_distance) and c.focus_distance > 0):
         raise UserError(path, "focusDistance", f"{c.focus_distance} must be > 0 when fStop is set")
@@ -662,7 +687,7 @@ def read_light(scene, prim, xf_cache):
         color = tuple(c * float(k) for c, k in zip(color, rgb))
     ld.color = color
     ld.normalize = get_bool(light.GetNormalizeAttr(), time)
-    ld.xf = to_core_matrix(xf_cache.GetLocalToWorldTransform(prim))
+    ld.xf = world_matrix(xf_cache, prim)
     scene.desc.add_light(ld)
     attrs = {k: (path, v) for k, v in _LIGHT_ATTRS.items()}
     attrs["transform"] = (path, "transform")
@@ -758,13 +783,22 @@ def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_c
 
     s = scene.desc.settings
     c = scene.desc.camera
-    aspect = c.horizontal_aperture / c.vertical_aperture if c.vertical_aperture > 0 else 4 / 3
+    ha, va = c.horizontal_aperture, c.vertical_aperture
+    # Apertures core refuses (0, NaN, ...) give no aspect: core's validation names them.
+    aspect = ha / va if _finite((ha, va)) and ha > 0 and va > 0 else 4 / 3
+
+    def derived(v, flag, what):
+        n = max(1, round(v))
+        if n > 32768:
+            raise UserError("command line", flag, f"with the camera's aspect {aspect:.3g} makes the image "
+                                                  f"{n:.3g} pixels {what}, beyond 32768 (give --width and --height)")
+        return n
     if width and height:
         s.width, s.height = width, height
     elif width:
-        s.width, s.height = width, max(1, round(width / aspect))
+        s.width, s.height = width, derived(width / aspect, "--width", "high")
     elif height:
-        s.width, s.height = max(1, round(height * aspect)), height
+        s.width, s.height = derived(height * aspect, "--height", "wide"), height
     elif res:
         s.width, s.height = res
     else:
@@ -791,7 +825,7 @@ def _read_data_window(scene, settings, time):
     own = rs.GetDataWindowNDCAttr()
     targets = rs.GetProductsRel().GetForwardedTargets()
     product = settings.GetStage().GetPrimAtPath(targets[0]) if targets else None
-    if product is None or not product.IsA(UsdRender.Product):
+    if not product or not product.IsA(UsdRender.Product):  # none, no such prim, or not a product
         if own.HasAuthoredValue():
             scene.warn(f"{settings.GetPath()}.dataWindowNDC: ignored: a data window applies to render products, "
                        f"and this settings prim has none (add one to its products)")

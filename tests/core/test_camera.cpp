@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 
 #include "camera.h"
 #include "error.h"
@@ -154,7 +155,8 @@ TEST(Camera, BadLensValuesAreRefusedByName) {
   SceneDesc j = parseSceneJson(R"({"camera": {"focal_length": 50, "f_stop": 2.5, "focus_distance": 3}})", "test");
   EXPECT_FLOAT_EQ(j.camera.lensRadius, 0.05f * 50 / 2.5f);
   EXPECT_FLOAT_EQ(j.camera.focusDistance, 3.0f);
-  for (const char* bad : {R"({"camera": {"f_stop": -1}})", R"({"camera": {"f_stop": 2, "focus_distance": 0}})"}) {
+  for (const char* bad : {R"({"camera": {"f_stop": -1}})", R"({"camera": {"f_stop": 2, "focus_distance": 0}})",
+                          R"({"camera": {"f_stop": 1e-15, "focus_distance": 0.1}})"}) {
     try {
       parseSceneJson(bad, "test");
       FAIL() << bad;
@@ -162,4 +164,28 @@ TEST(Camera, BadLensValuesAreRefusedByName) {
       EXPECT_NE(std::string(e.what()).find("camera.f"), std::string::npos) << e.what();
     }
   }
+}
+
+// No lens in air is faster than f/0.5: a wider lens (an fStop of 1e-15 once made camera
+// rays start 10^15 units away and aborted the process inside Embree) is refused, whoever
+// sets the radius.
+TEST(Camera, ALensWiderThanFHalfIsRefused) {
+  EXPECT_FLOAT_EQ(checkedLensRadius(50, 0.5f, "/World/Camera", "fStop"), 0.05f * 50 / 0.5f);
+  EXPECT_EQ(checkedLensRadius(50, 0, "/World/Camera", "fStop"), 0.0f);
+  for (float bad : {1e-15f, 0.49f, -1.0f, std::numeric_limits<float>::quiet_NaN()}) {
+    try {
+      checkedLensRadius(50, bad, "/World/Camera", "fStop");
+      FAIL() << bad;
+    } catch (const InputError& e) {
+      EXPECT_EQ(e.object(), "/World/Camera");
+      EXPECT_EQ(e.attribute(), "fStop");
+    }
+  }
+  SceneDesc d;
+  d.camera.focalLength = 50;
+  d.camera.focusDistance = 1;
+  d.camera.lensRadius = lensRadiusFromFStop(50, 0.5f);
+  EXPECT_NO_THROW(validateSceneDesc(d));
+  d.camera.lensRadius = lensRadiusFromFStop(50, 1e-15f);
+  EXPECT_THROW(validateSceneDesc(d), InputError);
 }

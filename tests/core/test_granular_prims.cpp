@@ -443,6 +443,34 @@ INSTANTIATE_TEST_SUITE_P(
         ErrorCase{"seed", set("/World/Castle", "seed", number("int", -3)), C + "seed: -3 must be >= 0"},
         ErrorCase{"missingPrototype", set("/World/Castle", "prototypes", strings({"../Grains/A", "../Grains/Nope"})),
                   C + "prototypes: prototype \"../Grains/Nope\" (/World/Grains/Nope) does not exist"},
+        ErrorCase{"selfAsPrototype", set("/World/Castle", "prototypes", strings({"../Grains/A", "/World/Castle"})),
+                  C + "prototypes: prototype \"/World/Castle\" (/World/Castle) is this aggregate itself"},
+        ErrorCase{"selfAsPrototypeWithoutApiSchemas",
+                  [](Stage& s) {
+                    for (MeshPrim& p : s.prims) p.apiSchemas.reset();
+                    s["/World/Castle"].granular["prototypes"] = strings({"."});
+                  },
+                  C + "prototypes: prototype \".\" (/World/Castle) is this aggregate itself"},
+        ErrorCase{"aggregateAsPrototype",
+                  [](Stage& s) {
+                    MeshPrim other = s["/World/Castle"];
+                    other.path = "/World/Tower";
+                    s.prims.push_back(other);
+                    s["/World/Castle"].granular["prototypes"] = strings({"../Tower"});
+                  },
+                  C + "prototypes: prototype \"../Tower\" (/World/Tower) is itself an aggregate (GranularAggregateAPI): "
+                      "a grain prototype is a plain mesh"},
+        ErrorCase{"aggregatesNamingEachOtherWithoutApiSchemas",
+                  [](Stage& s) {
+                    for (MeshPrim& p : s.prims) p.apiSchemas.reset();
+                    MeshPrim other = s["/World/Castle"];
+                    other.path = "/World/Tower";
+                    other.granular["prototypes"] = strings({"../Castle"});
+                    s.prims.push_back(other);
+                    s["/World/Castle"].granular["prototypes"] = strings({"../Tower"});
+                  },
+                  C + "prototypes: prototype \"../Tower\" (/World/Tower) is itself an aggregate (GranularAggregateAPI): "
+                      "a grain prototype is a plain mesh"},
         ErrorCase{"inactivePrototype", [](Stage& s) { s["/World/Grains/B"].active = false; },
                   C + "prototypes: prototype \"/World/Grains/B\" (/World/Grains/B) is inactive"},
         ErrorCase{"nonMeshPrototype", [](Stage& s) { s["/World/Grains/B"].typeName = "Sphere"; },

@@ -67,6 +67,32 @@ TEST(Math, InverseNeedsPivoting) {
   EXPECT_DOUBLE_EQ(inv.m[1][0], 1);
 }
 
+// A placement far from the origin says nothing about whether a matrix inverts: the
+// translation takes no part in the tolerance (10^14 units away was once "singular").
+TEST(Math, InverseOfATransformFarFromTheOrigin) {
+  for (double far : {1e6, 1e14}) {
+    const Transform a = Transform::translate(far, -far, far) * Transform::scale({2, 2, 2});
+    Transform inv;
+    ASSERT_TRUE(a.inverse(inv)) << far;
+    const Transform id = a * inv;
+    for (int i = 0; i < 4; ++i)
+      for (int j = 0; j < 4; ++j) EXPECT_NEAR(id.m[i][j], i == j ? 1.0 : 0.0, 1e-9 * (j == 3 ? far : 1)) << far;
+  }
+}
+
+// Vectors whose squares leave float (a cross product of edges 10^9 long, or of edges
+// 10^-12 long) still normalise to their direction, not to zero or (0, 0, 1).
+TEST(Math, NormalizeOutsideTheRangeOfSquares) {
+  for (float s : {1e25f, 1e-25f, 1.0f}) {
+    const Vec3 n = normalize(Vec3(3, 0, -4) * s);
+    EXPECT_NEAR(n.x, 0.6f, 1e-6f) << s;
+    EXPECT_NEAR(n.y, 0.0f, 1e-6f) << s;
+    EXPECT_NEAR(n.z, -0.8f, 1e-6f) << s;
+  }
+  EXPECT_EQ(normalize(Vec3(0.0f)), Vec3(0, 0, 1));
+  EXPECT_EQ(normalize(Vec3(kInf, 0, 0)), Vec3(0, 0, 1));
+}
+
 TEST(Math, InverseRejectsSingularAndNonFinite) {
   Transform inv;
   EXPECT_FALSE(Transform::scale({1, 0, 1}).inverse(inv));

@@ -3,8 +3,11 @@
 // one a fresh build gives, value for value.
 #include <gtest/gtest.h>
 
+#include <limits>
+
 #include "render.h"
 #include "scene.h"
+#include "shapes.h"
 #include "test_helpers.h"
 
 using namespace granular;
@@ -114,4 +117,76 @@ TEST(SceneReuse, AnEptSceneLendsItsGrainsButNotAMediumItNeverDerived) {
   ASSERT_TRUE(hybrid->hasMedia());
   auto fresh = Scene::build(d);
   EXPECT_TRUE(granular::testing::sameImage(renderScene(*hybrid), renderScene(*fresh)));
+}
+
+// Embree aborts the process on a ray it deems invalid (not finite, or beyond ~1.8e18): the
+// scene answers such rays "no hit" instead, whatever input made them.
+TEST(Scene, RaysEmbreeWouldRefuseHitNothing) {
+  SceneDesc d = twoBalls();
+  auto scene = Scene::build(d);
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  for (const Vec3& o : {Vec3(1e30f, 0, 0), Vec3(nan, 0, 0), Vec3(0, 0, -kInf)}) {
+    Ray r;
+    r.o = o;
+    r.d = Vec3(0, 0, 1);
+    Hit hit;
+    EXPECT_FALSE(scene->intersect(r, hit));
+    EXPECT_FALSE(scene->intersectMedium(r, hit));
+    EXPECT_FALSE(scene->occluded(o, r.d, 10.0f));
+  }
+}
+
+// Render space: a stage far from the world origin is built near zero (scene_desc.h), so its
+// grains are the same grains and the image the same, value for value.
+TEST(Scene, AStageMovedFarFromTheOriginRendersTheSameImage) {
+  SceneDesc d = twoBalls();
+  auto near = Scene::build(d);
+  const Image a = renderScene(*near);
+  for (double far : {1e3, 1e6}) {
+    SceneDesc m = d;
+    const Transform move = Transform::translate(far, -far, far);
+    m.camera.cameraToWorld = move * m.camera.cameraToWorld;
+    for (auto& l : m.lights) l.xf = move * l.xf;
+    for (auto& x : m.meshes) x.xf = move * x.xf;
+    for (auto& g : m.aggregates) g.xf = move * g.xf;
+    auto moved = Scene::build(m);
+    EXPECT_EQ(moved->renderOrigin().x - near->renderOrigin().x, far);
+    const Image b = renderScene(*moved);
+    EXPECT_EQ(a.pixels, b.pixels) << far;
+  }
+}
+
+// A floor 10^10 units wide under a dome is lit as one 10 units wide: its triangles' normals
+// (cross products of edges whose squares leave float) once came out zero, and every ray
+// leaving the floor met it again.
+TEST(Scene, ASceneScaledUpBeyondFloatSquaresIsLitAsAtUnitScale) {
+  auto floorUnderDome = [](double s) {
+    SceneDesc d;
+    d.settings.width = 16;
+    d.settings.height = 12;
+    d.settings.spp = 64;
+    d.settings.technique = Technique::Ept;
+    d.camera.cameraToWorld = Transform::scale(Vec3(float(s))) * Transform::lookAt(Vec3(0, 2, 3), Vec3(0), Vec3(0, 1, 0));
+    d.camera.clipNear = 1e-3f;
+    MeshDesc floor;
+    floor.name = "floor";
+    floor.mesh = makeBox(Vec3(-5, -0.1f, -5), Vec3(5, 0, 5));
+    floor.xf = Transform::scale(Vec3(float(s)));
+    d.meshes.push_back(floor);
+    LightDesc dome;
+    dome.name = "sky";
+    dome.type = LightType::Dome;
+    d.lights.push_back(dome);
+    auto scene = Scene::build(d);
+    Renderer r(*scene);
+    EXPECT_TRUE(r.render(d.settings.spp));
+    const Image img = r.film().toImage();
+    double sum = 0;
+    for (int y = 0; y < img.height; ++y)
+      for (int x = 0; x < img.width; ++x) sum += img.at(x, y)[0];
+    return sum / (img.width * img.height);
+  };
+  const double unit = floorUnderDome(1), big = floorUnderDome(1e9);
+  EXPECT_GT(unit, 0.2);  // the grey floor under a white sky, and the sky
+  EXPECT_NEAR(big, unit, 0.02 * unit);
 }

@@ -6,12 +6,14 @@
 #include <chrono>
 #include <cstdlib>
 #include <cstdio>
+#include <functional>
 #include <cmath>
 #include <string>
 #include <vector>
 
 #include "pxr/base/gf/camera.h"
 #include "pxr/base/plug/registry.h"
+#include "pxr/base/tf/errorMark.h"
 #include "pxr/base/tf/stringUtils.h"
 #include "pxr/base/gf/vec2i.h"
 #include "pxr/imaging/cameraUtil/framing.h"
@@ -188,6 +190,60 @@ TEST(HdGranular, ABadStageStillConvergesWithNothingRendered) {
   ASSERT_EQ(f.values.size(), size_t(16 * 10 * 4));
   for (size_t i = 0; i < f.values.size(); i += 4)  // the clear colour: nothing was drawn
     for (int c = 0; c < 3; ++c) ASSERT_EQ(f.values[i + c], 0.0f) << i;
+}
+
+// What `granular render` refuses by name, the delegate refuses with the same words (one
+// meaning in core): the error is raised and nothing is drawn.
+TEST(HdGranular, AnAggregateAsItsOwnGrainOrAnFStopBeyondAnyLensIsRefusedAsByGranularRender) {
+  struct Case {
+    std::function<void(UsdStageRefPtr const&)> edit;
+    std::string message;
+  };
+  const std::vector<Case> cases = {
+      {[](UsdStageRefPtr const& s) {
+         s->GetPrimAtPath(SdfPath("/World/Snow"))
+             .GetAttribute(TfToken("primvars:granular:prototypes"))
+             .Set(VtStringArray{"../Grains/Flake", "."});
+       },
+       "/World/Snow.primvars:granular:prototypes: prototype \".\" (/World/Snow) is this aggregate itself"},
+      {[](UsdStageRefPtr const& s) {
+         UsdGeomCamera cam(s->GetPrimAtPath(SdfPath("/World/Camera")));
+         cam.CreateFStopAttr().Set(1e-15f);
+         cam.CreateFocusDistanceAttr().Set(0.1f);
+       },
+       "/World/Camera.fStop: 1e-15 is below 0.5, the fastest a lens in air can be"},
+  };
+  for (const Case& c : cases) {
+    UsdStageRefPtr stage = UsdStage::Open(kExamples + "/snowslab.usda");
+    c.edit(stage);
+    TfErrorMark mark;
+    auto engine = makeEngine(2);
+    Frame f = render(*engine, stage, HdAovTokens->color, 16, 10);
+    std::string errors;
+    for (auto e = mark.GetBegin(); e != mark.GetEnd(); ++e) errors += e->GetCommentary() + "\n";
+    mark.Clear();
+    EXPECT_NE(errors.find(c.message), std::string::npos) << errors;
+    EXPECT_TRUE(f.converged);
+    for (size_t i = 0; i < f.values.size(); i += 4)  // the clear colour: nothing was drawn
+      for (int k = 0; k < 3; ++k) ASSERT_EQ(f.values[i + k], 0.0f) << i;
+  }
+}
+
+// Render space: the snow slab moved 10^6 units away (its camera with it) renders the image
+// it renders at the origin, value for value.
+TEST(HdGranular, AStageMovedFarFromTheOriginRendersAsAtTheOrigin) {
+  auto renderMoved = [](double far) {
+    UsdStageRefPtr stage = UsdStage::Open(kExamples + "/snowslab.usda");
+    UsdGeomXformable world(stage->GetPrimAtPath(SdfPath("/World")));
+    if (far != 0) world.AddTranslateOp(UsdGeomXformOp::PrecisionDouble, TfToken("far")).Set(GfVec3d(far, far, far));
+    auto engine = makeEngine(4);
+    engine->SetRendererSetting(TfToken("granular:roulette"), VtValue(0.5f));
+    return render(*engine, stage, HdAovTokens->color, 32, 20);
+  };
+  const Frame near = renderMoved(0), far = renderMoved(1e6);
+  ASSERT_EQ(near.values.size(), far.values.size());
+  EXPECT_GT(mean(near, 0), 0.01);
+  EXPECT_EQ(near.values, far.values);
 }
 
 TEST(HdGranular, StoppingMidRenderIsClean) {

@@ -158,12 +158,9 @@ def test_opacity_textures_and_thresholds_make_cutouts_and_plain_opacity_stays_gl
     assert (masked.opacity, masked.opacity_threshold) == (pytest.approx(0.3), pytest.approx(0.5))
 
 
-def test_a_textured_ground_renders_its_texture(tmp_path, capsys):
-    """Left half red, right half green, seen from above under the stage's sun: the image's
-    left and right quarters take the texture's colours (one meaning with hdGranular:
-    tests/hydra compares usdrecord with this command on the sand castle's textured beach)."""
-    png = _texture_png(tmp_path / "t.png", [(0.8, 0.1, 0.1), (0.1, 0.8, 0.1)])
-
+def textured_view(png):
+    """The ground (two quads, clamped texture of png) beside the castle, filling the view of
+    the camera from above."""
     def mutate(stage):
         mat, _ = _network(stage, "/World/Looks/Beach", png, wrapS=(Sdf.ValueTypeNames.Token, "clamp"),
                           wrapT=(Sdf.ValueTypeNames.Token, "clamp"))
@@ -177,8 +174,15 @@ def test_a_textured_ground_renders_its_texture(tmp_path, capsys):
         cam.CreateHorizontalApertureAttr(20.0)
         cam.CreateVerticalApertureAttr(20.0)
         cam.CreateFocalLengthAttr(40.0)
+    return mutate
 
-    scene = small_scene(tmp_path / "s.usda", mutate)
+
+def test_a_textured_ground_renders_its_texture(tmp_path, capsys):
+    """Left half red, right half green, seen from above under the stage's sun: the image's
+    left and right quarters take the texture's colours (one meaning with hdGranular:
+    tests/hydra compares usdrecord with this command on the sand castle's textured beach)."""
+    png = _texture_png(tmp_path / "t.png", [(0.8, 0.1, 0.1), (0.1, 0.8, 0.1)])
+    scene = small_scene(tmp_path / "s.usda", textured_view(png))
     exr = tmp_path / "out.exr"
     rc, _, err = run_cli(["render", scene, "-o", exr, "--width", 32, "--height", 32, "--spp", 4], capsys)
     assert rc == 0, err
