@@ -298,15 +298,11 @@ int main(int argc, char** argv) {
     if (a == "--spp") spp = std::atoi(argv[i + 1]);
     else if (a == "--seed") seed = std::atol(argv[i + 1]);
   }
-  try {
+  const int status = runTool([&] {
     if (mode == "export") return exportScene(argv[2], argv[3]);
     if (mode == "vpt") return renderVpt(argv[2], argv[3], spp, seed);
-  } catch (const InputError& e) {
-    std::fprintf(stderr, "error: %s\n", e.what());
-    return 2;
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "error: %s\n", e.what());
-    return 1;
-  }
+    return -1;  // no command matched
+  });
+  if (status >= 0) return status;
   return 2;
 }

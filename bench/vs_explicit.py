@@ -74,6 +74,16 @@ def theirs(args, base, width, height):
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
+def ball_scene(n):
+    """bench/scenes/validate_ept.json (a dict) with the grain radius shrunk so that its ball of
+    radius 1 holds about n grains: N = packing rate x (1 / R)^3 bounding spheres."""
+    text = open(os.path.join(HERE, "scenes", "validate_ept.json")).read()
+    scene = json.loads("\n".join(line for line in text.splitlines() if not line.lstrip().startswith("//")))
+    agg = scene["aggregates"][0]
+    agg["grain_radius"] = (agg["packing_rate"] / n) ** (1.0 / 3.0)
+    return scene
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--build", default=os.path.join(ROOT, "build"))
@@ -85,14 +95,11 @@ def main():
     os.makedirs(args.out, exist_ok=True)
     from validate_mitsuba import mitsuba  # noqa: F401  (fails early without the package)
     sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
-    text = open(os.path.join(HERE, "scenes", "validate_ept.json")).read()
     sys.path[:0] = [os.path.join(args.build, "python"), os.path.join(ROOT, "python")]
     import granular_core as core
     rows = []
     for n in [float(g) for g in args.grains.split(",")]:
-        scene = json.loads("\n".join(line for line in text.splitlines() if not line.lstrip().startswith("//")))
-        agg = scene["aggregates"][0]
-        agg["grain_radius"] = (agg["packing_rate"] / n) ** (1.0 / 3.0)  # ball of radius 1
+        scene = ball_scene(n)
         base = os.path.join(args.out, f"n{n:.0e}")
         os.makedirs(base, exist_ok=True)
         scene_path = os.path.join(base, "input.json")

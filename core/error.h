@@ -7,6 +7,7 @@
 // renders NaN because of input.
 #pragma once
 
+#include <cstdio>
 #include <sstream>
 #include <stdexcept>
 #include <string>
@@ -25,6 +26,22 @@ class InputError : public std::runtime_error {
  private:
   std::string object_, attribute_, detail_;
 };
+
+// A command-line tool's body, with the project's exit statuses: an InputError is the
+// user's (one "error: object.attribute: ..." line, status 2), any other exception a failure
+// (status 1).
+template <typename Body>
+int runTool(Body&& body) {
+  try {
+    return body();
+  } catch (const InputError& e) {
+    std::fprintf(stderr, "error: %s\n", e.what());
+    return 2;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "error: %s\n", e.what());
+    return 1;
+  }
+}
 
 template <typename... Ts>
 std::string str(const Ts&... parts) {

@@ -52,7 +52,7 @@ int main(int argc, char** argv) {
   bool quiet = false;
   std::string technique, statsPath;
   float roulette = 0, lod = -1;
-  try {
+  return runTool([&] {
     for (int i = 1; i < argc; ++i) {
       std::string a = argv[i];
       auto next = [&]() -> const char* {
@@ -157,11 +157,5 @@ int main(int argc, char** argv) {
       std::fclose(f);
     }
     return 0;
-  } catch (const InputError& e) {
-    std::fprintf(stderr, "error: %s\n", e.what());
-    return 2;
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "error: %s\n", e.what());
-    return 1;
-  }
+  });
 }
