@@ -537,6 +537,14 @@ def m_xform(stage, fdp):
     return f"{what}; xformOpOrder {order}"
 
 
+def _prim_spec(stage, path):
+    """The root layer's spec of path; Skip when a mutation before removed it."""
+    spec = stage.GetRootLayer().GetPrimAtPath(path)
+    if spec is None:
+        raise Skip(f"no {path}")
+    return spec
+
+
 def m_interpolation(stage, fdp):
     path, name = fdp.PickValueInList(PRIMVARS)
     spec = stage.GetRootLayer().GetPrimAtPath(path)
@@ -550,9 +558,7 @@ def m_interpolation(stage, fdp):
 
 def m_connection(stage, fdp):
     path, name, type_name = fdp.PickValueInList(INPUTS)
-    spec = stage.GetRootLayer().GetPrimAtPath(path)
-    if spec is None:
-        raise Skip(f"no {path}")
+    spec = _prim_spec(stage, path)
     attr = spec.attributes.get(name)
     if not attr:
         attr = Sdf.AttributeSpec(spec, name, Sdf.ValueTypeNames.Find(type_name))
@@ -565,9 +571,7 @@ def m_connection(stage, fdp):
 
 def m_relationship(stage, fdp):
     path, name = fdp.PickValueInList(RELS)
-    spec = stage.GetRootLayer().GetPrimAtPath(path)
-    if spec is None:
-        raise Skip(f"no {path}")
+    spec = _prim_spec(stage, path)
     rel = spec.relationships.get(name)
     if not rel:
         rel = Sdf.RelationshipSpec(spec, name, custom=False)
@@ -578,27 +582,21 @@ def m_relationship(stage, fdp):
 
 def m_type(stage, fdp):
     path = fdp.PickValueInList(PRIMS)
-    spec = stage.GetRootLayer().GetPrimAtPath(path)
-    if spec is None:
-        raise Skip(f"no {path}")
+    spec = _prim_spec(stage, path)
     spec.typeName = fdp.PickValueInList(TYPES)
     return f"{path} type {spec.typeName!r}"
 
 
 def m_active(stage, fdp):
     path = fdp.PickValueInList(PRIMS)
-    spec = stage.GetRootLayer().GetPrimAtPath(path)
-    if spec is None:
-        raise Skip(f"no {path}")
+    spec = _prim_spec(stage, path)
     spec.active = fdp.ConsumeBool()
     return f"{path} active {spec.active}"
 
 
 def m_api(stage, fdp):
     path = fdp.PickValueInList(PRIMS)
-    spec = stage.GetRootLayer().GetPrimAtPath(path)
-    if spec is None:
-        raise Skip(f"no {path}")
+    spec = _prim_spec(stage, path)
     apis = [fdp.PickValueInList(API_SCHEMAS) for _ in range(fdp.ConsumeIntInRange(0, 3))]
     spec.SetInfo("apiSchemas", Sdf.TokenListOp.Create(prependedItems=apis))
     return f"{path} apiSchemas {apis}"
