@@ -361,7 +361,9 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("albedo", &MaterialDesc::albedo)
       .def_readwrite("ior", &MaterialDesc::ior)
       .def_readwrite("absorption", &MaterialDesc::absorption)
-      .def_readwrite("emission", &MaterialDesc::emission);
+      .def_readwrite("emission", &MaterialDesc::emission)
+      .def_readwrite("roughness", &MaterialDesc::roughness)
+      .def_readwrite("energy_compensation", &MaterialDesc::energyCompensation);
 
   py::enum_<LightType>(m, "LightType")
       .value("Distant", LightType::Distant)

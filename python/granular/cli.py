@@ -489,8 +489,9 @@ def fingerprint(desc):
     parts = {name: hashlib.blake2b(digest_size=20) for name in (*_SCENE_PARTS, "camera", "settings")}
     h = parts["materials"]
     for m in desc.materials:
-        _feed(h, m.name, m.type, m.albedo, m.ior, m.absorption, m.emission, m.opacity, m.opacity_threshold,
-              _texture_key(m.albedo_texture), _texture_key(m.emission_texture), _texture_key(m.opacity_texture))
+        _feed(h, m.name, m.type, m.albedo, m.ior, m.absorption, m.emission, m.roughness, m.energy_compensation,
+              m.opacity, m.opacity_threshold, _texture_key(m.albedo_texture), _texture_key(m.emission_texture),
+              _texture_key(m.opacity_texture))
     h = parts["meshes"]
     for m in desc.meshes:
         _feed(h, m.name, m.xf, m.material, m.visible, m.id)

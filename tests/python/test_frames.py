@@ -283,6 +283,27 @@ def test_a_moving_boundary_rebuilds_and_equals_the_still_render(how, tmp_path, c
     np.testing.assert_array_equal(f2, _pixels(tmp_path / "still.exr"))
 
 
+def test_a_grain_roughness_that_changes_rebuilds_the_scene(tmp_path, capsys):
+    """Every material input is compared between frames: a time-sampled grain roughness once
+    left frame 2 rendered with frame 1's grains (18% dark on the frosted example)."""
+    def mutate(stage):
+        _timed(stage, (1, 2))
+        a = stage.GetPrimAtPath("/World/Grains/A").GetAttribute("primvars:granular:roughness")
+        if not a:
+            a = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/World/Grains/A")).CreatePrimvar(
+                "granular:roughness", Sdf.ValueTypeNames.Float, UsdGeom.Tokens.constant).GetAttr()
+        a.Set(0.05, 1)
+        a.Set(0.9, 2)
+    scene = small_scene(tmp_path / "rough.usda", mutate)
+    err = _render(scene, tmp_path / "r.#.exr", capsys, "--frames", "1:2")
+    lines = _frame_lines(err)
+    assert lines[1].startswith("frame 2: scene rebuilt (materials changed"), lines[1]
+    _render(scene, tmp_path / "still.#.exr", capsys, "--frames", "2")
+    f1, f2 = _pixels(tmp_path / "r.1.exr"), _pixels(tmp_path / "r.2.exr")
+    assert not np.array_equal(f1, f2)
+    np.testing.assert_array_equal(f2, _pixels(tmp_path / "still.2.exr"))
+
+
 def test_fractional_steps_name_files_by_frame_and_reuse_an_unchanged_scene(scene_file, tmp_path, capsys):
     scene = scene_file(_timed)  # nothing animated: every frame after the first reuses the scene as it is
     err = _render(scene, tmp_path / "s_###.exr", capsys, "--frames", "1:2x0.5", "--png", tmp_path / "p#.png")
