@@ -108,7 +108,6 @@ class Aggregate {
   float cellSize() const { return L_; }
   const Tile& tile() const { return tile_; }
   const std::vector<GrainPrototype>& prototypes() const { return prototypes_; }
-  const GrainSelector& selector() const { return selector_; }
   const AggregateStats& stats() const { return stats_; }
   const DistanceField& distanceField() const { return sdf_; }
   const TriangleMesh& boundary() const { return boundary_; }

@@ -86,15 +86,6 @@ float DistanceField::voxelValue(const int ijk[3], const void*& accessor) const {
          voxel_;
 }
 
-Vec3 DistanceField::gradient(const Vec3& p) const {
-  float h = 0.5f * voxel_;
-  Vec3 g(distance(p + Vec3(h, 0, 0)) - distance(p - Vec3(h, 0, 0)),
-         distance(p + Vec3(0, h, 0)) - distance(p - Vec3(0, h, 0)),
-         distance(p + Vec3(0, 0, h)) - distance(p - Vec3(0, 0, h)));
-  float l = length(g);
-  return l > 0 ? g / l : Vec3(0, 0, 1);
-}
-
 size_t DistanceField::memoryBytes() const { return impl_ && impl_->grid ? impl_->grid->memUsage() : 0; }
 
 const void* DistanceField::grid() const { return impl_ ? impl_->grid.get() : nullptr; }

@@ -53,7 +53,6 @@ class DistanceField {
     bool valid_ = false;
     float value_ = 0;
   };
-  Vec3 gradient(const Vec3& p) const;   // central differences, unit length where defined
   float voxelSize() const { return voxel_; }
   float bandWidth() const { return band_; }
   size_t memoryBytes() const;

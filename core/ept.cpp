@@ -201,16 +201,4 @@ void eptStep(const Scene& scene, PathState& path) {
   }
 }
 
-Vec3 tracePath(const Scene& scene, Ray ray, Rng& rng, PrimaryInfo* primary) {
-  PathState path;
-  path.ray = ray;
-  path.rng = rng;
-  path.lastP = ray.o;
-  while (path.alive) eptStep(scene, path);
-  rng = path.rng;
-  if (primary) *primary = path.primary;
-  Vec3 L = path.radiance();
-  return isFinite(L) ? L : Vec3(0.0f);
-}
-
 }  // namespace granular

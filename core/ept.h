@@ -7,8 +7,8 @@
 // inside grains and Russian roulette on the throughput after rrDepth bounces. Radiance
 // is added to PathState::L[technique that produced it], so the EPT, VPT and DA parts of
 // an image are separate AOVs that sum to the beauty. All randomness comes from the
-// path's Rng, so a path is a pure function of its seed. tracePath() is the EPT-only
-// reference: eptStep() until the path ends.
+// path's Rng, so a path is a pure function of its seed. The EPT-only reference is the
+// hybrid integrator with technique Ept: eptStep() until the path ends.
 #pragma once
 
 #include "rng.h"
@@ -93,8 +93,5 @@ Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir)
 
 // Throughput Russian roulette after rrDepth events; false: the path ends.
 bool russianRoulette(const Scene& scene, PathState& path);
-
-// EPT-only reference estimate of the radiance along a camera ray.
-Vec3 tracePath(const Scene& scene, Ray ray, Rng& rng, PrimaryInfo* primary = nullptr);
 
 }  // namespace granular

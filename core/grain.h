@@ -76,11 +76,6 @@ class GrainSelector {
     c.rotation = sampleUniformRotation(toUnitFloat(h2), toUnitFloat(h2 << 24), toUnitFloat(h3));
     return c;
   }
-  // Probability of the prototype in a sphere of its class.
-  float probability(int prototype) const {
-    int c = classOf_[size_t(prototype)];
-    return c < 0 ? 0.0f : perClass_[size_t(c)].discreteProb(prototype);
-  }
 
  private:
   std::vector<Distribution1D> perClass_;  // over all prototypes, the other classes' at 0

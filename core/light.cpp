@@ -257,15 +257,4 @@ bool Light::intersect(const Ray& r, float& t) const {
 
 Vec3 Light::areaLe(const Vec3& dir) const { return radiance_; }
 
-float Light::power() const {
-  float l = average(radiance_);
-  switch (type_) {
-    case LightType::Sphere: return l * 4.0f * kPi * radius_ * radius_ * kPi;
-    case LightType::Rect: return l * area_ * kPi;
-    case LightType::Distant: return cosMax_ < 1.0f ? l * float(2.0 * kPiD * coneOneMinusCos(sunSin2_)) : l;
-    case LightType::Dome: return l * 4.0f * kPi;
-  }
-  return l;
-}
-
 }  // namespace granular

@@ -47,7 +47,6 @@ class Light {
   bool intersect(const Ray& r, float& t) const;
   // Radiance leaving the area light at a hit point towards -dir.
   Vec3 areaLe(const Vec3& dir) const;
-  float power() const;  // rough emitted power, for choosing lights
 
  private:
   LightType type_ = LightType::Distant;

@@ -13,6 +13,7 @@
 #ifndef HDGRANULAR_RENDER_PASS_H
 #define HDGRANULAR_RENDER_PASS_H
 
+#include <set>
 #include <string>
 
 #include "pxr/base/gf/matrix4d.h"
@@ -43,6 +44,7 @@ class HdGranularRenderPass final : public HdRenderPass {
   int _sceneVersion = -1, _settingsVersion = -1;
   std::string _buildKey;
   std::string _sunsWarned;  // the last widened-suns warning given
+  std::set<std::string> _texturesWarned;  // texture warnings given (Scene::textureWarnings)
   GfMatrix4d _view{0.0}, _projection{0.0};
   GfVec2f _lens{0.0f};  // the camera's (fStop, focusDistance)
   int _width = 0, _height = 0;

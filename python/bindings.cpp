@@ -579,6 +579,8 @@ PYBIND11_MODULE(granular_core, m) {
                              "equivalent media this build derived from TT parameters")
       .def_property_readonly("default_light_added", [](const PyScene& s) { return s.scene->defaultLightAdded(); },
                              "the stage had no light and the default white dome (radiance 1) lights it")
+      .def_property_readonly("texture_warnings", [](const PyScene& s) { return s.scene->textureWarnings(); },
+                             "what the textures could not do as asked (texture.h), one line each")
       .def_property_readonly("widened_suns_warning", [](const PyScene& s) { return s.scene->widenedSunsWarning(); },
                              "the warning about delta suns rendered as the physical sun (\"\" when none)")
       .def_property_readonly("has_media", [](const PyScene& s) { return s.scene->hasMedia(); },

@@ -525,11 +525,12 @@ _DEFAULT_LIGHT_WARNING = ("warning: the stage has no light (no UsdLux light, no 
 
 
 def _log_build_warnings(args, built, shown=None):
-    """The built scene's warnings (default light, widened suns); with `shown` (a set kept over
-    a sequence), each distinct one once."""
+    """The built scene's warnings (default light, widened suns, textures); with `shown` (a set
+    kept over a sequence), each distinct one once."""
     lines = [_DEFAULT_LIGHT_WARNING] if built.default_light_added else []
     if built.widened_suns_warning:
         lines.append("warning: " + built.widened_suns_warning)
+    lines += ["warning: " + w for w in built.texture_warnings]
     for line in lines:
         if shown is None or line not in shown:
             _log(args, line)

@@ -252,3 +252,21 @@ def test_a_transform2d_between_reader_and_texture_is_read_through_with_a_warning
     np.testing.assert_allclose(ground.mesh.uvs, np.asarray(VERTEX_ST)[CORNER_POINTS])
     assert any("UsdTransform2d is not supported" in w for w in scene.warnings)
 
+
+
+def test_without_a_writable_cache_an_srgb_texture_still_renders_and_the_user_is_told(tmp_path, capsys, monkeypatch):
+    """The linear copy of an sRGB texture lives in the cache; without one the texels are
+    decoded after filtering instead, and `granular render` says so (core's texture warning)."""
+    png = _texture_png(tmp_path / "t.png", [(0.8, 0.1, 0.1), (0.1, 0.8, 0.1)])
+    scene = small_scene(tmp_path / "s.usda", textured_view(png))
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("")
+    monkeypatch.setenv("GRANULAR_CACHE_DIR", str(blocker / "cache"))
+    exr = tmp_path / "out.exr"
+    rc, _, err = run_cli(["render", scene, "-o", exr, "--width", 32, "--height", 32, "--spp", 4], capsys)
+    assert rc == 0, err
+    assert f'warning: /World/Looks/Beach/Texture: no writable cache for the linear copy of "{png}"; its sRGB ' \
+           f'values are decoded after filtering' in err.splitlines(), err
+    rgb = np.asarray(core.read_exr(str(exr)).pixels)[..., :3]
+    left, right = rgb[8:24, 2:6].reshape(-1, 3).mean(axis=0), rgb[8:24, 26:30].reshape(-1, 3).mean(axis=0)
+    assert left[0] > 4 * left[1] and right[1] > 4 * right[0], (left, right)
