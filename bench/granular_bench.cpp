@@ -21,10 +21,10 @@
 #include <cstdlib>
 #include <string>
 
-#include "aggregate.h"
-#include "material.h"
-#include "shapes.h"
-#include "tt.h"
+#include "core/aggregate.h"
+#include "core/material.h"
+#include "core/shapes.h"
+#include "core/tt.h"
 
 using namespace granular;
 using Clock = std::chrono::steady_clock;

@@ -7,7 +7,7 @@
 #include <cmath>
 #include <cstdio>
 
-#include "image_io.h"
+#include "core/image_io.h"
 
 using namespace granular;
 

@@ -60,12 +60,12 @@
 #include <string>
 #include <vector>
 
-#include "error.h"
-#include "image_io.h"
-#include "light.h"
-#include "scene.h"
-#include "scene_io.h"
-#include "shapes.h"
+#include "core/error.h"
+#include "core/image_io.h"
+#include "core/light.h"
+#include "core/scene.h"
+#include "core/scene_io.h"
+#include "core/shapes.h"
 
 using namespace granular;
 

@@ -34,14 +34,14 @@
 #include <string>
 #include <vector>
 
-#include "error.h"
-#include "microfacet.h"
-#include "film.h"
-#include "image_io.h"
-#include "render.h"
-#include "scene.h"
-#include "scene_io.h"
-#include "vpt.h"
+#include "core/error.h"
+#include "core/microfacet.h"
+#include "core/film.h"
+#include "core/image_io.h"
+#include "core/render.h"
+#include "core/scene.h"
+#include "core/scene_io.h"
+#include "core/vpt.h"
 
 using namespace granular;
 

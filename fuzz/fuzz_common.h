@@ -15,9 +15,9 @@
 #include <exception>
 #include <string>
 
-#include "error.h"
-#include "render.h"
-#include "scene.h"
+#include "core/error.h"
+#include "core/render.h"
+#include "core/scene.h"
 
 namespace granular::fuzz {
 

@@ -8,7 +8,7 @@
 #include <string>
 
 #include "fuzz_common.h"
-#include "scene_io.h"
+#include "core/scene_io.h"
 
 extern "C" int LLVMFuzzerInitialize(int*, char***) {
   granular::fuzz::setUpCache();

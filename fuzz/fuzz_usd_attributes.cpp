@@ -17,8 +17,8 @@
 #include <vector>
 
 #include "fuzz_common.h"
-#include "mesh.h"
-#include "shapes.h"
+#include "core/mesh.h"
+#include "core/shapes.h"
 
 extern "C" int LLVMFuzzerInitialize(int*, char***) {
   granular::fuzz::setUpCache();

@@ -27,9 +27,9 @@
 #include <vector>
 
 #include "fuzz_common.h"
-#include "granular_prims.h"
-#include "mesh.h"
-#include "shapes.h"
+#include "core/granular_prims.h"
+#include "core/mesh.h"
+#include "core/shapes.h"
 
 namespace {
 

@@ -1,6 +1,6 @@
 #include "material.h"
 
-#include "error.h"
+#include "core/error.h"
 #include "pxr/base/gf/vec3f.h"
 #include "pxr/base/gf/vec4f.h"
 #include "pxr/imaging/hd/sceneDelegate.h"

@@ -14,13 +14,13 @@
 #include <map>
 #include <mutex>
 
-#include "granular_prims.h"
+#include "core/granular_prims.h"
 #include "pxr/base/gf/matrix4d.h"
 #include "pxr/base/gf/vec3f.h"
 #include "pxr/imaging/hd/renderDelegate.h"
 #include "pxr/pxr.h"
 #include "pxr/usd/sdf/path.h"
-#include "scene_desc.h"
+#include "core/scene_desc.h"
 
 PXR_NAMESPACE_OPEN_SCOPE
 

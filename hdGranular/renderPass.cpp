@@ -3,7 +3,7 @@
 #include <cmath>
 #include <exception>
 
-#include "error.h"
+#include "core/error.h"
 #include "pxr/base/tf/getenv.h"
 #include "pxr/imaging/hd/camera.h"
 #include "pxr/imaging/hd/renderDelegate.h"

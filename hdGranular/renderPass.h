@@ -21,7 +21,7 @@
 #include "pxr/imaging/hd/renderPass.h"
 #include "pxr/imaging/hd/renderPassState.h"
 #include "pxr/pxr.h"
-#include "scene_desc.h"
+#include "core/scene_desc.h"
 
 PXR_NAMESPACE_OPEN_SCOPE
 

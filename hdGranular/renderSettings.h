@@ -8,7 +8,7 @@
 
 #include "pxr/imaging/hd/renderSettings.h"
 #include "pxr/pxr.h"
-#include "scene_desc.h"
+#include "core/scene_desc.h"
 
 PXR_NAMESPACE_OPEN_SCOPE
 

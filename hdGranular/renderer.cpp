@@ -5,7 +5,7 @@
 #include <thread>
 #include <vector>
 
-#include "image_io.h"
+#include "core/image_io.h"
 #include "pxr/imaging/hd/aov.h"
 #include "pxr/imaging/hd/tokens.h"
 #include "renderBuffer.h"

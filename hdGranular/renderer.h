@@ -27,8 +27,8 @@
 #include "pxr/imaging/hd/renderPassState.h"
 #include "pxr/imaging/hd/renderThread.h"
 #include "pxr/pxr.h"
-#include "render.h"
-#include "scene.h"
+#include "core/render.h"
+#include "core/scene.h"
 
 PXR_NAMESPACE_OPEN_SCOPE
 

@@ -26,17 +26,17 @@
 #include <optional>
 #include <thread>
 
-#include "density_export.h"
-#include "error.h"
-#include "granular_prims.h"
-#include "image_io.h"
-#include "mesh.h"
-#include "render.h"
-#include "scene.h"
-#include "scene_desc.h"
-#include "scene_io.h"
-#include "shapes.h"
-#include "tt.h"
+#include "core/density_export.h"
+#include "core/error.h"
+#include "core/granular_prims.h"
+#include "core/image_io.h"
+#include "core/mesh.h"
+#include "core/render.h"
+#include "core/scene.h"
+#include "core/scene_desc.h"
+#include "core/scene_io.h"
+#include "core/shapes.h"
+#include "core/tt.h"
 
 namespace py = pybind11;
 using namespace granular;

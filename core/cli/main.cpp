@@ -17,11 +17,11 @@
 #include <cstring>
 #include <string>
 
-#include "error.h"
-#include "image_io.h"
-#include "render.h"
-#include "scene.h"
-#include "scene_io.h"
+#include "core/error.h"
+#include "core/image_io.h"
+#include "core/render.h"
+#include "core/scene.h"
+#include "core/scene_io.h"
 
 using namespace granular;
 

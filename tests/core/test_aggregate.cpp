@@ -7,9 +7,9 @@
 #include <set>
 #include <tuple>
 
-#include "aggregate.h"
-#include "material.h"
-#include "shapes.h"
+#include "core/aggregate.h"
+#include "core/material.h"
+#include "core/shapes.h"
 #include "test_helpers.h"
 
 using namespace granular;

@@ -5,12 +5,12 @@
 #include <cmath>
 #include <limits>
 
-#include "camera.h"
-#include "error.h"
-#include "render.h"
-#include "scene.h"
-#include "scene_io.h"
-#include "shapes.h"
+#include "core/camera.h"
+#include "core/error.h"
+#include "core/render.h"
+#include "core/scene.h"
+#include "core/scene_io.h"
+#include "core/shapes.h"
 
 using namespace granular;
 

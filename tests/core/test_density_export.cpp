@@ -6,9 +6,9 @@
 #include <random>
 #include <unistd.h>
 
-#include "density_export.h"
-#include "error.h"
-#include "shapes.h"
+#include "core/density_export.h"
+#include "core/error.h"
+#include "core/shapes.h"
 #include "test_helpers.h"
 
 using namespace granular;

@@ -5,13 +5,13 @@
 #include <cmath>
 #include <cstdio>
 
-#include "aggregate.h"
-#include "diffusion.h"
-#include "embree_util.h"
-#include "render.h"
-#include "scene.h"
-#include "shapes.h"
-#include "vpt.h"
+#include "core/aggregate.h"
+#include "core/diffusion.h"
+#include "core/embree_util.h"
+#include "core/render.h"
+#include "core/scene.h"
+#include "core/shapes.h"
+#include "core/vpt.h"
 
 using namespace granular;
 

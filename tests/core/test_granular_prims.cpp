@@ -8,9 +8,9 @@
 #include <ostream>
 #include <string>
 
-#include "error.h"
-#include "granular_prims.h"
-#include "shapes.h"
+#include "core/error.h"
+#include "core/granular_prims.h"
+#include "core/shapes.h"
 
 using namespace granular;
 

@@ -5,12 +5,12 @@
 
 #include <cmath>
 
-#include "image_io.h"
+#include "core/image_io.h"
 
-#include "math.h"
-#include "mesh.h"
-#include "scene_desc.h"
-#include "shapes.h"
+#include "core/math.h"
+#include "core/mesh.h"
+#include "core/scene_desc.h"
+#include "core/shapes.h"
 
 namespace granular::testing {
 

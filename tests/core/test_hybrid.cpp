@@ -5,10 +5,10 @@
 #include <cmath>
 #include <cstdio>
 
-#include "error.h"
-#include "render.h"
-#include "scene.h"
-#include "shapes.h"
+#include "core/error.h"
+#include "core/render.h"
+#include "core/scene.h"
+#include "core/shapes.h"
 #include "test_helpers.h"
 
 using namespace granular;

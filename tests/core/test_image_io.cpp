@@ -15,8 +15,8 @@
 #include <string>
 #include <vector>
 
-#include "error.h"
-#include "image_io.h"
+#include "core/error.h"
+#include "core/image_io.h"
 
 namespace granular {
 namespace {

@@ -4,11 +4,11 @@
 
 #include <cmath>
 
-#include "light.h"
-#include "render.h"
-#include "sampling.h"
-#include "scene.h"
-#include "shapes.h"
+#include "core/light.h"
+#include "core/render.h"
+#include "core/sampling.h"
+#include "core/scene.h"
+#include "core/shapes.h"
 
 using namespace granular;
 

@@ -5,9 +5,9 @@
 #include <cmath>
 #include <cstdio>
 
-#include "render.h"
-#include "scene.h"
-#include "shapes.h"
+#include "core/render.h"
+#include "core/scene.h"
+#include "core/shapes.h"
 #include "test_helpers.h"
 
 using namespace granular;

@@ -7,13 +7,13 @@
 #include <cmath>
 #include <vector>
 
-#include "material.h"
-#include "microfacet.h"
-#include "render.h"
-#include "rng.h"
-#include "sampling.h"
-#include "scene.h"
-#include "shapes.h"
+#include "core/material.h"
+#include "core/microfacet.h"
+#include "core/render.h"
+#include "core/rng.h"
+#include "core/sampling.h"
+#include "core/scene.h"
+#include "core/shapes.h"
 #include "test_helpers.h"
 
 using namespace granular;

@@ -1,7 +1,7 @@
 // test_math.cpp — Transform::lookAt and Transform::inverse.
 #include <gtest/gtest.h>
 
-#include "math.h"
+#include "core/math.h"
 
 using namespace granular;
 

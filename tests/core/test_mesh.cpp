@@ -1,9 +1,9 @@
 // test_mesh.cpp — mesh validity checks, volumes, transforms and procedural shapes.
 #include <gtest/gtest.h>
 
-#include "error.h"
-#include "mesh.h"
-#include "shapes.h"
+#include "core/error.h"
+#include "core/mesh.h"
+#include "core/shapes.h"
 #include "test_helpers.h"
 
 using namespace granular;

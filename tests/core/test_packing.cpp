@@ -5,8 +5,8 @@
 
 #include <cmath>
 
-#include "error.h"
-#include "packing.h"
+#include "core/error.h"
+#include "core/packing.h"
 
 using namespace granular;
 

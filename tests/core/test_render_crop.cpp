@@ -8,10 +8,10 @@
 #include <string>
 #include <vector>
 
-#include "error.h"
-#include "image_io.h"
-#include "render.h"
-#include "scene.h"
+#include "core/error.h"
+#include "core/image_io.h"
+#include "core/render.h"
+#include "core/scene.h"
 #include "test_helpers.h"
 
 using namespace granular;

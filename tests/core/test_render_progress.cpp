@@ -5,9 +5,9 @@
 #include <thread>
 #include <vector>
 
-#include "render.h"
-#include "scene.h"
-#include "shapes.h"
+#include "core/render.h"
+#include "core/scene.h"
+#include "core/shapes.h"
 
 using namespace granular;
 

@@ -9,10 +9,10 @@
 #include <unistd.h>
 #include <nlohmann/json.hpp>
 
-#include "error.h"
-#include "image_io.h"
-#include "scene_io.h"
-#include "shapes.h"
+#include "core/error.h"
+#include "core/image_io.h"
+#include "core/scene_io.h"
+#include "core/shapes.h"
 
 using namespace granular;
 using nlohmann::json;

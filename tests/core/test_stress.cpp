@@ -9,10 +9,10 @@
 #include <iterator>
 #include <functional>
 
-#include "error.h"
-#include "render.h"
-#include "scene.h"
-#include "shapes.h"
+#include "core/error.h"
+#include "core/render.h"
+#include "core/scene.h"
+#include "core/shapes.h"
 
 using namespace granular;
 

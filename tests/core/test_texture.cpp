@@ -4,11 +4,11 @@
 #include <cmath>
 #include <filesystem>
 
-#include "error.h"
-#include "image_io.h"
-#include "render.h"
-#include "scene.h"
-#include "texture.h"
+#include "core/error.h"
+#include "core/image_io.h"
+#include "core/render.h"
+#include "core/scene.h"
+#include "core/texture.h"
 
 namespace granular {
 namespace {

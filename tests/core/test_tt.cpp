@@ -8,14 +8,14 @@
 #include <cstdio>
 #include <fstream>
 
-#include "aggregate.h"
-#include "cache.h"
-#include "embree_util.h"
-#include "error.h"
-#include "microfacet.h"
-#include "sampling.h"
-#include "shapes.h"
-#include "tt.h"
+#include "core/aggregate.h"
+#include "core/cache.h"
+#include "core/embree_util.h"
+#include "core/error.h"
+#include "core/microfacet.h"
+#include "core/sampling.h"
+#include "core/shapes.h"
+#include "core/tt.h"
 
 using namespace granular;
 

@@ -4,10 +4,10 @@
 
 #include <cmath>
 
-#include "ept.h"
-#include "scene.h"
-#include "shapes.h"
-#include "vpt.h"
+#include "core/ept.h"
+#include "core/scene.h"
+#include "core/shapes.h"
+#include "core/vpt.h"
 
 using namespace granular;
 
