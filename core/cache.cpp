@@ -29,6 +29,19 @@ bool makeDirs(const std::string& path) {
 
 }  // namespace
 
+FileVersion fileVersion(const std::string& path) {
+  FileVersion v;
+  struct stat st;
+  if (stat(path.c_str(), &st) != 0) return v;
+  v.exists = true;
+  v.device = uint64_t(st.st_dev);
+  v.inode = uint64_t(st.st_ino);
+  v.size = uint64_t(st.st_size);
+  v.mtimeNs = int64_t(st.st_mtim.tv_sec) * 1000000000 + st.st_mtim.tv_nsec;
+  v.ctimeNs = int64_t(st.st_ctim.tv_sec) * 1000000000 + st.st_ctim.tv_nsec;
+  return v;
+}
+
 std::string cacheDirectory() {
   std::string dir;
   if (const char* d = std::getenv("GRANULAR_CACHE_DIR"); d && *d) {

@@ -6,6 +6,7 @@
 // name and renamed, so concurrent renders never read half a file.
 #pragma once
 
+#include <cstdint>
 #include <cstring>
 #include <string>
 #include <vector>
@@ -13,6 +14,22 @@
 namespace granular {
 
 std::string cacheDirectory();
+
+// What tells one content of a file from another without reading it: device, inode, size,
+// and the modification and status-change times to the nanosecond (exists false: no file).
+// A copy that keeps the modification time (cp -p, rsync -a) still changes the
+// status-change time, which no user call can set back.
+struct FileVersion {
+  bool exists = false;
+  uint64_t device = 0, inode = 0, size = 0;
+  int64_t mtimeNs = 0, ctimeNs = 0;
+  bool operator==(const FileVersion& o) const {
+    return exists == o.exists && device == o.device && inode == o.inode && size == o.size && mtimeNs == o.mtimeNs &&
+           ctimeNs == o.ctimeNs;
+  }
+  bool operator!=(const FileVersion& o) const { return !(*this == o); }
+};
+FileVersion fileVersion(const std::string& path);
 
 // Reads a whole cache entry; false if it is absent or unreadable.
 bool readCacheFile(const std::string& name, std::vector<char>& bytes);

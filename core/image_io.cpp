@@ -29,9 +29,6 @@ namespace {
 constexpr const char* kWriterAttribute = "granular:writer";
 constexpr const char* kWriterName = "granular";
 
-// readExr, and with ours: readTileExr.
-Image readExrFile(const std::string& path, bool ours);
-
 // sRGB piecewise curve: ExponentWithLinear with gamma 2.4 / offset 0.055 is the
 // sRGB EOTF (decode) forward, the encoding inverse. OCIO 2.1 has no built-in
 // configs, so the transform is assembled here on a raw config.
@@ -158,11 +155,8 @@ OIIO::ImageInput::unique_ptr openFlatImage(const std::string& path) {
   if (spec.width <= 0 || spec.height <= 0 || spec.depth > 1 || spec.nchannels <= 0)
     throw InputError(path, "", str("cannot read image: unusable size ", spec.width, "x", spec.height, "x",
                                    spec.depth, " with ", spec.nchannels, " channels"));
-  if (spec.width > kMaxImageSide || spec.height > kMaxImageSide || int64_t(spec.width) * spec.height > kMaxImagePixels ||
-      spec.nchannels > 1024)
-    throw InputError(path, "", str("cannot read image: its header says ", spec.width, "x", spec.height, " with ",
-                                   spec.nchannels, " channels, beyond the limit of ", kMaxImageSide,
-                                   " pixels a side, ", kMaxImagePixels, " pixels in all and 1024 channels"));
+  const std::string tooLarge = imageSizeBeyondLimits(spec.width, spec.height, spec.nchannels);
+  if (!tooLarge.empty()) throw InputError(path, "", "cannot read image: its header says " + tooLarge);
   return in;
 }
 
@@ -298,12 +292,17 @@ float srgbEncode(float linear) {
   return rgb[0];
 }
 
-Image readExr(const std::string& path) { return readExrFile(path, false); }
-
-Image readTileExr(const std::string& path) { return readExrFile(path, true); }
+std::string imageSizeBeyondLimits(int64_t width, int64_t height, int channels) {
+  if (width <= kMaxImageSide && height <= kMaxImageSide && width * height <= kMaxImagePixels &&
+      channels <= kMaxImageChannels)
+    return "";
+  return str(width, "x", height, " with ", channels, " channels, beyond the limit of ", kMaxImageSide, " pixels a side, ",
+             kMaxImagePixels, " pixels in all and ", kMaxImageChannels, " channels");
+}
 
 namespace {
 
+// readExr, and with ours: readTileExr.
 Image readExrFile(const std::string& path, bool ours) {
   auto in = openFlatImage(path);
   const OIIO::ImageSpec spec = in->spec();
@@ -329,6 +328,10 @@ Image readExrFile(const std::string& path, bool ours) {
 }
 
 }  // namespace
+
+Image readExr(const std::string& path) { return readExrFile(path, false); }
+
+Image readTileExr(const std::string& path) { return readExrFile(path, true); }
 
 Image mergeTiles(const std::vector<Image>& tiles) {
   if (tiles.empty()) throw InputError("tiles", "", "no tiles to merge");

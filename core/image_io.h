@@ -92,6 +92,10 @@ Image readImageRGB(const std::string& path, uint64_t* nonFinite = nullptr);
 // A header claiming more is refused before anything is allocated.
 constexpr int kMaxImageSide = 65536;
 constexpr int64_t kMaxImagePixels = int64_t(1) << 28;
+constexpr int kMaxImageChannels = 1024;
+// "" for an image size within those limits, else "W x H with C channels, beyond the limit
+// of ...", for the reader's own message.
+std::string imageSizeBeyondLimits(int64_t width, int64_t height, int channels);
 
 // The PNG's encoding of one linear value (exposure 0), through the same OCIO
 // processor, clamped to [0,1] and before 8-bit quantisation.

@@ -13,38 +13,16 @@
 #include <mutex>
 #include <stdexcept>
 
+#include "cache.h"
 #include "error.h"
 
 namespace granular {
 
 namespace {
 
-// A file's identity: device, inode, size, modification time in ns (or that there is none).
-struct Version {
-  bool exists = false;
-  uint64_t device = 0, inode = 0, size = 0;
-  int64_t mtimeNs = 0;
-  bool operator==(const Version& o) const {
-    return exists == o.exists &&
-           (!exists || (device == o.device && inode == o.inode && size == o.size && mtimeNs == o.mtimeNs));
-  }
-};
-
-Version versionOf(const std::string& path) {
-  Version v;
-  struct stat st;
-  if (lstat(path.c_str(), &st) != 0) return v;
-  v.exists = true;
-  v.device = uint64_t(st.st_dev);
-  v.inode = uint64_t(st.st_ino);
-  v.size = uint64_t(st.st_size);
-  v.mtimeNs = int64_t(st.st_mtim.tv_sec) * 1000000000 + st.st_mtim.tv_nsec;
-  return v;
-}
-
 std::mutex gMutex;
-std::map<std::string, Version>& claims() {
-  static std::map<std::string, Version> c;
+std::map<std::string, FileVersion>& claims() {
+  static std::map<std::string, FileVersion> c;
   return c;
 }
 
@@ -100,7 +78,7 @@ std::string folderOf(const std::string& path) {
 
 void claimOutput(const std::string& path) {
   std::lock_guard<std::mutex> guard(gMutex);
-  claims()[absolutePath(path)] = versionOf(path);
+  claims()[absolutePath(path)] = fileVersion(path);
 }
 
 OutputFile::OutputFile(const std::string& path) : path_(path) {
@@ -141,14 +119,14 @@ bool OutputFile::commit() {
   {
     std::lock_guard<std::mutex> guard(gMutex);
     auto it = claims().find(key);
-    replacedOther = it != claims().end() && !(it->second == versionOf(path_));
+    replacedOther = it != claims().end() && it->second != fileVersion(path_);
   }
   if (std::rename(tmp_.c_str(), path_.c_str()) != 0)
     throw std::runtime_error(failure(path_, str("rename from ", tmp_, " failed: ", std::strerror(errno))));
   committed_ = true;
   std::lock_guard<std::mutex> guard(gMutex);
   auto it = claims().find(key);
-  if (it != claims().end()) it->second = versionOf(path_);  // this process's own file now
+  if (it != claims().end()) it->second = fileVersion(path_);  // this process's own file now
   return replacedOther;
 }
 

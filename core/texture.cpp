@@ -1,6 +1,5 @@
 #include "texture.h"
 
-#include <sys/stat.h>
 #include <unistd.h>
 
 #include <OpenImageIO/imagebuf.h>
@@ -26,33 +25,6 @@ namespace OIIO = OIIO_NAMESPACE;
 // scene). Never destroyed: OIIO 2.4's TextureSystem::destroy deletes through the wrong type
 // (AddressSanitizer: new-delete-type-mismatch inside libOpenImageIO), and a process keeps
 // one anyway. A file rewritten between scenes is invalidated by its version (FileVersion).
-namespace {
-
-// What tells one content of a file from another without reading it: device, inode, size,
-// and the modification and status-change times to the nanosecond. A copy that keeps the
-// modification time (cp -p, rsync -a) still changes the status-change time, which no
-// user call can set back.
-struct FileVersion {
-  uint64_t device = 0, inode = 0, size = 0;
-  int64_t mtimeNs = 0, ctimeNs = 0;
-  bool operator==(const FileVersion& o) const {
-    return device == o.device && inode == o.inode && size == o.size && mtimeNs == o.mtimeNs && ctimeNs == o.ctimeNs;
-  }
-};
-
-bool fileVersion(const std::string& file, FileVersion& v) {
-  struct stat st;
-  if (stat(file.c_str(), &st) != 0) return false;
-  v.device = uint64_t(st.st_dev);
-  v.inode = uint64_t(st.st_ino);
-  v.size = uint64_t(st.st_size);
-  v.mtimeNs = int64_t(st.st_mtim.tv_sec) * 1000000000 + st.st_mtim.tv_nsec;
-  v.ctimeNs = int64_t(st.st_ctim.tv_sec) * 1000000000 + st.st_ctim.tv_nsec;
-  return true;
-}
-
-}  // namespace
-
 struct Textures::System {
   OIIO::TextureSystem* ts = nullptr;
   System() {
@@ -75,8 +47,8 @@ struct Textures::System {
     };
     static std::mutex mutex;
     static std::map<std::string, Record> seen;
-    FileVersion version;
-    if (!fileVersion(file, version)) return 0;  // the open that follows reports it
+    const FileVersion version = fileVersion(file);
+    if (!version.exists) return 0;  // the open that follows reports it
     std::lock_guard<std::mutex> lock(mutex);
     auto it = seen.find(file);
     if (it != seen.end() && it->second.version == version) return it->second.nonFinite;
@@ -115,8 +87,8 @@ void decodeSrgb(OIIO::ImageBuf& buf) {
 // The cached linear texture of an sRGB image: "" when none can be written.
 std::string linearCopy(const std::string& file, const std::string& source) {
   const std::string dir = cacheDirectory();
-  FileVersion v;
-  if (dir.empty() || !fileVersion(file, v)) return "";
+  const FileVersion v = fileVersion(file);
+  if (dir.empty() || !v.exists) return "";
   char key[64];
   std::snprintf(key, sizeof key, "%016llx",
                 (unsigned long long)hashInts(hashInts(std::hash<std::string>()(file), v.device, v.inode, v.size),
@@ -162,12 +134,8 @@ int Textures::add(const TextureDesc& desc) {
   e.channels = spec.nchannels;
   if (e.channels < 1) throw InputError(desc.source, "inputs:file", str("\"", desc.file, "\" has no channels"));
   // Scanning and the sRGB copy read the whole image: refuse a size nothing here allocates.
-  if (spec.width > kMaxImageSide || spec.height > kMaxImageSide ||
-      int64_t(spec.width) * spec.height > kMaxImagePixels || spec.nchannels > 1024)
-    throw InputError(desc.source, "inputs:file",
-                     str("\"", desc.file, "\" is ", spec.width, "x", spec.height, " with ", spec.nchannels,
-                         " channels, beyond the limit of ", kMaxImageSide, " pixels a side, ", kMaxImagePixels,
-                         " pixels in all and 1024 channels"));
+  const std::string tooLarge = imageSizeBeyondLimits(spec.width, spec.height, spec.nchannels);
+  if (!tooLarge.empty()) throw InputError(desc.source, "inputs:file", str("\"", desc.file, "\" is ", tooLarge));
   // A NaN or infinite texel would become a NaN or infinite pixel: refused here, by name.
   if (uint64_t bad = system_->nonFiniteTexels(desc.file, spec.format.is_floating_point()))
     throw InputError(desc.source, "inputs:file",

@@ -601,7 +601,6 @@ def check_outputs(args):
         _check_output(args.png, "--png", (".png",))
     if args.png and os.path.abspath(args.png) == os.path.abspath(args.output):
         raise UserError("command line", "--png", "is the same file as -o")
-    claim_outputs(args.output, args.png)
 
 
 def cmd_render(args):
@@ -609,7 +608,8 @@ def cmd_render(args):
 
     check_outputs(args)
     if args.frames is not None:
-        return _render_frames(args)
+        return _render_frames(args)  # frame_outputs claims each frame's files
+    claim_outputs(args.output, args.png)
     t0 = time.monotonic()
     scene = read_stage(args.scene, camera=args.camera, width=args.width, height=args.height)
     s = _apply_options(args, scene)
@@ -692,6 +692,7 @@ def _render_frames(args):
 def cmd_merge(args):
     import granular_core as core
     check_outputs(args)
+    claim_outputs(args.output, args.png)
     outputs = {os.path.abspath(p) for p in (args.output, args.png) if p}
     tiles = []
     for path in args.tiles:

@@ -188,5 +188,6 @@ TEST(Scene, ASceneScaledUpBeyondFloatSquaresIsLitAsAtUnitScale) {
   };
   const double unit = floorUnderDome(1), big = floorUnderDome(1e9);
   EXPECT_GT(unit, 0.2);  // the grey floor under a white sky, and the sky
-  EXPECT_NEAR(big, unit, 0.02 * unit);
+  // The same random numbers over the same geometry, scaled: only float rounding may differ.
+  EXPECT_NEAR(big, unit, 1e-4 * unit);
 }
