@@ -88,7 +88,7 @@ def _mixture(s):
 
 
 def _amber_flint(s):
-    # the issue's mixture: amber rocks and flint flakes, 0.6 / 0.4, f 0.55
+    # a mixture of amber rocks and flint flakes, 0.6 / 0.4, f 0.55
     s["materials"]["grain"] = {"type": "dielectric", "ior": 1.55, "absorption": [0.2, 0.6, 1.5]}
     s["materials"]["flint"] = {"type": "dielectric", "ior": 1.8, "absorption": 0.05}
     ag = s["aggregates"][0]
@@ -153,7 +153,9 @@ CASES["sun-2deg"] = [_sun(2.0)]
 CASES["sun-0.53deg"] = [_sun(0.53)]
 CASES["sun-delta"] = [_sun(0.0)]  # the physical sun over smooth grains; delta over rough ones
 
-TECHNIQUES = {"ept+vpt": ("EptVpt", None), "hybrid": ("Hybrid", None), "lod0": ("EptVpt", 0.0)}
+# name -> (technique, lod or None for the default, proxies: Off, Auto (the default) or On)
+TECHNIQUES = {"ept+vpt": ("EptVpt", None, "Auto"), "hybrid": ("Hybrid", None, "Auto"), "lod0": ("EptVpt", 0.0, "Auto"),
+              "no-proxies": ("EptVpt", None, "Off"), "ppt": ("EptVpt", None, "On"), "ppt-hybrid": ("Hybrid", None, "On")}
 
 
 def scene_for(case):
@@ -164,7 +166,7 @@ def scene_for(case):
     return s
 
 
-def measure(core, scene, technique, lod, spp, seeds, threads, tmp):
+def measure(core, scene, technique, lod, spp, seeds, threads, tmp, proxies="Auto"):
     """Per seed (1000, 1001, ...), the mean RGB over the ball's pixels (primId 1); the pixel
     count, the build's seconds and the renders' seconds. The scene is built once; each seed
     is a new view of it (Scene.set_view)."""
@@ -181,6 +183,7 @@ def measure(core, scene, technique, lod, spp, seeds, threads, tmp):
     s.threads = threads
     if lod is not None:
         s.lod = lod
+    s.proxies = getattr(core.ProxyUse, proxies)
     desc.settings = s
     t0 = time.monotonic()
     built = core.Scene.build(desc)
@@ -214,8 +217,8 @@ def run_case(core, case, techniques, spp, seeds, threads, tmp, log, explicit_bou
     if explicit_bounces is not None:
         scene["render"]["explicit_bounces"] = explicit_bounces
     out = {"case": case, "techniques": {}}
-    for name, (technique, lod) in [("ept", ("Ept", None))] + [(t, TECHNIQUES[t]) for t in techniques]:
-        means, pixels, build_s, render_s = measure(core, scene, technique, lod, spp, seeds, threads, tmp)
+    for name, (technique, lod, proxies) in [("ept", ("Ept", None, "Auto"))] + [(t, TECHNIQUES[t]) for t in techniques]:
+        means, pixels, build_s, render_s = measure(core, scene, technique, lod, spp, seeds, threads, tmp, proxies)
         mean, se = stats(means)
         out["techniques"][name] = {"mean": mean.tolist(), "se": se.tolist(), "seconds": render_s,
                                    "build_seconds": build_s, "pixels": pixels}
@@ -278,7 +281,7 @@ def main():
     ap.add_argument("--seeds", type=int, default=4)
     ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--cases", default=",".join(CASES))
-    ap.add_argument("--techniques", default=",".join(TECHNIQUES))
+    ap.add_argument("--techniques", default="ept+vpt,hybrid,lod0")
     ap.add_argument("--explicit-bounces", type=int, default=None,
                     help="render setting explicit_bounces for every case (default: the renderer's, automatic)")
     ap.add_argument("--json")

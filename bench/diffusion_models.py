@@ -14,7 +14,7 @@ the diffusion estimates of the same quantity:
   beam+G  the beam with Grosjean's D = (2σ_a + σ'_s)/(3σ'_t²)
   beam zb the beam with z_b = 0.7104/σ'_t = 2.131 D (the Milne problem's exact extrapolation length)
 
-at the seed's DA depth min(1/σ'_t, 0.5/σ_tr) (factor 1) and twice it.
+at the paper's DA depth min(1/σ'_t, 0.5/σ_tr) (factor 1) and twice it.
 
 Usage: python3 bench/diffusion_models.py [--photons 50000] [--seed 1]
 Prints a markdown table of relative errors (model / walk − 1) for ω_i down / sideways / up.

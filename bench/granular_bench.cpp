@@ -10,6 +10,14 @@
 //     aggregate alone (perf record ... --raw-seconds 0.01).
 //   granular-bench setup --grains N
 //     Set-up time and memory of an aggregate of about N grains. One JSON line.
+//   granular-bench visits [--seconds S] [--absorption A]
+//     The cost of a grain visit, explicit against proxy (proxy.h, ppt.h), single thread,
+//     inside a ball of rock grains (R = 0.01, f = 0.6, IOR 1.5, absorption A per radius):
+//     random walks from the ball's inner half, each visit the next grain met and the way
+//     out of it — explicitly (Aggregate::intersect with the hints EPT gives, Material::sample
+//     at each interface) or as a proxy (intersectProxy, hit(b), a table sample and its exit
+//     point), the proxy also with one shadow ray (proxyTransmittance) per visit, as
+//     next-event estimation casts near the surface. One JSON line.
 //   granular-bench tt [--rays N]
 //     Teleportation-transport parameters (tt.h) of a few prototypes and materials, the
 //     medium they give at R = 0.01, f = 0.6, and the (uncached) estimation time. One
@@ -23,6 +31,7 @@
 
 #include "core/aggregate.h"
 #include "core/material.h"
+#include "core/proxy.h"
 #include "core/shapes.h"
 #include "core/tt.h"
 
@@ -245,6 +254,109 @@ int ttParams(long rays) {
   return 0;
 }
 
+// A start of a walk: a random point of the ball's inner half, a random direction.
+void walkStart(Rng& rng, Vec3& o, Vec3& d) {
+  o = sampleUniformSphere(rng.next1D(), rng.next1D()) * (0.5f * std::cbrt(rng.next1D()));
+  d = sampleUniformSphere(rng.next1D(), rng.next1D());
+}
+
+int visits(double budget, float absorption) {
+  EmbreeDevice dev = makeEmbreeDevice();
+  Aggregate agg;
+  agg.build(sphereAggregate(1.0f, 0.01f, 512), dev, {0});
+  MaterialDesc md;
+  md.type = MaterialType::Dielectric;
+  md.ior = 1.5f;
+  md.absorption = Vec3(absorption);
+  const Material m = Material::fromDesc(md);
+  ProxyOptions po;
+  const std::vector<ProxyTable> tables{estimateProxyTable(agg.prototypes()[0].mesh, m, po)};
+  const float R = agg.grainRadius();
+  constexpr int kVisitsPerWalk = 32;
+
+  // Explicit: each visit traces rays until the path is out of the grain it met.
+  long explicitVisits = 0, events = 0;
+  Rng rng(7);
+  auto t0 = Clock::now();
+  while (seconds(t0) < budget) {
+    Vec3 o, d;
+    walkStart(rng, o, d);
+    GrainHit from;
+    bool hinted = false, inside = false;
+    for (int v = 0; v < kVisitsPerWalk;) {
+      GrainHit h;
+      if (!agg.intersect(o, d, 0.0f, kInf, h, hinted ? &from : nullptr, inside)) break;
+      ++events;
+      const Vec3 p = o + d * h.t;
+      Frame frame(h.ng);
+      BsdfSample bs;
+      if (!m.sample(frame.toLocal(-d), rng.next1D(), rng.next1D(), rng.next1D(), bs)) break;
+      d = normalize(frame.toWorld(bs.wi));
+      inside = dot(d, h.ng) < 0;
+      o = offsetRayOrigin(p, h.ng, d, kGrainEps * h.radius);
+      from = h;
+      hinted = true;
+      if (!inside) ++v, ++explicitVisits;
+    }
+  }
+  const double explicitSeconds = seconds(t0);
+
+  // Proxies: a sphere entered holds a grain with the chance hit(b); a grain met scatters
+  // by the table. withShadow: one shadow ray per visit towards a fixed sun.
+  auto proxyWalks = [&](bool withShadow, long& visited, long& crossings) {
+    Rng r(11);
+    visited = crossings = 0;
+    const Vec3 sun = normalize(Vec3(0.3f, 1.0f, 0.2f));
+    auto start = Clock::now();
+    while (seconds(start) < budget) {
+      Vec3 o, d;
+      walkStart(r, o, d);
+      GrainHit from;
+      bool started = false;
+      for (int v = 0; v < kVisitsPerWalk;) {
+        GrainHit h;
+        if (!agg.intersectProxy(o, d, 0.0f, kInf, h, started ? &from : nullptr)) break;
+        ++crossings;
+        const ProxyTable& t = tables[size_t(h.prototype)];
+        const ProxyFrame frame(d, (o + d * h.t - h.center) / h.radius);
+        const int b = t.bBin(frame.b);
+        from = h;
+        started = true;
+        if (r.next1D() >= t.hitProbability(b)) {  // crossed: on from its far side
+          const Vec3 oc = o - h.center;
+          const float along = dot(oc, d);
+          o = o + d * (-along + std::sqrt(std::max(0.0f, h.radius * h.radius - length2(oc - d * along))));
+          continue;
+        }
+        if (withShadow) {
+          const ProxyDirection toSun = t.eval(b, frame.toLocal(sun));
+          const Vec3 exit = h.center + frame.toWorld(t.exitPoint(b, toSun, r.next1D())) * h.radius;
+          agg.proxyTransmittance(exit, sun, 0.0f, kInf, tables, &h, r.nextU32());
+        }
+        ProxyDirection s;
+        if (!t.sample(b, r.next1D(), r.next1D(), r.next1D(), r.next1D(), s)) break;
+        o = h.center + frame.toWorld(t.exitPoint(b, s, r.next1D())) * h.radius;
+        d = normalize(frame.toWorld(s.w));
+        ++v, ++visited;
+      }
+    }
+    return seconds(start);
+  };
+  long proxyVisits, proxyCrossings, shadowVisits, shadowCrossings;
+  const double proxySeconds = proxyWalks(false, proxyVisits, proxyCrossings);
+  const double shadowSeconds = proxyWalks(true, shadowVisits, shadowCrossings);
+  const double explicitCost = explicitSeconds / double(explicitVisits), proxyCost = proxySeconds / double(proxyVisits),
+               shadowCost = shadowSeconds / double(shadowVisits);
+  std::printf("{\"absorption\": %g, \"grain_radius\": %g, \"explicit_us_per_visit\": %.4f, "
+              "\"explicit_events_per_visit\": %.3f, \"proxy_us_per_visit\": %.4f, \"proxy_spheres_per_visit\": %.3f, "
+              "\"proxy_with_shadow_us_per_visit\": %.4f, \"explicit_over_proxy\": %.3f, "
+              "\"explicit_over_proxy_with_shadow\": %.3f}\n",
+              absorption, R, 1e6 * explicitCost, double(events) / double(explicitVisits), 1e6 * proxyCost,
+              double(proxyCrossings) / double(proxyVisits), 1e6 * shadowCost, explicitCost / proxyCost,
+              explicitCost / shadowCost);
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -252,7 +364,7 @@ int main(int argc, char** argv) {
     std::fprintf(stderr,
                  "usage: granular-bench throughput [--grain-radius R] [--seconds S] [--raw-seconds S] | setup --grains N "
                  "[--tile-spheres T] | "
-                 "tt [--rays N]\n");
+                 "tt [--rays N] | visits [--seconds S] [--absorption A]\n");
     return 2;
   }
   std::string mode = argv[1];
@@ -260,6 +372,7 @@ int main(int argc, char** argv) {
   double secs = 2.0, rawSecs = -1, grains = 1e6;
   long rays = 1L << 18;
   int tileSpheres = 512;
+  float absorption = 0.05f;
   for (int i = 2; i + 1 < argc; i += 2) {
     std::string a = argv[i];
     if (a == "--grain-radius") R = std::strtof(argv[i + 1], nullptr);
@@ -268,11 +381,13 @@ int main(int argc, char** argv) {
     else if (a == "--grains") grains = std::strtod(argv[i + 1], nullptr);
     else if (a == "--rays") rays = std::strtol(argv[i + 1], nullptr, 10);
     else if (a == "--tile-spheres") tileSpheres = int(std::strtol(argv[i + 1], nullptr, 10));
+    else if (a == "--absorption") absorption = std::strtof(argv[i + 1], nullptr);
   }
   try {
     if (mode == "throughput") return throughput(R, secs, rawSecs < 0 ? secs : rawSecs);
     if (mode == "setup") return setup(grains, tileSpheres);
     if (mode == "tt") return ttParams(rays);
+    if (mode == "visits") return visits(secs, absorption);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "error: %s\n", e.what());
     return 1;

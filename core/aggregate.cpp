@@ -295,6 +295,72 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
     subR2_[k] = t.radius * t.radius;
   }
 
+  // Neighbour lists for proxies: every sphere centre within the reach (with its image's
+  // offset: the reach stays under the tile's edge, so offsets of -1..1 cells find them),
+  // nearest first by how soon a ray could enter it (centre distance less radius). Found
+  // through a periodic grid of buckets at least one reach wide.
+  nbStart_.assign(1, 0);
+  for (auto* v : {&nbX_, &nbY_, &nbZ_, &nbR2_, &nbKey_, &nbReach_}) v->clear();
+  nbId_.clear();
+  nbShift_.clear();
+  const float maxReach = Rmax_ * (2.0f + kNeighbourReach);
+  if (maxReach < L_) {
+    const int G = std::max(1, std::min(64, int(L_ / maxReach)));  // buckets per tile edge
+    std::vector<std::vector<int>> buckets(size_t(G) * G * G);
+    auto bucketOf = [&](const Vec3& c, int a) { return std::clamp(int(c[a] * float(G)), 0, G - 1); };
+    for (int j = 0; j < tile_.numSpheres; ++j) {
+      const Vec3& c = tile_.centers[size_t(j)];
+      buckets[size_t((bucketOf(c, 2) * G + bucketOf(c, 1)) * G + bucketOf(c, 0))].push_back(j);
+    }
+    struct Entry { float key; Vec3 q; float r2; int id; int8_t shift[3]; };
+    std::vector<Entry> found;
+    for (int i = 0; i < tile_.numSpheres; ++i) {
+      const Vec3& ui = tile_.centers[size_t(i)];
+      const Vec3 ci = ui * L_;
+      const float reach = R_ * tile_.size(i) + kNeighbourReach * Rmax_ + Rmax_;
+      nbReach_.push_back(reach - Rmax_);  // a sphere met within this of ci is listed whole
+      found.clear();
+      const int b0[3] = {bucketOf(ui, 0), bucketOf(ui, 1), bucketOf(ui, 2)};
+      std::vector<int> seen;  // with fewer than 3 buckets a side, neighbouring ones repeat
+      for (int bz = -1; bz <= 1; ++bz)
+        for (int by = -1; by <= 1; ++by)
+          for (int bx = -1; bx <= 1; ++bx) {
+            const int idx[3] = {((b0[0] + bx) % G + G) % G, ((b0[1] + by) % G + G) % G, ((b0[2] + bz) % G + G) % G};
+            const int key = (idx[2] * G + idx[1]) * G + idx[0];
+            if (std::find(seen.begin(), seen.end(), key) != seen.end()) continue;
+            seen.push_back(key);
+            for (int j : buckets[size_t(key)])
+              for (int dz = -1; dz <= 1; ++dz)
+                for (int dy = -1; dy <= 1; ++dy)
+                  for (int dx = -1; dx <= 1; ++dx) {
+                    if (j == i && dx == 0 && dy == 0 && dz == 0) continue;
+                    const Vec3 q = (tile_.centers[size_t(j)] + Vec3(float(dx), float(dy), float(dz))) * L_ - ci;
+                    if (length2(q) > reach * reach) continue;
+                    const float rj = R_ * tile_.size(j);
+                    found.push_back({std::sqrt(length2(q)) - rj, q, rj * rj, j, {int8_t(dx), int8_t(dy), int8_t(dz)}});
+                  }
+          }
+      if (found.size() > kMaxNeighbours) {  // crowded: no lists
+        nbStart_.assign(1, 0);
+        nbReach_.clear();
+        break;
+      }
+      std::sort(found.begin(), found.end(), [](const Entry& a, const Entry& b) {
+        return a.key < b.key || (a.key == b.key && a.id < b.id);
+      });
+      for (const Entry& e : found) {
+        nbX_.push_back(e.q.x);
+        nbY_.push_back(e.q.y);
+        nbZ_.push_back(e.q.z);
+        nbR2_.push_back(e.r2);
+        nbKey_.push_back(e.key);
+        nbId_.push_back(e.id);
+        for (int8_t v : e.shift) nbShift_.push_back(v);
+      }
+      nbStart_.push_back(uint32_t(nbId_.size()));
+    }
+  }
+
   stats_.memoryBytes = classes_.size() * sizeof(CellClass) + sdf_.memoryBytes() +
                        spheres_.size() * sizeof(TileSphere) + (subList_.size() + subStart_.size()) * sizeof(uint32_t) +
                        boundary_.points.size() * 40;
@@ -440,6 +506,164 @@ bool Aggregate::occluded(const Vec3& o, const Vec3& d, float tmin, float tmax) c
   return walk(r, t0, t1);
 }
 
+bool Aggregate::nearestNeighbour(const Vec3& o, const Vec3& d, float tmin, float tmax, GrainHit& hit,
+                                 const GrainHit& from) const {
+  if (nbReach_.empty() || from.sphere < 0) return false;
+  const int i = from.sphere;
+  const Vec3 ci = origin_ + Vec3(float(from.cell[0]), float(from.cell[1]), float(from.cell[2])) * L_ +
+                  tile_.centers[size_t(i)] * L_;
+  const Vec3 oc = o - ci;
+  const float r0 = std::sqrt(length2(oc));
+  // Along the ray, every sphere met before `bound` is listed (within the reach of ci).
+  const float bound = std::min(tmax, nbReach_[size_t(i)] - r0);
+  const uint32_t k0 = nbStart_[size_t(i)], k1 = nbStart_[size_t(i) + 1];
+  DistanceField::NearestProbe probe(sdf_);
+  float skipBelow = -kInf;  // spheres found outside the boundary, by entry (rare: near it)
+  for (;;) {
+    float best = bound;
+    uint32_t bestK = k1;
+    // Nearest first: sphere k cannot be entered before nbKey_[k] − r0, so the scan ends
+    // once that passes the best entry so far.
+    for (uint32_t k = k0; k < k1 && nbKey_[k] - r0 < best; ++k) {
+      const float ox = oc.x - nbX_[k], oy = oc.y - nbY_[k], oz = oc.z - nbZ_[k];
+      const float b = ox * d.x + oy * d.y + oz * d.z;
+      const float disc = nbR2_[k] - std::max(0.0f, ox * ox + oy * oy + oz * oz - b * b);
+      if (disc < 0) continue;
+      const float sq = std::sqrt(disc);
+      const float te = std::max(-b - sq, tmin);
+      if (-b + sq >= tmin && te < best && te > skipBelow) {
+        best = te;
+        bestK = k;
+      }
+    }
+    if (bestK == k1) return false;  // nothing listed is met within the bound: the walk decides
+    const int j = nbId_[bestK];
+    const int8_t* sh = &nbShift_[3 * size_t(bestK)];
+    int64_t home[3];
+    for (int a = 0; a < 3; ++a) home[a] = from.cell[a] + sh[a];
+    // The centre from the home cell and the inside decision, as traceGrain makes them.
+    const Vec3 c = origin_ + Vec3(float(home[0]), float(home[1]), float(home[2])) * L_ + tile_.centers[size_t(j)] * L_;
+    if (!sphereIsInside(home, c, probe)) {
+      skipBelow = best;  // ties beyond it are left to the walk
+      continue;
+    }
+    hit.t = best;
+    hit.prototype = selector_.prototype(home[0], home[1], home[2], j, tile_.sizeClass(j));
+    for (int a = 0; a < 3; ++a) hit.cell[a] = home[a];
+    hit.sphere = j;
+    hit.radius = R_ * tile_.size(j);
+    hit.center = c;
+    hit.ng = normalize(o + d * best - c);
+    return true;
+  }
+}
+
+bool Aggregate::intersectProxy(const Vec3& o, const Vec3& d, float tmin, float tmax, GrainHit& hit,
+                               const GrainHit* skip) const {
+  if (!isFinite(o) || !isFinite(d)) return false;
+  if (skip && nearestNeighbour(o, d, tmin, tmax, hit, *skip)) return true;
+  const Vec3 invD(1.0f / d.x, 1.0f / d.y, 1.0f / d.z);
+  float t0, t1;
+  if (!bounds_.intersect(o, invD, tmin, tmax, t0, t1)) return false;
+  RayWalk r{o, d, invD, tmin, tmax, hit, skip, false, DistanceField::NearestProbe(sdf_)};
+  r.mode = WalkMode::NearestProxy;
+  return walk(r, t0, t1);
+}
+
+float Aggregate::proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax,
+                                    const std::vector<ProxyTable>& tables, const GrainHit* skip, uint64_t seed) const {
+  if (!isFinite(o) || !isFinite(d)) return 1.0f;
+  const Vec3 invD(1.0f / d.x, 1.0f / d.y, 1.0f / d.z);
+  float t0, t1;
+  if (!bounds_.intersect(o, invD, tmin, tmax, t0, t1)) return 1.0f;
+  GrainHit hit;
+  RayWalk r{o, d, invD, tmin, tmax, hit, skip, false, DistanceField::NearestProbe(sdf_)};
+  r.mode = WalkMode::ProxyTransmittance;
+  r.tables = &tables;
+  r.seed = seed;
+  if (skip && skip->sphere >= 0 && !nbReach_.empty()) {
+    // The spheres met first are the one left's neighbours: every sphere met before tDone
+    // is listed. The walk then counts only spheres entered from tDone on.
+    const int i = skip->sphere;
+    const Vec3 ci = origin_ + Vec3(float(skip->cell[0]), float(skip->cell[1]), float(skip->cell[2])) * L_ +
+                    tile_.centers[size_t(i)] * L_;
+    const Vec3 oc = o - ci;
+    const float r0 = std::sqrt(length2(oc));
+    const float tDone = std::min(tmax, nbReach_[size_t(i)] - r0);
+    const uint32_t k0 = nbStart_[size_t(i)], k1 = nbStart_[size_t(i) + 1];
+    for (uint32_t k = k0; k < k1 && nbKey_[k] - r0 < tDone; ++k) {
+      const float ox = oc.x - nbX_[k], oy = oc.y - nbY_[k], oz = oc.z - nbZ_[k];
+      const float b = ox * d.x + oy * d.y + oz * d.z;
+      const float w2 = std::max(0.0f, ox * ox + oy * oy + oz * oz - b * b);
+      const float disc = nbR2_[k] - w2;
+      if (disc < 0) continue;
+      const float sq = std::sqrt(disc);
+      if (-b + sq < tmin || std::max(-b - sq, tmin) >= tDone) continue;
+      const int j = nbId_[k];
+      const int8_t* sh = &nbShift_[3 * size_t(k)];
+      int64_t home[3];
+      for (int a = 0; a < 3; ++a) home[a] = skip->cell[a] + sh[a];
+      const Vec3 c = origin_ + Vec3(float(home[0]), float(home[1]), float(home[2])) * L_ + tile_.centers[size_t(j)] * L_;
+      if (!sphereIsInside(home, c, r.probe)) continue;
+      const ProxyTable& t = tables[size_t(selector_.prototype(home[0], home[1], home[2], j, tile_.sizeClass(j)))];
+      r.transmittance *= 1.0f - t.hitProbability(t.bBin(std::sqrt(w2 / nbR2_[k])));
+    }
+    if (!rouletteTransmittance(r)) return 0.0f;
+    if (tDone >= tmax) return r.transmittance;
+    r.tEnterMin = tDone;
+  }
+  walk(r, t0, t1);
+  return r.transmittance;
+}
+
+bool Aggregate::rouletteTransmittance(RayWalk& r) const {
+  if (r.transmittance >= kProxyRoulette) return true;
+  if (toUnitFloat(hashInts(r.seed, uint64_t(r.draws++))) * kProxyRoulette >= r.transmittance) {
+    r.transmittance = 0;
+    return false;
+  }
+  r.transmittance = kProxyRoulette;
+  return true;
+}
+
+bool Aggregate::visitProxy(RayWalk& r, const TileSphere& s, const int64_t cell[3], const Vec3& oc, float tEntry,
+                           bool knownInside) const {
+  const int64_t home[3] = {cell[0] + s.home[0], cell[1] + s.home[1], cell[2] + s.home[2]};
+  const GrainHit* skip = r.skip;
+  if (skip && skip->sphere == s.id && skip->cell[0] == home[0] && skip->cell[1] == home[1] && skip->cell[2] == home[2])
+    return false;
+  const uint64_t id = hashInts(uint64_t(home[0]), uint64_t(home[1]), uint64_t(home[2]), uint64_t(s.id));
+  if (r.mode == WalkMode::ProxyTransmittance) {
+    for (int i = 0; i < r.nRecent; ++i)
+      if (r.recent[i] == id) return false;
+  }
+  // The centre as traceGrain computes it: every cell listing the sphere decides alike.
+  const Vec3 worldCenter = origin_ + Vec3(float(home[0]), float(home[1]), float(home[2])) * L_ + tile_.centers[s.id] * L_;
+  if (!knownInside && !sphereIsInside(home, worldCenter, r.probe)) return false;
+  const int prototype = selector_.prototype(home[0], home[1], home[2], s.id, tile_.sizeClass(s.id));
+  if (r.mode == WalkMode::NearestProxy) {
+    GrainHit& h = r.hit;
+    h.t = tEntry;
+    h.prototype = prototype;
+    for (int a = 0; a < 3; ++a) h.cell[a] = home[a];
+    h.sphere = s.id;
+    h.radius = s.radius;
+    h.center = worldCenter;
+    h.ng = normalize(oc + r.d * tEntry);
+    return true;
+  }
+  const float along = dot(oc, r.d);
+  const Vec3 w = oc - r.d * along;  // the ray's offset from the centre
+  const float w2 = length2(w);
+  // Counted already (the neighbours of the sphere left): entered before tEnterMin.
+  if (-along - std::sqrt(std::max(0.0f, s.radius * s.radius - w2)) < r.tEnterMin) return false;
+  r.recent[r.cursor++ & 7] = id;
+  r.nRecent = std::min(r.nRecent + 1, 8);
+  const ProxyTable& t = (*r.tables)[size_t(prototype)];
+  r.transmittance *= 1.0f - t.hitProbability(t.bBin(std::sqrt(w2) / s.radius));
+  return !rouletteTransmittance(r);  // true ends the walk
+}
+
 bool Aggregate::walk(RayWalk& r, float t0, float t1) const {
   GridWalk w(r.o + r.d * t0, t0, r.d, r.invD, origin_, L_, n_);
   float tEnter = t0;
@@ -515,6 +739,13 @@ bool Aggregate::walkCell(RayWalk& r, const int64_t cell[3], bool partial, float 
       for (uint32_t i = 0; i < n; ++i) {
         if (!(entry[i] < r.best)) continue;
         const TileSphere& s = spheres_[subList_[k0 + i]];
+        if (r.mode != WalkMode::Grains) {
+          if (visitProxy(r, s, cell, oCell - s.center, entry[i], dSub < sureWithin)) {
+            r.best = entry[i];
+            r.found = true;
+          }
+          continue;
+        }
         if (traceGrain(s, cell, oCell - s.center, d, tmin, r.best, dSub < sureWithin, r.hit, r.skip, r.probe)) {
           r.best = r.hit.t;
           r.found = true;

@@ -1,5 +1,5 @@
 // aggregate.h — a granular aggregate: boundary, tiled sphere packing and grains
-// (seed §1.1–1.2).
+// (Meng et al. 2015: the stochastic grain model and explicit path tracing of the grains).
 //
 // Contract: build() voxelises the world-space boundary into cells of one tile edge
 // L = R / r_tile, classified outside / partial / inside from the boundary's signed
@@ -27,6 +27,7 @@
 #include "embree_util.h"
 #include "grain.h"
 #include "packing.h"
+#include "proxy.h"
 #include "scene_desc.h"
 
 namespace granular {
@@ -42,6 +43,7 @@ struct GrainHit {
   float radius = 0;        // the grain's bounding radius (polydisperse: its own)
   Mat3 rotation;           // its frame (GrainSelector::choose), kept for a ray from inside it
   unsigned prim = 0;       // the prototype's triangle hit
+  Vec3 center;             // proxies (intersectProxy): the sphere's centre
 };
 
 // One grain, as the brute-force reference and the exporters see it.
@@ -85,6 +87,25 @@ class Aggregate {
   // Whether any grain lies along the ray in [tmin, tmax] (shadow rays): the walk stops at
   // the first grain it meets, not the nearest.
   bool occluded(const Vec3& o, const Vec3& d, float tmin, float tmax) const;
+  // Proxies (proxy.h): the nearest bounding sphere centred inside the boundary that the
+  // ray enters in [tmin, tmax], not counting `skip` (the sphere the ray leaves); hit gets
+  // its entry t, cell, sphere, radius, centre and the prototype of its grain. A ray that
+  // leaves a sphere deep inside (its cell and the cells around it all inside) is first
+  // tested against that sphere's neighbours (their list reaches kNeighbourReach largest
+  // radii beyond it): when the nearest one met is near enough that no unlisted sphere can
+  // be met before it, that is the answer, without the walk.
+  bool intersectProxy(const Vec3& o, const Vec3& d, float tmin, float tmax, GrainHit& hit,
+                      const GrainHit* skip = nullptr) const;
+  // The chance that a ray along [tmin, tmax] meets none of the proxies' grains: the product
+  // over the spheres it crosses (but `skip`) of 1 − hit(b), from each grain's prototype's
+  // table (tables: one per prototype). Deep in an aggregate the product soon vanishes: once
+  // under kProxyRoulette it goes on with probability T / kProxyRoulette at kProxyRoulette
+  // (Russian roulette, unbiased; random numbers from `seed`), else the answer is 0.
+  float proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax, const std::vector<ProxyTable>& tables,
+                           const GrainHit* skip, uint64_t seed) const;
+  static constexpr float kProxyRoulette = 0.05f;
+  static constexpr float kNeighbourReach = 2.5f;
+  static constexpr uint32_t kMaxNeighbours = 1024;
   // Exact inside test of a world point against the boundary mesh (ray parity by the
   // orientation of the first hit).
   bool insideBoundary(const Vec3& p) const;
@@ -122,6 +143,7 @@ class Aggregate {
   };
   bool sphereIsInside(const int64_t home[3], const Vec3& worldCenter, DistanceField::NearestProbe& probe) const;
   // One ray's walk through the cells (intersect(), occluded()).
+  enum class WalkMode { Grains, NearestProxy, ProxyTransmittance };
   struct RayWalk {
     Vec3 o, d, invD;
     float tmin;
@@ -131,6 +153,16 @@ class Aggregate {
     bool anyHit;                  // stop at the first hit (occluded())
     DistanceField::NearestProbe probe;
     bool found = false;
+    WalkMode mode = WalkMode::Grains;
+    const std::vector<ProxyTable>* tables = nullptr;  // ProxyTransmittance
+    float transmittance = 1;
+    uint64_t seed = 0;   // roulette's random numbers (ProxyTransmittance)
+    int draws = 0;
+    float tEnterMin = -kInf;  // ProxyTransmittance: spheres entered before are counted already
+    // The spheres counted last (a sphere may be listed by two sub-cells the ray enters it
+    // between): (home cell hash, sphere id).
+    uint64_t recent[8] = {};
+    int nRecent = 0, cursor = 0;
   };
   // The cell walk (3-D DDA, front to back) over [t0, t1], the ray's span in the bounds;
   // true when a grain is hit.
@@ -145,6 +177,16 @@ class Aggregate {
   // ray's origin relative to the sphere's centre). skip: a grain not to trace, or null.
   bool traceGrain(const TileSphere& s, const int64_t cell[3], const Vec3& oc, const Vec3& d, float tmin, float tmax,
                   bool knownInside, GrainHit& best, const GrainHit* skip, DistanceField::NearestProbe& probe) const;
+  // A proxy walk's visit of tile sphere s listed by `cell`, entered at tEntry: true when it
+  // ends the walk's search (NearestProxy: the sphere is the new nearest).
+  bool visitProxy(RayWalk& r, const TileSphere& s, const int64_t cell[3], const Vec3& oc, float tEntry,
+                  bool knownInside) const;
+  // Russian roulette on a proxy shadow ray's transmittance below kProxyRoulette; false:
+  // the ray is blocked (transmittance 0).
+  bool rouletteTransmittance(RayWalk& r) const;
+  // The neighbour test of intersectProxy(): true when it answers (hit or a sure miss of
+  // every sphere before tmax is not claimed: false means "walk").
+  bool nearestNeighbour(const Vec3& o, const Vec3& d, float tmin, float tmax, GrainHit& hit, const GrainHit& from) const;
   // The grain of sphere s (home: its cell) with its prototype and rotation chosen.
   bool traceChosen(const TileSphere& s, const int64_t home[3], const GrainChoice& g, const Vec3& oc, const Vec3& d,
                    float tmin, float tmax, GrainHit& best) const;
@@ -163,6 +205,14 @@ class Aggregate {
   std::vector<uint32_t> subList_;      // indices into spheres_
   std::vector<float> subX_, subY_, subZ_;  // their centres (parallel to subList_)
   std::vector<float> subR2_;               // and squared radii
+  // Per tile sphere, the spheres (and images) whose centres lie within its radius plus
+  // kNeighbourReach largest radii of its centre (CSR): centre offsets, squared radii, id
+  // and the offset of their home cell. Empty when that reach exceeds the tile.
+  std::vector<uint32_t> nbStart_;
+  std::vector<float> nbX_, nbY_, nbZ_, nbR2_, nbReach_;  // nbReach_: per tile sphere, the list's reach
+  std::vector<float> nbKey_;  // centre distance less radius: no ray from within the sphere enters before key − |oc|
+  std::vector<int32_t> nbId_;
+  std::vector<int8_t> nbShift_;  // 3 per entry
   static constexpr uint32_t kMaxSubList = 256;  // longest list (M >= 1 keeps it far below)
   std::vector<GrainPrototype> prototypes_;
   std::vector<int> prototypeMaterials_;

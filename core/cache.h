@@ -11,6 +11,8 @@
 #include <string>
 #include <vector>
 
+#include "rng.h"
+
 namespace granular {
 
 std::string cacheDirectory();
@@ -50,6 +52,25 @@ bool readBytes(const std::vector<char>& in, size_t& pos, T& v) {
   std::memcpy(&v, in.data() + pos, sizeof(T));
   pos += sizeof(T);
   return true;
+}
+
+// Keys of cache entries: bytes and values folded into a 64-bit hash.
+inline uint64_t hashBytes(uint64_t h, const void* data, size_t size) {
+  const char* p = static_cast<const char*>(data);
+  size_t i = 0;
+  for (; i + 8 <= size; i += 8) {
+    uint64_t v;
+    std::memcpy(&v, p + i, 8);
+    h = hashCombine(h, v);
+  }
+  uint64_t tail = 0;
+  if (size > i) std::memcpy(&tail, p + i, size - i);
+  return hashCombine(hashCombine(h, tail), size);
+}
+
+template <typename T>
+uint64_t hashValue(uint64_t h, const T& v) {
+  return hashBytes(h, &v, sizeof v);
 }
 
 }  // namespace granular

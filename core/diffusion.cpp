@@ -217,6 +217,7 @@ void diffusionStep(const Scene& scene, PathState& path, const Vec3& x) {
     path.lastDelta = false;
     path.lastPdf = phasePdf;
     path.lastP = x;
+    path.lastNeeChance = 1;
     leaveAt(path, x + w * s, ngS, w);
     ++path.depth;
     if (!isFinite(path.beta) || isBlack(path.beta)) path.alive = false;

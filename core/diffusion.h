@@ -1,9 +1,11 @@
-// diffusion.h — the diffusion approximation (DA) that ends deep paths (seed §1.4, §3).
+// diffusion.h — the diffusion approximation (DA) that ends deep paths (Meng et al. 2015:
+// the diffusion approximation, and the switch from VPT to it).
 //
 // Contract. A path that scatters at a point x deeper than diffusionDepth() below the
 // boundary stops its random walk; what it would gather from there on is estimated by
-// diffusion theory in the reduced medium (σ'_s, σ'_t, α'_s of Jensen et al. 2001, seed
-// §2.2), in importance form (Li et al. 2005's hybrid of Monte Carlo and diffusion):
+// diffusion theory in the reduced medium (σ'_s, σ'_t, α'_s of Jensen et al. 2001, as in
+// Meng et al. 2015), in importance form (Li et al. 2005's hybrid of Monte Carlo and
+// diffusion):
 //
 // 0. Single scattering at x: next-event estimation at x (vpt.h mediumNee), its flight to
 //    the boundary in the reduced medium (σ'_t: light scattered forward on the way is
@@ -19,7 +21,7 @@
 //    diffusion_models.py), the beam is within −2.5…+4.6% except for photons heading
 //    straight down in g = 0.7 media (+2…+18%), where a point source at x erred by
 //    −57…+450%: the direction of a forward-scattered photon decides how deep it goes.
-// 2. Virtual source placement (the seed's "original" step; our choice, stated): the real
+// 2. Virtual source placement (our choice; Meng et al. 2015 devise their own): the real
 //    source sits at the beam's sample y, not one mean free path below an entry point as
 //    in the classical dipole, because our paths are already inside. Its images are placed
 //    for the slab through y along the normal n of the boundary point closest to y

@@ -2,24 +2,22 @@
 
 #include <optional>
 
+#include "ppt.h"
 #include "vpt.h"
 
 namespace granular {
 
-namespace {
-
 float lightPickProb(const Scene& scene) {
   return scene.lights().empty() ? 0.0f : 1.0f / float(scene.lights().size());
 }
-
-}  // namespace
 
 void addAreaLightHit(const Scene& scene, PathState& path, const Hit& hit) {
   const Vec3& dir = path.ray.d;
   const Light& light = scene.lights()[hit.light];
   float w = 1.0f;
   if (!path.lastDelta)
-    w = powerHeuristic(path.lastPdf, light.pdfLi(path.lastP, dir, length(hit.p - path.lastP)) * lightPickProb(scene));
+    w = powerHeuristic(path.lastPdf,
+                       light.pdfLi(path.lastP, dir, length(hit.p - path.lastP)) * lightPickProb(scene) * path.lastNeeChance);
   path.L[path.credit] += path.beta * light.areaLe(dir) * w;
 }
 
@@ -52,7 +50,7 @@ Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir)
     Vec3 Le = light.escapedLe(dir);
     if (isBlack(Le)) continue;
     float w = 1.0f;
-    if (!path.lastDelta) w = powerHeuristic(path.lastPdf, light.pdfLi(path.lastP, dir, kInf) * lightPick);
+    if (!path.lastDelta) w = powerHeuristic(path.lastPdf, light.pdfLi(path.lastP, dir, kInf) * lightPick * path.lastNeeChance);
     L += Le * w;
   }
   return L;
@@ -87,7 +85,7 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
 
   Frame frame(hit.ng);
   Vec3 wo = frame.toLocal(-ray.d);
-  double& cost = path.cost[path.mode == kEpt ? 0 : 1];
+  double& cost = path.cost[path.mode == kVpt ? 1 : 0];
 
   if (!m.isDelta() && !lights.empty() && (wo.z > 0 || m.twoSided())) {
     // Next-event estimation: one light, chosen uniformly.
@@ -104,6 +102,9 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
         Vec3 Tr(1.0f);
         if (mediaMode) {
           Tr = scene.transmittance(origin, ls.wi, dist);
+          cost += 1;
+        } else if (path.mode == kPpt) {
+          Tr = Vec3(scene.proxyTransmittance(origin, ls.wi, dist, nullptr, path.rng.nextU32()));
           cost += 1;
         } else {
           Tr = Vec3(scene.occluded(origin, ls.wi, dist) ? 0.0f : 1.0f);
@@ -137,6 +138,7 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
   path.lastDelta = bs.delta;
   path.lastPdf = bs.pdf;
   path.lastP = hit.p;
+  path.lastNeeChance = 1;
   // Inside a grain after this bounce when the new direction heads into it.
   path.inGrain = hit.kind == Hit::Grain && dot(wi, hit.ng) < 0;
   path.from.aggregate = hit.kind == Hit::Grain ? hit.aggregate : -1;
@@ -182,6 +184,13 @@ void eptStep(const Scene& scene, PathState& path) {
       // ray goes on from there): only the medium can sample the sun (Scene::narrowSun).
       // A grain of the surface layer may stick out of the boundary: the path then enters
       // the medium where its ray crosses the boundary.
+      if (scene.narrowSun() && scene.useProxies()) {
+        // Proxies reach any sun: the path goes on among them from here, where the first
+        // sphere it enters is met as a proxy.
+        path.mode = path.credit = kPpt;
+        path.from = GrainStart();
+        return;
+      }
       if (scene.narrowSun()) {
         path.mode = path.credit = kVpt;
         path.medium = scene.aggregates()[hit.aggregate]->insideBoundary(hit.p) ? hit.aggregate : -1;
@@ -193,6 +202,11 @@ void eptStep(const Scene& scene, PathState& path) {
     }
   }
   shadeSurface(scene, path, hit, false);
+  // Out of its first grain, a path goes on among proxies (ppt.h) when the scene has them.
+  if (hit.kind == Hit::Grain && entersProxies(scene, path)) {
+    path.mode = path.credit = kPpt;
+    return;
+  }
   // The shortcut keeps the first grain and the low orders explicit (Scene::explicitBounces:
   // the medium misses the packing's shadow hiding), then leaves for the medium.
   if (path.shortcut && path.alive && !path.inGrain && path.depth >= scene.explicitBounces()) {

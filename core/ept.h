@@ -1,12 +1,12 @@
-// ept.h — explicit path tracing (EPT) of surfaces and individual grains (seed §1.2), and
+// ept.h — explicit path tracing (EPT) of surfaces and individual grains (Meng et al. 2015), and
 // the path state that the hybrid integrator (hybrid.h) advances one bounce at a time.
 //
 // Contract: eptStep() advances a path by one interaction with the explicit scene:
 // unidirectional path tracing with next-event estimation and MIS (power heuristic) at
 // non-delta surfaces, delta scattering at grain interfaces, Beer–Lambert absorption
 // inside grains and Russian roulette on the throughput after rrDepth bounces. Radiance
-// is added to PathState::L[technique that produced it], so the EPT, VPT and DA parts of
-// an image are separate AOVs that sum to the beauty. All randomness comes from the
+// is added to PathState::L[technique that produced it], so the EPT, VPT, DA and PPT parts
+// of an image are separate AOVs that sum to the beauty. All randomness comes from the
 // path's Rng, so a path is a pure function of its seed. The EPT-only reference is the
 // hybrid integrator with technique Ept: eptStep() until the path ends.
 #pragma once
@@ -25,22 +25,25 @@ struct PrimaryInfo {
   int primId = -1;      // the front end's id of what was hit
 };
 
-// Index of a contribution in PathState::L (the AOVs), and the transport a path is in.
-enum Transport : int { kEpt = 0, kVpt = 1, kDa = 2 };
+// Index of a contribution in PathState::L (the AOVs), and the transport a path is in:
+// explicit grains, the media (VPT, DA), proxies (ppt.h).
+enum Transport : int { kEpt = 0, kVpt = 1, kDa = 2, kPpt = 3 };
+constexpr int kTransports = 4;
 
 struct PathState {
   Ray ray;
   Rng rng;
   Vec3 beta{1.0f};
-  Vec3 L[3];               // radiance gathered by EPT, VPT and DA
+  Vec3 L[kTransports];     // radiance gathered by EPT, VPT, DA and PPT
   int depth = 0;           // scattering events so far
   bool alive = true;
   bool lastDelta = true;   // camera rays and delta bounces see emitters unweighted
   float lastPdf = 0;       // solid-angle pdf of the last sampled direction
   Vec3 lastP;              // where that direction was sampled (for area-light MIS)
+  float lastNeeChance = 1; // the chance that next-event estimation was made there (MIS)
   bool inGrain = false;    // between entering and leaving a grain (EPT)
   GrainStart from;         // the grain the ray starts at (EPT: Scene::intersect's hint)
-  Transport mode = kEpt;   // kEpt: explicit grains; kVpt: equivalent media
+  Transport mode = kEpt;   // kEpt: explicit grains; kPpt: proxies; kVpt: equivalent media
   Transport credit = kEpt; // which AOV the path's radiance goes to (kDa after a DA step)
   int medium = -1;         // aggregate whose medium holds the path (kVpt), or -1
   bool switchPending = false;  // switch to kVpt once out of the current grain
@@ -52,10 +55,10 @@ struct PathState {
   bool shortcut = false;          // took the LOD shortcut: to the medium after this grain
   bool daRefused = false;         // the curvature guard refused DA once: VPT to the end (vpt.cpp)
   // Deterministic cost (ray casts, a grain traversal counted kGrainCastCost) spent in
-  // the low-order (EPT) and high-order (VPT, DA) parts: the t_L and t_H of NOTES item 7.
+  // the low-order (EPT) and high-order (VPT, DA) parts: the t_L and t_H of the roulette's P_a (hybrid.h).
   double cost[2] = {0, 0};
 
-  Vec3 radiance() const { return L[0] + L[1] + L[2]; }
+  Vec3 radiance() const { return L[0] + L[1] + L[2] + L[3]; }
 };
 
 // Relative cost of one ray cast through aggregates (cells, sphere tests, grain BVHs)
@@ -77,8 +80,9 @@ constexpr float kDiffuseConeSpread = 0.35f;
 // the boundary instead measured 3.5% brighter on sub-pixel sand (tests/core/test_lod).
 void eptStep(const Scene& scene, PathState& path);
 
-// Shared by EPT and VPT: emission, next-event estimation and BSDF sampling at a surface
-// hit. In media mode, shadow rays see the media (transmittance), not grains.
+// Shared by EPT, PPT and VPT: emission, next-event estimation and BSDF sampling at a
+// surface hit. Shadow rays see what the path's mode sees: the media (transmittance) in
+// media mode, else proxies (kPpt) or grains.
 void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool mediaMode);
 
 // The first visible hit's AOVs (depth, normal, kind, primId), once per path.
@@ -90,6 +94,9 @@ void addAreaLightHit(const Scene& scene, PathState& path, const Hit& hit);
 // Radiance of the infinite lights along an escaping direction, MIS-weighted against
 // light sampling when the last bounce could have sampled them.
 Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir);
+
+// The chance of picking each light for next-event estimation (uniform).
+float lightPickProb(const Scene& scene);
 
 // Throughput Russian roulette after rrDepth events; false: the path ends.
 bool russianRoulette(const Scene& scene, PathState& path);

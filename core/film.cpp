@@ -22,7 +22,7 @@ void Film::add(int x, int y, const PixelSample& s) {
   p.sum[0] += s.L.x; p.sum[1] += s.L.y; p.sum[2] += s.L.z;
   double lum = luminance(s.L);
   p.sumLum2 += lum * lum;
-  for (int t = 0; t < 3; ++t)
+  for (int t = 0; t < 4; ++t)
     for (int c = 0; c < 3; ++c) p.part[t][c] += s.byTechnique[t][c];
   ++p.n;
   if (s.hit) {
@@ -50,7 +50,8 @@ float Film::stdError(int x, int y) const {
 const std::vector<std::string>& Film::channelNames() {
   static const std::vector<std::string> names = {"R",     "G",     "B",     "A",     "Z",     "N.X",
                                                  "N.Y",   "N.Z",   "ept.R", "ept.G", "ept.B", "vpt.R",
-                                                 "vpt.G", "vpt.B", "da.R",  "da.G",  "da.B",  "primId"};
+                                                 "vpt.G", "vpt.B", "da.R",  "da.G",  "da.B",  "ppt.R",
+                                                 "ppt.G", "ppt.B", "primId"};
   return names;
 }
 
@@ -63,9 +64,9 @@ void Film::pixelChannels(int x, int y, float* o) const {
   Vec3 n(float(p.normal[0]), float(p.normal[1]), float(p.normal[2]));
   n = p.hits ? normalize(n) : Vec3(0.0f);
   o[5] = n.x; o[6] = n.y; o[7] = n.z;
-  for (int t = 0; t < 3; ++t)
+  for (int t = 0; t < 4; ++t)
     for (int ch = 0; ch < 3; ++ch) o[8 + 3 * t + ch] = p.n ? float(p.part[t][ch] / p.n) : 0.0f;
-  o[17] = float(p.primId);
+  o[20] = float(p.primId);
 }
 
 Image Film::toImage() const {

@@ -4,8 +4,9 @@
 // by one thread at a time, in sample order, so the result does not depend on the
 // thread count. toImage() averages into channels R,G,B,A (coverage), Z (depth along the
 // view axis, of the covered samples; +inf where nothing was hit), N.X,N.Y,N.Z (mean
-// normal of the first hits), and ept.R.. vpt.R.. da.R.. (the radiance each transport
-// gathered; the three add up to R,G,B) and primId (the front end's id of what the first
+// normal of the first hits), and ept.R.. vpt.R.. da.R.. ppt.R.. (the radiance each
+// transport gathered: explicit grains, the media, diffusion, proxies; the four add up to
+// R,G,B) and primId (the front end's id of what the first
 // covering sample hit; -1 where nothing or an unnamed object was hit).
 #pragma once
 
@@ -20,7 +21,7 @@ namespace granular {
 
 struct PixelSample {
   Vec3 L;
-  Vec3 byTechnique[3];  // EPT, VPT, DA parts of L
+  Vec3 byTechnique[4];  // EPT, VPT, DA, PPT parts of L (ept.h: Transport)
   int primId = -1;
   bool hit = false;
   float depth = 0;
@@ -43,7 +44,7 @@ class Film {
   float stdError(int x, int y) const;
   Image toImage() const;
   // The channels of toImage() (kChannels of them, named by channelNames()) of one pixel.
-  static constexpr int kChannels = 18;
+  static constexpr int kChannels = 21;
   static const std::vector<std::string>& channelNames();
   void pixelChannels(int x, int y, float* out) const;
   void clear();
@@ -53,7 +54,7 @@ class Film {
     double sum[3] = {0, 0, 0};
     double sumLum2 = 0;
     double depth = 0, normal[3] = {0, 0, 0};
-    double part[3][3] = {{0, 0, 0}, {0, 0, 0}, {0, 0, 0}};
+    double part[4][3] = {{0, 0, 0}, {0, 0, 0}, {0, 0, 0}, {0, 0, 0}};
     long n = 0, hits = 0;
     int primId = -1;     // of the first sample that hit something
   };

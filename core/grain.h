@@ -1,4 +1,5 @@
-// grain.h — grain prototypes and the per-grain random choices (seed §1.1–1.2).
+// grain.h — grain prototypes and the per-grain random choices (Meng et al. 2015's
+// stochastic grain model: grain type by the mixing weights, random rotation).
 //
 // Contract: a GrainPrototype is its mesh moved and scaled into the unit bounding
 // sphere (centre at the origin, radius 1, outward winding) with its own Embree BVH, so
@@ -75,6 +76,11 @@ class GrainSelector {
     uint64_t h2 = mix64(h + 1), h3 = mix64(h + 2);
     c.rotation = sampleUniformRotation(toUnitFloat(h2), toUnitFloat(h2 << 24), toUnitFloat(h3));
     return c;
+  }
+  // choose()'s prototype alone (proxies need no rotation: their tables average over it).
+  int prototype(int64_t cx, int64_t cy, int64_t cz, int sphere, int cls = 0) const {
+    uint64_t h = hashInts(seed_, uint64_t(cx), uint64_t(cy), uint64_t(cz), uint64_t(sphere));
+    return perClass_[size_t(cls)].sampleDiscrete(toUnitFloat(h));
   }
 
  private:

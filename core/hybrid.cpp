@@ -6,13 +6,14 @@
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
+#include "ppt.h"
 #include "vpt.h"
 
 namespace granular {
 
 namespace {
 
-// The switch of one path to the media, with Russian roulette P_a (seed §3).
+// The switch of one path to the media, with Russian roulette P_a (Meng et al. 2015).
 void switchToMedia(const Scene& scene, PathState& p, float pa) {
   p.switchPending = false;
   if (pa < 1.0f) {
@@ -41,6 +42,7 @@ BundleStats traceBundle(const Scene& scene, std::vector<PathState>& paths, float
     for (PathState& p : paths) {
       if (!p.alive) continue;
       if (p.mode == kEpt) eptStep(scene, p);
+      else if (p.mode == kPpt) pptStep(scene, p);
       else vptStep(scene, p);
       if (p.alive && p.switchPending && !p.inGrain) switchToMedia(scene, p, pa);
       if (p.alive) {
@@ -50,7 +52,7 @@ BundleStats traceBundle(const Scene& scene, std::vector<PathState>& paths, float
     }
     if (alive == 0) break;
     if (decided || alive < 2 || k + 1 < scene.explicitBounces()) continue;
-    // σ_k: RMS distance of the live vertices to their centroid (NOTES item 8).
+    // σ_k: RMS distance of the live vertices to their centroid.
     centroid /= float(alive);
     double s2 = 0;
     for (const PathState& p : paths)
@@ -60,7 +62,7 @@ BundleStats traceBundle(const Scene& scene, std::vector<PathState>& paths, float
       decided = true;
       stats.switchedAtBounce = k;
       for (PathState& p : paths) {
-        if (!p.alive || p.mode != kEpt) continue;
+        if (!p.alive || p.mode == kVpt) continue;
         if (p.inGrain) p.switchPending = true;
         else switchToMedia(scene, p, pa);
       }
@@ -95,7 +97,7 @@ RouletteTuning tuneRoulette(const Scene& scene) {
       traceBundle(scene, paths, 1.0f);
       double sl = 0, sl2 = 0, sh2 = 0, cl = 0, ch = 0;
       for (const PathState& p : paths) {
-        double lo = luminance(p.L[kEpt]), hi = luminance(p.L[kVpt] + p.L[kDa]);
+        double lo = luminance(p.L[kEpt] + p.L[kPpt]), hi = luminance(p.L[kVpt] + p.L[kDa]);
         if (!std::isfinite(lo) || !std::isfinite(hi)) continue;
         sl += lo; sl2 += lo * lo; sh2 += hi * hi;
         cl += p.cost[0]; ch += p.cost[1];
@@ -120,7 +122,7 @@ RouletteTuning tuneRoulette(const Scene& scene) {
   }
   out.pixels = int(count);
   out.VL /= double(count); out.VH /= double(count); out.tL /= double(count); out.tH /= double(count);
-  // P_a = sqrt(V_H t_L / (V_L t_H)) (NOTES item 7); no high-order work or no low-order
+  // P_a = sqrt(V_H t_L / (V_L t_H)), the least cost (V_L + V_H/P_a)(t_L + P_a t_H); no high-order work or no low-order
   // noise: nothing to gain from roulette.
   if (out.tH <= 0 || out.VL <= 0) out.pa = 1.0f;
   else out.pa = float(std::clamp(std::sqrt(out.VH * out.tL / (out.VL * out.tH)), 0.05, 1.0));

@@ -1,5 +1,5 @@
 // hybrid.h — switching between EPT, VPT and DA, and Russian roulette on the high-order
-// part (seed §3; NOTES items 7, 8).
+// part (Meng et al. 2015's switch between EPT, VPT and DA, and its Russian roulette).
 //
 // Contract. traceBundle() traces the N paths of one pixel's bundle in lock-step with EPT.
 // After each bounce k (from Scene::explicitBounces() on: low orders stay explicit,

@@ -44,9 +44,13 @@ struct RenderProgress {
 // A finished path as a film sample; false when its estimate is not finite (a numerical
 // failure), and then the sample carries no radiance: it is dropped as a whole.
 inline bool toPixelSample(const PathState& p, PixelSample& ps) {
-  bool finite = isFinite(p.L[0]) && isFinite(p.L[1]) && isFinite(p.L[2]);
-  for (int t = 0; t < 3; ++t) ps.byTechnique[t] = finite ? p.L[t] : Vec3(0.0f);
-  ps.L = ps.byTechnique[0] + ps.byTechnique[1] + ps.byTechnique[2];
+  bool finite = true;
+  for (int t = 0; t < kTransports; ++t) finite = finite && isFinite(p.L[t]);
+  ps.L = Vec3(0.0f);
+  for (int t = 0; t < kTransports; ++t) {
+    ps.byTechnique[t] = finite ? p.L[t] : Vec3(0.0f);
+    ps.L += ps.byTechnique[t];
+  }
   ps.hit = p.primary.hit;
   ps.depth = p.primary.depth;
   ps.normal = p.primary.normal;

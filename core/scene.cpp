@@ -291,6 +291,7 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& worldDesc, const Scene* pre
       entry.aggregate = old->aggregate;
       entry.hasMedium = old->hasMedium;
       entry.medium = old->medium;
+      entry.proxies = old->proxies;
       ++s->aggregatesReused_;
     } else {
       auto agg = std::make_shared<Aggregate>();
@@ -304,7 +305,7 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& worldDesc, const Scene* pre
     s->maxGrainRadius_ = std::max(s->maxGrainRadius_, agg.maxGrainRadius());
     if (desc.settings.technique != Technique::Ept) {
       if (!entry.hasMedium) {
-        // TT parameters per grain kind (cached on disk), combined per aggregate (seed §2.2;
+        // TT parameters per grain kind (cached on disk), combined per aggregate (Meng et al. 2015;
         // tt.h: aggregateMedium), the flights between spheres by the tile's own sizes.
         std::vector<const TriangleMesh*> meshes;
         std::vector<Material> mats;
@@ -375,6 +376,7 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& worldDesc, const Scene* pre
   }
   s->updateDiffusionDepths();
   s->updateExplicitBounces();
+  s->updateProxies();
   s->buildSeconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return s;
 }
@@ -489,6 +491,30 @@ void Scene::setView(const CameraDesc& camera, const RenderSettings& settings) {
   camera_ = Camera(toRenderSpace(camera, renderOrigin_), settings.width, settings.height);
   updateDiffusionDepths();  // the camera may have moved into or out of an aggregate
   updateExplicitBounces();
+  updateProxies();
+}
+
+void Scene::updateProxies() {
+  const ProxyUse use = settings_.proxies;
+  useProxies_ = settings_.technique != Technique::Ept &&
+                (use == ProxyUse::On || (use == ProxyUse::Auto && narrowSun_)) && !aggregates_.empty();
+  if (!useProxies_) return;
+  proxyTables_.clear();
+  for (BuiltAggregate& entry : built_) {
+    if (!entry.proxies) {
+      // Per prototype (cached on disk), at the prototype's size: absorption is per R (a
+      // spread of sizes keeps its mean size's table).
+      auto tables = std::make_shared<std::vector<ProxyTable>>();
+      const Aggregate& agg = *entry.aggregate;
+      for (size_t i = 0; i < agg.prototypes().size(); ++i) {
+        Material m = materials_[size_t(entry.materials[i])];
+        m.absorption = m.absorption * (entry.desc.sizes.empty() ? 1.0f : entry.desc.sizes[i]);
+        tables->push_back(estimateProxyTable(agg.prototypes()[i].mesh, m));
+      }
+      entry.proxies = std::move(tables);
+    }
+    proxyTables_.push_back(entry.proxies);
+  }
 }
 
 int Scene::explicitBouncesFor(const Vec3& albedo, const Vec3& g, float depthMfp) {
@@ -554,6 +580,51 @@ bool Scene::intersectMedium(const Ray& ray, Hit& hit) const {
   if (!found) return false;
   finishHit(ray, hit);
   return true;
+}
+
+bool Scene::intersectProxies(const Ray& ray, Hit& hit, const GrainStart* from) const {
+  float tmax = ray.tmax;
+  const Vec3 invD(1.0f / ray.d.x, 1.0f / ray.d.y, 1.0f / ray.d.z);
+  // Spheres first (a path among proxies mostly meets one next): the surfaces are then asked
+  // only up to it, and not at all when their bounds end before it.
+  bool found = false;
+  for (size_t a = 0; a < aggregates_.size(); ++a) {
+    const Aggregate& agg = *aggregates_[a];
+    const bool own = from && from->aggregate == int(a);
+    float t0, t1;
+    if (!own && !agg.bounds().intersect(ray.o, invD, ray.tmin, tmax, t0, t1)) continue;
+    GrainHit g;
+    if (agg.intersectProxy(ray.o, ray.d, ray.tmin, tmax, g, own ? &from->grain : nullptr) && g.t < tmax) {
+      found = true;
+      tmax = g.t;
+      hit.kind = Hit::Proxy;
+      hit.t = g.t;
+      hit.ng = g.ng;
+      hit.aggregate = int(a);
+      hit.material = agg.prototypes()[g.prototype].material;
+      hit.lengthScale = agg.grainRadius();
+      hit.primId = aggregateId_[a];
+      hit.eps = kGrainEps * g.radius;
+      hit.grain = g;
+    }
+  }
+  found |= intersectSurfaces(ray, invD, hit, tmax);
+  found |= intersectAreaLights(ray, hit, tmax);
+  if (!found) return false;
+  finishHit(ray, hit);
+  return true;
+}
+
+float Scene::proxyTransmittance(const Vec3& p, const Vec3& dir, float dist, const GrainStart* from,
+                                uint64_t seed) const {
+  if (surfacesOccluded(p, dir, dist)) return 0.0f;
+  float tr = 1.0f;
+  for (size_t a = 0; a < aggregates_.size() && tr > 0; ++a) {
+    const bool own = from && from->aggregate == int(a);
+    tr *= aggregates_[a]->proxyTransmittance(p, dir, 0.0f, dist, *proxyTables_[a], own ? &from->grain : nullptr,
+                                             hashInts(seed, a));
+  }
+  return tr;
 }
 
 bool Scene::surfacesOccluded(const Vec3& p, const Vec3& dir, float dist) const {

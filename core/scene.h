@@ -22,6 +22,7 @@
 #include "embree_util.h"
 #include "light.h"
 #include "material.h"
+#include "proxy.h"
 #include "scene_desc.h"
 #include "texture.h"
 #include "tt.h"
@@ -30,7 +31,7 @@
 namespace granular {
 
 struct Hit {
-  enum Kind { Surface, Grain, AreaLight, Boundary } kind = Surface;
+  enum Kind { Surface, Grain, AreaLight, Boundary, Proxy } kind = Surface;
   float t = kInf;
   Vec3 p;
   Vec3 ng;                  // unit, outward from the surface or grain
@@ -45,7 +46,7 @@ struct Hit {
   int geom = -1;
   unsigned prim = 0;
   float bu = 0, bv = 0;
-  GrainHit grain;           // Grain: which grain of the aggregate
+  GrainHit grain;           // Grain, Proxy: which grain of the aggregate
 };
 
 // The grain a path's next ray starts at (its last hit), inside it or leaving it: a hint
@@ -70,6 +71,21 @@ class Scene {
   // Transmittance of a shadow ray through the media: 0 if a surface blocks it, else the
   // product of exp(−σ_t ℓ) over the lengths ℓ it runs inside each aggregate's boundary.
   Vec3 transmittance(const Vec3& p, const Vec3& dir, float dist) const;
+  // Proxies (proxy.h; when useProxies()): nearest surface,
+  // area light or proxy sphere entered (Hit::Proxy; its grain's prototype in hit.grain, p
+  // on the sphere, ng the sphere's outward normal there). from: the sphere the ray leaves.
+  bool intersectProxies(const Ray& ray, Hit& hit, const GrainStart* from = nullptr) const;
+  // Shadow rays among proxies: 0 if a surface blocks the ray, else the chance that it
+  // meets no grain of the proxy spheres it crosses (Aggregate::proxyTransmittance; seed:
+  // its roulette's random numbers).
+  float proxyTransmittance(const Vec3& p, const Vec3& dir, float dist, const GrainStart* from, uint64_t seed) const;
+  // Paths go on among proxies after their first grain (RenderSettings::proxies: On, or Auto
+  // under a narrow sun; techniques with media). Their tables are built (or read from the
+  // disk cache) when first needed, by build() or setView().
+  bool useProxies() const { return useProxies_; }
+  const ProxyTable& proxyTable(int aggregate, int prototype) const {
+    return (*proxyTables_[size_t(aggregate)])[size_t(prototype)];
+  }
   // Index of the aggregate whose boundary contains p, or -1.
   int mediumAt(const Vec3& p) const;
   // Media exist (one per aggregate) when the technique uses them and some aggregate is
@@ -186,12 +202,14 @@ class Scene {
     std::shared_ptr<const Aggregate> aggregate;
     bool hasMedium = false;                     // TT-derived (before any setMedium)
     MediumParams medium;
+    std::shared_ptr<const std::vector<ProxyTable>> proxies;  // per prototype, with the medium
   };
   const BuiltAggregate* findBuilt(const AggregateDesc& desc, const std::vector<int>& materials,
                                   const std::vector<MaterialDesc>& materialDescs) const;
   std::vector<BuiltAggregate> built_;
   int aggregatesBuilt_ = 0, aggregatesReused_ = 0, mediaDerived_ = 0;
   std::vector<MediumParams> mediumParams_;
+  std::vector<std::shared_ptr<const std::vector<ProxyTable>>> proxyTables_;  // per aggregate
   std::vector<HomogeneousMedium> media_;
   std::vector<float> diffusionDepth_;
   std::vector<bool> emitterInside_;        // an emitter reaches into the aggregate: no DA there
@@ -201,6 +219,8 @@ class Scene {
   float maxGrainRadius_ = 0;
   int explicitBounces_ = 0;
   void updateExplicitBounces();  // from the settings and the media
+  void updateProxies();          // useProxies_ and the tables it needs
+  bool useProxies_ = false;
   std::vector<TriangleMesh> worldMeshes_;   // per Embree geometry id
   // Textures and cut-outs (indices into textures_; -1: none) of each material.
   struct SurfaceMaps {

@@ -6,6 +6,8 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <type_traits>
+#include <utility>
 
 #include "error.h"
 #include "light.h"
@@ -440,6 +442,252 @@ const char* techniqueName(Technique t) {
     case Technique::Hybrid: return "hybrid";
   }
   return "?";
+}
+
+ProxyUse proxyUseFromName(const std::string& name, const std::string& obj) {
+  if (name == "off") return ProxyUse::Off;
+  if (name == "auto") return ProxyUse::Auto;
+  if (name == "on") return ProxyUse::On;
+  throw InputError(obj, "proxies", str("\"", name, "\" is not one of off, auto, on"));
+}
+
+const char* proxyUseName(ProxyUse p) {
+  switch (p) {
+    case ProxyUse::Off: return "off";
+    case ProxyUse::Auto: return "auto";
+    case ProxyUse::On: return "on";
+  }
+  return "?";
+}
+
+// ---- change detection ------------------------------------------------------------------
+
+namespace {
+
+// The number of fields of an aggregate (each array element counted): T{f, f, ...} with
+// fields that convert to anything compiles up to that many and no further.
+struct AnyField {
+  template <class T>
+  operator T() const;  // only in unevaluated operands
+};
+
+template <class T, class Seq, class = void>
+struct BraceInitialisable : std::false_type {};
+template <class T, size_t... I>
+struct BraceInitialisable<T, std::index_sequence<I...>, std::void_t<decltype(T{(void(I), AnyField{})...})>>
+    : std::true_type {};
+
+template <class T, size_t N = 0>
+constexpr size_t fieldCount() {
+  if constexpr (BraceInitialisable<T, std::make_index_sequence<N + 1>>::value)
+    return fieldCount<T, N + 1>();
+  else
+    return N;
+}
+
+// A field added to a description changes its count here and stops the build: compare it
+// below (and decide what its change needs), then update the count.
+static_assert(fieldCount<TriangleMesh>() == 3, "compare the new field in sameMesh");
+static_assert(fieldCount<CameraDesc>() == 10, "compare the new field in sameCamera");
+static_assert(fieldCount<TextureDesc>() == 14, "compare the new field in sameTexture (scale, bias: 4 each)");
+static_assert(fieldCount<MaterialDesc>() == 13, "compare the new field in sameMaterial");
+static_assert(fieldCount<LightDesc>() == 12, "compare the new field in sameLight");
+static_assert(fieldCount<MeshDesc>() == 6, "compare the new field in sameMeshDesc");
+static_assert(fieldCount<GrainPrototypeDesc>() == 3, "compare the new field in sameAggregateInputs");
+static_assert(fieldCount<AggregateDesc>() == 12, "compare the new field in sameAggregateInputs (or the id check)");
+static_assert(fieldCount<RenderSettings>() == 23, "compare the new field in sameViewSettings or settingsNeedBuild");
+static_assert(fieldCount<SceneDesc>() == 6, "compare the new part in compareScenes");
+
+bool sameTransform(const Transform& a, const Transform& b) {
+  for (int i = 0; i < 4; ++i)
+    for (int j = 0; j < 4; ++j)
+      if (!(a.m[i][j] == b.m[i][j])) return false;
+  return true;
+}
+
+bool sameMesh(const TriangleMesh& a, const TriangleMesh& b) {
+  return a.points == b.points && a.indices == b.indices && a.uvs == b.uvs;
+}
+
+bool sameCamera(const CameraDesc& a, const CameraDesc& b) {
+  return sameTransform(a.cameraToWorld, b.cameraToWorld) && a.focalLength == b.focalLength &&
+         a.horizontalAperture == b.horizontalAperture && a.verticalAperture == b.verticalAperture &&
+         a.horizontalApertureOffset == b.horizontalApertureOffset &&
+         a.verticalApertureOffset == b.verticalApertureOffset && a.clipNear == b.clipNear && a.clipFar == b.clipFar &&
+         a.lensRadius == b.lensRadius && a.focusDistance == b.focusDistance;
+}
+
+bool sameTexture(const TextureDesc& a, const TextureDesc& b) {
+  if (a.file != b.file || a.source != b.source || a.wrapS != b.wrapS || a.wrapT != b.wrapT ||
+      a.colorSpace != b.colorSpace || a.channel != b.channel)
+    return false;
+  for (int c = 0; c < 4; ++c)
+    if (!(a.scale[c] == b.scale[c]) || !(a.bias[c] == b.bias[c])) return false;
+  return true;
+}
+
+bool sameMaterial(const MaterialDesc& a, const MaterialDesc& b) {
+  return a.name == b.name && a.type == b.type && a.albedo == b.albedo && a.ior == b.ior &&
+         a.absorption == b.absorption && a.emission == b.emission && a.roughness == b.roughness &&
+         a.energyCompensation == b.energyCompensation && sameTexture(a.albedoTexture, b.albedoTexture) &&
+         sameTexture(a.emissionTexture, b.emissionTexture) && sameTexture(a.opacityTexture, b.opacityTexture) &&
+         a.opacity == b.opacity && a.opacityThreshold == b.opacityThreshold;
+}
+
+bool sameLight(const LightDesc& a, const LightDesc& b) {
+  return a.name == b.name && a.type == b.type && sameTransform(a.xf, b.xf) && a.color == b.color &&
+         a.intensity == b.intensity && a.exposure == b.exposure && a.normalize == b.normalize && a.angle == b.angle &&
+         a.radius == b.radius && a.width == b.width && a.height == b.height && a.textureFile == b.textureFile;
+}
+
+bool sameMeshDesc(const MeshDesc& a, const MeshDesc& b) {
+  return a.name == b.name && sameMesh(a.mesh, b.mesh) && sameTransform(a.xf, b.xf) && a.material == b.material &&
+         a.visible == b.visible && a.id == b.id;
+}
+
+// Settings Scene::setView applies (all but those of settingsNeedBuild).
+bool sameViewSettings(const RenderSettings& a, const RenderSettings& b) {
+  return a.width == b.width && a.height == b.height && a.spp == b.spp && a.seed == b.seed &&
+         a.maxDepth == b.maxDepth && a.rrDepth == b.rrDepth && a.threads == b.threads && a.technique == b.technique &&
+         a.bundleSize == b.bundleSize && a.tau == b.tau && a.explicitBounces == b.explicitBounces &&
+         a.daDepthFactor == b.daDepthFactor && a.daMinOrder == b.daMinOrder && a.roulette == b.roulette &&
+         a.lod == b.lod && a.proxies == b.proxies && a.domeCameraVisible == b.domeCameraVisible &&
+         a.cropX0 == b.cropX0 && a.cropX1 == b.cropX1 && a.cropY0 == b.cropY0 && a.cropY1 == b.cropY1;
+}
+
+template <class T, class Same>
+bool sameList(const std::vector<T>& a, const std::vector<T>& b, Same same) {
+  if (a.size() != b.size()) return false;
+  for (size_t i = 0; i < a.size(); ++i)
+    if (!same(a[i], b[i])) return false;
+  return true;
+}
+
+// What Scene::build compares to lend an aggregate (the id only names it in the primId
+// AOV): the AggregateDesc in render space (each scene's own origin) and, per prototype,
+// its scene material's index (a prototype without one takes the default grain, indexed
+// after the scene's own materials) and description.
+bool sameAggregateInputs(const SceneDesc& da, const Vec3d& oa, const AggregateDesc& a, const SceneDesc& db,
+                         const Vec3d& ob, const AggregateDesc& b) {
+  if (a.name != b.name || !sameTransform(toRenderSpace(a.xf, oa), toRenderSpace(b.xf, ob)) || a.weights != b.weights ||
+      !(a.grainRadius == b.grainRadius) || a.sizes != b.sizes || !(a.sizeSpread == b.sizeSpread) ||
+      !(a.packingRate == b.packingRate) || a.seed != b.seed || a.tileSpheres != b.tileSpheres ||
+      a.prototypes.size() != b.prototypes.size() || !sameMesh(a.boundary, b.boundary))
+    return false;
+  for (size_t i = 0; i < a.prototypes.size(); ++i) {
+    const GrainPrototypeDesc &pa = a.prototypes[i], &pb = b.prototypes[i];
+    const int ma = pa.material >= 0 ? pa.material : int(da.materials.size());
+    const int mb = pb.material >= 0 ? pb.material : int(db.materials.size());
+    if (pa.name != pb.name || pa.material != pb.material || ma != mb || !sameMesh(pa.mesh, pb.mesh)) return false;
+    if (pa.material >= 0 && !sameMaterial(da.materials[size_t(pa.material)], db.materials[size_t(pb.material)]))
+      return false;
+  }
+  return true;
+}
+
+bool validMaterialIndices(const SceneDesc& d) {
+  for (const AggregateDesc& a : d.aggregates)
+    for (const GrainPrototypeDesc& p : a.prototypes)
+      if (p.material >= int(d.materials.size())) return false;
+  return true;
+}
+
+}  // namespace
+
+SceneChange SceneChanges::level() const {
+  if (meshes || materials || media || renderSpace) return SceneChange::Everything;
+  if (!aggregates.empty() || aggregateList) return SceneChange::Aggregates;
+  if (lights) return SceneChange::Lights;
+  if (camera || settings) return SceneChange::View;
+  return SceneChange::Unchanged;
+}
+
+bool settingsNeedBuild(const RenderSettings& a, const RenderSettings& b) {
+  return (a.technique == Technique::Ept) != (b.technique == Technique::Ept) || a.defaultLight != b.defaultLight ||
+         a.physicalSun != b.physicalSun;
+}
+
+SceneChanges compareScenes(const SceneDesc& before, const SceneDesc& after) {
+  SceneChanges c;
+  c.camera = !sameCamera(before.camera, after.camera);
+  c.settings = !sameViewSettings(before.settings, after.settings);
+  c.media = (before.settings.technique == Technique::Ept) != (after.settings.technique == Technique::Ept);
+  c.lights = !sameList(before.lights, after.lights, sameLight) ||
+             before.settings.defaultLight != after.settings.defaultLight ||
+             before.settings.physicalSun != after.settings.physicalSun;
+  c.meshes = !sameList(before.meshes, after.meshes, sameMeshDesc);
+  const Vec3d originBefore = renderOrigin(before), originAfter = renderOrigin(after);
+  c.renderSpace = !(originBefore == originAfter);
+
+  // A material that differs is the aggregates' business when grains alone use it (they
+  // compare their prototypes' materials); anything else sees it through the surfaces.
+  if (before.materials.size() != after.materials.size()) {
+    c.materials = true;
+  } else {
+    std::vector<bool> grainOnly(after.materials.size(), true), used(after.materials.size(), false);
+    for (const SceneDesc* d : {&before, &after}) {
+      for (const MeshDesc& m : d->meshes)
+        if (m.material >= 0 && size_t(m.material) < grainOnly.size()) grainOnly[size_t(m.material)] = false;
+      for (const AggregateDesc& a : d->aggregates)
+        for (const GrainPrototypeDesc& p : a.prototypes)
+          if (p.material >= 0 && size_t(p.material) < used.size()) used[size_t(p.material)] = true;
+    }
+    for (size_t i = 0; i < after.materials.size() && !c.materials; ++i)
+      c.materials = !(grainOnly[i] && used[i]) && !sameMaterial(before.materials[i], after.materials[i]);
+  }
+
+  // Each new aggregate is lent by an equal one of before, preferably at its own index.
+  const bool comparable = validMaterialIndices(before) && validMaterialIndices(after);
+  c.aggregateList = before.aggregates.size() > after.aggregates.size();
+  for (size_t i = 0; i < after.aggregates.size(); ++i) {
+    const AggregateDesc& a = after.aggregates[i];
+    auto lends = [&](size_t j) {
+      return comparable && sameAggregateInputs(before, originBefore, before.aggregates[j], after, originAfter, a);
+    };
+    if (i < before.aggregates.size() && lends(i)) {
+      if (before.aggregates[i].id != a.id) c.aggregateList = true;
+      continue;
+    }
+    bool found = false;
+    for (size_t j = 0; j < before.aggregates.size() && !found; ++j) found = j != i && lends(j);
+    if (found)
+      c.aggregateList = true;
+    else
+      c.aggregates.push_back(int(i));
+  }
+  return c;
+}
+
+std::string describeChanges(const SceneChanges& c) {
+  auto join = [](const std::vector<std::string>& parts) {
+    std::string s;
+    for (size_t i = 0; i < parts.size(); ++i)
+      s += (i == 0 ? "" : i + 1 == parts.size() ? " and " : ", ") + parts[i];
+    return s;
+  };
+  switch (c.level()) {
+    case SceneChange::Unchanged: return "unchanged";
+    case SceneChange::View:
+      return "new " + join(c.camera && c.settings ? std::vector<std::string>{"camera", "settings"}
+                           : c.camera             ? std::vector<std::string>{"camera"}
+                                                  : std::vector<std::string>{"settings"});
+    default: break;
+  }
+  std::vector<std::string> parts;
+  if (c.level() == SceneChange::Everything) {
+    std::vector<std::string> why;
+    if (c.meshes) why.push_back("meshes");
+    if (c.materials) why.push_back("materials");
+    if (c.media) why.push_back("technique");
+    if (c.renderSpace) why.push_back("render space");
+    parts.push_back("everything (" + join(why) + ")");
+  }
+  if (c.lights) parts.push_back("lights");
+  if (!c.aggregates.empty())
+    parts.push_back(str(c.aggregates.size(), c.aggregates.size() == 1 ? " aggregate" : " aggregates"));
+  else if (c.aggregateList && c.level() == SceneChange::Aggregates)
+    parts.push_back("the list of aggregates");
+  return join(parts) + " changed";
 }
 
 }  // namespace granular

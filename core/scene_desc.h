@@ -152,8 +152,14 @@ struct AggregateDesc {
   int id = -1;                 // the front end's id, reported by the primId AOV
 };
 
-// Which transports the integrator may use (seed §3). Ept is the reference.
+// Which transports the integrator may use (Meng et al. 2015's switching between EPT, VPT and
+// DA). Ept is the reference.
 enum class Technique { Ept, EptVpt, Hybrid };
+
+// Where proxies (proxy.h, ppt.h) carry a path's low orders after its first grain: never,
+// where the medium could not see the light (Auto: under a narrow sun, Scene::narrowSun),
+// or always (On). Techniques ept+vpt and hybrid; EPT, the reference, never uses them.
+enum class ProxyUse { Off, Auto, On };
 
 struct RenderSettings {
   int width = 640, height = 480;
@@ -163,8 +169,10 @@ struct RenderSettings {
   int rrDepth = 8;             // Russian roulette starts after this many bounces
   int threads = 0;             // 0: all cores
   Technique technique = Technique::Hybrid;  // EPT, EPT+VPT or EPT+VPT+DA
-  int bundleSize = 16;         // N: paths of a pixel traced in lock-step (seed §3)
-  float tau = 4.0f;            // switch EPT->VPT when σ_k > τ R_max N_k/N (NOTES item 8)
+  int bundleSize = 16;         // N: paths of a pixel traced in lock-step (Meng et al. 2015: 16)
+  // Switch EPT->VPT when σ_k > τ R_max N_k/N: σ_k is the RMS distance of the bundle's N_k
+  // live vertices to their centroid, τ R_max a length (τ in units of the largest grain radius).
+  float tau = 4.0f;
   // Low orders stay explicit: neither the bundle switch nor the level-of-detail shortcut
   // moves a path into the medium before this many bounces. The medium is memoryless (a
   // Poisson medium); a dense packing is not: light scattered back near the surface leaves
@@ -174,20 +182,27 @@ struct RenderSettings {
   // -1: automatic, from the grains' albedo (Scene::explicitBounces).
   int explicitBounces = -1;
   // Diffusion (technique Hybrid, diffusion.h): DA replaces VPT at a scattering deeper than
-  // daDepthFactor × seed §3's min(1/σ'_t, 0.5/σ_tr), of a path that has scattered at least
-  // daMinOrder times (EPT and VPT events: diffusion models multiply scattered light).
-  // The beam DA holds at the seed's depth (factor 1: half spaces and slabs within 1–2% of
+  // daDepthFactor × Meng et al. 2015's min(1/σ'_t, 0.5/σ_tr), of a path that has scattered
+  // at least daMinOrder times (EPT and VPT events: diffusion models multiply scattered light).
+  // The beam DA holds at the paper's depth (factor 1: half spaces and slabs within 1–2% of
   // VPT, tests/core/test_diffusion.cpp); the former point-source DA needed 2. Order 16:
   // lower orders measured up to −0.65% bias on bright sand for 14% more speed
   // (bench/README.md, "Diffusion").
   float daDepthFactor = 1.0f;
   int daMinOrder = 16;
-  float roulette = -1.0f;      // P_a in (0, 1]; negative: tuned by a pre-render (NOTES item 7)
+  // Russian roulette at the switch to the medium: a path survives with probability P_a in
+  // (0, 1]. Negative: tuned by a pre-render to P_a = sqrt(V_H t_L / (V_L t_H)), which
+  // minimises the cost of a given variance, (V_L + V_H/P_a)(t_L + P_a t_H), clamped into (0, 1].
+  float roulette = -1.0f;
   // Level of detail: where a path first meets an aggregate and the grain radius is under
   // lod × the ray cone's footprint width there, only that first grain is traced
   // explicitly and the path then enters the medium (ept.h). 0: off, today's images
   // exactly; the default shortcuts grains narrower than the footprint.
   float lod = 0.5f;
+  // Proxies (ProxyUse): after a path's first grain, its low orders (the explicit bounces
+  // above) scatter off the grains' bounding spheres at their true positions by tabulated
+  // grain scattering instead of tracing the grains.
+  ProxyUse proxies = ProxyUse::Auto;
   // Whether camera rays see dome lights (Hydra hosts may hide the background while its
   // light still illuminates the scene).
   bool domeCameraVisible = true;
@@ -268,6 +283,40 @@ int textureChannelFromName(const std::string& name, const std::string& obj, cons
 // "ept", "ept+vpt", "hybrid"; anything else is an InputError on obj.technique.
 Technique techniqueFromName(const std::string& name, const std::string& obj);
 const char* techniqueName(Technique t);
+ProxyUse proxyUseFromName(const std::string& name, const std::string& obj);
+const char* proxyUseName(ProxyUse p);
+
+// What a front end that keeps a built scene (render --frames, the farm's workers, the
+// Hydra delegate) must redo for a new description of the same stage, as the most work it
+// needs: nothing; a new view (Scene::setView); or Scene::build given the previous scene,
+// which then reuses every aggregate not listed in SceneChanges::aggregates — for new lights,
+// for some aggregates, or for everything else (surfaces, materials, media, render space).
+enum class SceneChange { Unchanged, View, Lights, Aggregates, Everything };
+
+struct SceneChanges {
+  bool camera = false;        // the CameraDesc
+  bool settings = false;      // render settings that Scene::setView applies
+  bool lights = false;        // the lights, or the settings that decide them (defaultLight, physicalSun)
+  // Indices into the new description's aggregates that no aggregate of the old one can lend
+  // its grains to: new ones, and those whose inputs (their AggregateDesc but the id, their
+  // prototypes' materials) changed. Scene::build voxelises these.
+  std::vector<int> aggregates;
+  bool aggregateList = false;  // aggregates removed, reordered or given other ids (none made anew for it)
+  bool meshes = false;         // any MeshDesc, or their count
+  bool materials = false;      // a material that is not a grain's alone (a surface's, an unused one), or their count
+  bool media = false;          // the technique to or from ept: every aggregate's medium derived or dropped
+  bool renderSpace = false;    // renderOrigin() moved: surfaces and lights in render space (aggregates compare there)
+  SceneChange level() const;
+};
+
+// Compares every field of two descriptions (floats by value: a NaN always differs).
+SceneChanges compareScenes(const SceneDesc& before, const SceneDesc& after);
+// Whether new settings need Scene::build rather than Scene::setView: the technique to or
+// from ept (media or none), defaultLight or physicalSun (the lights built).
+bool settingsNeedBuild(const RenderSettings& before, const RenderSettings& after);
+// For logs: "unchanged", "new camera", "new camera and settings", "lights changed",
+// "lights and 2 aggregates changed", "everything (meshes and materials) changed".
+std::string describeChanges(const SceneChanges& changes);
 
 // Checks every value a user can get wrong; throws InputError naming object and attribute.
 void validateSceneDesc(const SceneDesc& desc);

@@ -410,6 +410,7 @@ void parseRender(const Obj& o, RenderSettings& s) {
   s.lod = o.num("lod", s.lod);
   s.defaultLight = o.flag("default_light", s.defaultLight);
   s.physicalSun = o.flag("physical_sun", s.physicalSun);
+  if (o.has("proxies")) s.proxies = proxyUseFromName(o.string("proxies", ""), o.label());
   if (o.has("technique")) s.technique = techniqueFromName(o.string("technique", ""), o.label());
   if (const json* c = o.find("crop")) {  // [x0, x1, y0, y1], pixels
     const json& a = toArray(*c, o.label(), "crop");
@@ -783,7 +784,7 @@ SceneDesc parseSceneJson(const std::string& text, const std::string& sourceName)
     ctx.base = fs::path(sourceName).parent_path();
     Obj top(root, sourceName, "", "scene", {"render", "camera", "materials", "meshes", "lights", "aggregates"});
     if (const json* r = top.find("render"))
-      parseRender(Obj(*r, "scene", "render", "render", {"width", "height", "spp", "seed", "max_depth", "rr_depth", "threads", "technique", "bundle_size", "tau", "explicit_bounces", "da_depth_factor", "da_min_order", "roulette", "lod", "default_light", "physical_sun", "crop"}),
+      parseRender(Obj(*r, "scene", "render", "render", {"width", "height", "spp", "seed", "max_depth", "rr_depth", "threads", "technique", "bundle_size", "tau", "explicit_bounces", "da_depth_factor", "da_min_order", "roulette", "lod", "proxies", "default_light", "physical_sun", "crop"}),
                   desc.settings);
     if (const json* c = top.find("camera"))
       parseCamera(Obj(*c, "scene", "camera", "camera",

@@ -1,5 +1,5 @@
 // tt.cpp — teleportation-transport parameters of a grain prototype and of an aggregate
-// (seed §2.1–2.2; NOTES items 1–3, 5, 6). See tt.h for the contract.
+// (Meng et al. 2015's teleportation transport). See tt.h for the contract.
 #include "tt.h"
 
 #include <tbb/blocked_range.h>
@@ -76,46 +76,19 @@ double ratioSE(double sw, double sw2, double swx, double swx2, double sw2x, int6
   return std::sqrt(var / double(n)) / wbar;
 }
 
-// One ray through the grain's bounding sphere, scattered exactly as EPT does (ept.cpp).
 void traceChunk(RTCScene bvh, const TriangleMesh& mesh, const Material& m, const TTOptions& opt, int64_t chunk,
                 Sums& s) {
   int64_t first = chunk * kChunk, count = std::min(kChunk, opt.rays - first);
-  const bool absorbs = m.type == MaterialType::Dielectric && !isBlack(m.absorption);
-  RTCIntersectContext ctx;
-  rtcInitIntersectContext(&ctx);
   for (int64_t k = 0; k < count; ++k) {
     // One generator per ray: ray k enters at the same place for every material (common
     // random numbers), however many numbers the rays before it used.
     Rng rng(hashInts(opt.seed, 0x5454 /* "TT" */, uint64_t(first + k)));
-    // Uniform over the projected area: a uniform point on the sphere, entering along an
-    // inward cosine-weighted direction.
-    Vec3 xi = sampleUniformSphere(rng.next1D(), rng.next1D());
-    float u1 = rng.next1D(), u2 = rng.next1D();
-    Vec3 wi = Frame(-xi).toWorld(sampleCosineHemisphere(u1, u2));
-    Vec3 o = xi, d = wi, w(1.0f);
-    bool hit = false, truncated = false;
-    int bounces = 0;
+    Vec3 xi, wi;
+    sampleSphereEntry(rng, xi, wi);
+    const GrainPassage g = traceGrainPassage(bvh, mesh, m, opt.maxBounces, xi, wi, rng);
+    const Vec3 &o = g.o, &d = g.d, &w = g.weight;
+    const bool hit = g.hit, truncated = g.truncated;
     ++s.rays;
-    for (;;) {
-      RTCRayHit rh = makeRayHit(o, d, 0.0f, kInf);
-      rtcIntersect1(bvh, &ctx, &rh);
-      if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) break;
-      hit = true;
-      if (++bounces > opt.maxBounces) { truncated = true; w = Vec3(0.0f); break; }
-      float t = rh.ray.tfar;
-      Vec3 p = o + d * t;
-      Vec3 ng = triangleNormal(mesh, rh.hit.primID);
-      // Beer–Lambert over the segment just travelled inside (absorption per grain radius).
-      if (absorbs && dot(d, ng) > 0) w *= vexp(m.absorption * -t);
-      Frame frame(ng);
-      BsdfSample bs;
-      float uLobe = rng.next1D(), v1 = rng.next1D(), v2 = rng.next1D();
-      if (!m.sample(frame.toLocal(-d), uLobe, v1, v2, bs)) { w = Vec3(0.0f); break; }
-      w *= bs.weight;
-      d = normalize(frame.toWorld(bs.wi));
-      o = offsetRayOrigin(p, ng, d, kGrainEps);
-      if (isBlack(w)) break;  // all energy absorbed: where it would leave no longer matters
-    }
     double tOut = sphereExit(o, d);
     if (!hit) {
       s.missChord += tOut;
@@ -143,34 +116,8 @@ void traceChunk(RTCScene bvh, const TriangleMesh& mesh, const Material& m, const
 constexpr char kMagic[8] = {'G', 'R', 'T', 'T', '\0', '\0', '\0', '\0'};
 constexpr uint32_t kTTFormatVersion = 2;  // 2: one generator per ray
 
-uint64_t hashBytes(uint64_t h, const void* data, size_t size) {
-  const char* p = static_cast<const char*>(data);
-  size_t i = 0;
-  for (; i + 8 <= size; i += 8) {
-    uint64_t v;
-    std::memcpy(&v, p + i, 8);
-    h = hashCombine(h, v);
-  }
-  uint64_t tail = 0;
-  if (size > i) std::memcpy(&tail, p + i, size - i);
-  return hashCombine(hashCombine(h, tail), size);
-}
-
-template <typename T>
-uint64_t hashValue(uint64_t h, const T& v) { return hashBytes(h, &v, sizeof v); }
-
 uint64_t cacheKey(const TriangleMesh& mesh, const Material& m, const TTOptions& o) {
-  uint64_t h = hashInts(0x47525454 /* "GRTT" */, kTTFormatVersion);
-  h = hashBytes(h, mesh.points.data(), mesh.points.size() * sizeof(Vec3));
-  h = hashBytes(h, mesh.indices.data(), mesh.indices.size() * sizeof(uint32_t));
-  h = hashValue(h, int32_t(m.type));
-  h = hashValue(h, m.albedo);
-  h = hashValue(h, m.ior);
-  h = hashValue(h, m.absorption);
-  if (m.alpha > 0) {  // smooth grains keep their cached entries
-    h = hashValue(h, m.alpha);
-    h = hashBytes(h, m.validTable.data(), m.validTable.size() * sizeof(float));
-  }
+  uint64_t h = hashGrainInputs(hashInts(0x47525454 /* "GRTT" */, kTTFormatVersion), mesh, m);
   h = hashValue(h, o.rays);
   h = hashValue(h, int32_t(o.phaseBins));
   h = hashValue(h, int32_t(o.maxBounces));
@@ -287,6 +234,62 @@ float clampToFloat(double v) { return float(std::min(std::max(v, 0.0), double(FL
 
 }  // namespace
 
+uint64_t hashGrainInputs(uint64_t h, const TriangleMesh& mesh, const Material& m) {
+  h = hashBytes(h, mesh.points.data(), mesh.points.size() * sizeof(Vec3));
+  h = hashBytes(h, mesh.indices.data(), mesh.indices.size() * sizeof(uint32_t));
+  h = hashValue(h, int32_t(m.type));
+  h = hashValue(h, m.albedo);
+  h = hashValue(h, m.ior);
+  h = hashValue(h, m.absorption);
+  if (m.alpha > 0) {  // smooth grains keep their cached entries
+    h = hashValue(h, m.alpha);
+    h = hashBytes(h, m.validTable.data(), m.validTable.size() * sizeof(float));
+  }
+  return h;
+}
+
+void sampleSphereEntry(Rng& rng, Vec3& xi, Vec3& wi) {
+  // Uniform over the projected area: a uniform point on the sphere, entering along an
+  // inward cosine-weighted direction.
+  xi = sampleUniformSphere(rng.next1D(), rng.next1D());
+  float u1 = rng.next1D(), u2 = rng.next1D();
+  wi = Frame(-xi).toWorld(sampleCosineHemisphere(u1, u2));
+}
+
+GrainPassage traceGrainPassage(RTCScene bvh, const TriangleMesh& mesh, const Material& m, int maxBounces,
+                               const Vec3& xi, const Vec3& wi, Rng& rng) {
+  const bool absorbs = m.type == MaterialType::Dielectric && !isBlack(m.absorption);
+  RTCIntersectContext ctx;
+  rtcInitIntersectContext(&ctx);
+  GrainPassage g;
+  Vec3 o = xi, d = wi, w(1.0f);
+  int bounces = 0;
+  for (;;) {
+    RTCRayHit rh = makeRayHit(o, d, 0.0f, kInf);
+    rtcIntersect1(bvh, &ctx, &rh);
+    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) break;
+    g.hit = true;
+    if (++bounces > maxBounces) { g.truncated = true; w = Vec3(0.0f); break; }
+    float t = rh.ray.tfar;
+    Vec3 p = o + d * t;
+    Vec3 ng = triangleNormal(mesh, rh.hit.primID);
+    // Beer–Lambert over the segment just travelled inside (absorption per grain radius).
+    if (absorbs && dot(d, ng) > 0) w *= vexp(m.absorption * -t);
+    Frame frame(ng);
+    BsdfSample bs;
+    float uLobe = rng.next1D(), v1 = rng.next1D(), v2 = rng.next1D();
+    if (!m.sample(frame.toLocal(-d), uLobe, v1, v2, bs)) { w = Vec3(0.0f); break; }
+    w *= bs.weight;
+    d = normalize(frame.toWorld(bs.wi));
+    o = offsetRayOrigin(p, ng, d, kGrainEps);
+    if (isBlack(w)) break;  // all energy absorbed: where it would leave no longer matters
+  }
+  g.o = o;
+  g.d = d;
+  g.weight = w;
+  return g;
+}
+
 // --- PhaseTable -------------------------------------------------------------------------
 
 float PhaseTable::eval(float mu) const {
@@ -351,7 +354,7 @@ PhaseTable PhaseTable::fromHistogram(const std::vector<double>& weights) {
   p.cdf[0] = 0;
   for (int i = 0; i < n; ++i) {
     double pi = w[size_t(i)] / total;
-    p.density[size_t(i)] = float(pi / (kTwoPi * dmu));  // 2π ∫ p dμ = 1 (NOTES item 3)
+    p.density[size_t(i)] = float(pi / (kTwoPi * dmu));  // 2π ∫ p dμ = 1
     acc += pi;
     p.cdf[size_t(i) + 1] = float(std::min(acc, 1.0));
     g += pi * (-1.0 + (i + 0.5) * dmu);
@@ -485,14 +488,14 @@ MediumParams deriveMedium(const std::vector<GrainTransport>& prototypes, const s
   mp.grainRadius = grainRadius;
   mp.packingRate = packingRate;
   const double R = grainRadius, f = packingRate;
-  // Dixmier (seed §2.1.1, NOTES item 2): σ_b = S_v / (4(1−f)), S_v the spheres' area per
+  // Dixmier 1978: σ_b = S_v / (4(1−f)), S_v the spheres' area per
   // volume, 3f/R for equal spheres; of mixed sizes 3f/(R s_32), s_32 = Σ n s³ / Σ n s² the
   // Sauter mean size (the stereological mean chord 4 V/S of the space between spheres).
   const double s32 = sauterSize > 0 ? sauterSize : volume / area;
   const double sigmaB = 3.0 / (4.0 * R * s32) * f / (1.0 - f);
   const double lambdaB = 1.0 / sigmaB;
   mp.sigmaB = float(sigmaB);
-  // λ_β = λ_b + (λ_b + λ_δ)(1−β)/β (NOTES item 1); "never" (FLT_MAX) when no ray hits.
+  // λ_β = λ_b + (λ_b + λ_δ)(1−β)/β ; "never" (FLT_MAX) when no ray hits.
   const double lambdaBeta = mix.beta > 0 ? lambdaB + (lambdaB + R * mix.lambdaDelta) * (1.0 - mix.beta) / mix.beta
                                          : double(FLT_MAX);
   const bool empty = !(mix.beta > 0);  // f → 0 needs no branch: the lengths clamp to FLT_MAX
@@ -505,7 +508,7 @@ MediumParams deriveMedium(const std::vector<GrainTransport>& prototypes, const s
       mp.g[c] = float(g);
       continue;
     }
-    double lambdaT = lambdaBeta + alpha * R * mix.lambdaS[c];  // λ_t = λ_β + α_s λ_s (seed §2.2)
+    double lambdaT = lambdaBeta + alpha * R * mix.lambdaS[c];  // λ_t = λ_β + α_s λ_s (Meng et al. 2015)
     double sigmaT = 1.0 / lambdaT;
     double sigmaSr = (1.0 - g) * alpha * sigmaT;               // Jensen et al. 2001
     double sigmaA = (1.0 - alpha) * sigmaT;
@@ -519,7 +522,7 @@ MediumParams deriveMedium(const std::vector<GrainTransport>& prototypes, const s
     mp.sigmaTReduced[c] = clampToFloat(sigmaTr);
     mp.albedoReduced[c] = sigmaTr > 0 ? float(sigmaSr / sigmaTr) : float(alpha);  // tt.h: σ'_t = 0 → α_s
     mp.sigmaA[c] = clampToFloat(sigmaA);
-    mp.sigmaTr[c] = clampToFloat(std::sqrt(3.0 * sigmaA * sigmaTr));  // NOTES item 6
+    mp.sigmaTr[c] = clampToFloat(std::sqrt(3.0 * sigmaA * sigmaTr));  // Jensen et al. 2001
   }
   mp.phase = mix.phase;
   mp.combined = mix;

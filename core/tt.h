@@ -1,5 +1,5 @@
 // tt.h — teleportation transport (TT): RTE parameters of the homogeneous medium that is
-// equivalent to an aggregate of grains (seed §2; NOTES.md items 1–3, 5, 6).
+// equivalent to an aggregate of grains (Meng et al. 2015's teleportation transport).
 //
 // Contract. estimateGrainTransport() characterises one grain prototype, once, by tracing
 // random rays that enter its unit bounding sphere (uniform over the sphere's projected
@@ -15,11 +15,11 @@
 //
 // deriveMedium() combines per-prototype results by the mixing weights and scales them by
 // the aggregate's grain radius R and packing rate f into world-space RTE parameters:
-//   σ_b = 3/(4R) · f/(1−f)                         (Dixmier; NOTES item 2), λ_b = 1/σ_b
-//   λ_β = λ_b + (λ_b + λ_δ)(1−β)/β                 (NOTES item 1)
-//   λ_t = λ_β + α_s λ_s,  σ_t = 1/λ_t             (seed §2.2)
+//   σ_b = 3/(4R) · f/(1−f)                         (Dixmier 1978), λ_b = 1/σ_b
+//   λ_β = λ_b + (λ_b + λ_δ)(1−β)/β                 (β: the chance of hitting the grain)
+//   λ_t = λ_β + α_s λ_s,  σ_t = 1/λ_t             (Meng et al. 2015)
 //   σ'_s = (1−g) α_s σ_t,  σ'_t = σ'_s + (1−α_s) σ_t,  α'_s = σ'_s/σ'_t   (Jensen 2001)
-//   σ_tr = sqrt(3 σ_a σ'_t),  σ_a = (1−α_s) σ_t   (NOTES item 6)
+//   σ_tr = sqrt(3 σ_a σ'_t),  σ_a = (1−α_s) σ_t   (Jensen et al. 2001)
 // (λ_δ and λ_s, in grain radii, are scaled by R.) Followed explicitly through aggregates
 // of clear grains (test_tt.cpp, TTAggregate), EPT's mean λ_β and λ_t agree with these
 // within about 1% for spheres, rocks and ellipsoids at f = 0.3–0.64.
@@ -42,9 +42,11 @@
 #include <string>
 #include <vector>
 
+#include "embree_util.h"
 #include "material.h"
 #include "math.h"
 #include "mesh.h"
+#include "rng.h"
 #include "scene_desc.h"
 
 namespace granular {
@@ -103,11 +105,32 @@ struct TTOptions {
 GrainTransport estimateGrainTransport(const TriangleMesh& prototypeMesh, const Material& material,
                                       const TTOptions& options = TTOptions());
 
+// The entry of a ray into a unit bounding sphere as TT traces it: uniform over the
+// sphere's projected area (a uniform point xi on the sphere, an inward cosine-weighted
+// direction wi); by the grains' random rotations, also any ray that meets a sphere.
+void sampleSphereEntry(Rng& rng, Vec3& xi, Vec3& wi);
+
+// One ray through a grain in its unit bounding sphere, scattered exactly as EPT scatters
+// it (Material::sample at each interface, Beer–Lambert inside with absorption per bounding
+// radius), until it leaves the grain for good. weight: the energy left per channel (0
+// when absorbed, or truncated after maxBounces). o, d: the last ray, leaving the grain
+// (or the entry ray when it missed).
+struct GrainPassage {
+  bool hit = false, truncated = false;
+  Vec3 weight{1.0f};
+  Vec3 o, d;
+};
+GrainPassage traceGrainPassage(RTCScene bvh, const TriangleMesh& mesh, const Material& m, int maxBounces,
+                               const Vec3& xi, const Vec3& wi, Rng& rng);
+
+// A cache key's part that names the grain: its mesh and what its material does to light.
+uint64_t hashGrainInputs(uint64_t h, const TriangleMesh& mesh, const Material& m);
+
 // File name (inside cacheDirectory()) of the cache entry of these inputs.
 std::string grainTransportCacheName(const TriangleMesh& prototypeMesh, const Material& material,
                                     const TTOptions& options);
 
-// World-space RTE and diffusion parameters of one aggregate (seed §2.2).
+// World-space RTE and diffusion parameters of one aggregate (Meng et al. 2015).
 struct MediumParams {
   float grainRadius = 0, packingRate = 0;
   float sigmaB = 0;                       // Dixmier, 1/world length

@@ -158,6 +158,7 @@ void scatterInMedium(const Scene& scene, PathState& path, const HomogeneousMediu
   path.lastDelta = false;
   path.lastPdf = pdf;
   path.lastP = p;
+  path.lastNeeChance = 1;
   path.ray.o = p;
   path.ray.d = wo;
   path.ray.tmin = 0;

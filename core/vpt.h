@@ -1,5 +1,5 @@
 // vpt.h — volumetric path tracing (VPT) of the homogeneous medium equivalent to an
-// aggregate (seed §1.3), bounded by the aggregate's boundary mesh, which acts as an
+// aggregate (Meng et al. 2015), bounded by the aggregate's boundary mesh, which acts as an
 // index-matched interface (no refraction, no reflection).
 //
 // Contract: a HomogeneousMedium holds world-space σ_t and α_s per RGB channel and a
@@ -20,7 +20,7 @@
 namespace granular {
 
 // RTE parameters given directly (σ_t, α_s, phase), with the reduced and diffusion
-// parameters derived as deriveMedium() does (seed §2.2, NOTES item 6): for closed-form
+// parameters derived as deriveMedium() does (tt.h): for closed-form
 // tests and validation against other renderers.
 MediumParams mediumFromRte(const Vec3& sigmaT, const Vec3& albedo, const PhaseTable& phase);
 
@@ -73,7 +73,7 @@ void vptStep(const Scene& scene, PathState& path);
 void mediumNee(const Scene& scene, PathState& path, const HomogeneousMedium& med, const Vec3& p,
                const Vec3* reducedSigmaT = nullptr);
 
-// Depth below the boundary beyond which DA replaces VPT: factor × seed §3's
+// Depth below the boundary beyond which DA replaces VPT: factor × Meng et al. 2015's
 // min(1/σ'_t, 0.5/σ_tr), taken for the channel with the longest such depth (DA must be
 // valid in every channel). The factor is RenderSettings::daDepthFactor.
 float diffusionDepth(const MediumParams& p, float factor);

@@ -765,9 +765,9 @@ def _checked_render_image(args, built):
     return renderer, image
 
 
-class _QuietProgress(cli._Progress):
+class _QuietProgress(cli.Progress):
     """The progress bar on the stderr of the moment (the harness's sink), not the one
-    _Progress bound when it was defined."""
+    Progress bound when it was defined."""
 
     def __init__(self, enabled, stream=None, unit="spp"):
         super().__init__(enabled, sys.stderr, unit)
@@ -777,7 +777,7 @@ usd_reader.open_stage = _fuzz_open_stage
 usd_reader.read_stage = _bounded_read_stage
 api.build_scene = _bounded_build_scene
 cli._render_image = _checked_render_image
-cli._Progress = _QuietProgress
+cli.Progress = _QuietProgress
 
 PARSER = cli.build_parser()
 STATS = {"inputs": 0, "rendered": 0, "refused": 0, "too costly": 0, "mutations": 0, "not authored": 0}

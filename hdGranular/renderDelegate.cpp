@@ -47,11 +47,13 @@ void HdGranularRenderDelegate::_Initialize() {
       {"Switch spread tau (grain radii)", HdGranularSettingsTokens->tau, VtValue(4.0f)},
       {"Bounces always explicit (-1: from the grains' albedo)", HdGranularSettingsTokens->explicitBounces,
        VtValue(granular::RenderSettings().explicitBounces)},
-      {"Diffusion from this many times the seed's depth", HdGranularSettingsTokens->daDepthFactor,
+      {"Diffusion from this many times the paper's depth", HdGranularSettingsTokens->daDepthFactor,
        VtValue(granular::RenderSettings().daDepthFactor)},
       {"Diffusion after this many scatterings", HdGranularSettingsTokens->daMinOrder,
        VtValue(granular::RenderSettings().daMinOrder)},
       {"Level of detail (0: off)", HdGranularSettingsTokens->lod, VtValue(0.5f)},
+      {"Proxies after the first grain (auto: under a narrow sun; on; off)", HdGranularSettingsTokens->proxies,
+       VtValue(std::string(granular::proxyUseName(granular::RenderSettings().proxies)))},
       {"Roulette P_a (negative: tuned)", HdGranularSettingsTokens->roulette, VtValue(-1.0f)},
       {"Bundle size", HdGranularSettingsTokens->bundleSize, VtValue(16)},
       {"Default dome light when the stage has none", HdGranularSettingsTokens->defaultLight, VtValue(true)},
@@ -87,7 +89,7 @@ HdAovDescriptor HdGranularRenderDelegate::GetDefaultAovDescriptor(TfToken const&
   if (name == HdAovTokens->depth) return HdAovDescriptor(HdFormatFloat32, false, VtValue(1.0f));
   if (name == HdAovTokens->cameraDepth) return HdAovDescriptor(HdFormatFloat32, false, VtValue(0.0f));
   if (name == HdAovTokens->primId) return HdAovDescriptor(HdFormatInt32, false, VtValue(-1));
-  if (name == HdAovTokens->normal || name == "ept" || name == "vpt" || name == "da")
+  if (name == HdAovTokens->normal || name == "ept" || name == "vpt" || name == "da" || name == "ppt")
     return HdAovDescriptor(HdFormatFloat32Vec3, false, VtValue(GfVec3f(0.0f)));
   return HdAovDescriptor();  // unsupported
 }

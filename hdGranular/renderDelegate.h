@@ -23,6 +23,7 @@ PXR_NAMESPACE_OPEN_SCOPE
   ((daDepthFactor, "granular:daDepthFactor"))         \
   ((daMinOrder, "granular:daMinOrder"))               \
   ((lod, "granular:lod"))                             \
+  ((proxies, "granular:proxies"))                     \
   ((roulette, "granular:roulette"))                   \
   ((bundleSize, "granular:bundleSize"))               \
   ((defaultLight, "granular:defaultLight"))           \

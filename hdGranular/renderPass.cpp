@@ -87,6 +87,9 @@ granular::RenderSettings renderSettings(HdRenderDelegate* d, int width, int heig
   rs.daDepthFactor = setting<float>(d, HdGranularSettingsTokens->daDepthFactor, rs.daDepthFactor);
   rs.daMinOrder = setting<int>(d, HdGranularSettingsTokens->daMinOrder, rs.daMinOrder);
   rs.lod = setting<float>(d, HdGranularSettingsTokens->lod, rs.lod);
+  rs.proxies = granular::proxyUseFromName(
+      setting<std::string>(d, HdGranularSettingsTokens->proxies, granular::proxyUseName(rs.proxies)),
+      "render settings granular:proxies");
   rs.roulette = setting<float>(d, HdGranularSettingsTokens->roulette, -1.0f);
   rs.bundleSize = setting<int>(d, HdGranularSettingsTokens->bundleSize, 16);
   rs.domeCameraVisible = setting<bool>(d, HdRenderSettingsTokens->domeLightCameraVisibility, true);
@@ -124,15 +127,12 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
   const GfVec2f lens = camera ? GfVec2f(camera->GetFStop(), camera->GetFocusDistance()) : GfVec2f(0.0f);
 
   const int sceneVersion = _param->Version(), settingsVersion = delegate->GetRenderSettingsVersion();
-  // Settings that change what is built (media or not, the default light, delta suns), not
-  // the view.
-  const std::string buildKey =
-      setting<std::string>(delegate, HdGranularSettingsTokens->technique, "hybrid") + "|" +
-      (defaultLightSetting(delegate) ? "light" : "dark") + "|" +
-      (physicalSunSetting(delegate) ? "sun" : "delta");
-  const bool rebuild = !_started || sceneVersion != _sceneVersion || buildKey != _buildKey;
-  const bool reframe = rebuild || settingsVersion != _settingsVersion || view != _view || proj != _projection ||
-                       width != _width || height != _height || crop != _crop || lens != _lens;
+  // An edit of the scene or of the settings: the description is assembled again and
+  // compared with the one the scene was built from (compareScenes), which decides between
+  // a new view and a build. A camera move or a resize alone is a new view.
+  const bool edited = !_started || sceneVersion != _sceneVersion || settingsVersion != _settingsVersion;
+  const bool reframe = edited || view != _view || proj != _projection || width != _width || height != _height ||
+                       crop != _crop || lens != _lens;
   // A render buffer reallocated or freed under the loop stopped it (renderBuffer.h).
   const bool rebind = reframe || bindings != _bindings || _renderer->WasInterrupted();
   if (!rebind) return;  // the loop goes on
@@ -141,7 +141,6 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
   _started = true;
   _sceneVersion = sceneVersion;
   _settingsVersion = settingsVersion;
-  _buildKey = buildKey;
   _view = view;
   _projection = proj;
   _lens = lens;
@@ -159,7 +158,8 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
     granular::RenderSettings rs = renderSettings(delegate, width, height);
     if (crop != granular::PixelWindow{0, width, 0, height})
       rs.cropX0 = crop.x0, rs.cropX1 = crop.x1, rs.cropY0 = crop.y0, rs.cropY1 = crop.y1;
-    if (rebuild || !_renderer->GetScene()) {  // no scene: the last attempt failed (e.g. a bad camera)
+    granular::Scene* const scene = _renderer->GetScene();  // none: the last attempt failed (e.g. a bad camera)
+    if (edited || !scene || !_built) {
       granular::SceneDesc desc = _param->Assemble();
       if (TfGetenvBool("GRANULAR_HD_DEBUG", false)) {  // what the core is given, for users' bug reports
         for (auto const& l : desc.lights)
@@ -180,23 +180,36 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
       }
       desc.camera = cam;
       desc.settings = rs;
-      // The scene before lends its unchanged aggregates (a light or mesh edit voxelises
-      // nothing; a deformed boundary, only its aggregate).
-      _renderer->SetScene(granular::Scene::build(desc, _renderer->GetScene()));
-      const std::string suns = _renderer->GetScene()->widenedSunsWarning();
-      if (!suns.empty() && suns != _sunsWarned) TF_WARN("hdGranular: %s", suns.c_str());
-      _sunsWarned = suns;  // once, until the lights change
-      for (const std::string& w : _renderer->GetScene()->textureWarnings())
-        if (_texturesWarned.insert(w).second) TF_WARN("hdGranular: %s", w.c_str());  // once each
-      if (_renderer->GetScene()->defaultLightAdded())
-        TF_WARN("hdGranular: the stage has no light (no UsdLux light, no emissive surface): it is lit by the "
-                "default white dome of radiance 1 (render setting granular:defaultLight false renders it black)");
-    } else if (reframe && _renderer->GetScene()) {
-      _renderer->GetScene()->setView(cam, rs);
+      // An edit Hydra reported may leave the description as it was (a time-sampled value
+      // that holds still), or change only what a new view sets.
+      const bool build =
+          !scene || !_built || granular::compareScenes(*_built, desc).level() > granular::SceneChange::View;
+      _built.reset();  // until the scene matches desc again
+      if (!build) {
+        scene->setView(cam, rs);
+      } else {
+        // The scene before lends its unchanged aggregates (a light or mesh edit voxelises
+        // nothing; a deformed boundary, only its aggregate).
+        _renderer->SetScene(granular::Scene::build(desc, scene));
+        const std::string suns = _renderer->GetScene()->widenedSunsWarning();
+        if (!suns.empty() && suns != _sunsWarned) TF_WARN("hdGranular: %s", suns.c_str());
+        _sunsWarned = suns;  // once, until the lights change
+        for (const std::string& w : _renderer->GetScene()->textureWarnings())
+          if (_texturesWarned.insert(w).second) TF_WARN("hdGranular: %s", w.c_str());  // once each
+        if (_renderer->GetScene()->defaultLightAdded())
+          TF_WARN("hdGranular: the stage has no light (no UsdLux light, no emissive surface): it is lit by the "
+                  "default white dome of radiance 1 (render setting granular:defaultLight false renders it black)");
+      }
+      _built = std::move(desc);
+    } else if (reframe) {
+      scene->setView(cam, rs);
+      _built->camera = cam;
+      _built->settings = rs;
     }
   } catch (std::exception const& e) {
     TF_RUNTIME_ERROR("hdGranular: %s", e.what());
     _renderer->SetScene(nullptr);
+    _built.reset();
   }
   for (auto const& b : bindings)
     if (auto* rb = dynamic_cast<HdGranularRenderBuffer*>(b.renderBuffer)) rb->Clear(b.clearValue);

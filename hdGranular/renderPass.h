@@ -1,18 +1,21 @@
 // renderPass.h — what a Hydra host executes every frame: it brings the core scene up
 // to date with the least work, then lets the render loop run progressively.
 //
-// Contract: an edit of the scene (meshes, lights, materials; the render param's
-// version), of the technique, of the default light or of the physical-sun setting builds
-// the core scene anew, reusing every aggregate whose inputs did not change (Scene::build);
-// a camera move, a resize or other settings only set a new view (no re-voxelising, no
-// re-estimation); new AOV bindings only restart the loop. The active UsdRenderSettings'
-// dataWindowNDC (renderSettings.h) crops the render as in granular render: only its pixels
-// are rendered, the others keep the buffers' clear values.
+// Contract: after an edit of the scene (meshes, lights, materials; the render param's
+// version) or of the settings, the description assembled again is compared with the one
+// the core scene was built from (compareScenes): a change beyond the view (lights,
+// aggregates, surfaces, the technique to or from ept, the default light, the physical sun)
+// builds the core scene anew, reusing every aggregate whose inputs did not change
+// (Scene::build); otherwise, and for a camera move or a resize, only a new view is set (no
+// re-voxelising, no re-estimation); new AOV bindings only restart the loop. The active
+// UsdRenderSettings' dataWindowNDC (renderSettings.h) crops the render as in granular
+// render: only its pixels are rendered, the others keep the buffers' clear values.
 // A scene that cannot be built is reported once (TF_RUNTIME_ERROR naming the prim and
 // attribute) and renders nothing, its buffers marked converged.
 #ifndef HDGRANULAR_RENDER_PASS_H
 #define HDGRANULAR_RENDER_PASS_H
 
+#include <optional>
 #include <set>
 #include <string>
 
@@ -42,7 +45,9 @@ class HdGranularRenderPass final : public HdRenderPass {
   HdGranularRenderParam* _param;
   HdGranularRenderer* _renderer;
   int _sceneVersion = -1, _settingsVersion = -1;
-  std::string _buildKey;
+  // The description the core scene was built from, with its latest view (none while there
+  // is no scene): what a new one is compared with (compareScenes).
+  std::optional<granular::SceneDesc> _built;
   std::string _sunsWarned;  // the last widened-suns warning given
   std::set<std::string> _texturesWarned;  // texture warnings given (Scene::textureWarnings)
   GfMatrix4d _view{0.0}, _projection{0.0};

@@ -415,6 +415,10 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("size_spread", &AggregateDesc::sizeSpread)
       .def_readwrite("id", &AggregateDesc::id);
 
+  py::enum_<ProxyUse>(m, "ProxyUse")
+      .value("Off", ProxyUse::Off)
+      .value("Auto", ProxyUse::Auto)
+      .value("On", ProxyUse::On);
   py::enum_<Technique>(m, "Technique")
       .value("Ept", Technique::Ept)
       .value("EptVpt", Technique::EptVpt)
@@ -426,6 +430,9 @@ PYBIND11_MODULE(granular_core, m) {
   m.def("technique_from_name", &techniqueFromName, py::arg("name"), py::arg("object"),
         "\"ept\", \"ept+vpt\" or \"hybrid\"; else InputError on object.technique");
   m.def("technique_name", &techniqueName, py::arg("technique"));
+  m.def("proxy_use_from_name", &proxyUseFromName, py::arg("name"), py::arg("object"),
+        "\"off\", \"auto\" or \"on\"; else InputError on object.proxies");
+  m.def("proxy_use_name", &proxyUseName, py::arg("proxies"));
 
   py::class_<RenderSettings>(m, "RenderSettings")
       .def(py::init<>())
@@ -444,6 +451,7 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("da_min_order", &RenderSettings::daMinOrder)
       .def_readwrite("roulette", &RenderSettings::roulette)
       .def_readwrite("lod", &RenderSettings::lod)
+      .def_readwrite("proxies", &RenderSettings::proxies)
       .def_readwrite("default_light", &RenderSettings::defaultLight)
       .def_readwrite("physical_sun", &RenderSettings::physicalSun)
       .def_readwrite("dome_camera_visible", &RenderSettings::domeCameraVisible)
@@ -470,6 +478,35 @@ PYBIND11_MODULE(granular_core, m) {
       .def("add_aggregate", [](SceneDesc& d, const AggregateDesc& x) { d.aggregates.push_back(x); return int(d.aggregates.size()) - 1; });
 
   m.def("validate_scene_desc", &validateSceneDesc, py::arg("desc"));
+
+  // ---- change detection (scene_desc.h: compareScenes) ---------------------------------
+  // Unchanged, not None: None is a Python keyword.
+  py::enum_<SceneChange>(m, "SceneChange")
+      .value("Unchanged", SceneChange::Unchanged)
+      .value("View", SceneChange::View)
+      .value("Lights", SceneChange::Lights)
+      .value("Aggregates", SceneChange::Aggregates)
+      .value("Everything", SceneChange::Everything);
+  py::class_<SceneChanges>(m, "SceneChanges")
+      .def_property_readonly("level", &SceneChanges::level,
+                             "the most work needed: Unchanged, View (Scene.set_view), else Scene.build with the "
+                             "previous scene (Lights, Aggregates, Everything)")
+      .def_readonly("camera", &SceneChanges::camera)
+      .def_readonly("settings", &SceneChanges::settings, "render settings that Scene.set_view applies")
+      .def_readonly("lights", &SceneChanges::lights)
+      .def_readonly("aggregates", &SceneChanges::aggregates,
+                    "indices of the new description's aggregates that a build makes anew")
+      .def_readonly("aggregate_list", &SceneChanges::aggregateList)
+      .def_readonly("meshes", &SceneChanges::meshes)
+      .def_readonly("materials", &SceneChanges::materials)
+      .def_readonly("media", &SceneChanges::media)
+      .def_readonly("render_space", &SceneChanges::renderSpace)
+      .def_property_readonly("description", &describeChanges,
+                             "for logs: 'unchanged', 'new camera', 'lights and 2 aggregates changed', ...")
+      .def("__repr__", [](const SceneChanges& c) { return "<SceneChanges: " + describeChanges(c) + ">"; });
+  m.def("compare_scenes", &compareScenes, py::arg("before"), py::arg("after"),
+        "What a scene built from `before` needs to render `after` (every field compared)",
+        py::call_guard<py::gil_scoped_release>());
   m.def(
       "render_window",
       [](const RenderSettings& s) { return windowTuple(renderWindow(s)); },
@@ -570,6 +607,15 @@ PYBIND11_MODULE(granular_core, m) {
           py::arg("camera"), py::arg("settings"),
           "A new camera and render settings without rebuilding (geometry, tiles, TT stay); for "
           "renderers made after it. InputError on bad values or a change between ept and the hybrid.")
+      .def(
+          "changes",
+          [](const PyScene& s, const SceneDesc& desc) {
+            py::gil_scoped_release release;
+            return compareScenes(s.desc, desc);
+          },
+          py::arg("desc"),
+          "compare_scenes(the description this scene was built from, with its latest view, desc): what "
+          "it needs to render desc")
       .def_property_readonly("build_seconds", [](const PyScene& s) { return s.scene->buildSeconds(); })
       .def_property_readonly("aggregates_built", [](const PyScene& s) { return s.scene->aggregatesBuilt(); },
                              "aggregates voxelised by this build")
@@ -585,6 +631,8 @@ PYBIND11_MODULE(granular_core, m) {
                              "the warning about delta suns rendered as the physical sun (\"\" when none)")
       .def_property_readonly("has_media", [](const PyScene& s) { return s.scene->hasMedia(); },
                              "whether the integrator uses the equivalent media (VPT, DA) in this scene")
+      .def_property_readonly("use_proxies", [](const PyScene& s) { return s.scene->useProxies(); },
+                             "whether paths go on among proxies after their first grain (RenderSettings.proxies)")
       .def_property_readonly("explicit_bounces", [](const PyScene& s) { return s.scene->explicitBounces(); },
                              "bounces every path keeps explicit before it may enter a medium (the setting, or automatic)")
       .def_static(

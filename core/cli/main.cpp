@@ -116,15 +116,16 @@ int main(int argc, char** argv) {
                    renderer.bundleSize(), rt.pa);
       if (rt.pixels) std::fprintf(stderr, " (pre-render of %d pixels: V_L %.3g, V_H %.3g, t_L %.3g, t_H %.3g)", rt.pixels, rt.VL, rt.VH, rt.tL, rt.tH);
       // Mean of each transport's AOV over the image: what each part contributes.
-      double part[3] = {0, 0, 0};
-      for (int t = 0; t < 3; ++t) {
-        int c0 = img.channelIndex(t == 0 ? "ept.R" : t == 1 ? "vpt.R" : "da.R");
+      const char* names[4] = {"ept.R", "vpt.R", "da.R", "ppt.R"};
+      double part[4] = {0, 0, 0, 0};
+      for (int t = 0; t < 4; ++t) {
+        int c0 = img.channelIndex(names[t]);
         for (int y = 0; y < img.height; ++y)
           for (int x = 0; x < img.width; ++x) part[t] += luminance(Vec3(img.at(x, y)[c0], img.at(x, y)[c0 + 1], img.at(x, y)[c0 + 2]));
       }
       double n = double(img.width) * img.height;
-      std::fprintf(stderr, "\n  mean luminance by transport: EPT %.4g, VPT %.4g, DA %.4g; level of detail: %.1f%% of paths entered a medium directly\n",
-                   part[0] / n, part[1] / n, part[2] / n, 100.0 * renderer.shortcutFraction());
+      std::fprintf(stderr, "\n  mean luminance by transport: EPT %.4g, PPT %.4g, VPT %.4g, DA %.4g; level of detail: %.1f%% of paths entered a medium directly\n",
+                   part[0] / n, part[3] / n, part[1] / n, part[2] / n, 100.0 * renderer.shortcutFraction());
     }
     writeImage(out, img);
     if (!png.empty()) writePngSrgb(png, img, exposure);

@@ -16,7 +16,6 @@ Exit status: 0 on success, 2 on bad input (one line `error: prim.attribute: mess
 no traceback, no output file left behind), 1 on any other failure, 130 when interrupted.
 """
 import argparse
-import hashlib
 import json
 import math
 import os
@@ -25,11 +24,11 @@ import struct
 import sys
 import time
 
-from . import __version__, api
+from . import __version__, api, farm
+from .common import (EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, EXIT_USER, Progress, apply_options, check_output,
+                     check_outputs, claim_outputs, frame_outputs, frame_text, int_in, parse_frames, update_scene,
+                     warn_if_replaced)
 from .errors import UserError
-
-EXIT_OK, EXIT_FAILURE, EXIT_USER, EXIT_INTERRUPTED = 0, 1, 2, 130
-
 
 class _Parser(argparse.ArgumentParser):
     """argparse that reports a usage error as one line `error: command line.OPTION: message`
@@ -70,18 +69,6 @@ class _SubParser(_Parser):
         if extras:
             self.error("unrecognized arguments: " + " ".join(extras))
         return namespace, extras
-
-
-def _int_in(lo, hi):
-    def parse(text):
-        try:
-            v = int(text, 10)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"'{text}' is not an integer") from None
-        if not lo <= v <= hi:
-            raise argparse.ArgumentTypeError(f"{v} is outside [{lo}, {hi}]")
-        return v
-    return parse
 
 
 def _number(text):
@@ -167,14 +154,14 @@ def _prim_path(example):
 
 def _render_options(r):
     """The options `render` and `farm` share: what is rendered and how."""
-    r.add_argument("--width", type=_int_in(1, 32768), help="image width (default: the render "
+    r.add_argument("--width", type=int_in(1, 32768), help="image width (default: the render "
                    "settings' resolution, else 640; with only --height, the camera's aspect)")
-    r.add_argument("--height", type=_int_in(1, 32768), help="image height (default: as --width)")
-    r.add_argument("--spp", type=_int_in(1, 1000000), default=16, help="samples per pixel (16)")
+    r.add_argument("--height", type=int_in(1, 32768), help="image height (default: as --width)")
+    r.add_argument("--spp", type=int_in(1, 1000000), default=16, help="samples per pixel (16)")
     r.add_argument("--camera", type=_prim_path("/World/Camera"), metavar="PATH",
                    help="camera prim (default: the render settings' camera, else the first camera)")
-    r.add_argument("--seed", type=_int_in(0, 2**31 - 1), default=0, help="sampling seed (0)")
-    r.add_argument("--threads", type=_int_in(0, 1024), default=0, help="threads (0: all cores)")
+    r.add_argument("--seed", type=int_in(0, 2**31 - 1), default=0, help="sampling seed (0)")
+    r.add_argument("--threads", type=int_in(0, 1024), default=0, help="threads (0: all cores)")
     r.add_argument("--exposure", type=_exposure, default=0.0,
                    help="exposure of the PNG in stops, in [-100, 100] (0)")
     r.add_argument("--technique", choices=["ept", "ept+vpt", "hybrid"], default="hybrid",
@@ -187,6 +174,11 @@ def _render_options(r):
                    help="level of detail: after the first grain, enter an aggregate's medium where the grain "
                         "radius is under L times the ray footprint (default 0.5: grains narrower than a "
                         "footprint; 0: off, every grain explicit)")
+    r.add_argument("--proxies", choices=["auto", "on", "off"], default="auto",
+                   help="after a path's first grain, trace its low orders among the grains' bounding spheres "
+                        "with tabulated grain scattering (proxies) instead of the grains themselves: on, off, "
+                        "or auto (default): where the medium could not see the light, under a sun narrower "
+                        "than 5 degrees (ept+vpt and hybrid)")
     r.add_argument("--no-default-light", action="store_true",
                    help="a stage without any light (no UsdLux light, no emissive surface) renders black; "
                         "by default it is lit by a uniform white dome of radiance 1, with a warning")
@@ -226,7 +218,6 @@ def build_parser():
     g.add_argument("--exposure", type=_exposure, default=0.0, help="exposure of the PNG in stops, in [-100, 100] (0)")
     g.add_argument("--quiet", action="store_true")
 
-    from . import farm
     farm.add_parser(sub, _render_options)
 
     i = sub.add_parser("info", help="grain counts, tiles and transport parameters of each aggregate")
@@ -246,70 +237,6 @@ def build_parser():
 
 # ---- helpers ------------------------------------------------------------------------------
 
-def _name_max(folder):
-    try:
-        return os.pathconf(folder, "PC_NAME_MAX")
-    except (OSError, ValueError):
-        return 255
-
-
-def _name_too_long(path, name_max):
-    """The length of path's file name while it is written (the core writes .NAME.XXXXXX, a
-    new temporary file, then renames it) when the folder cannot hold it, else None."""
-    n = len(os.fsencode("." + os.path.basename(path) + ".XXXXXX"))
-    return n if n > name_max else None
-
-
-def _check_output(path, flag, extensions):
-    if not path.lower().endswith(extensions):
-        raise UserError("command line", flag, f'"{path}" must end in {" or ".join(extensions)}')
-    folder = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(folder):
-        raise UserError("command line", flag, f'folder "{folder}" does not exist')
-    if os.path.isdir(path):
-        raise UserError("command line", flag, f'"{path}" is a folder')
-    if not os.access(folder, os.W_OK):
-        raise UserError("command line", flag, f'folder "{folder}" is not writable')
-    limit = _name_max(folder)
-    n = _name_too_long(path, limit)
-    if n:
-        raise UserError("command line", flag, f"the file name (with 8 more bytes while it is written) has {n} "
-                                              f"bytes, more than the {limit} its folder allows")
-
-
-class _Progress:
-    """A progress bar on stderr; on a terminal it redraws one line, else it prints a few."""
-
-    def __init__(self, enabled, stream=sys.stderr, unit="spp"):
-        self.enabled = enabled
-        self.unit = unit
-        self.stream = stream
-        self.tty = enabled and stream.isatty()
-        self.last_quarter = -1
-        self.last_len = 0
-
-    def __call__(self, done, target, seconds):
-        if not self.enabled:
-            return
-        frac = done / target if target else 1.0
-        eta = seconds / frac - seconds if frac > 0 else 0.0
-        width = 30
-        bar = "#" * int(frac * width) + "-" * (width - int(frac * width))
-        count = f"{done:.1f}" if self.unit == "spp" else f"{done:g}"
-        line = f"  [{bar}] {count}/{target} {self.unit}  {seconds:.1f} s  eta {eta:.0f} s"
-        if self.tty:
-            pad = " " * max(0, self.last_len - len(line))  # wipe the rest of a longer previous line
-            self.last_len = len(line)
-            self.stream.write("\r" + line + pad + ("\n" if done >= target else ""))
-            self.stream.flush()
-        else:
-            quarter = int(frac * 4)
-            if quarter != self.last_quarter:
-                self.last_quarter = quarter
-                self.stream.write(line + "\n")
-                self.stream.flush()
-
-
 def _log(args, msg):
     if not getattr(args, "quiet", False):
         print(msg, file=sys.stderr)
@@ -328,22 +255,6 @@ def _remove(paths):
             pass
 
 
-def claim_outputs(*paths):
-    """Notes what each output is before the render, so that writing it can tell whether
-    another process wrote it meanwhile (core.claim_output)."""
-    import granular_core as core
-    for p in paths:
-        if p:
-            core.claim_output(p)
-
-
-def warn_if_replaced(replaced, path):
-    """The writer's word that another process wrote path during this render."""
-    if replaced:
-        print(f"warning: {path} was written by another process during this render; this render's image replaced "
-              f"it", file=sys.stderr)
-
-
 def _write_images(image, exr, png, exposure):
     """Writes the EXR (and the PNG): each file appears whole or not at all (core writes
     through a temporary name), and a failure removes the one already written (all or
@@ -360,162 +271,6 @@ def _write_images(image, exr, png, exposure):
         _remove(written)
         raise
     return written
-
-
-# ---- frame sequences (render --frames) ------------------------------------------------------
-
-MAX_FRAMES = 100000
-
-
-def _frame_number(text, what):
-    try:
-        v = float(text)
-    except ValueError:
-        raise UserError("command line", "--frames", f"{what} '{text.strip()}' is not a number") from None
-    if not math.isfinite(v):
-        raise UserError("command line", "--frames", f"{what} {text.strip()} is not finite")
-    return v
-
-
-def parse_frames(spec):
-    """'A:B[xSTEP]' (or 'A', one frame) -> the frames A, A+STEP, ... up to B inclusive, as
-    floats; UserError on command line.--frames for anything else."""
-    body, sep, step_text = spec.partition("x")
-    parts = body.split(":")
-    if len(parts) > 2 or (sep and len(parts) != 2) or not all(p.strip() for p in parts) or (sep and not step_text.strip()):
-        raise UserError("command line", "--frames", f"'{spec}' is not A:B or A:BxSTEP (e.g. 1:24 or 1:2x0.5)")
-    a = _frame_number(parts[0], "start")
-    b = _frame_number(parts[1], "end") if len(parts) == 2 else a
-    step = _frame_number(step_text, "step") if sep else 1.0
-    if a > b:
-        raise UserError("command line", "--frames", f"start {a:g} is after end {b:g}")
-    if step <= 0:
-        raise UserError("command line", "--frames", f"step {step:g} must be > 0")
-    span = (b - a) / step
-    if not math.isfinite(span):  # B - A or 1 / STEP overflows
-        raise UserError("command line", "--frames", f"'{spec}' has more than {MAX_FRAMES} frames")
-    count = math.floor(span * (1 + 1e-12) + 1e-9) + 1  # B itself despite rounding in (B-A)/STEP
-    if count > MAX_FRAMES:
-        raise UserError("command line", "--frames", f"'{spec}' has {count} frames, more than {MAX_FRAMES}")
-    # A + k STEP (not a running sum), rid of binary noise (1 + 3 x 0.1 is frame 1.3).
-    return [round(a + k * step, 9) for k in range(count)]
-
-
-def frame_text(frame, digits=0):
-    """A frame number for file names and the log: the integer part zero-padded to `digits`,
-    then the fraction, if any, to at most 6 decimals: (1, 4) -> '0001', (1.5, 4) -> '0001.5',
-    (-2, 4) -> '-0002', (12.25, 0) -> '12.25'."""
-    text = f"{abs(frame):.6f}".rstrip("0").rstrip(".")
-    whole, _, fraction = text.partition(".")
-    sign = "-" if frame < 0 and text != "0" else ""
-    return sign + whole.zfill(digits) + ("." + fraction if fraction else "")
-
-
-_HASHES = re.compile(r"#+")
-
-
-def frame_path(pattern, flag):
-    """A function frame -> file name: the last run of '#' in the file name of `pattern`
-    replaced by frame_text(frame, len(run)); UserError on command line.<flag> without one."""
-    folder, base = os.path.split(pattern)
-    runs = list(_HASHES.finditer(base))
-    if not runs:
-        raise UserError("command line", flag, f'"{pattern}" has no run of \'#\' for the frame number '
-                                              f"(needed with --frames, e.g. out.####{os.path.splitext(base)[1]})")
-    run = runs[-1]
-    return lambda frame: os.path.join(folder, base[:run.start()] + frame_text(frame, len(run.group())) +
-                                      base[run.end():])
-
-
-def frame_outputs(args, frames):
-    """(exr_name, png_name or None): frame -> file name of -o and --png, checked to give each
-    frame files of its own, with names their folders can hold."""
-    exr_name = frame_path(args.output, "-o")
-    png_name = frame_path(args.png, "--png") if args.png else None
-    names = [(exr_name, _name_max(os.path.dirname(os.path.abspath(args.output))))]
-    if png_name:
-        names.append((png_name, _name_max(os.path.dirname(os.path.abspath(args.png)))))
-    seen = {}
-    for f in frames:
-        other = seen.setdefault(exr_name(f), f)
-        if other != f:  # frame numbers in names have 6 decimals at most
-            raise UserError("command line", "--frames", f"step too small: frames {other!r} and {f!r} would both "
-                                                        f"write {exr_name(f)}")
-        for name, limit in names:  # a large frame number is written out in full
-            claim_outputs(name(f))
-            n = _name_too_long(name(f), limit)
-            if n:
-                raise UserError("command line", "--frames", f"frame {f:g} makes a file name of {n} bytes (with 8 "
-                                                            f"more while it is written), more than the {limit} its "
-                                                            f"folder allows")
-    return exr_name, png_name
-
-
-# What a frame's description is made of: a change in any of _SCENE_PARTS needs the scene
-# built anew; a change of the view alone ("camera", "settings") is Scene.set_view.
-_SCENE_PARTS = ("materials", "meshes", "lights", "aggregates", "build settings")
-_CAMERA_FIELDS = ("camera_to_world", "focal_length", "horizontal_aperture", "vertical_aperture",
-                  "horizontal_aperture_offset", "vertical_aperture_offset", "clip_near", "clip_far", "lens_radius",
-                  "focus_distance")
-_SETTINGS_FIELDS = ("width", "height", "spp", "seed", "max_depth", "rr_depth", "threads", "technique", "bundle_size",
-                    "tau", "explicit_bounces", "da_depth_factor", "da_min_order", "roulette", "lod", "default_light", "dome_camera_visible", "crop")
-
-
-def _feed(h, *values):
-    """Hashes values exactly: numpy arrays by dtype, shape and bytes, the rest by repr (floats
-    round-trip)."""
-    import numpy as np
-    for v in values:
-        if isinstance(v, np.ndarray):
-            h.update(f"{v.dtype}{v.shape}".encode())
-            h.update(np.ascontiguousarray(v).tobytes())
-        else:
-            h.update(repr(v).encode())
-        h.update(b"\x00")
-
-
-def _feed_mesh(h, mesh):
-    _feed(h, mesh.points, mesh.indices, mesh.uvs)
-
-
-def _texture_key(t):
-    return (t.file, t.source, t.wrap_s, t.wrap_t, tuple(t.scale), tuple(t.bias), t.color_space, t.channel)
-
-
-def fingerprint(desc):
-    """{part: digest} of a core.SceneDesc, parts _SCENE_PARTS, "camera" and "settings": equal
-    digests, equal values (meshes compared point by point)."""
-    import granular_core as core
-    parts = {name: hashlib.blake2b(digest_size=20) for name in (*_SCENE_PARTS, "camera", "settings")}
-    h = parts["materials"]
-    for m in desc.materials:
-        _feed(h, m.name, m.type, m.albedo, m.ior, m.absorption, m.emission, m.roughness, m.energy_compensation,
-              m.opacity, m.opacity_threshold, _texture_key(m.albedo_texture), _texture_key(m.emission_texture),
-              _texture_key(m.opacity_texture))
-    h = parts["meshes"]
-    for m in desc.meshes:
-        _feed(h, m.name, m.xf, m.material, m.visible, m.id)
-        _feed_mesh(h, m.mesh)
-    h = parts["lights"]
-    for light in desc.lights:
-        _feed(h, light.name, light.type, light.xf, light.color, light.intensity, light.exposure, light.normalize,
-              light.angle, light.radius, light.width, light.height, light.texture_file)
-    h = parts["aggregates"]
-    for a in desc.aggregates:
-        _feed(h, a.name, a.xf, a.weights, a.grain_radius, a.packing_rate, a.seed, a.tile_spheres, a.id,
-              list(a.sizes), a.size_spread)
-        _feed_mesh(h, a.boundary)
-        for p in a.prototypes:
-            _feed(h, p.name, p.material)
-            _feed_mesh(h, p.mesh)
-    # Settings that take effect when the scene is built: media or none (Scene.set_view
-    # refuses a change between ept and the hybrid), the default light of a stage without any,
-    # delta suns made physical or not.
-    _feed(parts["build settings"], desc.settings.technique == core.Technique.Ept, desc.settings.default_light,
-          desc.settings.physical_sun)
-    _feed(parts["camera"], *(getattr(desc.camera, f) for f in _CAMERA_FIELDS))
-    _feed(parts["settings"], *(getattr(desc.settings, f) for f in _SETTINGS_FIELDS))
-    return {name: d.hexdigest() for name, d in parts.items()}
 
 
 # ---- commands ---------------------------------------------------------------------------------
@@ -538,27 +293,6 @@ def _log_build_warnings(args, built, shown=None):
                 shown.add(line)
 
 
-def _apply_options(args, scene):
-    """The command line's render settings on a read scene; returns them."""
-    import granular_core as core
-    s = scene.desc.settings
-    s.spp = args.spp
-    s.seed = args.seed
-    s.threads = args.threads
-    s.technique = core.technique_from_name(args.technique, "command line")
-    s.roulette = args.roulette
-    s.lod = args.lod
-    s.default_light = not args.no_default_light
-    s.physical_sun = not args.no_physical_sun
-    if getattr(args, "crop", None):
-        x0, x1, y0, y1 = args.crop
-        if x1 > s.width or y1 > s.height:
-            raise UserError("command line", "--crop", f"{x0}:{x1},{y0}:{y1} reaches outside the {s.width}x{s.height} "
-                                                      f"image")
-        s.crop = args.crop
-    return s
-
-
 def _crop_text(settings):
     x0, x1, y0, y1 = settings.crop
     return f" (pixels {x0}:{x1},{y0}:{y1})" if (x0, x1, y0, y1) != (0, 0, 0, 0) else ""
@@ -573,8 +307,16 @@ def _log_aggregates(args, built):
 def _render_image(args, built):
     import granular_core as core
     renderer = core.Renderer(built)
-    renderer.render(1, _Progress(not args.quiet), 0.5)
+    renderer.render(1, Progress(not args.quiet), 0.5)
     return renderer, renderer.image()
+
+
+def _low_orders(built):
+    """What carries the paths' low orders after their first grain, in one line."""
+    level = "proxies" if built.use_proxies else "explicit grains"
+    if not built.has_media:
+        return f"after the first grain: {level}"
+    return f"after the first grain: {level} to bounce {built.explicit_bounces}, then the medium"
 
 
 def _log_transports(args, built, renderer, image):
@@ -582,25 +324,19 @@ def _log_transports(args, built, renderer, image):
         rt = renderer.roulette
         tuned = f" (tuned on {rt['pixels']} pixels)" if rt["pixels"] else ""
         means = []
-        for part in ("ept", "vpt", "da"):
+        for part in ("ept", "ppt", "vpt", "da"):
             c = image.channels.index(part + ".R")
             means.append(float((image.pixels[..., c:c + 3] @ [0.2126, 0.7152, 0.0722]).mean()))
         lod = f"; level of detail: {100 * renderer.shortcut_fraction:.1f}% of paths entered a medium directly" \
             if args.lod > 0 else ""
         _log(args, f"  technique {args.technique}, bundles of {renderer.bundle_size}, P_a {rt['pa']:.3f}{tuned}; "
-                   f"mean luminance by transport: EPT {means[0]:.4g}, VPT {means[1]:.4g}, DA {means[2]:.4g}{lod}")
-    elif args.technique != "ept":
+                   f"mean luminance by transport: EPT {means[0]:.4g}, PPT {means[1]:.4g}, VPT {means[2]:.4g}, "
+                   f"DA {means[3]:.4g}{lod}")
+    if args.technique != "ept":
+        _log(args, "  " + _low_orders(built))
+    if not built.has_media and args.technique != "ept":
         _log(args, f"  technique {args.technique}: every aggregate is thinner than its mean free path, "
                    f"so explicit grains (EPT) render it all")
-
-
-def check_outputs(args):
-    """-o (an EXR) and --png (a PNG, another file) can be written."""
-    _check_output(args.output, "-o", (".exr",))
-    if args.png:
-        _check_output(args.png, "--png", (".png",))
-    if args.png and os.path.abspath(args.png) == os.path.abspath(args.output):
-        raise UserError("command line", "--png", "is the same file as -o")
 
 
 def cmd_render(args):
@@ -612,7 +348,7 @@ def cmd_render(args):
     claim_outputs(args.output, args.png)
     t0 = time.monotonic()
     scene = read_stage(args.scene, camera=args.camera, width=args.width, height=args.height)
-    s = _apply_options(args, scene)
+    s = apply_options(args, scene)
     _warnings(args, scene)
     built = api.build_scene(scene)
     _log_build_warnings(args, built)
@@ -630,54 +366,44 @@ def cmd_render(args):
 
 def _render_frames(args):
     """render --frames: the stage opened once, each frame's description read at its time and
-    compared with the previous frame's; the built scene is kept when only the view (camera,
-    render settings) changed (Scene.set_view: no voxelising, no TT work) and built anew when
-    lights, meshes, materials or aggregates changed, reusing every aggregate whose inputs did
-    not (a moving light voxelises nothing, a deforming boundary only its aggregate). Each
-    frame's files are written atomically as it completes; a failure leaves the frames before
-    it, complete, and nothing of its own."""
+    compared with the one the built scene holds (core.compare_scenes, every field): the built
+    scene is kept as it is when nothing changed, given the new view when only the camera or the
+    view's settings changed (Scene.set_view: no voxelising, no TT work), else built anew,
+    reusing every aggregate whose inputs did not change (a moving light voxelises nothing, a
+    deforming boundary or a grain material only its aggregates). Each frame's files are written
+    atomically as it completes; a failure leaves the frames before it, complete, and nothing
+    of its own."""
     import granular_core as core
-    from .usd_reader import open_stage, read_stage, translate_core_error
+    from .usd_reader import open_stage, read_stage
 
     frames = parse_frames(args.frames)
     exr_name, png_name = frame_outputs(args, frames)
     t0 = time.monotonic()
     stage = open_stage(args.scene)
-    built = previous = None
+    built = None
     shown = set()
     for k, frame in enumerate(frames):
         tf = time.monotonic()
         scene = read_stage(args.scene, camera=args.camera, width=args.width, height=args.height, stage=stage,
                            time=frame)
-        s = _apply_options(args, scene)
+        s = apply_options(args, scene)
         for w in scene.warnings:
             if w not in shown:
                 shown.add(w)
                 _log(args, "warning: " + w)
-        current = fingerprint(scene.desc)
-        changed = [p for p in _SCENE_PARTS if previous is None or current[p] != previous[p]]
-        if changed:
-            first = built is None
-            built = api.build_scene(scene, previous=built)
-            _log_build_warnings(args, built, shown)  # a later frame may bring its own
-            if first:
-                _log(args, f"{args.scene}: frames {frame_text(frames[0])} to {frame_text(frames[-1])} "
-                           f"({len(frames)}), camera {scene.camera_path}, {s.width}x{s.height}{_crop_text(s)}, {s.spp} spp")
-                _log_aggregates(args, built)
-                action = f"scene built in {time.monotonic() - tf:.2f} s"
-            else:
-                action = (f"scene rebuilt ({', '.join(changed)} changed; aggregates: {built.aggregates_built} "
-                          f"built, {built.aggregates_reused} reused) in {time.monotonic() - tf:.2f} s")
-        elif current["camera"] != previous["camera"] or current["settings"] != previous["settings"]:
-            try:
-                built.set_view(scene.desc.camera, scene.desc.settings)
-            except core.InputError as e:
-                raise translate_core_error(e, scene) from None
-            new = [p for p in ("camera", "settings") if current[p] != previous[p]]
-            action = f"scene reused (new {' and '.join(new)})"
+        built, changes = update_scene(scene, built)
+        if changes is None:
+            _log_build_warnings(args, built, shown)
+            _log(args, f"{args.scene}: frames {frame_text(frames[0])} to {frame_text(frames[-1])} "
+                       f"({len(frames)}), camera {scene.camera_path}, {s.width}x{s.height}{_crop_text(s)}, {s.spp} spp")
+            _log_aggregates(args, built)
+            action = f"scene built in {time.monotonic() - tf:.2f} s"
+        elif changes.level in (core.SceneChange.Unchanged, core.SceneChange.View):
+            action = f"scene reused ({changes.description})"
         else:
-            action = "scene reused (unchanged)"
-        previous = current
+            _log_build_warnings(args, built, shown)  # a later frame may bring its own
+            action = (f"scene rebuilt ({changes.description}; aggregates: {built.aggregates_built} built, "
+                      f"{built.aggregates_reused} reused) in {time.monotonic() - tf:.2f} s")
         t1 = time.monotonic()
         renderer, image = _render_image(args, built)
         seconds = time.monotonic() - t1
@@ -728,7 +454,7 @@ def cmd_info(args):
 
 
 def cmd_export_vdb(args):
-    _check_output(args.output, "-o", (".vdb",))
+    check_output(args.output, "-o", (".vdb",))
     claim_outputs(args.output)
     r = api.export_density(args.prim, args.output, args.voxel_size, path=args.scene)
     warn_if_replaced(r.get("replaced_other"), args.output)
@@ -737,7 +463,6 @@ def cmd_export_vdb(args):
 
 
 def cmd_farm(args):
-    from . import farm
     return farm.run(args)
 
 

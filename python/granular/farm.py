@@ -31,6 +31,8 @@ import sys
 import threading
 import time
 
+from .common import (EXIT_OK, Progress, apply_options, check_outputs, frame_outputs, frame_text, int_in, parse_frames,
+                     update_scene, warn_if_replaced)
 from .errors import UserError
 
 DEFAULT_TILES = 4
@@ -57,7 +59,6 @@ def scheduler_address(text):
 
 
 def add_parser(sub, render_options):
-    from .cli import _int_in
     f = sub.add_parser("farm", help="render a frame sequence as Dask tasks (frames x tiles), on this machine "
                                     "or a farm")
     f.add_argument("scene", metavar="SCENE", help="USD stage (.usda, .usdc, .usd)")
@@ -65,15 +66,15 @@ def add_parser(sub, render_options):
                    help="OpenEXR per frame; a run of '#' is replaced by the frame number, as in render --frames")
     f.add_argument("--png", metavar="OUT.####.png", help="also an 8-bit sRGB PNG per frame")
     f.add_argument("--frames", required=True, metavar="A:B[xSTEP]", help="the frames, as in render --frames")
-    f.add_argument("--tiles", type=_int_in(1, 4096), default=DEFAULT_TILES, metavar="N",
+    f.add_argument("--tiles", type=int_in(1, 4096), default=DEFAULT_TILES, metavar="N",
                    help=f"tiles per frame, each its own task (default {DEFAULT_TILES}): a grid of about "
                         "sqrt(N) x sqrt(N)")
     where = f.add_mutually_exclusive_group()
     where.add_argument("--scheduler", type=scheduler_address, metavar="ADDRESS",
                        help="a running Dask scheduler (tcp://host:8786); default: a LocalCluster here")
-    where.add_argument("--workers", type=_int_in(1, 1024), metavar="K",
+    where.add_argument("--workers", type=int_in(1, 1024), metavar="K",
                        help="worker processes of the LocalCluster (default: the cores)")
-    f.add_argument("--retries", type=_int_in(0, 100), default=2,
+    f.add_argument("--retries", type=int_in(0, 100), default=2,
                    help="times Dask runs a failed task again (default 2; a lost worker's tasks are rescheduled "
                         "besides)")
     render_options(f)
@@ -108,19 +109,19 @@ def tile_windows(window, n):
 
 class _WorkerState:
     """What a worker process keeps between tasks: the open stage, and the last built scene
-    with its description's fingerprint, so that the tiles of a frame build it once and the
-    next frame reuses what did not change (as render --frames does). One task at a time: a
-    render already uses every core it is given."""
+    (which holds its description), so that the tiles of a frame build it once and the next
+    frame reuses what did not change (common.update_scene, as render --frames does). One task
+    at a time: a render already uses every core it is given."""
 
     def __init__(self):
         self.lock = threading.Lock()
         self.key = None
         self.stage = None
         self.built = None
-        self.fingerprint = None
-        # P_a tuned by the pre-render of a frame (its description without the crop): the
-        # frame's later tiles pass it on as the roulette setting instead of tuning again —
-        # the same float, so the same image (the pre-render covers the whole image anyway).
+        # P_a tuned by the pre-render of a frame, by (frame, the job's options): the frame's
+        # later tiles pass it on as the roulette setting instead of tuning again — the same
+        # float, so the same image (the pre-render covers the whole image anyway). The stage
+        # read again forgets them.
         self.tuned = {}
 
     def use_stage(self, path):
@@ -133,7 +134,7 @@ class _WorkerState:
             key = (path, None)
         if self.key != key:
             self.stage = open_stage(path)
-            self.key, self.built, self.fingerprint = key, None, None
+            self.key, self.built = key, None
             self.tuned.clear()
         return self.stage
 
@@ -148,9 +149,7 @@ def render_tile(job, frame, window):
     import argparse
     import granular_core as core
     from pxr import Tf
-    from . import api
-    from .cli import _apply_options, _SCENE_PARTS, fingerprint
-    from .usd_reader import read_stage, translate_core_error, describe_tf_error
+    from .usd_reader import read_stage, describe_tf_error
 
     args = argparse.Namespace(**job)
     t0 = time.monotonic()
@@ -158,25 +157,16 @@ def render_tile(job, frame, window):
         try:
             scene = read_stage(job["scene"], camera=args.camera, width=args.width, height=args.height,
                                stage=_STATE.use_stage(job["scene"]), time=frame)
-            s = _apply_options(args, scene)
-            # The frame's description before this tile's crop (and a shared P_a): its scene
-            # parts decide a rebuild, the whole of it keys the frame's tuned P_a.
-            current = fingerprint(scene.desc)
-            frame_key = tuple(sorted(current.items()))
+            s = apply_options(args, scene)
+            frame_key = (frame, tuple(sorted(job.items())))
             if frame_key in _STATE.tuned:
                 s.roulette = _STATE.tuned[frame_key]
             s.crop = tuple(window)
-            built = _STATE.built
-            if built is None or any(current[p] != _STATE.fingerprint[p] for p in _SCENE_PARTS):
-                built = api.build_scene(scene, previous=built)
-                action = "built"
-            else:  # the camera, the crop, P_a: a new view only
-                try:
-                    built.set_view(scene.desc.camera, scene.desc.settings)
-                except core.InputError as e:
-                    raise translate_core_error(e, scene) from None
-                action = "reused"
-            _STATE.built, _STATE.fingerprint = built, current
+            # Another tile of the frame, or a frame that moves only the camera: a new view.
+            built, changes = update_scene(scene, _STATE.built)
+            action = "reused" if changes is not None and changes.level in (
+                core.SceneChange.Unchanged, core.SceneChange.View) else "built"
+            _STATE.built = built
             t1 = time.monotonic()
             renderer = core.Renderer(built)
             if not renderer.render(1, None, 0.5):
@@ -199,7 +189,7 @@ def render_tile(job, frame, window):
 
 
 # Options a task needs; everything else (outputs, scheduling) stays on the client.
-_JOB_OPTIONS = ("scene", "camera", "width", "height", "spp", "seed", "threads", "technique", "roulette", "lod",
+_JOB_OPTIONS = ("scene", "camera", "width", "height", "spp", "seed", "threads", "technique", "roulette", "lod", "proxies",
                 "no_default_light", "no_physical_sun")
 
 
@@ -214,7 +204,6 @@ def _check_scene(args, frames):
     """Reads every frame's description here, as a task would (no build), so that a stage that
     cannot be read fails the job before any task runs; returns each frame's pixel window."""
     import granular_core as core
-    from .cli import _apply_options
     from .usd_reader import open_stage, read_stage, validate
 
     stage = open_stage(args.scene)
@@ -222,7 +211,7 @@ def _check_scene(args, frames):
     for frame in frames:
         scene = read_stage(args.scene, camera=args.camera, width=args.width, height=args.height, stage=stage,
                            time=frame)
-        s = _apply_options(args, scene)
+        s = apply_options(args, scene)
         validate(scene)
         windows[frame] = core.render_window(s)
         if frame == frames[0]:
@@ -236,7 +225,7 @@ def _warm(scene):
     """On a worker: the imports and the stage opened before its first task (while the client
     reads the frames), so that no task waits for them."""
     import granular_core  # noqa: F401
-    from . import api, cli  # noqa: F401
+    from . import api, usd_reader  # noqa: F401
     with _STATE.lock:
         try:
             _STATE.use_stage(scene)
@@ -299,7 +288,6 @@ class _Cluster:
 def _write_frame(image, exr, png, exposure):
     """The PNG, then the EXR, each written whole or not at all: the EXR marks a finished frame."""
     import granular_core as core
-    from .cli import warn_if_replaced
     if png:
         warn_if_replaced(core.write_png(png, image, exposure), png)
     warn_if_replaced(core.write_exr(exr, image), exr)
@@ -307,8 +295,6 @@ def _write_frame(image, exr, png, exposure):
 
 
 def run(args):
-    from .cli import check_outputs, frame_outputs, frame_text, parse_frames
-
     check_outputs(args)
     frames = parse_frames(args.frames)
     exr_name, png_name = frame_outputs(args, frames)
@@ -343,9 +329,8 @@ def run(args):
 def _collect(args, client, futures, tasks, exr_name, png_name, t0):
     import granular_core as core
     from distributed import as_completed
-    from .cli import EXIT_OK, _Progress, frame_text
 
-    progress = _Progress(not args.quiet, unit="tasks")
+    progress = Progress(not args.quiet, unit="tasks")
     pending = {frame: [] for frame in tasks}
     done = 0
     builds = 0

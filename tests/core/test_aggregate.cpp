@@ -394,3 +394,74 @@ TEST(Aggregate, OccludedAgreesWithTheNearestHit) {
   EXPECT_GT(blocked, 500);
   EXPECT_GT(clear, 500);
 }
+
+TEST(Aggregate, ProxyQueriesAgreeWithEveryGrainChecked) {
+  // Rays leaving a proxy sphere (the neighbour lists answer most of them, the walk the
+  // rest): the nearest sphere entered and the proxy transmittance, against a brute force
+  // over every grain of the aggregate.
+  Built b(smallAggregate(0.05f, 0.55f));
+  const Aggregate& a = b.agg;
+  std::vector<GrainInstance> grains;
+  a.forEachGrain(a.bounds(), [&](const GrainInstance& g) { grains.push_back(g); });
+  ASSERT_GT(grains.size(), 1000u);
+  ProxyOptions po;
+  po.rays = 1 << 14;
+  po.useCache = false;
+  Material glass;
+  glass.type = MaterialType::Dielectric;
+  glass.ior = 1.5f;
+  std::vector<ProxyTable> tables;
+  for (const auto& p : a.prototypes()) tables.push_back(estimateProxyTable(p.mesh, glass, po));
+  Rng rng(33);
+  int hits = 0, exact = 0;
+  for (int r = 0; r < 3000; ++r) {
+    const GrainInstance& g = grains[size_t(rng.next1D() * float(grains.size())) % grains.size()];
+    const Vec3 u = sampleUniformSphere(rng.next1D(), rng.next1D());
+    Vec3 d = sampleUniformSphere(rng.next1D(), rng.next1D());
+    if (dot(d, u) < 0) d = -d;
+    const Vec3 o = g.center + u * g.radius;
+    GrainHit from;
+    for (int k = 0; k < 3; ++k) from.cell[k] = g.cell[k];
+    from.sphere = g.sphere;
+    // Brute force: the nearest entry, and the product of the chances of missing.
+    float tBest = kInf;
+    const GrainInstance* best = nullptr;
+    const float tmax = 3.0f * a.grainRadius();
+    double T = 1;
+    for (const GrainInstance& h : grains) {
+      if (&h == &g) continue;
+      const Vec3 oc = o - h.center;
+      const float along = dot(oc, d), w2 = length2(oc - d * along), disc = h.radius * h.radius - w2;
+      if (disc < 0 || -along + std::sqrt(disc) < 0) continue;
+      const float te = std::max(0.0f, -along - std::sqrt(disc));
+      if (te < tBest) {
+        tBest = te;
+        best = &h;
+      }
+      if (te < tmax) {
+        const ProxyTable& t = tables[size_t(h.prototype)];
+        T *= 1.0 - t.hitProbability(t.bBin(std::sqrt(w2) / h.radius));
+      }
+    }
+    GrainHit hit;
+    const bool found = a.intersectProxy(o, d, 0.0f, kInf, hit, &from);
+    ASSERT_EQ(found, best != nullptr) << "ray " << r;
+    if (found) {
+      ++hits;
+      ASSERT_NEAR(hit.t, tBest, 1e-4f * a.grainRadius()) << "ray " << r;
+      if (hit.sphere == best->sphere && hit.cell[0] == best->cell[0] && hit.cell[1] == best->cell[1] &&
+          hit.cell[2] == best->cell[2]) {
+        ++exact;
+        EXPECT_EQ(hit.prototype, best->prototype);
+        EXPECT_NEAR(length(hit.center - best->center), 0.0f, 1e-5f);
+      }
+    }
+    const float tr = a.proxyTransmittance(o, d, 0.0f, tmax, tables, &from, uint64_t(r));
+    if (T >= Aggregate::kProxyRoulette * 1.001)
+      ASSERT_NEAR(tr, T, 1e-4 * T + 1e-6) << "ray " << r;
+    else
+      ASSERT_TRUE(tr == 0.0f || tr == Aggregate::kProxyRoulette) << "ray " << r << ": " << tr;
+  }
+  EXPECT_GT(hits, 1500);
+  EXPECT_GE(exact, hits - 3) << "only ties may name another sphere";
+}

@@ -148,7 +148,7 @@ Comparison compareSlab(const MediumParams& m, float thickness, bool below, int s
 // DA against VPT on the same medium, a half space (80 mean free paths deep, 160 across),
 // albedo 0.99 / 0.9 / 0.5, Henyey–Greenstein g 0 and 0.7, under the renderer's default
 // switching (RenderSettings::daDepthFactor, daMinOrder): diffuse reflectance within 1%
-// (the bound) plus three standard errors of the paired difference.
+// (the test's bound) plus three standard errors of the paired difference.
 TEST(Diffusion, SemiInfiniteSlabReflectanceMatchesVptWithinOnePercent) {
   const float sigmaT = 20.0f;  // mean free path 0.05
   for (float albedo : {0.99f, 0.9f, 0.5f})

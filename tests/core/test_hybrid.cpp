@@ -58,15 +58,17 @@ PixelStats renderStats(const SceneDesc& d) {
 
 TEST(Hybrid, AovsAddUpToTheBeauty) {
   SceneDesc d = ballScene(Technique::Hybrid, 16);
-  d.settings.tau = 0.5f;  // switch early, so that all three transports contribute
+  d.settings.tau = 0.5f;  // switch early, so that all transports contribute
+  d.settings.proxies = ProxyUse::On;
+  d.settings.explicitBounces = 2;  // a few bounces among proxies before the media
   Image img = renderImage(d);
-  double parts[3] = {0, 0, 0};
-  const char* names[3] = {"ept.R", "vpt.R", "da.R"};
+  double parts[4] = {0, 0, 0, 0};
+  const char* names[4] = {"ept.R", "vpt.R", "da.R", "ppt.R"};
   for (int y = 0; y < img.height; ++y)
     for (int x = 0; x < img.width; ++x)
       for (int c = 0; c < 3; ++c) {
         float sum = 0;
-        for (int t = 0; t < 3; ++t) {
+        for (int t = 0; t < 4; ++t) {
           float v = img.at(x, y)[img.channelIndex(names[t]) + c];
           sum += v;
           parts[t] += v;
@@ -75,6 +77,7 @@ TEST(Hybrid, AovsAddUpToTheBeauty) {
       }
   EXPECT_GT(parts[0], 0);
   EXPECT_GT(parts[1], 0);
+  EXPECT_GT(parts[3], 0);
 }
 
 TEST(Hybrid, ClearGrainsInAWhiteFurnaceReturnTheEnvironment) {

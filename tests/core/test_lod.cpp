@@ -108,7 +108,7 @@ TEST(Lod, SubPixelGrainsMatchExplicitGrainsWithinNoise) {
 
 TEST(Lod, SubPixelGrainsInTheHybridMatchExplicitGrainsWithinNoise) {
   // The hybrid: after the first grain, diffusion takes the paths that go deep, so the
-  // shortcut's image also carries DA's approximation. At the seed's DA depth that was
+  // shortcut's image also carries DA's approximation. At the paper's DA depth that was
   // +1.6% to +1.9% against explicit grains here; at the depth we use (vpt.h), none.
   Result off = render(sandBall(kFar, kSmallGrain, 0.0f, 128, Technique::Hybrid));
   Result on = render(sandBall(kFar, kSmallGrain, 0.5f, 128, Technique::Hybrid));

@@ -737,7 +737,7 @@ TEST(TTAggregate, ElongatedGrainsAtALowerPackingRateMatchTT) {
 // Grains of many sizes (tt.h): a flight meets a sphere by its cross-section, missed
 // spheres' chords and teleports scale with each size, and the space between spheres
 // follows their surface per volume (the Sauter mean). λ_β and λ_t within 2% of explicit
-// walks (the bound; the equal-sized rocks above read +0.8%).
+// walks (the test's bound; the equal-sized rocks above read +0.8%).
 
 TEST(TTAggregate, TwoSizesOfSpheresMatchTheSauterMeanAndTT) {
   // Sizes 1 and 0.5, half of each by number (by volume 8 : 1).

@@ -149,13 +149,15 @@ TEST(HdGranular, TransportAovsAddUpToTheColor) {
   UsdStageRefPtr stage = UsdStage::Open(kExamples + "/snowslab.usda");
   auto engine = makeEngine(4);
   Frame color = render(*engine, stage, HdAovTokens->color, 40, 26);
-  Frame parts[3] = {render(*engine, stage, TfToken("ept"), 40, 26), render(*engine, stage, TfToken("vpt"), 40, 26),
-                    render(*engine, stage, TfToken("da"), 40, 26)};
+  Frame parts[4] = {render(*engine, stage, TfToken("ept"), 40, 26), render(*engine, stage, TfToken("vpt"), 40, 26),
+                    render(*engine, stage, TfToken("da"), 40, 26), render(*engine, stage, TfToken("ppt"), 40, 26)};
   ASSERT_EQ(parts[0].channels, 3);
+  ASSERT_EQ(parts[3].channels, 3);
   double high = 0;
   for (int p = 0; p < 40 * 26; ++p)
     for (int c = 0; c < 3; ++c) {
-      float sum = parts[0].values[3 * p + c] + parts[1].values[3 * p + c] + parts[2].values[3 * p + c];
+      float sum = parts[0].values[3 * p + c] + parts[1].values[3 * p + c] + parts[2].values[3 * p + c] +
+                  parts[3].values[3 * p + c];
       high += parts[1].values[3 * p + c] + parts[2].values[3 * p + c];
       EXPECT_NEAR(sum, color.values[4 * p + c], 1e-4f * (1 + color.values[4 * p + c]));
     }
@@ -467,6 +469,24 @@ TEST(HdGranularAnimation, ALightThatDoublesPerFrameDoublesTheImageAndVoxelisesNo
   }
 }
 
+TEST(HdGranularAnimation, AnEditThatLeavesTheDescriptionAsItWasBuildsNothing) {
+  // The sun's intensity is time-sampled but holds still from frame 1 to 2: Hydra syncs the
+  // light again, the description compares equal (compareScenes), and the scene is kept.
+  UsdStageRefPtr stage = UsdStage::Open(kExamples + "/snowslab.usda");
+  UsdAttribute intensity = stage->GetPrimAtPath(SdfPath("/World/Sun")).GetAttribute(TfToken("inputs:intensity"));
+  ASSERT_TRUE(intensity.Set(500.0f, UsdTimeCode(1)));
+  ASSERT_TRUE(intensity.Set(500.0f, UsdTimeCode(2)));
+  ASSERT_TRUE(intensity.Set(1000.0f, UsdTimeCode(3)));
+  auto engine = makeEngine(2);
+  const int builds[] = {1, 1, 2};
+  for (int frame = 1; frame <= 3; ++frame) {
+    ASSERT_TRUE(render(*engine, stage, HdAovTokens->color, 32, 20, UsdTimeCode(frame)).converged) << frame;
+    const BuildCounts counts = buildCounts(*engine);
+    EXPECT_EQ(counts.scenes, builds[frame - 1]) << "frame " << frame;
+    EXPECT_EQ(counts.built, 1) << "frame " << frame;
+  }
+}
+
 TEST(HdGranularAnimation, AMovingCameraMatchesSingleFrameRendersAndRebuildsNothing) {
   UsdStageRefPtr stage = UsdStage::Open(kExamples + "/snowslab.usda");
   UsdAttribute xf = stage->GetPrimAtPath(SdfPath("/World/Camera")).GetAttribute(TfToken("xformOp:transform"));
@@ -519,6 +539,30 @@ TEST(HdGranular, ADeltaSunOverSmoothGrainsIsThePhysicalSunUnlessTurnedOff) {
   ASSERT_TRUE(delta.converged);
   EXPECT_EQ(stat<int>(engine->GetRenderStats(), "granular:widenedSuns"), 0);
   EXPECT_EQ(stat<int>(engine->GetRenderStats(), "granular:sceneBuilds"), 2);  // a setting that rebuilds
+}
+
+TEST(HdGranular, ProxiesCarryTheLowOrdersUnderANarrowSunAsInGranularRender) {
+  // The snow slab's 0.53° sun: the setting's default (auto) uses proxies there, as
+  // granular render does; "off" turns them off as a change of view (no rebuild). Their
+  // accuracy is core's to test (tests/core/test_ppt.cpp).
+  UsdStageRefPtr stage = UsdStage::Open(kExamples + "/snowslab.usda");
+  auto engine = makeEngine(4);
+  Frame proxies = render(*engine, stage, HdAovTokens->color, 32, 20);
+  ASSERT_TRUE(proxies.converged);
+  EXPECT_TRUE(stat<bool>(engine->GetRenderStats(), "granular:proxies"));
+  engine->SetRendererSetting(TfToken("granular:proxies"), VtValue(std::string("off")));
+  Frame medium = render(*engine, stage, HdAovTokens->color, 32, 20);
+  ASSERT_TRUE(medium.converged);
+  EXPECT_FALSE(stat<bool>(engine->GetRenderStats(), "granular:proxies"));
+  EXPECT_EQ(stat<int>(engine->GetRenderStats(), "granular:sceneBuilds"), 1);
+  for (Frame const* f : {&proxies, &medium})
+    for (float v : f->values) ASSERT_TRUE(std::isfinite(v));
+  // Unknown words are refused by name, as granular render refuses them: nothing rendered.
+  engine->SetRendererSetting(TfToken("granular:proxies"), VtValue(std::string("sometimes")));
+  Frame refused = render(*engine, stage, HdAovTokens->color, 32, 20);
+  EXPECT_TRUE(refused.converged);
+  for (size_t i = 0; i < refused.values.size(); i += size_t(refused.channels))
+    for (int c = 0; c < 3; ++c) ASSERT_EQ(refused.values[i + size_t(c)], 0.0f) << i;
 }
 
 // The stage's render settings prim with a data window (UsdRender dataWindowNDC: x from 1/4

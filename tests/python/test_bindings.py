@@ -89,7 +89,7 @@ def test_images_are_written_and_read_back(tmp_path):
     r.render()
     img = r.image()
     assert img.channels[:8] == ["R", "G", "B", "A", "Z", "N.X", "N.Y", "N.Z"]
-    assert {"ept.R", "vpt.R", "da.R"} <= set(img.channels)
+    assert {"ept.R", "vpt.R", "da.R", "ppt.R"} <= set(img.channels)
     core.write_exr(str(tmp_path / "a.exr"), img)
     back = core.read_image_rgb(str(tmp_path / "a.exr"))
     assert np.allclose(back.pixels.reshape(-1, 3), img.pixels[..., :3].reshape(-1, 3), atol=1e-6)
@@ -105,7 +105,8 @@ def test_media_follow_the_tt_relations(tmp_path):
     (m,) = built.media()
     sigma_t = np.array(m["sigma_t"])
     assert (sigma_t > 0).all()
-    # lambda_t = 1 / sigma_t, the mean free path; sigma_b from Dixmier (NOTES item 2).
+    # lambda_t = 1 / sigma_t, the mean free path; sigma_b = 3f / (4R(1 - f)) (Dixmier 1978),
+    # the inverse mean free path between bounding spheres of radius R at packing rate f.
     assert np.array(m["mean_free_path"]) == pytest.approx(1 / sigma_t, rel=1e-5)
     R, f = m["grain_radius"], m["packing_rate"]
     assert m["sigma_b"] == pytest.approx(3 / (4 * R) * f / (1 - f), rel=1e-5)

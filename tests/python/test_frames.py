@@ -277,7 +277,7 @@ def test_a_moving_boundary_rebuilds_and_equals_the_still_render(how, tmp_path, c
     err = _render(moving, tmp_path / "b.##.exr", capsys, "--frames", "1:2")
     lines = _frame_lines(err)
     assert len(lines) == 2 and lines[1].startswith(
-        "frame 2: scene rebuilt (aggregates changed; aggregates: 1 built, 0 reused)"), err
+        "frame 2: scene rebuilt (1 aggregate changed; aggregates: 1 built, 0 reused)"), err
     still = small_scene(tmp_path / "still.usda", _moving_boundary(how, t=2))
     _render(still, tmp_path / "still.exr", capsys)
     f1, f2 = _pixels(tmp_path / "b.01.exr"), _pixels(tmp_path / "b.02.exr")
@@ -299,11 +299,64 @@ def test_a_grain_roughness_that_changes_rebuilds_the_scene(tmp_path, capsys):
     scene = small_scene(tmp_path / "rough.usda", mutate)
     err = _render(scene, tmp_path / "r.#.exr", capsys, "--frames", "1:2")
     lines = _frame_lines(err)
-    assert lines[1].startswith("frame 2: scene rebuilt (materials changed"), lines[1]
+    # The grain material belongs to the aggregate's inputs: it alone is made anew.
+    assert lines[1].startswith("frame 2: scene rebuilt (1 aggregate changed; aggregates: 1 built, 0 reused)"), lines[1]
     _render(scene, tmp_path / "still.#.exr", capsys, "--frames", "2")
     f1, f2 = _pixels(tmp_path / "r.1.exr"), _pixels(tmp_path / "r.2.exr")
     assert not np.array_equal(f1, f2)
     np.testing.assert_array_equal(f2, _pixels(tmp_path / "still.2.exr"))
+
+
+def _frosted_with_rough_polish(path, samples):
+    """examples/frosted.usda with its polished grains' roughness time-sampled ({frame: value})."""
+    layer = Sdf.Layer.CreateNew(str(path))
+    layer.subLayerPaths.append(str(EXAMPLES / "frosted.usda"))
+    stage = Usd.Stage.Open(layer)
+    stage.SetStartTimeCode(min(samples))
+    stage.SetEndTimeCode(max(samples))
+    attr = stage.OverridePrim("/World/Grains/Polished").CreateAttribute("primvars:granular:roughness",
+                                                                         Sdf.ValueTypeNames.Float)
+    for t, v in samples.items():
+        attr.Set(v, t)
+    layer.Save()
+    return path
+
+
+def test_the_frosted_example_with_a_time_sampled_roughness_renders_frame_2_as_alone(tmp_path, capsys):
+    """The roughness of one of frosted.usda's grain prototypes changes from frame 1 to 2:
+    compare_scenes finds the aggregate's inputs changed, so frame 2 of the sequence is the
+    image frame 2 renders on its own, bit for bit."""
+    scene = _frosted_with_rough_polish(tmp_path / "frosted.usda", {1: 0.0, 2: 0.6})
+    size = ["--width", 24, "--height", 18, "--spp", 1]
+    rc, _, err = run_cli(["render", scene, "-o", tmp_path / "seq.#.exr", "--frames", "1:2", *size, "--seed", 7,
+                          "--roulette", 0.5], capsys)
+    assert rc == 0, err
+    lines = _frame_lines(err)
+    assert lines[1].startswith("frame 2: scene rebuilt (1 aggregate changed; aggregates: 1 built, 0 reused)"), err
+    rc, _, err = run_cli(["render", scene, "-o", tmp_path / "alone.#.exr", "--frames", "2:2", *size, "--seed", 7,
+                          "--roulette", 0.5], capsys)
+    assert rc == 0, err
+    f1, f2 = _pixels(tmp_path / "seq.1.exr"), _pixels(tmp_path / "seq.2.exr")
+    assert f2.mean() > 0.01 and not np.array_equal(f1, f2), "lit, and the grains changed"
+    np.testing.assert_array_equal(f2, _pixels(tmp_path / "alone.2.exr"))
+
+
+def test_compare_scenes_says_what_changed_between_frames(tmp_path):
+    """core.compare_scenes on the descriptions the reader gives at two times: a moving camera
+    is a view; a grain roughness lists its aggregate; a light is lights."""
+    def changes(scene, a=1, b=2):
+        return core.compare_scenes(read_stage(str(scene), time=a).desc, read_stage(str(scene), time=b).desc)
+
+    camera = changes(small_scene(tmp_path / "camera.usda", _moving_camera))
+    assert camera.level == core.SceneChange.View and camera.camera and not camera.settings
+    assert camera.description == "new camera"
+    rough = changes(_frosted_with_rough_polish(tmp_path / "rough.usda", {1: 0.0, 2: 0.6}))
+    assert rough.level == core.SceneChange.Aggregates and list(rough.aggregates) == [0]
+    assert not (rough.materials or rough.meshes or rough.lights)
+    light = changes(small_scene(tmp_path / "light.usda", lambda st: _sun_intensity(st, {1: 1.0, 2: 2.0})))
+    assert light.level == core.SceneChange.Lights and light.description == "lights changed"
+    still = changes(small_scene(tmp_path / "still.usda", _timed))
+    assert still.level == core.SceneChange.Unchanged and still.description == "unchanged"
 
 
 def test_fractional_steps_name_files_by_frame_and_reuse_an_unchanged_scene(scene_file, tmp_path, capsys):

@@ -37,6 +37,7 @@ CASES = [
     *_bad(RENDER, "--roulette", ["0", "2", "nan", "inf", "-inf", "1e-300", "x"]),
     *_bad(RENDER, "--lod", ["-1", "nan", "inf", "1e39", "x"], ""),
     *_bad(RENDER, "--technique", ["foo", "EPT", ""], "invalid choice"),
+    *_bad(RENDER, "--proxies", ["sometimes", "ON", ""], "invalid choice"),
     *_bad(RENDER, "--camera", ["", "World/Camera", "not a path", "/World/Camera.focalLength"],
           "is not an absolute prim path"),
     (RENDER, ["--camera", "/World/Nope"], "--camera", "is not a prim of the stage"),

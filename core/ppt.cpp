@@ -1,0 +1,137 @@
+// ppt.cpp — proxy path tracing (Müller et al. 2016, §4). See ppt.h.
+#include "ppt.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "sampling.h"
+
+namespace granular {
+
+namespace {
+
+// Crossings of proxy spheres whose grains the ray misses, per event: far more than any
+// packing puts along one ray before a grain is met (hit chances are ~0.5–0.9).
+constexpr int kMaxCrossings = 1 << 16;
+constexpr float kMinNeeChance = 0.125f;
+
+// The world point of a local point on the unit sphere of a proxy.
+Vec3 onSphere(const GrainHit& g, const ProxyFrame& frame, const Vec3& local) {
+  return g.center + frame.toWorld(local) * g.radius;
+}
+
+// Scattering off the grain of a proxy the path met (hit): NEE, then the next direction.
+void scatter(const Scene& scene, PathState& path, const Hit& hit, const ProxyTable& table, const ProxyFrame& frame,
+             int b) {
+  const GrainHit& g = hit.grain;
+  GrainStart own;
+  own.aggregate = hit.aggregate;
+  own.grain = g;
+  own.inside = false;
+  const auto& lights = scene.lights();
+  // Next-event estimation where light can still arrive: a shadow ray from deep inside
+  // crosses about depth / λ grains, so it is made with probability q = exp(−depth / 4R),
+  // at least kMinNeeChance, and weighted 1/q (unbiased; depth from the distance field).
+  const float depth = std::max(0.0f, -scene.aggregates()[size_t(hit.aggregate)]->boundaryDistance(g.center));
+  const float q = std::max(kMinNeeChance, std::exp(-depth / (4.0f * g.radius)));
+  if (!lights.empty() && (q >= 1.0f || path.rng.next1D() < q)) {
+    const float lightPick = lightPickProb(scene) * q;
+    const int li = std::min(int(path.rng.next1D() * float(lights.size())), int(lights.size()) - 1);
+    LightSample ls;
+    const float u1 = path.rng.next1D(), u2 = path.rng.next1D(), uExit = path.rng.next1D();
+    if (lights[li].sampleLi(g.center, u1, u2, ls) && !isBlack(ls.Li)) {
+      const ProxyDirection d = table.eval(b, frame.toLocal(ls.wi));
+      if (d.pdf > 0) {
+        const Vec3 from = onSphere(g, frame, table.exitPoint(b, d, uExit));
+        const float dist = std::isfinite(ls.dist) ? std::max(0.0f, ls.dist - g.radius) * (1.0f - 1e-4f) : kInf;
+        const float tr = scene.proxyTransmittance(from, ls.wi, dist, &own, path.rng.nextU32());
+        path.cost[0] += 1;
+        if (tr > 0) {
+          if (ls.delta) {
+            path.L[path.credit] += path.beta * d.f * (tr * ls.Li / lightPick);
+          } else {
+            const float lp = ls.pdf * lightPick;
+            path.L[path.credit] += path.beta * d.f * ls.Li * (tr * powerHeuristic(lp, d.pdf) / lp);
+          }
+        }
+      }
+    }
+  }
+  ProxyDirection d;
+  const float uBin = path.rng.next1D(), v1 = path.rng.next1D(), v2 = path.rng.next1D(), uSide = path.rng.next1D(),
+              uExit = path.rng.next1D();
+  if (!table.sample(b, uBin, v1, v2, uSide, d)) {
+    path.alive = false;  // nothing leaves this grain
+    return;
+  }
+  path.beta *= d.f / d.pdf;
+  const Vec3 wi = normalize(frame.toWorld(d.w));
+  path.lastDelta = false;
+  path.lastPdf = d.pdf;
+  path.lastP = g.center;
+  path.lastNeeChance = q;
+  path.inGrain = false;
+  path.from = own;
+  path.ray.o = onSphere(g, frame, table.exitPoint(b, d, uExit));
+  path.ray.d = wi;
+  path.ray.tmin = 0;
+  path.ray.tmax = kInf;
+  path.coneSpread = std::max(path.coneSpread, kDiffuseConeSpread);
+  ++path.depth;
+  if (!russianRoulette(scene, path) || !isFinite(path.beta) || isBlack(path.beta)) path.alive = false;
+}
+
+}  // namespace
+
+bool entersProxies(const Scene& scene, const PathState& path) {
+  return path.mode == kEpt && path.alive && !path.inGrain && path.from.aggregate >= 0 && scene.useProxies();
+}
+
+void pptStep(const Scene& scene, PathState& path) {
+  if (path.depth >= scene.settings().maxDepth) {
+    path.alive = false;
+    return;
+  }
+  for (int crossing = 0; crossing < kMaxCrossings; ++crossing) {
+    Hit hit;
+    const bool found = scene.intersectProxies(path.ray, hit, path.from.aggregate >= 0 ? &path.from : nullptr);
+    path.cost[0] += 1;
+    if (!found) {
+      path.L[path.credit] += path.beta * escapedRadiance(scene, path, path.ray.d);
+      path.alive = false;
+      return;
+    }
+    if (hit.kind == Hit::AreaLight) {
+      addAreaLightHit(scene, path, hit);
+      path.alive = false;
+      return;
+    }
+    if (hit.kind == Hit::Surface) {
+      shadeSurface(scene, path, hit, false);
+      break;
+    }
+    const GrainHit& g = hit.grain;
+    const ProxyFrame frame(path.ray.d, (hit.p - g.center) / g.radius);
+    const ProxyTable& table = scene.proxyTable(hit.aggregate, g.prototype);
+    const int b = table.bBin(frame.b);
+    if (path.rng.next1D() < table.hitProbability(b)) {
+      scatter(scene, path, hit, table, frame, b);
+      break;
+    }
+    // The grain is missed: the ray crosses the sphere and goes on from its far side.
+    const Vec3 oc = path.ray.o - g.center;
+    const float tFar = -dot(oc, path.ray.d) + std::sqrt(std::max(0.0f, g.radius * g.radius - length2(oc - path.ray.d * dot(oc, path.ray.d))));
+    path.ray.o = path.ray.o + path.ray.d * std::max(tFar, hit.t);
+    path.ray.tmin = 0;
+    path.from.aggregate = hit.aggregate;
+    path.from.grain = g;
+    path.from.inside = false;
+  }
+  // The level-of-detail shortcut leaves for the medium after the explicit bounces (ept.h).
+  if (path.shortcut && path.alive && path.depth >= scene.explicitBounces() && scene.hasMedia()) {
+    path.mode = path.credit = kVpt;
+    path.medium = scene.mediumAt(path.ray.o);
+  }
+}
+
+}  // namespace granular

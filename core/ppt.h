@@ -1,0 +1,34 @@
+// ppt.h — proxy path tracing (PPT; Müller et al. 2016, §4): the low orders of a path in an
+// aggregate, after its first grain, scatter off the grains' bounding spheres at their true
+// positions by each prototype's tabulated grain scattering (proxy.h), not by tracing the
+// grains. The positions keep the packing's gaps, hence the shadowing between neighbouring
+// grains that the memoryless medium (VPT) averages away; a proxy costs a sphere test and a
+// table lookup instead of a grain's BVH and its chain of refractions.
+//
+// Contract: pptStep() advances a path (PathState::mode kPpt) by one event. It walks to the
+// nearest surface, area light or proxy sphere the ray enters (not the sphere it leaves,
+// PathState::from). At a sphere, the ray meets its grain with the table's chance hit(b),
+// else it crosses the sphere unchanged and the walk goes on. A grain met scatters:
+//  - next-event estimation: one light, sampled from the sphere's centre; the table's f_c
+//    toward it, the shadow ray leaving from that direction's exit point and crossing other
+//    proxies with their chance of missing their grains (Scene::proxyTransmittance); MIS by
+//    the power heuristic against the table's pdf, delta lights unweighted. Smooth grains'
+//    tables are smooth in direction, so delta and narrow suns are reached like any light;
+//  - the next direction from the table (weight f_c / pdf), leaving from its exit point.
+// Surfaces are shaded as EPT shades them, shadow rays crossing proxies as above. The path
+// leaves PPT as EPT would leave its explicit bounces: for the media at the hybrid's switch
+// (hybrid.h) or, when it took the level-of-detail shortcut, after Scene::explicitBounces().
+// Radiance goes to PathState::L[kPpt] (the AOV ppt.*), a low-order part as EPT's is.
+#pragma once
+
+#include "ept.h"
+
+namespace granular {
+
+void pptStep(const Scene& scene, PathState& path);
+
+// After an explicit grain bounce: whether the path goes on among proxies (the scene's
+// setting, a technique with media, the path out of its grain and in EPT).
+bool entersProxies(const Scene& scene, const PathState& path);
+
+}  // namespace granular

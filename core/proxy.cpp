@@ -1,0 +1,336 @@
+// proxy.cpp — tabulated grain scattering for proxies (Müller et al. 2016, §4). See proxy.h.
+#include "proxy.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+
+#include "cache.h"
+#include "embree_util.h"
+#include "error.h"
+#include "grain.h"
+#include "rng.h"
+#include "sampling.h"
+#include "tt.h"
+
+namespace granular {
+
+namespace {
+
+constexpr int64_t kChunk = 16384;  // rays per chunk: fixed, so results ignore the thread count
+
+// The frame in which an exit offset is stored: perpendicular to the (folded) exit
+// direction w, e1 along the part of the entry frame's x perpendicular to w.
+void exitFrame(const Vec3& w, Vec3& e1, Vec3& e2) {
+  Vec3 a = Vec3(1.0f, 0.0f, 0.0f) - w * w.x;
+  if (length2(a) < 1e-10f) a = Vec3(0.0f, 1.0f, 0.0f) - w * w.y;  // w along ±x
+  e1 = normalize(a);
+  e2 = cross(w, e1);
+}
+
+// Where a line of direction w (unit) at offset e (perpendicular to w, |e| ≤ 1) leaves the
+// unit sphere.
+Vec3 sphereExitPoint(const Vec3& e, const Vec3& w) {
+  return e + w * std::sqrt(std::max(0.0f, 1.0f - length2(e)));
+}
+
+struct Record {
+  uint32_t bin;  // (b, direction) bin
+  float c1, c2;
+};
+
+struct ChunkSums {
+  std::vector<int64_t> entered, hits;  // per b bin
+  std::vector<double> energy;          // per (b, direction) bin and channel
+  std::vector<Record> records;         // in ray order
+};
+
+constexpr char kMagic[8] = {'G', 'R', 'P', 'X', '\0', '\0', '\0', '\0'};
+constexpr uint32_t kFormatVersion = 1;
+
+uint64_t cacheKey(const TriangleMesh& mesh, const Material& m, const ProxyOptions& o) {
+  uint64_t h = hashGrainInputs(hashInts(0x47525058 /* "GRPX" */, kFormatVersion), mesh, m);
+  for (int64_t v : {o.rays, int64_t(o.bBins), int64_t(o.muBins), int64_t(o.phiBins), int64_t(o.offsetsPerBin),
+                    int64_t(o.maxBounces)})
+    h = hashValue(h, v);
+  return hashValue(h, o.seed);
+}
+
+void validate(const TriangleMesh& mesh, const ProxyOptions& o) {
+  const char* obj = "proxy table";
+  if (o.rays < 1) throw InputError(obj, "rays", str(o.rays, " is < 1"));
+  for (auto [name, v] : {std::pair<const char*, int>{"bBins", o.bBins}, {"muBins", o.muBins}, {"phiBins", o.phiBins}})
+    if (v < 1 || v > 1024) throw InputError(obj, name, str(v, " is outside [1, 1024]"));
+  if (int64_t(o.bBins) * o.muBins * o.phiBins > (1 << 20))
+    throw InputError(obj, "bins", "more than 2^20 bins in all");
+  if (o.offsetsPerBin < 1 || o.offsetsPerBin > 4096)
+    throw InputError(obj, "offsetsPerBin", str(o.offsetsPerBin, " is outside [1, 4096]"));
+  if (o.maxBounces < 1) throw InputError(obj, "maxBounces", str(o.maxBounces, " is < 1"));
+  if (mesh.numTriangles() == 0) throw InputError(obj, "mesh", "has no triangles");
+}
+
+}  // namespace
+
+ProxyFrame::ProxyFrame(const Vec3& d, const Vec3& v) : z(d) {
+  Vec3 perp = v - d * dot(v, d);
+  float b2 = length2(perp);
+  if (b2 > 1e-12f) {
+    b = std::sqrt(b2);
+    x = perp / b;
+  } else {  // through the centre: every x is alike
+    b = 0;
+    x = Frame(d).s;
+  }
+  b = std::min(b, 1.0f);
+  y = cross(z, x);
+}
+
+int ProxyTable::bBin(float b) const {
+  return std::clamp(int(b * b * float(nb_)), 0, nb_ - 1);
+}
+
+float ProxyTable::binSolidAngle() const {
+  return 2.0f * (2.0f / float(nmu_)) * (kPi / float(nphi_));  // both mirror sides
+}
+
+int ProxyTable::directionBin(const Vec3& w) const {
+  const int mu = std::clamp(int((w.z + 1.0f) * 0.5f * float(nmu_)), 0, nmu_ - 1);
+  const float phi = std::atan2(std::max(w.y, 0.0f), w.x);  // in [0, π]
+  const int ph = std::clamp(int(phi / kPi * float(nphi_)), 0, nphi_ - 1);
+  return mu * nphi_ + ph;
+}
+
+bool ProxyTable::sample(int b, float uBin, float u1, float u2, float uSide, ProxyDirection& out) const {
+  const int nd = nmu_ * nphi_;
+  const float* cdf = &cdf_[size_t(b) * size_t(nd + 1)];
+  if (!(cdf[nd] > 0)) return false;
+  // Largest i with cdf[i] <= u (u < 1 = cdf[nd]) and a bin of non-zero mass.
+  const float u = uBin * cdf[nd];
+  int i = int(std::upper_bound(cdf, cdf + nd + 1, u) - cdf) - 1;
+  i = std::clamp(i, 0, nd - 1);
+  while (i > 0 && !(cdf[i + 1] > cdf[i])) --i;
+  const int mu = i / nphi_, ph = i % nphi_;
+  const float z = -1.0f + 2.0f * (float(mu) + std::clamp(u1, 1e-4f, 1.0f - 1e-4f)) / float(nmu_);
+  const float phi = kPi * (float(ph) + std::clamp(u2, 1e-4f, 1.0f - 1e-4f)) / float(nphi_);
+  const float s = std::sqrt(std::max(0.0f, 1.0f - z * z));
+  out.w = Vec3(s * std::cos(phi), s * std::sin(phi), z);
+  out.mirrored = uSide < 0.5f;
+  if (out.mirrored) out.w.y = -out.w.y;
+  out.bin = i;
+  const Vec3& f = f_[size_t(b) * size_t(nd) + size_t(i)];
+  out.f = f;
+  out.pdf = (f.x + f.y + f.z) / std::max(1e-30f, albedo_[size_t(b)].x + albedo_[size_t(b)].y + albedo_[size_t(b)].z);
+  return out.pdf > 0;
+}
+
+ProxyDirection ProxyTable::eval(int b, const Vec3& wLocal) const {
+  ProxyDirection out;
+  out.w = wLocal;
+  out.mirrored = wLocal.y < 0;
+  Vec3 folded = wLocal;
+  folded.y = std::fabs(folded.y);
+  out.bin = directionBin(folded);
+  const Vec3& f = f_[size_t(b) * size_t(nmu_ * nphi_) + size_t(out.bin)];
+  const Vec3& a = albedo_[size_t(b)];
+  const float total = a.x + a.y + a.z;
+  out.f = f;
+  out.pdf = total > 0 ? (f.x + f.y + f.z) / total : 0.0f;
+  return out;
+}
+
+Vec3 ProxyTable::exitPoint(int b, const ProxyDirection& d, float u) const {
+  Vec3 w = d.w;
+  w.y = std::fabs(w.y);
+  const size_t cell = size_t(b) * size_t(nmu_ * nphi_) + size_t(d.bin);
+  const uint32_t first = offsetStart_[cell], count = offsetStart_[cell + 1] - first;
+  Vec3 p = w;  // no offset recorded: leave through the point straight ahead
+  if (count > 0) {
+    const uint32_t k = first + std::min(count - 1, uint32_t(u * float(count)));
+    Vec3 e1, e2;
+    exitFrame(w, e1, e2);
+    p = sphereExitPoint(e1 * offsets_[2 * k] + e2 * offsets_[2 * k + 1], w);
+  }
+  if (d.mirrored) p.y = -p.y;
+  return p;
+}
+
+Vec3 ProxyTable::meanAlbedo() const {
+  // b bins hold equal shares of the entering rays: weigh each by its hits.
+  Vec3 s(0.0f);
+  float h = 0;
+  for (int b = 0; b < nb_; ++b) {
+    s += albedo_[size_t(b)] * hit_[size_t(b)];
+    h += hit_[size_t(b)];
+  }
+  return h > 0 ? s / h : Vec3(0.0f);
+}
+
+float ProxyTable::meanHitProbability() const {
+  float h = 0;
+  for (float v : hit_) h += v;
+  return nb_ > 0 ? h / float(nb_) : 0.0f;
+}
+
+std::vector<char> serialiseProxyTable(const ProxyTable& t, uint64_t key) {
+  std::vector<char> out(kMagic, kMagic + sizeof kMagic);
+  appendBytes(out, kFormatVersion);
+  appendBytes(out, key);
+  for (int v : {t.nb_, t.nmu_, t.nphi_}) appendBytes(out, int32_t(v));
+  appendBytes(out, t.rays_);
+  appendBytes(out, uint64_t(t.offsets_.size()));
+  for (float v : t.hit_) appendBytes(out, v);
+  for (const Vec3& v : t.albedo_) appendBytes(out, v);
+  for (const Vec3& v : t.f_) appendBytes(out, v);
+  for (float v : t.cdf_) appendBytes(out, v);
+  for (float v : t.offsets_) appendBytes(out, v);
+  for (uint32_t v : t.offsetStart_) appendBytes(out, v);
+  appendBytes(out, hashBytes(mix64(out.size()), out.data(), out.size()));
+  return out;
+}
+
+bool deserialiseProxyTable(const std::vector<char>& in, uint64_t key, ProxyTable& t) {
+  if (in.size() < sizeof kMagic + 8 || std::memcmp(in.data(), kMagic, sizeof kMagic) != 0) return false;
+  uint64_t sum;
+  std::memcpy(&sum, in.data() + in.size() - 8, 8);
+  if (sum != hashBytes(mix64(in.size() - 8), in.data(), in.size() - 8)) return false;
+  size_t pos = sizeof kMagic;
+  uint32_t version = 0;
+  uint64_t storedKey = 0, offsets = 0;
+  int32_t nb = 0, nmu = 0, nphi = 0;
+  if (!readBytes(in, pos, version) || version != kFormatVersion || !readBytes(in, pos, storedKey) || storedKey != key)
+    return false;
+  if (!readBytes(in, pos, nb) || !readBytes(in, pos, nmu) || !readBytes(in, pos, nphi) || !readBytes(in, pos, t.rays_) ||
+      !readBytes(in, pos, offsets))
+    return false;
+  const size_t nd = size_t(nmu) * size_t(nphi), cells = size_t(nb) * nd;
+  if (nb < 1 || nmu < 1 || nphi < 1 || offsets % 2 != 0 ||
+      in.size() != pos + nb * 4 + nb * 12 + cells * 12 + size_t(nb) * (nd + 1) * 4 + offsets * 4 + (cells + 1) * 4 + 8)
+    return false;
+  t.nb_ = nb; t.nmu_ = nmu; t.nphi_ = nphi;
+  t.hit_.resize(size_t(nb)); t.albedo_.resize(size_t(nb)); t.f_.resize(cells);
+  t.cdf_.resize(size_t(nb) * (nd + 1)); t.offsets_.resize(offsets); t.offsetStart_.resize(cells + 1);
+  for (float& v : t.hit_) readBytes(in, pos, v);
+  for (Vec3& v : t.albedo_) readBytes(in, pos, v);
+  for (Vec3& v : t.f_) readBytes(in, pos, v);
+  for (float& v : t.cdf_) readBytes(in, pos, v);
+  for (float& v : t.offsets_) readBytes(in, pos, v);
+  for (uint32_t& v : t.offsetStart_) readBytes(in, pos, v);
+  for (const Vec3& v : t.f_)
+    if (!isFinite(v) || minComponent(v) < 0) return false;
+  if (t.offsetStart_.back() * 2 != offsets) return false;
+  for (size_t i = 0; i + 1 < t.offsetStart_.size(); ++i)
+    if (t.offsetStart_[i] > t.offsetStart_[i + 1]) return false;
+  return true;
+}
+
+ProxyTable estimateProxyTable(const TriangleMesh& mesh, const Material& material, const ProxyOptions& opt) {
+  validate(mesh, opt);
+  const uint64_t key = cacheKey(mesh, material, opt);
+  const std::string name = str("proxy-", std::hex, key, ".bin");
+  if (opt.useCache) {
+    std::vector<char> bytes;
+    ProxyTable cached;
+    if (readCacheFile(name, bytes) && deserialiseProxyTable(bytes, key, cached)) {
+      cached.fromCache_ = true;
+      return cached;
+    }
+  }
+  const int nb = opt.bBins, nd = opt.muBins * opt.phiBins;
+  ProxyTable t;
+  t.nb_ = nb;
+  t.nmu_ = opt.muBins;
+  t.nphi_ = opt.phiBins;
+  t.rays_ = opt.rays;
+
+  EmbreeDevice device = makeEmbreeDevice();
+  EmbreeScene bvh = buildTriangleScene(device, mesh);
+  const int64_t chunks = (opt.rays + kChunk - 1) / kChunk;
+  std::vector<ChunkSums> parts{size_t(chunks)};
+  tbb::parallel_for(tbb::blocked_range<int64_t>(0, chunks, 1), [&](const tbb::blocked_range<int64_t>& r) {
+    for (int64_t c = r.begin(); c < r.end(); ++c) {
+      ChunkSums& s = parts[size_t(c)];
+      s.entered.assign(size_t(nb), 0);
+      s.hits.assign(size_t(nb), 0);
+      s.energy.assign(size_t(nb) * size_t(nd) * 3, 0.0);
+      const int64_t first = c * kChunk, count = std::min(kChunk, opt.rays - first);
+      for (int64_t k = 0; k < count; ++k) {
+        Rng rng(hashInts(opt.seed, 0x5058 /* "PX" */, uint64_t(first + k)));
+        Vec3 xi, wi;
+        sampleSphereEntry(rng, xi, wi);
+        const ProxyFrame frame(wi, xi);
+        const int b = t.bBin(frame.b);
+        ++s.entered[size_t(b)];
+        const GrainPassage g = traceGrainPassage(bvh.get(), mesh, material, opt.maxBounces, xi, wi, rng);
+        if (!g.hit) continue;
+        ++s.hits[size_t(b)];
+        if (isBlack(g.weight)) continue;
+        Vec3 w = normalize(frame.toLocal(g.d));
+        const Vec3 oc = frame.toLocal(g.o);
+        Vec3 e = oc - w * dot(oc, w);  // the exit line's offset from the centre
+        if (w.y < 0) {  // fold onto y >= 0: the mirror image of the whole exit
+          w.y = -w.y;
+          e.y = -e.y;
+        }
+        const int i = t.directionBin(w);
+        const size_t cell = size_t(b) * size_t(nd) + size_t(i);
+        for (int ch = 0; ch < 3; ++ch) s.energy[cell * 3 + size_t(ch)] += double(g.weight[ch]);
+        Vec3 e1, e2;
+        exitFrame(w, e1, e2);
+        s.records.push_back({uint32_t(cell), dot(e, e1), dot(e, e2)});
+      }
+    }
+  });
+
+  std::vector<int64_t> entered(size_t(nb), 0), hits(size_t(nb), 0);
+  std::vector<double> energy(size_t(nb) * size_t(nd) * 3, 0.0);
+  std::vector<std::vector<float>> kept(size_t(nb) * size_t(nd));
+  for (const ChunkSums& s : parts) {  // in chunk order: reproducible sums and samples
+    for (int b = 0; b < nb; ++b) {
+      entered[size_t(b)] += s.entered[size_t(b)];
+      hits[size_t(b)] += s.hits[size_t(b)];
+    }
+    for (size_t i = 0; i < energy.size(); ++i) energy[i] += s.energy[i];
+    for (const Record& r : s.records) {
+      auto& k = kept[r.bin];
+      if (int(k.size()) < 2 * opt.offsetsPerBin) {
+        k.push_back(r.c1);
+        k.push_back(r.c2);
+      }
+    }
+  }
+  const double omega = double(t.binSolidAngle());
+  t.hit_.resize(size_t(nb));
+  t.albedo_.resize(size_t(nb));
+  t.f_.assign(size_t(nb) * size_t(nd), Vec3(0.0f));
+  t.cdf_.assign(size_t(nb) * size_t(nd + 1), 0.0f);
+  for (int b = 0; b < nb; ++b) {
+    t.hit_[size_t(b)] = entered[size_t(b)] > 0 ? float(double(hits[size_t(b)]) / double(entered[size_t(b)])) : 0.0f;
+    const double h = double(std::max<int64_t>(1, hits[size_t(b)]));
+    double a[3] = {0, 0, 0}, mass = 0;
+    float* cdf = &t.cdf_[size_t(b) * size_t(nd + 1)];
+    for (int i = 0; i < nd; ++i) {
+      const size_t cell = size_t(b) * size_t(nd) + size_t(i);
+      Vec3 f;
+      for (int ch = 0; ch < 3; ++ch) {
+        a[ch] += energy[cell * 3 + size_t(ch)] / h;
+        f[ch] = float(energy[cell * 3 + size_t(ch)] / (h * omega));
+      }
+      t.f_[cell] = f;
+      mass += (energy[cell * 3] + energy[cell * 3 + 1] + energy[cell * 3 + 2]) / h;
+      cdf[i + 1] = float(mass);
+    }
+    t.albedo_[size_t(b)] = Vec3(float(a[0]), float(a[1]), float(a[2]));
+  }
+  t.offsetStart_.assign(1, 0);
+  for (const auto& k : kept) {
+    t.offsets_.insert(t.offsets_.end(), k.begin(), k.end());
+    t.offsetStart_.push_back(uint32_t(t.offsets_.size() / 2));
+  }
+  if (opt.useCache) writeCacheFile(name, serialiseProxyTable(t, key));
+  return t;
+}
+
+}  // namespace granular

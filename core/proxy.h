@@ -1,0 +1,118 @@
+// proxy.h — grains as proxies (Müller et al. 2016, §4): a grain stands in the packing as
+// its bounding sphere at its true position, and scatters by a grain scattering
+// distribution tabulated once per prototype.
+//
+// Contract. estimateProxyTable() traces rays into one prototype's unit bounding sphere as
+// TT does (tt.h: sampleSphereEntry, traceGrainPassage) and tabulates, by the impact
+// parameter b of the entering ray (its distance from the centre, in radii; bins equal in
+// b², so each holds the same share of the entering rays):
+//   hit(b)       the chance that the ray meets the grain; else it crosses unchanged;
+//   f_c(b, ω)    per channel, the energy that leaves into direction ω per steradian, per
+//                ray that met the grain (∫ f_c dω is the grain's albedo at b);
+//   offsets      where rays leave: the exit line's offset from the centre, perpendicular
+//                to its direction; up to offsetsPerBin of them per (b, direction bin), in
+//                the order traced (a uniform sample, not weighted by energy).
+// Directions are in the entry's frame (ProxyFrame): z along the entering ray, x towards
+// the side of the centre where it entered, y = z × x; bins equal in μ = cos θ and in
+// φ ∈ [0, π], the mirror image y → −y folded onto y ≥ 0.
+//
+// Why that suffices: every grain is rotated uniformly at random, so averaged over its
+// rotations the sphere's response depends on the entering ray only through b, and is
+// symmetric under the mirror that keeps the entry plane (up to a grain's handedness).
+// Where a ray leaves the sphere matters for what it meets next — the neighbours and the
+// gaps between them, which keep the packing's shadowing — and the offsets keep it,
+// conditioned on the exit direction. Lost: the correlation between two visits of one
+// grain (a proxy is re-rotated at each visit), and within a bin any dependence of the
+// exit offset on the energy left (absorbing grains).
+//
+// Sampling (pdf stated per steradian): a direction bin with probability proportional to
+// its Σ_c f_c mass, then ω uniform over the bin's solid angle and a mirror side with 1/2:
+//   pdf(ω) = Σ_c f_c(b, ω) / Σ_c albedo_c(b),   weight_c = f_c(b, ω) / pdf(ω).
+// eval() gives the same f_c and pdf (next-event estimation, MIS). A table is a pure
+// function of (mesh, material, options) and is cached on disk like TT's parameters.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "material.h"
+#include "math.h"
+#include "mesh.h"
+
+namespace granular {
+
+struct ProxyOptions {
+  int64_t rays = 1 << 20;
+  int bBins = 8, muBins = 32, phiBins = 16;
+  int offsetsPerBin = 16;
+  int maxBounces = 4096;  // inside one grain (TTOptions::maxBounces)
+  uint64_t seed = 1;
+  bool useCache = true;
+};
+
+// The entry's frame of a ray of unit direction d that enters a sphere at offset v from
+// its centre (in radii): b = |v − (v·d) d|.
+struct ProxyFrame {
+  Vec3 x, y, z;
+  float b = 0;
+  ProxyFrame(const Vec3& d, const Vec3& v);
+  Vec3 toLocal(const Vec3& w) const { return Vec3(dot(w, x), dot(w, y), dot(w, z)); }
+  Vec3 toWorld(const Vec3& w) const { return x * w.x + y * w.y + z * w.z; }
+};
+
+// An exit direction drawn or evaluated in the entry's frame.
+struct ProxyDirection {
+  Vec3 w;                 // unit, local
+  Vec3 f{0.0f};           // f_c(b, ω) per steradian
+  float pdf = 0;          // per steradian
+  int bin = -1;           // its direction bin (folded); -1: none
+  bool mirrored = false;  // w.y < 0 (the folded bin's mirror image)
+};
+
+class ProxyTable {
+ public:
+  int bBin(float b) const;
+  float hitProbability(int bBin) const { return hit_[size_t(bBin)]; }
+  const Vec3& albedo(int bBin) const { return albedo_[size_t(bBin)]; }
+  // False when nothing leaves a grain met at this b (black grains): the path ends there.
+  bool sample(int bBin, float uBin, float u1, float u2, float uSide, ProxyDirection& out) const;
+  // f and pdf toward a local direction (both 0 in a bin no energy reaches).
+  ProxyDirection eval(int bBin, const Vec3& wLocal) const;
+  // Where a ray leaving in direction d crosses the unit sphere (local frame): one of the
+  // bin's offsets, picked by u.
+  Vec3 exitPoint(int bBin, const ProxyDirection& d, float u) const;
+
+  int bBins() const { return nb_; }
+  int directionBins() const { return nmu_ * nphi_; }
+  int64_t rays() const { return rays_; }
+  bool fromCache() const { return fromCache_; }
+  // The whole table's mean albedo over entering rays that met the grain, per channel,
+  // and the hit chance over all entering rays (TT's α_s and β, tt.h, from the same kind of
+  // rays: a check of the table).
+  Vec3 meanAlbedo() const;
+  float meanHitProbability() const;
+
+ private:
+  friend ProxyTable estimateProxyTable(const TriangleMesh&, const Material&, const ProxyOptions&);
+  friend std::vector<char> serialiseProxyTable(const ProxyTable&, uint64_t);
+  friend bool deserialiseProxyTable(const std::vector<char>&, uint64_t, ProxyTable&);
+  int directionBin(const Vec3& folded) const;
+  float binSolidAngle() const;
+  int nb_ = 0, nmu_ = 0, nphi_ = 0;
+  std::vector<float> hit_;              // per b bin
+  std::vector<Vec3> albedo_;            // per b bin
+  std::vector<Vec3> f_;                 // per (b, direction) bin, per steradian
+  std::vector<float> cdf_;              // per b bin, nd + 1 values over its direction bins
+  std::vector<float> offsets_;          // (c1, c2) pairs: the exit offset in exitFrame()
+  std::vector<uint32_t> offsetStart_;   // per (b, direction) bin, its first pair (CSR)
+  int64_t rays_ = 0;
+  bool fromCache_ = false;
+};
+
+// Throws InputError for options out of range or an empty mesh. prototypeMesh: normalised
+// into its unit bounding sphere (GrainPrototype); the material's absorption is per radius.
+ProxyTable estimateProxyTable(const TriangleMesh& prototypeMesh, const Material& material,
+                              const ProxyOptions& options = ProxyOptions());
+
+}  // namespace granular

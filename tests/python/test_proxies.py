@@ -1,0 +1,80 @@
+"""Proxies (core/ppt.h) through `granular render` and JSON scenes: the setting's three values
+and its default (auto: proxies under a narrow sun), the line saying what carries the low
+orders, and one meaning of the word "proxies" in both. The delegate's side is
+tests/hydra (granular:proxies); their accuracy is tests/core/test_ppt.cpp's."""
+import json
+
+import numpy as np
+from pxr import UsdLux
+
+import granular_core as core
+from conftest import ROOT, run_cli, small_scene
+
+OPTIONS = ["--width", "24", "--height", "16", "--spp", "2", "--technique", "ept+vpt"]
+
+
+def _sun_angle(angle):
+    def mutate(stage):
+        UsdLux.DistantLight(stage.GetPrimAtPath("/World/Sun")).CreateAngleAttr(angle)
+    return mutate
+
+
+def _low_orders(err):
+    lines = [line.strip() for line in err.splitlines() if line.strip().startswith("after the first grain:")]
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+def test_auto_uses_proxies_under_a_narrow_sun_and_on_and_off_override_it(tmp_path, capsys):
+    narrow = small_scene(tmp_path / "narrow.usda", _sun_angle(0.53))
+    wide = small_scene(tmp_path / "wide.usda", _sun_angle(20.0))
+    expected = [(narrow, [], "proxies"), (wide, [], "explicit grains"), (wide, ["--proxies", "on"], "proxies"),
+                (narrow, ["--proxies", "off"], "explicit grains")]
+    for k, (stage, extra, level) in enumerate(expected):
+        rc, _, err = run_cli(["render", stage, "-o", tmp_path / f"{k}.exr", *OPTIONS, *extra], capsys)
+        assert rc == 0, err
+        assert _low_orders(err).startswith(f"after the first grain: {level}"), err
+        px = np.asarray(core.read_image_rgb(str(tmp_path / f"{k}.exr")).pixels)
+        assert np.isfinite(px).all()
+
+
+def test_the_explicit_reference_never_uses_proxies(tmp_path, capsys):
+    narrow = small_scene(tmp_path / "narrow.usda", _sun_angle(0.53))
+    rc, _, err = run_cli(["render", narrow, "-o", tmp_path / "ept.exr", "--width", "24", "--height", "16", "--spp",
+                          "1", "--technique", "ept", "--proxies", "on"], capsys)
+    assert rc == 0, err
+    assert "after the first grain" not in err
+
+
+def test_a_json_scene_says_proxies_as_the_command_line_does(tmp_path):
+    # The same words in the JSON scene's render block as on the command line, read by the
+    # same core function: "on" in JSON renders what ProxyUse.On set on the description does.
+    scene = json.loads((ROOT / "examples" / "bright_sand.json").read_text())
+    scene["render"].update(width=16, height=12, spp=2, technique="ept+vpt", proxies="on")
+    path = tmp_path / "on.json"
+    path.write_text(json.dumps(scene))
+    from_json = core.load_scene_json(str(path))
+    assert from_json.settings.proxies == core.ProxyUse.On
+    del scene["render"]["proxies"]
+    path.write_text(json.dumps(scene))
+    by_hand = core.load_scene_json(str(path))
+    assert by_hand.settings.proxies == core.ProxyUse.Auto
+    s = by_hand.settings
+    s.proxies = core.proxy_use_from_name("on", "command line")
+    by_hand.settings = s
+    images = []
+    for desc in (from_json, by_hand):
+        built = core.Scene.build(desc)
+        assert built.use_proxies
+        r = core.Renderer(built)
+        r.render(pass_samples=2)
+        images.append(np.asarray(r.image().pixels))
+    np.testing.assert_array_equal(images[0], images[1])
+    scene["render"]["proxies"] = "sometimes"
+    path.write_text(json.dumps(scene))
+    try:
+        core.load_scene_json(str(path))
+    except core.InputError as e:
+        assert "proxies" in str(e) and "sometimes" in str(e)
+    else:
+        raise AssertionError("an unknown proxies word was accepted")
