@@ -270,7 +270,8 @@ int visits(double budget, float absorption) {
   md.absorption = Vec3(absorption);
   const Material m = Material::fromDesc(md);
   ProxyOptions po;
-  const std::vector<ProxyTable> tables{estimateProxyTable(agg.prototypes()[0].mesh, m, po)};
+  ProxyTables tables;
+  tables.add(0, 1.0f, estimateProxyTable(agg.prototypes()[0].mesh, m, po));
   const float R = agg.grainRadius();
   constexpr int kVisitsPerWalk = 32;
 
@@ -317,7 +318,7 @@ int visits(double budget, float absorption) {
         GrainHit h;
         if (!agg.intersectProxy(o, d, 0.0f, kInf, h, started ? &from : nullptr)) break;
         ++crossings;
-        const ProxyTable& t = tables[size_t(h.prototype)];
+        const ProxyTable& t = tables.at(h.prototype, h.radius / R);
         const ProxyFrame frame(d, (o + d * h.t - h.center) / h.radius);
         const int b = t.bBin(frame.b);
         from = h;

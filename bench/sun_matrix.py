@@ -27,10 +27,11 @@ import math
 import os
 import sys
 import tempfile
-import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
+sys.path.insert(0, HERE)
+import accuracy_matrix  # noqa: E402  (its measure(): the object's mean per seed)
 
 # name -> (technique, proxies, explicit_bounces or None for the automatic count)
 TECHNIQUES = {"proxies": ("EptVpt", "On", None), "medium": ("EptVpt", "Off", None),
@@ -98,51 +99,22 @@ def scene(material, shape, sun_angle, elevation, azimuth):
     }
 
 
-def measure(core, desc, spp, seeds, threads):
-    """Per seed, the object's mean RGB (primId 1); and the seconds of rendering."""
-    import numpy as np
-    built = core.Scene.build(desc)
-    s = desc.settings
-    means, seconds = [], 0.0
-    for k in range(seeds):
-        s.seed = 1000 + k
-        built.set_view(desc.camera, s)
-        t0 = time.monotonic()
-        r = core.Renderer(built)
-        r.render(pass_samples=spp)
-        seconds += time.monotonic() - t0
-        img = r.image()
-        px = img.pixels
-        mask = px[..., list(img.channels).index("primId")] == 1
-        means.append(px[mask][:, :3].astype(np.float64).mean(axis=0))
-    return np.array(means), seconds
-
-
 def run_case(core, material, shape, sun, elevation, phase, args, tmp):
     import numpy as np
     azimuth = sun_azimuth(elevation, phase)
     if azimuth is None:
         return None
-    with open(tmp, "w") as f:
-        json.dump(scene(material, shape, sun, elevation, azimuth), f)
     out = {"material": material, "shape": shape, "sun": sun, "elevation": elevation, "phase": phase,
            "azimuth": azimuth, "techniques": {}}
     ref = None
     for name, (technique, proxies, bounces) in [("ept", ("Ept", "Off", None))] + list(TECHNIQUES.items()):
-        desc = core.load_scene_json(tmp)
-        aggs = desc.aggregates
-        aggs[0].id = 1
-        desc.aggregates = aggs
-        s = desc.settings
-        s.technique = getattr(core.Technique, technique)
-        s.proxies = getattr(core.ProxyUse, proxies)
-        s.spp = args.spp
-        s.threads = args.threads
-        s.width, s.height = args.width, args.height
+        case = scene(material, shape, sun, elevation, azimuth)
+        case["render"].update(width=args.width, height=args.height)
         if bounces is not None:
-            s.explicit_bounces = bounces
-        desc.settings = s
-        means, seconds = measure(core, desc, args.spp, args.seeds, args.threads)
+            case["render"]["explicit_bounces"] = bounces
+        means, _, _, seconds = accuracy_matrix.measure(core, case, technique, None, args.spp, args.seeds, args.threads,
+                                                       tmp, proxies)
+        means = np.array(means)
         mean, se = means.mean(0), means.std(0, ddof=1) / np.sqrt(len(means))
         entry = {"mean": mean.tolist(), "se": se.tolist(), "seconds": seconds}
         if ref is None:

@@ -571,7 +571,7 @@ bool Aggregate::intersectProxy(const Vec3& o, const Vec3& d, float tmin, float t
 }
 
 float Aggregate::proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax,
-                                    const std::vector<ProxyTable>& tables, const GrainHit* skip, uint64_t seed) const {
+                                    const ProxyTables& tables, const GrainHit* skip, uint64_t seed) const {
   if (!isFinite(o) || !isFinite(d)) return 1.0f;
   const Vec3 invD(1.0f / d.x, 1.0f / d.y, 1.0f / d.z);
   float t0, t1;
@@ -605,7 +605,8 @@ float Aggregate::proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, fl
       for (int a = 0; a < 3; ++a) home[a] = skip->cell[a] + sh[a];
       const Vec3 c = origin_ + Vec3(float(home[0]), float(home[1]), float(home[2])) * L_ + tile_.centers[size_t(j)] * L_;
       if (!sphereIsInside(home, c, r.probe)) continue;
-      const ProxyTable& t = tables[size_t(selector_.prototype(home[0], home[1], home[2], j, tile_.sizeClass(j)))];
+      const ProxyTable& t =
+          tables.at(selector_.prototype(home[0], home[1], home[2], j, tile_.sizeClass(j)), tile_.size(j));
       r.transmittance *= 1.0f - t.hitProbability(t.bBin(std::sqrt(w2 / nbR2_[k])));
     }
     if (!rouletteTransmittance(r)) return 0.0f;
@@ -659,7 +660,7 @@ bool Aggregate::visitProxy(RayWalk& r, const TileSphere& s, const int64_t cell[3
   if (-along - std::sqrt(std::max(0.0f, s.radius * s.radius - w2)) < r.tEnterMin) return false;
   r.recent[r.cursor++ & 7] = id;
   r.nRecent = std::min(r.nRecent + 1, 8);
-  const ProxyTable& t = (*r.tables)[size_t(prototype)];
+  const ProxyTable& t = r.tables->at(prototype, tile_.size(s.id));
   r.transmittance *= 1.0f - t.hitProbability(t.bBin(std::sqrt(w2) / s.radius));
   return !rouletteTransmittance(r);  // true ends the walk
 }

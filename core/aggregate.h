@@ -98,10 +98,10 @@ class Aggregate {
                       const GrainHit* skip = nullptr) const;
   // The chance that a ray along [tmin, tmax] meets none of the proxies' grains: the product
   // over the spheres it crosses (but `skip`) of 1 − hit(b), from each grain's prototype's
-  // table (tables: one per prototype). Deep in an aggregate the product soon vanishes: once
+  // table at its size. Deep in an aggregate the product soon vanishes: once
   // under kProxyRoulette it goes on with probability T / kProxyRoulette at kProxyRoulette
   // (Russian roulette, unbiased; random numbers from `seed`), else the answer is 0.
-  float proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax, const std::vector<ProxyTable>& tables,
+  float proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax, const ProxyTables& tables,
                            const GrainHit* skip, uint64_t seed) const;
   static constexpr float kProxyRoulette = 0.05f;
   static constexpr float kNeighbourReach = 2.5f;
@@ -154,7 +154,7 @@ class Aggregate {
     DistanceField::NearestProbe probe;
     bool found = false;
     WalkMode mode = WalkMode::Grains;
-    const std::vector<ProxyTable>* tables = nullptr;  // ProxyTransmittance
+    const ProxyTables* tables = nullptr;  // ProxyTransmittance
     float transmittance = 1;
     uint64_t seed = 0;   // roulette's random numbers (ProxyTransmittance)
     int draws = 0;

@@ -56,6 +56,14 @@ Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir)
   return L;
 }
 
+bool endsAtLight(const Scene& scene, PathState& path, bool found, const Hit& hit) {
+  if (found && hit.kind != Hit::AreaLight) return false;
+  if (found) addAreaLightHit(scene, path, hit);
+  else path.L[path.credit] += path.beta * escapedRadiance(scene, path, path.ray.d);
+  path.alive = false;
+  return true;
+}
+
 bool russianRoulette(const Scene& scene, PathState& path) {
   if (path.depth < scene.settings().rrDepth) return true;
   // Survive with probability min(1, max throughput): bright paths are never cut.

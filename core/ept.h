@@ -35,7 +35,7 @@ struct PathState {
   Rng rng;
   Vec3 beta{1.0f};
   Vec3 L[kTransports];     // radiance gathered by EPT, VPT, DA and PPT
-  int depth = 0;           // scattering events so far
+  int depth = 0;           // scattering events so far (a proxy's counts kProxyOrders, ppt.h)
   bool alive = true;
   bool lastDelta = true;   // camera rays and delta bounces see emitters unweighted
   float lastPdf = 0;       // solid-angle pdf of the last sampled direction
@@ -97,6 +97,10 @@ Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir)
 
 // The chance of picking each light for next-event estimation (uniform).
 float lightPickProb(const Scene& scene);
+
+// A ray's end at no hit (the infinite lights' radiance) or at an area light (its
+// emission): adds it, ends the path and returns true; else false (the path goes on).
+bool endsAtLight(const Scene& scene, PathState& path, bool found, const Hit& hit);
 
 // Throughput Russian roulette after rrDepth events; false: the path ends.
 bool russianRoulette(const Scene& scene, PathState& path);

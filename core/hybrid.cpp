@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
@@ -37,7 +38,7 @@ BundleStats traceBundle(const Scene& scene, std::vector<PathState>& paths, float
   bool decided = rs.technique == Technique::Ept || !scene.hasMedia() || N < 2;
   BundleStats stats;
   for (int k = 0;; ++k) {
-    int alive = 0;
+    int alive = 0, lowOrders = std::numeric_limits<int>::max();
     Vec3 centroid(0.0f);
     for (PathState& p : paths) {
       if (!p.alive) continue;
@@ -48,10 +49,13 @@ BundleStats traceBundle(const Scene& scene, std::vector<PathState>& paths, float
       if (p.alive) {
         ++alive;
         centroid += p.ray.o;
+        if (p.mode != kVpt) lowOrders = std::min(lowOrders, p.depth);
       }
     }
     if (alive == 0) break;
-    if (decided || alive < 2 || k + 1 < scene.explicitBounces()) continue;
+    // Not before every live path still out of the media has done the explicit bounces
+    // (proxies count kProxyOrders each).
+    if (decided || alive < 2 || lowOrders < scene.explicitBounces()) continue;
     // σ_k: RMS distance of the live vertices to their centroid.
     centroid /= float(alive);
     double s2 = 0;

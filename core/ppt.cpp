@@ -32,9 +32,14 @@ void scatter(const Scene& scene, PathState& path, const Hit& hit, const ProxyTab
   // Next-event estimation where light can still arrive: a shadow ray from deep inside
   // crosses about depth / λ grains, so it is made with probability q = exp(−depth / 4R),
   // at least kMinNeeChance, and weighted 1/q (unbiased; depth from the distance field).
-  const float depth = std::max(0.0f, -scene.aggregates()[size_t(hit.aggregate)]->boundaryDistance(g.center));
-  const float q = std::max(kMinNeeChance, std::exp(-depth / (4.0f * g.radius)));
-  if (!lights.empty() && (q >= 1.0f || path.rng.next1D() < q)) {
+  // Domes alone are found as well by sampling the table (their light arrives from every
+  // side): no shadow rays (q = 0; MIS then gives sampling the whole weight).
+  float q = 0;
+  if (scene.proxyLightSampling()) {
+    const float depth = std::max(0.0f, -scene.aggregates()[size_t(hit.aggregate)]->boundaryDistance(g.center));
+    q = std::max(kMinNeeChance, std::exp(-depth / (4.0f * g.radius)));
+  }
+  if (!lights.empty() && q > 0 && (q >= 1.0f || path.rng.next1D() < q)) {
     const float lightPick = lightPickProb(scene) * q;
     const int li = std::min(int(path.rng.next1D() * float(lights.size())), int(lights.size()) - 1);
     LightSample ls;
@@ -77,7 +82,7 @@ void scatter(const Scene& scene, PathState& path, const Hit& hit, const ProxyTab
   path.ray.tmin = 0;
   path.ray.tmax = kInf;
   path.coneSpread = std::max(path.coneSpread, kDiffuseConeSpread);
-  ++path.depth;
+  path.depth += kProxyOrders;
   if (!russianRoulette(scene, path) || !isFinite(path.beta) || isBlack(path.beta)) path.alive = false;
 }
 
@@ -96,23 +101,15 @@ void pptStep(const Scene& scene, PathState& path) {
     Hit hit;
     const bool found = scene.intersectProxies(path.ray, hit, path.from.aggregate >= 0 ? &path.from : nullptr);
     path.cost[0] += 1;
-    if (!found) {
-      path.L[path.credit] += path.beta * escapedRadiance(scene, path, path.ray.d);
-      path.alive = false;
-      return;
-    }
-    if (hit.kind == Hit::AreaLight) {
-      addAreaLightHit(scene, path, hit);
-      path.alive = false;
-      return;
-    }
+    if (endsAtLight(scene, path, found, hit)) return;
     if (hit.kind == Hit::Surface) {
       shadeSurface(scene, path, hit, false);
       break;
     }
     const GrainHit& g = hit.grain;
     const ProxyFrame frame(path.ray.d, (hit.p - g.center) / g.radius);
-    const ProxyTable& table = scene.proxyTable(hit.aggregate, g.prototype);
+    const ProxyTable& table =
+        scene.proxyTable(hit.aggregate, g.prototype, g.radius / scene.aggregates()[size_t(hit.aggregate)]->grainRadius());
     const int b = table.bBin(frame.b);
     if (path.rng.next1D() < table.hitProbability(b)) {
       scatter(scene, path, hit, table, frame, b);

@@ -157,6 +157,23 @@ Vec3 ProxyTable::exitPoint(int b, const ProxyDirection& d, float u) const {
   return p;
 }
 
+void ProxyTables::add(int prototype, float size, ProxyTable table) {
+  if (int(tables_.size()) <= prototype) {
+    tables_.resize(size_t(prototype) + 1);
+    sizes_.resize(size_t(prototype) + 1);
+  }
+  tables_[size_t(prototype)].push_back(std::move(table));
+  sizes_[size_t(prototype)].push_back(size);
+}
+
+const ProxyTable& ProxyTables::at(int prototype, float size) const {
+  const std::vector<float>& s = sizes_[size_t(prototype)];
+  size_t best = 0;
+  for (size_t i = 1; i < s.size(); ++i)
+    if (std::fabs(s[i] - size) < std::fabs(s[best] - size)) best = i;
+  return tables_[size_t(prototype)][best];
+}
+
 Vec3 ProxyTable::meanAlbedo() const {
   // b bins hold equal shares of the entering rays: weigh each by its hits.
   Vec3 s(0.0f);

@@ -110,6 +110,21 @@ class ProxyTable {
   bool fromCache_ = false;
 };
 
+// An aggregate's tables: per prototype, one per grain size (in units of the aggregate's
+// grain radius R: absorption is per R, so a larger grain absorbs more across); a grain
+// takes the table of the nearest size (a spread of sizes: the three Gauss–Legendre nodes
+// aggregateMedium traces, tt.h).
+class ProxyTables {
+ public:
+  void add(int prototype, float size, ProxyTable table);
+  const ProxyTable& at(int prototype, float size) const;
+  int prototypes() const { return int(tables_.size()); }
+
+ private:
+  std::vector<std::vector<float>> sizes_;
+  std::vector<std::vector<ProxyTable>> tables_;
+};
+
 // Throws InputError for options out of range or an empty mesh. prototypeMesh: normalised
 // into its unit bounding sphere (GrainPrototype); the material's absorption is per radius.
 ProxyTable estimateProxyTable(const TriangleMesh& prototypeMesh, const Material& material,

@@ -352,6 +352,7 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& worldDesc, const Scene* pre
     }
   for (const auto& l : lights) {
     if (smooth && l.type == LightType::Distant && l.angle < Scene::kNarrowSunAngle) s->narrowSun_ = true;
+    if (l.type != LightType::Dome) s->proxyLightSampling_ = true;
     int idx = int(s->lights_.size());
     s->lights_.push_back(Light::fromDesc(l));
     (s->lights_.back().isInfinite() ? s->infiniteLights_ : s->areaLights_).push_back(idx);
@@ -443,6 +444,19 @@ void Scene::finishHit(const Ray& ray, Hit& hit) const {
   if (hit.kind == Hit::Surface) hit.eps = std::max(hit.eps, 1e-5f * coordScale);
 }
 
+void Scene::grainHit(Hit::Kind kind, int aggregate, const GrainHit& g, Hit& hit) const {
+  const Aggregate& agg = *aggregates_[size_t(aggregate)];
+  hit.kind = kind;
+  hit.t = g.t;
+  hit.ng = g.ng;
+  hit.aggregate = aggregate;
+  hit.material = agg.prototypes()[g.prototype].material;
+  hit.lengthScale = agg.grainRadius();  // absorption is per R, whatever the grain's size
+  hit.primId = aggregateId_[size_t(aggregate)];
+  hit.eps = kGrainEps * g.radius;
+  hit.grain = g;
+}
+
 bool Scene::intersect(const Ray& ray, Hit& hit, const GrainStart* from) const {
   float tmax = ray.tmax;
   // A ray that starts at a grain mostly meets a grain next: the surfaces are then asked
@@ -460,16 +474,7 @@ bool Scene::intersect(const Ray& ray, Hit& hit, const GrainStart* from) const {
         g.t < tmax) {
       found = true;
       tmax = g.t;
-      hit.kind = Hit::Grain;
-      hit.t = g.t;
-      hit.ng = g.ng;
-      hit.aggregate = int(a);
-      const Aggregate& agg = *aggregates_[a];
-      hit.material = agg.prototypes()[g.prototype].material;
-      hit.lengthScale = agg.grainRadius();  // absorption is per R, whatever the grain's size
-      hit.primId = aggregateId_[a];
-      hit.eps = kGrainEps * g.radius;
-      hit.grain = g;
+      grainHit(Hit::Grain, int(a), g, hit);
     }
   }
   if (grainsFirst) found |= intersectSurfaces(ray, invD, hit, tmax);
@@ -502,15 +507,18 @@ void Scene::updateProxies() {
   proxyTables_.clear();
   for (BuiltAggregate& entry : built_) {
     if (!entry.proxies) {
-      // Per prototype (cached on disk), at the prototype's size: absorption is per R (a
-      // spread of sizes keeps its mean size's table).
-      auto tables = std::make_shared<std::vector<ProxyTable>>();
+      // Per prototype (cached on disk), at the prototype's size, or with a spread of sizes
+      // at the three Gauss–Legendre nodes aggregateMedium traces: absorption is per R.
+      auto tables = std::make_shared<ProxyTables>();
       const Aggregate& agg = *entry.aggregate;
-      for (size_t i = 0; i < agg.prototypes().size(); ++i) {
-        Material m = materials_[size_t(entry.materials[i])];
-        m.absorption = m.absorption * (entry.desc.sizes.empty() ? 1.0f : entry.desc.sizes[i]);
-        tables->push_back(estimateProxyTable(agg.prototypes()[i].mesh, m));
-      }
+      const float spread = entry.desc.sizeSpread;
+      for (size_t i = 0; i < agg.prototypes().size(); ++i)
+        for (float node : spread > 0 ? std::vector<float>{-0.7745967f, 0.0f, 0.7745967f} : std::vector<float>{0.0f}) {
+          const float size = (entry.desc.sizes.empty() ? 1.0f : entry.desc.sizes[i]) * (1.0f + spread * node);
+          Material m = materials_[size_t(entry.materials[i])];
+          m.absorption = m.absorption * size;
+          tables->add(int(i), size, estimateProxyTable(agg.prototypes()[i].mesh, m));
+        }
       entry.proxies = std::move(tables);
     }
     proxyTables_.push_back(entry.proxies);
@@ -597,15 +605,7 @@ bool Scene::intersectProxies(const Ray& ray, Hit& hit, const GrainStart* from) c
     if (agg.intersectProxy(ray.o, ray.d, ray.tmin, tmax, g, own ? &from->grain : nullptr) && g.t < tmax) {
       found = true;
       tmax = g.t;
-      hit.kind = Hit::Proxy;
-      hit.t = g.t;
-      hit.ng = g.ng;
-      hit.aggregate = int(a);
-      hit.material = agg.prototypes()[g.prototype].material;
-      hit.lengthScale = agg.grainRadius();
-      hit.primId = aggregateId_[a];
-      hit.eps = kGrainEps * g.radius;
-      hit.grain = g;
+      grainHit(Hit::Proxy, int(a), g, hit);
     }
   }
   found |= intersectSurfaces(ray, invD, hit, tmax);

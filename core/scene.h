@@ -83,8 +83,11 @@ class Scene {
   // under a narrow sun; techniques with media). Their tables are built (or read from the
   // disk cache) when first needed, by build() or setView().
   bool useProxies() const { return useProxies_; }
-  const ProxyTable& proxyTable(int aggregate, int prototype) const {
-    return (*proxyTables_[size_t(aggregate)])[size_t(prototype)];
+  // Whether proxies make next-event estimation (ppt.h): for every light but domes.
+  bool proxyLightSampling() const { return proxyLightSampling_; }
+  // size: the grain's bounding radius in units of the aggregate's grain radius.
+  const ProxyTable& proxyTable(int aggregate, int prototype, float size = 1.0f) const {
+    return proxyTables_[size_t(aggregate)]->at(prototype, size);
   }
   // Index of the aggregate whose boundary contains p, or -1.
   int mediumAt(const Vec3& p) const;
@@ -185,6 +188,7 @@ class Scene {
   bool intersectSurfaces(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax) const;  // invD: 1 / ray.d
   bool intersectAreaLights(const Ray& ray, Hit& hit, float& tmax) const;
   void finishHit(const Ray& ray, Hit& hit) const;  // position and ray-offset scale
+  void grainHit(Hit::Kind kind, int aggregate, const GrainHit& g, Hit& hit) const;  // Grain or Proxy
   bool surfacesOccluded(const Vec3& p, const Vec3& dir, float dist) const;  // meshes only
   void updateDiffusionDepths();  // from the media, the emitters inside and the camera
 
@@ -202,14 +206,14 @@ class Scene {
     std::shared_ptr<const Aggregate> aggregate;
     bool hasMedium = false;                     // TT-derived (before any setMedium)
     MediumParams medium;
-    std::shared_ptr<const std::vector<ProxyTable>> proxies;  // per prototype, with the medium
+    std::shared_ptr<const ProxyTables> proxies;  // made when first needed (updateProxies)
   };
   const BuiltAggregate* findBuilt(const AggregateDesc& desc, const std::vector<int>& materials,
                                   const std::vector<MaterialDesc>& materialDescs) const;
   std::vector<BuiltAggregate> built_;
   int aggregatesBuilt_ = 0, aggregatesReused_ = 0, mediaDerived_ = 0;
   std::vector<MediumParams> mediumParams_;
-  std::vector<std::shared_ptr<const std::vector<ProxyTable>>> proxyTables_;  // per aggregate
+  std::vector<std::shared_ptr<const ProxyTables>> proxyTables_;  // per aggregate
   std::vector<HomogeneousMedium> media_;
   std::vector<float> diffusionDepth_;
   std::vector<bool> emitterInside_;        // an emitter reaches into the aggregate: no DA there
@@ -220,7 +224,7 @@ class Scene {
   int explicitBounces_ = 0;
   void updateExplicitBounces();  // from the settings and the media
   void updateProxies();          // useProxies_ and the tables it needs
-  bool useProxies_ = false;
+  bool useProxies_ = false, proxyLightSampling_ = false;
   std::vector<TriangleMesh> worldMeshes_;   // per Embree geometry id
   // Textures and cut-outs (indices into textures_; -1: none) of each material.
   struct SurfaceMaps {

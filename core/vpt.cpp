@@ -201,16 +201,7 @@ void vptStep(const Scene& scene, PathState& path) {
       // Passing to the hit: weight T(s) / P(flight >= s).
       path.beta *= med.transmittance(tHit) / med.survivalProbability(tHit);
     }
-    if (!found) {
-      path.L[path.credit] += path.beta * escapedRadiance(scene, path, path.ray.d);
-      path.alive = false;
-      return;
-    }
-    if (hit.kind == Hit::AreaLight) {
-      addAreaLightHit(scene, path, hit);
-      path.alive = false;
-      return;
-    }
+    if (endsAtLight(scene, path, found, hit)) return;
     if (hit.kind == Hit::Boundary) {
       if (path.depth == 0) recordPrimary(scene, path, hit);  // a camera ray entering a medium (LOD)
       path.medium = dot(path.ray.d, hit.ng) < 0 ? hit.aggregate : -1;

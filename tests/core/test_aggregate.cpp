@@ -410,8 +410,8 @@ TEST(Aggregate, ProxyQueriesAgreeWithEveryGrainChecked) {
   Material glass;
   glass.type = MaterialType::Dielectric;
   glass.ior = 1.5f;
-  std::vector<ProxyTable> tables;
-  for (const auto& p : a.prototypes()) tables.push_back(estimateProxyTable(p.mesh, glass, po));
+  ProxyTables tables;
+  for (size_t i = 0; i < a.prototypes().size(); ++i) tables.add(int(i), 1.0f, estimateProxyTable(a.prototypes()[i].mesh, glass, po));
   Rng rng(33);
   int hits = 0, exact = 0;
   for (int r = 0; r < 3000; ++r) {
@@ -439,7 +439,7 @@ TEST(Aggregate, ProxyQueriesAgreeWithEveryGrainChecked) {
         best = &h;
       }
       if (te < tmax) {
-        const ProxyTable& t = tables[size_t(h.prototype)];
+        const ProxyTable& t = tables.at(h.prototype, h.radius / a.grainRadius());
         T *= 1.0 - t.hitProbability(t.bBin(std::sqrt(w2) / h.radius));
       }
     }

@@ -7,6 +7,7 @@
 
 #include "core/image_io.h"
 
+#include "core/material.h"
 #include "core/math.h"
 #include "core/mesh.h"
 #include "core/scene_desc.h"
@@ -128,6 +129,60 @@ inline SceneDesc whiteFurnaceScene(const MaterialDesc& grain) {
   a.weights = {1.0f};
   s.aggregates.push_back(a);
   return s;
+}
+
+// The ball of bench/accuracy_matrix.py: rock grains 100 across (f 0.6, absorption 0.05
+// per radius, IOR ior) over a grey floor under a white dome, filling most of a 32 x 24
+// image; amberFlint: amber rocks and flint flakes (0.6 / 0.4, f 0.55) instead. The
+// aggregate's id is 1 (the primId AOV).
+inline SceneDesc matrixBall(bool amberFlint, float ior = 2.4f) {
+  SceneDesc s;
+  s.settings.width = 32;
+  s.settings.height = 24;
+  s.settings.spp = 32;
+  s.camera.cameraToWorld = Transform::lookAt(Vec3(0.3f, 0.7f, 2.6f), Vec3(0, -0.1f, 0), Vec3(0, 1, 0));
+  s.camera.focalLength = 35;
+  s.camera.horizontalAperture = 36;
+  s.camera.verticalAperture = 27;
+  MaterialDesc grain{"grain", MaterialType::Dielectric, Vec3(0.5f), amberFlint ? 1.55f : ior,
+                     amberFlint ? Vec3(0.2f, 0.6f, 1.5f) : Vec3(0.05f)};
+  MaterialDesc floor{"floor", MaterialType::Lambert, Vec3(0.5f)};
+  MaterialDesc flint{"flint", MaterialType::Dielectric, Vec3(0.5f), 1.8f, Vec3(0.05f)};
+  s.materials = {grain, floor, flint};
+  MeshDesc f;
+  f.name = "floor";
+  f.mesh = makeBox(Vec3(-4, -1.3f, -4), Vec3(4, -1.0f, 4));
+  f.material = 1;
+  s.meshes.push_back(f);
+  LightDesc sky;
+  sky.name = "sky";
+  sky.type = LightType::Dome;
+  s.lights.push_back(sky);
+  AggregateDesc a;
+  a.name = "ball";
+  a.boundary = makeIcosphere(3);
+  a.grainRadius = 0.01f;
+  a.packingRate = amberFlint ? 0.55f : 0.6f;
+  a.seed = 3;
+  a.tileSpheres = 512;
+  a.id = 1;
+  a.prototypes = {GrainPrototypeDesc{"rock", makeRock(2, 0.25f, 2), 0}};
+  a.weights = {1};
+  if (amberFlint) {
+    a.prototypes.push_back(GrainPrototypeDesc{"flake", makeEllipsoid(Vec3(1.0f, 0.6f, 0.8f), 2), 2});
+    a.weights = {0.6f, 0.4f};
+  }
+  s.aggregates.push_back(a);
+  return s;
+}
+
+// A smooth dielectric grain material of this IOR and absorption per grain radius.
+inline Material dielectric(float ior, Vec3 absorption = Vec3(0.0f)) {
+  Material m;
+  m.type = MaterialType::Dielectric;
+  m.ior = ior;
+  m.absorption = absorption;
+  return m;
 }
 
 }  // namespace granular::testing

@@ -294,47 +294,6 @@ TEST(Hybrid, NoDiffusionInAnAggregateHoldingAnEmitterOrTheCamera) {
 // EPT over the ball's pixels within 4 standard errors of the difference (4 seeds each).
 namespace {
 
-SceneDesc matrixBall(bool amberFlint, float ior = 2.4f) {
-  SceneDesc s;
-  s.settings.width = 32;
-  s.settings.height = 24;
-  s.settings.spp = 32;
-  s.camera.cameraToWorld = Transform::lookAt(Vec3(0.3f, 0.7f, 2.6f), Vec3(0, -0.1f, 0), Vec3(0, 1, 0));
-  s.camera.focalLength = 35;
-  s.camera.horizontalAperture = 36;
-  s.camera.verticalAperture = 27;
-  MaterialDesc grain{"grain", MaterialType::Dielectric, Vec3(0.5f), amberFlint ? 1.55f : ior,
-                     amberFlint ? Vec3(0.2f, 0.6f, 1.5f) : Vec3(0.05f)};
-  MaterialDesc floor{"floor", MaterialType::Lambert, Vec3(0.5f)};
-  MaterialDesc flint{"flint", MaterialType::Dielectric, Vec3(0.5f), 1.8f, Vec3(0.05f)};
-  s.materials = {grain, floor, flint};
-  MeshDesc f;
-  f.name = "floor";
-  f.mesh = makeBox(Vec3(-4, -1.3f, -4), Vec3(4, -1.0f, 4));
-  f.material = 1;
-  s.meshes.push_back(f);
-  LightDesc sky;
-  sky.name = "sky";
-  sky.type = LightType::Dome;
-  s.lights.push_back(sky);
-  AggregateDesc a;
-  a.name = "ball";
-  a.boundary = makeIcosphere(3);
-  a.grainRadius = 0.01f;
-  a.packingRate = amberFlint ? 0.55f : 0.6f;
-  a.seed = 3;
-  a.tileSpheres = 512;
-  a.id = 1;
-  a.prototypes = {GrainPrototypeDesc{"rock", makeRock(2, 0.25f, 2), 0}};
-  a.weights = {1};
-  if (amberFlint) {
-    a.prototypes.push_back(GrainPrototypeDesc{"flake", makeEllipsoid(Vec3(1.0f, 0.6f, 0.8f), 2), 2});
-    a.weights = {0.6f, 0.4f};
-  }
-  s.aggregates.push_back(a);
-  return s;
-}
-
 // Mean RGB over the ball's pixels of 4 seeds, and its standard error across them.
 void ballMean(SceneDesc d, Technique t, Vec3& mean, Vec3& se) {
   d.settings.technique = t;
@@ -378,16 +337,16 @@ void expectMediumMatchesEpt(SceneDesc d, Technique technique = Technique::EptVpt
 
 }  // namespace
 
-TEST(HybridAccuracy, HighIorGrainsInTheMediumMatchExplicitGrains) { expectMediumMatchesEpt(matrixBall(false)); }
+TEST(HybridAccuracy, HighIorGrainsInTheMediumMatchExplicitGrains) { expectMediumMatchesEpt(granular::testing::matrixBall(false)); }
 
 TEST(HybridAccuracy, TheAmberAndFlintMixtureInTheMediumMatchesExplicitGrains) {
-  expectMediumMatchesEpt(matrixBall(true));
+  expectMediumMatchesEpt(granular::testing::matrixBall(true));
 }
 
 TEST(HybridAccuracy, ASmallBallOfAbsorbingGrainsInTheMediumMatchesExplicitGrains) {
   // 25 grains across (6 mean free paths deep), α_s 0.89: −1.1 ± 0.2% here (6 standard
   // errors) with the 9 bounces its albedo alone gives; the thin-object rule keeps 32.
-  SceneDesc d = matrixBall(false, 1.55f);
+  SceneDesc d = granular::testing::matrixBall(false, 1.55f);
   d.aggregates[0].grainRadius = 0.04f;
   d.settings.spp = 256;
   EXPECT_EQ(Scene::build(d)->explicitBounces(), 32);
@@ -400,7 +359,7 @@ TEST(HybridAccuracy, UnderADeltaSunRoughGrainsInTheHybridMatchExplicitGrains) {
   // and DA sample the sun from inside the medium) must agree with it. (Over smooth grains
   // it becomes the 0.53° physical sun, which explicit paths reach only by chance: the
   // accuracy matrix shows the medium's bias does not change with the sun's size.)
-  SceneDesc d = matrixBall(false, 1.55f);
+  SceneDesc d = granular::testing::matrixBall(false, 1.55f);
   d.materials[0].roughness = 0.6f;
   LightDesc sun;
   sun.name = "sun";
@@ -419,7 +378,7 @@ TEST(HybridAccuracy, ForwardScatteringGrainsThroughDiffusionMatchExplicitGrains)
   // IOR 1.31 (g 0.71): low orders went deep at once and DA took them, +4.6% before DA
   // waited for RenderSettings::daMinOrder scatterings; 128 spp for a standard error of
   // ~0.6%.
-  SceneDesc d = matrixBall(false, 1.31f);
+  SceneDesc d = granular::testing::matrixBall(false, 1.31f);
   d.settings.spp = 128;
   expectMediumMatchesEpt(d, Technique::Hybrid);
 }
@@ -466,7 +425,7 @@ TEST(HybridAccuracy, ExplicitBouncesFollowTheGrainsAlbedoUnlessSet) {
   }
   // In a scene: the IOR 2.4 ball's medium (α_s ≈ 0.80, g ≈ 0.26) gets 32; a set value
   // wins, also through setView; a scene without media has nothing to keep.
-  SceneDesc d = matrixBall(false);
+  SceneDesc d = granular::testing::matrixBall(false);
   auto scene = Scene::build(d);
   ASSERT_TRUE(scene->hasMedia());
   EXPECT_EQ(scene->explicitBounces(), 32);

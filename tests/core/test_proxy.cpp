@@ -13,17 +13,13 @@
 #include "core/shapes.h"
 #include "core/tt.h"
 
+#include "test_helpers.h"
+
 using namespace granular;
 
 namespace {
 
-Material dielectric(float ior, Vec3 absorption = Vec3(0.0f)) {
-  Material m;
-  m.type = MaterialType::Dielectric;
-  m.ior = ior;
-  m.absorption = absorption;
-  return m;
-}
+using granular::testing::dielectric;
 
 // A grain in its unit bounding sphere, made as a prototype is.
 TriangleMesh unitGrain(const TriangleMesh& mesh) {

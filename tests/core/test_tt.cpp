@@ -17,17 +17,13 @@
 #include "core/shapes.h"
 #include "core/tt.h"
 
+#include "test_helpers.h"
+
 using namespace granular;
 
 namespace {
 
-Material dielectric(float ior, Vec3 absorption = Vec3(0.0f)) {
-  Material m;
-  m.type = MaterialType::Dielectric;
-  m.ior = ior;
-  m.absorption = absorption;
-  return m;
-}
+using granular::testing::dielectric;
 
 TTOptions opts(int64_t rays, uint64_t seed = 1) {
   TTOptions o;
