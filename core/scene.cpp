@@ -57,15 +57,6 @@ bool emitterReachesInto(const Aggregate& agg, const LightDesc& l) {
 }
 
 // Exact equality of build inputs (a reused aggregate must be the one build() would make).
-bool sameMesh(const TriangleMesh& a, const TriangleMesh& b) { return a.points == b.points && a.indices == b.indices; }
-
-bool sameTransform(const Transform& a, const Transform& b) {
-  for (int i = 0; i < 4; ++i)
-    for (int j = 0; j < 4; ++j)
-      if (a.m[i][j] != b.m[i][j]) return false;
-  return true;
-}
-
 // The id is left out: it only names the aggregate in the primId AOV (aggregateId_).
 bool sameAggregate(const AggregateDesc& a, const AggregateDesc& b) {
   if (a.name != b.name || !sameMesh(a.boundary, b.boundary) || !sameTransform(a.xf, b.xf) || a.weights != b.weights ||
@@ -78,11 +69,6 @@ bool sameAggregate(const AggregateDesc& a, const AggregateDesc& b) {
         !sameMesh(a.prototypes[i].mesh, b.prototypes[i].mesh))
       return false;
   return true;
-}
-
-bool sameMaterial(const MaterialDesc& a, const MaterialDesc& b) {
-  return a.type == b.type && a.albedo == b.albedo && a.ior == b.ior && a.absorption == b.absorption &&
-         a.emission == b.emission && a.roughness == b.roughness && a.energyCompensation == b.energyCompensation;
 }
 
 bool isEmitter(const SceneDesc& desc, const MeshDesc& m) {

@@ -498,17 +498,6 @@ static_assert(fieldCount<AggregateDesc>() == 12, "compare the new field in sameA
 static_assert(fieldCount<RenderSettings>() == 23, "compare the new field in sameViewSettings or settingsNeedBuild");
 static_assert(fieldCount<SceneDesc>() == 6, "compare the new part in compareScenes");
 
-bool sameTransform(const Transform& a, const Transform& b) {
-  for (int i = 0; i < 4; ++i)
-    for (int j = 0; j < 4; ++j)
-      if (!(a.m[i][j] == b.m[i][j])) return false;
-  return true;
-}
-
-bool sameMesh(const TriangleMesh& a, const TriangleMesh& b) {
-  return a.points == b.points && a.indices == b.indices && a.uvs == b.uvs;
-}
-
 bool sameCamera(const CameraDesc& a, const CameraDesc& b) {
   return sameTransform(a.cameraToWorld, b.cameraToWorld) && a.focalLength == b.focalLength &&
          a.horizontalAperture == b.horizontalAperture && a.verticalAperture == b.verticalAperture &&
@@ -526,6 +515,19 @@ bool sameTexture(const TextureDesc& a, const TextureDesc& b) {
   return true;
 }
 
+}  // namespace
+
+bool sameTransform(const Transform& a, const Transform& b) {
+  for (int i = 0; i < 4; ++i)
+    for (int j = 0; j < 4; ++j)
+      if (!(a.m[i][j] == b.m[i][j])) return false;
+  return true;
+}
+
+bool sameMesh(const TriangleMesh& a, const TriangleMesh& b) {
+  return a.points == b.points && a.indices == b.indices && a.uvs == b.uvs;
+}
+
 bool sameMaterial(const MaterialDesc& a, const MaterialDesc& b) {
   return a.name == b.name && a.type == b.type && a.albedo == b.albedo && a.ior == b.ior &&
          a.absorption == b.absorption && a.emission == b.emission && a.roughness == b.roughness &&
@@ -533,6 +535,8 @@ bool sameMaterial(const MaterialDesc& a, const MaterialDesc& b) {
          sameTexture(a.emissionTexture, b.emissionTexture) && sameTexture(a.opacityTexture, b.opacityTexture) &&
          a.opacity == b.opacity && a.opacityThreshold == b.opacityThreshold;
 }
+
+namespace {
 
 bool sameLight(const LightDesc& a, const LightDesc& b) {
   return a.name == b.name && a.type == b.type && sameTransform(a.xf, b.xf) && a.color == b.color &&

@@ -309,6 +309,12 @@ struct SceneChanges {
   SceneChange level() const;
 };
 
+// Field-by-field equality (floats by value), as compareScenes compares them and Scene::build
+// lends a built aggregate on the same terms.
+bool sameTransform(const Transform& a, const Transform& b);
+bool sameMesh(const TriangleMesh& a, const TriangleMesh& b);
+bool sameMaterial(const MaterialDesc& a, const MaterialDesc& b);
+
 // Compares every field of two descriptions (floats by value: a NaN always differs).
 SceneChanges compareScenes(const SceneDesc& before, const SceneDesc& after);
 // Whether new settings need Scene::build rather than Scene::setView: the technique to or
