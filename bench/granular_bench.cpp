@@ -264,6 +264,7 @@ int visits(double budget, float absorption) {
   EmbreeDevice dev = makeEmbreeDevice();
   Aggregate agg;
   agg.build(sphereAggregate(1.0f, 0.01f, 512), dev, {0});
+  agg.prepareProxies();
   MaterialDesc md;
   md.type = MaterialType::Dielectric;
   md.ior = 1.5f;
@@ -324,9 +325,7 @@ int visits(double budget, float absorption) {
         from = h;
         started = true;
         if (r.next1D() >= t.hitProbability(b)) {  // crossed: on from its far side
-          const Vec3 oc = o - h.center;
-          const float along = dot(oc, d);
-          o = o + d * (-along + std::sqrt(std::max(0.0f, h.radius * h.radius - length2(oc - d * along))));
+          o = o + d * sphereFarSide(o - h.center, d, h.radius);
           continue;
         }
         if (withShadow) {

@@ -114,8 +114,7 @@ def run_case(core, material, shape, sun, elevation, phase, args, tmp):
             case["render"]["explicit_bounces"] = bounces
         means, _, _, seconds = accuracy_matrix.measure(core, case, technique, None, args.spp, args.seeds, args.threads,
                                                        tmp, proxies)
-        means = np.array(means)
-        mean, se = means.mean(0), means.std(0, ddof=1) / np.sqrt(len(means))
+        mean, se = accuracy_matrix.stats(means)
         entry = {"mean": mean.tolist(), "se": se.tolist(), "seconds": seconds}
         if ref is None:
             ref = (mean, se)

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <mutex>
 #include <cmath>
 
 #include <tbb/parallel_for.h>
@@ -68,7 +69,7 @@ bool Aggregate::traceGrain(const TileSphere& s, const int64_t cell[3], const Vec
   // The centre from the home cell, computed as forEachGrain does, so that every cell
   // that lists this sphere makes the same inside decision.
   if (!knownInside) {
-    const Vec3 worldCenter = origin_ + Vec3(float(home[0]), float(home[1]), float(home[2])) * L_ + tile_.centers[s.id] * L_;
+    const Vec3 worldCenter = sphereCenter(home, s.id);
     if (!sphereIsInside(home, worldCenter, probe)) return false;
   }
   return traceChosen(s, home, selector_.choose(home[0], home[1], home[2], s.id, tile_.sizeClass(s.id)), oc, d, tmin,
@@ -295,72 +296,6 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
     subR2_[k] = t.radius * t.radius;
   }
 
-  // Neighbour lists for proxies: every sphere centre within the reach (with its image's
-  // offset: the reach stays under the tile's edge, so offsets of -1..1 cells find them),
-  // nearest first by how soon a ray could enter it (centre distance less radius). Found
-  // through a periodic grid of buckets at least one reach wide.
-  nbStart_.assign(1, 0);
-  for (auto* v : {&nbX_, &nbY_, &nbZ_, &nbR2_, &nbKey_, &nbReach_}) v->clear();
-  nbId_.clear();
-  nbShift_.clear();
-  const float maxReach = Rmax_ * (2.0f + kNeighbourReach);
-  if (maxReach < L_) {
-    const int G = std::max(1, std::min(64, int(L_ / maxReach)));  // buckets per tile edge
-    std::vector<std::vector<int>> buckets(size_t(G) * G * G);
-    auto bucketOf = [&](const Vec3& c, int a) { return std::clamp(int(c[a] * float(G)), 0, G - 1); };
-    for (int j = 0; j < tile_.numSpheres; ++j) {
-      const Vec3& c = tile_.centers[size_t(j)];
-      buckets[size_t((bucketOf(c, 2) * G + bucketOf(c, 1)) * G + bucketOf(c, 0))].push_back(j);
-    }
-    struct Entry { float key; Vec3 q; float r2; int id; int8_t shift[3]; };
-    std::vector<Entry> found;
-    for (int i = 0; i < tile_.numSpheres; ++i) {
-      const Vec3& ui = tile_.centers[size_t(i)];
-      const Vec3 ci = ui * L_;
-      const float reach = R_ * tile_.size(i) + kNeighbourReach * Rmax_ + Rmax_;
-      nbReach_.push_back(reach - Rmax_);  // a sphere met within this of ci is listed whole
-      found.clear();
-      const int b0[3] = {bucketOf(ui, 0), bucketOf(ui, 1), bucketOf(ui, 2)};
-      std::vector<int> seen;  // with fewer than 3 buckets a side, neighbouring ones repeat
-      for (int bz = -1; bz <= 1; ++bz)
-        for (int by = -1; by <= 1; ++by)
-          for (int bx = -1; bx <= 1; ++bx) {
-            const int idx[3] = {((b0[0] + bx) % G + G) % G, ((b0[1] + by) % G + G) % G, ((b0[2] + bz) % G + G) % G};
-            const int key = (idx[2] * G + idx[1]) * G + idx[0];
-            if (std::find(seen.begin(), seen.end(), key) != seen.end()) continue;
-            seen.push_back(key);
-            for (int j : buckets[size_t(key)])
-              for (int dz = -1; dz <= 1; ++dz)
-                for (int dy = -1; dy <= 1; ++dy)
-                  for (int dx = -1; dx <= 1; ++dx) {
-                    if (j == i && dx == 0 && dy == 0 && dz == 0) continue;
-                    const Vec3 q = (tile_.centers[size_t(j)] + Vec3(float(dx), float(dy), float(dz))) * L_ - ci;
-                    if (length2(q) > reach * reach) continue;
-                    const float rj = R_ * tile_.size(j);
-                    found.push_back({std::sqrt(length2(q)) - rj, q, rj * rj, j, {int8_t(dx), int8_t(dy), int8_t(dz)}});
-                  }
-          }
-      if (found.size() > kMaxNeighbours) {  // crowded: no lists
-        nbStart_.assign(1, 0);
-        nbReach_.clear();
-        break;
-      }
-      std::sort(found.begin(), found.end(), [](const Entry& a, const Entry& b) {
-        return a.key < b.key || (a.key == b.key && a.id < b.id);
-      });
-      for (const Entry& e : found) {
-        nbX_.push_back(e.q.x);
-        nbY_.push_back(e.q.y);
-        nbZ_.push_back(e.q.z);
-        nbR2_.push_back(e.r2);
-        nbKey_.push_back(e.key);
-        nbId_.push_back(e.id);
-        for (int8_t v : e.shift) nbShift_.push_back(v);
-      }
-      nbStart_.push_back(uint32_t(nbId_.size()));
-    }
-  }
-
   stats_.memoryBytes = classes_.size() * sizeof(CellClass) + sdf_.memoryBytes() +
                        spheres_.size() * sizeof(TileSphere) + (subList_.size() + subStart_.size()) * sizeof(uint32_t) +
                        boundary_.points.size() * 40;
@@ -506,19 +441,101 @@ bool Aggregate::occluded(const Vec3& o, const Vec3& d, float tmin, float tmax) c
   return walk(r, t0, t1);
 }
 
+Vec3 Aggregate::sphereCenter(const int64_t home[3], int id) const {
+  return origin_ + Vec3(float(home[0]), float(home[1]), float(home[2])) * L_ + tile_.centers[size_t(id)] * L_;
+}
+
+void Aggregate::neighbourHome(const int64_t cell[3], uint32_t k, int64_t home[3]) const {
+  for (int a = 0; a < 3; ++a) home[a] = cell[a] + nbShift_[3 * size_t(k) + size_t(a)];
+}
+
+void Aggregate::prepareProxies() const {
+  std::call_once(nbOnce_, [this] { buildNeighbours(); });
+}
+
+void Aggregate::buildNeighbours() const {
+  // Every sphere centre within the reach (with its image's offset: the reach stays under
+  // the tile's edge, so offsets of -1..1 cells find them), nearest first by how soon a ray
+  // could enter it (centre distance less radius); found through a periodic grid of
+  // buckets at least one reach wide.
+  nbStart_.assign(1, 0);
+  const float maxReach = Rmax_ * (2.0f + kNeighbourReach);
+  if (maxReach < L_) {
+    const int G = std::max(1, std::min(64, int(L_ / maxReach)));  // buckets per tile edge
+    std::vector<std::vector<int>> buckets(size_t(G) * G * G);
+    auto bucketOf = [&](const Vec3& c, int a) { return std::clamp(int(c[a] * float(G)), 0, G - 1); };
+    for (int j = 0; j < tile_.numSpheres; ++j) {
+      const Vec3& c = tile_.centers[size_t(j)];
+      buckets[size_t((bucketOf(c, 2) * G + bucketOf(c, 1)) * G + bucketOf(c, 0))].push_back(j);
+    }
+    struct Entry { float key; Vec3 q; float r2; int id; int8_t shift[3]; };
+    std::vector<Entry> found;
+    for (int i = 0; i < tile_.numSpheres; ++i) {
+      const Vec3& ui = tile_.centers[size_t(i)];
+      const Vec3 ci = ui * L_;
+      const float reach = R_ * tile_.size(i) + kNeighbourReach * Rmax_ + Rmax_;
+      nbReach_.push_back(reach - Rmax_);  // a sphere met within this of ci is listed whole
+      found.clear();
+      const int b0[3] = {bucketOf(ui, 0), bucketOf(ui, 1), bucketOf(ui, 2)};
+      std::vector<int> seen;  // with fewer than 3 buckets a side, neighbouring ones repeat
+      for (int bz = -1; bz <= 1; ++bz)
+        for (int by = -1; by <= 1; ++by)
+          for (int bx = -1; bx <= 1; ++bx) {
+            const int idx[3] = {((b0[0] + bx) % G + G) % G, ((b0[1] + by) % G + G) % G, ((b0[2] + bz) % G + G) % G};
+            const int key = (idx[2] * G + idx[1]) * G + idx[0];
+            if (std::find(seen.begin(), seen.end(), key) != seen.end()) continue;
+            seen.push_back(key);
+            for (int j : buckets[size_t(key)])
+              for (int dz = -1; dz <= 1; ++dz)
+                for (int dy = -1; dy <= 1; ++dy)
+                  for (int dx = -1; dx <= 1; ++dx) {
+                    if (j == i && dx == 0 && dy == 0 && dz == 0) continue;
+                    const Vec3 q = (tile_.centers[size_t(j)] + Vec3(float(dx), float(dy), float(dz))) * L_ - ci;
+                    if (length2(q) > reach * reach) continue;
+                    const float rj = R_ * tile_.size(j);
+                    found.push_back({std::sqrt(length2(q)) - rj, q, rj * rj, j, {int8_t(dx), int8_t(dy), int8_t(dz)}});
+                  }
+          }
+      if (found.size() > kMaxNeighbours) {  // crowded: no lists, the walk answers
+        nbStart_.assign(1, 0);
+        for (auto* v : {&nbX_, &nbY_, &nbZ_, &nbR2_, &nbKey_, &nbReach_}) v->clear();
+        nbId_.clear();
+        nbShift_.clear();
+        return;
+      }
+      std::sort(found.begin(), found.end(), [](const Entry& a, const Entry& b) {
+        return a.key < b.key || (a.key == b.key && a.id < b.id);
+      });
+      for (const Entry& e : found) {
+        nbX_.push_back(e.q.x);
+        nbY_.push_back(e.q.y);
+        nbZ_.push_back(e.q.z);
+        nbR2_.push_back(e.r2);
+        nbKey_.push_back(e.key);
+        nbId_.push_back(e.id);
+        for (int8_t v : e.shift) nbShift_.push_back(v);
+      }
+      nbStart_.push_back(uint32_t(nbId_.size()));
+    }
+  }
+
+}
+
 bool Aggregate::nearestNeighbour(const Vec3& o, const Vec3& d, float tmin, float tmax, GrainHit& hit,
                                  const GrainHit& from) const {
   if (nbReach_.empty() || from.sphere < 0) return false;
   const int i = from.sphere;
-  const Vec3 ci = origin_ + Vec3(float(from.cell[0]), float(from.cell[1]), float(from.cell[2])) * L_ +
-                  tile_.centers[size_t(i)] * L_;
+  const Vec3 ci = sphereCenter(from.cell, i);
   const Vec3 oc = o - ci;
   const float r0 = std::sqrt(length2(oc));
   // Along the ray, every sphere met before `bound` is listed (within the reach of ci).
   const float bound = std::min(tmax, nbReach_[size_t(i)] - r0);
   const uint32_t k0 = nbStart_[size_t(i)], k1 = nbStart_[size_t(i) + 1];
   DistanceField::NearestProbe probe(sdf_);
-  float skipBelow = -kInf;  // spheres found outside the boundary, by entry (rare: near it)
+  // Listed spheres found centred outside the boundary; beyond a few, the walk answers.
+  constexpr int kMaxOutside = 8;
+  uint32_t outside[kMaxOutside];
+  int nOutside = 0;
   for (;;) {
     float best = bound;
     uint32_t bestK = k1;
@@ -531,20 +548,19 @@ bool Aggregate::nearestNeighbour(const Vec3& o, const Vec3& d, float tmin, float
       if (disc < 0) continue;
       const float sq = std::sqrt(disc);
       const float te = std::max(-b - sq, tmin);
-      if (-b + sq >= tmin && te < best && te > skipBelow) {
+      if (-b + sq >= tmin && te < best && std::find(outside, outside + nOutside, k) == outside + nOutside) {
         best = te;
         bestK = k;
       }
     }
     if (bestK == k1) return false;  // nothing listed is met within the bound: the walk decides
     const int j = nbId_[bestK];
-    const int8_t* sh = &nbShift_[3 * size_t(bestK)];
     int64_t home[3];
-    for (int a = 0; a < 3; ++a) home[a] = from.cell[a] + sh[a];
-    // The centre from the home cell and the inside decision, as traceGrain makes them.
-    const Vec3 c = origin_ + Vec3(float(home[0]), float(home[1]), float(home[2])) * L_ + tile_.centers[size_t(j)] * L_;
-    if (!sphereIsInside(home, c, probe)) {
-      skipBelow = best;  // ties beyond it are left to the walk
+    neighbourHome(from.cell, bestK, home);
+    const Vec3 c = sphereCenter(home, j);
+    if (!sphereIsInside(home, c, probe)) {  // rare: near the boundary
+      if (nOutside == kMaxOutside) return false;
+      outside[nOutside++] = bestK;
       continue;
     }
     hit.t = best;
@@ -585,8 +601,7 @@ float Aggregate::proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, fl
     // The spheres met first are the one left's neighbours: every sphere met before tDone
     // is listed. The walk then counts only spheres entered from tDone on.
     const int i = skip->sphere;
-    const Vec3 ci = origin_ + Vec3(float(skip->cell[0]), float(skip->cell[1]), float(skip->cell[2])) * L_ +
-                    tile_.centers[size_t(i)] * L_;
+    const Vec3 ci = sphereCenter(skip->cell, i);
     const Vec3 oc = o - ci;
     const float r0 = std::sqrt(length2(oc));
     const float tDone = std::min(tmax, nbReach_[size_t(i)] - r0);
@@ -600,11 +615,9 @@ float Aggregate::proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, fl
       const float sq = std::sqrt(disc);
       if (-b + sq < tmin || std::max(-b - sq, tmin) >= tDone) continue;
       const int j = nbId_[k];
-      const int8_t* sh = &nbShift_[3 * size_t(k)];
       int64_t home[3];
-      for (int a = 0; a < 3; ++a) home[a] = skip->cell[a] + sh[a];
-      const Vec3 c = origin_ + Vec3(float(home[0]), float(home[1]), float(home[2])) * L_ + tile_.centers[size_t(j)] * L_;
-      if (!sphereIsInside(home, c, r.probe)) continue;
+      neighbourHome(skip->cell, k, home);
+      if (!sphereIsInside(home, sphereCenter(home, j), r.probe)) continue;
       const ProxyTable& t =
           tables.at(selector_.prototype(home[0], home[1], home[2], j, tile_.sizeClass(j)), tile_.size(j));
       r.transmittance *= 1.0f - t.hitProbability(t.bBin(std::sqrt(w2 / nbR2_[k])));
@@ -639,7 +652,7 @@ bool Aggregate::visitProxy(RayWalk& r, const TileSphere& s, const int64_t cell[3
       if (r.recent[i] == id) return false;
   }
   // The centre as traceGrain computes it: every cell listing the sphere decides alike.
-  const Vec3 worldCenter = origin_ + Vec3(float(home[0]), float(home[1]), float(home[2])) * L_ + tile_.centers[s.id] * L_;
+  const Vec3 worldCenter = sphereCenter(home, s.id);
   if (!knownInside && !sphereIsInside(home, worldCenter, r.probe)) return false;
   const int prototype = selector_.prototype(home[0], home[1], home[2], s.id, tile_.sizeClass(s.id));
   if (r.mode == WalkMode::NearestProxy) {
@@ -811,9 +824,8 @@ void Aggregate::forEachGrain(const Bounds3& box, const std::function<void(const 
       for (int64_t i = lo[0]; i <= hi[0]; ++i) {
         if (cellClass(i, j, k) == CellClass::Outside) continue;
         int64_t home[3] = {i, j, k};
-        Vec3 cellOrigin = origin_ + Vec3(float(i), float(j), float(k)) * L_;
         for (int s = 0; s < tile_.numSpheres; ++s) {
-          Vec3 c = cellOrigin + tile_.centers[s] * L_;  // as traceGrain computes it
+          const Vec3 c = sphereCenter(home, s);
           if (!sphereIsInside(home, c, probe)) continue;
           GrainChoice g = selector_.choose(i, j, k, s, tile_.sizeClass(s));
           fn(GrainInstance{c, R_ * tile_.size(s), g.prototype, g.rotation, {i, j, k}, s});

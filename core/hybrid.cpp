@@ -38,7 +38,7 @@ BundleStats traceBundle(const Scene& scene, std::vector<PathState>& paths, float
   bool decided = rs.technique == Technique::Ept || !scene.hasMedia() || N < 2;
   BundleStats stats;
   for (int k = 0;; ++k) {
-    int alive = 0, lowOrders = std::numeric_limits<int>::max();
+    int alive = 0, minDepth = std::numeric_limits<int>::max();
     Vec3 centroid(0.0f);
     for (PathState& p : paths) {
       if (!p.alive) continue;
@@ -49,13 +49,13 @@ BundleStats traceBundle(const Scene& scene, std::vector<PathState>& paths, float
       if (p.alive) {
         ++alive;
         centroid += p.ray.o;
-        if (p.mode != kVpt) lowOrders = std::min(lowOrders, p.depth);
+        if (p.mode != kVpt) minDepth = std::min(minDepth, p.depth);
       }
     }
     if (alive == 0) break;
     // Not before every live path still out of the media has done the explicit bounces
     // (proxies count kProxyOrders each).
-    if (decided || alive < 2 || lowOrders < scene.explicitBounces()) continue;
+    if (decided || alive < 2 || minDepth < scene.explicitBounces()) continue;
     // σ_k: RMS distance of the live vertices to their centroid.
     centroid /= float(alive);
     double s2 = 0;

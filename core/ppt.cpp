@@ -116,9 +116,7 @@ void pptStep(const Scene& scene, PathState& path) {
       break;
     }
     // The grain is missed: the ray crosses the sphere and goes on from its far side.
-    const Vec3 oc = path.ray.o - g.center;
-    const float tFar = -dot(oc, path.ray.d) + std::sqrt(std::max(0.0f, g.radius * g.radius - length2(oc - path.ray.d * dot(oc, path.ray.d))));
-    path.ray.o = path.ray.o + path.ray.d * std::max(tFar, hit.t);
+    path.ray.o = path.ray.o + path.ray.d * std::max(sphereFarSide(path.ray.o - g.center, path.ray.d, g.radius), hit.t);
     path.ray.tmin = 0;
     path.from.aggregate = hit.aggregate;
     path.from.grain = g;

@@ -120,10 +120,16 @@ bool ProxyTable::sample(int b, float uBin, float u1, float u2, float uSide, Prox
   out.mirrored = uSide < 0.5f;
   if (out.mirrored) out.w.y = -out.w.y;
   out.bin = i;
-  const Vec3& f = f_[size_t(b) * size_t(nd) + size_t(i)];
-  out.f = f;
-  out.pdf = (f.x + f.y + f.z) / std::max(1e-30f, albedo_[size_t(b)].x + albedo_[size_t(b)].y + albedo_[size_t(b)].z);
+  setValue(b, out);
   return out.pdf > 0;
+}
+
+void ProxyTable::setValue(int b, ProxyDirection& d) const {
+  // pdf = Σ_c f_c / Σ_c albedo_c (proxy.h); 0 where nothing leaves a grain met at b.
+  d.f = f_[size_t(b) * size_t(nmu_ * nphi_) + size_t(d.bin)];
+  const Vec3& a = albedo_[size_t(b)];
+  const float total = a.x + a.y + a.z;
+  d.pdf = total > 0 ? (d.f.x + d.f.y + d.f.z) / total : 0.0f;
 }
 
 ProxyDirection ProxyTable::eval(int b, const Vec3& wLocal) const {
@@ -133,11 +139,7 @@ ProxyDirection ProxyTable::eval(int b, const Vec3& wLocal) const {
   Vec3 folded = wLocal;
   folded.y = std::fabs(folded.y);
   out.bin = directionBin(folded);
-  const Vec3& f = f_[size_t(b) * size_t(nmu_ * nphi_) + size_t(out.bin)];
-  const Vec3& a = albedo_[size_t(b)];
-  const float total = a.x + a.y + a.z;
-  out.f = f;
-  out.pdf = total > 0 ? (f.x + f.y + f.z) / total : 0.0f;
+  setValue(b, out);
   return out;
 }
 

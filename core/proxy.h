@@ -32,6 +32,8 @@
 // function of (mesh, material, options) and is cached on disk like TT's parameters.
 #pragma once
 
+#include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -60,6 +62,13 @@ struct ProxyFrame {
   Vec3 toLocal(const Vec3& w) const { return Vec3(dot(w, x), dot(w, y), dot(w, z)); }
   Vec3 toWorld(const Vec3& w) const { return x * w.x + y * w.y + z * w.z; }
 };
+
+// Where a ray at offset oc from a sphere's centre (unit direction d) leaves that sphere of
+// radius r: the far root, at least 0 (a ray that misses it: its closest approach).
+inline float sphereFarSide(const Vec3& oc, const Vec3& d, float r) {
+  const float along = dot(oc, d);
+  return std::max(0.0f, -along + std::sqrt(std::max(0.0f, r * r - length2(oc - d * along))));
+}
 
 // An exit direction drawn or evaluated in the entry's frame.
 struct ProxyDirection {
@@ -98,6 +107,7 @@ class ProxyTable {
   friend std::vector<char> serialiseProxyTable(const ProxyTable&, uint64_t);
   friend bool deserialiseProxyTable(const std::vector<char>&, uint64_t, ProxyTable&);
   int directionBin(const Vec3& folded) const;
+  void setValue(int bBin, ProxyDirection& d) const;  // d.f and d.pdf of d.bin
   float binSolidAngle() const;
   int nb_ = 0, nmu_ = 0, nphi_ = 0;
   std::vector<float> hit_;              // per b bin

@@ -492,6 +492,7 @@ void Scene::updateProxies() {
   if (!useProxies_) return;
   proxyTables_.clear();
   for (BuiltAggregate& entry : built_) {
+    entry.aggregate->prepareProxies();
     if (!entry.proxies) {
       // Per prototype (cached on disk), at the prototype's size, or with a spread of sizes
       // at the three Gauss–Legendre nodes aggregateMedium traces: absorption is per R.

@@ -401,6 +401,7 @@ TEST(Aggregate, ProxyQueriesAgreeWithEveryGrainChecked) {
   // over every grain of the aggregate.
   Built b(smallAggregate(0.05f, 0.55f));
   const Aggregate& a = b.agg;
+  a.prepareProxies();
   std::vector<GrainInstance> grains;
   a.forEachGrain(a.bounds(), [&](const GrainInstance& g) { grains.push_back(g); });
   ASSERT_GT(grains.size(), 1000u);

@@ -16,15 +16,6 @@ using namespace granular;
 
 namespace {
 
-MaterialDesc dielectric(const char* name, float ior, const Vec3& absorption) {
-  MaterialDesc m;
-  m.name = name;
-  m.type = MaterialType::Dielectric;
-  m.ior = ior;
-  m.absorption = absorption;
-  return m;
-}
-
 struct Estimate {
   Vec3 mean, se;  // per channel, over the ball's pixels; se from the spread of the seeds
 };
@@ -113,7 +104,8 @@ TEST(Ppt, ClearGrainsAmongProxiesReturnTheEnvironmentWhiteFurnace) {
   // Clear grains under a white dome of radiance 1, with proxies after the first grain and
   // no medium: a clear grain's table returns all it meets (weight 1 per scattering), and a
   // dome alone is reached by sampling the tables (no shadow rays), so every path returns 1.
-  SceneDesc d = granular::testing::whiteFurnaceScene(dielectric("clear", 1.5f, Vec3(0.0f)));
+  SceneDesc d = granular::testing::whiteFurnaceScene(
+      MaterialDesc{"clear", MaterialType::Dielectric, Vec3(0.5f), 1.5f, Vec3(0.0f)});
   d.settings.technique = Technique::EptVpt;
   d.settings.proxies = ProxyUse::On;
   d.settings.explicitBounces = 1 << 20;  // never the medium: proxies to the end
