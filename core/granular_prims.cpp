@@ -59,18 +59,7 @@ bool typeAccepted(Kind k, const std::string& t) {
   return false;
 }
 
-std::string describe(const PrimvarValue& v) {
-  std::string s;
-  if (v.isString) {
-    for (size_t i = 0; i < v.strings.size(); ++i) s += (i ? ", '" : "'") + v.strings[i] + "'";
-  } else {
-    for (size_t i = 0; i < v.numbers.size(); ++i) s += (i ? ", " : "") + str(v.numbers[i]);
-  }
-  if (v.isArray) return "[" + s + "]";
-  if (!v.isString && v.numbers.size() == 1) return s;
-  if (v.isString && v.strings.size() == 1) return s;
-  return "(" + s + ")";
-}
+std::string describe(const PrimvarValue& v) { return describeUsdValue(v); }
 
 bool shapeFits(Kind k, const PrimvarValue& v) {
   switch (k) {

@@ -36,21 +36,12 @@
 #include <vector>
 
 #include "scene_desc.h"
+#include "usd_values.h"
 
 namespace granular {
 
-// A constant primvar as a front end found it. Scalars and arrays of numbers (float,
-// double, half, int, color3f, ...) fill `numbers` (a color3f gives 3); string and token
-// arrays fill `strings`. `typeName` is the USD type name (e.g. "float[]"), as authored.
-struct PrimvarValue {
-  std::string typeName;
-  std::vector<double> numbers;
-  std::vector<std::string> strings;
-  bool isArray = false;
-  bool isString = false;
-  std::string interpolation = "constant";  // the schema's primvars must be constant
-  std::string source;  // prim it was authored on when inherited from an ancestor; empty: this prim
-};
+// A constant primvar as a front end found it (usd_values.h).
+using PrimvarValue = UsdValue;
 
 struct MeshPrim {
   std::string path;                  // SdfPath as text, e.g. "/World/Castle"

@@ -88,11 +88,18 @@ Light Light::fromDesc(const LightDesc& d) {
       l.toWorld_ = d.xf;
       if (!d.xf.inverse(l.toLocal_)) throw InputError(d.name, "transform", "is singular");
       if (!d.textureFile.empty()) {
+        // Errors name the light and its texture input (UsdLux), as textures name theirs.
+        const char* const attribute = "inputs:texture:file";
         uint64_t nonFinite = 0;
-        Image img = readImageRGB(d.textureFile, &nonFinite);
+        Image img;
+        try {
+          img = readImageRGB(d.textureFile, &nonFinite);
+        } catch (const InputError& e) {
+          throw InputError(d.name, attribute, e.detail());
+        }
         // Zeroed, a NaN or infinite texel would be a hole in the sky nobody asked for.
         if (nonFinite)
-          throw InputError(d.textureFile, "",
+          throw InputError(d.name, attribute,
                            str("\"", d.textureFile, "\" has ", nonFinite,
                                " texel values that are not finite (NaN or infinity)"));
         l.texW_ = img.width;

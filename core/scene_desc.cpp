@@ -108,6 +108,45 @@ PixelWindow pixelWindowFromNdc(double xmin, double ymin, double xmax, double yma
   return w.x0 < w.x1 && w.y0 < w.y1 ? w : PixelWindow{};
 }
 
+void validateLightDesc(const LightDesc& l, const std::string& obj) {
+  checkTransform(l.xf, obj, "transform");
+  checkWorldPosition(l.xf, obj);
+  checkNonNegative(l.color, obj, "color");
+  if (!std::isfinite(l.intensity) || l.intensity < 0)
+    throw InputError(obj, "intensity", str(l.intensity, " must be finite and >= 0"));
+  checkFinite(l.exposure, obj, "exposure");
+  // 2^exposure must stay a finite float.
+  if (std::fabs(l.exposure) > 100) throw InputError(obj, "exposure", str(l.exposure, " is outside [-100, 100]"));
+  switch (l.type) {
+    case LightType::Distant:
+      if (!std::isfinite(l.angle) || l.angle < 0 || l.angle >= 180)
+        throw InputError(obj, "angle", str(l.angle, " is outside [0, 180)"));
+      break;
+    case LightType::Sphere:
+      checkSize(l.radius, obj, "radius");
+      checkSize(l.radius * length(l.xf.vector(Vec3(1, 0, 0))), obj, "radius");  // in world units
+      break;
+    case LightType::Rect:
+      checkSize(l.width, obj, "width");
+      checkSize(l.height, obj, "height");
+      checkSize(length(l.xf.vector(Vec3(l.width, 0, 0))), obj, "width");  // in world units
+      checkSize(length(l.xf.vector(Vec3(0, l.height, 0))), obj, "height");
+      break;
+    case LightType::Dome: break;
+  }
+  {
+    // The radiance color * intensity * 2^exposure, divided by the light's area when it
+    // is normalised, must be a finite float too (1e38 x 2^100 gave an all-black image
+    // of non-finite samples; so did normalising a sphere of radius 6e-39, whose area
+    // underflows: the USD fuzzer's finding).
+    double peak = double(maxComponent(l.color)) * l.intensity * std::exp2(double(l.exposure)) / normalizationArea(l);
+    if (!(peak <= 1e30))
+      throw InputError(obj, "intensity",
+                       str("color ", fmt(l.color), " x intensity ", l.intensity, " x 2^exposure ", l.exposure,
+                           l.normalize ? " / area" : "", " = ", peak, " exceeds 1e30"));
+  }
+}
+
 void validateSceneDesc(const SceneDesc& desc) {
   const RenderSettings& s = desc.settings;
   checkInt(s.width, 1, 32768, "render", "width");
@@ -183,46 +222,8 @@ void validateSceneDesc(const SceneDesc& desc) {
     checkWorldPoints(m.mesh, m.xf, obj);
   }
 
-  for (size_t i = 0; i < desc.lights.size(); ++i) {
-    const LightDesc& l = desc.lights[i];
-    std::string obj = label(l.name, "lights", i);
-    checkTransform(l.xf, obj, "transform");
-    checkWorldPosition(l.xf, obj);
-    checkNonNegative(l.color, obj, "color");
-    if (!std::isfinite(l.intensity) || l.intensity < 0)
-      throw InputError(obj, "intensity", str(l.intensity, " must be finite and >= 0"));
-    checkFinite(l.exposure, obj, "exposure");
-    // 2^exposure must stay a finite float.
-    if (std::fabs(l.exposure) > 100) throw InputError(obj, "exposure", str(l.exposure, " is outside [-100, 100]"));
-    switch (l.type) {
-      case LightType::Distant:
-        if (!std::isfinite(l.angle) || l.angle < 0 || l.angle >= 180)
-          throw InputError(obj, "angle", str(l.angle, " is outside [0, 180)"));
-        break;
-      case LightType::Sphere:
-        checkSize(l.radius, obj, "radius");
-        checkSize(l.radius * length(l.xf.vector(Vec3(1, 0, 0))), obj, "radius");  // in world units
-        break;
-      case LightType::Rect:
-        checkSize(l.width, obj, "width");
-        checkSize(l.height, obj, "height");
-        checkSize(length(l.xf.vector(Vec3(l.width, 0, 0))), obj, "width");  // in world units
-        checkSize(length(l.xf.vector(Vec3(0, l.height, 0))), obj, "height");
-        break;
-      case LightType::Dome: break;
-    }
-    {
-      // The radiance color * intensity * 2^exposure, divided by the light's area when it
-      // is normalised, must be a finite float too (1e38 x 2^100 gave an all-black image
-      // of non-finite samples; so did normalising a sphere of radius 6e-39, whose area
-      // underflows: the USD fuzzer's finding).
-      double peak = double(maxComponent(l.color)) * l.intensity * std::exp2(double(l.exposure)) / normalizationArea(l);
-      if (!(peak <= 1e30))
-        throw InputError(obj, "intensity",
-                         str("color ", fmt(l.color), " x intensity ", l.intensity, " x 2^exposure ", l.exposure,
-                             l.normalize ? " / area" : "", " = ", peak, " exceeds 1e30"));
-    }
-  }
+  for (size_t i = 0; i < desc.lights.size(); ++i)
+    validateLightDesc(desc.lights[i], label(desc.lights[i].name, "lights", i));
 
   for (size_t i = 0; i < desc.aggregates.size(); ++i) {
     const AggregateDesc& a = desc.aggregates[i];

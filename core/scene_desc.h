@@ -329,8 +329,9 @@ void validateSceneDesc(const SceneDesc& desc);
 
 // Parts of validateSceneDesc, for front ends that check what they add as they go: one
 // material; an aggregate's transform, grain radius, packing rate, tile spheres, prototype
-// count and weights (not its meshes: validateClosed, nor its material indices).
+// count and weights (not its meshes: validateClosed, nor its material indices); one light.
 void validateMaterialDesc(const MaterialDesc& m, const std::string& object);
+void validateLightDesc(const LightDesc& l, const std::string& object);
 void validateAggregateParameters(const AggregateDesc& a, const std::string& object);
 
 }  // namespace granular

@@ -1,25 +1,15 @@
 #include "light.h"
 
-#include "pxr/base/gf/vec3f.h"
+#include <cctype>
+
+#include "core/error.h"
+#include "core/usd_lights.h"
 #include "pxr/imaging/hd/sceneDelegate.h"
 #include "pxr/imaging/hd/tokens.h"
-#include "pxr/usd/sdf/assetPath.h"
-#include "pxr/usd/usdLux/blackbody.h"
 #include "renderParam.h"
+#include "usdValue.h"
 
 PXR_NAMESPACE_OPEN_SCOPE
-
-namespace {
-
-template <typename T>
-T param(HdSceneDelegate* d, SdfPath const& id, TfToken const& name, T fallback) {
-  VtValue v = d->GetLightParamValue(id, name);
-  if (v.IsHolding<T>()) return v.UncheckedGet<T>();
-  if (v.CanCast<T>()) return v.Cast<T>().template UncheckedGet<T>();
-  return fallback;
-}
-
-}  // namespace
 
 HdGranularLight::HdGranularLight(SdfPath const& id, TfToken const& type) : HdLight(id), _type(type) {}
 
@@ -34,35 +24,27 @@ void HdGranularLight::Sync(HdSceneDelegate* delegate, HdRenderParam* renderParam
     store->Remove(id);
     return;
   }
-  granular::LightDesc l;
-  l.name = id.GetString();
-  if (_type == HdPrimTypeTokens->distantLight) {
-    l.type = granular::LightType::Distant;
-    l.angle = param<float>(delegate, id, HdLightTokens->angle, 0.53f);
-  } else if (_type == HdPrimTypeTokens->domeLight) {
-    l.type = granular::LightType::Dome;
-    SdfAssetPath tex = param<SdfAssetPath>(delegate, id, HdLightTokens->textureFile, SdfAssetPath());
-    l.textureFile = tex.GetResolvedPath().empty() ? tex.GetAssetPath() : tex.GetResolvedPath();
-  } else if (_type == HdPrimTypeTokens->rectLight) {
-    l.type = granular::LightType::Rect;
-    l.width = param<float>(delegate, id, HdLightTokens->width, 1.0f);
-    l.height = param<float>(delegate, id, HdLightTokens->height, 1.0f);
-  } else if (_type == HdPrimTypeTokens->sphereLight) {
-    l.type = granular::LightType::Sphere;
-    l.radius = param<float>(delegate, id, HdLightTokens->radius, 0.5f);
-  } else {
-    TF_WARN("hdGranular: %s: %s lights are not supported; skipped", id.GetText(), _type.GetText());
-    return;
+  // The light as core reads it (core/usd_lights.h): USD's type name (Hydra's sprim type,
+  // capitalised) and the attributes core asks for, by Hydra's names (without "inputs:").
+  granular::UsdPrimRecord record;
+  record.path = id.GetString();
+  record.typeName = _type.GetString();
+  if (!record.typeName.empty()) record.typeName[0] = char(std::toupper(record.typeName[0]));
+  for (std::string const& name : granular::usdLightAttributeNames()) {
+    const std::string hydraName = name.rfind("inputs:", 0) == 0 ? name.substr(7) : name;
+    if (auto v = HdGranularUsdValue(delegate->GetLightParamValue(id, TfToken(hydraName))))
+      record.attributes[name] = *v;
   }
-  l.intensity = param<float>(delegate, id, HdLightTokens->intensity, 1.0f);
-  l.exposure = param<float>(delegate, id, HdLightTokens->exposure, 0.0f);
-  GfVec3f c = param<GfVec3f>(delegate, id, HdLightTokens->color, GfVec3f(1.0f));
-  if (param<bool>(delegate, id, HdLightTokens->enableColorTemperature, false))
-    c = GfCompMult(c, UsdLuxBlackbodyTemperatureAsRgb(param<float>(delegate, id, HdLightTokens->colorTemperature, 6500.0f)));
-  l.color = granular::Vec3(c[0], c[1], c[2]);
-  l.normalize = param<bool>(delegate, id, HdLightTokens->normalize, false);
-  l.xf = HdGranularToCore(delegate->GetTransform(id));
-  store->SetLight(id, std::move(l));
+  record.xf = HdGranularToCore(delegate->GetTransform(id));
+  try {
+    granular::UsdWarnings warnings;
+    std::optional<granular::LightDesc> light = granular::lightFromUsd(record, warnings);
+    store->Warn(warnings);
+    if (light) store->SetLight(id, std::move(*light));
+    else store->Remove(id);
+  } catch (granular::InputError const& e) {
+    store->SetError(id, e);  // the render pass reports it, as granular render does
+  }
 }
 
 void HdGranularLight::Finalize(HdRenderParam* renderParam) {

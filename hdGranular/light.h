@@ -1,6 +1,6 @@
-// light.h — UsdLux lights as Hydra sprims: distant (with angle), dome (constant or a
-// lat-long texture), rect and sphere; intensity, exposure, color, color temperature and
-// normalize. Sync turns them into core LightDescs in the render param.
+// light.h — UsdLux lights as Hydra sprims: their attributes handed to core as plain
+// records (core/usd_lights.h decides what each means, shared with the usd-core front end);
+// Sync stores the LightDesc, a warning or the error in the render param.
 #ifndef HDGRANULAR_LIGHT_H
 #define HDGRANULAR_LIGHT_H
 

@@ -1,8 +1,6 @@
-// material.h — a UsdPreviewSurface subset as a Hydra material: diffuseColor gives a
-// Lambert surface; opacity < 1 a smooth dielectric of inputs:ior; emissiveColor
-// emission; diffuseColor, emissiveColor and opacity fed by a UsdUVTexture (its st from a
-// UsdPrimvarReader_float2) become core textures, and a textured opacity or an
-// opacityThreshold > 0 a Lambert cut-out (the usd-core front end's rules, README.md).
+// material.h — a bound material as a Hydra sprim: its surface network handed to core as
+// plain records (core/usd_shading.h holds the UsdPreviewSurface and UsdUVTexture rules,
+// shared with the usd-core front end).
 #ifndef HDGRANULAR_MATERIAL_H
 #define HDGRANULAR_MATERIAL_H
 

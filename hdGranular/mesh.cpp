@@ -9,112 +9,27 @@
 #include "pxr/base/gf/half.h"
 #include "pxr/base/vt/array.h"
 #include "pxr/imaging/hd/instancer.h"
-#include "pxr/imaging/hd/meshUtil.h"
 #include "pxr/imaging/hd/renderIndex.h"
 #include "pxr/imaging/hd/sceneDelegate.h"
 #include "pxr/imaging/hd/tokens.h"
+#include "core/error.h"
+#include "core/usd_implicit.h"
+#include "core/usd_mesh.h"
+#include "core/usd_shading.h"
 #include "renderParam.h"
+#include "usdValue.h"
 
 PXR_NAMESPACE_OPEN_SCOPE
 
 namespace {
 
 
-template <typename T>
-void appendNumbers(granular::PrimvarValue& out, VtArray<T> const& a) {
-  for (T const& x : a) out.numbers.push_back(double(x));
-}
-
-// A primvar's value as core's schema code reads it (granular_prims.h), with USD's name
-// of its type for messages. Unknown types keep only the name, so core reports them.
+// A granular primvar's value for core's schema code (granular_prims.h).
 granular::PrimvarValue toPrimvarValue(VtValue const& v) {
-  granular::PrimvarValue p;
-  if (v.IsHolding<float>()) p.typeName = "float", p.numbers = {v.UncheckedGet<float>()};
-  else if (v.IsHolding<double>()) p.typeName = "double", p.numbers = {v.UncheckedGet<double>()};
-  else if (v.IsHolding<GfHalf>()) p.typeName = "half", p.numbers = {float(v.UncheckedGet<GfHalf>())};
-  else if (v.IsHolding<int>()) p.typeName = "int", p.numbers = {double(v.UncheckedGet<int>())};
-  else if (v.IsHolding<int64_t>()) p.typeName = "int64", p.numbers = {double(v.UncheckedGet<int64_t>())};
-  else if (v.IsHolding<unsigned int>()) p.typeName = "uint", p.numbers = {double(v.UncheckedGet<unsigned int>())};
-  else if (v.IsHolding<GfVec3f>()) {
-    GfVec3f c = v.UncheckedGet<GfVec3f>();
-    p.typeName = "color3f", p.numbers = {c[0], c[1], c[2]};
-  } else if (v.IsHolding<GfVec3d>()) {
-    GfVec3d c = v.UncheckedGet<GfVec3d>();
-    p.typeName = "color3d", p.numbers = {c[0], c[1], c[2]};
-  } else if (v.IsHolding<VtFloatArray>()) {
-    p.typeName = "float[]", p.isArray = true;
-    appendNumbers(p, v.UncheckedGet<VtFloatArray>());
-  } else if (v.IsHolding<VtDoubleArray>()) {
-    p.typeName = "double[]", p.isArray = true;
-    appendNumbers(p, v.UncheckedGet<VtDoubleArray>());
-  } else if (v.IsHolding<VtIntArray>()) {
-    p.typeName = "int[]", p.isArray = true;
-    appendNumbers(p, v.UncheckedGet<VtIntArray>());
-  } else if (v.IsHolding<VtVec3fArray>() && v.GetArraySize() == 1) {  // a constant colour as an array
-    GfVec3f c = v.UncheckedGet<VtVec3fArray>()[0];
-    p.typeName = "color3f", p.numbers = {c[0], c[1], c[2]};
-  } else if (v.IsHolding<VtStringArray>()) {
-    p.typeName = "string[]", p.isArray = p.isString = true;
-    for (auto const& s : v.UncheckedGet<VtStringArray>()) p.strings.push_back(s);
-  } else if (v.IsHolding<VtTokenArray>()) {
-    p.typeName = "token[]", p.isArray = p.isString = true;
-    for (auto const& s : v.UncheckedGet<VtTokenArray>()) p.strings.push_back(s.GetString());
-  } else if (v.IsHolding<std::string>()) {
-    p.typeName = "string", p.isString = true, p.strings = {v.UncheckedGet<std::string>()};
-  } else if (v.IsHolding<TfToken>()) {
-    p.typeName = "token", p.isString = true, p.strings = {v.UncheckedGet<TfToken>().GetString()};
-  } else {
-    p.typeName = v.GetTypeName();
-  }
-  return p;
+  return HdGranularUsdValue(v).value_or(granular::PrimvarValue{});
 }
 
 }  // namespace
-
-// Every float2 primvar (texture coordinates) at the corners of the triangles kept, in
-// their order and winding (HdMeshUtil's, for faceVarying too), whatever its interpolation.
-void HdGranularMesh::ReadUvSets(HdSceneDelegate* delegate, HdMeshUtil& util, VtVec3iArray const& triangles,
-                                VtIntArray const& primitiveParams, std::vector<size_t> const& kept,
-                                HdGranularRenderParam::Mesh& m) {
-  const SdfPath& id = GetId();
-  for (HdInterpolation interp : {HdInterpolationConstant, HdInterpolationUniform, HdInterpolationVarying,
-                                 HdInterpolationVertex, HdInterpolationFaceVarying}) {
-    for (HdPrimvarDescriptor const& pv : delegate->GetPrimvarDescriptors(id, interp)) {
-      if (pv.name == HdTokens->points || pv.name.GetString().rfind("granular:", 0) == 0) continue;
-      VtValue value = delegate->Get(id, pv.name);
-      if (!value.IsHolding<VtVec2fArray>()) continue;
-      VtVec2fArray values = value.UncheckedGet<VtVec2fArray>();
-      if (interp == HdInterpolationFaceVarying) {
-        VtValue corners;
-        if (!util.ComputeTriangulatedFaceVaryingPrimvar(values.cdata(), int(values.size()), HdTypeFloatVec2, &corners) ||
-            !corners.IsHolding<VtVec2fArray>())
-          continue;
-        values = corners.UncheckedGet<VtVec2fArray>();
-      }
-      std::vector<float> uvs;
-      uvs.reserve(kept.size() * 6);
-      bool ok = true;
-      for (size_t k : kept) {
-        for (int c = 0; c < 3; ++c) {
-          size_t i = 0;
-          if (interp == HdInterpolationUniform)
-            i = size_t(HdMeshUtil::DecodeFaceIndexFromCoarseFaceParam(primitiveParams[k]));
-          else if (interp == HdInterpolationVertex || interp == HdInterpolationVarying) i = size_t(triangles[k][c]);
-          else if (interp == HdInterpolationFaceVarying) i = 3 * k + size_t(c);
-          if (i >= values.size()) {
-            ok = false;
-            break;
-          }
-          uvs.push_back(values[i][0]);
-          uvs.push_back(values[i][1]);
-        }
-        if (!ok) break;
-      }
-      if (ok) m.uvSets[pv.name.GetString()] = std::move(uvs);
-      else TF_WARN("%s.primvars:%s: too few values for its interpolation; not used", id.GetText(), pv.name.GetText());
-    }
-  }
-}
 
 HdGranularMesh::HdGranularMesh(SdfPath const& id) : HdMesh(id) {}
 
@@ -145,29 +60,54 @@ void HdGranularMesh::Sync(HdSceneDelegate* delegate, HdRenderParam* renderParam,
   m.prim.visible = IsVisible();
   m.prim.id = GetPrimId();
 
-  VtValue pointsValue = delegate->Get(id, HdTokens->points);
-  HdMeshTopology topology = GetMeshTopology(delegate);
-  if (pointsValue.IsHolding<VtVec3fArray>()) {
-    VtVec3fArray const& pts = pointsValue.UncheckedGet<VtVec3fArray>();
-    m.prim.mesh.points.reserve(pts.size());
-    for (GfVec3f const& p : pts) m.prim.mesh.points.emplace_back(p[0], p[1], p[2]);
-    HdMeshUtil util(&topology, id);
-    VtVec3iArray triangles;
-    VtIntArray primitiveParams;
-    util.ComputeTriangleIndices(&triangles, &primitiveParams);
-    // HdMeshUtil winds left-handed faces' triangles counter-clockwise already (as core
-    // wants them): taken as they are. (Flipping them again turned left-handed meshes
-    // inside out in Hydra: tests/hydra/textured.usda's card.)
-    std::vector<size_t> kept;  // the triangles taken, for the texture coordinates below
-    for (size_t k = 0; k < triangles.size(); ++k) {
-      GfVec3i const& t = triangles[k];
-      bool valid = t[0] >= 0 && t[1] >= 0 && t[2] >= 0 && size_t(t[0]) < pts.size() && size_t(t[1]) < pts.size() &&
-                   size_t(t[2]) < pts.size();
-      if (!valid) continue;  // core reports a mesh left empty or open
-      kept.push_back(k);
-      for (int c = 0; c < 3; ++c) m.prim.mesh.indices.push_back(uint32_t(t[c]));
+  // An implicit surface carries its parameters (implicitSurfaceSceneIndexPlugin.cpp): core
+  // tessellates it (core/usd_implicit.h). A mesh: points and topology as UsdGeomMesh holds
+  // them, triangulated by core (core/usd_mesh.h).
+  granular::UsdMeshRecord& record = m.topology;
+  record.path = id.GetString();
+  try {
+    const VtValue implicitType = delegate->Get(id, TfToken("hdGranular:implicit"));
+    if (implicitType.IsHolding<TfToken>()) {
+      granular::UsdPrimRecord shape;
+      shape.path = id.GetString();
+      shape.typeName = implicitType.UncheckedGet<TfToken>().GetString();
+      for (std::string const& name : granular::usdImplicitAttributeNames())
+        if (auto v = HdGranularUsdValue(delegate->Get(id, TfToken("hdGranular:implicit:" + name))))
+          shape.attributes[name] = *v;
+      m.prim.typeName = shape.typeName;
+      m.prim.mesh = granular::implicitSurfaceFromUsd(shape);
+    } else {
+      VtValue pointsValue = delegate->Get(id, HdTokens->points);
+      if (pointsValue.IsHolding<VtVec3fArray>())
+        for (GfVec3f const& p : pointsValue.UncheckedGet<VtVec3fArray>()) record.points.emplace_back(p[0], p[1], p[2]);
+      HdMeshTopology topology = GetMeshTopology(delegate);
+      record.faceVertexCounts.assign(topology.GetFaceVertexCounts().begin(), topology.GetFaceVertexCounts().end());
+      record.faceVertexIndices.assign(topology.GetFaceVertexIndices().begin(),
+                                      topology.GetFaceVertexIndices().end());
+      record.holeIndices.assign(topology.GetHoleIndices().begin(), topology.GetHoleIndices().end());
+      record.orientation = topology.GetOrientation().GetString();
+      m.prim.mesh = granular::meshFromUsd(record);
     }
-    ReadUvSets(delegate, util, triangles, primitiveParams, kept, m);
+  } catch (granular::InputError const& e) {
+    param->SetError(id, e);  // refused as granular render refuses it
+    *dirtyBits &= ~HdChangeTracker::AllSceneDirtyBits;
+    return;
+  }
+  // Texture coordinates: every float2 primvar as found; the bound material picks one.
+  for (HdInterpolation interp : {HdInterpolationConstant, HdInterpolationUniform, HdInterpolationVarying,
+                                 HdInterpolationVertex, HdInterpolationFaceVarying}) {
+    static const char* const kNames[] = {"constant", "uniform", "varying", "vertex", "faceVarying"};
+    for (HdPrimvarDescriptor const& pv : delegate->GetPrimvarDescriptors(id, interp)) {
+      if (pv.name == HdTokens->points || pv.name.GetString().rfind("granular:", 0) == 0) continue;
+      VtValue value = delegate->Get(id, pv.name);
+      if (!value.IsHolding<VtVec2fArray>()) continue;
+      granular::UsdValue uv;
+      uv.typeName = "texCoord2f[]";
+      uv.isArray = true;
+      uv.interpolation = kNames[interp];
+      for (GfVec2f const& x : value.UncheckedGet<VtVec2fArray>()) uv.numbers.insert(uv.numbers.end(), {x[0], x[1]});
+      m.uvSets[pv.name.GetString()] = std::move(uv);
+    }
   }
 
   const GfMatrix4d xf = delegate->GetTransform(id);
@@ -193,15 +133,14 @@ void HdGranularMesh::Sync(HdSceneDelegate* delegate, HdRenderParam* renderParam,
     std::string name = pv.name.GetString();
     if (name.rfind("primvars:", 0) == 0) name = name.substr(9);
     if (pv.name == HdTokens->displayColor) {
-      VtValue c = delegate->Get(id, pv.name);
-      if (c.IsHolding<VtVec3fArray>() && c.GetArraySize() > 0) {  // averaged, as usd_reader.py
-        m.hasDisplayColor = true;
-        GfVec3f sum(0.0f);
-        for (GfVec3f const& x : c.UncheckedGet<VtVec3fArray>()) sum += x;
-        m.displayColor = sum / float(c.GetArraySize());
-      } else if (c.IsHolding<GfVec3f>()) {
-        m.hasDisplayColor = true;
-        m.displayColor = c.UncheckedGet<GfVec3f>();
+      if (auto c = HdGranularUsdValue(delegate->Get(id, pv.name))) {
+        try {
+          m.prim.displayColor = granular::displayColorFromUsd(*c, id.GetString());
+        } catch (granular::InputError const& e) {
+          param->SetError(id, e);
+          *dirtyBits &= ~HdChangeTracker::AllSceneDirtyBits;
+          return;
+        }
       }
     } else if (name.rfind("granular:", 0) == 0) {
       m.prim.granular[name.substr(9)] = toPrimvarValue(delegate->Get(id, pv.name));

@@ -22,7 +22,9 @@ namespace {
 const TfTokenVector kRprimTypes = {HdPrimTypeTokens->mesh};
 const TfTokenVector kSprimTypes = {HdPrimTypeTokens->camera,      HdPrimTypeTokens->material,
                                    HdPrimTypeTokens->distantLight, HdPrimTypeTokens->domeLight,
-                                   HdPrimTypeTokens->rectLight,    HdPrimTypeTokens->sphereLight};
+                                   HdPrimTypeTokens->rectLight,    HdPrimTypeTokens->sphereLight,
+                                   // Not rendered: synced so that core warns about them by name.
+                                   HdPrimTypeTokens->diskLight,    HdPrimTypeTokens->cylinderLight};
 const TfTokenVector kBprimTypes = {HdPrimTypeTokens->renderBuffer, HdPrimTypeTokens->renderSettings};
 }  // namespace
 

@@ -6,18 +6,22 @@ PXR_NAMESPACE_OPEN_SCOPE
 
 void HdGranularRenderParam::SetMesh(SdfPath const& id, Mesh mesh) {
   std::lock_guard<std::mutex> lock(_mutex);
+  _errors.erase(id);
   _meshes[id] = std::move(mesh);
   ++_version;
 }
 
 void HdGranularRenderParam::SetLight(SdfPath const& id, granular::LightDesc light) {
   std::lock_guard<std::mutex> lock(_mutex);
+  _errors.erase(id);
   _lights[id] = std::move(light);
   ++_version;
 }
 
-void HdGranularRenderParam::SetMaterial(SdfPath const& id, granular::MaterialDesc material, std::string st) {
+void HdGranularRenderParam::SetMaterial(SdfPath const& id, std::optional<granular::MaterialDesc> material,
+                                        std::string st) {
   std::lock_guard<std::mutex> lock(_mutex);
+  _errors.erase(id);
   _materials[id] = std::move(material);
   _materialSt[id] = std::move(st);
   ++_version;
@@ -32,17 +36,39 @@ void HdGranularRenderParam::Remove(SdfPath const& id) {
   // Only a real removal is a scene edit: hosts re-sync prims we do not keep (usdview's
   // camera light follows the camera), and a rebuild on every camera move would be wrong.
   _materialSt.erase(id);
-  if (_meshes.erase(id) + _lights.erase(id) + _materials.erase(id)) ++_version;
+  if (_meshes.erase(id) + _lights.erase(id) + _materials.erase(id) + _errors.erase(id)) ++_version;
+}
+
+void HdGranularRenderParam::SetError(SdfPath const& id, granular::InputError const& error) {
+  std::lock_guard<std::mutex> lock(_mutex);
+  _meshes.erase(id);
+  _lights.erase(id);
+  _materials.erase(id);
+  _materialSt.erase(id);
+  _errors.insert_or_assign(id, error);
+  ++_version;
+}
+
+void HdGranularRenderParam::Warn(granular::UsdWarnings const& warnings) {
+  std::lock_guard<std::mutex> lock(_mutex);
+  for (std::string const& w : warnings)
+    if (_warned.insert(w).second) TF_WARN("hdGranular: %s", w.c_str());
 }
 
 granular::SceneDesc HdGranularRenderParam::Assemble() const {
   std::lock_guard<std::mutex> lock(_mutex);
+  if (!_errors.empty()) throw _errors.begin()->second;
   granular::SceneDesc desc;
-  // Bound materials first (one entry each), then display colours as Lambert albedo.
+  // Bound materials first (one entry each; -1 for those without a supported surface),
+  // then display colours as Lambert albedo.
   std::map<SdfPath, int> materialIndex;
   for (auto const& [path, m] : _materials) {
+    if (!m) {
+      materialIndex[path] = -1;
+      continue;
+    }
     materialIndex[path] = int(desc.materials.size());
-    desc.materials.push_back(m);
+    desc.materials.push_back(*m);
   }
   std::vector<granular::MeshPrim> prims;
   prims.reserve(_meshes.size());
@@ -51,15 +77,17 @@ granular::SceneDesc HdGranularRenderParam::Assemble() const {
     auto it = materialIndex.find(m.materialId);
     if (it != materialIndex.end()) {
       p.material = it->second;
+      p.displayColor.reset();  // a bound material decides, even the default one
       auto st = _materialSt.find(m.materialId);
       if (st != _materialSt.end() && !st->second.empty()) {
         auto uv = m.uvSets.find(st->second);
-        if (uv != m.uvSets.end()) p.mesh.uvs = uv->second;
-        else TF_WARN("%s: has no primvars:%s for its material's textures; they read st (0, 0) everywhere",
-                     path.GetText(), st->second.c_str());
+        if (uv != m.uvSets.end())
+          p.mesh.uvs = granular::usdPrimvarAtCorners(m.topology, uv->second, 2, "primvars:" + st->second);
+        else if (_warned.insert(path.GetString() + ":" + st->second).second)
+          TF_WARN("hdGranular: %s: has no primvars:%s for its material's textures; they read st (0, 0) everywhere",
+                  path.GetText(), st->second.c_str());
       }
-    } else if (m.hasDisplayColor)  // core makes it Lambert, for ordinary meshes only
-      p.displayColor = granular::Vec3(m.displayColor[0], m.displayColor[1], m.displayColor[2]);
+    }
     prims.push_back(std::move(p));
   }
   granular::assembleGranularScene(prims, desc);

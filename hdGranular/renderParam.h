@@ -13,8 +13,12 @@
 #include <cmath>
 #include <map>
 #include <mutex>
+#include <optional>
+#include <set>
 
+#include "core/error.h"
 #include "core/granular_prims.h"
+#include "core/usd_mesh.h"
 #include "pxr/base/gf/matrix4d.h"
 #include "pxr/base/gf/vec3f.h"
 #include "pxr/imaging/hd/renderDelegate.h"
@@ -44,20 +48,26 @@ class HdGranularRenderParam final : public HdRenderParam {
   struct Mesh {
     granular::MeshPrim prim;
     SdfPath materialId;
-    bool hasDisplayColor = false;
-    GfVec3f displayColor{0.18f, 0.18f, 0.18f};
-    // Texture coordinates: each float2 primvar at the corners of prim.mesh's triangles
-    // (TriangleMesh::uvs), by name; the bound material's textures pick theirs.
-    std::map<std::string, std::vector<float>> uvSets;
+    granular::UsdMeshRecord topology;  // as Hydra holds it, for expanding primvars
+    // Texture coordinates: each float2 primvar as found, by name; the bound material's
+    // textures pick theirs, expanded to prim.mesh's corners by core.
+    std::map<std::string, granular::UsdValue> uvSets;
   };
 
   void SetMesh(SdfPath const& id, Mesh mesh);
   void SetLight(SdfPath const& id, granular::LightDesc light);
-  // st: the primvar the material's textures read ("" when it has none).
-  void SetMaterial(SdfPath const& id, granular::MaterialDesc material, std::string st = "");
+  // st: the primvar the material's textures read ("" when it has none). No material: the
+  // bound material has no supported surface, and its meshes use the default material.
+  void SetMaterial(SdfPath const& id, std::optional<granular::MaterialDesc> material, std::string st = "");
   void Remove(SdfPath const& id);  // any kind
+  // A prim whose values core refused: Assemble throws the error (of the first such prim
+  // by path) until the prim is set again or removed, so the image is refused as
+  // `granular render` refuses the stage.
+  void SetError(SdfPath const& id, granular::InputError const& error);
+  // Core's warnings about what a prim means: each message once per delegate (TF_WARN).
+  void Warn(granular::UsdWarnings const& warnings);
 
-  // The scene as the core sees it; throws granular::InputError on bad granular data.
+  // The scene as the core sees it; throws granular::InputError on bad data.
   granular::SceneDesc Assemble() const;
   // Bumped by every edit above.
   int Version() const { return _version.load(); }
@@ -71,7 +81,9 @@ class HdGranularRenderParam final : public HdRenderParam {
   mutable std::mutex _mutex;
   std::map<SdfPath, Mesh> _meshes;
   std::map<SdfPath, granular::LightDesc> _lights;
-  std::map<SdfPath, granular::MaterialDesc> _materials;
+  std::map<SdfPath, std::optional<granular::MaterialDesc>> _materials;
+  std::map<SdfPath, granular::InputError> _errors;
+  mutable std::set<std::string> _warned;  // warnings given (Warn, Assemble)
   std::map<SdfPath, std::string> _materialSt;
   std::atomic<int> _version{0};
   HdGranularRenderer* _renderer = nullptr;

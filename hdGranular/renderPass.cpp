@@ -4,6 +4,7 @@
 #include <exception>
 
 #include "core/error.h"
+#include "core/usd_camera.h"
 #include "pxr/base/tf/getenv.h"
 #include "pxr/imaging/hd/camera.h"
 #include "pxr/imaging/hd/renderDelegate.h"
@@ -38,14 +39,37 @@ bool cameraFromMatrices(GfMatrix4d const& view, GfMatrix4d const& proj, granular
   return true;
 }
 
-// The thin lens of the pass's camera (UsdGeomCamera fStop, focusDistance; HdCamera keeps
-// the focal length in scene units): as granular render reads it (lensRadiusFromFStop).
-// No camera prim (free matrices): a pinhole.
-GfVec2f lensOfCamera(HdCamera const* camera) {
-  if (!camera) return GfVec2f(0.0f, 1.0f);
-  return GfVec2f(granular::checkedLensRadius(10.0f * camera->GetFocalLength(), camera->GetFStop(),
-                                            camera->GetId().GetString(), "fStop"),
-                 camera->GetFocusDistance());
+// The pass's camera as core reads a UsdGeomCamera (core/usd_camera.h: its checks, the thin
+// lens from fStop and focusDistance), from HdCamera's values (which keeps lengths in scene
+// units, a tenth of USD's). Its framing comes from the host's matrices instead, which
+// apply the host's window policy. No camera prim (free matrices): a pinhole.
+granular::CameraDesc coreCamera(HdCamera const* camera) {
+  if (!camera) return granular::CameraDesc{};
+  granular::UsdPrimRecord r;
+  r.path = camera->GetId().GetString();
+  r.typeName = "Camera";
+  auto number = [&r](const char* name, double v) {
+    granular::UsdValue x;
+    x.typeName = "float";
+    x.numbers = {v};
+    r.attributes[name] = x;
+  };
+  granular::UsdValue projection;
+  projection.typeName = "token", projection.isString = true;
+  projection.strings = {camera->GetProjection() == HdCamera::Orthographic ? "orthographic" : "perspective"};
+  r.attributes["projection"] = projection;
+  number("focalLength", 10.0 * camera->GetFocalLength());
+  number("horizontalAperture", 10.0 * camera->GetHorizontalAperture());
+  number("verticalAperture", 10.0 * camera->GetVerticalAperture());
+  number("horizontalApertureOffset", 10.0 * camera->GetHorizontalApertureOffset());
+  number("verticalApertureOffset", 10.0 * camera->GetVerticalApertureOffset());
+  number("fStop", camera->GetFStop());
+  number("focusDistance", camera->GetFocusDistance());
+  granular::UsdValue clip;
+  clip.typeName = "float2";
+  clip.numbers = {camera->GetClippingRange().GetMin(), camera->GetClippingRange().GetMax()};
+  r.attributes["clippingRange"] = clip;
+  return granular::cameraFromUsd(r);
 }
 
 // A setting of the type we want, whatever numeric type (or token) the host stored.
@@ -121,7 +145,15 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
   const int width = int(first->GetWidth()), height = int(first->GetHeight());
   // The active UsdRenderSettings' dataWindowNDC: only those pixels are rendered, the rest
   // keep the buffers' clear values (as granular render writes only them).
-  const granular::PixelWindow crop = HdGranularDataWindow(GetRenderIndex(), width, height);
+  granular::PixelWindow crop{0, width, 0, height};
+  std::optional<granular::InputError> cropError;  // reported below, with the scene's errors
+  try {
+    granular::UsdWarnings warnings;
+    crop = HdGranularDataWindow(GetRenderIndex(), width, height, warnings);
+    _param->Warn(warnings);
+  } catch (granular::InputError const& e) {
+    cropError = e;
+  }
   const GfMatrix4d view = state->GetWorldToViewMatrix(), proj = state->GetProjectionMatrix();
   HdCamera const* const camera = state->GetCamera();
   const GfVec2f lens = camera ? GfVec2f(camera->GetFStop(), camera->GetFocusDistance()) : GfVec2f(0.0f);
@@ -149,12 +181,10 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
   _crop = crop;
   _bindings = bindings;
   try {
-    granular::CameraDesc cam;
+    if (cropError) throw *cropError;
+    granular::CameraDesc cam = coreCamera(camera);
     if (!cameraFromMatrices(view, proj, cam))
       throw granular::InputError("camera", "projection", "only perspective cameras are supported");
-    const GfVec2f thinLens = lensOfCamera(camera);
-    cam.lensRadius = thinLens[0];
-    cam.focusDistance = thinLens[1];
     granular::RenderSettings rs = renderSettings(delegate, width, height);
     if (crop != granular::PixelWindow{0, width, 0, height})
       rs.cropX0 = crop.x0, rs.cropX1 = crop.x1, rs.cropY0 = crop.y0, rs.cropY1 = crop.y1;

@@ -9,6 +9,7 @@
 #include "pxr/imaging/hd/renderSettings.h"
 #include "pxr/pxr.h"
 #include "core/scene_desc.h"
+#include "core/usd_render.h"
 
 PXR_NAMESPACE_OPEN_SCOPE
 
@@ -20,9 +21,11 @@ class HdGranularRenderSettings final : public HdRenderSettings {
 };
 
 // The pixels of a width × height image that the active render settings prim's first render
-// product asks for (its dataWindowNDC, granular::pixelWindowFromNdc); the whole image when
-// there is no active prim, no product, or its data window covers no pixel.
-granular::PixelWindow HdGranularDataWindow(HdRenderIndex* index, int width, int height);
+// product asks for (its dataWindowNDC, through granular::dataWindowFromUsd); the whole
+// image when there is no active prim or no product. granular::InputError, naming the
+// product, for a data window core refuses (empty, not finite, covering no pixel).
+granular::PixelWindow HdGranularDataWindow(HdRenderIndex* index, int width, int height,
+                                           granular::UsdWarnings& warnings);
 
 PXR_NAMESPACE_CLOSE_SCOPE
 

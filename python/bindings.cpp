@@ -37,6 +37,12 @@
 #include "core/scene_io.h"
 #include "core/shapes.h"
 #include "core/tt.h"
+#include "core/usd_camera.h"
+#include "core/usd_implicit.h"
+#include "core/usd_lights.h"
+#include "core/usd_mesh.h"
+#include "core/usd_render.h"
+#include "core/usd_shading.h"
 
 namespace py = pybind11;
 using namespace granular;
@@ -520,15 +526,17 @@ PYBIND11_MODULE(granular_core, m) {
       "UsdRenderSettings dataWindowNDC -> pixels (x0, x1, y0, y1), rows from the top; (0, 0, 0, 0) when empty");
 
   // ---- the granular schema's meaning (granular_prims.h) ------------------------------------
-  py::class_<PrimvarValue>(m, "PrimvarValue")
+  py::class_<UsdValue>(m, "UsdValue", "An attribute's, primvar's or shader input's value as a front end found it")
       .def(py::init<>())
-      .def_readwrite("type_name", &PrimvarValue::typeName)
-      .def_readwrite("numbers", &PrimvarValue::numbers)
-      .def_readwrite("strings", &PrimvarValue::strings)
-      .def_readwrite("is_array", &PrimvarValue::isArray)
-      .def_readwrite("is_string", &PrimvarValue::isString)
-      .def_readwrite("interpolation", &PrimvarValue::interpolation)
-      .def_readwrite("source", &PrimvarValue::source);
+      .def_readwrite("type_name", &UsdValue::typeName)
+      .def_readwrite("numbers", &UsdValue::numbers)
+      .def_readwrite("strings", &UsdValue::strings)
+      .def_readwrite("is_array", &UsdValue::isArray)
+      .def_readwrite("is_string", &UsdValue::isString)
+      .def_readwrite("interpolation", &UsdValue::interpolation)
+      .def_readwrite("source", &UsdValue::source)
+      .def_readwrite("resolved_path", &UsdValue::resolvedPath);
+  m.attr("PrimvarValue") = m.attr("UsdValue");
 
   py::class_<MeshPrim>(m, "MeshPrim")
       .def(py::init<>())
@@ -579,6 +587,103 @@ PYBIND11_MODULE(granular_core, m) {
       py::arg("prims"), py::arg("desc"), py::arg("lookup") = py::none(),
       "Appends the prims' meshes, aggregates and grain materials to desc; lookup(path) returns the "
       "MeshPrim of a prototype that is not listed, or None when there is no such prim.");
+  // ---- the rest of a stage's meaning on plain records (usd_*.h) ---------------------------
+  py::class_<UsdPrimRecord>(m, "UsdPrimRecord")
+      .def(py::init<>())
+      .def_readwrite("path", &UsdPrimRecord::path)
+      .def_readwrite("type_name", &UsdPrimRecord::typeName)
+      .def_readwrite("attributes", &UsdPrimRecord::attributes, "a copy: assign a whole dict {name: UsdValue}")
+      .def_readwrite("xf", &UsdPrimRecord::xf);
+  py::class_<UsdShaderRecord, UsdPrimRecord>(m, "UsdShaderRecord")
+      .def(py::init<>())
+      .def_readwrite("connections", &UsdShaderRecord::connections,
+                     "a copy: assign a whole dict {input: (shader path, output name)}");
+  py::class_<UsdMaterialNetwork>(m, "UsdMaterialNetwork")
+      .def(py::init<>())
+      .def_readwrite("material", &UsdMaterialNetwork::material)
+      .def_readwrite("surface", &UsdMaterialNetwork::surface)
+      .def_readwrite("shaders", &UsdMaterialNetwork::shaders, "a copy: assign a whole list");
+  m.def(
+      "mesh_from_usd",
+      [](const std::string& path, const FloatArray& points, const IntArray& counts, const IntArray& indices,
+         const IntArray& holes, const std::string& orientation) {
+        UsdMeshRecord r;
+        r.path = path;
+        r.points = toPoints(points, "points");
+        r.faceVertexCounts = toInt32(toInts(counts, "faceVertexCounts"));
+        r.faceVertexIndices = toInt32(toInts(indices, "faceVertexIndices"));
+        r.holeIndices = toInt32(toInts(holes, "holeIndices"));
+        r.orientation = orientation;
+        return meshFromUsd(r);
+      },
+      py::arg("path"), py::arg("points"), py::arg("face_vertex_counts"), py::arg("face_vertex_indices"),
+      py::arg("hole_indices"), py::arg("orientation"), "A UsdGeomMesh's triangles (usd_mesh.h)");
+  m.def(
+      "usd_primvar_at_corners",
+      [](const std::string& path, size_t numPoints, const IntArray& counts, const IntArray& indices,
+         const IntArray& holes, const std::string& orientation, const UsdValue& primvar, int width,
+         const std::string& attribute) {
+        UsdMeshRecord r;
+        r.path = path;
+        r.points.resize(numPoints);
+        r.faceVertexCounts = toInt32(toInts(counts, "faceVertexCounts"));
+        r.faceVertexIndices = toInt32(toInts(indices, "faceVertexIndices"));
+        r.holeIndices = toInt32(toInts(holes, "holeIndices"));
+        r.orientation = orientation;
+        std::vector<float> v = usdPrimvarAtCorners(r, primvar, width, attribute);
+        py::array_t<float> a({py::ssize_t(v.size() / size_t(std::max(width, 1))), py::ssize_t(width)});
+        std::copy(v.begin(), v.end(), a.mutable_data());
+        return a;
+      },
+      py::arg("path"), py::arg("num_points"), py::arg("face_vertex_counts"), py::arg("face_vertex_indices"),
+      py::arg("hole_indices"), py::arg("orientation"), py::arg("primvar"), py::arg("width"), py::arg("attribute"),
+      "A primvar at every corner of mesh_from_usd's triangles, by its interpolation: (corners, width)");
+  m.def("is_usd_implicit_surface", &isUsdImplicitSurface, py::arg("type_name"));
+  m.def("usd_implicit_attribute_names", &usdImplicitAttributeNames);
+  m.def("implicit_surface_from_usd", &implicitSurfaceFromUsd, py::arg("record"));
+  m.def("usd_light_attribute_names", &usdLightAttributeNames);
+  m.def("usd_camera_attribute_names", &usdCameraAttributeNames);
+  m.def(
+      "light_from_usd",
+      [](const UsdPrimRecord& r) -> py::tuple {
+        UsdWarnings w;
+        std::optional<LightDesc> l = lightFromUsd(r, w);
+        return py::make_tuple(l ? py::cast(*l) : py::none(), w);
+      },
+      py::arg("record"), "(LightDesc or None when the type is not rendered, [warnings])");
+  m.def("camera_from_usd", &cameraFromUsd, py::arg("record"));
+  m.def(
+      "material_from_usd",
+      [](const UsdMaterialNetwork& n) -> py::tuple {
+        UsdWarnings w;
+        std::optional<UsdMaterial> mat = materialFromUsd(n, w);
+        if (!mat) return py::make_tuple(py::none(), py::none(), w);
+        return py::make_tuple(py::cast(mat->desc), mat->st, w);
+      },
+      py::arg("network"), "(MaterialDesc or None: the default material, st primvar name, [warnings])");
+  m.def("display_color_from_usd", &displayColorFromUsd, py::arg("value"), py::arg("prim"));
+  m.def(
+      "resolution_from_usd",
+      [](const UsdPrimRecord& r) -> py::object {
+        auto res = resolutionFromUsd(r);
+        if (!res) return py::none();
+        return py::make_tuple(res->first, res->second);
+      },
+      py::arg("settings"));
+  m.def(
+      "data_window_from_usd",
+      [](const UsdPrimRecord* settings, const UsdPrimRecord* product, int width, int height) {
+        UsdWarnings w;
+        std::optional<PixelWindow> win = dataWindowFromUsd(settings, product, width, height, w);
+        py::object window = py::none();
+        if (win) window = py::cast(windowTuple(*win));
+        return py::make_tuple(window, w);
+      },
+      py::arg("settings"), py::arg("product"), py::arg("width"), py::arg("height"),
+      "((x0, x1, y0, y1) or None for the whole image, [warnings])");
+  m.def(
+      "blackbody_rgb", [](float k) { return blackbodyRgb(k); }, py::arg("kelvin"));
+
   m.def("load_scene_json", &loadSceneJson, py::arg("path"), py::call_guard<py::gil_scoped_release>());
 
   // ---- scene building and rendering --------------------------------------------------

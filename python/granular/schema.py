@@ -141,7 +141,7 @@ def _find(prim, base):
     return None
 
 
-def _authored_type(attr):
+def authored_type(attr):
     """The type a layer authored (a file may contradict the schema's type, which
     UsdAttribute.GetTypeName reports instead)."""
     for spec in attr.GetPropertyStack(Usd.TimeCode.Default()):
@@ -151,14 +151,14 @@ def _authored_type(attr):
     return str(attr.GetTypeName())
 
 
-def _numbers(v):
+def numbers(v):
     """Numbers of a scalar, vector or array value, flattened; [] when there are none."""
     if isinstance(v, (bool, int, float)):
         return [float(v)]
     out = []
     try:
         for x in v:
-            out.extend(_numbers(x))
+            out.extend(numbers(x))
     except TypeError:
         return []
     return out
@@ -170,13 +170,13 @@ def primvar_value(pv, time=Usd.TimeCode.Default()):
     import granular_core as core
     attr = pv.GetAttr()
     v = pv.ComputeFlattened(time)
-    authored_type = _authored_type(attr)
+    type_name = authored_type(attr)
     # USD reads no value of a type that contradicts the schema's: core still gets the type
     # to report it.
-    if v is None and authored_type == str(attr.GetTypeName()):
+    if v is None and type_name == str(attr.GetTypeName()):
         return None
     out = core.PrimvarValue()
-    out.type_name = authored_type
+    out.type_name = type_name
     out.interpolation = pv.GetInterpolation()
     out.source = str(attr.GetPrim().GetPath())
     out.is_array = out.type_name.endswith("[]")
@@ -185,7 +185,7 @@ def primvar_value(pv, time=Usd.TimeCode.Default()):
         if out.is_string:
             out.strings = [v] if isinstance(v, str) else [str(x) for x in v]
         elif not isinstance(v, str):
-            out.numbers = _numbers(v)
+            out.numbers = numbers(v)
     return out
 
 

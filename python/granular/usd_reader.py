@@ -1,28 +1,25 @@
 """Reads a USD stage (usd-core) into core's plain SceneDesc.
 
+This module reads and converts; core decides what the values mean, the same core the
+Hydra delegate hands its values to: the granular schema (assemble_granular_scene), UsdLux
+lights (light_from_usd), UsdGeomCamera (camera_from_usd), UsdPreviewSurface and UsdUVTexture
+networks and displayColor (material_from_usd, display_color_from_usd), UsdGeomMesh topology
+and primvar interpolation (mesh_from_usd, usd_primvar_at_corners), implicit surfaces
+(implicit_surface_from_usd) and UsdRender settings (resolution_from_usd,
+data_window_from_usd). Prims are handed over as plain records (prim_record): path, type,
+attribute values as authored; core applies USD's fallbacks, checks and names errors.
+
 What is read, at one time code: the caller's (read_stage's `time`, e.g. each frame of
 `granular render --frames`), else the stage's start time code (or, without an authored
-range, the earliest time sample). Every time-varying value is read at that time:
-transforms, points, visibility, camera and light attributes, material inputs, displayColor,
-the granular primvars and the render settings' resolution.
-- UsdGeomMesh prims (polygons triangulated by fans, world transforms, orientation),
-  UsdGeomCube and UsdGeomSphere (tessellated), skipping invisible prims and the guide and
-  proxy purposes;
-- the granular schema: each mesh is handed to core (assemble_granular_scene, shared with
-  the Hydra delegate) with its granular primvars, applied API schemas and bound material,
-  and core decides what is an aggregate, a prototype or ordinary geometry; prototypes that
-  are not drawn (invisible) are read when core asks for them;
+range, the earliest time sample). Every time-varying value is read at that time.
+- UsdGeomMesh prims and the implicit surfaces (Cube, Sphere, Cylinder, Cone, Capsule) with
+  world transforms, skipping invisible prims and the guide and proxy purposes;
+- each mesh is handed to core with its granular primvars, applied API schemas and bound
+  material, and core decides what is an aggregate, a prototype or ordinary geometry;
+  prototypes that are not drawn (invisible) are read when core asks for them;
 - one UsdGeomCamera (--camera, else the render settings' camera, else the first one);
-- UsdLux distant (angle), dome (lat-long texture file), rect and sphere lights with
-  intensity, exposure, color, color temperature and normalize;
-- a UsdPreviewSurface subset: diffuseColor -> Lambert, opacity < 1 -> dielectric of
-  inputs:ior, emissiveColor -> emission; without a material, displayColor -> Lambert;
-  diffuseColor, emissiveColor and opacity connected to a UsdUVTexture (file, wrapS/T,
-  scale, bias, sourceColorSpace, st from a UsdPrimvarReader_float2's primvar of any
-  interpolation) -> core textures; a textured opacity or an opacityThreshold > 0 makes a
-  Lambert cut-out instead of glass;
-- the render settings prim's resolution and camera, and its first product's
-  dataWindowNDC (a crop).
+- UsdLux lights; the bound material's surface network; displayColor without a material;
+- the render settings prim's resolution and camera, and its first product's data window.
 Every problem a user can cause raises UserError naming the prim and the attribute;
 `translate_core_error` turns core's InputError (named after SceneDesc fields) into the same.
 """
@@ -39,11 +36,6 @@ from . import schema
 from .errors import UserError
 
 DEFAULT_WIDTH, DEFAULT_HEIGHT = 640, 480
-
-# UsdPreviewSurface fallbacks (its specification).
-_PREVIEW_DEFAULTS = {"diffuseColor": (0.18, 0.18, 0.18), "emissiveColor": (0.0, 0.0, 0.0), "opacity": 1.0,
-                     "opacityThreshold": 0.0, "ior": 1.5}
-
 
 class StageScene:
     """A stage read into a SceneDesc, with what is needed to report errors in USD terms."""
@@ -180,15 +172,6 @@ def get_number(attr, time, default=None):
     return float(v)
 
 
-def get_bool(attr, time, default=False):
-    v = attr.Get(time) if attr else None
-    if v is None:
-        return default
-    if not isinstance(v, bool):
-        raise _bad(attr, v, "a bool")
-    return v
-
-
 def get_token(attr, time, default=None):
     v = attr.Get(time) if attr else None
     if v is None:
@@ -239,24 +222,76 @@ def get_array(attr, time, columns, dtype, expected):
     return a
 
 
-def get_asset(attr, time):
-    v = attr.Get(time) if attr else None
-    if v is None:
+def usd_value(attr, time):
+    """An attribute's value at `time` as core.UsdValue (authored type, values as found), or
+    None when it has none; core checks the type and applies the meaning."""
+    if not attr or not attr.HasValue():
         return None
-    if not isinstance(v, Sdf.AssetPath):
-        raise _bad(attr, v, "an asset path")
-    return v
+    v = attr.Get(time)
+    type_name = schema.authored_type(attr)
+    if v is None and type_name == str(attr.GetTypeName()):
+        return None
+    out = core.UsdValue()
+    out.type_name = type_name
+    out.is_array = type_name.endswith("[]")
+    out.is_string = type_name.replace("[]", "") in ("string", "token", "asset")
+    if isinstance(v, Sdf.AssetPath):
+        out.strings = [v.path]
+        out.resolved_path = v.resolvedPath or ""
+    elif isinstance(v, Sdf.AssetPathArray):
+        out.strings = [x.path for x in v]
+    elif out.is_string and v is not None:
+        out.strings = [v] if isinstance(v, str) else [str(x) for x in v]
+    elif v is not None and not isinstance(v, str):
+        out.numbers = schema.numbers(v)
+    return out
+
+
+def prim_record(prim, names, time, xf_cache=None, record=None, authored_only=False):
+    """prim's attributes `names` that hold a value (authored_only: an authored one, not the
+    schema's fallback), as a core.UsdPrimRecord (its type as USD names it; its world
+    transform when xf_cache is given)."""
+    r = record if record is not None else core.UsdPrimRecord()
+    r.path = str(prim.GetPath())
+    r.type_name = str(prim.GetTypeName())
+    attrs = {}
+    for name in names:
+        attr = prim.GetAttribute(name)
+        if authored_only and not attr.HasAuthoredValue():
+            continue
+        v = usd_value(attr, time)
+        if v is not None:
+            attrs[name] = v
+    r.attributes = attrs
+    if xf_cache is not None:
+        r.xf = world_matrix(xf_cache, prim)
+    return r
+
+
+def _core_call(fn, *args):
+    try:
+        return fn(*args)
+    except core.InputError as e:
+        raise translate_core_error(e) from None
 
 
 # ---- geometry -----------------------------------------------------------------------------
 
-def read_mesh(prim, time):
-    """The Mesh's triangles in its own space (core.TriangleMesh); UserError on bad data."""
-    path = str(prim.GetPath())
+def _topology(prim, time):
+    """A Mesh's topology arrays (counts, indices, holes, orientation), type-checked."""
     mesh = UsdGeom.Mesh(prim)
-    P = get_array(mesh.GetPointsAttr(), time, 3, np.float64, "point3f[]")
     counts = get_array(mesh.GetFaceVertexCountsAttr(), time, 0, np.int64, "int[]")
     indices = get_array(mesh.GetFaceVertexIndicesAttr(), time, 0, np.int64, "int[]")
+    holes = get_array(mesh.GetHoleIndicesAttr(), time, 0, np.int64, "int[]")
+    orientation = get_token(mesh.GetOrientationAttr(), time, UsdGeom.Tokens.rightHanded)
+    return counts, indices, np.zeros(0, np.int64) if holes is None else holes, orientation
+
+
+def read_mesh(prim, time):
+    """The Mesh's triangles in its own space (core.mesh_from_usd); UserError on bad data."""
+    path = str(prim.GetPath())
+    P = get_array(UsdGeom.Mesh(prim).GetPointsAttr(), time, 3, np.float64, "point3f[]")
+    counts, indices, holes, orientation = _topology(prim, time)
     if P is None or len(P) == 0:
         raise UserError(path, "points", "has no points")
     if counts is None or len(counts) == 0:
@@ -265,19 +300,13 @@ def read_mesh(prim, time):
         raise UserError(path, "faceVertexIndices", "has no value")
     if P.size and np.abs(P[np.isfinite(P)]).max(initial=0.0) > 3.0e38:
         raise UserError(path, "points", "has values that do not fit in a float")
-    try:
-        tri = core.triangulate(P.astype(np.float32), counts, indices, path)
-    except core.InputError as e:
-        raise translate_core_error(e) from None
-    if get_token(mesh.GetOrientationAttr(), time) == UsdGeom.Tokens.leftHanded:
-        tri.flip()
-    return tri
+    return _core_call(core.mesh_from_usd, path, P.astype(np.float32), counts, indices, holes, orientation)
 
 
 def read_st(scene, prim, name, time, num_points):
     """Primvar `name` (texture coordinates, any interpolation) at each corner of read_mesh's
-    triangles (of num_points points), as (corners, 2) floats; None with a warning when the
-    mesh has no such primvar."""
+    triangles (of num_points points), as (corners, 2) floats (core.usd_primvar_at_corners);
+    None with a warning when the mesh has no such primvar."""
     path = str(prim.GetPath())
     pv = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance(name)
     if not (pv and pv.HasAuthoredValue()):
@@ -291,247 +320,103 @@ def read_st(scene, prim, name, time, num_points):
             raise TypeError
     except (TypeError, ValueError):
         raise UserError(src, attr_name, f"has a {attr.GetTypeName()} value, expected texCoord2f[]") from None
-    if not np.all(np.isfinite(v)):
-        raise UserError(src, attr_name, "has values that are not finite")
-    mesh = UsdGeom.Mesh(prim)
-    counts = get_array(mesh.GetFaceVertexCountsAttr(), time, 0, np.int64, "int[]")
-    indices = get_array(mesh.GetFaceVertexIndicesAttr(), time, 0, np.int64, "int[]")
-    corners = core.triangulated_corners(counts).astype(np.int64)
-    interp = pv.GetInterpolation()
-    if interp == UsdGeom.Tokens.constant:
-        where, expected = np.zeros_like(corners), 1
-    elif interp == UsdGeom.Tokens.uniform:
-        face = np.repeat(np.arange(len(counts)), np.maximum(counts - 2, 0) * 3)
-        where, expected = face, len(counts)
-    elif interp in (UsdGeom.Tokens.vertex, UsdGeom.Tokens.varying):
-        where, expected = indices[corners], num_points
-    else:  # faceVarying
-        where, expected = corners, len(indices)
-    if len(v) != expected:
-        raise UserError(src, attr_name, f"has {len(v)} values; {interp} interpolation needs {expected}")
-    uv = v[where].reshape(-1, 3, 2)
-    if get_token(mesh.GetOrientationAttr(), time) == UsdGeom.Tokens.leftHanded:
-        uv = uv[:, [0, 2, 1]]  # read_mesh flipped these triangles
-    return uv.reshape(-1, 2).astype(np.float32)
+    value = core.UsdValue()
+    value.type_name = str(attr.GetTypeName())
+    value.is_array = True
+    value.numbers = v.reshape(-1).tolist()
+    value.interpolation = pv.GetInterpolation()
+    value.source = src
+    counts, indices, holes, orientation = _topology(prim, time)
+    return _core_call(core.usd_primvar_at_corners, path, num_points, counts, indices, holes, orientation, value, 2,
+                      attr_name)
 
 
 def _tessellated(prim, time):
-    """UsdGeomCube / UsdGeomSphere as triangles in their own space."""
-    if prim.IsA(UsdGeom.Cube):
-        size = get_number(UsdGeom.Cube(prim).GetSizeAttr(), time)
-        if size is None or not _finite(size) or size <= 0:
-            raise UserError(prim.GetPath(), "size", f"{size} must be finite and > 0")
-        h = 0.5 * float(size)
-        return core.make_box((-h, -h, -h), (h, h, h))
-    radius = get_number(UsdGeom.Sphere(prim).GetRadiusAttr(), time)
-    if radius is None or not _finite(radius) or radius <= 0:
-        raise UserError(prim.GetPath(), "radius", f"{radius} must be finite and > 0")
-    m = core.make_uv_sphere(64, 32)
-    m.points = m.points * float(radius)
-    return m
+    """A UsdGeom implicit surface (Cube, Sphere, Cylinder, Cone, Capsule) as triangles in its
+    own space, tessellated by core (usd_implicit.h) as for hdGranular."""
+    return _core_call(core.implicit_surface_from_usd, prim_record(prim, core.usd_implicit_attribute_names(), time))
+
+
+def _is_implicit(prim):
+    return core.is_usd_implicit_surface(str(prim.GetTypeName())) and prim.IsA(UsdGeom.Gprim)
 
 
 # ---- materials ------------------------------------------------------------------------------
 
-# UsdUVTexture's tokens and outputs (its specification) in core's terms.
-_WRAPS = {"useMetadata": core.TextureWrap.UseMetadata, "black": core.TextureWrap.Black,
-          "clamp": core.TextureWrap.Clamp, "repeat": core.TextureWrap.Repeat, "mirror": core.TextureWrap.Mirror}
-_COLOR_SPACES = {"auto": core.TextureColorSpace.Auto, "raw": core.TextureColorSpace.Raw,
-                 "sRGB": core.TextureColorSpace.SRGB}
-_CHANNELS = {"rgb": -1, "r": 0, "g": 1, "b": 2, "a": 3}
-# The UsdPreviewSurface inputs read from a texture.
-_TEXTURED_INPUTS = ("diffuseColor", "emissiveColor", "opacity")
+def _network(mat, time):
+    """The bound material's surface network as core.UsdMaterialNetwork: every shader
+    upstream of its surface output with its inputs' values and connections."""
+    net = core.UsdMaterialNetwork()
+    net.material = str(mat.GetPath())
+    surface, _, _ = mat.ComputeSurfaceSource()
+    if not surface:
+        return net
+    net.surface = str(surface.GetPath())
+    shaders, seen, stack = [], set(), [surface]
+    while stack:
+        shader = stack.pop()
+        path = str(shader.GetPath())
+        if path in seen:
+            continue
+        seen.add(path)
+        rec = core.UsdShaderRecord()
+        rec.path = path
+        rec.type_name = str(shader.GetIdAttr().Get(time) or "")
+        attrs, connections = {}, {}
+        for inp in shader.GetInputs():
+            attr = inp.GetAttr()
+            if inp.HasConnectedSource():
+                sources = inp.GetValueProducingAttributes(shaderOutputsOnly=True)
+                if sources:
+                    out = sources[0]
+                    connections[attr.GetName()] = (str(out.GetPrim().GetPath()), out.GetBaseName())
+                    stack.append(UsdShade.Shader(out.GetPrim()))
+            v = usd_value(attr, time)
+            if v is not None:
+                attrs[attr.GetName()] = v
+        rec.attributes = attrs
+        rec.connections = connections
+        shaders.append(rec)
+    net.shaders = shaders
+    return net
 
 
-def _input_attr(shader, name):
-    """The attribute of shader's input `name`, or None when it has no such input."""
-    inp = shader.GetInput(name)
-    return inp.GetAttr() if inp else None
-
-
-def _existing_file(prim_path, attr_name, asset):
-    """An asset's resolved path; UserError naming the attribute when it cannot be found."""
-    resolved = asset.resolvedPath
-    if not resolved or not os.path.isfile(resolved):
-        raise UserError(prim_path, attr_name, f'"{asset.path}" cannot be found')
-    return resolved
-
-
-def _source_shader(inp):
-    """The shader output that produces inp's value (through node graphs), or None."""
-    attrs = inp.GetValueProducingAttributes(shaderOutputsOnly=True)
-    return attrs[0] if attrs else None
-
-
-def _texture_st(scene, tex, time, input_name="st", seen=()):
-    """The primvar name a UsdUVTexture's st reads (a UsdPrimvarReader_float2's varname, also
-    through a UsdTransform2d's `in`), or None: its st is then the constant fallback (0, 0).
-    seen: the UsdTransform2d shaders already followed (a cycle of them is an error)."""
-    path = str(tex.GetPath())
-    inp = tex.GetInput(input_name)
-    if not inp or not inp.HasConnectedSource():
-        scene.warn(f"{path}.inputs:{input_name}: not connected to a UsdPrimvarReader_float2; "
-                   f"the texture reads st (0, 0) everywhere")
-        return None
-    out = _source_shader(inp)
-    reader = UsdShade.Shader(out.GetPrim()) if out else None
-    sid = reader.GetIdAttr().Get(time) if reader else None
-    if sid == "UsdTransform2d":
-        if reader.GetPath() in seen:
-            raise UserError(str(reader.GetPath()), "inputs:in", "is connected in a cycle (to its own output)")
-        scene.warn(f"{reader.GetPath()}: UsdTransform2d is not supported; st is read untransformed")
-        return _texture_st(scene, reader, time, "in", seen + (reader.GetPath(),))
-    if sid != "UsdPrimvarReader_float2":
-        scene.warn(f"{path}.inputs:st: {sid!r} is not supported (only UsdPrimvarReader_float2); "
-                   f"the texture reads st (0, 0) everywhere")
-        return None
-    v = _input_attr(reader, "varname")
-    name = v.Get(time) if v else None
-    if not name:
-        raise UserError(str(reader.GetPath()), "inputs:varname", "names no primvar")
-    return str(name)
-
-
-def _texture(scene, shader, name, time):
-    """The UsdUVTexture feeding shader's input `name` as (core.TextureDesc, st primvar name),
-    or None when the input is not connected to one."""
-    inp = shader.GetInput(name)
-    if not inp or not inp.HasConnectedSource():
-        return None
-    out = _source_shader(inp)
-    tex = UsdShade.Shader(out.GetPrim()) if out else None
-    sid = tex.GetIdAttr().Get(time) if tex else None
-    if sid != "UsdUVTexture":
-        scene.warn(f"{shader.GetPath()}.inputs:{name}: connected to {sid!r}, which is not supported "
-                   f"(only UsdUVTexture); using the input's own value")
-        return None
-    path = str(tex.GetPath())
-    td = core.TextureDesc()
-    td.source = path
-    asset = get_asset(_input_attr(tex, "file"), time)
-    if asset is None or not asset.path:
-        raise UserError(path, "inputs:file", "names no image")
-    if "<UDIM>" in asset.path:
-        raise UserError(path, "inputs:file", f'"{asset.path}": UDIM textures are not supported')
-    td.file = _existing_file(path, "inputs:file", asset)
-    for attr, field in (("wrapS", "wrap_s"), ("wrapT", "wrap_t")):
-        w = get_token(_input_attr(tex, attr), time, "useMetadata")
-        if w not in _WRAPS:
-            raise UserError(path, f"inputs:{attr}", f'"{w}" is not one of {", ".join(_WRAPS)}')
-        setattr(td, field, _WRAPS[w])
-    for attr, default in (("scale", (1.0, 1.0, 1.0, 1.0)), ("bias", (0.0, 0.0, 0.0, 0.0))):
-        v = get_vec(_input_attr(tex, attr), time, 4, default)
-        if not all(_finite(x) for x in v):
-            raise UserError(path, f"inputs:{attr}", f"{v} is not finite")
-        setattr(td, attr, list(v))
-    cs = get_token(_input_attr(tex, "sourceColorSpace"), time, "auto")
-    if cs not in _COLOR_SPACES:
-        raise UserError(path, "inputs:sourceColorSpace", f'"{cs}" is not one of {", ".join(_COLOR_SPACES)}')
-    td.color_space = _COLOR_SPACES[cs]
-    output = out.GetBaseName()
-    if output not in _CHANNELS:
-        raise UserError(path, f"outputs:{output}", "is not an output of UsdUVTexture (rgb, r, g, b, a)")
-    channel = _CHANNELS[output]
-    if name == "opacity" and channel < 0:
-        scene.warn(f"{shader.GetPath()}.inputs:opacity: connected to {path}.outputs:rgb; its r channel is used")
-        channel = 0
-    td.channel = channel
-    return td, _texture_st(scene, tex, time)
-
-
-def _input_value(scene, shader, name, time):
-    inp = shader.GetInput(name)
-    if not inp:
-        return _PREVIEW_DEFAULTS[name], f"inputs:{name}"
-    if inp.HasConnectedSource() and name not in _TEXTURED_INPUTS:
-        scene.warn(f"{shader.GetPath()}.inputs:{name}: connections are not supported; "
-                   f"using its own value or the fallback")
-    default = _PREVIEW_DEFAULTS[name]
-    attr = inp.GetAttr()
-    v = get_vec(attr, time, 3, default) if isinstance(default, tuple) else get_number(attr, time, default)
-    return v, f"inputs:{name}"
-
-
-def _preview_surface(scene, prim, time, cache):
-    """Index of the MaterialDesc of prim's bound UsdPreviewSurface, or None if there is none."""
+def _bound_material(scene, prim, time, cache):
+    """Index of the MaterialDesc of prim's bound material (core.material_from_usd), -1 for
+    the default material, or None when none is bound."""
     mat, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
     if not mat:
         return None
-    shader, _, _ = mat.ComputeSurfaceSource()
-    if not shader:
-        scene.warn(f"{mat.GetPath()}: no surface shader; using the default material")
-        return -1
-    sid = shader.GetIdAttr().Get(time)
-    if sid != "UsdPreviewSurface":
-        scene.warn(f"{shader.GetPath()}: shader {sid!r} is not supported (only UsdPreviewSurface); using the default material")
-        return -1
-    key = str(shader.GetPath())
-    if key in cache:
-        return cache[key]
-    diffuse, _ = _input_value(scene, shader, "diffuseColor", time)
-    emissive, _ = _input_value(scene, shader, "emissiveColor", time)
-    opacity, _ = _input_value(scene, shader, "opacity", time)
-    ior, _ = _input_value(scene, shader, "ior", time)
-    threshold, _ = _input_value(scene, shader, "opacityThreshold", time)
-    if not _finite(opacity) or not 0 <= opacity <= 1:
-        raise UserError(key, "inputs:opacity", f"{opacity} is outside [0, 1]")
-    if not _finite(threshold) or not 0 <= threshold <= 1:
-        raise UserError(key, "inputs:opacityThreshold", f"{threshold} is outside [0, 1]")
-    textures = {n: _texture(scene, shader, n, time) for n in _TEXTURED_INPUTS}
-    md = core.MaterialDesc()
-    md.name = key
-    st = None
-    if opacity < 1 and threshold == 0 and textures["opacity"] is None:
-        # An untextured opacity without a threshold is glass.
-        md.type = core.MaterialType.Dielectric
-        md.ior = ior
-        for n in ("diffuseColor", "emissiveColor"):
-            if textures[n] is not None:
-                scene.warn(f"{key}.inputs:{n}: a texture on a transparent (glass) material is ignored")
-    else:
-        # Lambert; a textured opacity or a threshold makes a cut-out (core: MaterialDesc.opacity).
-        md.type = core.MaterialType.Lambert
-        md.albedo = diffuse
-        md.emission = emissive
-        md.opacity = opacity
-        md.opacity_threshold = threshold
-        for n, field in (("diffuseColor", "albedo_texture"), ("emissiveColor", "emission_texture"),
-                         ("opacity", "opacity_texture")):
-            if textures[n] is None:
-                continue
-            td, name = textures[n]
-            setattr(md, field, td)
-            if name is not None and st is not None and name != st:
-                scene.warn(f"{key}: textures read different primvars ({st!r}, {name!r}); {st!r} is used")
-            st = st or name
-    idx = scene.desc.add_material(md)
-    scene.material_st[idx] = st
-    scene.name(key, key, {"albedo": (key, "inputs:diffuseColor"), "ior": (key, "inputs:ior"),
-                          "emission": (key, "inputs:emissiveColor")})
-    cache[key] = idx
-    return idx
+    key = str(mat.GetPath())
+    if key not in cache:
+        desc, st, warnings = _core_call(core.material_from_usd, _network(mat, time))
+        for w in warnings:
+            scene.warn(w)
+        idx = -1 if desc is None else scene.desc.add_material(desc)
+        if desc is not None:
+            scene.material_st[idx] = st or None
+        cache[key] = idx
+    return cache[key]
 
 
 def _display_color(scene, prim, time):
-    """The mean of prim's displayColor (inherited), or None; core makes it a Lambert for an
-    ordinary mesh without a material."""
+    """prim's displayColor (inherited) through core (usd_shading.h: averaged, checked), or
+    None; core makes it a Lambert for an ordinary mesh without a material."""
     pv = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance("displayColor")
     if not (pv and pv.HasAuthoredValue()):
         return None
     v = pv.ComputeFlattened(time)
     if v is None:
         return None
-    try:
-        a = np.asarray(v, dtype=np.float64)  # of any authored type: a scalar has no len()
-        if a.size == 0:
-            return None
-        c = a.reshape(-1, 3).mean(axis=0)
-    except (TypeError, ValueError):
-        prim_path, name = _where(pv.GetAttr())
-        raise UserError(prim_path, name, f"has a {type(v).__name__} value, expected color3f[]") from None
-    src = str(pv.GetAttr().GetPrim().GetPath())
-    scene.name(str(prim.GetPath()) + ".displayColor", src, {"albedo": (src, "primvars:displayColor")})
-    return tuple(float(x) for x in c)
+    value = core.UsdValue()
+    value.type_name = schema.authored_type(pv.GetAttr())
+    value.is_array = value.type_name.endswith("[]")
+    value.source = str(pv.GetAttr().GetPrim().GetPath())
+    if isinstance(v, str):
+        value.is_string, value.strings = True, [v]
+    else:
+        value.numbers = schema.numbers(v)
+    return _core_call(core.display_color_from_usd, value, str(prim.GetPath()))
 
 
 # ---- prims for core's granular schema ----------------------------------------------------------
@@ -548,7 +433,7 @@ def _mesh_prim(scene, prim, xf_cache, material_cache, drawn):
     mp.api_schemas = list(prim.GetAppliedSchemas())
     mp.visible = drawn
     has_api = prim.HasAPI(schema.AGGREGATE_API) or prim.HasAPI(schema.GRAIN_API)
-    shape = is_mesh or (drawn and not has_api and (prim.IsA(UsdGeom.Cube) or prim.IsA(UsdGeom.Sphere)))
+    shape = is_mesh or (drawn and not has_api and _is_implicit(prim))
     if not mp.active or not shape:
         return mp  # listed for core's error message only
     mp.granular = schema.primvar_values(prim, time=time)
@@ -557,7 +442,7 @@ def _mesh_prim(scene, prim, xf_cache, material_cache, drawn):
     scene.name(mp.path, mp.path, {"transform": (mp.path, "transform")})
     # A boundary or grain with its API applied never uses a bound material: not read.
     if not has_api:
-        idx = _preview_surface(scene, prim, time, material_cache)
+        idx = _bound_material(scene, prim, time, material_cache)
         if idx is None and drawn:
             mp.display_color = _display_color(scene, prim, time)
         mp.material = -1 if idx is None else idx
@@ -606,92 +491,28 @@ def _settings_prim(stage):
 
 
 def read_camera(scene, prim, xf_cache):
+    """The camera prim through core (usd_camera.h)."""
     path = str(prim.GetPath())
-    cam = UsdGeom.Camera(prim)
-    t = scene.time
-    if get_token(cam.GetProjectionAttr(), t) == UsdGeom.Tokens.orthographic:
-        raise UserError(path, "projection", "orthographic cameras are not supported (use perspective)")
-    c = scene.desc.camera
-    c.camera_to_world = world_matrix(xf_cache, prim)
-    c.focal_length = get_number(cam.GetFocalLengthAttr(), t, 50.0)
-    c.horizontal_aperture = get_number(cam.GetHorizontalApertureAttr(), t, 20.955)
-    c.vertical_aperture = get_number(cam.GetVerticalApertureAttr(), t, 15.2908)
-    c.horizontal_aperture_offset = get_number(cam.GetHorizontalApertureOffsetAttr(), t, 0.0)
-    c.vertical_aperture_offset = get_number(cam.GetVerticalApertureOffsetAttr(), t, 0.0)
-    c.clip_near, c.clip_far = get_vec(cam.GetClippingRangeAttr(), t, 2, (1.0, 1000000.0))
-    # Depth of field: fStop 0 (USD's default) is a pinhole.
-    f_stop = get_number(cam.GetFStopAttr(), t, 0.0)
-    try:
-        c.lens_radius = core.lens_radius_from_f_stop(c.focal_length, f_stop, path, "fStop")
-    except core.InputError as e:
-        raise translate_core_error(e) from None
-    c.focus_distance = get_number(cam.GetFocusDistanceAttr(), t, 0.0)
-    if c.lens_radius > 0 and not (math.isfinite(c.focus_distance) and c.focus_distance > 0):
-        raise UserError(path, "focusDistance", f"{c.focus_distance} must be > 0 when fStop is set")
+    record = prim_record(prim, core.usd_camera_attribute_names(), scene.time, xf_cache)
+    scene.desc.camera = _core_call(core.camera_from_usd, record)
     scene.camera_path = path
+    # Later checks of the whole description (the field of view) name the camera's attributes.
     attrs = {k: (path, k) for k in ("focalLength", "horizontalAperture", "verticalAperture",
                                     "horizontalApertureOffset", "verticalApertureOffset", "clippingRange",
                                     "fStop", "focusDistance")}
+    attrs["lensRadius"] = (path, "fStop")
     attrs["transform"] = (path, "transform")
     scene.name("camera", path, attrs)
 
 
-_LIGHT_ATTRS = {k: "inputs:" + k for k in ("intensity", "exposure", "color", "normalize", "angle", "radius",
-                                            "width", "height")}
-
-
 def read_light(scene, prim, xf_cache):
-    path = str(prim.GetPath())
-    time = scene.time
-    ld = core.LightDesc()
-    ld.name = path
-    if prim.IsA(UsdLux.DistantLight):
-        ld.type = core.LightType.Distant
-        ld.angle = get_number(UsdLux.DistantLight(prim).GetAngleAttr(), time, 0.53)
-    elif prim.IsA(UsdLux.DomeLight) or (hasattr(UsdLux, "DomeLight_1") and prim.IsA(UsdLux.DomeLight_1)):
-        ld.type = core.LightType.Dome
-        fmt = get_token(prim.GetAttribute("inputs:texture:format"), time)
-        if fmt not in (None, "automatic", "latlong"):
-            raise UserError(path, "inputs:texture:format", f'"{fmt}" is not supported (use latlong)')
-        asset = get_asset(prim.GetAttribute("inputs:texture:file"), time)
-        if asset is not None and asset.path:
-            resolved = _existing_file(path, "inputs:texture:file", asset)
-            ld.texture_file = resolved
-            scene.names[resolved] = {"*": (path, ""), "": (path, "inputs:texture:file")}
-    elif prim.IsA(UsdLux.RectLight):
-        ld.type = core.LightType.Rect
-        rl = UsdLux.RectLight(prim)
-        ld.width = get_number(rl.GetWidthAttr(), time, 1.0)
-        ld.height = get_number(rl.GetHeightAttr(), time, 1.0)
-        tex = get_asset(rl.GetTextureFileAttr(), time)
-        if tex is not None and tex.path:
-            scene.warn(f"{path}.inputs:texture:file: rect light textures are not supported; ignored")
-    elif prim.IsA(UsdLux.SphereLight):
-        ld.type = core.LightType.Sphere
-        sl = UsdLux.SphereLight(prim)
-        ld.radius = get_number(sl.GetRadiusAttr(), time, 0.5)
-        if get_bool(sl.GetTreatAsPointAttr(), time):
-            scene.warn(f"{path}.treatAsPoint: not supported; rendered as a sphere of inputs:radius")
-    else:
-        scene.warn(f"{path}: {prim.GetTypeName()} lights are not supported; skipped")
-        return
-    light = UsdLux.LightAPI(prim)
-    ld.intensity = get_number(light.GetIntensityAttr(), time, 1.0)
-    ld.exposure = get_number(light.GetExposureAttr(), time, 0.0)
-    color = get_vec(light.GetColorAttr(), time, 3, (1.0, 1.0, 1.0))
-    if get_bool(light.GetEnableColorTemperatureAttr(), time):
-        t = get_number(light.GetColorTemperatureAttr(), time, 6500.0)
-        if not _finite(t) or t <= 0:
-            raise UserError(path, "inputs:colorTemperature", f"{t} must be finite and > 0")
-        rgb = UsdLux.BlackbodyTemperatureAsRgb(t)
-        color = tuple(c * float(k) for c, k in zip(color, rgb))
-    ld.color = color
-    ld.normalize = get_bool(light.GetNormalizeAttr(), time)
-    ld.xf = world_matrix(xf_cache, prim)
-    scene.desc.add_light(ld)
-    attrs = {k: (path, v) for k, v in _LIGHT_ATTRS.items()}
-    attrs["transform"] = (path, "transform")
-    scene.name(path, path, attrs)
+    """A UsdLux light through core (usd_lights.h)."""
+    record = prim_record(prim, core.usd_light_attribute_names(), scene.time, xf_cache)
+    light, warnings = _core_call(core.light_from_usd, record)
+    for w in warnings:
+        scene.warn(w)
+    if light is not None:
+        scene.desc.add_light(light)
 
 
 def _is_light(prim):
@@ -736,7 +557,7 @@ def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_c
         if _is_light(prim):
             read_light(scene, prim, xf_cache)
             continue
-        if prim.IsA(UsdGeom.Mesh) or prim.IsA(UsdGeom.Cube) or prim.IsA(UsdGeom.Sphere):
+        if prim.IsA(UsdGeom.Mesh) or _is_implicit(prim):
             prims.append(_mesh_prim(scene, prim, xf_cache, material_cache, drawn=True))
         elif prim.IsA(UsdGeom.Gprim) or prim.IsA(UsdGeom.PointInstancer):
             unsupported.setdefault(prim.GetTypeName(), str(prim.GetPath()))
@@ -749,14 +570,8 @@ def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_c
     res = None
     settings_camera = None
     if settings is not None:
-        rs = UsdRender.Settings(settings)
-        attr = rs.GetResolutionAttr()
-        if attr.HasAuthoredValue():
-            res = get_vec(attr, time, 2)
-            if res is None or not all(_finite(x) and x == int(x) and 1 <= x <= 32768 for x in res):
-                raise UserError(settings.GetPath(), "resolution", f"{res} is outside [1, 32768] x [1, 32768]")
-            res = (int(res[0]), int(res[1]))
-        targets = rs.GetCameraRel().GetForwardedTargets()
+        res = _core_call(core.resolution_from_usd, prim_record(settings, ("resolution",), time, authored_only=True))
+        targets = UsdRender.Settings(settings).GetCameraRel().GetForwardedTargets()
         if targets:
             settings_camera = (targets[0], settings.GetPath())
 
@@ -817,40 +632,24 @@ def ndc_to_pixels(ndc, width, height):
 
 
 def _read_data_window(scene, settings, time):
-    """The data window of the settings prim's first render product (UsdRender: the product's
-    own dataWindowNDC, else the settings prim's) as the render's crop: only those pixels are
-    rendered, and the EXR keeps their place in the full image. Hydra hosts hand hdGranular
-    the same value (hdGranular/renderSettings.h)."""
-    rs = UsdRender.Settings(settings)
-    own = rs.GetDataWindowNDCAttr()
-    targets = rs.GetProductsRel().GetForwardedTargets()
+    """The data window of the settings prim's first render product as the render's crop
+    (core.data_window_from_usd): only those pixels are rendered, and the EXR keeps their
+    place in the full image. Hydra hosts hand hdGranular the same value."""
+    targets = UsdRender.Settings(settings).GetProductsRel().GetForwardedTargets()
     product = settings.GetStage().GetPrimAtPath(targets[0]) if targets else None
-    if not product or not product.IsA(UsdRender.Product):  # none, no such prim, or not a product
-        if own.HasAuthoredValue():
-            scene.warn(f"{settings.GetPath()}.dataWindowNDC: ignored: a data window applies to render products, "
-                       f"and this settings prim has none (add one to its products)")
-        return
-    attr = UsdRender.Product(product).GetDataWindowNDCAttr()
-    if not attr.HasAuthoredValue():
-        attr = own
-        if not attr.HasAuthoredValue():
-            return
-    path = str(attr.GetPrim().GetPath())
-    ndc = get_vec(attr, time, 4)
-    if ndc is None or not all(_finite(v) for v in ndc):
-        raise UserError(path, "dataWindowNDC", f"{ndc} is not four finite numbers (xmin, ymin, xmax, ymax)")
-    if not (ndc[0] < ndc[2] and ndc[1] < ndc[3]):
-        raise UserError(path, "dataWindowNDC", f"{tuple(ndc)} is empty: xmin < xmax and ymin < ymax are needed")
+    product_record = None
+    if product and product.IsA(UsdRender.Product):  # else none, no such prim, or not a product
+        product_record = prim_record(product, ("dataWindowNDC",), time, authored_only=True)
     s = scene.desc.settings
-    window = ndc_to_pixels(ndc, s.width, s.height)
-    if window is None:
-        raise UserError(path, "dataWindowNDC", f"{tuple(ndc)} covers no pixel of the {s.width}x{s.height} image")
-    if ndc[0] < 0 or ndc[1] < 0 or ndc[2] > 1 or ndc[3] > 1:
-        scene.warn(f"{path}.dataWindowNDC: {tuple(ndc)} reaches outside the image; overscan is not rendered, "
-                   f"only the pixels inside (0, 0, 1, 1)")
-    if window != (0, s.width, 0, s.height):
+    window, warnings = _core_call(core.data_window_from_usd,
+                                  prim_record(settings, ("dataWindowNDC",), time, authored_only=True),
+                                  product_record, s.width, s.height)
+    for w in warnings:
+        scene.warn(w)
+    if window is not None:
         s.crop = window
-    scene.names["render"]["crop"] = (path, "dataWindowNDC")  # core's render.crop errors
+        where = product_record if "dataWindowNDC" in product_record.attributes else None
+        scene.names["render"]["crop"] = (where.path if where else str(settings.GetPath()), "dataWindowNDC")
 
 
 def validate(scene):

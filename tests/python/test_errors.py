@@ -127,7 +127,7 @@ CASES = {
                                    "error: /World/Camera.fStop: 1e-15 is below 0.5, the fastest a lens in air can be "
                                    "(0: no depth of field)"),
     "focus at 0": (_set("/World/Camera", "fStop", "float", 4.0),
-                   "error: /World/Camera.focusDistance: 0.0 must be > 0 when fStop is set"),
+                   "error: /World/Camera.focusDistance: 0 must be > 0 when fStop is set"),
 }
 
 

@@ -1,0 +1,113 @@
+// usd_lights.cpp — UsdLux lights on plain records (usd_lights.h).
+#include "usd_lights.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "error.h"
+
+namespace granular {
+
+namespace {
+
+const char* const kIntensity = "inputs:intensity";
+const char* const kExposure = "inputs:exposure";
+const char* const kColor = "inputs:color";
+const char* const kNormalize = "inputs:normalize";
+const char* const kEnableTemperature = "inputs:enableColorTemperature";
+const char* const kTemperature = "inputs:colorTemperature";
+const char* const kAngle = "inputs:angle";
+const char* const kTextureFile = "inputs:texture:file";
+const char* const kTextureFormat = "inputs:texture:format";
+const char* const kWidth = "inputs:width";
+const char* const kHeight = "inputs:height";
+const char* const kRadius = "inputs:radius";
+const char* const kTreatAsPoint = "treatAsPoint";
+
+// One lobe of the fit: a Gaussian with different widths below and above its mean.
+double lobe(double lambda, double mean, double below, double above) {
+  const double t = (lambda - mean) / (lambda < mean ? below : above);
+  return std::exp(-0.5 * t * t);
+}
+
+}  // namespace
+
+const std::vector<std::string>& usdLightAttributeNames() {
+  static const std::vector<std::string> names = {kIntensity, kExposure,    kColor,         kNormalize, kEnableTemperature,
+                                                 kTemperature, kAngle,     kTextureFile,   kTextureFormat,
+                                                 kWidth,     kHeight,      kRadius,        kTreatAsPoint};
+  return names;
+}
+
+Vec3 blackbodyRgb(float kelvin) {
+  const double t = std::clamp(double(kelvin), 1000.0, 10000.0);
+  const double c2 = 1.4387769e-2;  // second radiation constant hc/k, m·K
+  double X = 0, Y = 0, Z = 0;
+  for (int nm = 380; nm <= 780; ++nm) {
+    const double l = nm, m = nm * 1e-9;
+    const double planck = 1.0 / (std::pow(m, 5) * std::expm1(c2 / (m * t)));  // up to a constant
+    X += planck * (1.056 * lobe(l, 599.8, 37.9, 31.0) + 0.362 * lobe(l, 442.0, 16.0, 26.7) -
+                   0.065 * lobe(l, 501.1, 20.4, 26.2));
+    Y += planck * (0.821 * lobe(l, 568.8, 46.9, 40.5) + 0.286 * lobe(l, 530.9, 16.3, 31.1));
+    Z += planck * (1.217 * lobe(l, 437.0, 11.8, 36.0) + 0.681 * lobe(l, 459.0, 26.0, 13.8));
+  }
+  // CIE XYZ to linear Rec.709 (IEC 61966-2-1).
+  const double r = std::max(0.0, 3.2406 * X - 1.5372 * Y - 0.4986 * Z);
+  const double g = std::max(0.0, -0.9689 * X + 1.8758 * Y + 0.0415 * Z);
+  const double b = std::max(0.0, 0.0557 * X - 0.2040 * Y + 1.0570 * Z);
+  const double luminance = 0.2126 * r + 0.7152 * g + 0.0722 * b;
+  return Vec3(float(r / luminance), float(g / luminance), float(b / luminance));
+}
+
+std::optional<LightDesc> lightFromUsd(const UsdPrimRecord& r, UsdWarnings& warnings) {
+  const std::string& path = r.path;
+  LightDesc l;
+  l.name = path;
+  l.xf = r.xf;
+  const std::string& type = r.typeName;
+  if (type == "DistantLight") {
+    l.type = LightType::Distant;
+    l.angle = usdFloat(r, kAngle, 0.53f);
+  } else if (type == "DomeLight" || type == "DomeLight_1") {
+    l.type = LightType::Dome;
+    const std::string format = usdToken(r, kTextureFormat, "automatic");
+    if (format != "automatic" && format != "latlong")
+      throw InputError(path, kTextureFormat, str("\"", format, "\" is not supported (use latlong)"));
+    l.textureFile = usdFile(r, kTextureFile);
+  } else if (type == "RectLight") {
+    l.type = LightType::Rect;
+    l.width = usdFloat(r, kWidth, 1.0f);
+    l.height = usdFloat(r, kHeight, 1.0f);
+    if (!usdAsset(r, kTextureFile).first.empty())
+      warnings.push_back(str(path, ".", kTextureFile, ": rect light textures are not supported; ignored"));
+  } else if (type == "SphereLight") {
+    l.type = LightType::Sphere;
+    l.radius = usdFloat(r, kRadius, 0.5f);
+    if (usdBool(r, kTreatAsPoint, false))
+      warnings.push_back(str(path, ".", kTreatAsPoint, ": not supported; rendered as a sphere of inputs:radius"));
+  } else {
+    warnings.push_back(str(path, ": ", type.empty() ? std::string("untyped") : type,
+                           " lights are not supported; skipped"));
+    return std::nullopt;
+  }
+  l.intensity = usdFloat(r, kIntensity, 1.0f);
+  l.exposure = usdFloat(r, kExposure, 0.0f);
+  l.color = usdColor(r, kColor, Vec3(1.0f));
+  if (usdBool(r, kEnableTemperature, false)) {
+    const float k = usdFloat(r, kTemperature, 6500.0f);
+    if (!(std::isfinite(k) && k > 0)) throw InputError(path, kTemperature, str(k, " must be finite and > 0"));
+    const Vec3 bb = blackbodyRgb(k);
+    l.color = Vec3(l.color.x * bb.x, l.color.y * bb.y, l.color.z * bb.z);
+  }
+  l.normalize = usdBool(r, kNormalize, false);
+  // Core's checks, in USD's names (a light's SceneDesc fields are its inputs).
+  try {
+    validateLightDesc(l, path);
+  } catch (const InputError& e) {
+    const std::string& field = e.attribute();
+    throw InputError(path, field == "transform" || field.empty() ? field : "inputs:" + field, e.detail());
+  }
+  return l;
+}
+
+}  // namespace granular

@@ -1,0 +1,43 @@
+// usd_lights.h — UsdLux lights on plain records (usd_values.h): which types render, the
+// attributes read with UsdLux's fallbacks, and what is refused or warned about. Both USD
+// front ends hand a light prim's record here, so a light means the same in `granular
+// render` and in hdGranular.
+//
+// Types (UsdPrimRecord::typeName, USD's schema names; Hydra's sprim types capitalised):
+//  - DistantLight: inputs:angle (degrees, 0.53);
+//  - DomeLight, DomeLight_1: inputs:texture:file (a lat-long image; must exist),
+//    inputs:texture:format (automatic or latlong; others refused);
+//  - RectLight: inputs:width, inputs:height (1); a texture is warned about and ignored;
+//  - SphereLight: inputs:radius (0.5); treatAsPoint is warned about (a sphere is drawn);
+//  - any other light type (DiskLight, CylinderLight, PortalLight, ...): one warning, skipped.
+// Every light: inputs:intensity (1), inputs:exposure (0), inputs:color (1, 1, 1),
+// inputs:normalize (false), and inputs:colorTemperature (6500 K, > 0) when
+// inputs:enableColorTemperature is true: the colour is multiplied by blackbodyRgb of it.
+#pragma once
+
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "scene_desc.h"
+#include "usd_values.h"
+
+namespace granular {
+
+// The attributes lightFromUsd reads, by USD name; a front end reads these (and may read
+// more: unknown ones are ignored).
+const std::vector<std::string>& usdLightAttributeNames();
+
+// The LightDesc of a light prim's record (name = path, xf = record.xf), or nothing for a
+// type that is not rendered (a warning says so). InputError naming prim.attribute on a
+// value of the wrong type or out of range.
+std::optional<LightDesc> lightFromUsd(const UsdPrimRecord& light, UsdWarnings& warnings);
+
+// The colour of a blackbody at `kelvin` in linear Rec.709 with luminance 1 (Planck's law
+// integrated against the CIE 1931 2° observer, in the analytic fit of Wyman, Sloan and
+// Shirley 2013, "Simple Analytic Approximations to the CIE XYZ Color Matching
+// Functions"); like UsdLux, temperatures are clamped to [1000, 10000] K and negative
+// components to 0.
+Vec3 blackbodyRgb(float kelvin);
+
+}  // namespace granular
