@@ -7,6 +7,7 @@
 
 #include <tbb/parallel_for.h>
 
+#include "build_cache.h"
 #include "error.h"
 
 namespace granular {
@@ -149,15 +150,103 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
   for (int a = 0; a < 3; ++a) bounds_.hi[a] = origin_[a] + float(n_[a]) * L_;
 
   // Distance field: voxels of half a cell (or coarser for huge grids), band covering the margin.
-  auto ts = std::chrono::steady_clock::now();
   float extent = maxComponent(mb.extent());
   float voxel = std::max(0.5f * L_, extent / 1024.0f);
   float margin = 0.8661f * L_ + Rmax_ + 1.5f * voxel;
-  sdf_.build(boundary_, voxel, margin + voxel);
-  stats_.sdfSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - ts).count();
-
-  classes_.assign(size_t(cells), CellClass::Outside);
   stats_.cells = int64_t(cells);
+
+  // The tile's spheres plus every periodic image that reaches into the unit cell.
+  spheres_.clear();
+  for (int s = 0; s < tile_.numSpheres; ++s) {
+    const Vec3& c = tile_.centers[s];
+    const double r = tile_.radius * tile_.size(s);
+    for (int dz = -1; dz <= 1; ++dz)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          double p[3] = {c.x + dx, c.y + dy, c.z + dz};
+          double d2 = 0;
+          for (double v : p) {
+            double e = v < 0 ? -v : (v > 1 ? v - 1 : 0);
+            d2 += e * e;
+          }
+          if (d2 >= r * r) continue;
+          const int shift[3] = {dx, dy, dz};
+          spheres_.push_back(imageOf(s, shift));
+        }
+  }
+  boundaryBvh_ = buildTriangleScene(device, boundary_);
+
+  // The distance field, cell classes, their counts and the sub-cell lists: from the build
+  // cache when a build of the same inputs stored them (build_cache.h), else computed and
+  // stored. Either way the same values, so the same images.
+  auto ts = std::chrono::steady_clock::now();
+  BuildProducts products;
+  for (int a = 0; a < 3; ++a) products.cells[a] = n_[a];
+  products.origin = origin_;
+  products.cellSize = L_;
+  products.voxelSize = voxel;
+  products.bandWidth = DistanceField::bandVoxels(voxel, margin + voxel) * voxel;
+  const uint64_t key = buildKey(desc, boundary_, tile_);
+  if (loadBuild(key, spheres_.size(), products) && longestSubList(products.subStart) <= kMaxSubList) {
+    exchangeProducts(products);
+    stats_.fromCache = true;
+    stats_.sdfSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - ts).count();
+  } else {
+    sdf_.build(boundary_, voxel, margin + voxel);
+    stats_.sdfSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - ts).count();
+    classifyCells(margin);
+    listSubCells(meanSize);
+    exchangeProducts(products);
+    storeBuild(key, products);
+    exchangeProducts(products);
+  }
+
+  // The listed centres again, one array per axis, for the walk's vectorised sphere tests.
+  for (auto* v : {&subX_, &subY_, &subZ_, &subR2_}) v->resize(subList_.size());
+  for (size_t k = 0; k < subList_.size(); ++k) {
+    const TileSphere& t = spheres_[subList_[k]];
+    subX_[k] = t.center.x;
+    subY_[k] = t.center.y;
+    subZ_[k] = t.center.z;
+    subR2_[k] = t.radius * t.radius;
+  }
+
+  prototypes_.clear();
+  for (size_t i = 0; i < desc.prototypes.size(); ++i) {
+    prototypes_.push_back(makeGrainPrototype(device, desc.prototypes[i]));
+    prototypes_.back().material = prototypeMaterials[i];
+  }
+  selector_ = GrainSelector(desc.weights, classes, desc.seed);
+
+  stats_.memoryBytes = classes_.size() * sizeof(CellClass) + sdf_.memoryBytes() +
+                       spheres_.size() * sizeof(TileSphere) + (subList_.size() + subStart_.size()) * sizeof(uint32_t) +
+                       boundary_.points.size() * 40;
+  for (const auto& p : prototypes_)
+    stats_.memoryBytes += p.mesh.points.size() * 40 + p.mesh.indices.size() * 8 + p.normals.size() * sizeof(Vec3);
+  stats_.setupSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+void Aggregate::exchangeProducts(BuildProducts& p) {
+  std::swap(sdf_, p.sdf);
+  std::swap(classes_, p.classes);
+  std::swap(stats_.insideCells, p.insideCells);
+  std::swap(stats_.partialCells, p.partialCells);
+  std::swap(stats_.approxGrains, p.approxGrains);
+  std::swap(stats_.maxInteriorDepth, p.maxInteriorDepth);
+  std::swap(sub_, p.sub);
+  std::swap(subStart_, p.subStart);
+  std::swap(subList_, p.subList);
+}
+
+size_t Aggregate::longestSubList(const std::vector<uint32_t>& start) {
+  size_t longest = 0;
+  for (size_t i = 0; i + 1 < start.size(); ++i) longest = std::max<size_t>(longest, start[i + 1] - start[i]);
+  return longest;
+}
+
+void Aggregate::classifyCells(float margin) {
+  const double cells = double(stats_.cells);
+  classes_.assign(size_t(cells), CellClass::Outside);
   // Cell classes, slice by slice (z) in parallel: each slice keeps its own counts, sum
   // and clamped centres, combined below in slice order, so the result does not depend on
   // the thread count (10^10 grains: 3.8·10^7 cells, a third of the set-up when serial).
@@ -202,7 +291,6 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
   }
   stats_.approxGrains = double(tile_.numSpheres) * (double(stats_.insideCells) + insideFractionSum);
 
-  boundaryBvh_ = buildTriangleScene(device, boundary_);
   // The field is clamped at its band: beyond it, measure up to 4096 of the deep cell
   // centres exactly (evenly strided).
   stats_.maxInteriorDepth = deepest;
@@ -219,33 +307,9 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
   }
   slices.clear();
   slices.shrink_to_fit();
+}
 
-  prototypes_.clear();
-  for (size_t i = 0; i < desc.prototypes.size(); ++i) {
-    prototypes_.push_back(makeGrainPrototype(device, desc.prototypes[i]));
-    prototypes_.back().material = prototypeMaterials[i];
-  }
-  selector_ = GrainSelector(desc.weights, classes, desc.seed);
-
-  // The tile's spheres plus every periodic image that reaches into the unit cell.
-  spheres_.clear();
-  for (int s = 0; s < tile_.numSpheres; ++s) {
-    const Vec3& c = tile_.centers[s];
-    const double r = tile_.radius * tile_.size(s);
-    for (int dz = -1; dz <= 1; ++dz)
-      for (int dy = -1; dy <= 1; ++dy)
-        for (int dx = -1; dx <= 1; ++dx) {
-          double p[3] = {c.x + dx, c.y + dy, c.z + dz};
-          double d2 = 0;
-          for (double v : p) {
-            double e = v < 0 ? -v : (v > 1 ? v - 1 : 0);
-            d2 += e * e;
-          }
-          if (d2 >= r * r) continue;
-          const int shift[3] = {dx, dy, dz};
-          spheres_.push_back(imageOf(s, shift));
-        }
-  }
+void Aggregate::listSubCells(double meanSize) {
   // Sub-cells: an M^3 grid over the unit cell, M ≈ L / 2R (one or two spheres across),
   // each listing the spheres (and images) that overlap it, for the front-to-back walk.
   // A list then holds about 8 spheres whatever the tile (at most ~20 from 8 to 10^5
@@ -286,22 +350,6 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
     subList_.insert(subList_.end(), l.begin(), l.end());
     subStart_.push_back(uint32_t(subList_.size()));
   }
-  // The listed centres again, one array per axis, for the walk's vectorised sphere tests.
-  for (auto* v : {&subX_, &subY_, &subZ_, &subR2_}) v->resize(subList_.size());
-  for (size_t k = 0; k < subList_.size(); ++k) {
-    const TileSphere& t = spheres_[subList_[k]];
-    subX_[k] = t.center.x;
-    subY_[k] = t.center.y;
-    subZ_[k] = t.center.z;
-    subR2_[k] = t.radius * t.radius;
-  }
-
-  stats_.memoryBytes = classes_.size() * sizeof(CellClass) + sdf_.memoryBytes() +
-                       spheres_.size() * sizeof(TileSphere) + (subList_.size() + subStart_.size()) * sizeof(uint32_t) +
-                       boundary_.points.size() * 40;
-  for (const auto& p : prototypes_)
-    stats_.memoryBytes += p.mesh.points.size() * 40 + p.mesh.indices.size() * 8 + p.normals.size() * sizeof(Vec3);
-  stats_.setupSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
 Aggregate::TileSphere Aggregate::imageOf(int id, const int shift[3]) const {

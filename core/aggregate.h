@@ -4,7 +4,9 @@
 // Contract: build() voxelises the world-space boundary into cells of one tile edge
 // L = R / r_tile, classified outside / partial / inside from the boundary's signed
 // distance field with a margin of half a cell diagonal plus R (so no sphere whose
-// centre is inside the boundary can reach an "outside" cell). intersect() walks the
+// centre is inside the boundary can reach an "outside" cell); the field, the classes and
+// the sub-cell lists come from the build cache (build_cache.h) when a build of the same
+// inputs stored them, bit for bit what this build would compute. intersect() walks the
 // cells' sub-cells (an M^3 grid per cell, M ≈ L / 2R, each listing the tile spheres that
 // overlap it) along the ray by 3-D DDA, front to back; in a non-outside cell it tests the
 // listed spheres the ray enters there, keeps a sphere only if its centre is inside the
@@ -34,6 +36,7 @@
 namespace granular {
 
 enum class CellClass : uint8_t { Outside = 0, Partial = 1, Inside = 2 };
+struct BuildProducts;
 
 struct GrainHit {
   float t = kInf;
@@ -66,6 +69,7 @@ struct AggregateStats {
   // Largest depth below the boundary of a cell centre (a lower bound of the object's
   // half thickness, exact to about a cell): decides whether VPT and DA can pay off.
   float maxInteriorDepth = 0;
+  bool fromCache = false;        // the products above came from the build cache (build_cache.h)
 };
 
 class Aggregate {
@@ -199,6 +203,13 @@ class Aggregate {
   // The grain of sphere s (home: its cell) with its prototype and rotation chosen.
   bool traceChosen(const TileSphere& s, const int64_t home[3], const GrainChoice& g, const Vec3& oc, const Vec3& d,
                    float tmin, float tmax, GrainHit& best) const;
+  // build()'s parts that the build cache holds: the cell classes with their counts and
+  // the deep cells' depth (after the distance field), and the sub-cell lists.
+  void classifyCells(float margin);
+  void listSubCells(double meanSize);
+  // Swaps those products (and the distance field) with p's.
+  void exchangeProducts(BuildProducts& p);
+  static size_t longestSubList(const std::vector<uint32_t>& start);
   // Tile sphere `id`'s periodic image offset by `shift` cells (in -1..1): as build() lists it.
   TileSphere imageOf(int id, const int shift[3]) const;
   // The ray from inside grain `g`: its exit, traced as the walk would from its first cell.

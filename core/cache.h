@@ -3,7 +3,8 @@
 // Contract: cacheDirectory() is $GRANULAR_CACHE_DIR, else $XDG_CACHE_HOME/hdgranular,
 // else ~/.cache/hdgranular, created on first use; it returns "" when none can be
 // created, and callers then simply recompute. Entries are written to a temporary
-// name and renamed, so concurrent renders never read half a file.
+// name and renamed, so concurrent renders never read half a file. Aggregate builds,
+// larger and size-limited, have their own entries (build_cache.h).
 #pragma once
 
 #include <cstdint>

@@ -1,9 +1,13 @@
 #include "distance_field.h"
 
 #include <atomic>
+#include <istream>
 #include <mutex>
 #include <optional>
+#include <ostream>
+#include <streambuf>
 
+#include <openvdb/io/Stream.h>
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/Interpolation.h>
 #include <openvdb/tools/MeshToVolume.h>
@@ -12,6 +16,28 @@ namespace granular {
 
 namespace {
 std::atomic<uint64_t> nextFieldId{1};
+
+void initialiseOpenVdb() {
+  static std::once_flag once;
+  std::call_once(once, [] { openvdb::initialize(); });
+}
+
+// An input stream over bytes held elsewhere (a mapped cache entry): no copy.
+struct ByteSource : std::streambuf {
+  ByteSource(const char* data, size_t size) {
+    char* p = const_cast<char*>(data);
+    setg(p, p, p + size);
+  }
+  pos_type seekoff(off_type off, std::ios_base::seekdir dir, std::ios_base::openmode) override {
+    const off_type base = dir == std::ios_base::beg ? 0 : dir == std::ios_base::cur ? gptr() - eback() : egptr() - eback();
+    return seekpos(pos_type(base + off), std::ios_base::in);
+  }
+  pos_type seekpos(pos_type pos, std::ios_base::openmode) override {
+    if (pos < 0 || pos > egptr() - eback()) return pos_type(off_type(-1));
+    setg(eback(), eback() + off_type(pos), egptr());
+    return pos;
+  }
+};
 }  // namespace
 
 struct DistanceField::Impl {
@@ -25,8 +51,7 @@ DistanceField::DistanceField(DistanceField&&) noexcept = default;
 DistanceField& DistanceField::operator=(DistanceField&&) noexcept = default;
 
 void DistanceField::build(const TriangleMesh& mesh, float voxelSize, float minBand) {
-  static std::once_flag once;
-  std::call_once(once, [] { openvdb::initialize(); });
+  initialiseOpenVdb();
   // The grid lives in index space (voxel size 1) and the mesh is handed over divided by
   // the voxel size: OpenVDB refuses linear transforms whose determinant is ~0 (voxels
   // below about 1e-5, i.e. scenes in tiny units), and distances scale back exactly.
@@ -39,7 +64,7 @@ void DistanceField::build(const TriangleMesh& mesh, float voxelSize, float minBa
   tris.reserve(mesh.numTriangles());
   for (size_t i = 0; i < mesh.numTriangles(); ++i)
     tris.emplace_back(mesh.indices[3 * i], mesh.indices[3 * i + 1], mesh.indices[3 * i + 2]);
-  float halfWidthVoxels = std::max(3.0f, std::ceil(minBand / voxelSize) + 1.0f);
+  const float halfWidthVoxels = bandVoxels(voxelSize, minBand);
   impl_ = std::make_unique<Impl>();
   impl_->grid = openvdb::tools::meshToLevelSet<openvdb::FloatGrid>(*xform, pts, tris, halfWidthVoxels);
   impl_->grid->setName("boundary_sdf");
@@ -49,7 +74,44 @@ void DistanceField::build(const TriangleMesh& mesh, float voxelSize, float minBa
   band_ = halfWidthVoxels * voxelSize;
 }
 
+float DistanceField::bandVoxels(float voxelSize, float minBand) {
+  return std::max(3.0f, std::ceil(minBand / voxelSize) + 1.0f);
+}
+
 bool DistanceField::empty() const { return !impl_ || !impl_->grid; }
+
+void DistanceField::write(std::ostream& out) const {
+  openvdb::io::Stream stream(out);
+  // Uncompressed but for the active masks: a load copies, it does not inflate. No
+  // statistics metadata, so that the grid read back is the one built.
+  stream.setCompression(openvdb::io::COMPRESS_ACTIVE_MASK);
+  stream.setGridStatsMetadataEnabled(false);
+  openvdb::GridCPtrVec grids{impl_->grid};
+  stream.write(grids);
+}
+
+bool DistanceField::read(const char* data, size_t size, float voxelSize, float bandWidth) {
+  initialiseOpenVdb();
+  impl_.reset();
+  try {
+    ByteSource source(data, size);
+    std::istream is(&source);
+    openvdb::io::Stream stream(is, /*delayLoad=*/false);
+    openvdb::GridPtrVecPtr grids = stream.getGrids();
+    if (!grids || grids->size() != 1) return false;
+    openvdb::FloatGrid::Ptr grid = openvdb::gridPtrCast<openvdb::FloatGrid>((*grids)[0]);
+    if (!grid || grid->getName() != "boundary_sdf" || !grid->transform().isIdentity()) return false;
+    impl_ = std::make_unique<Impl>();
+    impl_->grid = grid;
+    impl_->id = nextFieldId++;
+  } catch (const std::exception&) {
+    return false;
+  }
+  voxel_ = voxelSize;
+  invVoxel_ = 1.0 / double(voxel_);
+  band_ = bandWidth;
+  return true;
+}
 
 namespace {
 

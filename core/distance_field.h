@@ -4,10 +4,14 @@
 // is negative inside, positive outside, accurate to about one voxel within the band
 // and clamped to ±bandWidth() beyond it (with the correct sign). Used to classify
 // tile cells (outside / partial / inside), for the distance to the boundary (the
-// VPT→DA switch) and for coarse-density export. Thread-safe for queries.
+// VPT→DA switch) and for coarse-density export. Thread-safe for queries. write() and
+// read() carry a built field through the aggregate build cache (build_cache.h) exactly:
+// the same voxels, tiles and values, so every query answers alike.
 #pragma once
 
 #include <cmath>
+#include <cstddef>
+#include <iosfwd>
 #include <memory>
 
 #include "math.h"
@@ -24,7 +28,14 @@ class DistanceField {
 
   // mesh in world space, closed; the band reaches at least minBand on each side.
   void build(const TriangleMesh& mesh, float voxelSize, float minBand);
+  // build()'s band in voxels (a whole number, at least 3): bandWidth() is it times the voxel size.
+  static float bandVoxels(float voxelSize, float minBand);
   bool empty() const;
+  // The grid in OpenVDB's stream format (uncompressed but for the active masks).
+  void write(std::ostream& out) const;
+  // The grid written by write(), with the voxel size and band the build had: false (and
+  // the field left empty) when the bytes are not such a grid.
+  bool read(const char* data, size_t size, float voxelSize, float bandWidth);
   float distance(const Vec3& p) const;  // trilinear
   // The value at the voxel centre nearest p: within √3/2 voxel of distance(p)'s field
   // (1-Lipschitz), an eighth of its cost; for sign tests with a margin. Made for many

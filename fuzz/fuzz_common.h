@@ -24,6 +24,8 @@ namespace granular::fuzz {
 inline void setUpCache() {
   // Tiles are cached on disk; keep the fuzzer's apart (the Makefile sets its own).
   setenv("GRANULAR_CACHE_DIR", "/tmp/granular-fuzz-cache", /*overwrite=*/0);
+  // Every input is a new aggregate: storing its build would only fill the disk.
+  setenv("GRANULAR_CACHE_MAX_MB", "0", /*overwrite=*/0);
 }
 
 // FUZZ_VERBOSE=1: say what became of an input (replaying seeds or a corpus by hand).

@@ -454,6 +454,58 @@ def _mesh_prim(scene, prim, xf_cache, material_cache, drawn):
     return mp
 
 
+def _instanced(scene, instancer, xf_cache, material_cache, prims):
+    """A PointInstancer's prototypes drawn at its instances, as Hydra draws them: usd-core
+    computes each instance's transform (positions, orientations, scales, the prototype
+    root's own transform, inactiveIds and invisibleIds); every drawn prim of a prototype
+    keeps its transform relative to the prototype root."""
+    time = scene.time
+    path = str(instancer.GetPath())
+    pi = UsdGeom.PointInstancer(instancer)
+    targets = pi.GetPrototypesRel().GetForwardedTargets()
+    indices = get_array(pi.GetProtoIndicesAttr(), time, 0, np.int64, "int[]")
+    if indices is None or len(indices) == 0:
+        return
+    bad = [int(i) for i in indices if not 0 <= i < len(targets)]
+    if bad:
+        raise UserError(path, "protoIndices", f"{bad[0]} is not the index of one of its {len(targets)} prototypes")
+    xforms = pi.ComputeInstanceTransformsAtTime(time, time, UsdGeom.PointInstancer.IncludeProtoXform,
+                                                UsdGeom.PointInstancer.IgnoreMask)
+    if xforms is None or len(xforms) != len(indices):
+        raise UserError(path, "positions", f"gives {0 if xforms is None else len(xforms)} instances for "
+                                           f"{len(indices)} protoIndices (positions, orientations and scales "
+                                           f"must have one value per instance)")
+    mask = pi.ComputeMaskAtTime(time)
+    world = xf_cache.GetLocalToWorldTransform(instancer)
+    for j, target in enumerate(targets):
+        root = scene.stage.GetPrimAtPath(target)
+        if not root:
+            raise UserError(path, "prototypes", f"target {target} is not a prim of the stage")
+        placed = [Gf.Matrix4d(xforms[k]) * world for k in range(len(indices))
+                  if indices[k] == j and (not mask or mask[k])]
+        if not placed:
+            continue
+        root_inverse = xf_cache.GetLocalToWorldTransform(root).GetInverse()
+        it = iter(Usd.PrimRange(root, Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)))
+        for prim in it:
+            if prim.IsA(UsdGeom.Imageable):
+                img = UsdGeom.Imageable(prim)
+                if get_token(img.GetVisibilityAttr(), time) == UsdGeom.Tokens.invisible or \
+                        get_token(img.GetPurposeAttr(), time) in (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy):
+                    it.PruneChildren()
+                    continue
+            if prim.IsA(UsdGeom.PointInstancer):
+                scene.warn(f"{prim.GetPath()}: a PointInstancer inside a prototype is not supported; skipped")
+                it.PruneChildren()
+                continue
+            if not (prim.IsA(UsdGeom.Mesh) or _is_implicit(prim)):
+                continue
+            mp = _mesh_prim(scene, prim, xf_cache, material_cache, drawn=True)
+            relative = xf_cache.GetLocalToWorldTransform(prim) * root_inverse
+            mp.instances = [to_core_matrix(relative * m) for m in placed]
+            prims.append(mp)
+
+
 def _assemble(scene, prims, xf_cache, material_cache):
     """core's granular schema on the listed prims; the prototypes core asks for that are
     not listed (not drawn) are read from the stage."""
@@ -559,7 +611,10 @@ def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_c
             continue
         if prim.IsA(UsdGeom.Mesh) or _is_implicit(prim):
             prims.append(_mesh_prim(scene, prim, xf_cache, material_cache, drawn=True))
-        elif prim.IsA(UsdGeom.Gprim) or prim.IsA(UsdGeom.PointInstancer):
+        elif prim.IsA(UsdGeom.PointInstancer):
+            _instanced(scene, prim, xf_cache, material_cache, prims)
+            it.PruneChildren()  # its prototypes are drawn through it only
+        elif prim.IsA(UsdGeom.Gprim):
             unsupported.setdefault(prim.GetTypeName(), str(prim.GetPath()))
     for type_name, example in unsupported.items():
         scene.warn(f"{example}: {type_name} prims are not supported; skipped")
