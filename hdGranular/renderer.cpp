@@ -134,9 +134,13 @@ void HdGranularRenderer::_Render() {
   _samplesTarget = target;
   _samplesDone = 0;
   _nonFinite = 0;
-  // Coarse previews first on images large enough to wait for (see renderer.h).
+  // Coarse previews first on images large enough to wait for (see renderer.h); on a
+  // viewport-sized image one bundle per 32×32 block comes first, a quarter of the 16×16
+  // preview's cost, so that a camera move shows something at once.
   if (_preview && long(width) * height >= 128 * 128) {
-    for (int stride : {16, 4}) {
+    std::vector<int> strides = {16, 4};
+    if (width >= 384 && height >= 256) strides.insert(strides.begin(), 32);
+    for (int stride : strides) {
       granular::Film preview;
       if (!_renderer->renderPreview(stride, preview, &_cancel)) return;
       _WriteRegion(preview, stride, 0, width, 0, height);

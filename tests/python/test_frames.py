@@ -458,3 +458,74 @@ def test_the_installed_script_reports_a_bad_frame_range_in_one_line(scene_file, 
     assert r.returncode == 2
     assert r.stderr.strip().splitlines() == ["error: command line.--frames: start 3 is after end 1"]
     assert not list(tmp_path.glob("f.*"))
+
+
+# ---- every animated value: a sequence frame equals the frame rendered alone ----------------
+
+def _primvar(stage, path, name, type_name):
+    prim = stage.GetPrimAtPath(path)
+    attr = prim.GetAttribute("primvars:granular:" + name)
+    if attr:
+        attr.Clear()
+        return attr
+    return UsdGeom.PrimvarsAPI(prim).CreatePrimvar("granular:" + name, type_name, UsdGeom.Tokens.constant).GetAttr()
+
+
+# name -> (attribute getter, value at frame 1, value at frame 2)
+ANIMATED = {
+    "roughness": (lambda s: _primvar(s, "/World/Grains/A", "roughness", Sdf.ValueTypeNames.Float), 0.05, 0.9),
+    "ior": (lambda s: _primvar(s, "/World/Grains/A", "ior", Sdf.ValueTypeNames.Float), 1.5, 1.9),
+    "absorption": (lambda s: _primvar(s, "/World/Grains/B", "absorption", Sdf.ValueTypeNames.Color3f),
+                   Gf.Vec3f(0, 0, 0), Gf.Vec3f(0.5, 0.2, 0.1)),
+    "weights": (lambda s: _primvar(s, "/World/Castle", "weights", Sdf.ValueTypeNames.FloatArray),
+                Vt.FloatArray([0.7, 0.3]), Vt.FloatArray([0.2, 0.8])),
+    "sizes": (lambda s: _primvar(s, "/World/Castle", "sizes", Sdf.ValueTypeNames.FloatArray),
+              Vt.FloatArray([1.0, 1.0]), Vt.FloatArray([1.0, 0.6])),
+    "sun intensity": (lambda s: UsdLux.LightAPI(s.GetPrimAtPath("/World/Sun")).GetIntensityAttr(), 1.0, 2.5),
+    "sun color": (lambda s: UsdLux.LightAPI(s.GetPrimAtPath("/World/Sun")).CreateColorAttr(),
+                  Gf.Vec3f(1, 1, 1), Gf.Vec3f(1, 0.6, 0.3)),
+    "sun angle": (lambda s: UsdLux.DistantLight(s.GetPrimAtPath("/World/Sun")).CreateAngleAttr(), 0.53, 8.0),
+    "focal length": (lambda s: UsdGeom.Camera(s.GetPrimAtPath("/World/Camera")).GetFocalLengthAttr(), 35.0, 50.0),
+    "fStop": (lambda s: UsdGeom.Camera(s.GetPrimAtPath("/World/Camera")).CreateFStopAttr(), 0.0, 2.0),
+}
+
+
+def _animated_values(names):
+    def mutate(stage):
+        _timed(stage, (1, 2))
+        UsdGeom.Camera(stage.GetPrimAtPath("/World/Camera")).CreateFocusDistanceAttr(1.6)
+        for name in names:
+            get, a, b = ANIMATED[name]
+            attr = get(stage)
+            attr.Set(a, 1)
+            attr.Set(b, 2)
+    return mutate
+
+
+@pytest.mark.parametrize("name", list(ANIMATED))
+def test_every_animated_value_renders_frame_2_of_a_sequence_as_alone(name, tmp_path, capsys):
+    """Grain, aggregate, light and camera values time-sampled from frame 1 to 2: frame 2 of
+    `--frames 1:2` is, bit for bit, frame 2 rendered on its own (compare_scenes finds every
+    change; nothing of frame 1 is kept that frame 2 changed)."""
+    scene = small_scene(tmp_path / "anim.usda", _animated_values([name]))
+    _render(scene, tmp_path / "seq.#.exr", capsys, "--frames", "1:2")
+    _render(scene, tmp_path / "alone.#.exr", capsys, "--frames", "2:2")
+    f1, f2 = _pixels(tmp_path / "seq.1.exr"), _pixels(tmp_path / "seq.2.exr")
+    assert not np.array_equal(f1, f2), f"{name} changes the image"
+    np.testing.assert_array_equal(f2, _pixels(tmp_path / "alone.2.exr"))
+
+
+def test_a_farm_of_two_workers_renders_every_animated_value_as_single_frames(tmp_path):
+    """All of them animated at once, through `granular farm` with 2 worker processes and
+    tiles: each frame equals that frame rendered alone in one process."""
+    scene = small_scene(tmp_path / "all.usda", _animated_values(list(ANIMATED)))
+    out = tmp_path / "farm"
+    out.mkdir()
+    r = run_script(["farm", scene, "-o", out / "f.#.exr", "--frames", "1:2", "--tiles", 2, "--workers", 2,
+                    *OPTIONS], timeout=300)
+    assert r.returncode == 0, r.stderr
+    for frame in (1, 2):
+        alone = tmp_path / f"alone{frame}.#.exr"
+        r = run_script(["render", scene, "-o", alone, "--frames", f"{frame}:{frame}", *OPTIONS, "--quiet"])
+        assert r.returncode == 0, r.stderr
+        np.testing.assert_array_equal(_pixels(out / f"f.{frame}.exr"), _pixels(tmp_path / f"alone{frame}.{frame}.exr"))
