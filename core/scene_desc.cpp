@@ -108,6 +108,28 @@ PixelWindow pixelWindowFromNdc(double xmin, double ymin, double xmax, double yma
   return w.x0 < w.x1 && w.y0 < w.y1 ? w : PixelWindow{};
 }
 
+void validateCameraDesc(const CameraDesc& c, const std::string& obj) {
+  checkTransform(c.cameraToWorld, obj, "transform");
+  checkWorldPosition(c.cameraToWorld, obj);
+  checkPositive(c.focalLength, obj, "focalLength");
+  checkPositive(c.horizontalAperture, obj, "horizontalAperture");
+  checkPositive(c.verticalAperture, obj, "verticalAperture");
+  checkFinite(c.horizontalApertureOffset, obj, "horizontalApertureOffset");
+  checkFinite(c.verticalApertureOffset, obj, "verticalApertureOffset");
+  if (!std::isfinite(c.lensRadius) || c.lensRadius < 0)
+    throw InputError(obj, "lensRadius", str(c.lensRadius, " must be finite and >= 0 (0: a pinhole)"));
+  if (c.lensRadius > lensRadiusFromFStop(c.focalLength, kFastestFStop) * (1 + 1e-6f))
+    throw InputError(obj, "lensRadius",
+                     str(c.lensRadius, " is wider than an f/", kFastestFStop, " lens of focal length ", c.focalLength,
+                         " (", lensRadiusFromFStop(c.focalLength, kFastestFStop), "), the fastest a lens in air can be"));
+  if (c.lensRadius > 0 && !(std::isfinite(c.focusDistance) && c.focusDistance > 0))
+    throw InputError(obj, "focusDistance", str(c.focusDistance, " must be finite and > 0 with a lens"));
+  if (!std::isfinite(c.clipNear) || !(c.clipNear > 0))
+    throw InputError(obj, "clippingRange", str("near ", c.clipNear, " must be finite and > 0"));
+  if (std::isnan(c.clipFar) || !(c.clipFar > c.clipNear))
+    throw InputError(obj, "clippingRange", str("far ", c.clipFar, " must exceed near ", c.clipNear));
+}
+
 void validateLightDesc(const LightDesc& l, const std::string& obj) {
   checkTransform(l.xf, obj, "transform");
   checkWorldPosition(l.xf, obj);
@@ -174,25 +196,7 @@ void validateSceneDesc(const SceneDesc& desc) {
     throw InputError("render", "roulette", str(s.roulette, " must be in (0, 1], or negative for automatic"));
 
   const CameraDesc& c = desc.camera;
-  checkTransform(c.cameraToWorld, "camera", "transform");
-  checkWorldPosition(c.cameraToWorld, "camera");
-  checkPositive(c.focalLength, "camera", "focalLength");
-  checkPositive(c.horizontalAperture, "camera", "horizontalAperture");
-  checkPositive(c.verticalAperture, "camera", "verticalAperture");
-  checkFinite(c.horizontalApertureOffset, "camera", "horizontalApertureOffset");
-  checkFinite(c.verticalApertureOffset, "camera", "verticalApertureOffset");
-  if (!std::isfinite(c.lensRadius) || c.lensRadius < 0)
-    throw InputError("camera", "lensRadius", str(c.lensRadius, " must be finite and >= 0 (0: a pinhole)"));
-  if (c.lensRadius > lensRadiusFromFStop(c.focalLength, kFastestFStop) * (1 + 1e-6f))
-    throw InputError("camera", "lensRadius",
-                     str(c.lensRadius, " is wider than an f/", kFastestFStop, " lens of focal length ", c.focalLength,
-                         " (", lensRadiusFromFStop(c.focalLength, kFastestFStop), "), the fastest a lens in air can be"));
-  if (c.lensRadius > 0 && !(std::isfinite(c.focusDistance) && c.focusDistance > 0))
-    throw InputError("camera", "focusDistance", str(c.focusDistance, " must be finite and > 0 with a lens"));
-  if (!std::isfinite(c.clipNear) || !(c.clipNear > 0))
-    throw InputError("camera", "clippingRange", str("near ", c.clipNear, " must be finite and > 0"));
-  if (std::isnan(c.clipFar) || !(c.clipFar > c.clipNear))
-    throw InputError("camera", "clippingRange", str("far ", c.clipFar, " must exceed near ", c.clipNear));
+  validateCameraDesc(c, "camera");
   {
     // The film window at unit distance, as Camera fits the aperture into the image: it
     // must stay finite through normalisation, i.e. the field of view must stay short of

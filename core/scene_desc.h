@@ -332,6 +332,8 @@ void validateSceneDesc(const SceneDesc& desc);
 // count and weights (not its meshes: validateClosed, nor its material indices); one light.
 void validateMaterialDesc(const MaterialDesc& m, const std::string& object);
 void validateLightDesc(const LightDesc& l, const std::string& object);
+// One camera on its own (not its field of view, which depends on the image's aspect).
+void validateCameraDesc(const CameraDesc& c, const std::string& object);
 void validateAggregateParameters(const AggregateDesc& a, const std::string& object);
 
 }  // namespace granular

@@ -32,6 +32,12 @@ CameraDesc cameraFromUsd(const UsdPrimRecord& r) {
   c.focusDistance = usdFloat(r, "focusDistance", 0.0f);
   if (c.lensRadius > 0 && !(std::isfinite(c.focusDistance) && c.focusDistance > 0))
     throw InputError(path, "focusDistance", str(c.focusDistance, " must be > 0 when fStop is set"));
+  // Core's checks of a camera, in USD's names (its fields are the attributes, the lens is fStop).
+  try {
+    validateCameraDesc(c, path);
+  } catch (const InputError& e) {
+    throw InputError(path, e.attribute() == "lensRadius" ? "fStop" : e.attribute(), e.detail());
+  }
   return c;
 }
 

@@ -5,6 +5,7 @@
 #include <cmath>
 
 #include "error.h"
+#include "usd_implicit.h"
 
 namespace granular {
 
@@ -30,7 +31,25 @@ double lobe(double lambda, double mean, double below, double above) {
   return std::exp(-0.5 * t * t);
 }
 
+// a < b element by element ("/A/B" before "/A_B", as "A" < "A_B"); an ancestor first.
+bool pathLess(const std::string& a, const std::string& b) {
+  size_t i = 0, j = 0;
+  while (i < a.size() && j < b.size()) {
+    const size_t ei = std::min(a.find('/', i + 1), a.size()), ej = std::min(b.find('/', j + 1), b.size());
+    const std::string x = a.substr(i, ei - i), y = b.substr(j, ej - j);
+    if (x != y) return x < y;
+    i = ei;
+    j = ej;
+  }
+  return i == a.size() && j < b.size();
+}
+
 }  // namespace
+
+void orderUsdLights(std::vector<LightDesc>& lights) {
+  std::stable_sort(lights.begin(), lights.end(),
+                   [](const LightDesc& a, const LightDesc& b) { return pathLess(a.name, b.name); });
+}
 
 const std::vector<std::string>& usdLightAttributeNames() {
   static const std::vector<std::string> names = {kIntensity, kExposure,    kColor,         kNormalize, kEnableTemperature,
@@ -85,6 +104,10 @@ std::optional<LightDesc> lightFromUsd(const UsdPrimRecord& r, UsdWarnings& warni
     l.radius = usdFloat(r, kRadius, 0.5f);
     if (usdBool(r, kTreatAsPoint, false))
       warnings.push_back(str(path, ".", kTreatAsPoint, ": not supported; rendered as a sphere of inputs:radius"));
+  } else if (type == "Mesh" || type == "MeshLight" || isUsdImplicitSurface(type)) {
+    warnings.push_back(str(path, ": light emission of a surface (MeshLightAPI) is not supported; drawn as an "
+                                 "ordinary surface"));
+    return std::nullopt;
   } else {
     warnings.push_back(str(path, ": ", type.empty() ? std::string("untyped") : type,
                            " lights are not supported; skipped"));

@@ -9,6 +9,8 @@
 //    inputs:texture:format (automatic or latlong; others refused);
 //  - RectLight: inputs:width, inputs:height (1); a texture is warned about and ignored;
 //  - SphereLight: inputs:radius (0.5); treatAsPoint is warned about (a sphere is drawn);
+//  - a surface with MeshLightAPI (Mesh, an implicit surface): one warning; the front end
+//    draws it as an ordinary surface, as Hydra hosts do;
 //  - any other light type (DiskLight, CylinderLight, PortalLight, ...): one warning, skipped.
 // Every light: inputs:intensity (1), inputs:exposure (0), inputs:color (1, 1, 1),
 // inputs:normalize (false), and inputs:colorTemperature (6500 K, > 0) when
@@ -32,6 +34,11 @@ const std::vector<std::string>& usdLightAttributeNames();
 // type that is not rendered (a warning says so). InputError naming prim.attribute on a
 // value of the wrong type or out of range.
 std::optional<LightDesc> lightFromUsd(const UsdPrimRecord& light, UsdWarnings& warnings);
+
+// The lights in the order both front ends sample them: by prim path, element by element
+// (SdfPath's dictionary order), so that a seed draws the same light for a sample whatever
+// order the stage or the host lists them in.
+void orderUsdLights(std::vector<LightDesc>& lights);
 
 // The colour of a blackbody at `kelvin` in linear Rec.709 with luminance 1 (Planck's law
 // integrated against the CIE 1931 2° observer, in the analytic fit of Wyman, Sloan and

@@ -56,6 +56,14 @@ TriangleMesh meshFromUsd(const UsdMeshRecord& r) {
   return m;
 }
 
+size_t usdPrimvarElements(const UsdMeshRecord& r, const std::string& interp) {
+  if (interp == "constant") return 1;
+  if (interp == "uniform") return r.faceVertexCounts.size();
+  if (interp == "vertex" || interp == "varying") return r.points.size();
+  if (interp == "faceVarying") return r.faceVertexIndices.size();
+  return 0;
+}
+
 std::vector<float> usdPrimvarAtCorners(const UsdMeshRecord& r, const UsdValue& primvar, int width,
                                        const std::string& attribute) {
   const std::string& where = primvar.source.empty() ? r.path : primvar.source;
@@ -66,12 +74,9 @@ std::vector<float> usdPrimvarAtCorners(const UsdMeshRecord& r, const UsdValue& p
     if (!std::isfinite(v)) throw InputError(where, attribute, "has values that are not finite");
   const Corners c = cornersOf(r);
   const std::string& interp = primvar.interpolation;
-  size_t expected = 0;
-  if (interp == "constant") expected = 1;
-  else if (interp == "uniform") expected = r.faceVertexCounts.size();
-  else if (interp == "vertex" || interp == "varying") expected = r.points.size();
-  else if (interp == "faceVarying") expected = r.faceVertexIndices.size();
-  else throw InputError(where, attribute, str("has interpolation \"", interp, "\", which UsdGeom does not define"));
+  const size_t expected = usdPrimvarElements(r, interp);
+  if (expected == 0)
+    throw InputError(where, attribute, str("has interpolation \"", interp, "\", which UsdGeom does not define"));
   if (elements != expected)
     throw InputError(where, attribute, str("has ", elements, " values; ", interp, " interpolation needs ", expected));
   std::vector<float> out;

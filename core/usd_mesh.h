@@ -26,6 +26,11 @@ struct UsdMeshRecord {
 // .orientation on bad topology.
 TriangleMesh meshFromUsd(const UsdMeshRecord& mesh);
 
+// How many elements a primvar of this interpolation has on the mesh (constant 1, uniform
+// one per face, vertex and varying one per point, faceVarying one per face-vertex); 0 for
+// an interpolation UsdGeom does not define.
+size_t usdPrimvarElements(const UsdMeshRecord& mesh, const std::string& interpolation);
+
 // A primvar's values (primvar.numbers: `width` numbers per element, flattened as
 // authored) at every corner of meshFromUsd's triangles, in their order: constant (one
 // element), uniform (one per face), vertex and varying (one per point), faceVarying (one

@@ -186,12 +186,21 @@ std::optional<UsdMaterial> materialFromUsd(const UsdMaterialNetwork& n, UsdWarni
   return out;
 }
 
-std::optional<Vec3> displayColorFromUsd(const UsdValue& v, const std::string& prim) {
+std::optional<Vec3> displayColorFromUsd(const UsdValue& v, const UsdMeshRecord* mesh, const std::string& prim,
+                                        UsdWarnings& warnings) {
   const std::string& where = v.source.empty() ? prim : v.source;
   if (v.isString || v.numbers.size() % 3 != 0)
     throw InputError(where, "primvars:displayColor",
                      str("has value ", describeUsdValue(v).substr(0, 60), " of type ", v.typeName, ", expected color3f[]"));
   if (v.numbers.empty()) return std::nullopt;
+  if (mesh && v.interpolation != "constant") {
+    const size_t expected = usdPrimvarElements(*mesh, v.interpolation), found = v.numbers.size() / 3;
+    if (found != expected) {
+      warnings.push_back(str(where, ".primvars:displayColor: has ", found, " values; ", v.interpolation,
+                             " interpolation needs ", expected, "; ignored"));
+      return std::nullopt;
+    }
+  }
   double sum[3] = {0, 0, 0};
   for (size_t i = 0; i < v.numbers.size(); ++i) sum[i % 3] += v.numbers[i];
   const double n = double(v.numbers.size() / 3);

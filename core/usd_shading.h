@@ -24,6 +24,7 @@
 #include <vector>
 
 #include "scene_desc.h"
+#include "usd_mesh.h"
 #include "usd_values.h"
 
 namespace granular {
@@ -54,9 +55,12 @@ struct UsdMaterial {
 std::optional<UsdMaterial> materialFromUsd(const UsdMaterialNetwork& network, UsdWarnings& warnings);
 
 // A mesh's primvars:displayColor (any interpolation), averaged: a mesh with no bound
-// material is Lambert of it (granular_prims.h). Nothing when it holds no value.
-// InputError on <value.source or prim>.primvars:displayColor when its numbers are not
-// colours, or their mean is outside [0, 1].
-std::optional<Vec3> displayColorFromUsd(const UsdValue& value, const std::string& prim);
+// material is Lambert of it (granular_prims.h). Nothing when it holds no value, or when
+// its count does not fit its interpolation on `mesh` (given for a Mesh; a warning says
+// so: Hydra hosts drop such a primvar). InputError on
+// <value.source or prim>.primvars:displayColor when its numbers are not colours, or their
+// mean is outside [0, 1].
+std::optional<Vec3> displayColorFromUsd(const UsdValue& value, const UsdMeshRecord* mesh, const std::string& prim,
+                                        UsdWarnings& warnings);
 
 }  // namespace granular

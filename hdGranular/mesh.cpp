@@ -132,20 +132,28 @@ void HdGranularMesh::Sync(HdSceneDelegate* delegate, HdRenderParam* renderParam,
   for (HdPrimvarDescriptor const& pv : delegate->GetPrimvarDescriptors(id, HdInterpolationConstant)) {
     std::string name = pv.name.GetString();
     if (name.rfind("primvars:", 0) == 0) name = name.substr(9);
-    if (pv.name == HdTokens->displayColor) {
-      if (auto c = HdGranularUsdValue(delegate->Get(id, pv.name))) {
-        try {
-          m.prim.displayColor = granular::displayColorFromUsd(*c, id.GetString());
-        } catch (granular::InputError const& e) {
-          param->SetError(id, e);
-          *dirtyBits &= ~HdChangeTracker::AllSceneDirtyBits;
-          return;
-        }
-      }
-    } else if (name.rfind("granular:", 0) == 0) {
-      m.prim.granular[name.substr(9)] = toPrimvarValue(delegate->Get(id, pv.name));
-    }
+    if (name.rfind("granular:", 0) == 0) m.prim.granular[name.substr(9)] = toPrimvarValue(delegate->Get(id, pv.name));
   }
+  // displayColor of any interpolation, as found; core averages and checks it.
+  static const char* const kInterpolationNames[] = {"constant", "uniform", "varying", "vertex", "faceVarying"};
+  for (HdInterpolation interp : {HdInterpolationConstant, HdInterpolationUniform, HdInterpolationVarying,
+                                 HdInterpolationVertex, HdInterpolationFaceVarying})
+    for (HdPrimvarDescriptor const& pv : delegate->GetPrimvarDescriptors(id, interp)) {
+      if (pv.name != HdTokens->displayColor) continue;
+      std::optional<granular::UsdValue> c = HdGranularUsdValue(delegate->Get(id, pv.name));
+      if (!c) continue;
+      c->interpolation = kInterpolationNames[interp];
+      try {
+        granular::UsdWarnings warnings;
+        m.prim.displayColor = granular::displayColorFromUsd(*c, m.prim.typeName == "Mesh" ? &m.topology : nullptr,
+                                                            id.GetString(), warnings);
+        param->Warn(warnings);
+      } catch (granular::InputError const& e) {
+        param->SetError(id, e);
+        *dirtyBits &= ~HdChangeTracker::AllSceneDirtyBits;
+        return;
+      }
+    }
   m.materialId = delegate->GetMaterialId(id);
   param->SetMesh(id, std::move(m));
   *dirtyBits &= ~HdChangeTracker::AllSceneDirtyBits;

@@ -1,5 +1,6 @@
 #include "renderParam.h"
 
+#include "core/usd_lights.h"
 #include "renderer.h"
 
 PXR_NAMESPACE_OPEN_SCOPE
@@ -92,6 +93,7 @@ granular::SceneDesc HdGranularRenderParam::Assemble() const {
   }
   granular::assembleGranularScene(prims, desc);
   for (auto const& [path, l] : _lights) desc.lights.push_back(l);
+  granular::orderUsdLights(desc.lights);  // as granular render orders them
   return desc;
 }
 

@@ -21,21 +21,23 @@ PXR_NAMESPACE_OPEN_SCOPE
 namespace {
 
 
-// The perspective camera equivalent to Hydra's view and projection matrices, with a
-// focal length of 1: the window at unit distance is [-1/P00, 1/P00] shifted by P20/P00
-// (x_ndc = P00 u − P20 for a point at film coordinate u), likewise in y; near and far
-// from P22 and P32.
+// The perspective camera equivalent to Hydra's view and projection matrices, keeping
+// cam's focal length (the camera prim's, so that its lens is checked against it as
+// granular render checks it): the window at unit distance is [-1/P00, 1/P00] shifted by
+// P20/P00 (x_ndc = P00 u − P20 for a point at film coordinate u), likewise in y; the
+// apertures are that window times the focal length; near and far from P22 and P32.
 bool cameraFromMatrices(GfMatrix4d const& view, GfMatrix4d const& proj, granular::CameraDesc& cam) {
   if (proj[2][3] != -1.0 || proj[0][0] == 0 || proj[1][1] == 0) return false;  // not a perspective frustum
+  const double f = cam.focalLength > 0 && std::isfinite(cam.focalLength) ? cam.focalLength : 1.0;
   cam.cameraToWorld = HdGranularToCore(view.GetInverse());
-  cam.focalLength = 1.0f;
-  cam.horizontalAperture = float(2.0 / proj[0][0]);
-  cam.verticalAperture = float(2.0 / proj[1][1]);
-  cam.horizontalApertureOffset = float(proj[2][0] / proj[0][0]);
-  cam.verticalApertureOffset = float(proj[2][1] / proj[1][1]);
-  double n = proj[3][2] / (proj[2][2] - 1.0), f = proj[3][2] / (proj[2][2] + 1.0);
+  cam.focalLength = float(f);
+  cam.horizontalAperture = float(f * 2.0 / proj[0][0]);
+  cam.verticalAperture = float(f * 2.0 / proj[1][1]);
+  cam.horizontalApertureOffset = float(f * proj[2][0] / proj[0][0]);
+  cam.verticalApertureOffset = float(f * proj[2][1] / proj[1][1]);
+  double n = proj[3][2] / (proj[2][2] - 1.0), fa = proj[3][2] / (proj[2][2] + 1.0);
   cam.clipNear = float(n > 0 ? n : 1e-4);
-  cam.clipFar = float(f > n ? f : 1e30);
+  cam.clipFar = float(fa > n ? fa : 1e30);
   return true;
 }
 
@@ -44,7 +46,11 @@ bool cameraFromMatrices(GfMatrix4d const& view, GfMatrix4d const& proj, granular
 // units, a tenth of USD's). Its framing comes from the host's matrices instead, which
 // apply the host's window policy. No camera prim (free matrices): a pinhole.
 granular::CameraDesc coreCamera(HdCamera const* camera) {
-  if (!camera) return granular::CameraDesc{};
+  if (!camera) {
+    granular::CameraDesc pinhole;
+    pinhole.focalLength = 1.0f;  // free matrices: only the window matters
+    return pinhole;
+  }
   granular::UsdPrimRecord r;
   r.path = camera->GetId().GetString();
   r.typeName = "Camera";

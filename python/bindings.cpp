@@ -642,6 +642,9 @@ PYBIND11_MODULE(granular_core, m) {
   m.def("usd_implicit_attribute_names", &usdImplicitAttributeNames);
   m.def("implicit_surface_from_usd", &implicitSurfaceFromUsd, py::arg("record"));
   m.def("usd_light_attribute_names", &usdLightAttributeNames);
+  m.def(
+      "order_usd_lights", [](SceneDesc& desc) { orderUsdLights(desc.lights); }, py::arg("desc"),
+      "Sorts desc's lights by prim path, as both USD front ends sample them");
   m.def("usd_camera_attribute_names", &usdCameraAttributeNames);
   m.def(
       "light_from_usd",
@@ -661,7 +664,23 @@ PYBIND11_MODULE(granular_core, m) {
         return py::make_tuple(py::cast(mat->desc), mat->st, w);
       },
       py::arg("network"), "(MaterialDesc or None: the default material, st primvar name, [warnings])");
-  m.def("display_color_from_usd", &displayColorFromUsd, py::arg("value"), py::arg("prim"));
+  m.def(
+      "display_color_from_usd",
+      [](const UsdValue& value, const std::string& prim, size_t numPoints, const IntArray& counts,
+         const IntArray& indices) -> py::tuple {
+        UsdMeshRecord r;
+        r.path = prim;
+        r.points.resize(numPoints);
+        r.faceVertexCounts = toInt32(toInts(counts, "faceVertexCounts"));
+        r.faceVertexIndices = toInt32(toInts(indices, "faceVertexIndices"));
+        UsdWarnings w;
+        std::optional<Vec3> c = displayColorFromUsd(value, numPoints ? &r : nullptr, prim, w);
+        return py::make_tuple(c ? py::cast(*c) : py::none(), w);
+      },
+      py::arg("value"), py::arg("prim"), py::arg("num_points") = 0, py::arg("face_vertex_counts") = IntArray(),
+      py::arg("face_vertex_indices") = IntArray(),
+      "(averaged colour or None, [warnings]); with a mesh's topology, a count that does not fit the "
+      "interpolation is ignored with a warning");
   m.def(
       "resolution_from_usd",
       [](const UsdPrimRecord& r) -> py::object {

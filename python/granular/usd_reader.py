@@ -412,11 +412,21 @@ def _display_color(scene, prim, time):
     value.type_name = schema.authored_type(pv.GetAttr())
     value.is_array = value.type_name.endswith("[]")
     value.source = str(pv.GetAttr().GetPrim().GetPath())
+    value.interpolation = pv.GetInterpolation()
     if isinstance(v, str):
         value.is_string, value.strings = True, [v]
     else:
         value.numbers = schema.numbers(v)
-    return _core_call(core.display_color_from_usd, value, str(prim.GetPath()))
+    topology = ()
+    if prim.IsA(UsdGeom.Mesh):
+        points = UsdGeom.Mesh(prim).GetPointsAttr().Get(time)
+        counts, indices, _, _ = _topology(prim, time)
+        if points is not None and counts is not None and indices is not None:
+            topology = (len(points), counts, indices)
+    color, warnings = _core_call(core.display_color_from_usd, value, str(prim.GetPath()), *topology)
+    for w in warnings:
+        scene.warn(w)
+    return color
 
 
 # ---- prims for core's granular schema ----------------------------------------------------------
@@ -608,7 +618,8 @@ def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_c
             continue
         if _is_light(prim):
             read_light(scene, prim, xf_cache)
-            continue
+            if not (prim.IsA(UsdGeom.Mesh) or _is_implicit(prim)):
+                continue  # a light; a surface with MeshLightAPI is drawn as well
         if prim.IsA(UsdGeom.Mesh) or _is_implicit(prim):
             prims.append(_mesh_prim(scene, prim, xf_cache, material_cache, drawn=True))
         elif prim.IsA(UsdGeom.PointInstancer):
@@ -619,6 +630,7 @@ def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_c
     for type_name, example in unsupported.items():
         scene.warn(f"{example}: {type_name} prims are not supported; skipped")
     _assemble(scene, prims, xf_cache, material_cache)
+    core.order_usd_lights(scene.desc)
 
     # Resolution and camera: command line, else the render settings prim, else defaults.
     settings = _settings_prim(stage)
