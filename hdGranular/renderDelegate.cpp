@@ -84,7 +84,16 @@ const TfTokenVector& HdGranularRenderDelegate::GetSupportedRprimTypes() const { 
 const TfTokenVector& HdGranularRenderDelegate::GetSupportedSprimTypes() const { return kSprimTypes; }
 const TfTokenVector& HdGranularRenderDelegate::GetSupportedBprimTypes() const { return kBprimTypes; }
 
-VtDictionary HdGranularRenderDelegate::GetRenderStats() const { return _renderer->GetStats(); }
+VtDictionary HdGranularRenderDelegate::GetRenderStats() const {
+  VtDictionary stats = _renderer->GetStats();
+  // What core said about the stage, as granular render prints it: each warning once, and
+  // the error that refused the image.
+  VtStringArray warnings;
+  for (std::string const& w : _param->Warnings()) warnings.push_back(w);
+  stats["granular:warnings"] = VtValue(warnings);
+  stats["granular:error"] = VtValue(_param->RenderError());
+  return stats;
+}
 
 HdAovDescriptor HdGranularRenderDelegate::GetDefaultAovDescriptor(TfToken const& name) const {
   if (name == HdAovTokens->color) return HdAovDescriptor(HdFormatFloat32Vec4, false, VtValue(GfVec4f(0.0f)));

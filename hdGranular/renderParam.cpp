@@ -53,7 +53,25 @@ void HdGranularRenderParam::SetError(SdfPath const& id, granular::InputError con
 void HdGranularRenderParam::Warn(granular::UsdWarnings const& warnings) {
   std::lock_guard<std::mutex> lock(_mutex);
   for (std::string const& w : warnings)
-    if (_warned.insert(w).second) TF_WARN("hdGranular: %s", w.c_str());
+    if (_warned.insert(w).second) {
+      _warnings.push_back(w);
+      TF_WARN("hdGranular: %s", w.c_str());
+    }
+}
+
+std::vector<std::string> HdGranularRenderParam::Warnings() const {
+  std::lock_guard<std::mutex> lock(_mutex);
+  return _warnings;
+}
+
+void HdGranularRenderParam::SetRenderError(std::string error) {
+  std::lock_guard<std::mutex> lock(_mutex);
+  _renderError = std::move(error);
+}
+
+std::string HdGranularRenderParam::RenderError() const {
+  std::lock_guard<std::mutex> lock(_mutex);
+  return _renderError;
 }
 
 granular::SceneDesc HdGranularRenderParam::Assemble() const {
@@ -84,9 +102,14 @@ granular::SceneDesc HdGranularRenderParam::Assemble() const {
         auto uv = m.uvSets.find(st->second);
         if (uv != m.uvSets.end())
           p.mesh.uvs = granular::usdPrimvarAtCorners(m.topology, uv->second, 2, "primvars:" + st->second);
-        else if (_warned.insert(path.GetString() + ":" + st->second).second)
-          TF_WARN("hdGranular: %s: has no primvars:%s for its material's textures; they read st (0, 0) everywhere",
-                  path.GetText(), st->second.c_str());
+        else {
+          const std::string w = path.GetString() + ": has no primvars:" + st->second +
+                                " for its material's textures; they read st (0, 0) everywhere";
+          if (_warned.insert(w).second) {
+            _warnings.push_back(w);
+            TF_WARN("hdGranular: %s", w.c_str());
+          }
+        }
       }
     }
     prims.push_back(std::move(p));

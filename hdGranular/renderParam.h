@@ -64,8 +64,13 @@ class HdGranularRenderParam final : public HdRenderParam {
   // by path) until the prim is set again or removed, so the image is refused as
   // `granular render` refuses the stage.
   void SetError(SdfPath const& id, granular::InputError const& error);
-  // Core's warnings about what a prim means: each message once per delegate (TF_WARN).
+  // Core's warnings about what a prim means: each message once per delegate (TF_WARN),
+  // and listed by Warnings() (render stat granular:warnings) in the order given.
   void Warn(granular::UsdWarnings const& warnings);
+  std::vector<std::string> Warnings() const;
+  // The error that refused the last scene ("" when it was built): render stat granular:error.
+  void SetRenderError(std::string error);
+  std::string RenderError() const;
 
   // The scene as the core sees it; throws granular::InputError on bad data.
   granular::SceneDesc Assemble() const;
@@ -84,6 +89,8 @@ class HdGranularRenderParam final : public HdRenderParam {
   std::map<SdfPath, std::optional<granular::MaterialDesc>> _materials;
   std::map<SdfPath, granular::InputError> _errors;
   mutable std::set<std::string> _warned;  // warnings given (Warn, Assemble)
+  mutable std::vector<std::string> _warnings;  // the same, in the order given
+  std::string _renderError;
   std::map<SdfPath, std::string> _materialSt;
   std::atomic<int> _version{0};
   HdGranularRenderer* _renderer = nullptr;

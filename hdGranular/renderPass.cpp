@@ -230,13 +230,13 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
         const std::string suns = _renderer->GetScene()->widenedSunsWarning();
         if (!suns.empty() && suns != _sunsWarned) TF_WARN("hdGranular: %s", suns.c_str());
         _sunsWarned = suns;  // once, until the lights change
-        for (const std::string& w : _renderer->GetScene()->textureWarnings())
-          if (_texturesWarned.insert(w).second) TF_WARN("hdGranular: %s", w.c_str());  // once each
+        _param->Warn(_renderer->GetScene()->textureWarnings());  // once each
         if (_renderer->GetScene()->defaultLightAdded())
           TF_WARN("hdGranular: the stage has no light (no UsdLux light, no emissive surface): it is lit by the "
                   "default white dome of radiance 1 (render setting granular:defaultLight false renders it black)");
       }
       _built = std::move(desc);
+      _param->SetRenderError("");
     } else if (reframe) {
       scene->setView(cam, rs);
       _built->camera = cam;
@@ -244,6 +244,7 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
     }
   } catch (std::exception const& e) {
     TF_RUNTIME_ERROR("hdGranular: %s", e.what());
+    _param->SetRenderError(e.what());
     _renderer->SetScene(nullptr);
     _built.reset();
   }

@@ -49,7 +49,6 @@ class HdGranularRenderPass final : public HdRenderPass {
   // is no scene): what a new one is compared with (compareScenes).
   std::optional<granular::SceneDesc> _built;
   std::string _sunsWarned;  // the last widened-suns warning given
-  std::set<std::string> _texturesWarned;  // texture warnings given (Scene::textureWarnings)
   GfMatrix4d _view{0.0}, _projection{0.0};
   GfVec2f _lens{0.0f};  // the camera's (fStop, focusDistance)
   int _width = 0, _height = 0;

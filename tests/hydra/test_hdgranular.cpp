@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <functional>
 #include <cmath>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -340,6 +341,34 @@ TEST(HdGranular, EveryDocumentedRenderStatIsReported) {
   EXPECT_EQ(stat<int>(stats, "granular:aggregatesBuilt"), 1);
   EXPECT_EQ(stat<int>(stats, "granular:aggregatesReused"), 0);
   EXPECT_EQ(stat<int>(stats, "granular:mediaDerived"), 1);
+}
+
+// Core's warnings and errors reach the host as granular render prints them: once each in
+// the render stats granular:warnings, and the error that refused the image in granular:error.
+TEST(HdGranular, CoresWarningsAndErrorsAreRenderStats) {
+  UsdStageRefPtr stage = domeLitStage(40, R"(
+  def DiskLight "Disk" {
+  }
+  def SphereLight "Bulb" {
+    bool treatAsPoint = 1
+  }
+)");
+  auto engine = makeEngine(2);
+  Frame f = render(*engine, stage, HdAovTokens->color, 16, 16);
+  ASSERT_TRUE(f.converged);
+  VtDictionary stats = engine->GetRenderStats();
+  VtStringArray warnings = stat<VtStringArray>(stats, "granular:warnings");
+  std::set<std::string> given(warnings.begin(), warnings.end());
+  EXPECT_EQ(given.count("/World/Disk: DiskLight lights are not supported; skipped"), 1u);
+  EXPECT_EQ(given.count("/World/Bulb.treatAsPoint: not supported; rendered as a sphere of inputs:radius"), 1u);
+  EXPECT_EQ(warnings.size(), given.size());  // each once
+  EXPECT_EQ(stat<std::string>(stats, "granular:error"), "");
+
+  stage->GetPrimAtPath(SdfPath("/World/Bulb")).GetAttribute(TfToken("inputs:intensity")).Set(-1.0f);
+  Frame bad = render(*engine, stage, HdAovTokens->color, 16, 16);
+  EXPECT_TRUE(bad.converged);
+  EXPECT_EQ(stat<std::string>(engine->GetRenderStats(), "granular:error"),
+            "/World/Bulb.inputs:intensity: -1 must be finite and >= 0");
 }
 
 TEST(HdGranular, AStageWithoutLightsGetsTheDefaultDomeUnlessTurnedOff) {
