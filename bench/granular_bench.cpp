@@ -31,6 +31,7 @@
 
 #include "core/aggregate.h"
 #include "core/material.h"
+#include "core/medium.h"
 #include "core/proxy.h"
 #include "core/shapes.h"
 #include "core/tt.h"

@@ -34,6 +34,7 @@
 #include <string>
 #include <vector>
 
+#include "core/ept.h"
 #include "core/error.h"
 #include "core/microfacet.h"
 #include "core/film.h"

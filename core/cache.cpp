@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <fstream>
 #include <iterator>
+#include <utility>
 
 #include "rng.h"
 
@@ -78,6 +79,28 @@ bool writeCacheFile(const std::string& name, const std::vector<char>& bytes) {
   }
   if (std::rename(tmp.c_str(), final.c_str()) != 0) { std::remove(tmp.c_str()); return false; }
   return true;
+}
+
+uint64_t recordChecksum(const char* data, size_t size) { return hashBytes(mix64(size), data, size); }
+
+RecordWriter::RecordWriter(const RecordMagic& magic, RecordChecksum checksum)
+    : bytes_(magic, magic + sizeof magic), checksum_(checksum) {}
+
+std::vector<char> RecordWriter::finish() {
+  appendBytes(bytes_, checksum_(bytes_.data(), bytes_.size()));
+  return std::move(bytes_);
+}
+
+RecordReader::RecordReader(const std::vector<char>& bytes, const RecordMagic& magic, RecordChecksum checksum)
+    : bytes_(bytes) {
+  constexpr size_t kSum = sizeof(uint64_t);
+  if (bytes.size() < sizeof magic + kSum || std::memcmp(bytes.data(), magic, sizeof magic) != 0) return;
+  uint64_t sum;
+  std::memcpy(&sum, bytes.data() + bytes.size() - kSum, kSum);
+  if (sum != checksum(bytes.data(), bytes.size() - kSum)) return;
+  pos_ = sizeof magic;
+  end_ = bytes.size() - kSum;
+  ok_ = true;
 }
 
 }  // namespace granular

@@ -53,7 +53,7 @@
 #pragma once
 
 #include "math.h"
-#include "tt.h"
+#include "medium.h"
 
 namespace granular {
 

@@ -1,5 +1,5 @@
 // ept.h — explicit path tracing (EPT) of surfaces and individual grains (Meng et al. 2015), and
-// the path state that the hybrid integrator (hybrid.h) advances one bounce at a time.
+// the surface shading that every transport shares (path_state.h: what a path carries).
 //
 // Contract: eptStep() advances a path by one interaction with the explicit scene:
 // unidirectional path tracing with next-event estimation and MIS (power heuristic) at
@@ -11,55 +11,10 @@
 // hybrid integrator with technique Ept: eptStep() until the path ends.
 #pragma once
 
-#include "rng.h"
+#include "path_state.h"
 #include "scene.h"
 
 namespace granular {
-
-// What the first visible surface says about a pixel (the AOVs besides colour).
-struct PrimaryInfo {
-  bool hit = false;
-  float depth = kInf;   // along the camera's view axis
-  Vec3 normal;          // world geometric normal, facing the camera
-  int kind = -1;        // Hit::Kind of the first hit
-  int primId = -1;      // the front end's id of what was hit
-};
-
-// Index of a contribution in PathState::L (the AOVs), and the transport a path is in:
-// explicit grains, the media (VPT, DA), proxies (ppt.h).
-enum Transport : int { kEpt = 0, kVpt = 1, kDa = 2, kPpt = 3 };
-constexpr int kTransports = 4;
-
-struct PathState {
-  Ray ray;
-  Rng rng;
-  Vec3 beta{1.0f};
-  Vec3 L[kTransports];     // radiance gathered by EPT, VPT, DA and PPT
-  int depth = 0;           // scattering events so far (a proxy's counts kProxyOrders, ppt.h)
-  bool alive = true;
-  bool lastDelta = true;   // camera rays and delta bounces see emitters unweighted
-  float lastPdf = 0;       // solid-angle pdf of the last sampled direction
-  Vec3 lastP;              // where that direction was sampled (for area-light MIS)
-  float lastNeeChance = 1; // the chance that next-event estimation was made there (MIS)
-  bool inGrain = false;    // between entering and leaving a grain (EPT)
-  GrainStart from;         // the grain the ray starts at (EPT: Scene::intersect's hint)
-  Transport mode = kEpt;   // kEpt: explicit grains; kPpt: proxies; kVpt: equivalent media
-  Transport credit = kEpt; // which AOV the path's radiance goes to (kDa after a DA step)
-  int medium = -1;         // aggregate whose medium holds the path (kVpt), or -1
-  bool switchPending = false;  // switch to kVpt once out of the current grain
-  PrimaryInfo primary;
-  // Ray cone (Akenine-Möller et al. 2019): footprint width at the ray origin and its
-  // spread angle; for the level-of-detail shortcut (RenderSettings::lod).
-  float coneWidth = 0, coneSpread = 0;
-  bool touchedAggregate = false;  // a grain has been hit (the LOD test is at first contact)
-  bool shortcut = false;          // took the LOD shortcut: to the medium after this grain
-  bool daRefused = false;         // the curvature guard refused DA once: VPT to the end (vpt.cpp)
-  // Deterministic cost (ray casts, a grain traversal counted kGrainCastCost) spent in
-  // the low-order (EPT) and high-order (VPT, DA) parts: the t_L and t_H of the roulette's P_a (hybrid.h).
-  double cost[2] = {0, 0};
-
-  Vec3 radiance() const { return L[0] + L[1] + L[2] + L[3]; }
-};
 
 // Relative cost of one ray cast through aggregates (cells, sphere tests, grain BVHs)
 // against one cast through plain meshes; measured by bench/ept_throughput.py.

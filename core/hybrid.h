@@ -21,7 +21,7 @@
 #include <vector>
 
 #include "camera.h"
-#include "ept.h"
+#include "path_state.h"
 #include "scene.h"
 
 namespace granular {

@@ -389,10 +389,13 @@ double minPeriodicGapFast(const Tile& t) {
   return best;
 }
 
-// Cache entry layout (native endianness; a cache is per machine).
-constexpr char kMagic[8] = {'G', 'R', 'T', 'I', 'L', 'E', '\0', '\0'};
+// Cache record (cache.h: RecordWriter) of a tile.
+constexpr RecordMagic kMagic = {'G', 'R', 'T', 'I', 'L', 'E', '\0', '\0'};
 constexpr uint32_t kTileFormatVersion = 3;  // 2: sizes and classes of polydisperse tiles; 3: stratified sizes
+static_assert(sizeof(Vec3) == 3 * sizeof(float), "a centre is stored as three floats");
 
+// The tile record's own checksum (byte by byte), older than recordChecksum: kept so that
+// cached tiles stay valid.
 uint64_t checksum(const char* data, size_t size) {
   uint64_t h = mix64(size);
   for (size_t i = 0; i < size; ++i) h = hashCombine(h, uint8_t(data[i]));
@@ -418,65 +421,47 @@ std::string cacheName(int n, double targetF, uint64_t seed, const TileSizes& z) 
 }
 
 std::vector<char> serialise(const Tile& t, double targetF) {
-  std::vector<char> out(kMagic, kMagic + sizeof kMagic);
-  appendBytes(out, kTileFormatVersion);
-  appendBytes(out, int32_t(t.numSpheres));
-  appendBytes(out, targetF);
-  appendBytes(out, t.seed);
-  appendBytes(out, t.radius);
-  appendBytes(out, t.packingRate);
-  for (const Vec3& c : t.centers) {
-    appendBytes(out, c.x);
-    appendBytes(out, c.y);
-    appendBytes(out, c.z);
-  }
-  appendBytes(out, uint32_t(t.sizes.size()));
+  RecordWriter w(kMagic, checksum);
+  w.putU32(kTileFormatVersion);
+  w.putI32(int32_t(t.numSpheres));
+  w.putF64(targetF);
+  w.putU64(t.seed);
+  w.putF64(t.radius);
+  w.putF64(t.packingRate);
+  w.putArray(t.centers);
+  w.putU32(uint32_t(t.sizes.size()));
   for (size_t k = 0; k < t.sizes.size(); ++k) {
-    appendBytes(out, t.sizes[k]);
-    appendBytes(out, t.classes[k]);
+    w.putF32(t.sizes[k]);
+    w.putU8(t.classes[k]);
   }
-  appendBytes(out, checksum(out.data(), out.size()));
-  return out;
+  return w.finish();
 }
 
 bool deserialise(const std::vector<char>& in, int n, double targetF, uint64_t seed, bool poly, Tile& t) {
-  size_t expected = sizeof kMagic + 4 + 4 + 8 + 8 + 8 + 8 + size_t(n) * 12 + 4 + (poly ? size_t(n) * 5 : 0) + 8;
-  if (in.size() != expected || std::memcmp(in.data(), kMagic, sizeof kMagic) != 0) return false;
-  uint64_t sum;
-  std::memcpy(&sum, in.data() + expected - 8, 8);
-  if (sum != checksum(in.data(), expected - 8)) return false;
-  size_t pos = sizeof kMagic;
-  uint32_t version;
-  int32_t count;
-  double f;
-  readBytes(in, pos, version);
-  readBytes(in, pos, count);
-  readBytes(in, pos, f);
-  readBytes(in, pos, t.seed);
-  readBytes(in, pos, t.radius);
-  readBytes(in, pos, t.packingRate);
+  RecordReader r(in, kMagic, checksum);
+  uint32_t version = 0;
+  int32_t count = 0;
+  double f = 0;
+  if (!r.getU32(version) || !r.getI32(count) || !r.getF64(f) || !r.getU64(t.seed) || !r.getF64(t.radius) ||
+      !r.getF64(t.packingRate))
+    return false;
   if (version != kTileFormatVersion || count != n || bitsOf(f) != bitsOf(targetF) || t.seed != seed) return false;
   if (!(t.radius > 0) || !(t.radius <= 0.5) || !(std::fabs(t.packingRate - targetF) <= 1e-6 * targetF)) return false;
   t.numSpheres = n;
   t.centers.resize(n);
-  for (Vec3& c : t.centers) {
-    readBytes(in, pos, c.x);
-    readBytes(in, pos, c.y);
-    readBytes(in, pos, c.z);
+  if (!r.getArray(t.centers)) return false;
+  for (const Vec3& c : t.centers)
     for (int k = 0; k < 3; ++k)
       if (!(c[k] >= 0.0f && c[k] < 1.0f)) return false;
-  }
-  uint32_t sized;
-  readBytes(in, pos, sized);
-  if (sized != (poly ? uint32_t(n) : 0u)) return false;
+  uint32_t sized = 0;
+  if (!r.getU32(sized) || sized != (poly ? uint32_t(n) : 0u)) return false;
   t.sizes.resize(sized);
   t.classes.resize(sized);
   for (size_t k = 0; k < sized; ++k) {
-    readBytes(in, pos, t.sizes[k]);
-    readBytes(in, pos, t.classes[k]);
+    if (!r.getF32(t.sizes[k]) || !r.getU8(t.classes[k])) return false;
     if (!(t.sizes[k] > 0 && t.sizes[k] < 1e3f)) return false;
   }
-  return true;
+  return r.finish();
 }
 
 // Each sphere's class and size: classes by number (largest remainder, every class with a

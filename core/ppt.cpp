@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "ept.h"
 #include "sampling.h"
 
 namespace granular {

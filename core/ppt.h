@@ -21,7 +21,7 @@
 // Radiance goes to PathState::L[kPpt] (the AOV ppt.*), a low-order part as EPT's is.
 #pragma once
 
-#include "ept.h"
+#include "path_state.h"
 
 namespace granular {
 

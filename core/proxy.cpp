@@ -6,7 +6,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstring>
 
 #include "cache.h"
 #include "embree_util.h"
@@ -48,8 +47,10 @@ struct ChunkSums {
   std::vector<Record> records;         // in ray order
 };
 
-constexpr char kMagic[8] = {'G', 'R', 'P', 'X', '\0', '\0', '\0', '\0'};
+// Cache record (cache.h: RecordWriter) of a table.
+constexpr RecordMagic kMagic = {'G', 'R', 'P', 'X', '\0', '\0', '\0', '\0'};
 constexpr uint32_t kFormatVersion = 1;
+static_assert(sizeof(Vec3) == 3 * sizeof(float), "a Vec3 is stored as three floats");
 
 uint64_t cacheKey(const TriangleMesh& mesh, const Material& m, const ProxyOptions& o) {
   uint64_t h = hashGrainInputs(hashInts(0x47525058 /* "GRPX" */, kFormatVersion), mesh, m);
@@ -194,49 +195,40 @@ float ProxyTable::meanHitProbability() const {
 }
 
 std::vector<char> serialiseProxyTable(const ProxyTable& t, uint64_t key) {
-  std::vector<char> out(kMagic, kMagic + sizeof kMagic);
-  appendBytes(out, kFormatVersion);
-  appendBytes(out, key);
-  for (int v : {t.nb_, t.nmu_, t.nphi_}) appendBytes(out, int32_t(v));
-  appendBytes(out, t.rays_);
-  appendBytes(out, uint64_t(t.offsets_.size()));
-  for (float v : t.hit_) appendBytes(out, v);
-  for (const Vec3& v : t.albedo_) appendBytes(out, v);
-  for (const Vec3& v : t.f_) appendBytes(out, v);
-  for (float v : t.cdf_) appendBytes(out, v);
-  for (float v : t.offsets_) appendBytes(out, v);
-  for (uint32_t v : t.offsetStart_) appendBytes(out, v);
-  appendBytes(out, hashBytes(mix64(out.size()), out.data(), out.size()));
-  return out;
+  RecordWriter w(kMagic);
+  w.putU32(kFormatVersion);
+  w.putU64(key);
+  for (int v : {t.nb_, t.nmu_, t.nphi_}) w.putI32(int32_t(v));
+  w.putI64(t.rays_);
+  w.putU64(uint64_t(t.offsets_.size()));
+  w.putArray(t.hit_);
+  w.putArray(t.albedo_);
+  w.putArray(t.f_);
+  w.putArray(t.cdf_);
+  w.putArray(t.offsets_);
+  w.putArray(t.offsetStart_);
+  return w.finish();
 }
 
 bool deserialiseProxyTable(const std::vector<char>& in, uint64_t key, ProxyTable& t) {
-  if (in.size() < sizeof kMagic + 8 || std::memcmp(in.data(), kMagic, sizeof kMagic) != 0) return false;
-  uint64_t sum;
-  std::memcpy(&sum, in.data() + in.size() - 8, 8);
-  if (sum != hashBytes(mix64(in.size() - 8), in.data(), in.size() - 8)) return false;
-  size_t pos = sizeof kMagic;
+  RecordReader r(in, kMagic);
   uint32_t version = 0;
   uint64_t storedKey = 0, offsets = 0;
   int32_t nb = 0, nmu = 0, nphi = 0;
-  if (!readBytes(in, pos, version) || version != kFormatVersion || !readBytes(in, pos, storedKey) || storedKey != key)
-    return false;
-  if (!readBytes(in, pos, nb) || !readBytes(in, pos, nmu) || !readBytes(in, pos, nphi) || !readBytes(in, pos, t.rays_) ||
-      !readBytes(in, pos, offsets))
-    return false;
+  if (!r.getU32(version) || version != kFormatVersion || !r.getU64(storedKey) || storedKey != key) return false;
+  if (!r.getI32(nb) || !r.getI32(nmu) || !r.getI32(nphi) || !r.getI64(t.rays_) || !r.getU64(offsets)) return false;
   const size_t nd = size_t(nmu) * size_t(nphi), cells = size_t(nb) * nd;
+  // The lengths the counts imply, checked before anything is allocated for them.
   if (nb < 1 || nmu < 1 || nphi < 1 || offsets % 2 != 0 ||
-      in.size() != pos + nb * 4 + nb * 12 + cells * 12 + size_t(nb) * (nd + 1) * 4 + offsets * 4 + (cells + 1) * 4 + 8)
+      r.remaining() != size_t(nb) * 4 + size_t(nb) * 12 + cells * 12 + size_t(nb) * (nd + 1) * 4 + offsets * 4 +
+                           (cells + 1) * 4)
     return false;
   t.nb_ = nb; t.nmu_ = nmu; t.nphi_ = nphi;
   t.hit_.resize(size_t(nb)); t.albedo_.resize(size_t(nb)); t.f_.resize(cells);
   t.cdf_.resize(size_t(nb) * (nd + 1)); t.offsets_.resize(offsets); t.offsetStart_.resize(cells + 1);
-  for (float& v : t.hit_) readBytes(in, pos, v);
-  for (Vec3& v : t.albedo_) readBytes(in, pos, v);
-  for (Vec3& v : t.f_) readBytes(in, pos, v);
-  for (float& v : t.cdf_) readBytes(in, pos, v);
-  for (float& v : t.offsets_) readBytes(in, pos, v);
-  for (uint32_t& v : t.offsetStart_) readBytes(in, pos, v);
+  if (!r.getArray(t.hit_) || !r.getArray(t.albedo_) || !r.getArray(t.f_) || !r.getArray(t.cdf_) ||
+      !r.getArray(t.offsets_) || !r.getArray(t.offsetStart_) || !r.finish())
+    return false;
   for (const Vec3& v : t.f_)
     if (!isFinite(v) || minComponent(v) < 0) return false;
   if (t.offsetStart_.back() * 2 != offsets) return false;

@@ -28,7 +28,7 @@
 #include <atomic>
 #include <functional>
 
-#include "ept.h"
+#include "path_state.h"
 #include "film.h"
 #include "hybrid.h"
 #include "scene.h"

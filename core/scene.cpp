@@ -100,6 +100,20 @@ bool hasSmoothDielectricGrains(const SceneDesc& desc) {
 // only has to keep each sample from aliasing.
 float textureFilterScale(int spp) { return std::max(0.125f, 1.0f / std::sqrt(float(std::max(1, spp)))); }
 
+// What unassigned surfaces and grains get.
+MaterialDesc defaultSurfaceDesc() {
+  MaterialDesc grey;
+  grey.name = "default_surface";
+  return grey;
+}
+
+MaterialDesc defaultGrainDesc() {
+  MaterialDesc glass;
+  glass.name = "default_grain";
+  glass.type = MaterialType::Dielectric;
+  return glass;
+}
+
 }  // namespace
 
 // Embree's filter for cut-out meshes: rejects a candidate hit where the surface is absent.
@@ -205,128 +219,158 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& worldDesc, const Scene* pre
   s->settings_ = desc.settings;
   s->textureFilterScale_ = textureFilterScale(desc.settings.spp);
   s->camera_ = Camera(desc.camera, desc.settings.width, desc.settings.height);
-  for (const auto& m : desc.materials) s->materials_.push_back(Material::fromDesc(m));
-  // Defaults for unassigned surfaces and grains.
-  MaterialDesc grey;
-  grey.name = "default_surface";
-  int defaultSurface = int(s->materials_.size());
-  s->materials_.push_back(Material::fromDesc(grey));
-  MaterialDesc glass;
-  glass.name = "default_grain";
-  glass.type = MaterialType::Dielectric;
-  int defaultGrain = int(s->materials_.size());
-  s->materials_.push_back(Material::fromDesc(glass));
+  const DefaultMaterials defaults = s->buildMaterials(desc);
+  s->buildSurfaceMaps(desc);
+  Bounds3 all = s->buildMeshes(desc, defaults.surface);
+  s->buildAggregates(desc, defaults.grain, previous, all);
+  s->sceneScale_ = all.empty() ? 1.0f : std::max(1e-6f, maxComponent(vmax(vabs(all.lo), vabs(all.hi))));
+  const std::vector<LightDesc> lights = s->buildLights(desc);
+  s->findEmittersInside(desc, lights);
+  s->updateDiffusionDepths();
+  s->updateExplicitBounces();
+  s->updateProxies();
+  s->buildSeconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return s;
+}
+
+Scene::DefaultMaterials Scene::buildMaterials(const SceneDesc& desc) {
+  for (const auto& m : desc.materials) materials_.push_back(Material::fromDesc(m));
+  DefaultMaterials defaults;
+  defaults.surface = int(materials_.size());
+  materials_.push_back(Material::fromDesc(defaultSurfaceDesc()));
+  defaults.grain = int(materials_.size());
+  materials_.push_back(Material::fromDesc(defaultGrainDesc()));
   MaterialDesc white;
   white.name = "diffusion_exit";
   white.type = MaterialType::DiffusionExit;
-  s->diffusionExitMaterial_ = int(s->materials_.size());
-  s->materials_.push_back(Material::fromDesc(white));
+  diffusionExitMaterial_ = int(materials_.size());
+  materials_.push_back(Material::fromDesc(white));
+  return defaults;
+}
 
-  // Textures and cut-outs of ordinary surfaces: only a scene that has them opens a
-  // TextureSystem.
-  s->surfaceMaps_.resize(s->materials_.size());
+// Textures and cut-outs of ordinary surfaces: only a scene that has them opens a
+// TextureSystem.
+void Scene::buildSurfaceMaps(const SceneDesc& desc) {
+  surfaceMaps_.resize(materials_.size());
   for (size_t i = 0; i < desc.materials.size(); ++i) {
     const MaterialDesc& m = desc.materials[i];
-    SurfaceMaps& maps = s->surfaceMaps_[i];
+    SurfaceMaps& maps = surfaceMaps_[i];
     if (m.type != MaterialType::Lambert) continue;
-    if (m.hasTextures() && !s->textures_) s->textures_.reset(new Textures());
-    if (m.albedoTexture.enabled()) maps.albedo = s->textures_->add(m.albedoTexture);
-    if (m.emissionTexture.enabled()) maps.emission = s->textures_->add(m.emissionTexture);
-    if (m.opacityTexture.enabled()) maps.opacity = s->textures_->add(m.opacityTexture);
+    if (m.hasTextures() && !textures_) textures_.reset(new Textures());
+    if (m.albedoTexture.enabled()) maps.albedo = textures_->add(m.albedoTexture);
+    if (m.emissionTexture.enabled()) maps.emission = textures_->add(m.emissionTexture);
+    if (m.opacityTexture.enabled()) maps.opacity = textures_->add(m.opacityTexture);
     maps.opacityConstant = m.opacity;
     maps.opacityThreshold = m.opacityThreshold;
     maps.cutout = m.hasCutouts();
   }
+}
 
-  s->device_ = makeEmbreeDevice();
-  s->surfaces_ = makeEmbreeScene(s->device_);
-  s->cutoutData_.reserve(desc.meshes.size());
+Bounds3 Scene::buildMeshes(const SceneDesc& desc, int defaultSurface) {
+  device_ = makeEmbreeDevice();
+  surfaces_ = makeEmbreeScene(device_);
+  cutoutData_.reserve(desc.meshes.size());
   Bounds3 all;
   for (const auto& m : desc.meshes) {
     if (!m.visible) continue;
     TriangleMesh w = m.mesh.transformed(m.xf);
     all.extend(w.bounds());
     const int material = m.material >= 0 ? m.material : defaultSurface;
-    if (s->surfaceMaps_[material].cutout) {
-      s->cutoutData_.push_back({s.get(), int(s->worldMeshes_.size())});
-      attachTriangleMesh(s->device_.get(), s->surfaces_.get(), w, cutoutFilter, &s->cutoutData_.back());
+    if (surfaceMaps_[material].cutout) {
+      cutoutData_.push_back({this, int(worldMeshes_.size())});
+      attachTriangleMesh(device_.get(), surfaces_.get(), w, cutoutFilter, &cutoutData_.back());
     } else {
-      attachTriangleMesh(s->device_.get(), s->surfaces_.get(), w);
+      attachTriangleMesh(device_.get(), surfaces_.get(), w);
     }
-    s->worldMeshes_.push_back(std::move(w));
-    s->meshMaterial_.push_back(m.material >= 0 ? m.material : defaultSurface);
-    s->meshId_.push_back(m.id);
+    worldMeshes_.push_back(std::move(w));
+    meshMaterial_.push_back(material);
+    meshId_.push_back(m.id);
   }
-  rtcCommitScene(s->surfaces_.get());
-  if (!s->worldMeshes_.empty()) {
+  rtcCommitScene(surfaces_.get());
+  if (!worldMeshes_.empty()) {
     // Padded a little: the slab test must not cull a hit that Embree finds on the bounds.
     const Vec3 pad = all.extent() * 1e-4f + Vec3(1e-6f * std::max(maxComponent(vabs(all.lo)), maxComponent(vabs(all.hi))));
-    s->surfaceBounds_.lo = all.lo - pad;
-    s->surfaceBounds_.hi = all.hi + pad;
+    surfaceBounds_.lo = all.lo - pad;
+    surfaceBounds_.hi = all.hi + pad;
   }
+  return all;
+}
 
+// Each aggregate lent by the previous scene or built anew, with its medium when the
+// technique uses media; the media are kept only if some aggregate needs them.
+void Scene::buildAggregates(const SceneDesc& desc, int defaultGrain, const Scene* previous, Bounds3& all) {
   for (const auto& a : desc.aggregates) {
-    BuiltAggregate entry;
-    entry.desc = a;
-    for (const auto& p : a.prototypes) {
-      entry.materials.push_back(p.material >= 0 ? p.material : defaultGrain);
-      entry.materialDescs.push_back(p.material >= 0 ? desc.materials[p.material] : glass);
-    }
-    const BuiltAggregate* old = previous ? previous->findBuilt(a, entry.materials, entry.materialDescs) : nullptr;
-    if (old) {
-      entry.aggregate = old->aggregate;
-      entry.hasMedium = old->hasMedium;
-      entry.medium = old->medium;
-      entry.proxies = old->proxies;
-      ++s->aggregatesReused_;
-    } else {
-      auto agg = std::make_shared<Aggregate>();
-      agg->build(a, s->device_, entry.materials);
-      entry.aggregate = std::move(agg);
-      ++s->aggregatesBuilt_;
-    }
+    BuiltAggregate entry = lendOrBuild(desc, a, defaultGrain, previous);
     const Aggregate& agg = *entry.aggregate;
-    s->aggregateId_.push_back(a.id);
+    aggregateId_.push_back(a.id);
     all.extend(agg.bounds());
-    s->maxGrainRadius_ = std::max(s->maxGrainRadius_, agg.maxGrainRadius());
-    if (desc.settings.technique != Technique::Ept) {
-      if (!entry.hasMedium) {
-        // TT parameters per grain kind (cached on disk), combined per aggregate (Meng et al. 2015;
-        // tt.h: aggregateMedium), the flights between spheres by the tile's own sizes.
-        std::vector<const TriangleMesh*> meshes;
-        std::vector<Material> mats;
-        for (size_t i = 0; i < agg.prototypes().size(); ++i) {
-          meshes.push_back(&agg.prototypes()[i].mesh);
-          mats.push_back(s->materials_[entry.materials[i]]);
-        }
-        entry.medium = aggregateMedium(meshes, mats, a, agg.tile().sauterSize());
-        entry.hasMedium = true;
-        ++s->mediaDerived_;
-      }
-      s->mediumParams_.push_back(entry.medium);
-      s->media_.emplace_back(s->mediumParams_.back());
-      s->diffusionProfiles_.emplace_back(s->mediumParams_.back());
-      // VPT pays off only where paths scatter many times: an object thinner than its
-      // mean free path is left to EPT alone (no bundles, no pre-render).
-      if (2.0f * agg.stats().maxInteriorDepth > maxComponent(s->mediumParams_.back().lambdaT)) s->mediaNeeded_ = true;
-    }
-    s->aggregates_.push_back(entry.aggregate);
-    s->built_.push_back(std::move(entry));
+    maxGrainRadius_ = std::max(maxGrainRadius_, agg.maxGrainRadius());
+    if (desc.settings.technique != Technique::Ept) addMedium(a, entry);
+    aggregates_.push_back(entry.aggregate);
+    built_.push_back(std::move(entry));
   }
-  if (!s->mediaNeeded_) {
-    s->mediumParams_.clear();
-    s->media_.clear();
-    s->diffusionProfiles_.clear();
+  if (!mediaNeeded_) {
+    mediumParams_.clear();
+    media_.clear();
+    diffusionProfiles_.clear();
   }
-  s->sceneScale_ = all.empty() ? 1.0f : std::max(1e-6f, maxComponent(vmax(vabs(all.lo), vabs(all.hi))));
+}
 
+Scene::BuiltAggregate Scene::lendOrBuild(const SceneDesc& desc, const AggregateDesc& a, int defaultGrain,
+                                         const Scene* previous) {
+  BuiltAggregate entry;
+  entry.desc = a;
+  for (const auto& p : a.prototypes) {
+    entry.materials.push_back(p.material >= 0 ? p.material : defaultGrain);
+    entry.materialDescs.push_back(p.material >= 0 ? desc.materials[p.material] : defaultGrainDesc());
+  }
+  const BuiltAggregate* old = previous ? previous->findBuilt(a, entry.materials, entry.materialDescs) : nullptr;
+  if (old) {
+    entry.aggregate = old->aggregate;
+    entry.hasMedium = old->hasMedium;
+    entry.medium = old->medium;
+    entry.proxies = old->proxies;
+    ++aggregatesReused_;
+  } else {
+    auto agg = std::make_shared<Aggregate>();
+    agg->build(a, device_, entry.materials);
+    entry.aggregate = std::move(agg);
+    ++aggregatesBuilt_;
+  }
+  return entry;
+}
+
+void Scene::addMedium(const AggregateDesc& a, BuiltAggregate& entry) {
+  const Aggregate& agg = *entry.aggregate;
+  if (!entry.hasMedium) {
+    // TT parameters per grain kind (cached on disk), combined per aggregate (Meng et al. 2015;
+    // tt.h: aggregateMedium), the flights between spheres by the tile's own sizes.
+    std::vector<const TriangleMesh*> meshes;
+    std::vector<Material> mats;
+    for (size_t i = 0; i < agg.prototypes().size(); ++i) {
+      meshes.push_back(&agg.prototypes()[i].mesh);
+      mats.push_back(materials_[entry.materials[i]]);
+    }
+    entry.medium = aggregateMedium(meshes, mats, a, agg.tile().sauterSize());
+    entry.hasMedium = true;
+    ++mediaDerived_;
+  }
+  mediumParams_.push_back(entry.medium);
+  media_.emplace_back(mediumParams_.back());
+  diffusionProfiles_.emplace_back(mediumParams_.back());
+  // VPT pays off only where paths scatter many times: an object thinner than its
+  // mean free path is left to EPT alone (no bundles, no pre-render).
+  if (2.0f * agg.stats().maxInteriorDepth > maxComponent(mediumParams_.back().lambdaT)) mediaNeeded_ = true;
+}
+
+std::vector<LightDesc> Scene::buildLights(const SceneDesc& desc) {
   std::vector<LightDesc> lights = desc.lights;
   if (lights.empty() && desc.settings.defaultLight && !hasEmissiveSurface(desc)) {
     LightDesc dome;  // a uniform white dome of radiance 1 (RenderSettings::defaultLight)
     dome.name = "default_dome";
     dome.type = LightType::Dome;
     lights.push_back(dome);
-    s->defaultLightAdded_ = true;
+    defaultLightAdded_ = true;
   }
   const bool smooth = hasSmoothDielectricGrains(desc);
   const bool widen = desc.settings.physicalSun && smooth;
@@ -334,38 +378,35 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& worldDesc, const Scene* pre
     if (widen && isDeltaSun(l)) {  // widenedSuns()
       l.angle = kSunAngle;
       l.normalize = true;  // a delta light's intensity is its irradiance: keep it
-      s->widenedSuns_.push_back(l.name);
+      widenedSuns_.push_back(l.name);
     }
   for (const auto& l : lights) {
-    if (smooth && l.type == LightType::Distant && l.angle < Scene::kNarrowSunAngle) s->narrowSun_ = true;
-    if (l.type != LightType::Dome) s->proxyLightSampling_ = true;
-    int idx = int(s->lights_.size());
-    s->lights_.push_back(Light::fromDesc(l));
-    (s->lights_.back().isInfinite() ? s->infiniteLights_ : s->areaLights_).push_back(idx);
+    if (smooth && l.type == LightType::Distant && l.angle < Scene::kNarrowSunAngle) narrowSun_ = true;
+    if (l.type != LightType::Dome) proxyLightSampling_ = true;
+    int idx = int(lights_.size());
+    lights_.push_back(Light::fromDesc(l));
+    (lights_.back().isInfinite() ? infiniteLights_ : areaLights_).push_back(idx);
   }
+  return lights;
+}
 
-  // DA stands for light that entered an aggregate through its boundary from outside and
-  // leaves through it towards the outside (diffusion.h). An aggregate that holds an
-  // emitter or the camera gets no DA (VPT all the way down): DA cannot see an emitter
-  // inside (a sphere light inside a ball rendered 15x too dark) and a camera inside would
-  // see nothing but DA's planar-boundary model of the deep interior (60% too dark), both
-  // measured by bench/stress.py against EPT.
-  if (!s->media_.empty()) {
-    s->emitterInside_.assign(s->aggregates_.size(), false);
-    for (size_t a = 0; a < s->aggregates_.size(); ++a) {
-      const Aggregate& agg = *s->aggregates_[a];
-      bool inside = false;
-      for (const auto& l : lights) inside = inside || emitterReachesInto(agg, l);
-      for (const auto& m : desc.meshes)
-        if (isEmitter(desc, m)) inside = inside || meshReachesInto(agg, m.mesh.transformed(m.xf));
-      s->emitterInside_[a] = inside;
-    }
+// DA stands for light that entered an aggregate through its boundary from outside and
+// leaves through it towards the outside (diffusion.h). An aggregate that holds an
+// emitter or the camera gets no DA (VPT all the way down): DA cannot see an emitter
+// inside (a sphere light inside a ball rendered 15x too dark) and a camera inside would
+// see nothing but DA's planar-boundary model of the deep interior (60% too dark), both
+// measured by bench/stress.py against EPT.
+void Scene::findEmittersInside(const SceneDesc& desc, const std::vector<LightDesc>& lights) {
+  if (media_.empty()) return;
+  emitterInside_.assign(aggregates_.size(), false);
+  for (size_t a = 0; a < aggregates_.size(); ++a) {
+    const Aggregate& agg = *aggregates_[a];
+    bool inside = false;
+    for (const auto& l : lights) inside = inside || emitterReachesInto(agg, l);
+    for (const auto& m : desc.meshes)
+      if (isEmitter(desc, m)) inside = inside || meshReachesInto(agg, m.mesh.transformed(m.xf));
+    emitterInside_[a] = inside;
   }
-  s->updateDiffusionDepths();
-  s->updateExplicitBounces();
-  s->updateProxies();
-  s->buildSeconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  return s;
 }
 
 std::string Scene::widenedSunsWarning() const {

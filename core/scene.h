@@ -25,7 +25,7 @@
 #include "proxy.h"
 #include "scene_desc.h"
 #include "texture.h"
-#include "tt.h"
+#include "medium.h"
 #include "vpt.h"
 
 namespace granular {
@@ -210,6 +210,19 @@ class Scene {
   };
   const BuiltAggregate* findBuilt(const AggregateDesc& desc, const std::vector<int>& materials,
                                   const std::vector<MaterialDesc>& materialDescs) const;
+  // The steps of build(), in its order.
+  struct DefaultMaterials {
+    int surface = -1, grain = -1;  // indices of what unassigned surfaces and grains get
+  };
+  DefaultMaterials buildMaterials(const SceneDesc& desc);  // the scene's, the defaults, DA's exit
+  void buildSurfaceMaps(const SceneDesc& desc);            // textures and cut-outs
+  Bounds3 buildMeshes(const SceneDesc& desc, int defaultSurface);  // the surfaces' BVH; their bounds
+  void buildAggregates(const SceneDesc& desc, int defaultGrain, const Scene* previous, Bounds3& all);
+  BuiltAggregate lendOrBuild(const SceneDesc& desc, const AggregateDesc& a, int defaultGrain,
+                             const Scene* previous);  // the previous scene's when unchanged
+  void addMedium(const AggregateDesc& a, BuiltAggregate& entry);  // derived by TT unless lent
+  std::vector<LightDesc> buildLights(const SceneDesc& desc);      // returns them as built
+  void findEmittersInside(const SceneDesc& desc, const std::vector<LightDesc>& lights);  // emitterInside_
   std::vector<BuiltAggregate> built_;
   int aggregatesBuilt_ = 0, aggregatesReused_ = 0, mediaDerived_ = 0;
   std::vector<MediumParams> mediumParams_;

@@ -7,12 +7,12 @@
 
 #include <cfloat>
 #include <cmath>
-#include <cstring>
 
 #include "cache.h"
 #include "embree_util.h"
 #include "error.h"
 #include "grain.h"
+#include "medium.h"
 #include "rng.h"
 #include "sampling.h"
 
@@ -113,7 +113,7 @@ void traceChunk(RTCScene bvh, const TriangleMesh& mesh, const Material& m, const
 }
 
 // --- cache -------------------------------------------------------------------------------
-constexpr char kMagic[8] = {'G', 'R', 'T', 'T', '\0', '\0', '\0', '\0'};
+constexpr RecordMagic kMagic = {'G', 'R', 'T', 'T', '\0', '\0', '\0', '\0'};
 constexpr uint32_t kTTFormatVersion = 2;  // 2: one generator per ray
 
 uint64_t cacheKey(const TriangleMesh& mesh, const Material& m, const TTOptions& o) {
@@ -124,54 +124,40 @@ uint64_t cacheKey(const TriangleMesh& mesh, const Material& m, const TTOptions& 
   return hashValue(h, o.seed);
 }
 
-uint64_t checksum(const char* data, size_t size) { return hashBytes(mix64(size), data, size); }
-
 std::vector<char> serialise(const GrainTransport& g, uint64_t key) {
-  std::vector<char> out(kMagic, kMagic + sizeof kMagic);
-  appendBytes(out, kTTFormatVersion);
-  appendBytes(out, key);
-  appendBytes(out, g.beta); appendBytes(out, g.betaSE); appendBytes(out, g.lambdaDelta); appendBytes(out, g.lambdaDeltaSE);
-  for (const auto* a : {&g.lambdaS, &g.lambdaSSE, &g.albedo, &g.albedoSE, &g.g, &g.gSE})
-    for (double v : *a) appendBytes(out, v);
-  appendBytes(out, g.rays);
-  appendBytes(out, g.truncated);
-  appendBytes(out, int32_t(g.phase[0].bins()));
+  RecordWriter w(kMagic);
+  w.putU32(kTTFormatVersion);
+  w.putU64(key);
+  for (double v : {g.beta, g.betaSE, g.lambdaDelta, g.lambdaDeltaSE}) w.putF64(v);
+  for (const auto* a : {&g.lambdaS, &g.lambdaSSE, &g.albedo, &g.albedoSE, &g.g, &g.gSE}) w.putArray(*a);
+  w.putI64(g.rays);
+  w.putI64(g.truncated);
+  w.putI32(int32_t(g.phase[0].bins()));
   for (const PhaseTable& p : g.phase) {
-    for (float v : p.density) appendBytes(out, v);
-    for (float v : p.cdf) appendBytes(out, v);
-    appendBytes(out, p.g);
+    w.putArray(p.density);
+    w.putArray(p.cdf);
+    w.putF32(p.g);
   }
-  appendBytes(out, checksum(out.data(), out.size()));
-  return out;
+  return w.finish();
 }
 
 bool deserialise(const std::vector<char>& in, uint64_t key, const TTOptions& opt, GrainTransport& g) {
   const int bins = opt.phaseBins;
-  size_t expected = sizeof kMagic + 4 + 8 + 4 * 8 + 6 * 3 * 8 + 8 + 8 + 4 + 3 * (size_t(2 * bins + 1) * 4 + 4) + 8;
-  if (in.size() != expected || std::memcmp(in.data(), kMagic, sizeof kMagic) != 0) return false;
-  uint64_t sum;
-  std::memcpy(&sum, in.data() + expected - 8, 8);
-  if (sum != checksum(in.data(), expected - 8)) return false;
-  size_t pos = sizeof kMagic;
+  RecordReader r(in, kMagic);
   uint32_t version = 0;
   uint64_t storedKey = 0;
   int32_t storedBins = 0;
-  readBytes(in, pos, version);
-  readBytes(in, pos, storedKey);
-  if (version != kTTFormatVersion || storedKey != key) return false;
-  readBytes(in, pos, g.beta); readBytes(in, pos, g.betaSE); readBytes(in, pos, g.lambdaDelta); readBytes(in, pos, g.lambdaDeltaSE);
+  if (!r.getU32(version) || !r.getU64(storedKey) || version != kTTFormatVersion || storedKey != key) return false;
+  for (double* v : {&g.beta, &g.betaSE, &g.lambdaDelta, &g.lambdaDeltaSE})
+    if (!r.getF64(*v)) return false;
   for (auto* a : {&g.lambdaS, &g.lambdaSSE, &g.albedo, &g.albedoSE, &g.g, &g.gSE})
-    for (double& v : *a) readBytes(in, pos, v);
-  readBytes(in, pos, g.rays);
-  readBytes(in, pos, g.truncated);
-  readBytes(in, pos, storedBins);
+    if (!r.getArray(*a)) return false;
+  if (!r.getI64(g.rays) || !r.getI64(g.truncated) || !r.getI32(storedBins)) return false;
   if (storedBins != bins || g.rays != opt.rays) return false;
   for (PhaseTable& p : g.phase) {
     p.density.resize(bins);
     p.cdf.resize(bins + 1);
-    for (float& v : p.density) readBytes(in, pos, v);
-    for (float& v : p.cdf) readBytes(in, pos, v);
-    readBytes(in, pos, p.g);
+    if (!r.getArray(p.density) || !r.getArray(p.cdf) || !r.getF32(p.g)) return false;
     for (float v : p.density)
       if (!std::isfinite(v) || v < 0) return false;
     if (p.cdf.front() != 0.0f || p.cdf.back() != 1.0f || !std::isfinite(p.g)) return false;
@@ -181,7 +167,7 @@ bool deserialise(const std::vector<char>& in, uint64_t key, const TTOptions& opt
   for (const auto* a : {&g.lambdaS, &g.lambdaSSE, &g.albedo, &g.albedoSE, &g.g, &g.gSE})
     for (double v : *a)
       if (!std::isfinite(v)) return false;
-  return pos == expected - 8;
+  return r.finish();
 }
 
 void validateOptions(const TriangleMesh& mesh, const TTOptions& o) {

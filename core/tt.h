@@ -14,7 +14,8 @@
 // disk under a hash of them (cache.h), so a second render reads it back.
 //
 // deriveMedium() combines per-prototype results by the mixing weights and scales them by
-// the aggregate's grain radius R and packing rate f into world-space RTE parameters:
+// the aggregate's grain radius R and packing rate f into world-space RTE parameters
+// (MediumParams, medium.h):
 //   σ_b = 3/(4R) · f/(1−f)                         (Dixmier 1978), λ_b = 1/σ_b
 //   λ_β = λ_b + (λ_b + λ_δ)(1−β)/β                 (β: the chance of hitting the grain)
 //   λ_t = λ_β + α_s λ_s,  σ_t = 1/λ_t             (Meng et al. 2015)
@@ -130,19 +131,8 @@ uint64_t hashGrainInputs(uint64_t h, const TriangleMesh& mesh, const Material& m
 std::string grainTransportCacheName(const TriangleMesh& prototypeMesh, const Material& material,
                                     const TTOptions& options);
 
-// World-space RTE and diffusion parameters of one aggregate (Meng et al. 2015).
-struct MediumParams {
-  float grainRadius = 0, packingRate = 0;
-  float sigmaB = 0;                       // Dixmier, 1/world length
-  GrainTransport combined;                // the mixture's intra-grain statistics (unit radius)
-  Vec3 lambdaBeta, lambdaT;               // world lengths
-  Vec3 sigmaT, albedo;                    // σ_t, α_s
-  std::array<PhaseTable, 3> phase;
-  Vec3 g;
-  Vec3 sigmaSReduced, sigmaTReduced, albedoReduced;  // σ'_s, σ'_t, α'_s
-  Vec3 sigmaA, sigmaTr;                   // σ_a = (1−α_s)σ_t, σ_tr = sqrt(3 σ_a σ'_t)
-  Vec3 meanFreePath() const { return lambdaT; }
-};
+// What deriveMedium() and aggregateMedium() return: the aggregate's medium (medium.h).
+struct MediumParams;
 
 // Mixture: a sphere's grain is prototype i with probability w_i (normalised weights), so
 //   β = Σ w_i β_i;  λ_δ averages over misses (weights w_i(1−β_i));

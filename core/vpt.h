@@ -15,7 +15,7 @@
 #include <array>
 
 #include "math.h"
-#include "tt.h"
+#include "medium.h"
 
 namespace granular {
 

@@ -12,6 +12,7 @@
 #include "core/cache.h"
 #include "core/embree_util.h"
 #include "core/error.h"
+#include "core/medium.h"
 #include "core/microfacet.h"
 #include "core/sampling.h"
 #include "core/shapes.h"
