@@ -47,6 +47,13 @@ float Film::stdError(int x, int y) const {
   return float(std::sqrt(var / p.n));
 }
 
+bool Film::belowNoiseThreshold(float threshold) const {
+  for (int y = 0; y < height_; ++y)
+    for (int x = 0; x < width_; ++x)
+      if (!(stdError(x, y) <= threshold * (luminance(mean(x, y)) + 0.01f))) return false;
+  return true;
+}
+
 const std::vector<std::string>& Film::channelNames() {
   static const std::vector<std::string> names = {"R",     "G",     "B",     "A",     "Z",     "N.X",
                                                  "N.Y",   "N.Z",   "ept.R", "ept.G", "ept.B", "vpt.R",

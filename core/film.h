@@ -42,6 +42,9 @@ class Film {
   Vec3 mean(int x, int y) const;
   // Standard error of the mean of the pixel's luminance.
   float stdError(int x, int y) const;
+  // The noise threshold both front ends stop at: every pixel's standard error at most
+  // threshold × (its luminance + 0.01), the 0.01 keeping black pixels from never settling.
+  bool belowNoiseThreshold(float threshold) const;
   Image toImage() const;
   // The channels of toImage() (kChannels of them, named by channelNames()) of one pixel.
   static constexpr int kChannels = 21;

@@ -167,14 +167,8 @@ void HdGranularRenderer::_Render() {
     if (_firstImageSeconds < 0) _firstImageSeconds = _firstPassSeconds.load();
     _lodFraction = _renderer->shortcutFraction();
     bool converged = done >= target;
-    if (!converged && _noiseThreshold > 0 && done >= 2 * bundle) {
-      // Noise threshold: every pixel's standard error below threshold × (value + 0.01).
-      bool quiet = true;
-      for (int y = 0; y < film.height() && quiet; ++y)
-        for (int x = 0; x < film.width() && quiet; ++x)
-          quiet = film.stdError(x, y) <= _noiseThreshold * (granular::luminance(film.mean(x, y)) + 0.01f);
-      converged = quiet;
-    }
+    // Noise threshold (core's, as granular render --noise-threshold), after two bundles.
+    if (!converged && _noiseThreshold > 0 && done >= 2 * bundle) converged = film.belowNoiseThreshold(_noiseThreshold);
     if (converged) {
       _MarkConverged();
       return;

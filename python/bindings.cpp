@@ -30,6 +30,7 @@
 #include "core/error.h"
 #include "core/granular_prims.h"
 #include "core/image_io.h"
+#include "core/medium.h"
 #include "core/mesh.h"
 #include "core/render.h"
 #include "core/scene.h"
@@ -196,6 +197,7 @@ struct PyScene {
 struct PyRenderer {
   std::shared_ptr<PyScene> scene;
   std::unique_ptr<Renderer> renderer;
+  std::string stoppedBy = "samples";
 };
 
 py::dict mediumDict(const MediumParams& m) {
@@ -815,9 +817,12 @@ PYBIND11_MODULE(granular_core, m) {
            py::arg("scene"))
       .def(
           "render",
-          [](PyRenderer& r, int passSamples, const std::optional<py::function>& progress, double interval) {
+          [](PyRenderer& r, int passSamples, const std::optional<py::function>& progress, double interval,
+             float noiseThreshold, double timeLimit) {
             if (passSamples < 1) throw py::value_error("pass_samples must be >= 1");
             if (!(interval > 0)) throw py::value_error("interval must be > 0");
+            if (!(noiseThreshold >= 0)) throw py::value_error("noise_threshold must be >= 0");
+            if (!(timeLimit >= 0)) throw py::value_error("time_limit must be >= 0");
             // The render runs on a worker thread; this (the calling, usually main) thread
             // waits with the GIL released, and every `interval` seconds takes it to call
             // progress and to let Python handle signals (Ctrl-C), which only the main
@@ -841,11 +846,25 @@ PYBIND11_MODULE(granular_core, m) {
                 cancel = true;
               }
             };
+            // Stopping early (r.stoppedBy): at the noise threshold after a pass, once two
+            // bundles are done (as the delegate does); at the time limit once the first pass
+            // is complete, so that every pixel has samples.
+            std::atomic<int> stop{0};  // 1 noise threshold, 2 time limit
+            auto stopAt = [&](int why) {
+              int none = 0;
+              if (stop.compare_exchange_strong(none, why)) cancel = true;
+            };
+            auto afterPass = [&](const RenderProgress& p) {
+              if (noiseThreshold > 0 && p.samplesDone >= 2L * renderer.bundleSize() &&
+                  renderer.film().belowNoiseThreshold(noiseThreshold))
+                stopAt(1);
+              if (timeLimit > 0 && p.samplesDone > 0 && seconds() >= timeLimit) stopAt(2);
+            };
             std::thread worker([&] {
               bool ok = false;
               std::exception_ptr err;
               try {
-                ok = renderer.render(passSamples, nullptr, &cancel);
+                ok = renderer.render(passSamples, afterPass, &cancel);
               } catch (...) {
                 err = std::current_exception();
               }
@@ -864,6 +883,7 @@ PYBIND11_MODULE(granular_core, m) {
               }
               if (done) break;
               if (!pending) poll(renderer.progressSamples());
+              if (timeLimit > 0 && seconds() >= timeLimit && renderer.samplesPerPixel() > 0) stopAt(2);
             }
             {
               py::gil_scoped_release release;
@@ -871,6 +891,8 @@ PYBIND11_MODULE(granular_core, m) {
             }
             if (failure) std::rethrow_exception(failure);
             if (pending) throw std::move(*pending);
+            r.stoppedBy = stop == 1 ? "noise threshold" : stop == 2 ? "time limit" : "samples";
+            completed = completed || stop != 0;
             if (completed) {
               poll(double(renderer.samplesPerPixel()));  // the final 100%
               if (pending) throw std::move(*pending);
@@ -878,9 +900,14 @@ PYBIND11_MODULE(granular_core, m) {
             return completed;
           },
           py::arg("pass_samples") = 1, py::arg("progress") = py::none(), py::arg("interval") = 0.25,
+          py::arg("noise_threshold") = 0.0f, py::arg("time_limit") = 0.0,
           "Renders settings.spp samples per pixel (passes of pass_samples, rounded up to whole bundles) "
           "on a worker thread, the GIL released; calls progress(samples_done: float, target, seconds) "
-          "every `interval` seconds and at the end. Returns False if cancelled.")
+          "every `interval` seconds and at the end. Stops early at the noise threshold "
+          "(Film::belowNoiseThreshold after a pass, from two bundles on) or after time_limit seconds "
+          "(once the first pass is done); stopped_by says which. Returns False if cancelled.")
+      .def_property_readonly("stopped_by", [](const PyRenderer& r) { return r.stoppedBy; },
+                             "'samples', 'noise threshold' or 'time limit': what ended the last render")
       .def_property_readonly("samples_per_pixel", [](const PyRenderer& r) { return r.renderer->samplesPerPixel(); })
       .def_property_readonly("bundle_size", [](const PyRenderer& r) { return r.renderer->bundleSize(); })
       .def_property_readonly("shortcut_fraction", [](const PyRenderer& r) { return r.renderer->shortcutFraction(); },

@@ -92,11 +92,13 @@ def _single(v, text):
     return v
 
 
-def _positive_float():
+def _positive_float(limit=None):
     def parse(text):
         v = _number(text)
         if not math.isfinite(v) or v <= 0:
             raise argparse.ArgumentTypeError(f"{text} must be finite and > 0")
+        if limit is not None and v > limit:
+            raise argparse.ArgumentTypeError(f"{text} is outside (0, {limit:g}]")
         return _single(v, text)
     return parse
 
@@ -209,6 +211,13 @@ def build_parser():
                         "EXR holds them with their place in the full image (its data window), and `granular merge` "
                         "joins such tiles bit for bit into the full render. Default: the render settings' "
                         "dataWindowNDC, else every pixel")
+    r.add_argument("--noise-threshold", type=_positive_float(1.0), metavar="T",
+                   help="stop before --spp once every pixel's standard error is at most T times its luminance "
+                        "+ 0.01, checked after each pass from two bundles on (the delegate's convergedVariance "
+                        "rule); e.g. 0.02")
+    r.add_argument("--time-limit", type=_positive_float(1e7), metavar="SECONDS",
+                   help="stop rendering after SECONDS (once the first pass is complete, so that every pixel "
+                        "has samples) and write the image")
     r.add_argument("--quiet", action="store_true", help="no progress or statistics on stderr")
 
     g = sub.add_parser("merge", help="join tiles (EXRs of --crop renders of one image) into one image")
@@ -307,7 +316,11 @@ def _log_aggregates(args, built):
 def _render_image(args, built):
     import granular_core as core
     renderer = core.Renderer(built)
-    renderer.render(1, Progress(not args.quiet), 0.5)
+    renderer.render(1, Progress(not args.quiet), 0.5, noise_threshold=getattr(args, "noise_threshold", None) or 0.0,
+                    time_limit=getattr(args, "time_limit", None) or 0.0)
+    if renderer.stopped_by != "samples":
+        _log(args, f"  stopped at the {renderer.stopped_by} after {renderer.samples_per_pixel} of "
+                   f"{args.spp} samples per pixel")
     return renderer, renderer.image()
 
 

@@ -36,6 +36,8 @@ CASES = [
     *_bad(RENDER, "--exposure", ["nan", "inf", "-inf", "101", "-101", "1e300", "x"]),
     *_bad(RENDER, "--roulette", ["0", "2", "nan", "inf", "-inf", "1e-300", "x"]),
     *_bad(RENDER, "--lod", ["-1", "nan", "inf", "1e39", "x"], ""),
+    *_bad(RENDER, "--noise-threshold", ["0", "-0.1", "nan", "inf", "1.5", "x"]),
+    *_bad(RENDER, "--time-limit", ["0", "-1", "nan", "inf", "1e8", "x"]),
     *_bad(RENDER, "--technique", ["foo", "EPT", ""], "invalid choice"),
     *_bad(RENDER, "--proxies", ["sometimes", "ON", ""], "invalid choice"),
     *_bad(RENDER, "--camera", ["", "World/Camera", "not a path", "/World/Camera.focalLength"],
