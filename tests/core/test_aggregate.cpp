@@ -13,26 +13,11 @@
 #include "test_helpers.h"
 
 using namespace granular;
+using granular::testing::smallAggregate;
 using granular::testing::pointInMesh;
 using granular::testing::rayTriangle;
 
 namespace {
-
-AggregateDesc smallAggregate(float R = 0.08f, float f = 0.55f) {
-  AggregateDesc a;
-  a.name = "test_sand";
-  a.boundary = makeIcosphere(2);
-  a.xf = Transform::translate(Vec3(0.1f, -0.2f, 0.3f)) * Transform::scale(Vec3(1.0f, 0.7f, 0.9f));
-  a.grainRadius = R;
-  a.packingRate = f;
-  a.seed = 7;
-  a.tileSpheres = 64;
-  GrainPrototypeDesc rock{"rock", makeRock(1, 0.25f, 3), 0};
-  GrainPrototypeDesc box{"box", makeBox(Vec3(-0.5f, -0.3f, -0.4f), Vec3(0.5f, 0.3f, 0.4f)), 0};
-  a.prototypes = {rock, box};
-  a.weights = {3.0f, 1.0f};
-  return a;
-}
 
 struct Built {
   EmbreeDevice device = makeEmbreeDevice();

@@ -76,20 +76,7 @@ class ScopedCache {
   bool hadDir_ = false, hadMax_ = false;
 };
 
-AggregateDesc castle(float R = 0.04f, float f = 0.55f) {
-  AggregateDesc a;
-  a.name = "cached_sand";
-  a.boundary = makeIcosphere(2);
-  a.xf = Transform::translate(Vec3(0.1f, -0.2f, 0.3f)) * Transform::scale(Vec3(1.0f, 0.7f, 0.9f));
-  a.grainRadius = R;
-  a.packingRate = f;
-  a.seed = 11;
-  a.tileSpheres = 64;
-  a.prototypes = {GrainPrototypeDesc{"rock", makeRock(1, 0.25f, 3), 0},
-                  GrainPrototypeDesc{"box", makeBox(Vec3(-0.5f, -0.3f, -0.4f), Vec3(0.5f, 0.3f, 0.4f)), 0}};
-  a.weights = {3.0f, 1.0f};
-  return a;
-}
+AggregateDesc castle(float R = 0.04f, float f = 0.55f) { return granular::testing::smallAggregate(R, f, 11, "cached_sand"); }
 
 struct Built {
   EmbreeDevice device = makeEmbreeDevice();

@@ -58,6 +58,24 @@ inline ::testing::AssertionResult sameImage(const Image& a, const Image& b) {
   return ::testing::AssertionSuccess();
 }
 
+// A small aggregate of rocks and boxes (3 : 1) in a squashed, moved icosphere: grain radius
+// R, packing rate f; tile of 64 spheres.
+inline AggregateDesc smallAggregate(float R = 0.08f, float f = 0.55f, uint64_t seed = 7,
+                                    const std::string& name = "test_sand") {
+  AggregateDesc a;
+  a.name = name;
+  a.boundary = makeIcosphere(2);
+  a.xf = Transform::translate(Vec3(0.1f, -0.2f, 0.3f)) * Transform::scale(Vec3(1.0f, 0.7f, 0.9f));
+  a.grainRadius = R;
+  a.packingRate = f;
+  a.seed = seed;
+  a.tileSpheres = 64;
+  a.prototypes = {GrainPrototypeDesc{"rock", makeRock(1, 0.25f, 3), 0},
+                  GrainPrototypeDesc{"box", makeBox(Vec3(-0.5f, -0.3f, -0.4f), Vec3(0.5f, 0.3f, 0.4f)), 0}};
+  a.weights = {3.0f, 1.0f};
+  return a;
+}
+
 // A ball (radius 1) of bright sand grains of radius R under a sun and a sky, seen from
 // eye towards target with square apertures (focal length 50): the scene of the hybrid
 // and LOD tests.

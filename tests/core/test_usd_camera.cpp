@@ -12,12 +12,7 @@ using namespace granular::test;
 namespace {
 
 std::string errorOf(const UsdPrimRecord& r) {
-  try {
-    cameraFromUsd(r);
-  } catch (const InputError& e) {
-    return e.what();
-  }
-  return "";
+  return inputErrorOf([&] { cameraFromUsd(r); });
 }
 
 }  // namespace

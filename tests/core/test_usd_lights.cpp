@@ -13,12 +13,7 @@ namespace {
 
 std::string errorOf(const UsdPrimRecord& r) {
   UsdWarnings w;
-  try {
-    lightFromUsd(r, w);
-  } catch (const InputError& e) {
-    return e.what();
-  }
-  return "";
+  return inputErrorOf([&] { lightFromUsd(r, w); });
 }
 
 }  // namespace

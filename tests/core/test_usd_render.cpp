@@ -13,12 +13,7 @@ namespace {
 
 std::string windowError(const UsdPrimRecord* settings, const UsdPrimRecord* product) {
   UsdWarnings w;
-  try {
-    dataWindowFromUsd(settings, product, 40, 30, w);
-  } catch (const InputError& e) {
-    return e.what();
-  }
-  return "";
+  return inputErrorOf([&] { dataWindowFromUsd(settings, product, 40, 30, w); });
 }
 
 }  // namespace

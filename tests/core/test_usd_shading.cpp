@@ -42,12 +42,7 @@ UsdMaterialNetwork textured(std::initializer_list<std::pair<const std::string, U
 
 std::string errorOf(const UsdMaterialNetwork& n) {
   UsdWarnings w;
-  try {
-    materialFromUsd(n, w);
-  } catch (const InputError& e) {
-    return e.what();
-  }
-  return "";
+  return inputErrorOf([&] { materialFromUsd(n, w); });
 }
 
 }  // namespace

@@ -5,6 +5,7 @@
 #include <string>
 #include <vector>
 
+#include "core/error.h"
 #include "core/usd_values.h"
 
 namespace granular::test {
@@ -33,6 +34,17 @@ inline UsdPrimRecord usdRecord(const std::string& path, const std::string& type,
   r.typeName = type;
   r.attributes = attributes;
   return r;
+}
+
+// The message of the InputError f() throws, or "" when it throws none.
+template <typename F>
+std::string inputErrorOf(F&& f) {
+  try {
+    f();
+  } catch (const InputError& e) {
+    return e.what();
+  }
+  return "";
 }
 
 }  // namespace granular::test
