@@ -21,8 +21,34 @@ void addAreaLightHit(const Scene& scene, PathState& path, const Hit& hit) {
   path.L[path.credit] += path.beta * light.areaLe(dir) * w;
 }
 
+Vec3 primaryAlbedo(const Scene& scene, const Hit& hit) {
+  switch (hit.kind) {
+    case Hit::Surface: {
+      if (hit.material < 0) return Vec3(1.0f);
+      std::optional<Material> storage;
+      const Material& m = scene.shadingMaterial(hit, 0.0f, storage);
+      return m.type == MaterialType::Lambert ? m.albedo : Vec3(1.0f);
+    }
+    case Hit::Grain:
+    case Hit::Boundary:
+    case Hit::Proxy: {
+      if (!scene.hasMedia() || hit.aggregate < 0) return Vec3(1.0f);
+      const Vec3& a = scene.mediumParams(hit.aggregate).albedoReduced;
+      Vec3 rd;
+      for (int c = 0; c < 3; ++c) {
+        const float s = std::sqrt(3.0f * std::max(0.0f, 1.0f - a[c]));
+        rd[c] = 0.5f * a[c] * (1.0f + std::exp(-4.0f / 3.0f * s)) * std::exp(-s);
+      }
+      return rd;
+    }
+    case Hit::AreaLight: return Vec3(1.0f);
+  }
+  return Vec3(1.0f);
+}
+
 void recordPrimary(const Scene& scene, PathState& path, const Hit& hit) {
   if (path.primary.hit) return;
+  path.primary.albedo = primaryAlbedo(scene, hit);
   path.primary.hit = true;
   path.primary.depth = scene.camera().viewDepth(hit.p);
   path.primary.normal = dot(hit.ng, path.ray.d) > 0 ? -hit.ng : hit.ng;

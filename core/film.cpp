@@ -30,6 +30,7 @@ void Film::add(int x, int y, const PixelSample& s) {
     ++p.hits;
     p.depth += s.depth;
     p.normal[0] += s.normal.x; p.normal[1] += s.normal.y; p.normal[2] += s.normal.z;
+    p.albedo[0] += s.albedo.x; p.albedo[1] += s.albedo.y; p.albedo[2] += s.albedo.z;
   }
 }
 
@@ -58,7 +59,8 @@ const std::vector<std::string>& Film::channelNames() {
   static const std::vector<std::string> names = {"R",     "G",     "B",     "A",     "Z",     "N.X",
                                                  "N.Y",   "N.Z",   "ept.R", "ept.G", "ept.B", "vpt.R",
                                                  "vpt.G", "vpt.B", "da.R",  "da.G",  "da.B",  "ppt.R",
-                                                 "ppt.G", "ppt.B", "primId"};
+                                                 "ppt.G", "ppt.B", "primId", "albedo.R", "albedo.G",
+                                                 "albedo.B"};
   return names;
 }
 
@@ -74,6 +76,7 @@ void Film::pixelChannels(int x, int y, float* o) const {
   for (int t = 0; t < 4; ++t)
     for (int ch = 0; ch < 3; ++ch) o[8 + 3 * t + ch] = p.n ? float(p.part[t][ch] / p.n) : 0.0f;
   o[20] = float(p.primId);
+  for (int ch = 0; ch < 3; ++ch) o[21 + ch] = p.hits ? float(p.albedo[ch] / p.hits) : 0.0f;
 }
 
 Image Film::toImage() const {

@@ -6,8 +6,9 @@
 // view axis, of the covered samples; +inf where nothing was hit), N.X,N.Y,N.Z (mean
 // normal of the first hits), and ept.R.. vpt.R.. da.R.. ppt.R.. (the radiance each
 // transport gathered: explicit grains, the media, diffusion, proxies; the four add up to
-// R,G,B) and primId (the front end's id of what the first
-// covering sample hit; -1 where nothing or an unnamed object was hit).
+// R,G,B), primId (the front end's id of what the first covering sample hit; -1 where
+// nothing or an unnamed object was hit) and albedo.R.. (the mean albedo of the first hits,
+// the reflectance guide of a denoiser: ept.h, primaryAlbedo).
 #pragma once
 
 #include <string>
@@ -26,6 +27,7 @@ struct PixelSample {
   bool hit = false;
   float depth = 0;
   Vec3 normal;
+  Vec3 albedo;          // of the first hit (ept.h: primaryAlbedo)
 };
 
 class Film {
@@ -47,7 +49,7 @@ class Film {
   bool belowNoiseThreshold(float threshold) const;
   Image toImage() const;
   // The channels of toImage() (kChannels of them, named by channelNames()) of one pixel.
-  static constexpr int kChannels = 21;
+  static constexpr int kChannels = 24;
   static const std::vector<std::string>& channelNames();
   void pixelChannels(int x, int y, float* out) const;
   void clear();
@@ -56,7 +58,7 @@ class Film {
   struct Pixel {
     double sum[3] = {0, 0, 0};
     double sumLum2 = 0;
-    double depth = 0, normal[3] = {0, 0, 0};
+    double depth = 0, normal[3] = {0, 0, 0}, albedo[3] = {0, 0, 0};
     double part[4][3] = {{0, 0, 0}, {0, 0, 0}, {0, 0, 0}, {0, 0, 0}};
     long n = 0, hits = 0;
     int primId = -1;     // of the first sample that hit something

@@ -22,6 +22,7 @@ struct PrimaryInfo {
   Vec3 normal;          // world geometric normal, facing the camera
   int kind = -1;        // Hit::Kind of the first hit
   int primId = -1;      // the front end's id of what was hit
+  Vec3 albedo;          // what a denoiser takes as its reflectance (ept.h: primaryAlbedo)
 };
 
 // Index of a contribution in PathState::L (the AOVs), and the transport a path is in:

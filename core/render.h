@@ -55,6 +55,7 @@ inline bool toPixelSample(const PathState& p, PixelSample& ps) {
   ps.depth = p.primary.depth;
   ps.normal = p.primary.normal;
   ps.primId = p.primary.primId;
+  ps.albedo = p.primary.albedo;
   return finite;
 }
 

@@ -100,7 +100,8 @@ HdAovDescriptor HdGranularRenderDelegate::GetDefaultAovDescriptor(TfToken const&
   if (name == HdAovTokens->depth) return HdAovDescriptor(HdFormatFloat32, false, VtValue(1.0f));
   if (name == HdAovTokens->cameraDepth) return HdAovDescriptor(HdFormatFloat32, false, VtValue(0.0f));
   if (name == HdAovTokens->primId) return HdAovDescriptor(HdFormatInt32, false, VtValue(-1));
-  if (name == HdAovTokens->normal || name == "ept" || name == "vpt" || name == "da" || name == "ppt")
+  if (name == HdAovTokens->normal || name == "ept" || name == "vpt" || name == "da" || name == "ppt" ||
+      name == "albedo")
     return HdAovDescriptor(HdFormatFloat32Vec3, false, VtValue(GfVec3f(0.0f)));
   return HdAovDescriptor();  // unsupported
 }

@@ -84,7 +84,7 @@ void HdGranularRenderer::_WriteRegion(granular::Film const& film, int stride, in
   const granular::PixelWindow crop = granular::renderWindow(_scene->settings());
   const int width = _scene->settings().width, height = _scene->settings().height;
   // Channel offsets of Film::pixelChannels (film.h).
-  constexpr int kColor = 0, kDepth = 4, kNormal = 5, kParts = 8, kPrimId = 20;
+  constexpr int kColor = 0, kDepth = 4, kNormal = 5, kParts = 8, kPrimId = 20, kAlbedo = 21;
   std::vector<float> px(size_t(x1 - x0) * (y1 - y0) * granular::Film::kChannels);
   for (int y = y0; y < y1; ++y)
     for (int x = x0; x < x1; ++x)
@@ -103,6 +103,7 @@ void HdGranularRenderer::_WriteRegion(granular::Film const& film, int stride, in
     else if (aov == "vpt") c0 = kParts + 3, n = 3;
     else if (aov == "da") c0 = kParts + 6, n = 3;
     else if (aov == "ppt") c0 = kParts + 9, n = 3;
+    else if (aov == "albedo") c0 = kAlbedo, n = 3;
     for (int y = y0; y < y1; ++y)
       for (int x = x0; x < x1; ++x) {
         const float* p = &px[(size_t(y - y0) * (x1 - x0) + (x - x0)) * granular::Film::kChannels];

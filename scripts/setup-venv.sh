@@ -14,8 +14,9 @@ BUILD_DIR=${2:?usage: setup-venv.sh VENV BUILD_DIR [--fuzz]}
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
 # usd-core: USD reading and the schema; numpy: arrays for the bindings; pytest: tests;
 # pybind11: the bindings' build; jinja2: usdGenSchema (make schemas, schema up-to-date test);
-# dask, distributed: granular farm's scheduling (dask[distributed]).
-PY_PACKAGES=(usd-core numpy pytest pybind11 jinja2 dask distributed)
+# dask, distributed: granular farm's scheduling (dask[distributed]); pyoidn: Intel Open
+# Image Denoise for granular render --denoise (its wheel ships the library).
+PY_PACKAGES=(usd-core numpy pytest pybind11 jinja2 dask distributed pyoidn)
 # atheris: libFuzzer for Python, for fuzz/fuzz_usd_stage.py (make fuzz-usd); no test needs it.
 if [ "${3:-}" = "--fuzz" ]; then
   PY_PACKAGES+=(atheris)

@@ -218,6 +218,10 @@ def build_parser():
     r.add_argument("--time-limit", type=_positive_float(1e7), metavar="SECONDS",
                    help="stop rendering after SECONDS (once the first pass is complete, so that every pixel "
                         "has samples) and write the image")
+    r.add_argument("--denoise", action="store_true",
+                   help="also denoise the beauty with Intel Open Image Denoise (the pyoidn package), guided by "
+                        "the albedo and normal AOVs: channels denoised.R/G/B beside the raw ones in the EXR, "
+                        "and the denoised beauty in the PNG")
     r.add_argument("--quiet", action="store_true", help="no progress or statistics on stderr")
 
     g = sub.add_parser("merge", help="join tiles (EXRs of --crop renders of one image) into one image")
@@ -265,16 +269,16 @@ def _remove(paths):
 
 
 def _write_images(image, exr, png, exposure):
-    """Writes the EXR (and the PNG): each file appears whole or not at all (core writes
-    through a temporary name), and a failure removes the one already written (all or
-    nothing). Returns the paths written."""
+    """Writes the EXR (and the PNG, of the denoised beauty when the image has one): each
+    file appears whole or not at all (core writes through a temporary name), and a failure
+    removes the one already written (all or nothing). Returns the paths written."""
     import granular_core as core
     written = []
     try:
         warn_if_replaced(core.write_exr(exr, image), exr)
         written.append(exr)
         if png:
-            warn_if_replaced(core.write_png(png, image, exposure), png)
+            warn_if_replaced(core.write_png(png, _png_image(image), exposure), png)
             written.append(png)
     except BaseException:
         _remove(written)
@@ -313,6 +317,49 @@ def _log_aggregates(args, built):
                    f"({a['inside_cells']} inside, {a['partial_cells']} partial)")
 
 
+DENOISED = ["denoised.R", "denoised.G", "denoised.B"]
+
+
+def _denoise(args, image):
+    """--denoise: the beauty denoised by Intel Open Image Denoise (the pyoidn package),
+    guided by the albedo and normal AOVs, added as channels denoised.R/G/B beside the raw
+    ones, which it never replaces. Without pyoidn: one warning, and the image as it is."""
+    import numpy as np
+
+    import granular_core as core
+    try:
+        import pyoidn
+    except ImportError:
+        print("warning: --denoise: the pyoidn package (Intel Open Image Denoise) is not installed; "
+              "the image is written undenoised (pip install pyoidn)", file=sys.stderr)
+        return image
+    px = image.pixels
+    ch = list(image.channels)
+
+    def take(names):
+        return np.ascontiguousarray(px[..., [ch.index(n) for n in names]], dtype=np.float32)
+    color = np.maximum(take(["R", "G", "B"]), 0.0)
+    albedo = np.clip(take(["albedo.R", "albedo.G", "albedo.B"]), 0.0, 1.0)
+    normal = np.clip(np.nan_to_num(take(["N.X", "N.Y", "N.Z"])), -1.0, 1.0)
+    out = pyoidn.denoise(color, albedo=albedo, normal=normal, hdr=True)
+    return core.Image(np.concatenate([px, np.asarray(out, dtype=np.float32)], axis=2), ch + DENOISED,
+                      image.x, image.y, image.full_width, image.full_height)
+
+
+def _png_image(image):
+    """What the PNG shows: the denoised beauty when there is one, else the image."""
+    import numpy as np
+
+    import granular_core as core
+    ch = list(image.channels)
+    if DENOISED[0] not in ch:
+        return image
+    px = image.pixels
+    rgba = px[..., [ch.index(n) for n in (*DENOISED, "A")]]
+    return core.Image(np.ascontiguousarray(rgba, dtype=np.float32), ["R", "G", "B", "A"], image.x, image.y,
+                      image.full_width, image.full_height)
+
+
 def _render_image(args, built):
     import granular_core as core
     renderer = core.Renderer(built)
@@ -321,7 +368,10 @@ def _render_image(args, built):
     if renderer.stopped_by != "samples":
         _log(args, f"  stopped at the {renderer.stopped_by} after {renderer.samples_per_pixel} of "
                    f"{args.spp} samples per pixel")
-    return renderer, renderer.image()
+    image = renderer.image()
+    if getattr(args, "denoise", False):
+        image = _denoise(args, image)
+    return renderer, image
 
 
 def _low_orders(built):

@@ -343,6 +343,28 @@ TEST(HdGranular, EveryDocumentedRenderStatIsReported) {
   EXPECT_EQ(stat<int>(stats, "granular:mediaDerived"), 1);
 }
 
+// The albedo AOV is core's: a Lambert card's displayColor wherever the card is seen, as
+// granular render writes it (tests/python/test_denoise.py).
+TEST(HdGranular, TheAlbedoAovIsTheFirstHitsReflectance) {
+  UsdStageRefPtr stage = domeLitStage(40, R"(
+  def Mesh "Card" {
+    point3f[] points = [(-9, -9, 0), (9, -9, 0), (9, 9, 0), (-9, 9, 0)]
+    int[] faceVertexCounts = [4]
+    int[] faceVertexIndices = [0, 1, 2, 3]
+    color3f[] primvars:displayColor = [(0.3, 0.5, 0.7)]
+  }
+)");
+  auto engine = makeEngine(2);
+  Frame f = render(*engine, stage, TfToken("albedo"), 12, 12);
+  ASSERT_TRUE(f.converged);
+  ASSERT_EQ(f.channels, 3);
+  for (size_t i = 0; i < f.values.size(); i += 3) {
+    EXPECT_NEAR(f.values[i], 0.3f, 1e-6f) << i;
+    EXPECT_NEAR(f.values[i + 1], 0.5f, 1e-6f) << i;
+    EXPECT_NEAR(f.values[i + 2], 0.7f, 1e-6f) << i;
+  }
+}
+
 // Core's warnings and errors reach the host as granular render prints them: once each in
 // the render stats granular:warnings, and the error that refused the image in granular:error.
 TEST(HdGranular, CoresWarningsAndErrorsAreRenderStats) {
