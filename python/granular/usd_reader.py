@@ -162,16 +162,6 @@ def _bad(attr, v, expected):
     return UserError(prim, name, f"has value {text if len(text) < 60 else text[:57] + '...'}, expected {expected}")
 
 
-def get_number(attr, time, default=None):
-    """A finite-or-not float (None -> default); anything but a number is a UserError."""
-    v = attr.Get(time) if attr else None
-    if v is None:
-        return default
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise _bad(attr, v, "a number")
-    return float(v)
-
-
 def get_token(attr, time, default=None):
     v = attr.Get(time) if attr else None
     if v is None:
@@ -179,22 +169,6 @@ def get_token(attr, time, default=None):
     if not isinstance(v, str):
         raise _bad(attr, v, "a token")
     return v
-
-
-def get_vec(attr, time, n, default=None):
-    """A tuple of n numbers (colors, Vec2/Vec3 values)."""
-    v = attr.Get(time) if attr else None
-    if v is None:
-        return default
-    try:
-        if isinstance(v, str) or len(v) != n:
-            raise TypeError
-        out = tuple(float(x) for x in v)
-        if any(isinstance(x, bool) for x in v):
-            raise TypeError
-    except (TypeError, ValueError):
-        raise _bad(attr, v, f"{n} numbers") from None
-    return out
 
 
 def get_array(attr, time, columns, dtype, expected):
