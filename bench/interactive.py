@@ -5,21 +5,125 @@ first image covering the viewport (the coarsest preview) and to the first
 full-resolution pass, with the teleportation-transport (TT) and tile caches cold and
 warm; and from a camera move to the next first image and first pass.
 
+--usdview: a real usdview instead (testusdview under Xvfb, the Granular renderer, the
+stage's camera, its 597×540 viewport): seconds from the usdview process's start to the
+first grab of the viewport that is not blank ("first image"), and to the call of the
+test script ("usdview up": the window open, the stage loaded and the first frame's
+Hydra sync done, which builds the aggregates), with an empty GRANULAR_CACHE_DIR (cold:
+tiles, TT parameters and aggregate builds computed) and then with the cache it filled;
+the demo stage by default.
+
 Runs with the OpenUSD build's Python (Debian's python3 and /opt/openusd/lib/python):
   PXR_PLUGINPATH_NAME=build/hdGranular/plugin:schemas PYTHONPATH=/opt/openusd/lib/python \\
   LD_LIBRARY_PATH=/opt/openusd/lib /usr/bin/python3 bench/interactive.py [--size 640x480] [EXAMPLE ...]
+  ... bench/interactive.py --usdview [--runs 3] [EXAMPLE ...]
 Prints a Markdown table. Each measurement runs in a fresh process (a new delegate).
+This file is also testusdview's --testScript (testUsdviewInputFunction below).
 """
 import argparse
 import json
 import os
+import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
 import time
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-EXAMPLES = ["snowslab", "sugarcube", "sandcastle", "mixture"]
+try:
+    ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+except NameError:  # run by testusdview, which needs no paths
+    ROOT = None
+EXAMPLES = ["snowslab", "sugarcube", "sandcastle", "mixture"]  # the demo stage too when named
+USDVIEW_EXAMPLES = ["sandcastle_paper"]
+TESTUSDVIEW = "/opt/openusd/bin/testusdview"
+
+
+def _process_start():
+    """This process's start as a time.time() value (from /proc: its start in clock ticks
+    since boot, and the uptime now)."""
+    with open("/proc/self/stat") as f:
+        ticks = int(f.read().rsplit(")", 1)[1].split()[19])
+    with open("/proc/uptime") as f:
+        uptime = float(f.read().split()[0])
+    return time.time() - (uptime - ticks / os.sysconf("SC_CLK_TCK"))
+
+
+def _blank(image, grid=48):
+    """Whether a viewport grab is blank: one colour (usdview's background, with its axes
+    and frame) covers most of a grid of samples. A Granular image, even the coarsest
+    preview, covers the viewport with many colours."""
+    w, h = image.width(), image.height()
+    if w == 0 or h == 0:
+        return True
+    counts = {}
+    for y in range(grid):
+        for x in range(grid):
+            c = image.pixel(int((x + 0.5) * w / grid), int((y + 0.5) * h / grid)) & 0xFFFFFF
+            counts[c] = counts.get(c, 0) + 1
+    return max(counts.values()) > 0.5 * grid * grid
+
+
+def testUsdviewInputFunction(appController):
+    """Inside testusdview (--usdview): grabs the viewport until it is not blank; writes the
+    seconds since this process started to $GRANULAR_BENCH_USDVIEW_OUT (and that grab to
+    $GRANULAR_BENCH_USDVIEW_SHOT when set)."""
+    from pxr.Usdviewq.qt import QtWidgets
+    start = _process_start()
+    called = time.time() - start
+    appController._dataModel.viewSettings.showHUD = False
+    limit, shown, grabs = float(os.environ.get("GRANULAR_BENCH_USDVIEW_LIMIT", "600")), None, 0
+    while time.time() - start < limit:
+        QtWidgets.QApplication.processEvents()
+        grabs += 1
+        shot = appController.GrabViewportShot()
+        if not _blank(shot):
+            shown = time.time() - start
+            if os.environ.get("GRANULAR_BENCH_USDVIEW_SHOT"):  # to check what counted as an image
+                shot.save(os.environ["GRANULAR_BENCH_USDVIEW_SHOT"], "PNG")
+            break
+        time.sleep(0.01)
+    with open(os.environ["GRANULAR_BENCH_USDVIEW_OUT"], "w") as f:
+        json.dump({"renderer": appController._stageView.rendererDisplayName, "first_image": shown,
+                   "script_called": called, "grabs": grabs}, f)
+
+
+def usdview_first_image(path, cache, testusdview, limit):
+    """One testusdview process on `path` with the cache folder `cache`: its report."""
+    with tempfile.TemporaryDirectory() as tmp:
+        out = os.path.join(tmp, "report.json")
+        env = dict(os.environ, GRANULAR_CACHE_DIR=cache, GRANULAR_BENCH_USDVIEW_OUT=out,
+                   GRANULAR_BENCH_USDVIEW_LIMIT=str(limit))
+        subprocess.run([shutil.which("xvfb-run"), "-a", "-s", "-screen 0 1280x800x24", "/usr/bin/python3", testusdview,
+                        "--testScript", os.path.abspath(__file__), "--renderer", "Granular", "--camera",
+                        "/World/Camera", path], env=env, check=True, timeout=limit + 120,
+                       stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        with open(out) as f:
+            r = json.load(f)
+    if r["renderer"] != "Granular":
+        raise SystemExit(f"usdview ran {r['renderer']!r}, not Granular (PXR_PLUGINPATH_NAME)")
+    if r["first_image"] is None:
+        raise SystemExit(f"{path}: no image in usdview within {limit} s")
+    return r
+
+
+def usdview_table(examples, runs, testusdview, limit):
+    print("| stage (usdview, 597×540) | cold cache: usdview up (s) | cold cache: first image (s) | "
+          "cached: usdview up (s) | cached: first image (s) |")
+    print("|---|---|---|---|---|")
+    for name in examples:
+        path = os.path.join(ROOT, "examples", name + ".usda")
+        cold, cached = [], []
+        for _ in range(runs):
+            with tempfile.TemporaryDirectory() as cache:
+                cold.append(usdview_first_image(path, cache, testusdview, limit))
+                cached.append(usdview_first_image(path, cache, testusdview, limit))
+
+        def cell(reports, key):
+            v = [r[key] for r in reports]
+            return f"{statistics.median(v):.2f}" + (f" ({min(v):.2f}–{max(v):.2f})" if len(v) > 1 else "")
+        print(f"| {name} | {cell(cold, 'script_called')} | {cell(cold, 'first_image')} | "
+              f"{cell(cached, 'script_called')} | {cell(cached, 'first_image')} |", flush=True)
 
 
 def _until(engine, stage, params, key, limit=600.0):
@@ -73,10 +177,17 @@ def measure(path, width, height):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("examples", nargs="*", default=EXAMPLES)
+    ap.add_argument("examples", nargs="*")
     ap.add_argument("--size", default="640x480")
+    ap.add_argument("--usdview", action="store_true", help="time a real usdview (default stage: the demo)")
+    ap.add_argument("--testusdview", default=TESTUSDVIEW)
+    ap.add_argument("--runs", type=int, default=1, help="--usdview: cold and cached runs (median, range)")
+    ap.add_argument("--limit", type=float, default=600.0, help="--usdview: seconds to wait for an image")
     ap.add_argument("--measure", help=argparse.SUPPRESS)  # internal: one process's measurement
     a = ap.parse_args()
+    if a.usdview:
+        usdview_table(a.examples or USDVIEW_EXAMPLES, a.runs, a.testusdview, a.limit)
+        return 0
     width, height = (int(v) for v in a.size.split("x"))
     if a.measure:
         print(json.dumps(measure(a.measure, width, height)))
@@ -84,7 +195,7 @@ def main():
     print(f"| example ({width}×{height}) | open → first image, TT cold (s) | open → first image, TT cached (s) | "
           "open → first full pass, cached (s) | camera move → first image (s) | camera move → first full pass (s) |")
     print("|---|---|---|---|---|---|")
-    for name in a.examples:
+    for name in a.examples or EXAMPLES:
         path = os.path.join(ROOT, "examples", name + ".usda")
         runs = {}
         with tempfile.TemporaryDirectory() as cache:
@@ -99,5 +210,6 @@ def main():
     return 0
 
 
-if __name__ == "__main__":
+# testusdview runs this file without a __name__.
+if globals().get("__name__") == "__main__":
     sys.exit(main())

@@ -263,10 +263,17 @@ void Aggregate::classifyCells(float margin) {
   std::vector<Slice> slices(static_cast<size_t>(n_[2]));
   tbb::parallel_for(int64_t(0), n_[2], [&](int64_t k) {
     Slice& sl = slices[size_t(k)];
-    for (int64_t j = 0; j < n_[1]; ++j)
+    // A row's centres and their distances at once (DistanceField::distances: the values
+    // distance() gives, at a fraction of its cost over 10^8 cells).
+    std::vector<Vec3> centres(static_cast<size_t>(n_[0]));
+    std::vector<float> dists(centres.size());
+    for (int64_t j = 0; j < n_[1]; ++j) {
+      for (int64_t i = 0; i < n_[0]; ++i)
+        centres[size_t(i)] = origin_ + Vec3(float(i) + 0.5f, float(j) + 0.5f, float(k) + 0.5f) * L_;
+      sdf_.distances(centres.data(), centres.size(), dists.data());
       for (int64_t i = 0; i < n_[0]; ++i) {
-        Vec3 c = origin_ + Vec3(float(i) + 0.5f, float(j) + 0.5f, float(k) + 0.5f) * L_;
-        float dist = sdf_.distance(c);
+        const Vec3& c = centres[size_t(i)];
+        const float dist = dists[size_t(i)];
         CellClass cls = dist > margin ? CellClass::Outside : (dist < -margin ? CellClass::Inside : CellClass::Partial);
         classes_[size_t((k * n_[1] + j) * n_[0] + i)] = cls;
         if (cls == CellClass::Inside) ++sl.inside;
@@ -278,6 +285,7 @@ void Aggregate::classifyCells(float margin) {
           sl.insideFraction += std::min(1.0, std::max(0.0, 0.5 - double(dist) / L_));
         }
       }
+    }
   });
   double insideFractionSum = 0;
   float deepest = 0;

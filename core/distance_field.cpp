@@ -2,10 +2,12 @@
 
 #include <atomic>
 #include <istream>
+#include <limits>
 #include <mutex>
 #include <optional>
 #include <ostream>
 #include <streambuf>
+#include <vector>
 
 #include <openvdb/io/Stream.h>
 #include <openvdb/openvdb.h>
@@ -139,6 +141,71 @@ float DistanceField::distance(const Vec3& p) const {
   float value = 0;
   openvdb::tools::BoxSampler::sample(threadAccessor(*impl_->grid, impl_->id), ijk, value);  // trilinear
   return value * voxel_;
+}
+
+void DistanceField::distances(const Vec3* p, size_t n, float* out) const {
+  using Leaf = openvdb::FloatTree::LeafNodeType;
+  if (n == 0) return;
+  bool row = true;
+  for (size_t m = 1; m < n && row; ++m) row = p[m].y == p[0].y && p[m].z == p[0].z;
+  if (!row) {
+    for (size_t m = 0; m < n; ++m) out[m] = distance(p[m]);
+    return;
+  }
+  const auto& acc = threadAccessor(*impl_->grid, impl_->id);
+  const double inv = 1.0 / double(voxel_);
+  // The stencils' corners and weights as BoxSampler::sample (distance()) computes them;
+  // along a row only x moves, so the four voxel lines the stencils read (y and y + 1,
+  // z and z + 1) are copied once, a leaf at a time, and BoxSampler interpolates.
+  const double y = p[0].y * inv, z = p[0].z * inv;
+  const int iy = int(std::floor(y)), iz = int(std::floor(z));
+  int lo = std::numeric_limits<int>::max(), hi = std::numeric_limits<int>::min();
+  for (size_t m = 0; m < n; ++m) {
+    const int ix = int(std::floor(p[m].x * inv));
+    lo = std::min(lo, ix);
+    hi = std::max(hi, ix);
+  }
+  const size_t len = size_t(int64_t(hi) - lo + 2);
+  if (len > 4 * n + 64) {  // sparse along the row: copying the lines would cost more
+    for (size_t m = 0; m < n; ++m) out[m] = distance(p[m]);
+    return;
+  }
+  thread_local std::vector<float> lines;
+  lines.resize(4 * len);
+  for (int b = 0; b < 2; ++b)
+    for (int c = 0; c < 2; ++c) {
+      float* line = lines.data() + (b * 2 + c) * len;
+      for (int64_t x = lo; x <= int64_t(hi) + 1;) {
+        const openvdb::Coord v(int(x), iy + b, iz + c);
+        const int64_t end = std::min<int64_t>(int64_t(hi) + 1, (x & ~int64_t(Leaf::DIM - 1)) + Leaf::DIM - 1);
+        if (const Leaf* leaf = acc.probeConstLeaf(v)) {
+          const float* values = leaf->buffer().data();
+          for (int64_t k = x; k <= end; ++k) line[k - lo] = values[Leaf::coordToOffset(v.offsetBy(int(k - x), 0, 0))];
+        } else {
+          const float tile = acc.getValue(v);  // no leaf: the whole block holds the tile's value
+          for (int64_t k = x; k <= end; ++k) line[k - lo] = tile;
+        }
+        x = end + 1;
+      }
+    }
+  for (size_t m = 0; m < n; ++m) {
+    const openvdb::Vec3d xyz(p[m].x * inv, y, z);
+    const openvdb::Vec3i idx(int(std::floor(xyz[0])), iy, iz);
+    const openvdb::Vec3d uvw = xyz - idx;
+    const size_t i = size_t(idx[0] - lo);
+    float data[2][2][2];
+    bool uniform = true;
+    for (int a = 0; a < 2; ++a)
+      for (int b = 0; b < 2; ++b)
+        for (int c = 0; c < 2; ++c) {
+          data[a][b][c] = lines[(b * 2 + c) * len + i + a];
+          uniform &= data[a][b][c] == data[0][0][0];
+        }
+    // Eight equal values (deep inside, far outside): each lerp a + (a − a) w returns a
+    // exactly (but for a = −0, which it turns into +0).
+    if (uniform && data[0][0][0] != 0) out[m] = data[0][0][0] * voxel_;
+    else out[m] = openvdb::tools::BoxSampler::trilinearInterpolation(data, uvw) * voxel_;
+  }
 }
 
 float DistanceField::voxelValue(const int ijk[3], const void*& accessor) const {
