@@ -40,6 +40,22 @@ def add_mesh(stage, path, tri, translate=None):
     return m
 
 
+def dome_card(path, color=(0.5, 0.5, 0.5)):
+    """A Lambert card of displayColor `color` filling the view of /Camera under a uniform
+    dome: every sample of a pixel carries nearly the same radiance (little noise)."""
+    stage = Usd.Stage.CreateNew(str(path))
+    cam = UsdGeom.Camera.Define(stage, "/Camera")
+    UsdGeom.Xformable(cam).AddTranslateOp().Set(Gf.Vec3d(0, 0, 5))
+    UsdLux.DomeLight.Define(stage, "/Sky")
+    card = UsdGeom.Mesh.Define(stage, "/Card")
+    card.CreatePointsAttr(Vt.Vec3fArray([(-5, -5, 0), (5, -5, 0), (5, 5, 0), (-5, 5, 0)]))
+    card.CreateFaceVertexCountsAttr([4])
+    card.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    card.CreateDisplayColorAttr([color])
+    stage.Save()
+    return str(path)
+
+
 def small_scene(path, mutate=None):
     """A valid one-aggregate stage at `path`: /World/Castle (a box of two grain types,
     /World/Grains/A and /World/Grains/B), /World/Camera, /World/Sun; mutate(stage) edits

@@ -5,8 +5,7 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import EXAMPLES, run_cli
-from pxr import Gf, Usd, UsdGeom, UsdLux, Vt
+from conftest import EXAMPLES, dome_card, run_cli
 
 import granular_core as core
 
@@ -18,23 +17,9 @@ def _channels(path, names):
     return px[..., [ch.index(n) for n in names]]
 
 
-def _card(path, color=(0.3, 0.5, 0.7)):
-    stage = Usd.Stage.CreateNew(str(path))
-    cam = UsdGeom.Camera.Define(stage, "/Camera")
-    UsdGeom.Xformable(cam).AddTranslateOp().Set(Gf.Vec3d(0, 0, 5))
-    UsdLux.DomeLight.Define(stage, "/Sky")
-    card = UsdGeom.Mesh.Define(stage, "/Card")
-    card.CreatePointsAttr(Vt.Vec3fArray([(-5, -5, 0), (5, -5, 0), (5, 5, 0), (-5, 5, 0)]))
-    card.CreateFaceVertexCountsAttr([4])
-    card.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
-    card.CreateDisplayColorAttr([color])
-    stage.Save()
-    return str(path)
-
-
 def test_the_albedo_aov_is_the_first_hits_reflectance(tmp_path, capsys):
     out = tmp_path / "card.exr"
-    rc, _, err = run_cli(["render", _card(tmp_path / "card.usda"), "-o", out, "--width", 16, "--height", 12,
+    rc, _, err = run_cli(["render", dome_card(tmp_path / "card.usda", (0.3, 0.5, 0.7)), "-o", out, "--width", 16, "--height", 12,
                           "--spp", 2], capsys)
     assert rc == 0, err
     albedo = _channels(out, ["albedo.R", "albedo.G", "albedo.B"])
@@ -68,7 +53,7 @@ def test_denoising_adds_channels_keeps_the_raw_beauty_and_lowers_the_error(tmp_p
 def test_without_pyoidn_the_image_is_written_undenoised_with_one_warning(tmp_path, capsys, monkeypatch):
     monkeypatch.setitem(sys.modules, "pyoidn", None)  # import pyoidn raises ImportError
     out = tmp_path / "o.exr"
-    rc, _, err = run_cli(["render", _card(tmp_path / "card.usda"), "-o", out, "--width", 16, "--height", 12,
+    rc, _, err = run_cli(["render", dome_card(tmp_path / "card.usda", (0.3, 0.5, 0.7)), "-o", out, "--width", 16, "--height", 12,
                           "--spp", 1, "--denoise", "--quiet"], capsys)
     assert rc == 0, err
     lines = [x for x in err.splitlines() if x.startswith("warning:")]

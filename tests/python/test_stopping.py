@@ -4,26 +4,9 @@ deadline once every pixel has samples, says so, and writes a complete image."""
 import time
 
 import numpy as np
-from conftest import run_cli
-from pxr import Gf, Usd, UsdGeom, UsdLux, Vt
+from conftest import dome_card, run_cli
 
 import granular_core as core
-
-
-def _dome_card(path):
-    """A grey card under a uniform dome: every sample of a pixel that sees the card alone
-    carries the same radiance, so the noise is low and the threshold is met early."""
-    stage = Usd.Stage.CreateNew(str(path))
-    cam = UsdGeom.Camera.Define(stage, "/Camera")
-    UsdGeom.Xformable(cam).AddTranslateOp().Set(Gf.Vec3d(0, 0, 5))
-    UsdLux.DomeLight.Define(stage, "/Sky")
-    card = UsdGeom.Mesh.Define(stage, "/Card")
-    card.CreatePointsAttr(Vt.Vec3fArray([(-5, -5, 0), (5, -5, 0), (5, 5, 0), (-5, 5, 0)]))
-    card.CreateFaceVertexCountsAttr([4])
-    card.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
-    card.CreateDisplayColorAttr([(0.5, 0.5, 0.5)])
-    stage.Save()
-    return str(path)
 
 
 def _samples(err):
@@ -32,7 +15,7 @@ def _samples(err):
 
 
 def test_the_noise_threshold_stops_a_quiet_image_before_its_samples(tmp_path, capsys):
-    scene = _dome_card(tmp_path / "card.usda")
+    scene = dome_card(tmp_path / "card.usda")
     out = tmp_path / "o.exr"
     rc, _, err = run_cli(["render", scene, "-o", out, "--width", 32, "--height", 24, "--spp", 4096,
                           "--noise-threshold", 0.05], capsys)
@@ -46,14 +29,14 @@ def test_the_noise_threshold_stops_a_quiet_image_before_its_samples(tmp_path, ca
 
 
 def test_without_a_threshold_or_limit_every_sample_is_rendered(tmp_path, capsys):
-    scene = _dome_card(tmp_path / "card.usda")
+    scene = dome_card(tmp_path / "card.usda")
     rc, _, err = run_cli(["render", scene, "-o", tmp_path / "o.exr", "--width", 16, "--height", 12, "--spp", 64],
                          capsys)
     assert rc == 0 and _samples(err) is None, err
 
 
 def test_the_time_limit_stops_at_the_deadline_with_a_complete_image(tmp_path, capsys):
-    scene = _dome_card(tmp_path / "card.usda")
+    scene = dome_card(tmp_path / "card.usda")
     out = tmp_path / "o.exr"
     t0 = time.monotonic()
     rc, _, err = run_cli(["render", scene, "-o", out, "--width", 64, "--height", 48, "--spp", 1000000,
