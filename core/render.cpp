@@ -102,10 +102,11 @@ bool Renderer::renderPass(int samples, const std::atomic<bool>* cancel, const Ti
   return true;
 }
 
-bool Renderer::renderPreview(int stride, Film& preview, const std::atomic<bool>* cancel) {
+bool Renderer::renderPreview(int stride, Film& preview, const std::atomic<bool>* cancel, bool tuned) {
   const RenderSettings& rs = scene_.settings();
   stride = std::max(1, stride);
-  if (!prepared_) prepare();
+  if (!prepared_ && tuned) prepare();
+  if (!prepared_) roulette_.pa = rs.roulette > 0 ? rs.roulette : 1.0f;  // what prepare() leaves untuned
   const int W = window_.width(), H = window_.height();
   const int w = (W + stride - 1) / stride, h = (H + stride - 1) / stride;
   preview = Film(w, h);

@@ -68,8 +68,11 @@ class Renderer {
   bool renderPass(int samples, const std::atomic<bool>* cancel = nullptr, const TileCallback& onTile = nullptr);
   // A film of ceil(W/stride) × ceil(H/stride) pixels, W × H the crop's size: pixel (i, j)
   // holds the first bundle of crop pixel (min(i·stride + stride/2, W−1), likewise j);
-  // false when cancelled.
-  bool renderPreview(int stride, Film& preview, const std::atomic<bool>* cancel = nullptr);
+  // false when cancelled. tuned false: before the Russian roulette is tuned (its
+  // pre-render traces about ten times the paths of a 32-pixel preview), the preview runs
+  // with the settings' fixed P_a, else none (P_a 1): unbiased, but its values are not the
+  // pass's; for a host's first image after a new view.
+  bool renderPreview(int stride, Film& preview, const std::atomic<bool>* cancel = nullptr, bool tuned = true);
   // Renders settings().spp samples in passes of passSamples; calls progress after each.
   bool render(int passSamples = 1, const std::function<void(const RenderProgress&)>& progress = nullptr,
               const std::atomic<bool>* cancel = nullptr);

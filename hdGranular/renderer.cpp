@@ -143,7 +143,8 @@ void HdGranularRenderer::_Render() {
     if (width >= 384 && height >= 256) strides.insert(strides.begin(), 32);
     for (int stride : strides) {
       granular::Film preview;
-      if (!_renderer->renderPreview(stride, preview, &_cancel)) return;
+      // The first image does not wait for the roulette's pre-render (core/render.h).
+      if (!_renderer->renderPreview(stride, preview, &_cancel, /*tuned=*/stride != strides.front())) return;
       _WriteRegion(preview, stride, 0, width, 0, height);
       if (_firstImageSeconds < 0) _firstImageSeconds = _SecondsSinceStart();
       if (_thread.IsStopRequested()) return;

@@ -10,7 +10,8 @@
 //
 // What a viewport sees first: on images of 128×128 pixels or more, coarse previews (one
 // bundle per 16×16, then per 4×4 block: core's renderPreview; per 32×32 block before them
-// on images of 384×256 or more) fill the buffers within a fraction of a pass, then every full-resolution tile is written as soon as it is done.
+// on images of 384×256 or more; the first one before the Russian roulette is tuned) fill
+// the buffers within a fraction of a pass, then every full-resolution tile is written as soon as it is done.
 // A render stopped by something else than the render pass (a render buffer being
 // reallocated or freed: StopForEdit) is remembered, so that the next Execute restarts it.
 #ifndef HDGRANULAR_RENDERER_H

@@ -2,6 +2,7 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <cmath>
 #include <thread>
 #include <vector>
 
@@ -115,6 +116,43 @@ TEST(RenderProgress, APreviewPixelIsTheFirstBundleOfItsBlocksCentrePixel) {
       lit += a[0] > 0;
     }
   EXPECT_GT(lit, 0);
+}
+
+TEST(RenderProgress, AnUntunedPreviewDoesNotWaitForTheRoulettePreRender) {
+  // A host's first image after a new view: no tuning before it (P_a 1), then the pass
+  // tunes as always and draws the same image as a renderer that never previewed.
+  SceneDesc d = granular::testing::sandBallScene(Vec3(0, 0.5f, 4), 24, 0.02f, 1);
+  d.settings.width = 40;
+  d.settings.height = 30;
+  d.settings.spp = 16;
+  d.settings.roulette = -1;  // tuned by the pre-render
+  auto scene = Scene::build(d);
+  ASSERT_TRUE(scene->hasMedia());
+  Renderer r(*scene);
+  Film coarse;
+  ASSERT_TRUE(r.renderPreview(8, coarse, nullptr, /*tuned=*/false));
+  EXPECT_EQ(r.roulette().pixels, 0);  // not tuned
+  EXPECT_EQ(r.roulette().pa, 1.0f);
+  int lit = 0;
+  for (int j = 0; j < coarse.height(); ++j)
+    for (int i = 0; i < coarse.width(); ++i) {
+      const Vec3 c = coarse.mean(i, j);
+      ASSERT_TRUE(std::isfinite(c.x) && std::isfinite(c.y) && std::isfinite(c.z));
+      lit += c.x > 0;
+    }
+  EXPECT_GT(lit, 0);
+  ASSERT_TRUE(r.renderPass(16));
+  EXPECT_GT(r.roulette().pixels, 0);  // the pass tuned it
+  Renderer plain(*scene);
+  ASSERT_TRUE(plain.renderPass(16));
+  EXPECT_EQ(r.roulette().pa, plain.roulette().pa);
+  for (int y = 0; y < 30; ++y)
+    for (int x = 0; x < 40; ++x) {
+      float a[Film::kChannels], b[Film::kChannels];
+      r.film().pixelChannels(x, y, a);
+      plain.film().pixelChannels(x, y, b);
+      for (int c = 0; c < Film::kChannels; ++c) ASSERT_EQ(a[c], b[c]) << x << "," << y << " channel " << c;
+    }
 }
 
 TEST(RenderProgress, ACancelledPreviewSaysSo) {
