@@ -268,6 +268,11 @@ def plot(results, techniques, path):
         for j in range(data.shape[1]):
             ax.text(j, i, f"{data[i, j]:+.1f}", ha="center", va="center", fontsize=5)
     fig.colorbar(im, ax=ax, label="bias against EPT (%)")
+    save_figure(fig, path)
+
+
+def save_figure(fig, path):
+    """Writes a figure (its folder made), saying so on stderr."""
     fig.tight_layout()
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     fig.savefig(path, dpi=150)

@@ -31,7 +31,7 @@ import tempfile
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
-import accuracy_matrix  # noqa: E402  (its measure(): the object's mean per seed)
+import accuracy_matrix  # noqa: E402  (its measure(): the object's mean per seed; save_figure)
 
 # name -> (technique, proxies, explicit_bounces or None for the automatic count)
 TECHNIQUES = {"proxies": ("EptVpt", "On", None), "medium": ("EptVpt", "Off", None),
@@ -168,10 +168,7 @@ def plot(results, path):
         ax.set_xlabel("sun–view phase angle (degrees)")
     axes[0].set_ylabel("bias of the luminance (%)")
     axes[1].legend(fontsize=6)
-    fig.tight_layout()
-    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    fig.savefig(path, dpi=150)
-    print(f"wrote {path}", file=sys.stderr)
+    accuracy_matrix.save_figure(fig, path)
 
 
 def main():

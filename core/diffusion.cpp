@@ -73,6 +73,10 @@ DiffusionProfile::DiffusionProfile(const MediumParams& p) {
   }
   sigmaSReduced = p.sigmaSReduced;
   sigmaTReduced = p.sigmaTReduced;
+  for (int c = 0; c < 3; ++c) {
+    const float a = p.albedoReduced[c], s = std::sqrt(3.0f * std::max(0.0f, 1.0f - a));
+    diffuseReflectance[c] = 0.5f * a * (1.0f + std::exp(-4.0f / 3.0f * s)) * std::exp(-s);
+  }
 }
 
 Vec3 DiffusionProfile::slabTotal(float z, float d, bool farFace) const {

@@ -70,6 +70,9 @@ constexpr int kMaxMultipoleTerms = 32;
 struct DiffusionProfile {
   Vec3 D, sigmaTr, zb;              // per channel
   Vec3 sigmaSReduced, sigmaTReduced;  // the beam's σ'_s, σ'_t
+  // Total diffuse reflectance of the half space, R_d(α') (Jensen et al. 2001, Eq. 5, A = 1):
+  // the colour the medium has from afar (the albedo AOV of an aggregate: ept.h).
+  Vec3 diffuseReflectance;
   DiffusionProfile() = default;
   explicit DiffusionProfile(const MediumParams& p);
   // Multipole (half space: the dipole) scaled to the slab's exact 1-D total; see above.

@@ -33,13 +33,7 @@ Vec3 primaryAlbedo(const Scene& scene, const Hit& hit) {
     case Hit::Boundary:
     case Hit::Proxy: {
       if (!scene.hasMedia() || hit.aggregate < 0) return Vec3(1.0f);
-      const Vec3& a = scene.mediumParams(hit.aggregate).albedoReduced;
-      Vec3 rd;
-      for (int c = 0; c < 3; ++c) {
-        const float s = std::sqrt(3.0f * std::max(0.0f, 1.0f - a[c]));
-        rd[c] = 0.5f * a[c] * (1.0f + std::exp(-4.0f / 3.0f * s)) * std::exp(-s);
-      }
-      return rd;
+      return scene.diffusionProfile(hit.aggregate).diffuseReflectance;
     }
     case Hit::AreaLight: return Vec3(1.0f);
   }

@@ -45,7 +45,7 @@ void recordPrimary(const Scene& scene, PathState& path, const Hit& hit);
 // The albedo AOV of a camera ray's first hit, the guide a denoiser takes for reflectance:
 // a Lambert surface's albedo (textured), 1 on a dielectric surface and on lights; on an
 // aggregate (a grain or its boundary), the total diffuse reflectance of its equivalent
-// medium, R_d(α') of Jensen et al. 2001 (Eq. 5, index-matched boundary), per channel, so
+// medium (DiffusionProfile::diffuseReflectance), per channel, so
 // that a denoiser sees the colour the aggregate has from afar; 1 when the scene has no
 // media (EPT alone: the grains are clear dielectrics).
 Vec3 primaryAlbedo(const Scene& scene, const Hit& hit);

@@ -33,11 +33,8 @@ CameraDesc cameraFromUsd(const UsdPrimRecord& r) {
   if (c.lensRadius > 0 && !(std::isfinite(c.focusDistance) && c.focusDistance > 0))
     throw InputError(path, "focusDistance", str(c.focusDistance, " must be > 0 when fStop is set"));
   // Core's checks of a camera, in USD's names (its fields are the attributes, the lens is fStop).
-  try {
-    validateCameraDesc(c, path);
-  } catch (const InputError& e) {
-    throw InputError(path, e.attribute() == "lensRadius" ? "fStop" : e.attribute(), e.detail());
-  }
+  checkInUsdNames(path, [&] { validateCameraDesc(c, path); },
+                  [](const std::string& field) { return field == "lensRadius" ? std::string("fStop") : field; });
   return c;
 }
 

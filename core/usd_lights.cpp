@@ -124,12 +124,9 @@ std::optional<LightDesc> lightFromUsd(const UsdPrimRecord& r, UsdWarnings& warni
   }
   l.normalize = usdBool(r, kNormalize, false);
   // Core's checks, in USD's names (a light's SceneDesc fields are its inputs).
-  try {
-    validateLightDesc(l, path);
-  } catch (const InputError& e) {
-    const std::string& field = e.attribute();
-    throw InputError(path, field == "transform" || field.empty() ? field : "inputs:" + field, e.detail());
-  }
+  checkInUsdNames(path, [&] { validateLightDesc(l, path); }, [](const std::string& field) {
+    return field == "transform" || field.empty() ? field : "inputs:" + field;
+  });
   return l;
 }
 

@@ -177,12 +177,7 @@ std::optional<UsdMaterial> materialFromUsd(const UsdMaterialNetwork& n, UsdWarni
     m.opacityTexture = opacityTex;
   }
   out.st = st;
-  try {
-    validateMaterialDesc(m, s->path);
-  } catch (const InputError& e) {
-    if (e.object() != s->path) throw;  // a texture's, named already
-    throw InputError(s->path, previewInput(e.attribute()), e.detail());
-  }
+  checkInUsdNames(s->path, [&] { validateMaterialDesc(m, s->path); }, previewInput);
   return out;
 }
 

@@ -16,6 +16,7 @@
 #include <utility>
 #include <vector>
 
+#include "error.h"
 #include "math.h"
 
 namespace granular {
@@ -64,6 +65,19 @@ std::pair<std::string, std::string> usdAsset(const UsdPrimRecord& record, const 
 // end resolved none); "" when unauthored or empty. InputError "\"x\" cannot be found" when
 // it names no regular file.
 std::string usdFile(const UsdPrimRecord& record, const std::string& name);
+
+// Core's checks of a description made from a record (check() names prim and the
+// description's fields), rethrown in USD's names: rename(field) is the attribute that field
+// came from. An error on another object (a texture the description refers to) passes as is.
+template <typename Check, typename Rename>
+void checkInUsdNames(const std::string& prim, Check&& check, Rename&& rename) {
+  try {
+    check();
+  } catch (const InputError& e) {
+    if (e.object() != prim) throw;
+    throw InputError(prim, rename(e.attribute()), e.detail());
+  }
+}
 
 // The value as a user would write it ("0.5", "(1, 0, 0)", "['a', 'b']"), for messages.
 std::string describeUsdValue(const UsdValue& v);

@@ -137,6 +137,20 @@ py::array_t<float> pointsToArray(const std::vector<Vec3>& pts) {
 // A pixel window as Python sees one: (x0, x1, y0, y1).
 std::tuple<int, int, int, int> windowTuple(const PixelWindow& w) { return {w.x0, w.x1, w.y0, w.y1}; }
 
+// A UsdGeomMesh's topology as core reads it (usd_mesh.h); numPoints stands for the points,
+// which only count when a primvar is expanded.
+UsdMeshRecord meshTopology(const std::string& path, size_t numPoints, const IntArray& counts, const IntArray& indices,
+                           const IntArray& holes, const std::string& orientation) {
+  UsdMeshRecord r;
+  r.path = path;
+  r.points.resize(numPoints);
+  r.faceVertexCounts = toInt32(toInts(counts, "faceVertexCounts"));
+  r.faceVertexIndices = toInt32(toInts(indices, "faceVertexIndices"));
+  r.holeIndices = toInt32(toInts(holes, "holeIndices"));
+  r.orientation = orientation;
+  return r;
+}
+
 TriangleMesh makeMesh(const FloatArray& points, const IntArray& indices) {
   TriangleMesh m;
   m.points = toPoints(points, "points");
@@ -609,13 +623,8 @@ PYBIND11_MODULE(granular_core, m) {
       "mesh_from_usd",
       [](const std::string& path, const FloatArray& points, const IntArray& counts, const IntArray& indices,
          const IntArray& holes, const std::string& orientation) {
-        UsdMeshRecord r;
-        r.path = path;
+        UsdMeshRecord r = meshTopology(path, 0, counts, indices, holes, orientation);
         r.points = toPoints(points, "points");
-        r.faceVertexCounts = toInt32(toInts(counts, "faceVertexCounts"));
-        r.faceVertexIndices = toInt32(toInts(indices, "faceVertexIndices"));
-        r.holeIndices = toInt32(toInts(holes, "holeIndices"));
-        r.orientation = orientation;
         return meshFromUsd(r);
       },
       py::arg("path"), py::arg("points"), py::arg("face_vertex_counts"), py::arg("face_vertex_indices"),
@@ -625,14 +634,9 @@ PYBIND11_MODULE(granular_core, m) {
       [](const std::string& path, size_t numPoints, const IntArray& counts, const IntArray& indices,
          const IntArray& holes, const std::string& orientation, const UsdValue& primvar, int width,
          const std::string& attribute) {
-        UsdMeshRecord r;
-        r.path = path;
-        r.points.resize(numPoints);
-        r.faceVertexCounts = toInt32(toInts(counts, "faceVertexCounts"));
-        r.faceVertexIndices = toInt32(toInts(indices, "faceVertexIndices"));
-        r.holeIndices = toInt32(toInts(holes, "holeIndices"));
-        r.orientation = orientation;
-        std::vector<float> v = usdPrimvarAtCorners(r, primvar, width, attribute);
+        std::vector<float> v =
+            usdPrimvarAtCorners(meshTopology(path, numPoints, counts, indices, holes, orientation), primvar, width,
+                                attribute);
         py::array_t<float> a({py::ssize_t(v.size() / size_t(std::max(width, 1))), py::ssize_t(width)});
         std::copy(v.begin(), v.end(), a.mutable_data());
         return a;
@@ -669,20 +673,17 @@ PYBIND11_MODULE(granular_core, m) {
   m.def(
       "display_color_from_usd",
       [](const UsdValue& value, const std::string& prim, size_t numPoints, const IntArray& counts,
-         const IntArray& indices) -> py::tuple {
-        UsdMeshRecord r;
-        r.path = prim;
-        r.points.resize(numPoints);
-        r.faceVertexCounts = toInt32(toInts(counts, "faceVertexCounts"));
-        r.faceVertexIndices = toInt32(toInts(indices, "faceVertexIndices"));
+         const IntArray& indices, const IntArray& holes, const std::string& orientation) -> py::tuple {
+        const UsdMeshRecord topology = meshTopology(prim, numPoints, counts, indices, holes, orientation);
         UsdWarnings w;
-        std::optional<Vec3> c = displayColorFromUsd(value, numPoints ? &r : nullptr, prim, w);
+        std::optional<Vec3> c = displayColorFromUsd(value, numPoints ? &topology : nullptr, prim, w);
         return py::make_tuple(c ? py::cast(*c) : py::none(), w);
       },
       py::arg("value"), py::arg("prim"), py::arg("num_points") = 0, py::arg("face_vertex_counts") = IntArray(),
-      py::arg("face_vertex_indices") = IntArray(),
-      "(averaged colour or None, [warnings]); with a mesh's topology, a count that does not fit the "
-      "interpolation is ignored with a warning");
+      py::arg("face_vertex_indices") = IntArray(), py::arg("hole_indices") = IntArray(),
+      py::arg("orientation") = "rightHanded",
+      "(averaged colour or None, [warnings]); with a mesh's topology (read_mesh's), a count that does not "
+      "fit the interpolation is ignored with a warning");
   m.def(
       "resolution_from_usd",
       [](const UsdPrimRecord& r) -> py::object {

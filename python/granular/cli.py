@@ -338,9 +338,10 @@ def _denoise(args, image):
 
     def take(names):
         return np.ascontiguousarray(px[..., [ch.index(n) for n in names]], dtype=np.float32)
-    color = np.maximum(take(["R", "G", "B"]), 0.0)
-    albedo = np.clip(take(["albedo.R", "albedo.G", "albedo.B"]), 0.0, 1.0)
-    normal = np.clip(np.nan_to_num(take(["N.X", "N.Y", "N.Z"])), -1.0, 1.0)
+    # The film holds finite, non-negative radiance, albedo in [0, 1] and unit (or zero)
+    # normals: handed over as they are.
+    color, albedo = take(["R", "G", "B"]), take(["albedo.R", "albedo.G", "albedo.B"])
+    normal = take(["N.X", "N.Y", "N.Z"])
     out = pyoidn.denoise(color, albedo=albedo, normal=normal, hdr=True)
     return core.Image(np.concatenate([px, np.asarray(out, dtype=np.float32)], axis=2), ch + DENOISED,
                       image.x, image.y, image.full_width, image.full_height)

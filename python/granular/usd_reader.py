@@ -262,7 +262,9 @@ def _topology(prim, time):
 
 
 def read_mesh(prim, time):
-    """The Mesh's triangles in its own space (core.mesh_from_usd); UserError on bad data."""
+    """The Mesh's triangles in its own space (core.mesh_from_usd) and its topology as core
+    expands primvars over it: (number of points, counts, indices, holes, orientation).
+    UserError on bad data."""
     path = str(prim.GetPath())
     P = get_array(UsdGeom.Mesh(prim).GetPointsAttr(), time, 3, np.float64, "point3f[]")
     counts, indices, holes, orientation = _topology(prim, time)
@@ -274,12 +276,13 @@ def read_mesh(prim, time):
         raise UserError(path, "faceVertexIndices", "has no value")
     if P.size and np.abs(P[np.isfinite(P)]).max(initial=0.0) > 3.0e38:
         raise UserError(path, "points", "has values that do not fit in a float")
-    return _core_call(core.mesh_from_usd, path, P.astype(np.float32), counts, indices, holes, orientation)
+    tri = _core_call(core.mesh_from_usd, path, P.astype(np.float32), counts, indices, holes, orientation)
+    return tri, (len(P), counts, indices, holes, orientation)
 
 
-def read_st(scene, prim, name, time, num_points):
+def read_st(scene, prim, name, time, topology):
     """Primvar `name` (texture coordinates, any interpolation) at each corner of read_mesh's
-    triangles (of num_points points), as (corners, 2) floats (core.usd_primvar_at_corners);
+    triangles (topology: read_mesh's), as (corners, 2) floats (core.usd_primvar_at_corners);
     None with a warning when the mesh has no such primvar."""
     path = str(prim.GetPath())
     pv = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance(name)
@@ -300,9 +303,7 @@ def read_st(scene, prim, name, time, num_points):
     value.numbers = v.reshape(-1).tolist()
     value.interpolation = pv.GetInterpolation()
     value.source = src
-    counts, indices, holes, orientation = _topology(prim, time)
-    return _core_call(core.usd_primvar_at_corners, path, num_points, counts, indices, holes, orientation, value, 2,
-                      attr_name)
+    return _core_call(core.usd_primvar_at_corners, path, *topology, value, 2, attr_name)
 
 
 def _tessellated(prim, time):
@@ -373,9 +374,10 @@ def _bound_material(scene, prim, time, cache):
     return cache[key]
 
 
-def _display_color(scene, prim, time):
+def _display_color(scene, prim, time, topology=()):
     """prim's displayColor (inherited) through core (usd_shading.h: averaged, checked), or
-    None; core makes it a Lambert for an ordinary mesh without a material."""
+    None; core makes it a Lambert for an ordinary mesh without a material. topology:
+    read_mesh's, for a Mesh (core checks the count against the interpolation)."""
     pv = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance("displayColor")
     if not (pv and pv.HasAuthoredValue()):
         return None
@@ -391,12 +393,6 @@ def _display_color(scene, prim, time):
         value.is_string, value.strings = True, [v]
     else:
         value.numbers = schema.numbers(v)
-    topology = ()
-    if prim.IsA(UsdGeom.Mesh):
-        points = UsdGeom.Mesh(prim).GetPointsAttr().Get(time)
-        counts, indices, _, _ = _topology(prim, time)
-        if points is not None and counts is not None and indices is not None:
-            topology = (len(points), counts, indices)
     color, warnings = _core_call(core.display_color_from_usd, value, str(prim.GetPath()), *topology)
     for w in warnings:
         scene.warn(w)
@@ -421,18 +417,22 @@ def _mesh_prim(scene, prim, xf_cache, material_cache, drawn):
     if not mp.active or not shape:
         return mp  # listed for core's error message only
     mp.granular = schema.primvar_values(prim, time=time)
-    mp.mesh = read_mesh(prim, time) if is_mesh else _tessellated(prim, time)
+    topology = ()  # a Mesh's, over which its primvars are expanded
+    if is_mesh:
+        mp.mesh, topology = read_mesh(prim, time)
+    else:
+        mp.mesh = _tessellated(prim, time)
     mp.instances = [world_matrix(xf_cache, prim)]
     scene.name(mp.path, mp.path, {"transform": (mp.path, "transform")})
     # A boundary or grain with its API applied never uses a bound material: not read.
     if not has_api:
         idx = _bound_material(scene, prim, time, material_cache)
         if idx is None and drawn:
-            mp.display_color = _display_color(scene, prim, time)
+            mp.display_color = _display_color(scene, prim, time, topology)
         mp.material = -1 if idx is None else idx
         st = scene.material_st.get(idx)
         if st is not None and is_mesh:
-            uvs = read_st(scene, prim, st, time, len(mp.mesh.points))
+            uvs = read_st(scene, prim, st, time, topology)
             if uvs is not None:
                 mp.mesh.uvs = uvs
     return mp
