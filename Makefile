@@ -1,5 +1,5 @@
 # Thin driver over CMake for the README's two commands.
-#   make demo   install what is missing, build, render the USD sand castle to out/
+#   make demo   install what is missing, build, render the USD sand castle to out/ (denoised PNG)
 #   make test   install what is missing, build, run every test suite (ctest, then pytest)
 BUILD ?= build
 VENV ?= .venv
@@ -32,7 +32,7 @@ build: venv
 
 demo: build
 	@mkdir -p out
-	$(VENV)/bin/granular render examples/sandcastle_paper.usda --spp 32 -o out/demo.exr --png out/demo.png
+	$(VENV)/bin/granular render examples/sandcastle_paper.usda --spp 32 --denoise -o out/demo.exr --png out/demo.png
 
 # Every USD example at presentation quality into out/gallery/, with a contact sheet
 # (scripts/gallery.py; GALLERY_ARGS="--width 640 --spp 256 --docs" and so on).

@@ -9,7 +9,8 @@ warm; and from a camera move to the next first image and first pass.
 stage's camera, its 597×540 viewport): seconds from the usdview process's start to the
 first grab of the viewport that is not blank ("first image"), and to the call of the
 test script ("usdview up": the window open, the stage loaded and the first frame's
-Hydra sync done, which builds the aggregates), with an empty GRANULAR_CACHE_DIR (cold:
+Hydra sync done, which builds the aggregates' stand-ins and starts their full builds), with an
+empty GRANULAR_CACHE_DIR (cold:
 tiles, TT parameters and aggregate builds computed) and then with the cache it filled;
 the demo stage by default.
 

@@ -99,8 +99,10 @@ bool Aggregate::traceChosen(const TileSphere& s, const int64_t home[3], const Gr
   return true;
 }
 
-void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, const std::vector<int>& prototypeMaterials) {
+void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, const std::vector<int>& prototypeMaterials,
+                      bool standIn, const std::function<void(const std::string&)>& log) {
   auto t0 = std::chrono::steady_clock::now();
+  standIn_ = standIn;
   name_ = desc.name;
   device_ = device;
   R_ = desc.grainRadius;
@@ -108,6 +110,11 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
   prototypeMaterials_ = prototypeMaterials;
   boundary_ = desc.boundary.transformed(desc.xf);
   if (boundary_.signedVolume() < 0) boundary_.flip();
+  if (standIn) {  // no tile, no cells: the boundary and the prototypes (the medium's inputs)
+    buildStandIn(desc, device);
+    stats_.setupSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    return;
+  }
 
   // Tile: periodic packing at the requested rate, scaled so its spheres of size 1 have
   // radius R; polydisperse aggregates pack their size classes (grain.h) together.
@@ -175,7 +182,20 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
         }
   }
   boundaryBvh_ = buildTriangleScene(device, boundary_);
+  buildCells(desc, voxel, margin, meanSize, log);
+  buildPrototypes(desc, device);
+  selector_ = GrainSelector(desc.weights, classes, desc.seed);
 
+  stats_.memoryBytes = classes_.size() * sizeof(CellClass) + sdf_.memoryBytes() +
+                       spheres_.size() * sizeof(TileSphere) + (subList_.size() + subStart_.size()) * sizeof(uint32_t) +
+                       boundary_.points.size() * 40;
+  for (const auto& p : prototypes_)
+    stats_.memoryBytes += p.mesh.points.size() * 40 + p.mesh.indices.size() * 8 + p.normals.size() * sizeof(Vec3);
+  stats_.setupSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+void Aggregate::buildCells(const AggregateDesc& desc, float voxel, float margin, double meanSize,
+                           const std::function<void(const std::string&)>& log) {
   // The distance field, cell classes, their counts and the sub-cell lists: from the build
   // cache when a build of the same inputs stored them (build_cache.h), else computed and
   // stored. Either way the same values, so the same images.
@@ -192,6 +212,8 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
     stats_.fromCache = true;
     stats_.sdfSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - ts).count();
   } else {
+    if (log)
+      log(str(name_, ": building its distance field and ", stats_.cells, " cells (not cached yet)"));
     sdf_.build(boundary_, voxel, margin + voxel);
     stats_.sdfSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - ts).count();
     classifyCells(margin);
@@ -210,20 +232,71 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
     subZ_[k] = t.center.z;
     subR2_[k] = t.radius * t.radius;
   }
+}
 
+double Aggregate::estimateBuildBytes(const AggregateDesc& desc) {
+  double s3 = 1;
+  sauterSizeOf(desc, &s3);
+  float largest = 0;
+  for (float x : sizeClassesOf(desc).size) largest = std::max(largest, x);
+  // f = N (4/3) π r³ E[s³] in the unit tile: its sphere radius r, the cell edge L = R / r.
+  const double f = std::clamp(double(desc.packingRate), 1e-3, 0.74), n = std::max(1, desc.tileSpheres);
+  const double r = std::cbrt(3.0 * f / (4.0 * 3.14159265358979 * n * s3));
+  const double L = double(desc.grainRadius) / r, pad = 2.0 * desc.grainRadius * largest * (1.0 + desc.sizeSpread);
+  const Bounds3 b = desc.boundary.transformed(desc.xf).bounds();
+  double cells = 1;
+  for (int a = 0; a < 3; ++a) cells *= std::max(1.0, std::ceil((double(b.extent()[a]) + pad) / L));
+  return std::isfinite(cells) ? cells * kBuildBytesPerCell : 0.0;
+}
+
+void Aggregate::buildPrototypes(const AggregateDesc& desc, const EmbreeDevice& device) {
   prototypes_.clear();
   for (size_t i = 0; i < desc.prototypes.size(); ++i) {
     prototypes_.push_back(makeGrainPrototype(device, desc.prototypes[i]));
-    prototypes_.back().material = prototypeMaterials[i];
+    prototypes_.back().material = prototypeMaterials_[i];
   }
-  selector_ = GrainSelector(desc.weights, classes, desc.seed);
+}
 
-  stats_.memoryBytes = classes_.size() * sizeof(CellClass) + sdf_.memoryBytes() +
-                       spheres_.size() * sizeof(TileSphere) + (subList_.size() + subStart_.size()) * sizeof(uint32_t) +
-                       boundary_.points.size() * 40;
+void Aggregate::buildStandIn(const AggregateDesc& desc, const EmbreeDevice& device) {
+  // Sizes as the tile would hold them (grain.h: sauterSizeOf).
+  double s3 = 1;
+  sauterSizeOf(desc, &s3);
+  float largest = 0;
+  for (float x : sizeClassesOf(desc).size) largest = std::max(largest, x);
+  Rmax_ = R_ * largest * (1.0f + desc.sizeSpread);
+  const Bounds3 mb = boundary_.bounds();
+  bounds_.lo = mb.lo - Vec3(Rmax_);
+  bounds_.hi = mb.hi + Vec3(Rmax_);
+  origin_ = bounds_.lo;
+  boundaryBvh_ = buildTriangleScene(device, boundary_);
+  buildPrototypes(desc, device);
+  estimateStandInDepth();
+  const double R = R_, grainVolume = 4.0 / 3.0 * 3.14159265358979 * R * R * R * s3;
+  stats_.approxGrains = std::fabs(boundary_.signedVolume()) * f_ / grainVolume;
+  stats_.memoryBytes = boundary_.points.size() * 40;
   for (const auto& p : prototypes_)
     stats_.memoryBytes += p.mesh.points.size() * 40 + p.mesh.indices.size() * 8 + p.normals.size() * sizeof(Vec3);
-  stats_.setupSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+void Aggregate::estimateStandInDepth() {
+  // Points of a grid of at most 32 per axis (and at least a grain diameter apart) over the
+  // boundary's bounds: the deepest one inside (as classifyCells takes the deepest cell
+  // centre).
+  const Bounds3 b = boundary_.bounds();
+  int n[3];
+  for (int a = 0; a < 3; ++a) n[a] = int(std::clamp(std::ceil(double(b.extent()[a]) / (2.0 * R_)), 1.0, 32.0));
+  std::vector<float> deepest(size_t(n[2]), 0.0f);
+  tbb::parallel_for(0, n[2], [&](int k) {
+    for (int j = 0; j < n[1]; ++j)
+      for (int i = 0; i < n[0]; ++i) {
+        const Vec3 p(b.lo.x + (i + 0.5f) * b.extent().x / n[0], b.lo.y + (j + 0.5f) * b.extent().y / n[1],
+                     b.lo.z + (k + 0.5f) * b.extent().z / n[2]);
+        if (!insideBoundary(p)) continue;
+        Vec3 closest;
+        deepest[size_t(k)] = std::max(deepest[size_t(k)], closestBoundaryPoint(p, closest));
+      }
+  });
+  stats_.maxInteriorDepth = *std::max_element(deepest.begin(), deepest.end());
 }
 
 void Aggregate::exchangeProducts(BuildProducts& p) {
@@ -373,7 +446,7 @@ Aggregate::TileSphere Aggregate::imageOf(int id, const int shift[3]) const {
 }
 
 CellClass Aggregate::cellClass(int64_t i, int64_t j, int64_t k) const {
-  if (i < 0 || j < 0 || k < 0 || i >= n_[0] || j >= n_[1] || k >= n_[2]) return CellClass::Outside;
+  if (i < 0 || j < 0 || k < 0 || i >= n_[0] || j >= n_[1] || k >= n_[2] || classes_.empty()) return CellClass::Outside;
   return classes_[size_t((k * n_[1] + j) * n_[0] + i)];
 }
 
@@ -476,7 +549,7 @@ bool Aggregate::intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, 
                           bool inside) const {
   // A non-finite ray (a numerical failure upstream) hits nothing: the cell walk below
   // would convert NaN to an integer (undefined behaviour; found by the USD fuzzer).
-  if (!isFinite(o) || !isFinite(d)) return false;
+  if (!isFinite(o) || !isFinite(d) || standIn_) return false;
   if (from && inside && traceFromInside(*from, o, d, tmin, tmax, hit)) return true;
   const Vec3 invD(1.0f / d.x, 1.0f / d.y, 1.0f / d.z);
   float t0, t1;
@@ -489,6 +562,11 @@ bool Aggregate::intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, 
 
 bool Aggregate::occluded(const Vec3& o, const Vec3& d, float tmin, float tmax) const {
   if (!isFinite(o) || !isFinite(d)) return false;
+  if (standIn_) {  // no grains: the boundary blocks, as a dense packing would
+    float t;
+    Vec3 ng;
+    return intersectBoundary(o, d, tmin, tmax, t, ng) || insideBoundary(o);
+  }
   const Vec3 invD(1.0f / d.x, 1.0f / d.y, 1.0f / d.z);
   float t0, t1;
   if (!bounds_.intersect(o, invD, tmin, tmax, t0, t1)) return false;
@@ -632,7 +710,7 @@ bool Aggregate::nearestNeighbour(const Vec3& o, const Vec3& d, float tmin, float
 
 bool Aggregate::intersectProxy(const Vec3& o, const Vec3& d, float tmin, float tmax, GrainHit& hit,
                                const GrainHit* skip) const {
-  if (!isFinite(o) || !isFinite(d)) return false;
+  if (!isFinite(o) || !isFinite(d) || standIn_) return false;
   if (skip && nearestNeighbour(o, d, tmin, tmax, hit, *skip)) return true;
   const Vec3 invD(1.0f / d.x, 1.0f / d.y, 1.0f / d.z);
   float t0, t1;
@@ -644,7 +722,7 @@ bool Aggregate::intersectProxy(const Vec3& o, const Vec3& d, float tmin, float t
 
 float Aggregate::proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax,
                                     const ProxyTables& tables, const GrainHit* skip, uint64_t seed) const {
-  if (!isFinite(o) || !isFinite(d)) return 1.0f;
+  if (!isFinite(o) || !isFinite(d) || standIn_) return 1.0f;
   const Vec3 invD(1.0f / d.x, 1.0f / d.y, 1.0f / d.z);
   float t0, t1;
   if (!bounds_.intersect(o, invD, tmin, tmax, t0, t1)) return 1.0f;
@@ -869,6 +947,7 @@ bool Aggregate::traceFromInside(const GrainHit& g, const Vec3& o, const Vec3& d,
 }
 
 void Aggregate::forEachGrain(const Bounds3& box, const std::function<void(const GrainInstance&)>& fn) const {
+  if (standIn_) return;  // no cells
   int64_t lo[3], hi[3];
   for (int a = 0; a < 3; ++a) {
     lo[a] = std::max<int64_t>(0, int64_t(std::floor((box.lo[a] - Rmax_ - origin_[a]) / L_)));

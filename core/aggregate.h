@@ -78,8 +78,24 @@ class Aggregate {
   Aggregate(const Aggregate&) = delete;
   Aggregate& operator=(const Aggregate&) = delete;
 
-  // prototypeMaterials: scene material index of each prototype.
-  void build(const AggregateDesc& desc, const EmbreeDevice& device, const std::vector<int>& prototypeMaterials);
+  // prototypeMaterials: scene material index of each prototype. standIn: only what the
+  // aggregate's equivalent medium needs (the boundary's BVH and the prototypes), no tile
+  // and no cells: a first image can be rendered from the medium alone while the full
+  // build runs (Scene::build, SceneDetail::StandIns). A stand-in has no grains
+  // (intersect() finds none, occluded() is the boundary's; tile() is empty), and its
+  // maxInteriorDepth and approxGrains are estimates (a grid of at most 32 points per
+  // axis; the boundary's volume × f over the mean grain volume) instead of the cells'.
+  // log: told, before it starts, of work the build cache does not hold (the distance
+  // field and cells).
+  void build(const AggregateDesc& desc, const EmbreeDevice& device, const std::vector<int>& prototypeMaterials,
+             bool standIn = false, const std::function<void(const std::string&)>& log = nullptr);
+  bool standIn() const { return standIn_; }
+  // An estimate of the memory build() takes at its peak (the cells' classes, the distance
+  // field and its construction, the sub-cell lists), from the description alone (the
+  // tile's sphere radius as the packing rate gives it): kBuildBytesPerCell per cell of
+  // the boundary's bounds. Scene::build keeps concurrent builds under a cap by it.
+  static double estimateBuildBytes(const AggregateDesc& desc);
+  static constexpr double kBuildBytesPerCell = 10.0;
 
   // from: the grain the ray starts at (its path's last hit, or null), inside it or leaving
   // it. A ray inside a grain leaves it before meeting any other (grains lie in disjoint
@@ -207,6 +223,10 @@ class Aggregate {
   // the deep cells' depth (after the distance field), and the sub-cell lists.
   void classifyCells(float margin);
   void listSubCells(double meanSize);
+  // The distance field, the classes and the sub-cell lists: from the build cache, or
+  // computed (and stored there).
+  void buildCells(const AggregateDesc& desc, float voxel, float margin, double meanSize,
+                  const std::function<void(const std::string&)>& log);
   // Swaps those products (and the distance field) with p's.
   void exchangeProducts(BuildProducts& p);
   static size_t longestSubList(const std::vector<uint32_t>& start);
@@ -248,6 +268,11 @@ class Aggregate {
   std::vector<CellClass> classes_;
   Bounds3 bounds_;
   AggregateStats stats_;
+  bool standIn_ = false;
+  // build()'s stand-in: no tile, no cells; estimates of maxInteriorDepth and approxGrains.
+  void buildStandIn(const AggregateDesc& desc, const EmbreeDevice& device);
+  void estimateStandInDepth();
+  void buildPrototypes(const AggregateDesc& desc, const EmbreeDevice& device);
 };
 
 }  // namespace granular

@@ -48,6 +48,11 @@ void recordPrimary(const Scene& scene, PathState& path, const Hit& hit) {
   path.primary.normal = dot(hit.ng, path.ray.d) > 0 ? -hit.ng : hit.ng;
   path.primary.kind = int(hit.kind);
   path.primary.primId = hit.primId;
+  const Scene::HitIdentity who = scene.identify(hit);
+  path.primary.instanceId = who.instanceId;
+  path.primary.aggregateId = who.aggregateId;
+  path.primary.cryptomatte[0] = who.cryptomatte[0];
+  path.primary.cryptomatte[1] = who.cryptomatte[1];
 }
 
 PathState startPath(const Ray& ray, uint64_t rngSeed, float spread, float width) {

@@ -102,4 +102,19 @@ GrainSelector::GrainSelector(const std::vector<float>& weights, const SizeClasse
   }
 }
 
+double sauterSizeOf(const AggregateDesc& desc, double* meanCube) {
+  const SizeClasses classes = sizeClassesOf(desc);
+  const double a2 = double(desc.sizeSpread) * desc.sizeSpread;
+  double w = 0, s2 = 0, s3 = 0;
+  for (size_t c = 0; c < classes.size.size(); ++c) {
+    const double x = classes.size[c];
+    w += classes.weight[c];
+    s2 += classes.weight[c] * x * x;
+    s3 += classes.weight[c] * x * x * x;
+  }
+  if (meanCube) *meanCube = w > 0 ? s3 / w * (1.0 + a2) : 1.0;
+  if (classes.size.size() == 1) return double(classes.size[0]) * (1.0 + a2) / (1.0 + a2 / 3.0);
+  return s2 > 0 ? s3 * (1.0 + a2) / (s2 * (1.0 + a2 / 3.0)) : 1.0;
+}
+
 }  // namespace granular

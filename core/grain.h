@@ -62,6 +62,11 @@ struct SizeClasses {
   std::vector<int> classOf;
 };
 SizeClasses sizeClassesOf(const AggregateDesc& desc);
+// The Sauter mean size s_32 = E[s³] / E[s²] of the grains an aggregate's tile would hold:
+// its classes in proportion to their weights, each spread uniformly by ±sizeSpread
+// (E[(1 + a u)³] = 1 + a², E[(1 + a u)²] = 1 + a²/3); exactly 1 for one size of 1. Also
+// the mean grain volume's factor E[s³] (meanCube).
+double sauterSizeOf(const AggregateDesc& desc, double* meanCube = nullptr);
 
 class GrainSelector {
  public:

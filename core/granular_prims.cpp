@@ -442,8 +442,11 @@ class Assembler {
     a.sizeSpread = v.sizeSpread;
     a.id = prim.id;
     std::vector<Transform> xfs = prim.instances.empty() ? std::vector<Transform>(1) : prim.instances;
-    for (const Transform& xf : xfs) {
+    checkInstanceIds(prim, xfs.size());
+    for (size_t k = 0; k < xfs.size(); ++k) {
+      const Transform& xf = xfs[k];
       a.xf = xf;
+      a.instanceId = prim.instanceIds.empty() ? -1 : prim.instanceIds[k];
       inUsdTerms(prim, [&] { validateAggregateParameters(a, path); });
       desc_.aggregates.push_back(a);
     }
@@ -473,6 +476,16 @@ class Assembler {
     return index;
   }
 
+  // One instance index per instance (or none), each >= 0.
+  static void checkInstanceIds(const MeshPrim& prim, size_t instances) {
+    if (prim.instanceIds.empty()) return;
+    if (prim.instanceIds.size() != instances)
+      throw InputError(prim.path, "instanceIds", str(prim.instanceIds.size(), " instance indices for ", instances,
+                                                     " instances"));
+    for (int i : prim.instanceIds)
+      if (i < 0) throw InputError(prim.path, "instanceIds", str(i, " is not an instance index (>= 0)"));
+  }
+
   void addMesh(const MeshPrim& prim) {
     int material = prim.material;
     if (material < 0 && prim.displayColor) {
@@ -484,13 +497,15 @@ class Assembler {
       material = int(desc_.materials.size()) - 1;
     }
     std::vector<Transform> xfs = prim.instances.empty() ? std::vector<Transform>(1) : prim.instances;
-    for (const Transform& xf : xfs) {
+    checkInstanceIds(prim, xfs.size());
+    for (size_t k = 0; k < xfs.size(); ++k) {
       MeshDesc d;
       d.name = prim.path;
       d.mesh = prim.mesh;
-      d.xf = xf;
+      d.xf = xfs[k];
       d.material = material;
       d.id = prim.id;
+      d.instanceId = prim.instanceIds.empty() ? -1 : prim.instanceIds[k];
       desc_.meshes.push_back(std::move(d));
     }
   }

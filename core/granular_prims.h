@@ -52,6 +52,9 @@ struct MeshPrim {
   bool active = true;                // false: an inactive prim, looked up as a prototype
   TriangleMesh mesh;                 // object space, triangulated
   std::vector<Transform> instances;  // object-to-world, one per instance; empty: one identity
+  // The instancer's index of each instance (MeshDesc::instanceId), one per transform; empty:
+  // not instanced (-1).
+  std::vector<int> instanceIds;
   bool visible = true;               // drawn: visible and of a rendered purpose
   int material = -1;                 // index into desc.materials resolved by the front end, or -1
   // primvars:displayColor (averaged), given only when no material is bound: an ordinary

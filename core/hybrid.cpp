@@ -32,6 +32,11 @@ void switchToMedia(const Scene& scene, PathState& p, float pa) {
 
 }  // namespace
 
+void startInMedia(const Scene& scene, PathState& path) {
+  path.mode = path.credit = kVpt;
+  path.medium = scene.mediumAt(path.ray.o);
+}
+
 BundleStats traceBundle(const Scene& scene, std::vector<PathState>& paths, float pa) {
   const RenderSettings& rs = scene.settings();
   const int N = int(paths.size());

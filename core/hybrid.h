@@ -30,6 +30,10 @@ struct BundleStats {
   int switchedAtBounce = -1;  // k at which the bundle switched to VPT, or -1
 };
 
+// A camera path of a scene of stand-ins (Scene::standIns) in the media from its start:
+// VPT, in the medium that holds the camera, if any.
+void startInMedia(const Scene& scene, PathState& path);
+
 // Traces paths (already started, same pixel) to the end. pa: survival probability at the
 // switch to VPT.
 BundleStats traceBundle(const Scene& scene, std::vector<PathState>& paths, float pa);

@@ -3,6 +3,7 @@
 
 #include <OpenColorIO/OpenColorIO.h>
 #include <OpenImageIO/filesystem.h>
+#include <OpenImageIO/half.h>
 #include <OpenImageIO/imageio.h>
 #include <OpenImageIO/strutil.h>
 
@@ -162,6 +163,33 @@ OIIO::ImageInput::unique_ptr openFlatImage(const std::string& path) {
 
 }  // namespace
 
+namespace {
+
+// Image::attributes into an EXR header; the writers' own attributes are not overridden.
+void addStringAttributes(const std::string& path, const Image& img, OIIO::ImageSpec& spec) {
+  for (const auto& [name, value] : img.attributes) {
+    if (name.empty() || name == kWriterAttribute || name == "compression" || name.rfind("oiio:", 0) == 0 ||
+        name.rfind("openexr:", 0) == 0)
+      throw std::runtime_error(failure(path, str("header attribute '", name, "' is reserved or empty")));
+    spec.attribute(name, value);
+  }
+}
+
+// The string attributes a writer added (addStringAttributes), without OIIO's and OpenEXR's.
+std::vector<std::pair<std::string, std::string>> stringAttributes(const OIIO::ImageSpec& spec) {
+  std::vector<std::pair<std::string, std::string>> out;
+  for (const OIIO::ParamValue& p : spec.extra_attribs) {
+    const std::string name = p.name().string();
+    if (p.type() != OIIO::TypeDesc::STRING || name == kWriterAttribute || name == "compression" ||
+        name.rfind("oiio:", 0) == 0 || name.rfind("openexr:", 0) == 0)
+      continue;
+    out.emplace_back(name, p.get_string());
+  }
+  return out;
+}
+
+}  // namespace
+
 bool writeExr(const std::string& path, const Image& img) {
   checkShape(path, img, 1);
   std::set<std::string> seen;
@@ -184,7 +212,71 @@ bool writeExr(const std::string& path, const Image& img) {
   spec.z_channel = img.channelIndex("Z");
   spec.attribute("compression", "zip");
   spec.attribute(kWriterAttribute, kWriterName);  // what merge checks a tile for
+  addStringAttributes(path, img, spec);
   return writeAtomically(path, "openexr", spec, OIIO::TypeDesc::FLOAT, img.pixels.data());
+}
+
+bool writeExrTyped(const std::string& path, const Image& img, const std::vector<ExrPixelType>& types,
+                   float pixelAspectRatio) {
+  checkShape(path, img, 1);
+  if (types.size() != img.channels.size())
+    throw std::runtime_error(failure(path, str(types.size(), " pixel types for ", img.channels.size(), " channels")));
+  if (!(std::isfinite(pixelAspectRatio) && pixelAspectRatio > 0))
+    throw std::runtime_error(failure(path, str("pixel aspect ratio ", pixelAspectRatio, " is not finite and > 0")));
+  std::set<std::string> seen;
+  for (const std::string& name : img.channels)
+    if (name.empty() || !seen.insert(name).second)
+      throw std::runtime_error(failure(path, "channel names must be unique and non-empty"));
+  if (img.x < 0 || img.y < 0 || img.x + img.width > img.displayWidth() || img.y + img.height > img.displayHeight())
+    throw std::runtime_error(failure(path, str("pixels at (", img.x, ", ", img.y, ") of size ", img.width, "x", img.height,
+                                               " lie outside the ", img.displayWidth(), "x", img.displayHeight(), " image")));
+  OIIO::ImageSpec spec(img.width, img.height, img.numChannels(), OIIO::TypeDesc::FLOAT);
+  spec.channelnames = img.channels;
+  spec.channelformats.clear();
+  size_t pixelBytes = 0;
+  for (ExrPixelType t : types) {
+    const OIIO::TypeDesc d = t == ExrPixelType::Half    ? OIIO::TypeDesc::HALF
+                             : t == ExrPixelType::UInt ? OIIO::TypeDesc::UINT
+                                                       : OIIO::TypeDesc::FLOAT;
+    spec.channelformats.push_back(d);
+    pixelBytes += d.size();
+  }
+  spec.x = img.x;
+  spec.y = img.y;
+  spec.full_x = spec.full_y = 0;
+  spec.full_width = img.displayWidth();
+  spec.full_height = img.displayHeight();
+  spec.alpha_channel = img.channelIndex("A");
+  spec.z_channel = img.channelIndex("Z");
+  spec.attribute("compression", "zip");
+  spec.attribute("PixelAspectRatio", pixelAspectRatio);
+  spec.attribute(kWriterAttribute, kWriterName);
+  addStringAttributes(path, img, spec);
+  // The file's own per-channel layout, converted here: OIIO's conversion would clamp a
+  // negative id to 0 on its way to uint.
+  const size_t n = size_t(img.width) * img.height, nch = img.channels.size();
+  std::vector<unsigned char> native(n * pixelBytes);
+  unsigned char* out = native.data();
+  for (size_t i = 0; i < n; ++i)
+    for (size_t c = 0; c < nch; ++c) {
+      const float v = img.pixels[i * nch + c];
+      if (types[c] == ExrPixelType::Half) {
+        const half h(v);
+        std::memcpy(out, &h, sizeof h);
+        out += sizeof h;
+      } else if (types[c] == ExrPixelType::UInt) {
+        const double r = std::isfinite(v) ? std::nearbyint(double(v)) : 0.0;
+        const int32_t k = int32_t(std::clamp(r, -2147483648.0, 2147483647.0));
+        uint32_t u;
+        std::memcpy(&u, &k, sizeof u);
+        std::memcpy(out, &u, sizeof u);
+        out += sizeof u;
+      } else {
+        std::memcpy(out, &v, sizeof v);
+        out += sizeof v;
+      }
+    }
+  return writeAtomically(path, "openexr", spec, OIIO::TypeDesc::UNKNOWN, native.data());
 }
 
 bool writePngSrgb(const std::string& path, const Image& img, float exposure) {
@@ -324,6 +416,7 @@ Image readExrFile(const std::string& path, bool ours) {
   if (!in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT, img.pixels.data()))
     throw InputError(path, "", "cannot read image: " + in->geterror());
   in->close();
+  img.attributes = stringAttributes(spec);
   return img;
 }
 
@@ -355,6 +448,7 @@ Image mergeTiles(const std::vector<Image>& tiles) {
     y0 = std::min(y0, t.y), y1 = std::max(y1, t.y + t.height);
   }
   Image out(x1 - x0, y1 - y0, first.channels);
+  out.attributes = first.attributes;  // one render's tiles: the same metadata
   out.x = x0, out.y = y0;
   if (x0 != 0 || y0 != 0 || x1 != W || y1 != H) out.fullWidth = W, out.fullHeight = H;
   // Which tile wrote each pixel (-1: none): overlaps and gaps are errors, not averages.

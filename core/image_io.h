@@ -27,6 +27,9 @@ struct Image {
   // pixel, and the full image's size (0: this image is the full image). EXR keeps them as
   // its data and display windows; a PNG holds the pixels alone.
   int x = 0, y = 0, fullWidth = 0, fullHeight = 0;
+  // String metadata (name, value) for an EXR header, such as the Cryptomatte manifests
+  // (cryptomatte.h); the EXR writers store them, readExr returns them, a PNG has none.
+  std::vector<std::pair<std::string, std::string>> attributes;
   int displayWidth() const { return fullWidth > 0 ? fullWidth : width; }
   int displayHeight() const { return fullHeight > 0 ? fullHeight : height; }
 
@@ -57,8 +60,16 @@ struct Image {
 // full image's display window; the header marks it as ours (readTileExr).
 bool writeExr(const std::string& path, const Image& img);
 
-// An OpenEXR file as written by writeExr (any channels, data and display windows kept):
-// float32 of every channel. Throws InputError(path, "", "cannot read image: ...").
+// The same with a pixel type per channel (types[i] for img.channels[i]: EXR half, float or
+// uint; a UInt channel's values are int32 stored as their two's-complement bits, so -1 is
+// 4294967295) and the pixel aspect ratio in the header; for render products
+// (render_products.h).
+enum class ExrPixelType { Half, Float, UInt };
+bool writeExrTyped(const std::string& path, const Image& img, const std::vector<ExrPixelType>& types,
+                   float pixelAspectRatio);
+
+// An OpenEXR file as written by writeExr (any channels, data and display windows kept,
+// string header attributes in `attributes` but OIIO's and OpenEXR's own): float32 of every channel. Throws InputError(path, "", "cannot read image: ...").
 Image readExr(const std::string& path);
 // The same, for a tile to merge: only an OpenEXR that writeExr wrote (another image, such
 // as an 8-bit sRGB PNG, holds no linear radiance), else InputError(path, "", ...).

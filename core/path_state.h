@@ -23,6 +23,8 @@ struct PrimaryInfo {
   int kind = -1;        // Hit::Kind of the first hit
   int primId = -1;      // the front end's id of what was hit
   Vec3 albedo;          // what a denoiser takes as its reflectance (ept.h: primaryAlbedo)
+  int instanceId = -1, aggregateId = -1;       // Scene::identify
+  uint32_t cryptomatte[2] = {0, 0};            // object and material ids (cryptomatte.h)
 };
 
 // Index of a contribution in PathState::L (the AOVs), and the transport a path is in:

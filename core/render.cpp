@@ -1,6 +1,7 @@
 #include "render.h"
 
 #include <chrono>
+#include <cmath>
 
 #include <tbb/blocked_range2d.h>
 #include <tbb/global_control.h>
@@ -17,26 +18,61 @@ Renderer::Renderer(const Scene& scene)
       width_(scene.settings().width),
       height_(scene.settings().height),
       window_(renderWindow(scene.settings())),
-      film_(window_, scene.settings().width, scene.settings().height) {
+      film_(window_, scene.settings().width, scene.settings().height, scene.settings().cryptomatte) {
   const RenderSettings& rs = scene.settings();
   // Bundles matter only where paths can switch to the media.
   bool hybrid = rs.technique != Technique::Ept && scene.hasMedia();
   bundle_ = hybrid ? std::max(1, std::min(rs.bundleSize, rs.spp)) : 1;
+  active_ = long(window_.width()) * window_.height();
+}
+
+void Renderer::setNoiseThreshold(float threshold) {
+  if (!(threshold >= 0) || !std::isfinite(threshold))
+    throw InputError("render", "noiseThreshold", str(threshold, " must be finite and >= 0"));
+  // The pixels that stopped did so by the old threshold.
+  if (done_ > 0 && threshold != threshold_)
+    throw InputError("render", "noiseThreshold", "cannot change after the first pass: make a new renderer");
+  threshold_ = threshold;
+}
+
+long Renderer::minAdaptiveSamples() const {
+  return std::min<long>(scene_.settings().spp, std::max<long>(2L * bundle_, 16));
+}
+
+SampleCounts Renderer::sampleCounts() const {
+  SampleCounts c;
+  const long pixels = long(film_.width()) * film_.height();
+  if (pixels == 0) return c;
+  double sum = 0;
+  c.min = film_.samples(0, 0);
+  for (int y = 0; y < film_.height(); ++y)
+    for (int x = 0; x < film_.width(); ++x) {
+      const long n = film_.samples(x, y);
+      sum += double(n);
+      c.min = std::min(c.min, n);
+      c.max = std::max(c.max, n);
+    }
+  c.mean = sum / double(pixels);
+  return c;
 }
 
 void Renderer::prepare() {
   prepared_ = true;
   const RenderSettings& rs = scene_.settings();
-  if (rs.technique == Technique::Ept || !scene_.hasMedia()) return;
+  // Stand-ins: every path is in the media from its start, with nothing to tune.
+  if (rs.technique == Technique::Ept || !scene_.hasMedia() || scene_.standIns()) return;
   if (rs.roulette > 0) roulette_.pa = rs.roulette;
   else roulette_ = tuneRoulette(scene_);
 }
 
-void Renderer::tracePixel(int x, int y, long first, int count, Film& film, int fx, int fy, bool counted) {
+void Renderer::tracePixel(int x, int y, long first, int count, Film& film, int fx, int fy, bool counted,
+                          bool adaptive) {
   const RenderSettings& rs = scene_.settings();
   const Camera& cam = scene_.camera();
   thread_local std::vector<PathState> paths;
+  const long minSamples = adaptive ? minAdaptiveSamples() : 0;
   for (int b = 0; b < count; b += bundle_) {
+    if (adaptive && first + b >= minSamples && film.pixelBelowNoiseThreshold(fx, fy, threshold_)) break;
     paths.clear();
     for (int s = b; s < std::min(b + bundle_, count); ++s) {
       long index = first + s;
@@ -44,6 +80,7 @@ void Renderer::tracePixel(int x, int y, long first, int count, Film& film, int f
       Ray ray = cam.sampleRay(x, y, rng);
       PathState p = startPath(ray, 0, cam.coneSpread(), cam.coneWidth());
       p.rng = rng;
+      if (scene_.standIns()) startInMedia(scene_, p);
       paths.push_back(p);
     }
     traceBundle(scene_, paths, roulette_.pa);
@@ -87,17 +124,28 @@ bool Renderer::renderPass(int samples, const std::atomic<bool>* cancel, const Ti
   std::atomic<bool> cancelled{false};
   passPixels_ = 0;  // before the state names the new pass (progressSamples relies on it)
   passState_ = (uint64_t(done_) << 24) | uint64_t(samples);
+  // Each pixel continues from its own count (done_, or less where adaptive sampling
+  // stopped it, or more after a cancelled pass) up to the pass's end.
+  const long end = done_ + samples;
+  const bool adaptive = threshold_ > 0;
+  std::atomic<long> active{0};
   forTiles(window_.width(), window_.height(), [&](const tbb::blocked_range2d<int>& r) {
+    long going = 0;
     for (int y = r.rows().begin(); y < r.rows().end(); ++y)
       for (int x = r.cols().begin(); x < r.cols().end(); ++x) {
         if (cancel && cancel->load(std::memory_order_relaxed)) { cancelled = true; return; }
-        tracePixel(window_.x0 + x, window_.y0 + y, done_, samples, film_, x, y, true);
+        const long n = film_.samples(x, y);
+        if (n < end) tracePixel(window_.x0 + x, window_.y0 + y, n, int(end - n), film_, x, y, true, adaptive);
         passPixels_.fetch_add(1, std::memory_order_relaxed);
+        going += !adaptive || (film_.samples(x, y) >= end &&
+                               !(end >= minAdaptiveSamples() && film_.pixelBelowNoiseThreshold(x, y, threshold_)));
       }
+    active += going;
     if (onTile) onTile(r.cols().begin(), r.cols().end(), r.rows().begin(), r.rows().end());
   });
   if (cancelled) return false;
-  done_ += samples;
+  done_ = end;
+  active_ = active;
   passState_ = uint64_t(done_) << 24;
   return true;
 }
@@ -141,7 +189,7 @@ bool Renderer::render(int passSamples, const std::function<void(const RenderProg
                       const std::atomic<bool>* cancel) {
   auto t0 = std::chrono::steady_clock::now();
   const long target = scene_.settings().spp;
-  while (done_ < target) {
+  while (done_ < target && !converged()) {
     int pass = ((std::max(passSamples, 1) + bundle_ - 1) / bundle_) * bundle_;  // whole bundles
     int n = int(std::min<long>(pass, target - done_));
     if (!renderPass(n, cancel)) return false;
@@ -154,6 +202,14 @@ bool Renderer::render(int passSamples, const std::function<void(const RenderProg
     }
   }
   return true;
+}
+
+Image Renderer::image() const {
+  Image img = film_.toImage();
+  if (film_.hasCryptomatte())
+    for (CryptomatteType t : {CryptomatteType::Object, CryptomatteType::Material})
+      for (auto& kv : cryptomatteMetadata(t, scene_.cryptomatteNames(t))) img.attributes.push_back(std::move(kv));
+  return img;
 }
 
 }  // namespace granular

@@ -17,6 +17,19 @@
 // pixel's random streams, the pre-render over the whole image — is as without it, so the
 // films of a tiling are the full film's pixels bit for bit.
 //
+// Adaptive sampling (setNoiseThreshold(T) > 0): each pixel stops on its own once it
+// has at least minAdaptiveSamples() samples and Film::pixelBelowNoiseThreshold(T) holds,
+// checked before each of its bundles from its own film statistics — so a pixel's
+// samples stay whole bundles [bN, bN+N) of the same streams, and where it stops depends
+// only on (seed, x, y, spp, T), not on threads or pass splits: the image is the one a
+// render of those per-pixel sample counts draws. A pixel that stopped stays stopped (its
+// statistics no longer change). After each pass the renderer counts the pixels still
+// going; converged() is true when none is, and render() then ends before spp.
+// The minimum is two bundles and at least 16 samples: the paths of a bundle share its
+// switch to the media (hybrid.h), so one bundle's spread understates the pixel's
+// variance, and a handful of samples that happen to agree (all missing a small light)
+// would read as no noise at all.
+//
 // Interactive hosts: renderPass() calls onTile from the worker thread that finished a
 // tile (its pixels then hold the pass's samples), so a host can show tiles as they come;
 // renderPreview(stride) first renders one bundle of the centre pixel of every
@@ -41,6 +54,12 @@ struct RenderProgress {
   double seconds = 0;
 };
 
+// Samples per pixel of the film (differ between pixels with adaptive sampling).
+struct SampleCounts {
+  double mean = 0;
+  long min = 0, max = 0;
+};
+
 // A finished path as a film sample; false when its estimate is not finite (a numerical
 // failure), and then the sample carries no radiance: it is dropped as a whole.
 inline bool toPixelSample(const PathState& p, PixelSample& ps) {
@@ -56,6 +75,10 @@ inline bool toPixelSample(const PathState& p, PixelSample& ps) {
   ps.normal = p.primary.normal;
   ps.primId = p.primary.primId;
   ps.albedo = p.primary.albedo;
+  ps.instanceId = p.primary.instanceId;
+  ps.aggregateId = p.primary.aggregateId;
+  ps.cryptomatte[0] = p.primary.cryptomatte[0];
+  ps.cryptomatte[1] = p.primary.cryptomatte[1];
   return finite;
 }
 
@@ -65,7 +88,18 @@ class Renderer {
   // Film pixel window [x0, x1) × [y0, y1) of a finished tile (image pixels less the
   // crop's origin).
   using TileCallback = std::function<void(int x0, int x1, int y0, int y1)>;
+  // Adds samples up to k + samples to every pixel that has not stopped (adaptive sampling).
   bool renderPass(int samples, const std::atomic<bool>* cancel = nullptr, const TileCallback& onTile = nullptr);
+  // Adaptive sampling's threshold (0: off, every pixel gets spp); before the first pass.
+  // InputError when negative or not finite, or when changed after the first pass.
+  void setNoiseThreshold(float threshold);
+  float noiseThreshold() const { return threshold_; }
+  long minAdaptiveSamples() const;
+  // With a threshold, after a pass: no pixel needs more samples.
+  bool converged() const { return threshold_ > 0 && done_ > 0 && active_ == 0; }
+  // Pixels still taking samples after the last pass (all of them without a threshold).
+  long activePixels() const { return active_; }
+  SampleCounts sampleCounts() const;
   // A film of ceil(W/stride) × ceil(H/stride) pixels, W × H the crop's size: pixel (i, j)
   // holds the first bundle of crop pixel (min(i·stride + stride/2, W−1), likewise j);
   // false when cancelled. tuned false: before the Russian roulette is tuned (its
@@ -73,10 +107,15 @@ class Renderer {
   // with the settings' fixed P_a, else none (P_a 1): unbiased, but its values are not the
   // pass's; for a host's first image after a new view.
   bool renderPreview(int stride, Film& preview, const std::atomic<bool>* cancel = nullptr, bool tuned = true);
-  // Renders settings().spp samples in passes of passSamples; calls progress after each.
+  // Renders settings().spp samples in passes of passSamples (or until converged()); calls
+  // progress after each.
   bool render(int passSamples = 1, const std::function<void(const RenderProgress&)>& progress = nullptr,
               const std::atomic<bool>* cancel = nullptr);
   const Film& film() const { return film_; }
+  // film().toImage() with the header a file of it needs: with Cryptomatte, each type's
+  // metadata and manifest (cryptomatte.h) from the scene's names.
+  Image image() const;
+  // Samples so far of the pixels still going (the most any pixel has).
   long samplesPerPixel() const { return done_; }
   int bundleSize() const { return bundle_; }
   // Samples per pixel done so far, counting the finished pixels of the pass under way as
@@ -96,7 +135,9 @@ class Renderer {
   // Traces samples [first, first + count) of image pixel (x, y) as bundles into film
   // pixel (fx, fy); counted (non-finite samples, shortcuts) only for the image's own film
   // (a preview repeats samples the passes trace again).
-  void tracePixel(int x, int y, long first, int count, Film& film, int fx, int fy, bool counted);
+  // adaptive: stop before a bundle once the pixel is below the noise threshold.
+  void tracePixel(int x, int y, long first, int count, Film& film, int fx, int fy, bool counted,
+                  bool adaptive = false);
   template <typename Body>
   void forTiles(int width, int height, const Body& body) const;
   const Scene& scene_;
@@ -105,6 +146,8 @@ class Renderer {
   Film film_;
   long done_ = 0;
   int bundle_ = 1;
+  float threshold_ = 0;
+  long active_ = 0;
   bool prepared_ = false;
   // Progress of the pass under way: (samples done before it << 24 | its samples), and
   // its finished pixels; the pair is read consistently (see progressSamples()).

@@ -1,8 +1,14 @@
 #include "scene.h"
 
+#include <condition_variable>
+#include <cstdlib>
+#include <mutex>
+#include <thread>
+
 #include <algorithm>
 #include <chrono>
 #include <cstring>
+#include <set>
 
 #include "error.h"
 #include "microfacet.h"
@@ -196,9 +202,10 @@ const std::vector<std::string>& Scene::textureWarnings() const {
 }
 
 const Scene::BuiltAggregate* Scene::findBuilt(const AggregateDesc& desc, const std::vector<int>& materials,
-                                              const std::vector<MaterialDesc>& materialDescs) const {
+                                              const std::vector<MaterialDesc>& materialDescs, bool fullOnly) const {
   for (const auto& b : built_) {
     if (b.materials != materials || !sameAggregate(b.desc, desc)) continue;
+    if (fullOnly && b.aggregate->standIn()) continue;
     bool same = true;
     for (size_t i = 0; i < materialDescs.size() && same; ++i) same = sameMaterial(b.materialDescs[i], materialDescs[i]);
     if (same) return &b;
@@ -206,7 +213,8 @@ const Scene::BuiltAggregate* Scene::findBuilt(const AggregateDesc& desc, const s
   return nullptr;
 }
 
-std::unique_ptr<Scene> Scene::build(const SceneDesc& worldDesc, const Scene* previous) {
+std::unique_ptr<Scene> Scene::build(const SceneDesc& worldDesc, const Scene* previous, SceneDetail detail,
+                                    const BuildLog& log) {
   auto t0 = std::chrono::steady_clock::now();
   validateSceneDesc(worldDesc);
   // Everything below is in render space (scene_desc.h: renderOrigin).
@@ -222,9 +230,11 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& worldDesc, const Scene* pre
   const DefaultMaterials defaults = s->buildMaterials(desc);
   s->buildSurfaceMaps(desc);
   Bounds3 all = s->buildMeshes(desc, defaults.surface);
-  s->buildAggregates(desc, defaults.grain, previous, all);
+  s->buildAggregates(desc, defaults.grain, previous, all,
+                     detail == SceneDetail::StandIns && desc.settings.technique != Technique::Ept, log);
   s->sceneScale_ = all.empty() ? 1.0f : std::max(1e-6f, maxComponent(vmax(vabs(all.lo), vabs(all.hi))));
   const std::vector<LightDesc> lights = s->buildLights(desc);
+  s->buildIdentities(desc, lights);
   s->findEmittersInside(desc, lights);
   s->updateDiffusionDepths();
   s->updateExplicitBounces();
@@ -298,10 +308,16 @@ Bounds3 Scene::buildMeshes(const SceneDesc& desc, int defaultSurface) {
 
 // Each aggregate lent by the previous scene or built anew, with its medium when the
 // technique uses media; the media are kept only if some aggregate needs them.
-void Scene::buildAggregates(const SceneDesc& desc, int defaultGrain, const Scene* previous, Bounds3& all) {
-  for (const auto& a : desc.aggregates) {
-    BuiltAggregate entry = lendOrBuild(desc, a, defaultGrain, previous);
+void Scene::buildAggregates(const SceneDesc& desc, int defaultGrain, const Scene* previous, Bounds3& all,
+                            bool standIns, const BuildLog& log) {
+  std::vector<BuiltAggregate> entries;
+  for (const auto& a : desc.aggregates) entries.push_back(lend(desc, a, defaultGrain, previous, standIns));
+  buildConcurrently(desc, entries, standIns, log);
+  for (size_t i = 0; i < entries.size(); ++i) {
+    const AggregateDesc& a = desc.aggregates[i];
+    BuiltAggregate& entry = entries[i];
     const Aggregate& agg = *entry.aggregate;
+    standIns_ = standIns_ || agg.standIn();
     aggregateId_.push_back(a.id);
     all.extend(agg.bounds());
     maxGrainRadius_ = std::max(maxGrainRadius_, agg.maxGrainRadius());
@@ -309,6 +325,8 @@ void Scene::buildAggregates(const SceneDesc& desc, int defaultGrain, const Scene
     aggregates_.push_back(entry.aggregate);
     built_.push_back(std::move(entry));
   }
+  // A stand-in has nothing but its medium: every aggregate keeps one.
+  if (standIns_) mediaNeeded_ = true;
   if (!mediaNeeded_) {
     mediumParams_.clear();
     media_.clear();
@@ -316,32 +334,114 @@ void Scene::buildAggregates(const SceneDesc& desc, int defaultGrain, const Scene
   }
 }
 
-Scene::BuiltAggregate Scene::lendOrBuild(const SceneDesc& desc, const AggregateDesc& a, int defaultGrain,
-                                         const Scene* previous) {
+Scene::BuiltAggregate Scene::lend(const SceneDesc& desc, const AggregateDesc& a, int defaultGrain,
+                                  const Scene* previous, bool standIn) {
   BuiltAggregate entry;
   entry.desc = a;
   for (const auto& p : a.prototypes) {
     entry.materials.push_back(p.material >= 0 ? p.material : defaultGrain);
     entry.materialDescs.push_back(p.material >= 0 ? desc.materials[p.material] : defaultGrainDesc());
   }
-  const BuiltAggregate* old = previous ? previous->findBuilt(a, entry.materials, entry.materialDescs) : nullptr;
+  const BuiltAggregate* old = previous ? previous->findBuilt(a, entry.materials, entry.materialDescs, !standIn) : nullptr;
+  if (!old && previous && !standIn) {
+    // A stand-in of the same inputs lends its medium (the same TT parameters) to the full
+    // build when the tile's Sauter size is the one it assumed (below, addMedium).
+    if (const BuiltAggregate* s = previous->findBuilt(a, entry.materials, entry.materialDescs); s && s->hasMedium) {
+      entry.hasMedium = true;
+      entry.medium = s->medium;
+      entry.mediumSauterSize = s->mediumSauterSize;
+    }
+  }
   if (old) {
     entry.aggregate = old->aggregate;
     entry.hasMedium = old->hasMedium;
     entry.medium = old->medium;
+    entry.mediumSauterSize = old->mediumSauterSize;
     entry.proxies = old->proxies;
     ++aggregatesReused_;
-  } else {
-    auto agg = std::make_shared<Aggregate>();
-    agg->build(a, device_, entry.materials);
-    entry.aggregate = std::move(agg);
-    ++aggregatesBuilt_;
   }
   return entry;
 }
 
+namespace {
+
+// GRANULAR_BUILD_MEMORY_MB (default 2048): the estimated memory of the aggregate builds
+// that may run at once.
+double buildMemoryCapBytes() {
+  const char* v = std::getenv("GRANULAR_BUILD_MEMORY_MB");
+  char* end = nullptr;
+  const double mb = v && *v ? std::strtod(v, &end) : 2048.0;
+  return (v && *v && (*end || !(mb > 0) || !std::isfinite(mb)) ? 2048.0 : mb) * 1024.0 * 1024.0;
+}
+
+}  // namespace
+
+void Scene::buildConcurrently(const SceneDesc& desc, std::vector<BuiltAggregate>& entries, bool standIns,
+                              const BuildLog& log) {
+  std::vector<size_t> todo;
+  for (size_t i = 0; i < entries.size(); ++i)
+    if (!entries[i].aggregate) todo.push_back(i);
+  if (todo.empty()) return;
+  // The largest first: the others fill the threads around it.
+  std::vector<double> estimate(entries.size(), 0.0);
+  if (!standIns)
+    for (size_t i : todo) estimate[i] = Aggregate::estimateBuildBytes(desc.aggregates[i]);
+  std::stable_sort(todo.begin(), todo.end(), [&](size_t a, size_t b) { return estimate[a] > estimate[b]; });
+  // Builds run side by side (much of one is serial: the tile's packing, parts of the
+  // distance field), on up to as many threads as cores, while the estimated memory of the
+  // builds under way stays within the cap; one that alone exceeds it runs alone. Each
+  // aggregate is built as it would be alone, so the scene does not depend on the order.
+  const double cap = buildMemoryCapBytes();
+  const size_t threads = std::min<size_t>(todo.size(), std::max(1u, std::thread::hardware_concurrency()));
+  std::mutex mutex;
+  std::condition_variable freed;
+  double inUse = 0;
+  size_t next = 0;
+  std::vector<std::exception_ptr> errors(entries.size());
+  const BuildLog say = log ? BuildLog([&](const std::string& line) {
+    std::lock_guard<std::mutex> lock(mutex);
+    log(line);
+  }) : BuildLog();
+  auto worker = [&] {
+    for (;;) {
+      size_t i;
+      double bytes;
+      {
+        // The next aggregate in line, once the memory under way leaves room for it.
+        std::unique_lock<std::mutex> lock(mutex);
+        freed.wait(lock, [&] { return next == todo.size() || inUse == 0 || inUse + estimate[todo[next]] <= cap; });
+        if (next == todo.size()) return;
+        i = todo[next++];
+        bytes = estimate[i];
+        inUse += bytes;
+      }
+      try {
+        auto agg = std::make_shared<Aggregate>();
+        agg->build(desc.aggregates[i], device_, entries[i].materials, standIns, say);
+        entries[i].aggregate = std::move(agg);
+      } catch (...) {
+        errors[i] = std::current_exception();
+      }
+      {
+        std::lock_guard<std::mutex> lock(mutex);
+        inUse -= bytes;
+      }
+      freed.notify_all();
+    }
+  };
+  std::vector<std::thread> pool;
+  for (size_t t = 1; t < threads; ++t) pool.emplace_back(worker);
+  worker();
+  for (auto& t : pool) t.join();
+  for (const auto& e : errors)  // the first aggregate's error, as a sequential build would throw
+    if (e) std::rethrow_exception(e);
+  (standIns ? standInsBuilt_ : aggregatesBuilt_) += int(todo.size());
+}
+
 void Scene::addMedium(const AggregateDesc& a, BuiltAggregate& entry) {
   const Aggregate& agg = *entry.aggregate;
+  if (entry.hasMedium && !agg.standIn() && entry.mediumSauterSize != agg.tile().sauterSize())
+    entry.hasMedium = false;  // a stand-in's, for sizes this tile does not hold exactly
   if (!entry.hasMedium) {
     // TT parameters per grain kind (cached on disk), combined per aggregate (Meng et al. 2015;
     // tt.h: aggregateMedium), the flights between spheres by the tile's own sizes.
@@ -351,7 +451,10 @@ void Scene::addMedium(const AggregateDesc& a, BuiltAggregate& entry) {
       meshes.push_back(&agg.prototypes()[i].mesh);
       mats.push_back(materials_[entry.materials[i]]);
     }
-    entry.medium = aggregateMedium(meshes, mats, a, agg.tile().sauterSize());
+    // A stand-in has no tile: the Sauter size its tile would have (grain.h), which a full
+    // build's tile matches exactly when all grains have one size.
+    entry.mediumSauterSize = agg.standIn() ? sauterSizeOf(a) : agg.tile().sauterSize();
+    entry.medium = aggregateMedium(meshes, mats, a, entry.mediumSauterSize);
     entry.hasMedium = true;
     ++mediaDerived_;
   }
@@ -460,6 +563,72 @@ bool Scene::intersectAreaLights(const Ray& ray, Hit& hit, float& tmax) const {
   return found;
 }
 
+void Scene::buildIdentities(const SceneDesc& desc, const std::vector<LightDesc>& lights) {
+  // The scene's materials in buildMaterials' order, the defaults after the description's.
+  std::vector<std::string> materialNames;
+  for (const auto& m : desc.materials) materialNames.push_back(m.name);
+  const int defaultSurface = int(materialNames.size()), defaultGrain = defaultSurface + 1;
+  materialNames.push_back(defaultSurfaceDesc().name);
+  materialNames.push_back(defaultGrainDesc().name);
+  for (const std::string& n : materialNames) materialCryptomatte_.push_back(cryptomatteId(n));
+  std::set<std::string> names[kCryptomatteTypes];
+  for (const auto& m : desc.meshes) {
+    if (!m.visible) continue;  // as buildMeshes: one per geometry id
+    const int material = m.material >= 0 ? m.material : defaultSurface;
+    HitIdentity id;
+    id.instanceId = m.instanceId;
+    id.cryptomatte[0] = cryptomatteId(m.name);
+    id.cryptomatte[1] = materialCryptomatte_[size_t(material)];
+    names[0].insert(m.name);
+    names[1].insert(materialNames[size_t(material)]);
+    meshIdentity_.push_back(id);
+  }
+  for (const auto& a : desc.aggregates) {
+    HitIdentity id;
+    id.instanceId = a.instanceId;
+    id.aggregateId = a.id;
+    id.cryptomatte[0] = cryptomatteId(a.name);
+    names[0].insert(a.name);
+    float heaviest = -1;
+    for (size_t k = 0; k < a.prototypes.size(); ++k) {
+      const int material = a.prototypes[k].material >= 0 ? a.prototypes[k].material : defaultGrain;
+      names[1].insert(materialNames[size_t(material)]);
+      const float w = k < a.weights.size() ? a.weights[k] : 1.0f;
+      if (w > heaviest) {
+        heaviest = w;
+        id.cryptomatte[1] = materialCryptomatte_[size_t(material)];
+      }
+    }
+    aggregateIdentity_.push_back(id);
+  }
+  for (const auto& l : lights) {
+    HitIdentity id;
+    id.cryptomatte[0] = id.cryptomatte[1] = cryptomatteId(l.name);
+    if (l.type == LightType::Sphere || l.type == LightType::Rect) {  // only these are hit
+      names[0].insert(l.name);
+      names[1].insert(l.name);
+    }
+    lightIdentity_.push_back(id);
+  }
+  for (int t = 0; t < kCryptomatteTypes; ++t) cryptomatteNames_[t].assign(names[t].begin(), names[t].end());
+}
+
+Scene::HitIdentity Scene::identify(const Hit& hit) const {
+  switch (hit.kind) {
+    case Hit::Surface: return meshIdentity_[size_t(hit.geom)];
+    case Hit::Grain:
+    case Hit::Proxy: {
+      HitIdentity id = aggregateIdentity_[size_t(hit.aggregate)];
+      if (hit.material >= 0 && size_t(hit.material) < materialCryptomatte_.size())
+        id.cryptomatte[1] = materialCryptomatte_[size_t(hit.material)];
+      return id;
+    }
+    case Hit::Boundary: return aggregateIdentity_[size_t(hit.aggregate)];
+    case Hit::AreaLight: return lightIdentity_[size_t(hit.light)];
+  }
+  return HitIdentity();
+}
+
 void Scene::finishHit(const Ray& ray, Hit& hit) const {
   hit.p = ray.o + ray.d * hit.t;
   // Position error grows with the coordinates' magnitude (float) and, for p = o + t d,
@@ -528,7 +697,7 @@ void Scene::setView(const CameraDesc& camera, const RenderSettings& settings) {
 
 void Scene::updateProxies() {
   const ProxyUse use = settings_.proxies;
-  useProxies_ = settings_.technique != Technique::Ept &&
+  useProxies_ = settings_.technique != Technique::Ept && !standIns_ &&
                 (use == ProxyUse::On || (use == ProxyUse::Auto && narrowSun_)) && !aggregates_.empty();
   if (!useProxies_) return;
   proxyTables_.clear();

@@ -11,6 +11,7 @@
 // safe to query from many threads.
 #pragma once
 
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -18,6 +19,7 @@
 
 #include "aggregate.h"
 #include "camera.h"
+#include "cryptomatte.h"
 #include "diffusion.h"
 #include "embree_util.h"
 #include "light.h"
@@ -57,9 +59,24 @@ struct GrainStart {
   bool inside = false;
 };
 
+// How much of each aggregate a build makes. StandIns: aggregates the previous scene
+// cannot lend are built as stand-ins (Aggregate::build: the boundary and the medium, no
+// cells), and every path of the scene is traced through the equivalent media from the
+// camera on (VPT and DA, no explicit grains): a first image in the time of the boundaries'
+// BVHs and the cached TT parameters, for an interactive host to show while the full
+// build runs. Technique Ept has no media: its builds are always full.
+enum class SceneDetail { Full, StandIns };
+
+// What a build says it is waiting for, a line at a time (Aggregate::build: work that
+// the build cache does not hold), called on the building thread.
+using BuildLog = std::function<void(const std::string&)>;
+
 class Scene {
  public:
-  static std::unique_ptr<Scene> build(const SceneDesc& desc, const Scene* previous = nullptr);
+  static std::unique_ptr<Scene> build(const SceneDesc& desc, const Scene* previous = nullptr,
+                                      SceneDetail detail = SceneDetail::Full, const BuildLog& log = nullptr);
+  // Some aggregate is a stand-in (SceneDetail::StandIns): paths start in the media.
+  bool standIns() const { return standIns_; }
 
   // Explicit grains (EPT): nearest surface, grain or area light.
   bool intersect(const Ray& ray, Hit& hit, const GrainStart* from = nullptr) const;
@@ -147,6 +164,22 @@ class Scene {
   // shadow rays pass a cut-out surface by a hash of the ray and the triangle, so a pass is
   // reproducible and independent between rays.
   float presence(int geom, unsigned prim, float bu, float bv) const;
+
+  // Who a hit belongs to, for the compositing AOVs (film.h): the front end's instance index
+  // and aggregate id (-1: not instanced, not an aggregate's), and the Cryptomatte ids of its
+  // object — the mesh's, aggregate's (grain, boundary, proxy) or area light's name — and of
+  // its material: the mesh's or grain prototype's material name (the defaults:
+  // "default_surface", "default_grain"); at a boundary, the material of the aggregate's
+  // prototype of largest weight; an area light's own name (it has no material).
+  struct HitIdentity {
+    int instanceId = -1, aggregateId = -1;
+    uint32_t cryptomatte[kCryptomatteTypes] = {0, 0};
+  };
+  HitIdentity identify(const Hit& hit) const;
+  // Every name identify() can give a type's ids, sorted, each once: its manifest's names.
+  const std::vector<std::string>& cryptomatteNames(CryptomatteType type) const {
+    return cryptomatteNames_[int(type)];
+  }
   // Warnings from textures (texture.h) for the front ends to show.
   const std::vector<std::string>& textureWarnings() const;
   const std::vector<Light>& lights() const { return lights_; }
@@ -156,6 +189,7 @@ class Scene {
   // Of this build's aggregates: how many were voxelised anew, how many were taken from the
   // previous scene unchanged; and how many media were derived from TT parameters anew.
   int aggregatesBuilt() const { return aggregatesBuilt_; }
+  int standInsBuilt() const { return standInsBuilt_; }  // built as stand-ins (not counted above)
   int aggregatesReused() const { return aggregatesReused_; }
   int mediaDerived() const { return mediaDerived_; }
   // The scene had no light and settings().defaultLight added the default dome (front ends
@@ -206,10 +240,12 @@ class Scene {
     std::shared_ptr<const Aggregate> aggregate;
     bool hasMedium = false;                     // TT-derived (before any setMedium)
     MediumParams medium;
+    double mediumSauterSize = 0;                // the Sauter size it was derived with
     std::shared_ptr<const ProxyTables> proxies;  // made when first needed (updateProxies)
   };
+  // fullOnly: a stand-in is not lent (its medium is, through `medium`).
   const BuiltAggregate* findBuilt(const AggregateDesc& desc, const std::vector<int>& materials,
-                                  const std::vector<MaterialDesc>& materialDescs) const;
+                                  const std::vector<MaterialDesc>& materialDescs, bool fullOnly = false) const;
   // The steps of build(), in its order.
   struct DefaultMaterials {
     int surface = -1, grain = -1;  // indices of what unassigned surfaces and grains get
@@ -217,14 +253,19 @@ class Scene {
   DefaultMaterials buildMaterials(const SceneDesc& desc);  // the scene's, the defaults, DA's exit
   void buildSurfaceMaps(const SceneDesc& desc);            // textures and cut-outs
   Bounds3 buildMeshes(const SceneDesc& desc, int defaultSurface);  // the surfaces' BVH; their bounds
-  void buildAggregates(const SceneDesc& desc, int defaultGrain, const Scene* previous, Bounds3& all);
-  BuiltAggregate lendOrBuild(const SceneDesc& desc, const AggregateDesc& a, int defaultGrain,
-                             const Scene* previous);  // the previous scene's when unchanged
+  void buildAggregates(const SceneDesc& desc, int defaultGrain, const Scene* previous, Bounds3& all, bool standIns,
+                       const BuildLog& log);
+  // The previous scene's aggregate when unchanged (else entry.aggregate stays null).
+  BuiltAggregate lend(const SceneDesc& desc, const AggregateDesc& a, int defaultGrain, const Scene* previous,
+                      bool standIn);
+  // Builds the entries' aggregates that were not lent, several at once under a memory cap.
+  void buildConcurrently(const SceneDesc& desc, std::vector<BuiltAggregate>& entries, bool standIns,
+                         const BuildLog& log);
   void addMedium(const AggregateDesc& a, BuiltAggregate& entry);  // derived by TT unless lent
   std::vector<LightDesc> buildLights(const SceneDesc& desc);      // returns them as built
   void findEmittersInside(const SceneDesc& desc, const std::vector<LightDesc>& lights);  // emitterInside_
   std::vector<BuiltAggregate> built_;
-  int aggregatesBuilt_ = 0, aggregatesReused_ = 0, mediaDerived_ = 0;
+  int aggregatesBuilt_ = 0, standInsBuilt_ = 0, aggregatesReused_ = 0, mediaDerived_ = 0;
   std::vector<MediumParams> mediumParams_;
   std::vector<std::shared_ptr<const ProxyTables>> proxyTables_;  // per aggregate
   std::vector<HomogeneousMedium> media_;
@@ -259,6 +300,11 @@ class Scene {
   void surfaceUv(int geom, unsigned prim, float bu, float bv, float& u, float& v) const;
   std::vector<int> meshMaterial_, meshId_;
   std::vector<int> aggregateId_;
+  // identify(): per mesh (geometry id), aggregate and light, and per material the id of its name.
+  void buildIdentities(const SceneDesc& desc, const std::vector<LightDesc>& lights);
+  std::vector<HitIdentity> meshIdentity_, aggregateIdentity_, lightIdentity_;
+  std::vector<uint32_t> materialCryptomatte_;
+  std::vector<std::string> cryptomatteNames_[kCryptomatteTypes];
   EmbreeDevice device_;
   EmbreeScene surfaces_;
   Bounds3 surfaceBounds_;  // of every visible mesh (empty: none), to skip surfaces_ cheaply
@@ -268,6 +314,7 @@ class Scene {
   bool defaultLightAdded_ = false;
   std::vector<std::string> widenedSuns_;
   bool narrowSun_ = false;
+  bool standIns_ = false;
 };
 
 }  // namespace granular

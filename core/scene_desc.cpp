@@ -224,6 +224,7 @@ void validateSceneDesc(const SceneDesc& desc) {
     checkMaterialIndex(m.material, desc.materials.size(), obj);
     checkTransform(m.xf, obj, "transform");
     checkWorldPoints(m.mesh, m.xf, obj);
+    checkInt(m.instanceId, -1, INT32_MAX, obj, "instanceId");
   }
 
   for (size_t i = 0; i < desc.lights.size(); ++i)
@@ -234,6 +235,7 @@ void validateSceneDesc(const SceneDesc& desc) {
     std::string obj = label(a.name, "aggregates", i);
     validateClosed(a.boundary, obj + ".boundary");
     validateAggregateParameters(a, obj);
+    checkInt(a.instanceId, -1, INT32_MAX, obj, "instanceId");
     for (size_t k = 0; k < a.prototypes.size(); ++k) {
       const GrainPrototypeDesc& p = a.prototypes[k];
       std::string pobj = p.name.empty() ? str(obj, ".prototypes[", k, "]") : p.name;
@@ -497,10 +499,10 @@ static_assert(fieldCount<CameraDesc>() == 10, "compare the new field in sameCame
 static_assert(fieldCount<TextureDesc>() == 14, "compare the new field in sameTexture (scale, bias: 4 each)");
 static_assert(fieldCount<MaterialDesc>() == 13, "compare the new field in sameMaterial");
 static_assert(fieldCount<LightDesc>() == 12, "compare the new field in sameLight");
-static_assert(fieldCount<MeshDesc>() == 6, "compare the new field in sameMeshDesc");
+static_assert(fieldCount<MeshDesc>() == 7, "compare the new field in sameMeshDesc");
 static_assert(fieldCount<GrainPrototypeDesc>() == 3, "compare the new field in sameAggregateInputs");
-static_assert(fieldCount<AggregateDesc>() == 12, "compare the new field in sameAggregateInputs (or the id check)");
-static_assert(fieldCount<RenderSettings>() == 23, "compare the new field in sameViewSettings or settingsNeedBuild");
+static_assert(fieldCount<AggregateDesc>() == 13, "compare the new field in sameAggregateInputs (or the id check)");
+static_assert(fieldCount<RenderSettings>() == 24, "compare the new field in sameViewSettings or settingsNeedBuild");
 static_assert(fieldCount<SceneDesc>() == 6, "compare the new part in compareScenes");
 
 bool sameCamera(const CameraDesc& a, const CameraDesc& b) {
@@ -551,7 +553,7 @@ bool sameLight(const LightDesc& a, const LightDesc& b) {
 
 bool sameMeshDesc(const MeshDesc& a, const MeshDesc& b) {
   return a.name == b.name && sameMesh(a.mesh, b.mesh) && sameTransform(a.xf, b.xf) && a.material == b.material &&
-         a.visible == b.visible && a.id == b.id;
+         a.visible == b.visible && a.id == b.id && a.instanceId == b.instanceId;
 }
 
 // Settings Scene::setView applies (all but those of settingsNeedBuild).
@@ -561,7 +563,8 @@ bool sameViewSettings(const RenderSettings& a, const RenderSettings& b) {
          a.bundleSize == b.bundleSize && a.tau == b.tau && a.explicitBounces == b.explicitBounces &&
          a.daDepthFactor == b.daDepthFactor && a.daMinOrder == b.daMinOrder && a.roulette == b.roulette &&
          a.lod == b.lod && a.proxies == b.proxies && a.domeCameraVisible == b.domeCameraVisible &&
-         a.cropX0 == b.cropX0 && a.cropX1 == b.cropX1 && a.cropY0 == b.cropY0 && a.cropY1 == b.cropY1;
+         a.cropX0 == b.cropX0 && a.cropX1 == b.cropX1 && a.cropY0 == b.cropY0 && a.cropY1 == b.cropY1 &&
+         a.cryptomatte == b.cryptomatte;
 }
 
 template <class T, class Same>
@@ -654,7 +657,7 @@ SceneChanges compareScenes(const SceneDesc& before, const SceneDesc& after) {
       return comparable && sameAggregateInputs(before, originBefore, before.aggregates[j], after, originAfter, a);
     };
     if (i < before.aggregates.size() && lends(i)) {
-      if (before.aggregates[i].id != a.id) c.aggregateList = true;
+      if (before.aggregates[i].id != a.id || before.aggregates[i].instanceId != a.instanceId) c.aggregateList = true;
       continue;
     }
     bool found = false;

@@ -124,6 +124,9 @@ struct MeshDesc {
   int material = -1;         // index into SceneDesc::materials; -1: default grey Lambert
   bool visible = true;
   int id = -1;               // the front end's id, reported by the primId AOV (Hydra: prim id)
+  // The index of the instance this mesh is of a flattened instancer (a PointInstancer's
+  // instance index), reported by the instanceId AOV; -1: not instanced. >= -1.
+  int instanceId = -1;
 };
 
 struct GrainPrototypeDesc {
@@ -150,6 +153,7 @@ struct AggregateDesc {
   uint64_t seed = 1;
   int tileSpheres = 512;       // spheres per periodic tile
   int id = -1;                 // the front end's id, reported by the primId AOV
+  int instanceId = -1;         // as MeshDesc::instanceId
 };
 
 // Which transports the integrator may use (Meng et al. 2015's switching between EPT, VPT and
@@ -220,6 +224,9 @@ struct RenderSettings {
   // the roulette pre-render always covers the whole image, so the crops of a tiling,
   // merged, equal the full render bit for bit (tests/core/test_render_crop.cpp).
   int cropX0 = 0, cropX1 = 0, cropY0 = 0, cropY1 = 0;
+  // The film keeps Cryptomatte tables (film.h) and images get the CryptoObject and
+  // CryptoMaterial layers; off: no memory for them.
+  bool cryptomatte = false;
 };
 
 // A pixel window [x0, x1) × [y0, y1) of an image.

@@ -85,10 +85,11 @@ namespace {
 // Is p more than depth below the boundary? The distance field answers within its band;
 // beyond the band (where it is clamped) the exact point query does.
 bool deeperThan(const Aggregate& agg, const Vec3& p, float depth) {
+  Vec3 closest;
+  if (agg.standIn()) return agg.closestBoundaryPoint(p, closest) > depth;  // no distance field
   float d = -agg.boundaryDistance(p);
   if (d > depth) return true;
   if (d < 0.99f * agg.distanceField().bandWidth()) return false;
-  Vec3 closest;
   return agg.closestBoundaryPoint(p, closest) > depth;
 }
 

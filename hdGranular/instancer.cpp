@@ -96,4 +96,18 @@ VtMatrix4dArray HdGranularInstancer::ComputeInstanceTransforms(SdfPath const& pr
   return all;
 }
 
+VtIntArray HdGranularInstancer::ComputeInstanceIndices(SdfPath const& prototypeId) {
+  HdSceneDelegate* d = GetDelegate();
+  const VtIntArray indices = d->GetInstanceIndices(GetId(), prototypeId);
+  if (GetParentId().IsEmpty()) return indices;
+  auto* parent = static_cast<HdGranularInstancer*>(d->GetRenderIndex().GetInstancer(GetParentId()));
+  if (!parent) return indices;
+  // The order of ComputeInstanceTransforms: outer instances, each with all of ours.
+  const size_t outer = parent->ComputeInstanceIndices(GetId()).size();
+  VtIntArray all(outer * indices.size());
+  for (size_t a = 0; a < outer; ++a)
+    for (size_t b = 0; b < indices.size(); ++b) all[a * indices.size() + b] = indices[b];
+  return all;
+}
+
 PXR_NAMESPACE_CLOSE_SCOPE

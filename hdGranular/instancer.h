@@ -20,6 +20,9 @@ class HdGranularInstancer final : public HdInstancer {
   // Row-vector matrices (USD's): instance transform, then scale, rotate, translate,
   // then the instancer's own transform, then the parent instancer's instances.
   VtMatrix4dArray ComputeInstanceTransforms(SdfPath const& prototypeId);
+  // For each of those transforms, the index of its instance in this instancer (the
+  // innermost one: a nested instancer's instances repeat it), for the instanceId AOV.
+  VtIntArray ComputeInstanceIndices(SdfPath const& prototypeId);
 
  private:
   std::mutex _mutex;

@@ -114,8 +114,11 @@ void HdGranularMesh::Sync(HdSceneDelegate* delegate, HdRenderParam* renderParam,
   if (GetInstancerId().IsEmpty()) {
     m.prim.instances = {HdGranularToCore(xf)};
   } else if (HdInstancer* inst = delegate->GetRenderIndex().GetInstancer(GetInstancerId())) {
-    for (GfMatrix4d const& i : static_cast<HdGranularInstancer*>(inst)->ComputeInstanceTransforms(id))
+    auto* instancer = static_cast<HdGranularInstancer*>(inst);
+    for (GfMatrix4d const& i : instancer->ComputeInstanceTransforms(id))
       m.prim.instances.push_back(HdGranularToCore(xf * i));  // row vectors: mesh, then instance
+    const VtIntArray indices = instancer->ComputeInstanceIndices(id);  // the instanceId AOV's
+    if (indices.size() == m.prim.instances.size()) m.prim.instanceIds.assign(indices.begin(), indices.end());
   }
 
   // Granular primvars of any interpolation: core rejects all but constant, by name.

@@ -1,5 +1,6 @@
 #include "renderDelegate.h"
 
+#include "core/cryptomatte.h"
 #include "instancer.h"
 #include "light.h"
 #include "material.h"
@@ -62,6 +63,9 @@ void HdGranularRenderDelegate::_Initialize() {
       {"Delta suns as the physical sun (0.53 degrees) over smooth grains", HdGranularSettingsTokens->physicalSun,
        VtValue(true)},
       {"Coarse previews before the first pass", HdGranularSettingsTokens->preview, VtValue(true)},
+      {"Stand-ins (the medium alone) while aggregates build", HdGranularSettingsTokens->standIns, VtValue(true)},
+      {"Denoise the color AOV after each pass (Intel Open Image Denoise)", HdGranularSettingsTokens->denoise,
+       VtValue(false)},
   };
   _PopulateDefaultSettings(_descriptors);
 }
@@ -92,6 +96,12 @@ VtDictionary HdGranularRenderDelegate::GetRenderStats() const {
   for (std::string const& w : _param->Warnings()) warnings.push_back(w);
   stats["granular:warnings"] = VtValue(warnings);
   stats["granular:error"] = VtValue(_param->RenderError());
+  VtDictionary manifests;  // per Cryptomatte type, what GetCryptomatteManifest gives
+  for (auto type : {granular::CryptomatteType::Object, granular::CryptomatteType::Material}) {
+    const TfToken name(granular::cryptomatteTypeName(type));
+    manifests[name] = VtValue(GetCryptomatteManifest(name));
+  }
+  stats["granular:cryptomatte"] = VtValue(manifests);
   return stats;
 }
 
@@ -101,9 +111,23 @@ HdAovDescriptor HdGranularRenderDelegate::GetDefaultAovDescriptor(TfToken const&
   if (name == HdAovTokens->cameraDepth) return HdAovDescriptor(HdFormatFloat32, false, VtValue(0.0f));
   if (name == HdAovTokens->primId) return HdAovDescriptor(HdFormatInt32, false, VtValue(-1));
   if (name == HdAovTokens->normal || name == "ept" || name == "vpt" || name == "da" || name == "ppt" ||
-      name == "albedo")
+      name == "albedo" || name == "variance")
     return HdAovDescriptor(HdFormatFloat32Vec3, false, VtValue(GfVec3f(0.0f)));
+  // The compositing AOVs (core/film.h); a Cryptomatte layer makes the film keep its tables.
+  if (name == "sampleCount") return HdAovDescriptor(HdFormatFloat32, false, VtValue(0.0f));
+  if (name == HdAovTokens->instanceId || name == "aggregateId")
+    return HdAovDescriptor(HdFormatInt32, false, VtValue(-1));
+  granular::CryptomatteType type;
+  if (granular::cryptomatteTypeOfLayer(name.GetString(), type) && name.GetString() != granular::cryptomatteTypeName(type))
+    return HdAovDescriptor(HdFormatFloat32Vec4, false, VtValue(GfVec4f(0.0f)));
   return HdAovDescriptor();  // unsupported
+}
+
+std::string HdGranularRenderDelegate::GetCryptomatteManifest(TfToken const& layer) const {
+  granular::CryptomatteType type;
+  granular::Scene const* scene = _renderer->GetScene();
+  if (!scene || !granular::cryptomatteTypeOfLayer(layer.GetString(), type)) return "";
+  return granular::cryptomatteManifest(scene->cryptomatteNames(type));
 }
 
 HdRenderPassSharedPtr HdGranularRenderDelegate::CreateRenderPass(HdRenderIndex* index,
@@ -141,7 +165,7 @@ void HdGranularRenderDelegate::DestroySprim(HdSprim* sprim) { delete sprim; }
 
 HdBprim* HdGranularRenderDelegate::CreateBprim(TfToken const& typeId, SdfPath const& bprimId) {
   if (typeId == HdPrimTypeTokens->renderBuffer) return new HdGranularRenderBuffer(bprimId);
-  if (typeId == HdPrimTypeTokens->renderSettings) return new HdGranularRenderSettings(bprimId);
+  if (typeId == HdPrimTypeTokens->renderSettings) return new HdGranularRenderSettings(bprimId, _renderer.get());
   TF_CODING_ERROR("hdGranular: unknown bprim type %s", typeId.GetText());
   return nullptr;
 }

@@ -28,7 +28,9 @@ PXR_NAMESPACE_OPEN_SCOPE
   ((bundleSize, "granular:bundleSize"))               \
   ((defaultLight, "granular:defaultLight"))           \
   ((physicalSun, "granular:physicalSun"))             \
-  ((preview, "granular:preview"))
+  ((preview, "granular:preview"))                     \
+  ((standIns, "granular:standIns"))                   \
+  ((denoise, "granular:denoise"))
 
 TF_DECLARE_PUBLIC_TOKENS(HdGranularSettingsTokens, HDGRANULAR_SETTINGS_TOKENS);
 
@@ -49,6 +51,11 @@ class HdGranularRenderDelegate final : public HdRenderDelegate {
   HdRenderSettingDescriptorList GetRenderSettingDescriptors() const override { return _descriptors; }
   VtDictionary GetRenderStats() const override;
   HdAovDescriptor GetDefaultAovDescriptor(TfToken const& name) const override;
+  // The Cryptomatte manifest (JSON {name: 8 hex digits of its id}, core/cryptomatte.h) of
+  // the scene being rendered, for a layer ("CryptoObject", "CryptoObject00", ...,
+  // "CryptoMaterial02"), for a host's or a product's file header; "" for another name or
+  // without a scene. The render stats hold them too (granular:cryptomatte).
+  std::string GetCryptomatteManifest(TfToken const& layer) const;
 
   HdRenderPassSharedPtr CreateRenderPass(HdRenderIndex* index, HdRprimCollection const& collection) override;
   HdInstancer* CreateInstancer(HdSceneDelegate* delegate, SdfPath const& id) override;

@@ -13,6 +13,7 @@
 #include "renderBuffer.h"
 #include "renderDelegate.h"
 #include "renderParam.h"
+#include "renderProducts.h"
 #include "renderSettings.h"
 #include "renderer.h"
 
@@ -136,7 +137,10 @@ HdGranularRenderPass::HdGranularRenderPass(HdRenderIndex* index, HdRprimCollecti
 
 HdGranularRenderPass::~HdGranularRenderPass() { _renderer->Stop(); }
 
-bool HdGranularRenderPass::IsConverged() const { return _renderer->IsConverged(); }
+// Not while a full build is still to replace the stand-ins being rendered.
+bool HdGranularRenderPass::IsConverged() const {
+  return _renderer->IsConverged() && !_renderer->GetBuilder().Pending();
+}
 
 void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfTokenVector const&) {
   HdRenderDelegate* delegate = GetRenderIndex()->GetRenderDelegate();
@@ -171,9 +175,14 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
   const bool edited = !_started || sceneVersion != _sceneVersion || settingsVersion != _settingsVersion;
   const bool reframe = edited || view != _view || proj != _projection || width != _width || height != _height ||
                        crop != _crop || lens != _lens;
+  // The full build behind stand-ins has ended (renderer.h): its scene takes their place.
+  HdGranularSceneBuilder& builder = _renderer->GetBuilder();
+  const bool landed = builder.Ready();
   // A render buffer reallocated or freed under the loop stopped it (renderBuffer.h).
   const bool rebind = reframe || bindings != _bindings || _renderer->WasInterrupted();
-  if (!rebind) return;  // the loop goes on
+  if (!rebind && !landed) return;  // the loop goes on
+  // Only the full scene replacing its stand-ins: their image stays until its tiles come.
+  bool keepImage = landed && !rebind;
 
   _renderer->Stop();
   _started = true;
@@ -192,8 +201,30 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
     if (!cameraFromMatrices(view, proj, cam))
       throw granular::InputError("camera", "projection", "only perspective cameras are supported");
     granular::RenderSettings rs = renderSettings(delegate, width, height);
+    // The film keeps Cryptomatte tables only while a Cryptomatte layer is bound (core/film.h).
+    for (auto const& b : bindings) {
+      granular::CryptomatteType type;
+      rs.cryptomatte = rs.cryptomatte || granular::cryptomatteTypeOfLayer(b.aovName.GetString(), type);
+    }
+    // Or while the active render settings' products hold one (the delegate writes them).
+    rs.cryptomatte = rs.cryptomatte || HdGranularActiveProductsNeedCryptomatte(_renderer);
     if (crop != granular::PixelWindow{0, width, 0, height})
       rs.cropX0 = crop.x0, rs.cropX1 = crop.x1, rs.cropY0 = crop.y0, rs.cropY1 = crop.y1;
+    // What a new scene warns about, once each.
+    auto reportBuild = [this] {
+      const std::string suns = _renderer->GetScene()->widenedSunsWarning();
+      if (!suns.empty() && suns != _sunsWarned) TF_WARN("hdGranular: %s", suns.c_str());
+      _sunsWarned = suns;  // once, until the lights change
+      _param->Warn(_renderer->GetScene()->textureWarnings());  // once each
+      if (_renderer->GetScene()->defaultLightAdded())
+        TF_WARN("hdGranular: the stage has no light (no UsdLux light, no emissive surface): it is lit by the "
+                "default white dome of radiance 1 (render setting granular:defaultLight false renders it black)");
+    };
+    if (landed) {
+      std::unique_ptr<granular::Scene> full = builder.Take();  // rethrows what the build threw
+      full->setView(cam, rs);  // the view as it is now: the camera may have moved meanwhile
+      _renderer->SetScene(std::move(full));
+    }
     granular::Scene* const scene = _renderer->GetScene();  // none: the last attempt failed (e.g. a bad camera)
     if (edited || !scene || !_built) {
       granular::SceneDesc desc = _param->Assemble();
@@ -225,19 +256,19 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
         scene->setView(cam, rs);
       } else {
         // The scene before lends its unchanged aggregates (a light or mesh edit voxelises
-        // nothing; a deformed boundary, only its aggregate).
-        _renderer->SetScene(granular::Scene::build(desc, scene));
-        const std::string suns = _renderer->GetScene()->widenedSunsWarning();
-        if (!suns.empty() && suns != _sunsWarned) TF_WARN("hdGranular: %s", suns.c_str());
-        _sunsWarned = suns;  // once, until the lights change
-        _param->Warn(_renderer->GetScene()->textureWarnings());  // once each
-        if (_renderer->GetScene()->defaultLightAdded())
-          TF_WARN("hdGranular: the stage has no light (no UsdLux light, no emissive surface): it is lit by the "
-                  "default white dome of radiance 1 (render setting granular:defaultLight false renders it black)");
+        // nothing; a deformed boundary, only its aggregate). With stand-ins, aggregates it
+        // cannot lend are rendered from their medium at once while their full build runs.
+        const bool standIns = setting<bool>(delegate, HdGranularSettingsTokens->standIns, true);
+        _renderer->SetScene(granular::Scene::build(
+            desc, scene, standIns ? granular::SceneDetail::StandIns : granular::SceneDetail::Full));
+        if (_renderer->GetScene()->standIns()) builder.Start(desc, _renderer->GetSharedScene());
+        else builder.Abandon();
+        reportBuild();
       }
+      keepImage = false;
       _built = std::move(desc);
       _param->SetRenderError("");
-    } else if (reframe) {
+    } else if (reframe || rs.cryptomatte != _built->settings.cryptomatte) {
       scene->setView(cam, rs);
       _built->camera = cam;
       _built->settings = rs;
@@ -245,15 +276,20 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
   } catch (std::exception const& e) {
     TF_RUNTIME_ERROR("hdGranular: %s", e.what());
     _param->SetRenderError(e.what());
+    builder.Abandon();
     _renderer->SetScene(nullptr);
     _built.reset();
+    keepImage = false;
   }
-  for (auto const& b : bindings)
-    if (auto* rb = dynamic_cast<HdGranularRenderBuffer*>(b.renderBuffer)) rb->Clear(b.clearValue);
+  if (!keepImage)
+    for (auto const& b : bindings)
+      if (auto* rb = dynamic_cast<HdGranularRenderBuffer*>(b.renderBuffer)) rb->Clear(b.clearValue);
   _renderer->SetAovBindings(bindings);
   _renderer->SetProjection(proj);
   _renderer->SetNoiseThreshold(setting<float>(delegate, HdRenderSettingsTokens->convergedVariance, 0.0f));
-  _renderer->SetPreview(setting<bool>(delegate, HdGranularSettingsTokens->preview, true));
+  _renderer->SetDenoise(setting<bool>(delegate, HdGranularSettingsTokens->denoise, false));
+  _renderer->SetPreview(!keepImage && setting<bool>(delegate, HdGranularSettingsTokens->preview, true));
+  _renderer->SetProvisional(builder.Pending());
   _renderer->Start();
 }
 

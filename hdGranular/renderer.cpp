@@ -5,10 +5,12 @@
 #include <thread>
 #include <vector>
 
+#include "core/denoise.h"
 #include "core/image_io.h"
 #include "pxr/imaging/hd/aov.h"
 #include "pxr/imaging/hd/tokens.h"
 #include "renderBuffer.h"
+#include "renderProducts.h"
 
 PXR_NAMESPACE_OPEN_SCOPE
 
@@ -20,15 +22,22 @@ HdGranularRenderer::HdGranularRenderer() {
 HdGranularRenderer::~HdGranularRenderer() {
   Stop();
   _thread.StopThread();
+  _builder.Abandon();  // its destructor waits for the build still running
 }
 
 void HdGranularRenderer::SetScene(std::unique_ptr<granular::Scene> scene) {
   _renderer.reset();
   _scene = std::move(scene);
   if (_scene) {
-    ++_sceneBuilds;
-    _aggregatesBuilt += _scene->aggregatesBuilt();
-    _aggregatesReused += _scene->aggregatesReused();
+    // A scene of stand-ins is counted by its stand-ins and the media it derived (its full
+    // build borrows them); the full scene counts as the build.
+    if (_scene->standIns()) {
+      _standInsBuilt += _scene->standInsBuilt();
+    } else {
+      ++_sceneBuilds;
+      _aggregatesBuilt += _scene->aggregatesBuilt();
+      _aggregatesReused += _scene->aggregatesReused();
+    }
     _mediaDerived += _scene->mediaDerived();
   }
 }
@@ -76,7 +85,7 @@ void HdGranularRenderer::_SetBuffersConverged(bool converged) {
 
 void HdGranularRenderer::_MarkConverged() {
   _converged = true;
-  _SetBuffersConverged(true);
+  if (!_provisional) _SetBuffersConverged(true);
 }
 
 void HdGranularRenderer::_WriteRegion(granular::Film const& film, int stride, int x0, int x1, int y0, int y1) {
@@ -84,7 +93,8 @@ void HdGranularRenderer::_WriteRegion(granular::Film const& film, int stride, in
   const granular::PixelWindow crop = granular::renderWindow(_scene->settings());
   const int width = _scene->settings().width, height = _scene->settings().height;
   // Channel offsets of Film::pixelChannels (film.h).
-  constexpr int kColor = 0, kDepth = 4, kNormal = 5, kParts = 8, kPrimId = 20, kAlbedo = 21;
+  constexpr int kColor = 0, kDepth = 4, kNormal = 5, kParts = 8, kPrimId = 20, kAlbedo = 21, kSampleCount = 24,
+                kVariance = 25, kInstanceId = 28, kAggregateId = 29;
   std::vector<float> px(size_t(x1 - x0) * (y1 - y0) * granular::Film::kChannels);
   for (int y = y0; y < y1; ++y)
     for (int x = x0; x < x1; ++x)
@@ -96,6 +106,7 @@ void HdGranularRenderer::_WriteRegion(granular::Film const& film, int stride, in
     // A buffer of another size belongs to a view this render is not for.
     if (!rb || int(rb->GetWidth()) != width || int(rb->GetHeight()) != height) continue;
     const TfToken& aov = b.aovName;
+    if (aov == HdAovTokens->color && _colorHeld) continue;  // the denoised image stays (renderer.h)
     int c0 = -1, n = 0;
     if (aov == HdAovTokens->color) c0 = kColor, n = 4;
     else if (aov == HdAovTokens->normal) c0 = kNormal, n = 3;
@@ -104,6 +115,14 @@ void HdGranularRenderer::_WriteRegion(granular::Film const& film, int stride, in
     else if (aov == "da") c0 = kParts + 6, n = 3;
     else if (aov == "ppt") c0 = kParts + 9, n = 3;
     else if (aov == "albedo") c0 = kAlbedo, n = 3;
+    else if (aov == "sampleCount") c0 = kSampleCount, n = 1;
+    else if (aov == "variance") c0 = kVariance, n = 3;
+    // A Cryptomatte layer (CryptoObject00, ...): its RGBA of the pixel's ranked ids.
+    int cryptoLayer = -1;
+    granular::CryptomatteType cryptoType = granular::CryptomatteType::Object;
+    for (auto t : {granular::CryptomatteType::Object, granular::CryptomatteType::Material})
+      for (int k = 0; k < granular::kCryptomatteLayers; ++k)
+        if (aov == granular::cryptomatteLayerName(t, k)) cryptoLayer = k, cryptoType = t;
     for (int y = y0; y < y1; ++y)
       for (int x = x0; x < x1; ++x) {
         const float* p = &px[(size_t(y - y0) * (x1 - x0) + (x - x0)) * granular::Film::kChannels];
@@ -116,6 +135,14 @@ void HdGranularRenderer::_WriteRegion(granular::Film const& film, int stride, in
           rb->Write(ix, iy, &d, 1);
         } else if (aov == HdAovTokens->primId) {
           rb->WriteInt(ix, iy, int(p[kPrimId]));
+        } else if (aov == HdAovTokens->instanceId) {
+          rb->WriteInt(ix, iy, int(p[kInstanceId]));
+        } else if (aov == "aggregateId") {
+          rb->WriteInt(ix, iy, int(p[kAggregateId]));
+        } else if (cryptoLayer >= 0) {
+          float ranked[4 * granular::kCryptomatteLayers];
+          film.cryptomatteChannels(x / stride, y / stride, cryptoType, ranked);
+          rb->Write(ix, iy, ranked + 4 * cryptoLayer, 4);
         } else if (c0 >= 0) {
           rb->Write(ix, iy, p + c0, n);
         }
@@ -129,6 +156,9 @@ void HdGranularRenderer::_Render() {
     return;
   }
   _renderer = std::make_unique<granular::Renderer>(*_scene);
+  // A threshold that is not a positive number is off, as it always was here.
+  _renderer->setNoiseThreshold(std::isfinite(_noiseThreshold) && _noiseThreshold > 0 ? _noiseThreshold : 0.0f);
+  _colorHeld = false;
   const long target = _scene->settings().spp;
   const granular::PixelWindow crop = granular::renderWindow(_scene->settings());  // the film's pixels
   const int width = crop.width(), height = crop.height();
@@ -169,13 +199,65 @@ void HdGranularRenderer::_Render() {
     if (_firstImageSeconds < 0) _firstImageSeconds = _firstPassSeconds.load();
     _lodFraction = _renderer->shortcutFraction();
     bool converged = done >= target;
-    // Noise threshold (core's, as granular render --noise-threshold), after two bundles.
-    if (!converged && _noiseThreshold > 0 && done >= 2 * bundle) converged = film.belowNoiseThreshold(_noiseThreshold);
+    // Adaptive sampling (core's, as granular render --noise-threshold): every pixel stopped.
+    converged = converged || _renderer->converged();
+    if (_denoise && !_WriteDenoised(film)) return;  // stopped meanwhile
     if (converged) {
+      if (!_provisional) HdGranularWriteRenderProducts(this, film, _scene.get());  // before a waiting host sees convergence
       _MarkConverged();
       return;
     }
   }
+}
+
+bool HdGranularRenderer::_WriteDenoised(granular::Film const& film) {
+  if (!granular::denoiserAvailable()) {
+    if (!_denoiseWarned)
+      TF_WARN("hdGranular: granular:denoise: %s; the viewport shows the beauty undenoised",
+              granular::denoiserUnavailableReason().c_str());
+    _denoiseWarned = true;
+    return true;
+  }
+  // Channel offsets of Film::pixelChannels (film.h).
+  constexpr int kColor = 0, kAlpha = 3, kNormal = 5, kAlbedo = 21;
+  const int w = film.width(), h = film.height();
+  const size_t n = size_t(w) * h;
+  std::vector<float> color(3 * n), albedo(3 * n), normal(3 * n), alpha(n), out(3 * n);
+  std::vector<float> px(granular::Film::kChannels);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      film.pixelChannels(x, y, px.data());
+      const size_t i = size_t(y) * w + x;
+      for (int c = 0; c < 3; ++c) {
+        color[3 * i + c] = px[kColor + c];
+        albedo[3 * i + c] = px[kAlbedo + c];
+        normal[3 * i + c] = px[kNormal + c];
+      }
+      alpha[i] = px[kAlpha];
+    }
+  try {
+    if (!granular::denoise(color.data(), albedo.data(), normal.data(), w, h, out.data(), &_cancel)) return false;
+  } catch (std::exception const& e) {  // the raw beauty stays, said once
+    if (!_denoiseWarned) TF_WARN("hdGranular: granular:denoise: %s", e.what());
+    _denoiseWarned = true;
+    return true;
+  }
+  const granular::PixelWindow crop = granular::renderWindow(_scene->settings());
+  const int width = _scene->settings().width, height = _scene->settings().height;
+  auto lock = _thread.LockFramebuffer();
+  for (auto const& b : _bindings) {
+    auto* rb = dynamic_cast<HdGranularRenderBuffer*>(b.renderBuffer);
+    if (!rb || b.aovName != HdAovTokens->color || int(rb->GetWidth()) != width || int(rb->GetHeight()) != height)
+      continue;
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) {
+        const size_t i = size_t(y) * w + x;
+        const float rgba[4] = {out[3 * i], out[3 * i + 1], out[3 * i + 2], alpha[i]};
+        rb->Write(crop.x0 + x, crop.y0 + y, rgba, 4);
+      }
+  }
+  _colorHeld = true;
+  return true;
 }
 
 VtDictionary HdGranularRenderer::GetStats() const {
@@ -198,10 +280,16 @@ VtDictionary HdGranularRenderer::GetStats() const {
     // the medium.
     stats["granular:proxies"] = VtValue(_scene->useProxies());
     stats["granular:explicitBounces"] = VtValue(_scene->explicitBounces());
+    // The image is of stand-ins (the media alone) while the full build runs.
+    stats["granular:standIns"] = VtValue(_scene->standIns());
   }
+  stats["granular:fullBuildPending"] = VtValue(_builder.Pending());
   stats["granular:nonFiniteSamples"] = VtValue(int(_nonFinite.load()));
+  // Whether granular:denoise can denoise in this build (core/denoise.h).
+  stats["granular:denoiserAvailable"] = VtValue(granular::denoiserAvailable());
   stats["granular:sceneBuilds"] = VtValue(_sceneBuilds);
   stats["granular:aggregatesBuilt"] = VtValue(_aggregatesBuilt);
+  stats["granular:standInsBuilt"] = VtValue(_standInsBuilt);
   stats["granular:aggregatesReused"] = VtValue(_aggregatesReused);
   stats["granular:mediaDerived"] = VtValue(_mediaDerived);
   stats["granular:firstImageSeconds"] = VtValue(_firstImageSeconds.load());

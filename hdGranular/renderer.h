@@ -5,7 +5,8 @@
 // or AOV bindings, and starts it again; Stop() returns only when the loop has left (core
 // checks the cancel flag between tiles, so that is quick). The loop ends when the sample
 // count is reached or, with a noise threshold, when every covered pixel's standard error
-// is below threshold × (its value + 0.01); then, and also when the scene could not be
+// is below threshold × (its value + 0.01) — core's adaptive sampling, each pixel stopping
+// there on its own and skipped by later passes (core/render.h); then, and also when the scene could not be
 // built, the buffers are marked converged, so hosts never wait forever.
 //
 // What a viewport sees first: on images of 128×128 pixels or more, coarse previews (one
@@ -14,6 +15,15 @@
 // the buffers within a fraction of a pass, then every full-resolution tile is written as soon as it is done.
 // A render stopped by something else than the render pass (a render buffer being
 // reallocated or freed: StopForEdit) is remembered, so that the next Execute restarts it.
+// Stand-ins (core/scene.h): while the scene's full build runs (GetBuilder()), the render
+// of its stand-ins is provisional: it never marks the buffers converged nor writes render
+// products, and the full scene's render that follows keeps its image on screen until its
+// own tiles replace it (no clearing, no coarse previews).
+// granular:denoise (SetDenoise): after every complete pass the color AOV shows the beauty
+// denoised by core (core/denoise.h, guided by the film's albedo and normal), and keeps it
+// while the next pass's raw tiles come (they would flicker over it); the film and every
+// other AOV stay raw, and the next pass continues from the raw film. Without the denoiser,
+// one warning and the raw beauty.
 #ifndef HDGRANULAR_RENDERER_H
 #define HDGRANULAR_RENDERER_H
 
@@ -30,6 +40,7 @@
 #include "pxr/pxr.h"
 #include "core/render.h"
 #include "core/scene.h"
+#include "sceneBuilder.h"
 
 PXR_NAMESPACE_OPEN_SCOPE
 
@@ -41,12 +52,17 @@ class HdGranularRenderer {
   // With the loop stopped. A null scene (it could not be built) renders nothing.
   void SetScene(std::unique_ptr<granular::Scene> scene);
   granular::Scene* GetScene() { return _scene.get(); }
+  std::shared_ptr<const granular::Scene> GetSharedScene() const { return _scene; }
+  HdGranularSceneBuilder& GetBuilder() { return _builder; }
   void SetAovBindings(HdRenderPassAovBindingVector const& bindings) { _bindings = bindings; }
   HdRenderPassAovBindingVector const& GetAovBindings() const { return _bindings; }
   void SetProjection(GfMatrix4d const& projection) { _projection = projection; }
   void SetNoiseThreshold(float t) { _noiseThreshold = t; }
+  void SetDenoise(bool on) { _denoise = on; }
 
   void SetPreview(bool enabled) { _preview = enabled; }
+  // The scene's render stands in for one being built (above).
+  void SetProvisional(bool provisional) { _provisional = provisional; }
 
   void Start();
   void Stop();
@@ -64,22 +80,27 @@ class HdGranularRenderer {
   // own film).
   void _WriteRegion(granular::Film const& film, int stride, int x0, int x1, int y0, int y1);
   void _SetBuffersConverged(bool converged);
+  // The film's beauty denoised into the color AOV; false when stopped meanwhile.
+  bool _WriteDenoised(granular::Film const& film);
   double _SecondsSinceStart() const;
   void _MarkConverged();
   float _DepthToClip(float viewDepth) const;
 
   HdRenderThread _thread;
-  std::unique_ptr<granular::Scene> _scene;
+  std::shared_ptr<granular::Scene> _scene;  // shared with a full build that borrows from it
+  HdGranularSceneBuilder _builder;
   std::unique_ptr<granular::Renderer> _renderer;
   HdRenderPassAovBindingVector _bindings;
   GfMatrix4d _projection{1.0};
   float _noiseThreshold = 0;
-  bool _preview = true;
+  bool _denoise = false, _denoiseWarned = false;
+  std::atomic<bool> _colorHeld{false};  // the color AOV holds a denoised image
+  bool _preview = true, _provisional = false;
   std::atomic<bool> _cancel{false}, _converged{false}, _interrupted{false};
   std::atomic<long> _nonFinite{0};
   // Since the delegate was made: core scenes built, aggregates voxelised in them or reused
   // from the scene before, equivalent media derived from TT (Scene::build's counts).
-  int _sceneBuilds = 0, _aggregatesBuilt = 0, _aggregatesReused = 0, _mediaDerived = 0;
+  int _sceneBuilds = 0, _aggregatesBuilt = 0, _aggregatesReused = 0, _mediaDerived = 0, _standInsBuilt = 0;
   // Seconds from Start() to the first image covering the viewport (the coarsest preview,
   // or the first pass) and to the first full-resolution pass; -1 until then.
   std::chrono::steady_clock::time_point _startTime;

@@ -26,6 +26,7 @@
 #include <optional>
 #include <thread>
 
+#include "core/denoise.h"
 #include "core/density_export.h"
 #include "core/error.h"
 #include "core/granular_prims.h"
@@ -42,6 +43,7 @@
 #include "core/usd_implicit.h"
 #include "core/usd_lights.h"
 #include "core/usd_mesh.h"
+#include "core/render_products.h"
 #include "core/usd_render.h"
 #include "core/usd_shading.h"
 
@@ -414,7 +416,8 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("xf", &MeshDesc::xf)
       .def_readwrite("material", &MeshDesc::material)
       .def_readwrite("visible", &MeshDesc::visible)
-      .def_readwrite("id", &MeshDesc::id);
+      .def_readwrite("id", &MeshDesc::id)
+      .def_readwrite("instance_id", &MeshDesc::instanceId);
 
   py::class_<GrainPrototypeDesc>(m, "GrainPrototypeDesc")
       .def(py::init<>())
@@ -435,7 +438,8 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("tile_spheres", &AggregateDesc::tileSpheres)
       .def_readwrite("sizes", &AggregateDesc::sizes)
       .def_readwrite("size_spread", &AggregateDesc::sizeSpread)
-      .def_readwrite("id", &AggregateDesc::id);
+      .def_readwrite("id", &AggregateDesc::id)
+      .def_readwrite("instance_id", &AggregateDesc::instanceId);
 
   py::enum_<ProxyUse>(m, "ProxyUse")
       .value("Off", ProxyUse::Off)
@@ -477,6 +481,7 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("default_light", &RenderSettings::defaultLight)
       .def_readwrite("physical_sun", &RenderSettings::physicalSun)
       .def_readwrite("dome_camera_visible", &RenderSettings::domeCameraVisible)
+      .def_readwrite("cryptomatte", &RenderSettings::cryptomatte)
       .def_property(
           "crop",
           [](const RenderSettings& s) { return windowTuple({s.cropX0, s.cropX1, s.cropY0, s.cropY1}); },
@@ -561,6 +566,7 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("active", &MeshPrim::active)
       .def_readwrite("mesh", &MeshPrim::mesh)
       .def_readwrite("instances", &MeshPrim::instances)
+      .def_readwrite("instance_ids", &MeshPrim::instanceIds)
       .def_readwrite("visible", &MeshPrim::visible)
       .def_readwrite("material", &MeshPrim::material)
       .def_readwrite("display_color", &MeshPrim::displayColor)
@@ -703,6 +709,42 @@ PYBIND11_MODULE(granular_core, m) {
       },
       py::arg("settings"), py::arg("product"), py::arg("width"), py::arg("height"),
       "((x0, x1, y0, y1) or None for the whole image, [warnings])");
+
+  // ---- UsdRender products and vars (render_products.h) -------------------------------------
+  py::class_<RenderVarDesc>(m, "RenderVarDesc")
+      .def_readonly("path", &RenderVarDesc::path)
+      .def_readonly("source_name", &RenderVarDesc::sourceName)
+      .def_readonly("source_type", &RenderVarDesc::sourceType)
+      .def_readonly("data_type", &RenderVarDesc::dataType)
+      .def_readonly("channels", &RenderVarDesc::channels);
+  py::class_<RenderProductDesc>(m, "RenderProductDesc")
+      .def_readonly("path", &RenderProductDesc::path)
+      .def_readonly("product_name", &RenderProductDesc::productName)
+      .def_readonly("width", &RenderProductDesc::width)
+      .def_readonly("height", &RenderProductDesc::height)
+      .def_readonly("camera", &RenderProductDesc::camera)
+      .def_readonly("pixel_aspect_ratio", &RenderProductDesc::pixelAspectRatio)
+      .def_readonly("vars", &RenderProductDesc::vars)
+      .def_property_readonly("window", [](const RenderProductDesc& p) { return windowTuple(p.window); })
+      .def_property_readonly("channels", &RenderProductDesc::channels)
+      .def_property_readonly("needs_cryptomatte", &RenderProductDesc::needsCryptomatte);
+  m.def("usd_render_product_attribute_names", &usdRenderProductAttributeNames);
+  m.def("usd_render_var_attribute_names", &usdRenderVarAttributeNames);
+  m.def(
+      "render_product_from_usd",
+      [](const UsdPrimRecord* settings, const UsdPrimRecord& product, const std::vector<UsdPrimRecord>& vars) {
+        UsdWarnings w;
+        std::optional<RenderProductDesc> p = renderProductFromUsd(settings, product, vars, w);
+        return py::make_tuple(p ? py::cast(*p) : py::none(), w);
+      },
+      py::arg("settings"), py::arg("product"), py::arg("vars"), "(RenderProductDesc or None, [warnings])");
+  m.def("product_file_name", &productFileName, py::arg("product"), py::arg("frame"));
+  m.def("check_product_output", &checkProductOutput, py::arg("product"), py::arg("frame"));
+  m.def(
+      "union_window", [](const std::vector<RenderProductDesc>& ps) { return windowTuple(unionWindow(ps)); },
+      py::arg("products"));
+  m.def("write_product", &writeProduct, py::arg("product"), py::arg("image"), py::arg("frame"),
+        py::call_guard<py::gil_scoped_release>());
   m.def(
       "blackbody_rgb", [](float k) { return blackbodyRgb(k); }, py::arg("kelvin"));
 
@@ -713,17 +755,26 @@ PYBIND11_MODULE(granular_core, m) {
   scene
       .def_static(
           "build",
-          [](const SceneDesc& desc, std::shared_ptr<PyScene> previous) {
+          [](const SceneDesc& desc, std::shared_ptr<PyScene> previous, py::object log, bool standIns) {
             auto s = std::make_shared<PyScene>();
             s->desc = desc;
+            BuildLog say;
+            if (!log.is_none())
+              say = [&log](const std::string& line) {
+                py::gil_scoped_acquire acquire;
+                log(line);
+              };
             py::gil_scoped_release release;
-            s->scene = Scene::build(s->desc, previous ? previous->scene.get() : nullptr);
+            s->scene = Scene::build(s->desc, previous ? previous->scene.get() : nullptr,
+                                    standIns ? SceneDetail::StandIns : SceneDetail::Full, say);
             return s;
           },
-          py::arg("desc"), py::arg("previous") = nullptr,
+          py::arg("desc"), py::arg("previous") = nullptr, py::arg("log") = py::none(), py::arg("stand_ins") = false,
           "Validates and builds (BVHs, tiles, distance fields); the GIL is released. With the previous "
           "scene of the same stage, its aggregates whose inputs are unchanged are reused (no voxelising, "
-          "no TT work).")
+          "no TT work). log(line), when given, hears what the build waits for (work the build cache does "
+          "not hold). stand_ins: aggregates the previous scene cannot lend are built as stand-ins (their "
+          "medium alone, no cells; core/scene.h SceneDetail::StandIns), as a viewport's first image.")
       .def(
           "set_view",
           [](PyScene& s, const CameraDesc& camera, const RenderSettings& settings) {
@@ -744,6 +795,8 @@ PYBIND11_MODULE(granular_core, m) {
           "compare_scenes(the description this scene was built from, with its latest view, desc): what "
           "it needs to render desc")
       .def_property_readonly("build_seconds", [](const PyScene& s) { return s.scene->buildSeconds(); })
+      .def_property_readonly("stand_ins", [](const PyScene& s) { return s.scene->standIns(); },
+                             "some aggregate is a stand-in (built with stand_ins=True)")
       .def_property_readonly("aggregates_built", [](const PyScene& s) { return s.scene->aggregatesBuilt(); },
                              "aggregates voxelised by this build")
       .def_property_readonly("aggregates_reused", [](const PyScene& s) { return s.scene->aggregatesReused(); },
@@ -799,6 +852,7 @@ PYBIND11_MODULE(granular_core, m) {
       .def_property_readonly("full_width", &Image::displayWidth)
       .def_property_readonly("full_height", &Image::displayHeight)
       .def_readonly("channels", &Image::channels)
+      .def_readwrite("attributes", &Image::attributes, "string header metadata [(name, value)] (EXR)")
       .def_property_readonly(
           "pixels",
           [](const Image& img) {
@@ -847,18 +901,16 @@ PYBIND11_MODULE(granular_core, m) {
                 cancel = true;
               }
             };
-            // Stopping early (r.stoppedBy): at the noise threshold after a pass, once two
-            // bundles are done (as the delegate does); at the time limit once the first pass
-            // is complete, so that every pixel has samples.
-            std::atomic<int> stop{0};  // 1 noise threshold, 2 time limit
+            // Adaptive sampling (render.h): each pixel stops at the noise threshold, and the
+            // render once every pixel has. The time limit stops it once the first pass is
+            // complete, so that every pixel has samples.
+            renderer.setNoiseThreshold(noiseThreshold);
+            std::atomic<int> stop{0};  // 2 time limit
             auto stopAt = [&](int why) {
               int none = 0;
               if (stop.compare_exchange_strong(none, why)) cancel = true;
             };
             auto afterPass = [&](const RenderProgress& p) {
-              if (noiseThreshold > 0 && p.samplesDone >= 2L * renderer.bundleSize() &&
-                  renderer.film().belowNoiseThreshold(noiseThreshold))
-                stopAt(1);
               if (timeLimit > 0 && p.samplesDone > 0 && seconds() >= timeLimit) stopAt(2);
             };
             std::thread worker([&] {
@@ -892,6 +944,7 @@ PYBIND11_MODULE(granular_core, m) {
             }
             if (failure) std::rethrow_exception(failure);
             if (pending) throw std::move(*pending);
+            if (stop == 0 && completed && renderer.converged() && renderer.samplesPerPixel() < target) stop = 1;
             r.stoppedBy = stop == 1 ? "noise threshold" : stop == 2 ? "time limit" : "samples";
             completed = completed || stop != 0;
             if (completed) {
@@ -904,9 +957,33 @@ PYBIND11_MODULE(granular_core, m) {
           py::arg("noise_threshold") = 0.0f, py::arg("time_limit") = 0.0,
           "Renders settings.spp samples per pixel (passes of pass_samples, rounded up to whole bundles) "
           "on a worker thread, the GIL released; calls progress(samples_done: float, target, seconds) "
-          "every `interval` seconds and at the end. Stops early at the noise threshold "
-          "(Film::belowNoiseThreshold after a pass, from two bundles on) or after time_limit seconds "
-          "(once the first pass is done); stopped_by says which. Returns False if cancelled.")
+          "every `interval` seconds and at the end. With noise_threshold > 0 each pixel stops once "
+          "below it (adaptive sampling, core/render.h) and the render once all have; time_limit stops "
+          "it after that many seconds (once the first pass is done); stopped_by says which. Returns "
+          "False if cancelled.")
+      .def_property_readonly(
+          "sample_counts",
+          [](const PyRenderer& r) {
+            const SampleCounts c = r.renderer->sampleCounts();
+            py::dict d;
+            d["mean"] = c.mean;
+            d["min"] = c.min;
+            d["max"] = c.max;
+            return d;
+          },
+          "samples per pixel the film holds: mean, min and max (they differ with a noise threshold)")
+      .def("sample_count_map",
+           [](const PyRenderer& r) {
+             const Film& f = r.renderer->film();
+             py::array_t<long> a({py::ssize_t(f.height()), py::ssize_t(f.width())});
+             auto v = a.mutable_unchecked<2>();
+             for (int y = 0; y < f.height(); ++y)
+               for (int x = 0; x < f.width(); ++x) v(y, x) = f.samples(x, y);
+             return a;
+           },
+           "each pixel's sample count, (height, width), top row first")
+      .def_property_readonly("min_adaptive_samples", [](const PyRenderer& r) { return r.renderer->minAdaptiveSamples(); },
+                             "the samples a pixel takes before the noise threshold may stop it")
       .def_property_readonly("stopped_by", [](const PyRenderer& r) { return r.stoppedBy; },
                              "'samples', 'noise threshold' or 'time limit': what ended the last render")
       .def_property_readonly("samples_per_pixel", [](const PyRenderer& r) { return r.renderer->samplesPerPixel(); })
@@ -927,8 +1004,43 @@ PYBIND11_MODULE(granular_core, m) {
             return d;
           },
           "P_a used (after the first pass) and, when tuned, the pre-render's numbers")
-      .def("image", [](const PyRenderer& r) { return r.renderer->film().toImage(); });
+      .def("image", [](const PyRenderer& r) { return r.renderer->image(); });
 
+  m.def("denoiser_available", &denoiserAvailable,
+        "whether core was built with Intel Open Image Denoise (and its CPU device works here)");
+  m.def("denoiser_unavailable_reason", &denoiserUnavailableReason, "why not, in one line ('' when available)");
+  m.def(
+      "denoise",
+      [](py::array_t<float, py::array::c_style | py::array::forcecast> color,
+         py::array_t<float, py::array::c_style | py::array::forcecast> albedo,
+         py::array_t<float, py::array::c_style | py::array::forcecast> normal) {
+        const std::pair<py::array_t<float, py::array::c_style | py::array::forcecast>*, const char*> in[] = {
+            {&color, "color"}, {&albedo, "albedo"}, {&normal, "normal"}};
+        for (auto const& [a, name] : in)
+          if (a->ndim() != 3 || a->shape(2) != 3 || a->shape(0) != color.shape(0) || a->shape(1) != color.shape(1))
+            throw InputError("denoise", name, "expected a (height, width, 3) array of the color's size");
+        const int h = int(color.shape(0)), w = int(color.shape(1));
+        py::array_t<float> out({py::ssize_t(h), py::ssize_t(w), py::ssize_t(3)});
+        float* o = out.mutable_data();
+        const float *c = color.data(), *a = albedo.data(), *n = normal.data();
+        {
+          py::gil_scoped_release release;
+          denoise(c, a, n, w, h, o, nullptr);
+        }
+        return out;
+      },
+      py::arg("color"), py::arg("albedo"), py::arg("normal"),
+      "core/denoise.h: linear HDR color (height, width, 3) denoised by Intel Open Image Denoise, guided by "
+      "the albedo and normal AOVs (same shape); RuntimeError when denoiser_available() is False");
+  m.def(
+      "film_aovs",
+      [](bool cryptomatte) {
+        py::list out;
+        for (const FilmAov& a : filmAovs(cryptomatte))
+          out.append(py::make_tuple(a.name, a.channels, a.value == AovValue::Int ? "int" : "float"));
+        return out;
+      },
+      py::arg("cryptomatte") = false, "every AOV of a render's image: [(name, channels, 'float' or 'int')]");
   m.def("write_exr", &writeExr, py::arg("path"), py::arg("image"), py::call_guard<py::gil_scoped_release>());
   m.def("write_png", &writePngSrgb, py::arg("path"), py::arg("image"), py::arg("exposure") = 0.0f,
         py::call_guard<py::gil_scoped_release>());

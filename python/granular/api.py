@@ -14,14 +14,15 @@ def _f32(x):
     return float(f"{x:.7g}")
 
 
-def build_scene(scene, previous=None):
+def build_scene(scene, previous=None, log=None):
     """core.Scene of a StageScene, errors named after the stage's prims; previous (a core.Scene
-    of the same stage, another time) lends it the aggregates whose inputs are unchanged."""
+    of the same stage, another time) lends it the aggregates whose inputs are unchanged; log(line)
+    hears what the build waits for."""
     import granular_core as core
     from .usd_reader import translate_core_error, validate
     validate(scene)
     try:
-        return core.Scene.build(scene.desc, previous)
+        return core.Scene.build(scene.desc, previous, log)
     except core.InputError as e:
         raise translate_core_error(e, scene) from None
 

@@ -6,6 +6,8 @@
                     [--no-physical-sun]
                     [--frames A:B[xSTEP]]   (then -o and --png name a run of '#': OUT.####.exr)
                     [--crop X0:X1,Y0:Y1]    (only those pixels; the EXR keeps their place)
+    granular render SCENE.usda [--settings /Render/Settings] [--frames A:B] [render options]
+                    (no -o: every render product of the render settings prim, at its productName)
     granular merge TILE.exr [TILE.exr ...] -o OUT.exr [--png OUT.png] [--exposure E]
     granular farm SCENE.usda -o OUT.####.exr [--png OUT.####.png] --frames A:B[xSTEP] [--tiles N]
                   [--scheduler ADDRESS | --workers K] [render options]
@@ -198,8 +200,12 @@ def build_parser():
 
     r = sub.add_parser("render", help="render a stage to EXR (and PNG)")
     r.add_argument("scene", metavar="SCENE", help="USD stage (.usda, .usdc, .usd)")
-    r.add_argument("-o", "--output", required=True, metavar="OUT.exr", help="OpenEXR image (RGBA, Z, N)")
+    r.add_argument("-o", "--output", metavar="OUT.exr",
+                   help="OpenEXR image (RGBA, Z, N, ...); without it, every render product of the stage's render "
+                        "settings prim is written (its productName, vars, resolution, camera and data window)")
     r.add_argument("--png", metavar="OUT.png", help="also an 8-bit sRGB PNG")
+    r.add_argument("--settings", type=_prim_path("/Render/Settings"), metavar="PRIM",
+                   help="the RenderSettings prim (default: the stage's renderSettingsPrimPath, else the first)")
     _render_options(r)
     r.add_argument("--frames", metavar="A:B[xSTEP]",
                    help="render the frames A to B (inclusive) every STEP (default 1; may be fractional), each "
@@ -212,16 +218,20 @@ def build_parser():
                         "joins such tiles bit for bit into the full render. Default: the render settings' "
                         "dataWindowNDC, else every pixel")
     r.add_argument("--noise-threshold", type=_positive_float(1.0), metavar="T",
-                   help="stop before --spp once every pixel's standard error is at most T times its luminance "
-                        "+ 0.01, checked after each pass from two bundles on (the delegate's convergedVariance "
-                        "rule); e.g. 0.02")
+                   help="adaptive sampling: each pixel stops before --spp once its standard error is at most T "
+                        "times its luminance + 0.01 (checked before each of its bundles, from two bundles and "
+                        "16 samples on; the delegate's convergedVariance rule), the render once every pixel has; "
+                        "e.g. 0.02")
     r.add_argument("--time-limit", type=_positive_float(1e7), metavar="SECONDS",
                    help="stop rendering after SECONDS (once the first pass is complete, so that every pixel "
                         "has samples) and write the image")
     r.add_argument("--denoise", action="store_true",
-                   help="also denoise the beauty with Intel Open Image Denoise (the pyoidn package), guided by "
-                        "the albedo and normal AOVs: channels denoised.R/G/B beside the raw ones in the EXR, "
-                        "and the denoised beauty in the PNG")
+                   help="also denoise the beauty with Intel Open Image Denoise (core's, found when the build "
+                        "was configured), guided by the albedo and normal AOVs: channels denoised.R/G/B beside "
+                        "the raw ones in the EXR, and the denoised beauty in the PNG")
+    r.add_argument("--cryptomatte", action="store_true",
+                   help="also the Cryptomatte layers CryptoObject00-02 and CryptoMaterial00-02 (6 ranks of prim "
+                        "paths and material names by coverage) with their manifests in the EXR header")
     r.add_argument("--quiet", action="store_true", help="no progress or statistics on stderr")
 
     g = sub.add_parser("merge", help="join tiles (EXRs of --crop renders of one image) into one image")
@@ -266,6 +276,13 @@ def _remove(paths):
             os.remove(p)
         except OSError:
             pass
+
+
+def _apply_options(args, scene):
+    """apply_options, and render's own --cryptomatte (core computes the layers)."""
+    s = apply_options(args, scene)
+    s.cryptomatte = bool(getattr(args, "cryptomatte", False))
+    return s
 
 
 def _write_images(image, exr, png, exposure):
@@ -321,17 +338,15 @@ DENOISED = ["denoised.R", "denoised.G", "denoised.B"]
 
 
 def _denoise(args, image):
-    """--denoise: the beauty denoised by Intel Open Image Denoise (the pyoidn package),
+    """--denoise: the beauty denoised by core's Intel Open Image Denoise (core/denoise.h),
     guided by the albedo and normal AOVs, added as channels denoised.R/G/B beside the raw
-    ones, which it never replaces. Without pyoidn: one warning, and the image as it is."""
+    ones, which it never replaces. Without it: one warning, and the image as it is."""
     import numpy as np
 
     import granular_core as core
-    try:
-        import pyoidn
-    except ImportError:
-        print("warning: --denoise: the pyoidn package (Intel Open Image Denoise) is not installed; "
-              "the image is written undenoised (pip install pyoidn)", file=sys.stderr)
+    if not core.denoiser_available():
+        print(f"warning: --denoise: {core.denoiser_unavailable_reason()}; the image is written undenoised "
+              "(configure the build with pyoidn in its Python, or OpenImageDenoise_DIR)", file=sys.stderr)
         return image
     px = image.pixels
     ch = list(image.channels)
@@ -342,9 +357,11 @@ def _denoise(args, image):
     # normals: handed over as they are.
     color, albedo = take(["R", "G", "B"]), take(["albedo.R", "albedo.G", "albedo.B"])
     normal = take(["N.X", "N.Y", "N.Z"])
-    out = pyoidn.denoise(color, albedo=albedo, normal=normal, hdr=True)
-    return core.Image(np.concatenate([px, np.asarray(out, dtype=np.float32)], axis=2), ch + DENOISED,
-                      image.x, image.y, image.full_width, image.full_height)
+    out = core.denoise(color, albedo, normal)
+    denoised = core.Image(np.concatenate([px, np.asarray(out, dtype=np.float32)], axis=2), ch + DENOISED,
+                          image.x, image.y, image.full_width, image.full_height)
+    denoised.attributes = image.attributes  # the Cryptomatte manifests
+    return denoised
 
 
 def _png_image(image):
@@ -369,6 +386,10 @@ def _render_image(args, built):
     if renderer.stopped_by != "samples":
         _log(args, f"  stopped at the {renderer.stopped_by} after {renderer.samples_per_pixel} of "
                    f"{args.spp} samples per pixel")
+    if getattr(args, "noise_threshold", None):
+        c = renderer.sample_counts
+        _log(args, f"  adaptive sampling: {c['mean']:.1f} samples per pixel on average, {c['max']} at most "
+                   f"(of {args.spp})")
     image = renderer.image()
     if getattr(args, "denoise", False):
         image = _denoise(args, image)
@@ -406,15 +427,18 @@ def _log_transports(args, built, renderer, image):
 def cmd_render(args):
     from .usd_reader import read_stage
 
+    if args.output is None:
+        return _render_products(args)
     check_outputs(args)
     if args.frames is not None:
         return _render_frames(args)  # frame_outputs claims each frame's files
     claim_outputs(args.output, args.png)
     t0 = time.monotonic()
-    scene = read_stage(args.scene, camera=args.camera, width=args.width, height=args.height)
-    s = apply_options(args, scene)
+    scene = read_stage(args.scene, camera=args.camera, width=args.width, height=args.height,
+                       settings_path=args.settings)
+    s = _apply_options(args, scene)
     _warnings(args, scene)
-    built = api.build_scene(scene)
+    built = api.build_scene(scene, log=lambda line: _log(args, "  waiting for aggregate " + line))
     _log_build_warnings(args, built)
     _log(args, f"{args.scene}: camera {scene.camera_path}, {s.width}x{s.height}{_crop_text(s)}, {s.spp} spp; "
                f"scene read and built in {time.monotonic() - t0:.2f} s")
@@ -449,8 +473,8 @@ def _render_frames(args):
     for k, frame in enumerate(frames):
         tf = time.monotonic()
         scene = read_stage(args.scene, camera=args.camera, width=args.width, height=args.height, stage=stage,
-                           time=frame)
-        s = apply_options(args, scene)
+                           time=frame, settings_path=getattr(args, "settings", None))
+        s = _apply_options(args, scene)
         for w in scene.warnings:
             if w not in shown:
                 shown.add(w)
@@ -476,6 +500,109 @@ def _render_frames(args):
         written = _write_images(image, exr_name(frame), png_name(frame) if png_name else None, args.exposure)
         _log(args, f"frame {frame_text(frame)}: {action}; render {seconds:.2f} s; wrote {' and '.join(written)}")
     _log(args, f"{len(frames)} frames in {time.monotonic() - t0:.1f} s")
+    return EXIT_OK
+
+
+# Options that say what one image is; products say that themselves.
+_IMAGE_ONLY = (("png", "--png"), ("width", "--width"), ("height", "--height"), ("camera", "--camera"),
+               ("crop", "--crop"), ("denoise", "--denoise"))
+
+
+def _product_frames(args, stage):
+    """[(frame for file names, time to read)]: --frames, else the stage's start (no frame
+    number when the stage has no authored time range: a productName with frame tokens then
+    needs --frames)."""
+    if args.frames is not None:
+        return [(f, f) for f in parse_frames(args.frames)]
+    return [(stage.GetStartTimeCode() if stage.HasAuthoredTimeCodeRange() else math.nan, None)]
+
+
+def _render_products(args):
+    """render without -o: every product of the active render settings prim (usd_reader
+    read_render_products, core's render_products.h), each frame's products grouped by camera
+    and resolution, each group rendered once over the union of its products' data windows,
+    each product written by core.write_product (the delegate's writer too). Every product's
+    file is checked for every frame before anything is rendered; a frame's files are written
+    whole, all or none."""
+    import granular_core as core
+    from pxr import UsdGeom
+
+    from .usd_reader import open_stage, read_render_products, read_stage
+
+    for attr, flag in _IMAGE_ONLY:
+        if getattr(args, attr, None):
+            raise UserError("command line", flag, "applies to -o; without -o the render settings' products say "
+                                                  "what is rendered and written")
+    t0 = time.monotonic()
+    stage = open_stage(args.scene)
+    plan, seen, shown = [], {}, set()
+    for frame, when in _product_frames(args, stage):
+        settings, products, warnings = read_render_products(stage, when, args.settings)
+        for w in warnings:
+            if w not in shown:
+                shown.add(w)
+                _log(args, "warning: " + w)
+        if settings is None:
+            raise UserError("command line", "-o", "is required: the stage has no RenderSettings prim whose "
+                                                  "products could be written instead")
+        if not products:
+            raise UserError(str(settings.GetPath()), "products", "no render product to write (give -o, or add "
+                                                                 "RenderProducts to the render settings)")
+        for p in products:
+            try:
+                core.check_product_output(p, frame)
+                name = os.path.abspath(core.product_file_name(p, frame))
+            except core.InputError as e:
+                raise UserError(e.object, e.attribute, e.detail) from None
+            if name in seen:  # one file per product and frame
+                raise UserError(p.path, "productName", f'"{name}" is also written by {seen[name]}'
+                                                       + (" (frame tokens $F4 or #### give each frame its file)"
+                                                          if seen[name].startswith(p.path + " ") else ""))
+            seen[name] = f"{p.path} at frame {frame_text(frame) if math.isfinite(frame) else '-'}"
+        plan.append((frame, when, {"products": products,
+                                   "names": [os.path.abspath(core.product_file_name(p, frame)) for p in products]}))
+    claim_outputs(*(n for _, _, ps in plan for n in ps["names"]))
+    built = None
+    for frame, when, ps in plan:
+        groups = {}
+        for p in ps["products"]:
+            groups.setdefault((p.camera, p.width, p.height), []).append(p)
+        written = []
+        try:
+            for (camera, width, height), products in groups.items():
+                if camera:
+                    prim = stage.GetPrimAtPath(camera)
+                    if not prim or not prim.IsA(UsdGeom.Camera):
+                        raise UserError(products[0].path, "camera", f"target {camera} is not a Camera")
+                scene = read_stage(args.scene, camera=camera or None, width=width, height=height, stage=stage,
+                                   time=when, settings_path=args.settings)
+                s = apply_options(args, scene)
+                # Cryptomatte layers exist only in a film that keeps them.
+                s.cryptomatte = s.cryptomatte or any(p.needs_cryptomatte for p in products)
+                x0, x1, y0, y1 = core.union_window(products)
+                s.crop = (0, 0, 0, 0) if (x0, x1, y0, y1) == (0, width, 0, height) else (x0, x1, y0, y1)
+                for w in scene.warnings:
+                    if w not in shown:
+                        shown.add(w)
+                        _log(args, "warning: " + w)
+                built, changes = update_scene(scene, built)
+                if changes is None:
+                    _log_build_warnings(args, built, shown)
+                    _log_aggregates(args, built)
+                t1 = time.monotonic()
+                renderer, image = _render_image(args, built)
+                _log(args, f"{args.scene}: frame {frame_text(frame) if math.isfinite(frame) else '-'}: camera "
+                           f"{scene.camera_path}, {width}x{height}{_crop_text(s)}, {s.spp} spp, rendered in "
+                           f"{time.monotonic() - t1:.2f} s for {', '.join(p.path for p in products)}")
+                for p in products:
+                    name = core.product_file_name(p, frame)
+                    warn_if_replaced(core.write_product(p, image, frame), name)
+                    written.append(name)
+                    _log(args, f"wrote {name} (product {p.path}: {', '.join(p.channels)})")
+        except BaseException:
+            _remove(written)
+            raise
+    _log(args, f"{sum(len(ps['products']) for _, _, ps in plan)} product file(s) in {time.monotonic() - t0:.1f} s")
     return EXIT_OK
 
 

@@ -19,7 +19,8 @@ range, the earliest time sample). Every time-varying value is read at that time.
   prototypes that are not drawn (invisible) are read when core asks for them;
 - one UsdGeomCamera (--camera, else the render settings' camera, else the first one);
 - UsdLux lights; the bound material's surface network; displayColor without a material;
-- the render settings prim's resolution and camera, and its first product's data window.
+- the render settings prim's resolution and camera, and its first product's data window;
+  without -o, its render products and vars (read_render_products, core's render_products.h).
 Every problem a user can cause raises UserError naming the prim and the attribute;
 `translate_core_error` turns core's InputError (named after SceneDesc fields) into the same.
 """
@@ -465,8 +466,8 @@ def _instanced(scene, instancer, xf_cache, material_cache, prims):
         root = scene.stage.GetPrimAtPath(target)
         if not root:
             raise UserError(path, "prototypes", f"target {target} is not a prim of the stage")
-        placed = [Gf.Matrix4d(xforms[k]) * world for k in range(len(indices))
-                  if indices[k] == j and (not mask or mask[k])]
+        chosen = [k for k in range(len(indices)) if indices[k] == j and (not mask or mask[k])]
+        placed = [Gf.Matrix4d(xforms[k]) * world for k in chosen]
         if not placed:
             continue
         root_inverse = xf_cache.GetLocalToWorldTransform(root).GetInverse()
@@ -487,6 +488,7 @@ def _instanced(scene, instancer, xf_cache, material_cache, prims):
             mp = _mesh_prim(scene, prim, xf_cache, material_cache, drawn=True)
             relative = xf_cache.GetLocalToWorldTransform(prim) * root_inverse
             mp.instances = [to_core_matrix(relative * m) for m in placed]
+            mp.instance_ids = chosen  # the PointInstancer's instance indices (instanceId AOV)
             prims.append(mp)
 
 
@@ -516,7 +518,14 @@ def _assemble(scene, prims, xf_cache, material_cache):
 
 # ---- camera, lights, settings --------------------------------------------------------------
 
-def _settings_prim(stage):
+def _settings_prim(stage, path=None):
+    """The active render settings prim: `path` (granular render --settings), else the
+    stage's renderSettingsPrimPath, else the first RenderSettings prim."""
+    if path:
+        prim = stage.GetPrimAtPath(path)
+        if not prim or not prim.IsA(UsdRender.Settings):
+            raise UserError("command line", "--settings", f'"{path}" is not a RenderSettings prim of the stage')
+        return prim
     s = UsdRender.Settings.GetStageRenderSettings(stage)
     if s:
         return s.GetPrim()
@@ -558,7 +567,7 @@ def _is_light(prim):
 # ---- the stage ---------------------------------------------------------------------------------
 
 def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_camera=True, stage=None,
-               time=None):
+               time=None, settings_path=None):
     """Reads the stage at `path` (or the open `stage`) into a StageScene, every value at
     `time` (a Usd.TimeCode or a number; None: stage_time, the stage's start). With
     surfaces=False only aggregates are read (for info and export); without need_camera a
@@ -603,11 +612,15 @@ def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_c
             unsupported.setdefault(prim.GetTypeName(), str(prim.GetPath()))
     for type_name, example in unsupported.items():
         scene.warn(f"{example}: {type_name} prims are not supported; skipped")
+    # The primId and aggregateId AOVs' ids: each listed prim's place in traversal order
+    # (Hydra's are its render index's).
+    for i, mp in enumerate(prims):
+        mp.id = i
     _assemble(scene, prims, xf_cache, material_cache)
     core.order_usd_lights(scene.desc)
 
     # Resolution and camera: command line, else the render settings prim, else defaults.
-    settings = _settings_prim(stage)
+    settings = _settings_prim(stage, settings_path)
     res = None
     settings_camera = None
     if settings is not None:
@@ -691,6 +704,57 @@ def _read_data_window(scene, settings, time):
         s.crop = window
         where = product_record if "dataWindowNDC" in product_record.attributes else None
         scene.names["render"]["crop"] = (where.path if where else str(settings.GetPath()), "dataWindowNDC")
+
+
+def _rel_value(rel):
+    """A relationship's first forwarded target as core.UsdValue (type "rel"), or None."""
+    targets = rel.GetForwardedTargets() if rel else []
+    if not targets:
+        return None
+    v = core.UsdValue()
+    v.type_name, v.is_string, v.strings = "rel", True, [str(targets[0])]
+    return v
+
+
+def _render_record(prim, names, time):
+    """A settings or product prim's authored values (what a product inherits is decided by
+    core), its camera relationship's target as attribute "camera"."""
+    r = prim_record(prim, [n for n in names if n != "camera"], time, authored_only=True)
+    cam = _rel_value(prim.GetRelationship("camera"))
+    if cam is not None:
+        attrs = dict(r.attributes)
+        attrs["camera"] = cam
+        r.attributes = attrs
+    return r
+
+
+def read_render_products(stage, time=None, settings_path=None):
+    """The active render settings prim's products (core.render_product_from_usd: what each
+    inherits, its vars' film channels and pixel types), at `time`: (settings prim or None,
+    [core.RenderProductDesc], [warnings]). UserError naming prim.attribute on bad values."""
+    time = as_time_code(time, stage)
+    settings = _settings_prim(stage, settings_path)
+    if settings is None:
+        return None, [], []
+    names = core.usd_render_product_attribute_names()
+    settings_record = _render_record(settings, names, time)
+    products, warnings = [], []
+    for target in UsdRender.Settings(settings).GetProductsRel().GetForwardedTargets():
+        prim = stage.GetPrimAtPath(target)
+        if not prim or not prim.IsA(UsdRender.Product):
+            raise UserError(str(settings.GetPath()), "products", f"target {target} is not a RenderProduct")
+        var_records = []
+        for vt in UsdRender.Product(prim).GetOrderedVarsRel().GetForwardedTargets():
+            var = stage.GetPrimAtPath(vt)
+            if not var or not var.IsA(UsdRender.Var):
+                raise UserError(str(prim.GetPath()), "orderedVars", f"target {vt} is not a RenderVar")
+            var_records.append(prim_record(var, core.usd_render_var_attribute_names(), time, authored_only=True))
+        product, w = _core_call(core.render_product_from_usd, settings_record, _render_record(prim, names, time),
+                                var_records)
+        warnings += [x for x in w if x not in warnings]
+        if product is not None:
+            products.append(product)
+    return settings, products, warnings
 
 
 def validate(scene):

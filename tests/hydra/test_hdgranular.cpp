@@ -4,6 +4,10 @@
 #include <gtest/gtest.h>
 
 #include <chrono>
+#include <cstdint>
+#include <cstring>
+#include <regex>
+#include <map>
 #include <cstdlib>
 #include <cstdio>
 #include <functional>
@@ -365,6 +369,177 @@ TEST(HdGranular, TheAlbedoAovIsTheFirstHitsReflectance) {
   }
 }
 
+namespace {
+
+// A grey card behind a smaller white quad, seen whole under the uniform dome: every pixel
+// is covered by one of the two.
+UsdStageRefPtr cardAndQuad() {
+  return domeLitStage(40, R"(
+  def Mesh "Card" {
+    point3f[] points = [(-9, -9, -1), (9, -9, -1), (9, 9, -1), (-9, 9, -1)]
+    int[] faceVertexCounts = [4]
+    int[] faceVertexIndices = [0, 1, 2, 3]
+    color3f[] primvars:displayColor = [(0.5, 0.5, 0.5)]
+  }
+  def Mesh "Front" {
+    point3f[] points = [(-2, -2, 0), (0.5, -2, 0), (0.5, 2, 0), (-2, 2, 0)]
+    int[] faceVertexCounts = [4]
+    int[] faceVertexIndices = [0, 1, 2, 3]
+    color3f[] primvars:displayColor = [(0.9, 0.9, 0.9)]
+  }
+)");
+}
+
+uint32_t bitsOf(float f) {
+  uint32_t u;
+  std::memcpy(&u, &f, 4);
+  return u;
+}
+
+// {name: id bits} of a Cryptomatte manifest ({"name":"8 hex digits",...}, names without quotes).
+std::map<std::string, uint32_t> parseManifest(std::string const& json) {
+  std::map<std::string, uint32_t> out;
+  static const std::regex entry(R"re("([^"]*)":"([0-9a-f]{8})")re");
+  for (std::sregex_iterator it(json.begin(), json.end(), entry), end; it != end; ++it)
+    out[(*it)[1]] = uint32_t(std::stoul((*it)[2], nullptr, 16));
+  return out;
+}
+
+}  // namespace
+
+// sampleCount is the converged spp everywhere; the variance AOV, the estimated variance of
+// each pixel's mean, agrees on average with what two seeds' images differ by
+// (E[(c1 - c2)^2] / 2 is that variance, pixel by pixel).
+TEST(HdGranular, SampleCountAndVarianceAovsAreTheFilms) {
+  UsdStageRefPtr stage = domeLitStage(40, R"(
+  def Mesh "Card" {
+    point3f[] points = [(-9, -9, -1), (9, -9, -1), (9, 9, -1), (-9, 9, -1)]
+    int[] faceVertexCounts = [4]
+    int[] faceVertexIndices = [0, 1, 2, 3]
+  }
+  def Cube "Box" {
+    double size = 1.5
+  }
+)");
+  const int spp = 8;
+  auto engine = makeEngine(spp);
+  Frame count = render(*engine, stage, TfToken("sampleCount"), 32, 32);
+  ASSERT_TRUE(count.converged);
+  ASSERT_EQ(count.channels, 1);
+  for (float n : count.values) EXPECT_EQ(n, float(spp));
+  Frame variance = render(*engine, stage, TfToken("variance"), 32, 32);
+  ASSERT_EQ(variance.channels, 3);
+  double predicted = 0, observed = 0;
+  for (float v : variance.values) {
+    EXPECT_GE(v, 0.0f);
+    predicted += v;
+  }
+  Frame c1 = render(*engine, stage, HdAovTokens->color, 32, 32);
+  auto other = makeEngine(spp);
+  other->SetRendererSetting(TfToken("granular:seed"), VtValue(7));
+  Frame c2 = render(*other, stage, HdAovTokens->color, 32, 32);
+  ASSERT_EQ(c1.values.size(), c2.values.size());
+  for (size_t i = 0; i < c1.values.size(); ++i)
+    if (i % 4 != 3) observed += 0.5 * double(c1.values[i] - c2.values[i]) * (c1.values[i] - c2.values[i]);
+  ASSERT_GT(observed, 0.0);
+  // 3072 pixel channels: the mean of (c1 - c2)^2 / 2 is within a few percent of its
+  // expectation; 25% leaves room for the occluded pixels' heavier tails.
+  EXPECT_NEAR(predicted / observed, 1.0, 0.25) << predicted << " " << observed;
+}
+
+// instanceId: each PointInstancer instance's index where it is seen, -1 elsewhere;
+// aggregateId: the aggregate's prim id (its primId) where its grains are seen, -1 elsewhere.
+TEST(HdGranular, InstanceAndAggregateIdAovs) {
+  UsdStageRefPtr stage = domeLitStage(40, R"(
+  def PointInstancer "Inst" {
+    rel prototypes = </World/Inst/Protos/Quad>
+    int[] protoIndices = [0, 0, 0]
+    point3f[] positions = [(-2, 0, 0), (0, 0, 0), (2, 0, 0)]
+    def Scope "Protos" {
+      def Mesh "Quad" {
+        point3f[] points = [(-0.5, -0.5, 0), (0.5, -0.5, 0), (0.5, 0.5, 0), (-0.5, 0.5, 0)]
+        int[] faceVertexCounts = [4]
+        int[] faceVertexIndices = [0, 1, 2, 3]
+      }
+    }
+  }
+)");
+  auto engine = makeEngine(1);
+  Frame f = render(*engine, stage, HdAovTokens->instanceId, 40, 40);
+  ASSERT_TRUE(f.converged);
+  ASSERT_EQ(f.channels, 1);
+  std::map<int, std::pair<int, int>> columns;  // instance -> leftmost, rightmost column
+  for (int y = 0; y < f.height; ++y)
+    for (int x = 0; x < f.width; ++x) {
+      const int id = int(f.values[size_t(y) * f.width + x]);
+      ASSERT_GE(id, -1);
+      ASSERT_LE(id, 2);
+      auto [it, fresh] = columns.try_emplace(id, x, x);
+      it->second.first = std::min(it->second.first, x);
+      it->second.second = std::max(it->second.second, x);
+    }
+  ASSERT_EQ(columns.size(), 4u);
+  EXPECT_LT(columns[0].second, columns[1].first);
+  EXPECT_LT(columns[1].second, columns[2].first);
+  Frame aggregates = render(*engine, stage, TfToken("aggregateId"), 40, 40);
+  for (float v : aggregates.values) EXPECT_EQ(v, -1.0f);
+
+  UsdStageRefPtr slab = unlitSnowslab();
+  auto slabEngine = makeEngine(1);
+  Frame agg = render(*slabEngine, slab, TfToken("aggregateId"), 32, 20);
+  Frame prim = render(*slabEngine, slab, HdAovTokens->primId, 32, 20);
+  ASSERT_EQ(agg.values.size(), prim.values.size());
+  int seen = 0;
+  for (size_t i = 0; i < agg.values.size(); ++i) {
+    if (agg.values[i] == -1.0f) continue;
+    ++seen;
+    EXPECT_EQ(agg.values[i], prim.values[i]) << i;
+    EXPECT_GE(agg.values[i], 0.0f);
+  }
+  EXPECT_GT(seen, int(agg.values.size()) / 10);  // the slab fills about a fifth of the view
+}
+
+// CryptoObject00 and CryptoMaterial00 (float4: id, coverage, id, coverage): decoded with the
+// manifest the delegate reports, the quad's pixels are the quad's, the rest the card's, and
+// each pixel's coverages add up to 1 (every pixel is covered).
+TEST(HdGranular, CryptomatteAovsDecodeWithTheReportedManifest) {
+  UsdStageRefPtr stage = cardAndQuad();
+  auto engine = makeEngine(4);
+  Frame obj = render(*engine, stage, TfToken("CryptoObject00"), 32, 32);
+  ASSERT_TRUE(obj.converged);
+  ASSERT_EQ(obj.channels, 4);
+  VtDictionary stats = engine->GetRenderStats();
+  VtDictionary manifests = stat<VtDictionary>(stats, "granular:cryptomatte");
+  auto objects = parseManifest(stat<std::string>(manifests, "CryptoObject"));
+  ASSERT_EQ(objects.size(), 2u) << stat<std::string>(manifests, "CryptoObject");
+  const uint32_t card = objects["/World/Card"], front = objects["/World/Front"];
+  int frontPixels = 0;
+  for (int y = 0; y < obj.height; ++y)
+    for (int x = 0; x < obj.width; ++x) {
+      const float* p = &obj.values[(size_t(y) * obj.width + x) * 4];
+      EXPECT_NEAR(p[1] + p[3], 1.0f, 1e-6f) << x << "," << y;
+      EXPECT_TRUE(bitsOf(p[0]) == card || bitsOf(p[0]) == front) << x << "," << y;
+      if (p[1] == 1.0f && bitsOf(p[0]) == front) ++frontPixels;
+    }
+  // The view is [-4, 4]^2 at the quad's distance, 4 pixels a unit: the quad is columns
+  // [8, 18) and rows [8, 24), 160 pixels (less a few on its edges).
+  EXPECT_GT(frontPixels, 140);
+  EXPECT_LE(frontPixels, 160);
+  // The left half of the centre row is the quad's, the right edge the card's.
+  EXPECT_EQ(bitsOf(obj.values[(size_t(16) * 32 + 12) * 4]), front);
+  EXPECT_EQ(bitsOf(obj.values[(size_t(16) * 32 + 30) * 4]), card);
+
+  Frame mat = render(*engine, stage, TfToken("CryptoMaterial00"), 32, 32);
+  auto materials = parseManifest(stat<std::string>(stat<VtDictionary>(engine->GetRenderStats(), "granular:cryptomatte"),
+                                                   "CryptoMaterial"));
+  ASSERT_EQ(materials.size(), 2u);
+  EXPECT_EQ(bitsOf(mat.values[(size_t(16) * 32 + 12) * 4]), materials["/World/Front.displayColor"]);
+  EXPECT_EQ(bitsOf(mat.values[(size_t(16) * 32 + 30) * 4]), materials["/World/Card.displayColor"]);
+  // Ranks 2 and 3 are empty: two objects at most per pixel.
+  Frame rest = render(*engine, stage, TfToken("CryptoObject01"), 32, 32);
+  for (float v : rest.values) EXPECT_EQ(v, 0.0f);
+}
+
 // Core's warnings and errors reach the host as granular render prints them: once each in
 // the render stats granular:warnings, and the error that refused the image in granular:error.
 TEST(HdGranular, CoresWarningsAndErrorsAreRenderStats) {
@@ -433,6 +608,65 @@ TEST(HdGranular, TheNoiseThresholdStopsSimpleScenesEarlierThanHardOnes) {
   EXPECT_LT(simple, hard);
   EXPECT_LT(hard, cap);  // the threshold, not the sample cap, ended it
   EXPECT_GE(simple, 2);
+}
+
+// granular:denoise: the color AOV shows core's denoised beauty (nearer a 256-sample
+// reference than the raw 4-sample one is), every other AOV stays raw, bit for bit.
+TEST(HdGranular, DenoiseShowsTheDenoisedBeautyAndLeavesOtherAovsRaw) {
+  // A ball in front of a card under a uniform sky: the card's shadowing makes the noise.
+  UsdStageRefPtr stage = domeLitStage(40, R"(
+  def Mesh "Card" {
+    point3f[] points = [(-9, -9, 0), (9, -9, 0), (9, 9, 0), (-9, 9, 0)]
+    int[] faceVertexCounts = [4]
+    int[] faceVertexIndices = [0, 1, 2, 3]
+    color3f[] primvars:displayColor = [(0.7, 0.6, 0.5)]
+  }
+  def Sphere "Ball" {
+    double radius = 2
+    double3 xformOp:translate = (0, 0, 2.5)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+  }
+)");
+  const int w = 48, h = 48;
+  const TfToken kDenoise("granular:denoise"), kAlbedo("albedo");
+  auto engine = makeEngine(4);
+  Frame raw = render(*engine, stage, HdAovTokens->color, w, h);
+  Frame rawAlbedo = render(*engine, stage, kAlbedo, w, h);
+  Frame rawNormal = render(*engine, stage, HdAovTokens->normal, w, h);
+  ASSERT_TRUE(raw.converged && rawAlbedo.converged && rawNormal.converged);
+  const bool available = stat<bool>(engine->GetRenderStats(), "granular:denoiserAvailable");
+  engine->SetRendererSetting(kDenoise, VtValue(true));
+  Frame den = render(*engine, stage, HdAovTokens->color, w, h);
+  Frame denAlbedo = render(*engine, stage, kAlbedo, w, h);
+  Frame denNormal = render(*engine, stage, HdAovTokens->normal, w, h);
+  ASSERT_TRUE(den.converged && denAlbedo.converged && denNormal.converged);
+  EXPECT_EQ(denAlbedo.values, rawAlbedo.values);
+  EXPECT_EQ(denNormal.values, rawNormal.values);
+  if (!available) {  // one warning, and the raw beauty
+    EXPECT_EQ(den.values, raw.values);
+    GTEST_SKIP() << "this build has no Intel Open Image Denoise";
+  }
+  auto refEngine = makeEngine(256);
+  Frame ref = render(*refEngine, stage, HdAovTokens->color, w, h);
+  ASSERT_TRUE(ref.converged);
+  ASSERT_EQ(den.values.size(), ref.values.size());
+  auto relmse = [&](Frame const& f) {
+    double s = 0;
+    for (size_t i = 0; i < f.values.size(); i += 4)
+      for (int c = 0; c < 3; ++c) {
+        const double r = ref.values[i + c], d = f.values[i + c] - r;
+        s += d * d / (r * r + 1e-2);
+      }
+    return s / double(f.values.size() / 4 * 3);
+  };
+  for (size_t i = 0; i < den.values.size(); i += 4) {
+    ASSERT_TRUE(std::isfinite(den.values[i]) && std::isfinite(den.values[i + 1]) && std::isfinite(den.values[i + 2]));
+    EXPECT_EQ(den.values[i + 3], raw.values[i + 3]) << "alpha stays raw at " << i / 4;
+  }
+  const double before = relmse(raw), after = relmse(den);
+  std::printf("granular:denoise: relative MSE to 256 spp %.4g raw, %.4g denoised\n", before, after);
+  // The reference's own noise is 64 times below the raw image's.
+  EXPECT_LT(after, 0.5 * before);
 }
 
 TEST(HdGranular, BuffersSurviveResizesAovSwitchesAndCameraMovesWhileRendering) {
@@ -675,4 +909,36 @@ TEST(HdGranular, ADataWindowWithoutARenderProductCropsNothing) {
   Frame f = render(*settingsAlone, stage, HdAovTokens->color, 40, 30);
   ASSERT_TRUE(full.converged && f.converged);
   EXPECT_EQ(f.values, full.values);
+}
+
+TEST(HdGranular, StandInsShowFirstAndTheFullBuildReplacesThemAsAnEagerBuild) {
+  // The first Execute builds stand-ins (the medium alone, core/scene.h) and starts the full
+  // build on its own thread; the pass is not converged until the full scene has replaced
+  // them and rendered, and its image is then bit for bit that of a delegate that built
+  // everything before its first image (granular:standIns false).
+  UsdStageRefPtr stage = UsdStage::Open(kExamples + "/snowslab.usda");
+  auto engine = makeEngine(4);
+  engine->SetCameraPath(SdfPath("/World/Camera"));
+  engine->SetRenderBufferSize(GfVec2i(32, 20));
+  engine->SetFraming(CameraUtilFraming(GfRect2i(GfVec2i(0, 0), 32, 20)));
+  ASSERT_TRUE(engine->SetRendererAov(HdAovTokens->color));
+  engine->Render(stage->GetPseudoRoot(), UsdImagingGLRenderParams());
+  VtDictionary first = engine->GetRenderStats();
+  EXPECT_TRUE(stat<bool>(first, "granular:standIns"));
+  EXPECT_TRUE(stat<bool>(first, "granular:fullBuildPending"));
+  EXPECT_FALSE(engine->IsConverged());
+  EXPECT_EQ(stat<int>(first, "granular:standInsBuilt"), 1);
+  EXPECT_EQ(stat<int>(first, "granular:aggregatesBuilt"), 0);
+  Frame lazy = render(*engine, stage, HdAovTokens->color, 32, 20);
+  VtDictionary last = engine->GetRenderStats();
+  EXPECT_FALSE(stat<bool>(last, "granular:standIns"));
+  EXPECT_FALSE(stat<bool>(last, "granular:fullBuildPending"));
+  EXPECT_EQ(stat<int>(last, "granular:aggregatesBuilt"), 1);
+  EXPECT_EQ(stat<int>(last, "granular:mediaDerived"), 1);  // the full build took the stand-in's
+  auto eagerEngine = makeEngine(4);
+  eagerEngine->SetRendererSetting(TfToken("granular:standIns"), VtValue(false));
+  Frame eager = render(*eagerEngine, stage, HdAovTokens->color, 32, 20);
+  EXPECT_EQ(stat<int>(eagerEngine->GetRenderStats(), "granular:standInsBuilt"), 0);
+  expectSameFrame(lazy, eager, 0);
+  EXPECT_GT(mean(lazy, 0), 0.01);
 }

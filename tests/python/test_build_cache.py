@@ -50,6 +50,9 @@ def test_a_render_from_the_cache_is_bit_identical(tmp_path):
     assert _entries(cache), "the first render stores its aggregates' builds"
     second = _render(cache, tmp_path / "warm.exr")
     assert "build cache" not in first.stderr + second.stderr
+    # What the first render waited for, and that the second did not.
+    assert "waiting for aggregate /World/SugarCube: building its distance field" in first.stderr, first.stderr
+    assert "waiting for" not in second.stderr
     _same_pixels(tmp_path / "cold.exr", tmp_path / "warm.exr")
     # With the build cache off, the same image again.
     env = _env(cache)

@@ -1,8 +1,7 @@
-"""`granular render --denoise`: Intel Open Image Denoise (pyoidn) guided by the albedo and
-normal AOVs writes channels denoised.R/G/B beside the raw beauty, which stays as it was;
-the albedo AOV is the first hit's reflectance; without pyoidn one warning and no denoising."""
-import sys
-
+"""`granular render --denoise`: core's Intel Open Image Denoise (core/denoise.h) guided by the
+albedo and normal AOVs writes channels denoised.R/G/B beside the raw beauty, which stays as it
+was; the albedo AOV is the first hit's reflectance; without the denoiser one warning and no
+denoising."""
 import numpy as np
 import pytest
 from conftest import EXAMPLES, dome_card, run_cli
@@ -27,7 +26,8 @@ def test_the_albedo_aov_is_the_first_hits_reflectance(tmp_path, capsys):
 
 
 def test_denoising_adds_channels_keeps_the_raw_beauty_and_lowers_the_error(tmp_path, capsys):
-    pytest.importorskip("pyoidn")
+    if not core.denoiser_available():
+        pytest.skip(core.denoiser_unavailable_reason())
     scene = str(EXAMPLES / "sugarcube.usda")
     size = ["--width", 64, "--height", 48, "--seed", 3]
     raw, den, ref = tmp_path / "raw.exr", tmp_path / "den.exr", tmp_path / "ref.exr"
@@ -50,12 +50,24 @@ def test_denoising_adds_channels_keeps_the_raw_beauty_and_lowers_the_error(tmp_p
     assert (tmp_path / "den.png").exists()
 
 
-def test_without_pyoidn_the_image_is_written_undenoised_with_one_warning(tmp_path, capsys, monkeypatch):
-    monkeypatch.setitem(sys.modules, "pyoidn", None)  # import pyoidn raises ImportError
+def test_without_the_denoiser_the_image_is_written_undenoised_with_one_warning(tmp_path, capsys, monkeypatch):
+    # As a build without Intel Open Image Denoise answers.
+    monkeypatch.setattr(core, "denoiser_available", lambda: False)
+    monkeypatch.setattr(core, "denoiser_unavailable_reason", lambda: "this build has no Intel Open Image Denoise")
     out = tmp_path / "o.exr"
     rc, _, err = run_cli(["render", dome_card(tmp_path / "card.usda", (0.3, 0.5, 0.7)), "-o", out, "--width", 16, "--height", 12,
                           "--spp", 1, "--denoise", "--quiet"], capsys)
     assert rc == 0, err
     lines = [x for x in err.splitlines() if x.startswith("warning:")]
-    assert len(lines) == 1 and "pyoidn" in lines[0], err
+    assert len(lines) == 1 and "Open Image Denoise" in lines[0] and "undenoised" in lines[0], err
     assert "denoised.R" not in core.read_exr(str(out)).channels
+
+
+def test_the_core_denoiser_refuses_mismatched_or_non_finite_input():
+    color = np.ones((4, 5, 3), np.float32)
+    with pytest.raises(core.InputError, match="denoise.albedo"):
+        core.denoise(color, np.ones((4, 4, 3), np.float32), color)
+    bad = color.copy()
+    bad[1, 2, 0] = np.nan
+    with pytest.raises(core.InputError, match=r"denoise.color: not finite at pixel \(2, 1\)"):
+        core.denoise(bad, color, color)
