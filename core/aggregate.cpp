@@ -79,23 +79,18 @@ bool Aggregate::traceGrain(const TileSphere& s, const int64_t cell[3], const Vec
 
 bool Aggregate::traceChosen(const TileSphere& s, const int64_t home[3], const GrainChoice& g, const Vec3& oc,
                             const Vec3& d, float tmin, float tmax, GrainHit& best) const {
-  const GrainPrototype& proto = prototypes_[g.prototype];
-  // Into the grain frame; t is unchanged because the direction is scaled by 1/R too.
-  float invR = 1.0f / s.radius;
-  Vec3 ol = g.rotation.transposeMul(oc) * invR, dl = g.rotation.transposeMul(d) * invR;
-  RTCIntersectContext ctx;
-  rtcInitIntersectContext(&ctx);
-  RTCRayHit local = makeRayHit(ol, dl, tmin, tmax);
-  rtcIntersect1(proto.bvh.get(), &ctx, &local);
-  if (local.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
-  best.t = local.ray.tfar;
-  best.ng = normalize(g.rotation * proto.normals[local.hit.primID]);
+  float t;
+  unsigned prim;
+  Vec3 ng;
+  if (!tracePrototype(prototypes_[g.prototype], g.rotation, s.radius, oc, d, tmin, tmax, t, prim, ng)) return false;
+  best.t = t;
+  best.ng = normalize(ng);
   best.prototype = g.prototype;
   best.cell[0] = home[0]; best.cell[1] = home[1]; best.cell[2] = home[2];
   best.sphere = s.id;
   best.radius = s.radius;
   best.rotation = g.rotation;
-  best.prim = local.hit.primID;
+  best.prim = prim;
   return true;
 }
 

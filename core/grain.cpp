@@ -42,6 +42,21 @@ void boundingSphere(const std::vector<Vec3>& pts, Vec3& center, float& radius) {
 
 }  // namespace
 
+bool tracePrototype(const GrainPrototype& proto, const Mat3& rotation, float radius, const Vec3& oc, const Vec3& d,
+                    float tmin, float tmax, float& t, unsigned& prim, Vec3& ng) {
+  const float invR = 1.0f / radius;
+  const Vec3 ol = rotation.transposeMul(oc) * invR, dl = rotation.transposeMul(d) * invR;
+  RTCIntersectContext ctx;
+  rtcInitIntersectContext(&ctx);
+  RTCRayHit local = makeRayHit(ol, dl, tmin, tmax);
+  rtcIntersect1(proto.bvh.get(), &ctx, &local);
+  if (local.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
+  t = local.ray.tfar;
+  prim = local.hit.primID;
+  ng = rotation * proto.normals[prim];
+  return true;
+}
+
 GrainPrototype makeGrainPrototype(const EmbreeDevice& device, const GrainPrototypeDesc& desc) {
   GrainPrototype p;
   p.name = desc.name;

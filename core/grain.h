@@ -47,6 +47,13 @@ std::vector<uint8_t> hullFaces(const TriangleMesh& mesh, float tolerance);
 // refined) and builds its BVH. The mesh must already be validated as closed.
 GrainPrototype makeGrainPrototype(const EmbreeDevice& device, const GrainPrototypeDesc& desc);
 
+// A ray against one grain: the prototype turned by `rotation` and scaled to bounding radius
+// `radius`, the ray's origin oc relative to the grain's centre. Traced in the grain's frame,
+// where the direction is scaled by 1/radius too, so t is the world ray's. On a hit: t, the
+// prototype's triangle and its normal turned into the world (unit up to rounding).
+bool tracePrototype(const GrainPrototype& proto, const Mat3& rotation, float radius, const Vec3& oc, const Vec3& d,
+                    float tmin, float tmax, float& t, unsigned& prim, Vec3& ng);
+
 struct GrainChoice {
   int prototype = 0;
   Mat3 rotation;

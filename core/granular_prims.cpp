@@ -314,6 +314,25 @@ void inUsdTerms(const MeshPrim& prim, F&& check) {
   }
 }
 
+// A grain prototype's material: its grain values appended to desc (when it has the API or
+// any of its primvars), else the front end's (MeshPrim::material, -1: clear glass).
+int appendGrainMaterial(const MeshPrim& proto, SceneDesc& desc) {
+  if (!(hasApi(proto, kGrainApi) || anyGrainPrimvar(proto))) return proto.material;
+  GrainValues g = readGrainValues(proto);
+  const std::string& src = sourceOf(proto, "roughness");
+  if (!std::isfinite(g.roughness) || g.roughness < 0 || g.roughness > 1)
+    throw InputError(src, usdName("roughness"), str(g.roughness, " is outside [0, 1]"));
+  MaterialDesc m;
+  m.name = proto.path;
+  m.type = MaterialType::Dielectric;
+  m.ior = g.ior;
+  m.absorption = g.absorption;
+  m.roughness = g.roughness;
+  inUsdTerms(proto, [&] { validateMaterialDesc(m, proto.path); });
+  desc.materials.push_back(m);
+  return int(desc.materials.size()) - 1;
+}
+
 class Assembler {
  public:
   Assembler(const std::vector<MeshPrim>& prims, SceneDesc& desc, const PrimLookup& lookup)
@@ -386,7 +405,10 @@ class Assembler {
     const std::string& path = prim.path;
     if (prim.typeName != "Mesh")
       throw InputError(path, "", str(kAggregateApi, " applies to a Mesh, not a ",
-                                     prim.typeName.empty() ? "typeless prim" : prim.typeName));
+                                     prim.typeName.empty() ? "typeless prim" : prim.typeName,
+                                     prim.typeName == "PointInstancer"
+                                         ? str(" (explicit grains from a simulation: ", kInstancedAggregateApi, ")")
+                                         : ""));
     AggregateValues v = readAggregateValues(prim);
     validateClosed(prim.mesh, path);
 
@@ -456,22 +478,7 @@ class Assembler {
   int grainMaterial(const MeshPrim& proto) {
     auto it = grainMaterials_.find(proto.path);
     if (it != grainMaterials_.end()) return it->second;
-    int index = proto.material;
-    if (hasApi(proto, kGrainApi) || anyGrainPrimvar(proto)) {
-      GrainValues g = readGrainValues(proto);
-      const std::string& src = sourceOf(proto, "roughness");
-      if (!std::isfinite(g.roughness) || g.roughness < 0 || g.roughness > 1)
-        throw InputError(src, usdName("roughness"), str(g.roughness, " is outside [0, 1]"));
-      MaterialDesc m;
-      m.name = proto.path;
-      m.type = MaterialType::Dielectric;
-      m.ior = g.ior;
-      m.absorption = g.absorption;
-      m.roughness = g.roughness;
-      inUsdTerms(proto, [&] { validateMaterialDesc(m, proto.path); });
-      desc_.materials.push_back(m);
-      index = int(desc_.materials.size()) - 1;
-    }
+    int index = appendGrainMaterial(proto, desc_);
     grainMaterials_.emplace(proto.path, index);
     return index;
   }
@@ -578,6 +585,88 @@ GrainValues readGrainValues(const MeshPrim& prim) {
 
 void assembleGranularScene(const std::vector<MeshPrim>& prims, SceneDesc& desc, const PrimLookup& lookup) {
   Assembler(prims, desc, lookup).run();
+}
+
+InstancedGrainsDesc instancedGrainsFromUsd(const InstancerPrim& prim, SceneDesc& desc, const PrimLookup& lookup) {
+  const std::string& path = prim.path;
+  if (prim.typeName != "PointInstancer")
+    throw InputError(path, "", str(kInstancedAggregateApi, " applies to a PointInstancer, not a ",
+                                   prim.typeName.empty() ? "typeless prim" : prim.typeName));
+  InstancedGrainsDesc g;
+  g.name = path;
+  g.xf = prim.xf;
+  g.id = prim.id;
+  auto per = [&](const char* attr, const std::vector<float>& v, size_t k) {
+    if (v.size() % k) throw InputError(path, attr, str("has ", v.size(), " numbers, not ", k, " per instance"));
+    return v.size() / k;
+  };
+  auto vectors = [&](const char* attr, const std::vector<float>& v) {
+    std::vector<Vec3> out(per(attr, v, 3));
+    for (size_t i = 0; i < out.size(); ++i) out[i] = Vec3(v[3 * i], v[3 * i + 1], v[3 * i + 2]);
+    return out;
+  };
+  g.positions = vectors("positions", prim.positions);
+  g.velocities = vectors("velocities", prim.velocities);
+  g.angularVelocities = vectors("angularVelocities", prim.angularVelocities);
+  g.orientations.resize(per("orientations", prim.orientations, 4));
+  for (size_t i = 0; i < g.orientations.size(); ++i) {
+    const float* q = &prim.orientations[4 * i];
+    const float n = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+    if (!(n > 0) || !std::isfinite(n))
+      throw InputError(path, "orientations", str("instance ", i, " has (", q[0], ", ", q[1], ", ", q[2], ", ", q[3],
+                                                 "), not a rotation"));
+    g.orientations[i] = Quat{q[0] / n, q[1] / n, q[2] / n, q[3] / n};
+  }
+  g.scales.resize(per("scales", prim.scales, 3));
+  for (size_t i = 0; i < g.scales.size(); ++i) {
+    const float* s = &prim.scales[3 * i];
+    const float lo = std::min({s[0], s[1], s[2]}), hi = std::max({s[0], s[1], s[2]});
+    const std::string shown = str("(", s[0], ", ", s[1], ", ", s[2], ")");
+    if (!(lo > 0) || !std::isfinite(hi))
+      throw InputError(path, "scales", str("instance ", i, " has scale ", shown, " (each must be > 0 and finite)"));
+    // A grain is one size: an ellipsoidal grain would need its own prototype.
+    if (hi - lo > 1e-3f * hi)
+      throw InputError(path, "scales", str("instance ", i, " has non-uniform scale ", shown,
+                                           ": a grain takes one size (scale its prototype instead)"));
+    g.scales[i] = hi;
+  }
+  g.protoIndices.resize(prim.protoIndices.size());
+  const int64_t protos = int64_t(prim.prototypes.size());
+  for (size_t i = 0; i < g.protoIndices.size(); ++i) {
+    const int64_t k = prim.protoIndices[i];
+    if (k < 0 || k >= protos)
+      throw InputError(path, "protoIndices",
+                       str("instance ", i, " has ", k, ", not the index of one of its ", protos, " prototypes"));
+    g.protoIndices[i] = int32_t(k);
+  }
+  if (!prim.prototypeXforms.empty() && prim.prototypeXforms.size() != prim.prototypes.size())
+    throw InputError(path, "prototypes", str(prim.prototypeXforms.size(), " transforms for ", protos, " prototypes"));
+  std::map<std::string, int> materials;
+  for (size_t k = 0; k < prim.prototypes.size(); ++k) {
+    const std::string& target = prim.prototypes[k];
+    const std::string what = str("target ", target);
+    MeshPrim proto;
+    if (!lookup || !lookup(target, proto)) throw InputError(path, "prototypes", what + " is not a prim of the stage");
+    if (!proto.active) throw InputError(path, "prototypes", what + " is inactive");
+    if (proto.typeName != "Mesh")
+      throw InputError(path, "prototypes",
+                       str(what, " is a ", proto.typeName.empty() ? "typeless prim" : proto.typeName,
+                           ", not a Mesh (a grain prototype is one closed mesh)"));
+    const bool aggregate = proto.apiSchemas ? hasApi(proto, kAggregateApi) : proto.granular.count("prototypes") > 0;
+    if (aggregate)
+      throw InputError(path, "prototypes",
+                       str(what, " is itself an aggregate (", kAggregateApi, "): a grain prototype is a plain mesh"));
+    GrainPrototypeDesc p;
+    p.name = proto.path;
+    p.mesh = prim.prototypeXforms.empty() ? proto.mesh : proto.mesh.transformed(prim.prototypeXforms[k]);
+    validateClosed(p.mesh, proto.path);
+    auto it = materials.find(proto.path);
+    p.material = it != materials.end() ? it->second : appendGrainMaterial(proto, desc);
+    materials.emplace(proto.path, p.material);
+    g.prototypes.push_back(std::move(p));
+  }
+  validateInstancedGrains(g);
+  return g;
 }
 
 }  // namespace granular

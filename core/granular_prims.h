@@ -35,6 +35,7 @@
 #include <string>
 #include <vector>
 
+#include "instanced_grains.h"
 #include "scene_desc.h"
 #include "usd_values.h"
 
@@ -74,6 +75,7 @@ using PrimLookup = std::function<bool(const std::string& path, MeshPrim& prim)>;
 
 inline constexpr const char* kAggregateApi = "GranularAggregateAPI";
 inline constexpr const char* kGrainApi = "GranularGrainAPI";
+inline constexpr const char* kInstancedAggregateApi = "GranularInstancedAggregateAPI";
 inline constexpr const char* kGranularNamespace = "primvars:granular:";
 
 // Names of the schema's properties (without the "primvars:granular:" prefix).
@@ -111,5 +113,30 @@ GrainValues readGrainValues(const MeshPrim& prim);
 // Appends the prims' meshes, aggregates and grain materials to desc (see above); desc's
 // materials are those the prims' `material` indices refer to.
 void assembleGranularScene(const std::vector<MeshPrim>& prims, SceneDesc& desc, const PrimLookup& lookup = {});
+
+// A PointInstancer with GranularInstancedAggregateAPI as a front end read it, at one time:
+// its arrays as authored (flattened), its prototypes' targets and their own transforms.
+struct InstancerPrim {
+  std::string path;
+  std::string typeName = "PointInstancer";
+  Transform xf;                            // the instancer's object-to-world
+  std::vector<std::string> prototypes;     // targets of `prototypes`, absolute paths
+  std::vector<Transform> prototypeXforms;  // each prototype root's local transform; empty: identity
+  std::vector<float> positions;            // 3 per instance
+  std::vector<float> orientations;         // 4 per instance (w, x, y, z); empty: unauthored
+  std::vector<float> scales;               // 3 per instance; empty: unauthored
+  std::vector<int64_t> protoIndices;
+  std::vector<float> velocities, angularVelocities;  // 3 per instance; empty: unauthored
+  int id = -1;
+};
+
+// The instancer's explicit grains (instanced_grains.h), its prototypes' grain materials
+// appended to desc.materials as for an aggregate's prototypes (GranularGrainAPI values, else
+// the bound material, else clear glass). Each prototype is a closed Mesh (looked up); an
+// orientation is normalised (zero: refused); scales must be uniform (within 1e-3 of their
+// largest component, which is kept) and positive. Errors name `<instancer>.<attribute>`
+// (positions, orientations, scales, protoIndices, velocities, angularVelocities,
+// prototypes), or the prototype's own prim. Overlaps are checked when the grid is built.
+InstancedGrainsDesc instancedGrainsFromUsd(const InstancerPrim& prim, SceneDesc& desc, const PrimLookup& lookup);
 
 }  // namespace granular

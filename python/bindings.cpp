@@ -31,6 +31,7 @@
 #include "core/error.h"
 #include "core/granular_prims.h"
 #include "core/image_io.h"
+#include "core/instanced_grains.h"
 #include "core/medium.h"
 #include "core/mesh.h"
 #include "core/render.h"
@@ -609,6 +610,96 @@ PYBIND11_MODULE(granular_core, m) {
       py::arg("prims"), py::arg("desc"), py::arg("lookup") = py::none(),
       "Appends the prims' meshes, aggregates and grain materials to desc; lookup(path) returns the "
       "MeshPrim of a prototype that is not listed, or None when there is no such prim.");
+  // ---- explicit grains from a PointInstancer (instanced_grains.h) -------------------------
+  py::class_<InstancedGrainsDesc>(m, "InstancedGrainsDesc")
+      .def_readonly("name", &InstancedGrainsDesc::name)
+      .def_readonly("xf", &InstancedGrainsDesc::xf)
+      .def_readonly("prototypes", &InstancedGrainsDesc::prototypes)
+      .def_property_readonly("num_grains", [](const InstancedGrainsDesc& d) { return d.size(); })
+      .def_property_readonly("positions", [](const InstancedGrainsDesc& d) { return pointsToArray(d.positions); })
+      .def_property_readonly("scales", [](const InstancedGrainsDesc& d) {
+        py::array_t<float> a(py::ssize_t(d.scales.size()));
+        std::copy(d.scales.begin(), d.scales.end(), a.mutable_data());
+        return a;
+      })
+      .def_property_readonly("has_motion", [](const InstancedGrainsDesc& d) {
+        return !d.velocities.empty() || !d.angularVelocities.empty();
+      });
+  m.def(
+      "instanced_grains_from_usd",
+      [](const std::string& path, const std::string& typeName, const Transform& xf,
+         const std::vector<std::string>& prototypes, const std::vector<Transform>& prototypeXforms,
+         const FloatArray& positions, const FloatArray& orientations, const FloatArray& scales,
+         const IntArray& protoIndices, const FloatArray& velocities, const FloatArray& angularVelocities,
+         SceneDesc& desc, const py::function& lookup, int id) {
+        InstancerPrim p;
+        p.path = path;
+        p.typeName = typeName;
+        p.xf = xf;
+        p.prototypes = prototypes;
+        p.prototypeXforms = prototypeXforms;
+        p.id = id;
+        auto flat = [](const FloatArray& a) { return std::vector<float>(a.data(), a.data() + a.size()); };
+        p.positions = flat(positions);
+        p.orientations = flat(orientations);
+        p.scales = flat(scales);
+        p.velocities = flat(velocities);
+        p.angularVelocities = flat(angularVelocities);
+        p.protoIndices.assign(protoIndices.data(), protoIndices.data() + protoIndices.size());
+        PrimLookup find = [&lookup](const std::string& target, MeshPrim& out) {
+          py::object r = lookup(target);
+          if (r.is_none()) return false;
+          out = r.cast<MeshPrim>();
+          return true;
+        };
+        return instancedGrainsFromUsd(p, desc, find);
+      },
+      py::arg("path"), py::arg("type_name"), py::arg("xf"), py::arg("prototypes"), py::arg("prototype_xforms"),
+      py::arg("positions"), py::arg("orientations"), py::arg("scales"), py::arg("proto_indices"),
+      py::arg("velocities"), py::arg("angular_velocities"), py::arg("desc"), py::arg("lookup"), py::arg("id") = -1,
+      "A PointInstancer with GranularInstancedAggregateAPI as core's InstancedGrainsDesc (arrays flattened: "
+      "3 numbers per instance, orientations 4 as (w, x, y, z), empty when unauthored); lookup(path) returns "
+      "a prototype's MeshPrim or None; its grain materials are appended to desc.");
+  py::class_<InstancedGrains>(m, "InstancedGrains")
+      .def(py::init<>())
+      .def(
+          "build",
+          [](InstancedGrains& g, const InstancedGrainsDesc& d, bool checkOverlaps) {
+            InstancedGrainsDesc copy = d;
+            py::gil_scoped_release release;
+            g.build(std::move(copy), makeEmbreeDevice(), checkOverlaps);
+          },
+          py::arg("desc"), py::arg("check_overlaps") = true)
+      .def("intersect",
+           [](const InstancedGrains& g, const Vec3& o, const Vec3& d, float tmin, float tmax) -> py::object {
+             InstancedGrainHit h;
+             if (!g.intersect(o, d, tmin, tmax, h)) return py::none();
+             py::dict r;
+             r["t"] = h.t;
+             r["grain"] = h.grain;
+             r["prototype"] = h.prototype;
+             r["normal"] = h.ng;
+             return std::move(r);
+           },
+           py::arg("origin"), py::arg("direction"), py::arg("tmin") = 0.0f, py::arg("tmax") = kInf)
+      .def("occluded", &InstancedGrains::occluded, py::arg("origin"), py::arg("direction"), py::arg("tmin") = 0.0f,
+           py::arg("tmax") = kInf)
+      .def_property_readonly("stats", [](const InstancedGrains& g) {
+        const InstancedGrainsStats& s = g.stats();
+        py::dict r;
+        r["grains"] = s.grains;
+        r["cells"] = py::make_tuple(s.cells[0], s.cells[1], s.cells[2]);
+        r["occupied_blocks"] = s.occupiedBlocks;
+        r["entries"] = s.entries;
+        r["cell_size"] = s.cellSize;
+        r["input_bytes"] = s.inputBytes;
+        r["grid_bytes"] = s.gridBytes;
+        r["prototype_bytes"] = s.prototypeBytes;
+        r["bytes_per_grain"] = s.bytesPerGrain();
+        r["build_seconds"] = s.buildSeconds;
+        r["overlap_seconds"] = s.overlapSeconds;
+        return r;
+      });
   // ---- the rest of a stage's meaning on plain records (usd_*.h) ---------------------------
   py::class_<UsdPrimRecord>(m, "UsdPrimRecord")
       .def(py::init<>())

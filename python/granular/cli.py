@@ -630,17 +630,57 @@ def cmd_merge(args):
     return EXIT_OK
 
 
+def _explicit_grains_report(scene):
+    """Per PointInstancer of simulated grains: what was read and what its grid costs
+    (core/instanced_grains.h). Not rendered yet."""
+    import granular_core as core
+    from .usd_reader import read_instanced_grains, translate_core_error
+    report = []
+    for prim in scene.explicit_grains:
+        desc = read_instanced_grains(scene, prim)
+        grid = core.InstancedGrains()
+        try:
+            grid.build(desc)
+        except core.InputError as e:
+            raise translate_core_error(e) from None
+        st = grid.stats
+        report.append({"prim": str(prim.GetPath()), "prototypes": [p.name for p in desc.prototypes],
+                       "grains": st["grains"], "motion": desc.has_motion, "cells": list(st["cells"]),
+                       "cell_size": st["cell_size"], "entries": st["entries"], "blocks": st["occupied_blocks"],
+                       "grid_bytes": st["grid_bytes"], "bytes_per_grain": st["bytes_per_grain"],
+                       "input_bytes": st["input_bytes"], "build_seconds": st["build_seconds"],
+                       "overlap_seconds": st["overlap_seconds"], "rendered": False})
+    return report
+
+
+def _explicit_lines(r):
+    c = r["cells"]
+    return [
+        f"{r['prim']}  (explicit grains of a PointInstancer: not rendered yet)",
+        f"  prototypes    {', '.join(r['prototypes'])}",
+        f"  grains        {r['grains']}  ({'with' if r['motion'] else 'no'} velocities)",
+        f"  grid          {c[0]} x {c[1]} x {c[2]} cells of edge {r['cell_size']:.4g}, {r['entries']} entries "
+        f"in {r['blocks']} occupied blocks",
+        f"  memory        {r['grid_bytes'] / 2**20:.3g} MiB grid ({r['bytes_per_grain']:.1f} bytes per grain) beyond "
+        f"{r['input_bytes'] / 2**20:.3g} MiB of grain arrays",
+        f"  build         {1e3 * r['build_seconds']:.3g} ms grid, {1e3 * r['overlap_seconds']:.3g} ms overlap check",
+    ]
+
+
 def cmd_info(args):
     scene = api.read_aggregates(args.scene)
     report = api.aggregate_report(scene=scene)
+    explicit = _explicit_grains_report(scene)
     if args.json:
-        print(json.dumps({"scene": args.scene, "aggregates": report}, indent=2))
+        print(json.dumps({"scene": args.scene, "aggregates": report, "explicit_grains": explicit}, indent=2))
         return EXIT_OK
     _warnings(args, scene)
-    if not report:
+    if not report and not explicit:
         print(f"{args.scene}: no granular aggregates (no Mesh with GranularAggregateAPI)")
     for r in report:
         print("\n".join(api.report_lines(r)))
+    for r in explicit:
+        print("\n".join(_explicit_lines(r)))
     return EXIT_OK
 
 

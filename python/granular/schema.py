@@ -15,6 +15,8 @@ from .errors import UserError
 
 AGGREGATE_API = "GranularAggregateAPI"
 GRAIN_API = "GranularGrainAPI"
+# On a PointInstancer: every instance an explicit grain (a simulation's); no properties.
+INSTANCED_AGGREGATE_API = "GranularInstancedAggregateAPI"
 NAMESPACE = "primvars:granular:"
 
 # base name -> (Sdf value type name, fallback)
@@ -113,6 +115,17 @@ def apply_grain(mesh, ior=None, absorption=None, roughness=None, invisible=True,
             _create(prim, base, GRAIN_PROPERTIES, value)
     if invisible:
         UsdGeom.Imageable(prim).MakeInvisible()
+    return prim
+
+
+def apply_instanced_aggregate(instancer):
+    """Makes a PointInstancer an aggregate of explicit grains (each instance one grain of its
+    prototype Mesh, see schemas/README.md). Returns the prim."""
+    prim = _prim(instancer)
+    if not prim.IsA(UsdGeom.PointInstancer):
+        raise UserError(prim.GetPath(), "", f"{INSTANCED_AGGREGATE_API} applies to a PointInstancer, "
+                                            f"not a {prim.GetTypeName() or 'typeless prim'}")
+    prim.ApplyAPI(INSTANCED_AGGREGATE_API)
     return prim
 
 

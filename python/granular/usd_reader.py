@@ -19,6 +19,9 @@ range, the earliest time sample). Every time-varying value is read at that time.
   prototypes that are not drawn (invisible) are read when core asks for them;
 - one UsdGeomCamera (--camera, else the render settings' camera, else the first one);
 - UsdLux lights; the bound material's surface network; displayColor without a material;
+- a PointInstancer of simulated grains (GranularInstancedAggregateAPI, or every prototype
+  a grain) is listed in scene.explicit_grains and read on demand (read_instanced_grains,
+  core's instancedGrainsFromUsd); it is not rendered yet (one warning says so);
 - the render settings prim's resolution and camera, and its first product's data window;
   without -o, its render products and vars (read_render_products, core's render_products.h).
 Every problem a user can cause raises UserError naming the prim and the attribute;
@@ -48,6 +51,7 @@ class StageScene:
         self.desc = core.SceneDesc()
         self.camera_path = None
         self.aggregates = []     # per desc.aggregates entry: {"prim", "world_boundary", "prototypes"}
+        self.explicit_grains = []  # PointInstancer prims of simulated grains (read_instanced_grains)
         self.warnings = []
         self.material_st = {}    # material index -> the primvar its textures read (None: none)
         # core object name -> {core attribute: (prim path, USD attribute)}, "*": prim path
@@ -492,6 +496,55 @@ def _instanced(scene, instancer, xf_cache, material_cache, prims):
             prims.append(mp)
 
 
+def _explicit_grains(prim):
+    """Whether a PointInstancer holds a simulation's grains: GranularInstancedAggregateAPI, or
+    every prototype a grain (GranularGrainAPI), which can only mean that."""
+    if prim.HasAPI(schema.INSTANCED_AGGREGATE_API):
+        return True
+    targets = UsdGeom.PointInstancer(prim).GetPrototypesRel().GetForwardedTargets()
+    roots = [prim.GetStage().GetPrimAtPath(t) for t in targets]
+    return bool(roots) and all(r and r.HasAPI(schema.GRAIN_API) for r in roots)
+
+
+def read_instanced_grains(scene, prim, xf_cache=None, material_cache=None):
+    """A PointInstancer's explicit grains at scene.time as core.InstancedGrainsDesc
+    (core/instanced_grains.h): its arrays handed over as authored, each prototype root's own
+    transform, the prototypes read when core asks. core checks everything and names
+    prim.attribute; its grain materials are appended to scene.desc."""
+    time = scene.time
+    xf_cache = xf_cache or UsdGeom.XformCache(time)
+    material_cache = {} if material_cache is None else material_cache
+    pi = UsdGeom.PointInstancer(prim)
+    targets = [str(t) for t in pi.GetPrototypesRel().GetForwardedTargets()]
+    proto_xforms = []
+    for t in targets:
+        root = scene.stage.GetPrimAtPath(t)
+        local = xf_cache.GetLocalTransformation(root)[0] if root and root.IsA(UsdGeom.Xformable) else Gf.Matrix4d(1)
+        proto_xforms.append(to_core_matrix(local))
+
+    def flat(attr, columns, expected):
+        a = get_array(attr, time, columns, np.float32, expected)
+        return np.zeros(0, np.float32) if a is None else a.reshape(-1)
+
+    orientations = get_array(pi.GetOrientationsAttr(), time, 4, np.float32, "quath[]")
+    # numpy sees a quaternion as (i, j, k, real); core takes (w, x, y, z).
+    orientations = np.zeros(0, np.float32) if orientations is None else orientations[:, [3, 0, 1, 2]].reshape(-1)
+    indices = get_array(pi.GetProtoIndicesAttr(), time, 0, np.int64, "int[]")
+
+    def lookup(path):
+        p = scene.stage.GetPrimAtPath(path)
+        return _mesh_prim(scene, p, xf_cache, material_cache, drawn=False) if p else None
+
+    try:
+        return core.instanced_grains_from_usd(
+            str(prim.GetPath()), prim.GetTypeName(), world_matrix(xf_cache, prim), targets, proto_xforms,
+            flat(pi.GetPositionsAttr(), 3, "point3f[]"), orientations, flat(pi.GetScalesAttr(), 3, "float3[]"),
+            np.zeros(0, np.int64) if indices is None else indices, flat(pi.GetVelocitiesAttr(), 3, "vector3f[]"),
+            flat(pi.GetAngularVelocitiesAttr(), 3, "vector3f[]"), scene.desc, lookup)
+    except core.InputError as e:
+        raise translate_core_error(e) from None
+
+
 def _assemble(scene, prims, xf_cache, material_cache):
     """core's granular schema on the listed prims; the prototypes core asks for that are
     not listed (not drawn) are read from the stage."""
@@ -597,6 +650,10 @@ def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_c
         if prim.IsA(UsdGeom.Camera):
             cameras.append(prim)
             continue
+        if prim.IsA(UsdGeom.PointInstancer) and _explicit_grains(prim):
+            scene.explicit_grains.append(prim)  # read on demand (granular info); not rendered yet
+            it.PruneChildren()
+            continue
         if not surfaces:
             continue
         if _is_light(prim):
@@ -612,6 +669,10 @@ def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_c
             unsupported.setdefault(prim.GetTypeName(), str(prim.GetPath()))
     for type_name, example in unsupported.items():
         scene.warn(f"{example}: {type_name} prims are not supported; skipped")
+    if scene.explicit_grains and surfaces:
+        paths = ", ".join(str(p.GetPath()) for p in scene.explicit_grains)
+        scene.warn(f"{paths}: explicit grains from a PointInstancer ({schema.INSTANCED_AGGREGATE_API}) are not "
+                   f"rendered yet; skipped, the rest of the stage is rendered")
     # The primId and aggregateId AOVs' ids: each listed prim's place in traversal order
     # (Hydra's are its render index's).
     for i, mp in enumerate(prims):

@@ -1,0 +1,528 @@
+// instanced_grains.cpp — explicit grains' validation, grid and ray queries
+// (instanced_grains.h).
+#include "instanced_grains.h"
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <climits>
+#include <cmath>
+#include <memory>
+
+#include <tbb/blocked_range.h>
+#include <tbb/combinable.h>
+#include <tbb/concurrent_unordered_set.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
+
+#include "error.h"
+#include "rng.h"
+
+namespace granular {
+
+namespace {
+
+constexpr uint64_t kEmptyKey = ~uint64_t(0);
+constexpr int kBlockCells = 1 << (3 * InstancedGrains::kBlockBits);
+// Grid resolution per axis: block coordinates take 21 bits of a key.
+constexpr int64_t kMaxCellsPerAxis = (int64_t(1) << (21 + InstancedGrains::kBlockBits)) - 1;
+
+// The smallest index in [0, n) for which bad(i) holds, or -1 (parallel, deterministic).
+template <typename Pred>
+int64_t firstBad(size_t n, Pred&& bad) {
+  return tbb::parallel_reduce(
+      tbb::blocked_range<size_t>(0, n, 4096), int64_t(-1),
+      [&](const tbb::blocked_range<size_t>& r, int64_t found) {
+        if (found >= 0 && size_t(found) < r.begin()) return found;
+        for (size_t i = r.begin(); i < r.end(); ++i)
+          if (bad(i)) return int64_t(i);
+        return found;
+      },
+      [](int64_t a, int64_t b) { return a < 0 ? b : (b < 0 ? a : std::min(a, b)); });
+}
+
+std::string text(const Vec3& v) { return str("(", v.x, ", ", v.y, ", ", v.z, ")"); }
+
+bool isIdentity(const Transform& xf) {
+  for (int i = 0; i < 4; ++i)
+    for (int j = 0; j < 4; ++j)
+      if (xf.m[i][j] != (i == j ? 1.0 : 0.0)) return false;
+  return true;
+}
+
+Mat3 toMat3(const Quat& q) { return quatToMat3(q.w, q.x, q.y, q.z); }
+
+}  // namespace
+
+void validateInstancedGrains(const InstancedGrainsDesc& desc) {
+  const std::string& name = desc.name;
+  if (desc.prototypes.empty())
+    throw InputError(name, "prototypes", "is empty (at least one grain prototype mesh is needed)");
+  for (const GrainPrototypeDesc& p : desc.prototypes)
+    if (p.mesh.numTriangles() == 0) throw InputError(p.name, "points", "has no triangles (a grain prototype)");
+  const size_t n = desc.protoIndices.size();
+  auto sameLength = [&](const char* attr, size_t m, bool optional) {
+    if (optional && m == 0) return;
+    if (m != n)
+      throw InputError(name, attr, str("has ", m, " values but protoIndices has ", n, " (one per instance)"));
+  };
+  sameLength("positions", desc.positions.size(), false);
+  sameLength("orientations", desc.orientations.size(), true);
+  sameLength("scales", desc.scales.size(), true);
+  sameLength("velocities", desc.velocities.size(), true);
+  sameLength("angularVelocities", desc.angularVelocities.size(), true);
+
+  const int64_t protos = int64_t(desc.prototypes.size());
+  int64_t i = firstBad(n, [&](size_t k) { return desc.protoIndices[k] < 0 || desc.protoIndices[k] >= protos; });
+  if (i >= 0)
+    throw InputError(name, "protoIndices", str("instance ", i, " has ", desc.protoIndices[size_t(i)],
+                                               ", not the index of one of its ", protos, " prototypes"));
+  if ((i = firstBad(n, [&](size_t k) { return !isFinite(desc.positions[k]); })) >= 0)
+    throw InputError(name, "positions", str("instance ", i, " is at ", text(desc.positions[size_t(i)]), " (not finite)"));
+  if ((i = firstBad(desc.orientations.size(), [&](size_t k) {
+         const Quat& q = desc.orientations[k];
+         float n2 = q.w * q.w + q.x * q.x + q.y * q.y + q.z * q.z;
+         return !(std::fabs(n2 - 1.0f) <= 1e-3f);  // NaN fails too
+       })) >= 0) {
+    const Quat& q = desc.orientations[size_t(i)];
+    throw InputError(name, "orientations",
+                     str("instance ", i, " has (", q.w, ", ", q.x, ", ", q.y, ", ", q.z, "), not a unit quaternion"));
+  }
+  if ((i = firstBad(desc.scales.size(), [&](size_t k) {
+         return !(desc.scales[k] > 0 && std::isfinite(desc.scales[k]));
+       })) >= 0)
+    throw InputError(name, "scales", str("instance ", i, " has scale ", desc.scales[size_t(i)], " (must be > 0 and finite)"));
+  const std::pair<const char*, const std::vector<Vec3>*> motion[] = {{"velocities", &desc.velocities},
+                                                                      {"angularVelocities", &desc.angularVelocities}};
+  for (const auto& [attr, values] : motion)
+    if ((i = firstBad(values->size(), [&](size_t k) { return !isFinite((*values)[k]); })) >= 0)
+      throw InputError(name, attr, str("instance ", i, " has ", text((*values)[size_t(i)]), " (not finite)"));
+}
+
+InstancedGrain InstancedGrains::grain(int64_t i) const {
+  InstancedGrain g;
+  const size_t k = size_t(i);
+  g.index = i;
+  g.prototype = desc_.protoIndices[k];
+  if (!desc_.orientations.empty()) g.orientation = desc_.orientations[k];
+  if (!desc_.scales.empty()) g.scale = desc_.scales[k];
+  const GrainPrototype& p = prototypes_[size_t(g.prototype)];
+  g.center = desc_.positions[k] + rotate(g.orientation, p.fitCenter) * g.scale;
+  g.radius = p.fitRadius * g.scale;
+  return g;
+}
+
+void InstancedGrains::build(InstancedGrainsDesc desc, const EmbreeDevice& device, bool checkOverlaps) {
+  validateInstancedGrains(desc);
+  device_ = device;
+  desc_ = std::move(desc);
+  stats_ = InstancedGrainsStats();
+  identity_ = isIdentity(desc_.xf);
+  if (!desc_.xf.isFinite() || !desc_.xf.inverse(inv_) || desc_.xf.determinant3() == 0)
+    throw InputError(desc_.name, "transform", "is not invertible");
+  prototypes_.clear();
+  for (const GrainPrototypeDesc& p : desc_.prototypes) {
+    prototypes_.push_back(makeGrainPrototype(device, p));
+    const GrainPrototype& g = prototypes_.back();
+    stats_.prototypeBytes += g.mesh.points.size() * sizeof(Vec3) + g.mesh.indices.size() * sizeof(uint32_t) +
+                             g.normals.size() * sizeof(Vec3) + g.hullFace.size();
+  }
+  stats_.grains = int64_t(desc_.size());
+  stats_.inputBytes = desc_.positions.size() * sizeof(Vec3) + desc_.orientations.size() * sizeof(Quat) +
+                      desc_.scales.size() * sizeof(float) + desc_.protoIndices.size() * sizeof(int32_t) +
+                      (desc_.velocities.size() + desc_.angularVelocities.size()) * sizeof(Vec3);
+  auto t0 = std::chrono::steady_clock::now();
+  buildGrid();
+  auto t1 = std::chrono::steady_clock::now();
+  stats_.buildSeconds = std::chrono::duration<double>(t1 - t0).count();
+  if (checkOverlaps) {
+    this->checkOverlaps();
+    stats_.overlapSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
+  }
+}
+
+void InstancedGrains::cellRange(const Vec3& c, float r, int64_t lo[3], int64_t hi[3]) const {
+  for (int a = 0; a < 3; ++a) {
+    lo[a] = std::clamp<int64_t>(int64_t(std::floor((c[a] - r - origin_[a]) * invCell_)), 0, n_[a] - 1);
+    hi[a] = std::clamp<int64_t>(int64_t(std::floor((c[a] + r - origin_[a]) * invCell_)), 0, n_[a] - 1);
+  }
+}
+
+bool InstancedGrains::sphereTouchesCell(const Vec3& c, float r, int64_t x, int64_t y, int64_t z) const {
+  const int64_t cell[3] = {x, y, z};
+  float d2 = 0;
+  for (int a = 0; a < 3; ++a) {
+    float lo = origin_[a] + float(cell[a]) * cell_, hi = lo + cell_;
+    float e = c[a] < lo ? lo - c[a] : (c[a] > hi ? c[a] - hi : 0.0f);
+    d2 += e * e;
+  }
+  return d2 <= r * r;
+}
+
+void InstancedGrains::buildGrid() {
+  const size_t n = desc_.size();
+  hashKeys_.clear();
+  hashBlock_.clear();
+  starts_.clear();
+  list_.clear();
+  bounds_ = Bounds3();
+  n_[0] = n_[1] = n_[2] = 0;
+  if (n == 0) return;
+
+  struct Extent {
+    Bounds3 box;
+    float rmax = 0;
+  };
+  Extent ext = tbb::parallel_reduce(
+      tbb::blocked_range<size_t>(0, n, 8192), Extent(),
+      [&](const tbb::blocked_range<size_t>& r, Extent e) {
+        for (size_t i = r.begin(); i < r.end(); ++i) {
+          InstancedGrain g = grain(int64_t(i));
+          e.box.extend(g.center - Vec3(g.radius));
+          e.box.extend(g.center + Vec3(g.radius));
+          e.rmax = std::max(e.rmax, g.radius);
+        }
+        return e;
+      },
+      [](Extent a, const Extent& b) {
+        a.box.extend(b.box);
+        a.rmax = std::max(a.rmax, b.rmax);
+        return a;
+      });
+  bounds_ = ext.box;
+  // Rounding: a hit on a cell face must find its grain listed on both sides.
+  cell_ = kCellRadii * ext.rmax;
+  const Vec3 size = bounds_.extent();
+  while (maxComponent(size) / cell_ >= float(kMaxCellsPerAxis)) cell_ *= 2;
+  invCell_ = 1.0f / cell_;
+  origin_ = bounds_.lo;
+  for (int a = 0; a < 3; ++a) n_[a] = std::max<int64_t>(1, int64_t(std::ceil(size[a] * invCell_)));
+  const float pad = 1e-4f * cell_;
+
+  // Occupied blocks: their keys, sorted (deterministic order), hashed.
+  // Mixed: std::hash of an integer is the identity, and a key's low bits are x alone.
+  struct Mix {
+    size_t operator()(uint64_t k) const { return size_t(mix64(k)); }
+  };
+  tbb::concurrent_unordered_set<uint64_t, Mix> keys;
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 4096), [&](const tbb::blocked_range<size_t>& r) {
+    uint64_t last = kEmptyKey;
+    for (size_t i = r.begin(); i < r.end(); ++i) {
+      InstancedGrain g = grain(int64_t(i));
+      int64_t lo[3], hi[3];
+      cellRange(g.center, g.radius + pad, lo, hi);
+      for (int64_t z = lo[2] >> kBlockBits; z <= hi[2] >> kBlockBits; ++z)
+        for (int64_t y = lo[1] >> kBlockBits; y <= hi[1] >> kBlockBits; ++y)
+          for (int64_t x = lo[0] >> kBlockBits; x <= hi[0] >> kBlockBits; ++x) {
+            uint64_t key = blockKey(x << kBlockBits, y << kBlockBits, z << kBlockBits);
+            if (key != last) keys.insert(key);
+            last = key;
+          }
+    }
+  });
+  std::vector<uint64_t> sorted(keys.begin(), keys.end());
+  keys.clear();
+  std::sort(sorted.begin(), sorted.end());
+  const size_t blocks = sorted.size();
+  size_t cap = 16;
+  while (cap < 2 * blocks) cap *= 2;
+  hashKeys_.assign(cap, kEmptyKey);
+  hashBlock_.assign(cap, 0);
+  hashMask_ = cap - 1;
+  for (size_t b = 0; b < blocks; ++b) {
+    uint64_t s = mix64(sorted[b]) & hashMask_;
+    while (hashKeys_[s] != kEmptyKey) s = (s + 1) & hashMask_;
+    hashKeys_[s] = sorted[b];
+    hashBlock_[s] = uint32_t(b);
+  }
+
+  // Count, place and order each cell's entries.
+  const size_t cells = blocks * kBlockCells;
+  std::unique_ptr<std::atomic<uint32_t>[]> count(new std::atomic<uint32_t>[cells]);
+  tbb::parallel_for(size_t(0), cells, [&](size_t c) { count[c].store(0, std::memory_order_relaxed); });
+  auto forCells = [&](size_t i, auto&& fn) {
+    InstancedGrain g = grain(int64_t(i));
+    const float r = g.radius + pad;
+    int64_t lo[3], hi[3];
+    cellRange(g.center, r, lo, hi);
+    for (int64_t z = lo[2]; z <= hi[2]; ++z)
+      for (int64_t y = lo[1]; y <= hi[1]; ++y)
+        for (int64_t x = lo[0]; x <= hi[0]; ++x)
+          if (sphereTouchesCell(g.center, r, x, y, z))
+            fn(size_t(findBlock(blockKey(x, y, z))) * kBlockCells + size_t(localCell(x, y, z)));
+  };
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 4096), [&](const tbb::blocked_range<size_t>& r) {
+    for (size_t i = r.begin(); i < r.end(); ++i)
+      forCells(i, [&](size_t c) { count[c].fetch_add(1, std::memory_order_relaxed); });
+  });
+  starts_.resize(cells + 1);
+  uint64_t total = 0;
+  for (size_t c = 0; c < cells; ++c) {
+    starts_[c] = uint32_t(total);
+    total += count[c].load(std::memory_order_relaxed);
+    if (total > UINT32_MAX)
+      throw InputError(desc_.name, "positions", str("has too many grains for one grid (", n, ")"));
+    count[c].store(starts_[c], std::memory_order_relaxed);
+  }
+  starts_[cells] = uint32_t(total);
+  list_.resize(size_t(total));
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 4096), [&](const tbb::blocked_range<size_t>& r) {
+    for (size_t i = r.begin(); i < r.end(); ++i)
+      forCells(i, [&](size_t c) { list_[count[c].fetch_add(1, std::memory_order_relaxed)] = uint32_t(i); });
+  });
+  count.reset();
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, cells, 1024), [&](const tbb::blocked_range<size_t>& r) {
+    for (size_t c = r.begin(); c < r.end(); ++c) std::sort(list_.begin() + starts_[c], list_.begin() + starts_[c + 1]);
+  });
+
+  stats_.cells[0] = n_[0];
+  stats_.cells[1] = n_[1];
+  stats_.cells[2] = n_[2];
+  stats_.occupiedBlocks = int64_t(blocks);
+  stats_.entries = int64_t(total);
+  stats_.cellSize = cell_;
+  stats_.gridBytes = list_.size() * sizeof(uint32_t) + starts_.size() * sizeof(uint32_t) +
+                     hashKeys_.size() * sizeof(uint64_t) + hashBlock_.size() * sizeof(uint32_t);
+}
+
+int64_t InstancedGrains::findBlock(uint64_t key) const {
+  if (hashKeys_.empty()) return -1;
+  uint64_t s = mix64(key) & hashMask_;
+  for (;;) {
+    const uint64_t k = hashKeys_[s];
+    if (k == key) return int64_t(hashBlock_[s]);
+    if (k == kEmptyKey) return -1;
+    s = (s + 1) & hashMask_;
+  }
+}
+
+void InstancedGrains::checkOverlaps() {
+  const size_t n = desc_.size();
+  const float pad = 1e-4f * cell_;
+  // The first offending pair (i, j), smallest i then j.
+  struct Pair {
+    int64_t i = -1, j = -1;
+  };
+  auto better = [](const Pair& a, const Pair& b) {
+    if (a.i < 0) return b;
+    if (b.i < 0) return a;
+    return (b.i < a.i || (b.i == a.i && b.j < a.j)) ? b : a;
+  };
+  Pair first = tbb::parallel_reduce(
+      tbb::blocked_range<size_t>(0, n, 2048), Pair(),
+      [&](const tbb::blocked_range<size_t>& r, Pair found) {
+        for (size_t i = r.begin(); i < r.end(); ++i) {
+          if (found.i >= 0 && size_t(found.i) < i) break;
+          InstancedGrain g = grain(int64_t(i));
+          int64_t lo[3], hi[3];
+          cellRange(g.center, g.radius + pad, lo, hi);
+          for (int64_t z = lo[2]; z <= hi[2]; ++z)
+            for (int64_t y = lo[1]; y <= hi[1]; ++y)
+              for (int64_t x = lo[0]; x <= hi[0]; ++x) {
+                int64_t b = findBlock(blockKey(x, y, z));
+                if (b < 0) continue;
+                size_t c = size_t(b) * kBlockCells + size_t(localCell(x, y, z));
+                for (uint32_t k = starts_[c]; k < starts_[c + 1]; ++k) {
+                  const uint32_t j = list_[k];
+                  if (j <= i) continue;
+                  InstancedGrain h = grain(j);
+                  const float depth = g.radius + h.radius - length(g.center - h.center);
+                  if (depth > kOverlapTolerance * std::min(g.radius, h.radius))
+                    found = better(found, Pair{int64_t(i), int64_t(j)});
+                }
+              }
+        }
+        return found;
+      },
+      better);
+  if (first.i < 0) return;
+  InstancedGrain a = grain(first.i), b = grain(first.j);
+  const float depth = a.radius + b.radius - length(a.center - b.center);
+  throw InputError(desc_.name, "positions",
+                   str("instances ", first.i, " and ", first.j, " overlap: their bounding spheres (radii ", a.radius,
+                       " and ", b.radius, ") interpenetrate by ", 100.0f * depth / std::min(a.radius, b.radius),
+                       "% of the smaller radius (at most ", 100.0f * kOverlapTolerance, "% is allowed)"));
+}
+
+bool InstancedGrains::traceGrain(int64_t i, const Vec3& o, const Vec3& d, float tmin, float tmax,
+                                 InstancedGrainHit& hit) const {
+  const InstancedGrain g = grain(i);
+  // Bounding sphere first (slightly grown: the BVH, not rounding, decides a grazing ray).
+  const Vec3 oc = o - g.center;
+  const float r = g.radius * (1.0f + 1e-5f);
+  const float a = dot(d, d), b = dot(oc, d), c = dot(oc, oc) - r * r;
+  const float disc = b * b - a * c;
+  if (!(disc >= 0)) return false;
+  const float sq = std::sqrt(disc);
+  if ((-b + sq) / a < tmin || (-b - sq) / a > tmax) return false;
+  if (!traceable(oc, d, tmin, tmax)) return false;
+  float t;
+  unsigned prim;
+  Vec3 ng;
+  if (!tracePrototype(prototypes_[size_t(g.prototype)], toMat3(g.orientation), g.radius, oc, d, tmin, tmax, t, prim,
+                      ng))
+    return false;
+  hit.t = t;
+  hit.grain = i;
+  hit.prototype = g.prototype;
+  hit.prim = prim;
+  hit.ng = ng;
+  return true;
+}
+
+bool InstancedGrains::walk(const Vec3& o, const Vec3& d, float tmin, float tmax, bool anyHit,
+                           InstancedGrainHit& hit) const {
+  if (list_.empty() || !(tmin <= tmax)) return false;
+  Bounds3 grid;
+  grid.lo = origin_;
+  grid.hi = origin_ + Vec3(float(n_[0]), float(n_[1]), float(n_[2])) * cell_;
+  const Vec3 invD(1.0f / d.x, 1.0f / d.y, 1.0f / d.z);
+  float t0, t1;
+  if (!grid.intersect(o, invD, tmin, tmax, t0, t1)) return false;
+  const Vec3 p = o + d * t0;
+  int64_t c[3], step[3];
+  float tNext[3], tDelta[3];
+  for (int a = 0; a < 3; ++a) {
+    c[a] = std::clamp<int64_t>(int64_t(std::floor((p[a] - origin_[a]) * invCell_)), 0, n_[a] - 1);
+    if (d[a] > 0) {
+      step[a] = 1;
+      tNext[a] = (origin_[a] + float(c[a] + 1) * cell_ - o[a]) * invD[a];
+      tDelta[a] = cell_ * invD[a];
+    } else if (d[a] < 0) {
+      step[a] = -1;
+      tNext[a] = (origin_[a] + float(c[a]) * cell_ - o[a]) * invD[a];
+      tDelta[a] = -cell_ * invD[a];
+    } else {
+      step[a] = 0;
+      tNext[a] = kInf;
+      tDelta[a] = kInf;
+    }
+  }
+  float best = tmax;
+  bool found = false;
+  // Grains already traced on this ray (a grain is listed by every cell it overlaps; best
+  // only shrinks, so a second trace cannot find anything new).
+  uint32_t recent[8];
+  int nRecent = 0, cursor = 0;
+  uint64_t lastKey = kEmptyKey;
+  int64_t block = -1;
+  for (;;) {
+    const float tExit = std::min(tNext[0], std::min(tNext[1], tNext[2]));
+    const uint64_t key = blockKey(c[0], c[1], c[2]);
+    if (key != lastKey) {
+      block = findBlock(key);
+      lastKey = key;
+    }
+    if (block >= 0) {
+      const size_t cell = size_t(block) * kBlockCells + size_t(localCell(c[0], c[1], c[2]));
+      for (uint32_t k = starts_[cell]; k < starts_[cell + 1]; ++k) {
+        const uint32_t g = list_[k];
+        if (std::find(recent, recent + nRecent, g) != recent + nRecent) continue;
+        recent[cursor] = g;
+        cursor = (cursor + 1) & 7;
+        nRecent = std::min(nRecent + 1, 8);
+        if (traceGrain(g, o, d, tmin, best, hit)) {
+          best = hit.t;
+          found = true;
+          if (anyHit) return true;
+        }
+      }
+    }
+    if ((found && best <= tExit) || tExit >= t1) break;
+    const int a = tNext[0] < tNext[1] ? (tNext[0] < tNext[2] ? 0 : 2) : (tNext[1] < tNext[2] ? 1 : 2);
+    c[a] += step[a];
+    if (c[a] < 0 || c[a] >= n_[a]) break;
+    tNext[a] += tDelta[a];
+  }
+  return found;
+}
+
+bool InstancedGrains::intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, InstancedGrainHit& hit) const {
+  if (!traceable(o, d, tmin, tmax)) return false;
+  const Vec3 ol = identity_ ? o : inv_.point(o), dl = identity_ ? d : inv_.vector(d);
+  InstancedGrainHit h;
+  if (!walk(ol, dl, tmin, tmax, false, h)) return false;
+  if (!identity_) h.ng = Transform::normal(inv_, h.ng);
+  h.ng = normalize(h.ng);
+  hit = h;
+  return true;
+}
+
+bool InstancedGrains::occluded(const Vec3& o, const Vec3& d, float tmin, float tmax) const {
+  if (!traceable(o, d, tmin, tmax)) return false;
+  InstancedGrainHit h;
+  return walk(identity_ ? o : inv_.point(o), identity_ ? d : inv_.vector(d), tmin, tmax, true, h);
+}
+
+bool InstancedGrains::intersectAll(const Vec3& o, const Vec3& d, float tmin, float tmax,
+                                   InstancedGrainHit& hit) const {
+  if (!traceable(o, d, tmin, tmax)) return false;
+  const Vec3 ol = identity_ ? o : inv_.point(o), dl = identity_ ? d : inv_.vector(d);
+  InstancedGrainHit h;
+  float best = tmax;
+  bool found = false;
+  for (size_t i = 0; i < desc_.size(); ++i)
+    if (traceGrain(int64_t(i), ol, dl, tmin, best, h)) {
+      best = h.t;
+      found = true;
+    }
+  if (!found) return false;
+  if (!identity_) h.ng = Transform::normal(inv_, h.ng);
+  h.ng = normalize(h.ng);
+  hit = h;
+  return true;
+}
+
+void InstancedGrains::forEachGrain(const Bounds3& box, const std::function<void(const InstancedGrain&)>& fn) const {
+  if (list_.empty() || box.empty()) return;
+  Bounds3 b = box;
+  if (!identity_) {
+    b = Bounds3();
+    for (int k = 0; k < 8; ++k)
+      b.extend(inv_.point(Vec3(k & 1 ? box.hi.x : box.lo.x, k & 2 ? box.hi.y : box.lo.y, k & 4 ? box.hi.z : box.lo.z)));
+  }
+  const Vec3 mid = b.center(), half = b.extent() * 0.5f;
+  int64_t lo[3], hi[3];
+  for (int a = 0; a < 3; ++a) {
+    if (b.hi[a] < origin_[a] || b.lo[a] > origin_[a] + float(n_[a]) * cell_) return;
+  }
+  for (int a = 0; a < 3; ++a) {
+    lo[a] = std::clamp<int64_t>(int64_t(std::floor((b.lo[a] - origin_[a]) * invCell_)), 0, n_[a] - 1);
+    hi[a] = std::clamp<int64_t>(int64_t(std::floor((b.hi[a] - origin_[a]) * invCell_)), 0, n_[a] - 1);
+  }
+  std::vector<uint32_t> found;
+  auto visitCell = [&](size_t cell) {
+    for (uint32_t k = starts_[cell]; k < starts_[cell + 1]; ++k) {
+      const InstancedGrain g = grain(list_[k]);
+      const Vec3 e = vmax(vabs(g.center - mid) - half, Vec3(0.0f));
+      if (dot(e, e) <= g.radius * g.radius) found.push_back(list_[k]);
+    }
+  };
+  const double rangeCells = double(hi[0] - lo[0] + 1) * double(hi[1] - lo[1] + 1) * double(hi[2] - lo[2] + 1);
+  if (rangeCells <= double(hashKeys_.size())) {
+    for (int64_t z = lo[2]; z <= hi[2]; ++z)
+      for (int64_t y = lo[1]; y <= hi[1]; ++y)
+        for (int64_t x = lo[0]; x <= hi[0]; ++x) {
+          const int64_t blk = findBlock(blockKey(x, y, z));
+          if (blk >= 0) visitCell(size_t(blk) * kBlockCells + size_t(localCell(x, y, z)));
+        }
+  } else {  // a box larger than the occupied space: every occupied block's cells in range
+    constexpr int64_t m = (1 << kBlockBits) - 1;
+    for (size_t s = 0; s < hashKeys_.size(); ++s) {
+      const uint64_t key = hashKeys_[s];
+      if (key == kEmptyKey) continue;
+      const int64_t base[3] = {int64_t(key & 0x1fffff) << kBlockBits, int64_t((key >> 21) & 0x1fffff) << kBlockBits,
+                               int64_t((key >> 42) & 0x1fffff) << kBlockBits};
+      for (int64_t z = base[2]; z <= base[2] + m; ++z)
+        for (int64_t y = base[1]; y <= base[1] + m; ++y)
+          for (int64_t x = base[0]; x <= base[0] + m; ++x)
+            if (x >= lo[0] && x <= hi[0] && y >= lo[1] && y <= hi[1] && z >= lo[2] && z <= hi[2])
+              visitCell(size_t(hashBlock_[s]) * kBlockCells + size_t(localCell(x, y, z)));
+    }
+  }
+  std::sort(found.begin(), found.end());
+  found.erase(std::unique(found.begin(), found.end()), found.end());
+  for (uint32_t i : found) fn(grain(i));
+}
+
+}  // namespace granular

@@ -1,0 +1,162 @@
+#!/usr/bin/env python3
+"""Writes a simulation-like heap of explicit grains: a UsdGeomPointInstancer with
+GranularInstancedAggregateAPI, as a grain solver exports one (positions, orientations,
+scales, protoIndices, velocities, angularVelocities), over a few frames:
+
+    .venv/bin/python examples/make_grain_heap.py OUT.usdc [--grains N] [--frames K] [--seed S]
+
+The heap is a cone at the angle of repose of dry sand (about 31 degrees) on a ground card,
+with a camera and a sun. Grains are placed one per cell of a cubic grid (cells whose centre
+lies in the cone), each jittered inside its cell and of a random size, so that no two
+bounding spheres can touch: the nearest centres are 2.1 largest radii apart. Two
+prototypes (a round grain and a rock, both inside the unit sphere, with GranularGrainAPI)
+are chosen 70/30. Frames 1..K move every grain by a small settling drift (at most 2% of the
+largest radius per frame, toward the heap's foot) and spin it slowly; velocities and
+angular velocities are the matching rates. Deterministic given the arguments. The default
+(~100k grains, 3 frames) is about 11 MB of .usdc: write it, do not commit it.
+"""
+import argparse
+import math
+import sys
+
+import numpy as np
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, Vt
+
+import granular  # noqa: F401  (registers the schema)
+import granular_core as core
+from granular import schema
+from granular.materials import QUARTZ_SAND
+
+RADIUS = 0.01          # largest bounding radius of a grain, metres
+SPACING = 2.3          # grid cell edge, in largest radii
+JITTER = 0.1           # each way, in largest radii: centres stay 2.1 radii apart
+TAN_REPOSE = math.tan(math.radians(31.0))
+FPS = 24.0
+
+
+def _unit_ball(tri):
+    """The mesh scaled into the unit ball about its origin (a grain of scale s then has a
+    bounding radius of at most s)."""
+    pts = np.asarray(tri.points, dtype=np.float64)
+    return (pts / np.linalg.norm(pts, axis=1).max()).astype(np.float32), np.asarray(tri.indices, dtype=np.int32)
+
+
+def _mesh(stage, path, tri):
+    pts, idx = _unit_ball(tri)
+    m = UsdGeom.Mesh.Define(stage, path)
+    m.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts))
+    m.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(idx))
+    m.CreateFaceVertexCountsAttr(Vt.IntArray([3] * (len(idx) // 3)))
+    m.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    return m
+
+
+def heap(grains, seed):
+    """Centres, sizes, rotations (w, x, y, z) and prototype indices of about `grains`
+    grains in a cone standing on y = 0."""
+    rng = np.random.default_rng(seed)
+    a = SPACING * RADIUS
+    # Cone volume pi B^2 H / 3 with H = B tan(repose) holds `grains` cells of a^3.
+    base = (3.0 * grains * a ** 3 / (math.pi * TAN_REPOSE)) ** (1.0 / 3.0)
+    height = base * TAN_REPOSE
+    n = int(math.ceil(base / a)) + 1
+    ix, iy, iz = np.meshgrid(np.arange(-n, n + 1), np.arange(0, int(height / a) + 2), np.arange(-n, n + 1),
+                             indexing="ij")
+    centres = np.stack([ix.ravel(), iy.ravel(), iz.ravel()], axis=1).astype(np.float64) * a
+    centres[:, 1] += 0.5 * a
+    r = np.hypot(centres[:, 0], centres[:, 2])
+    inside = r <= (height - centres[:, 1]) / TAN_REPOSE
+    centres = centres[inside]
+    count = len(centres)
+    centres += rng.uniform(-JITTER * RADIUS, JITTER * RADIUS, size=(count, 3))
+    sizes = RADIUS * rng.uniform(0.75, 1.0, size=count)
+    q = rng.normal(size=(count, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    protos = (rng.uniform(size=count) >= 0.7).astype(np.int32)
+    return centres, sizes, q, protos, height
+
+
+def write(path, grains=100000, frames=3, seed=1):
+    centres, sizes, quats, protos, height = heap(grains, seed)
+    count = len(centres)
+    rng = np.random.default_rng(seed + 1)
+    stage = Usd.Stage.CreateNew(path)
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    stage.SetStartTimeCode(1)
+    stage.SetEndTimeCode(frames)
+    stage.SetTimeCodesPerSecond(FPS)
+    world = UsdGeom.Xform.Define(stage, "/World")
+    stage.SetDefaultPrim(world.GetPrim())
+
+    pi = UsdGeom.PointInstancer.Define(stage, "/World/Heap")
+    schema.apply_instanced_aggregate(pi)
+    UsdGeom.Scope.Define(stage, "/World/Heap/Prototypes")
+    round_ = _mesh(stage, "/World/Heap/Prototypes/Round", core.make_icosphere(2))
+    rock = _mesh(stage, "/World/Heap/Prototypes/Rock", core.make_rock(2, 0.3, seed))
+    for m in (round_, rock):  # visible: a prototype's visibility is its instances'
+        schema.apply_grain(m, ior=QUARTZ_SAND.ior, absorption=QUARTZ_SAND.absorption_per_radius(RADIUS), invisible=False)
+    pi.CreatePrototypesRel().SetTargets([round_.GetPath(), rock.GetPath()])
+    pi.CreateProtoIndicesAttr(Vt.IntArray.FromNumpy(protos))
+    pi.CreateScalesAttr(Vt.Vec3fArray.FromNumpy(np.repeat(sizes[:, None], 3, axis=1).astype(np.float32)))
+
+    # Settling: a drift toward the foot of the heap (outward and down), at most 2% of the
+    # largest radius per frame, and a slow spin; the rates are what a solver would export.
+    out = centres * np.array([1.0, 0.0, 1.0])
+    out /= np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-9)
+    drift = (out - np.array([0.0, 1.0, 0.0])) / math.sqrt(2.0)
+    drift *= (0.02 * RADIUS) * rng.uniform(0.0, 1.0, size=(count, 1))
+    axis = rng.normal(size=(count, 3))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    spin = rng.uniform(0.0, 2.0, size=(count, 1))  # degrees per frame
+    pi.CreateVelocitiesAttr(Vt.Vec3fArray.FromNumpy((drift * FPS).astype(np.float32)))
+    pi.CreateAngularVelocitiesAttr(Vt.Vec3fArray.FromNumpy((axis * spin * FPS).astype(np.float32)))
+    pos_attr = pi.CreatePositionsAttr()
+    orient_attr = pi.CreateOrientationsAttr()
+    for f in range(frames):
+        pos_attr.Set(Vt.Vec3fArray.FromNumpy((centres + drift * f).astype(np.float32)), Usd.TimeCode(1 + f))
+        half = np.radians(spin * f) / 2.0
+        dq = np.concatenate([np.cos(half), axis * np.sin(half)], axis=1)  # (w, x, y, z)
+        w1, v1 = dq[:, :1], dq[:, 1:]
+        w2, v2 = quats[:, :1], quats[:, 1:]
+        q = np.concatenate([w1 * w2 - np.sum(v1 * v2, axis=1, keepdims=True),
+                            w1 * v2 + w2 * v1 + np.cross(v1, v2)], axis=1)
+        # Vt takes (i, j, k, real).
+        orient_attr.Set(Vt.QuathArray.FromNumpy(q[:, [1, 2, 3, 0]].astype(np.float16)), Usd.TimeCode(1 + f))
+
+    ground = UsdGeom.Mesh.Define(stage, "/World/Ground")
+    g = 4.0 * height + 0.2
+    ground.CreatePointsAttr([(-g, 0, -g), (g, 0, -g), (g, 0, g), (-g, 0, g)])
+    ground.CreateFaceVertexCountsAttr([4])
+    ground.CreateFaceVertexIndicesAttr([0, 3, 2, 1])  # facing +y
+    ground.CreateDisplayColorAttr([(0.45, 0.4, 0.35)])
+    cam = UsdGeom.Camera.Define(stage, "/World/Camera")
+    eye = Gf.Vec3d(0.0, 1.6 * height + 0.05, 3.5 * height + 0.1)
+    look = Gf.Matrix4d().SetLookAt(eye, Gf.Vec3d(0, 0.35 * height, 0), Gf.Vec3d(0, 1, 0)).GetInverse()
+    UsdGeom.Xformable(cam).AddTransformOp().Set(look)
+    cam.CreateFocalLengthAttr(35.0)
+    cam.CreateClippingRangeAttr(Gf.Vec2f(0.001, 100.0))
+    sun = UsdLux.DistantLight.Define(stage, "/World/Sun")
+    sun.CreateIntensityAttr(3.0)
+    UsdGeom.Xformable(sun).AddRotateXYZOp().Set(Gf.Vec3f(-50, 30, 0))
+    UsdLux.DomeLight.Define(stage, "/World/Sky").CreateIntensityAttr(0.3)
+    stage.GetRootLayer().Save()
+    return count
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("output", help="a .usdc (or .usda) path")
+    p.add_argument("--grains", type=int, default=100000, help="about this many grains (default 100000)")
+    p.add_argument("--frames", type=int, default=3, help="time samples 1..K (default 3)")
+    p.add_argument("--seed", type=int, default=1)
+    a = p.parse_args(argv)
+    if a.grains < 1 or a.frames < 1:
+        p.error("--grains and --frames must be >= 1")
+    n = write(a.output, a.grains, a.frames, a.seed)
+    print(f"wrote {a.output}: {n} grains, {a.frames} frames")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

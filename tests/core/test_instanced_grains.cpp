@@ -1,0 +1,394 @@
+// test_instanced_grains.cpp — explicit grains (instanced_grains.h): the grid's queries
+// against brute force over every grain, its memory bound, and the validation's named
+// errors (core and the USD meaning in granular_prims.h).
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+#include <string>
+
+#include "core/error.h"
+#include "core/granular_prims.h"
+#include "core/instanced_grains.h"
+#include "core/shapes.h"
+
+using namespace granular;
+
+namespace {
+
+Quat randomRotation(std::mt19937& rng) {
+  std::normal_distribution<float> n(0.0f, 1.0f);
+  Quat q{n(rng), n(rng), n(rng), n(rng)};
+  float l = std::sqrt(q.w * q.w + q.x * q.x + q.y * q.y + q.z * q.z);
+  return Quat{q.w / l, q.x / l, q.y / l, q.z / l};
+}
+
+// Two prototypes: a unit icosphere and a box off its origin (a non-zero fitCenter).
+std::vector<GrainPrototypeDesc> twoPrototypes() {
+  GrainPrototypeDesc a, b;
+  a.name = "/Sim/Round";
+  a.mesh = makeIcosphere(1);
+  b.name = "/Sim/Box";
+  b.mesh = makeBox(Vec3(0.2f, 0.2f, 0.2f), Vec3(1.0f, 1.4f, 1.0f));
+  return {a, b};
+}
+
+// Grains on a jittered lattice of spacing 2.3 (bounding radii <= 1: never overlapping),
+// `keep` of the sites occupied, random scales in [0.6, 1], rotations and prototypes.
+InstancedGrainsDesc latticeGrains(int side, float keep, uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  InstancedGrainsDesc d;
+  d.name = "/Sim";
+  d.prototypes = twoPrototypes();
+  for (int z = 0; z < side; ++z)
+    for (int y = 0; y < side; ++y)
+      for (int x = 0; x < side; ++x) {
+        if (u(rng) >= keep) continue;
+        Vec3 jitter(u(rng) - 0.5f, u(rng) - 0.5f, u(rng) - 0.5f);
+        int proto = u(rng) < 0.5f ? 0 : 1;
+        Quat q = randomRotation(rng);
+        float s = 0.6f + 0.4f * u(rng);
+        // The box's bounding centre is off its origin: place the grain by its centre.
+        d.positions.push_back(Vec3(float(x), float(y), float(z)) * 2.3f + jitter * 0.2f);
+        d.orientations.push_back(q);
+        d.scales.push_back(s);
+        d.protoIndices.push_back(proto);
+      }
+  return d;
+}
+
+// Fixes each box grain's position so its bounding sphere sits where the lattice put it.
+void centreBoxes(InstancedGrainsDesc& d, const InstancedGrains& probe) {
+  const GrainPrototype& box = probe.prototypes()[1];
+  for (size_t i = 0; i < d.size(); ++i)
+    if (d.protoIndices[i] == 1) d.positions[i] = d.positions[i] - rotate(d.orientations[i], box.fitCenter) * d.scales[i];
+}
+
+InstancedGrainsDesc nonOverlapping(const EmbreeDevice& device, int side, float keep, uint32_t seed) {
+  InstancedGrainsDesc d = latticeGrains(side, keep, seed);
+  InstancedGrains probe;
+  InstancedGrainsDesc one;
+  one.name = "/Probe";
+  one.prototypes = d.prototypes;
+  one.positions = {Vec3(0.0f)};
+  one.protoIndices = {0};
+  probe.build(one, device);
+  centreBoxes(d, probe);
+  return d;
+}
+
+Vec3 randomDirection(std::mt19937& rng) {
+  std::normal_distribution<float> n(0.0f, 1.0f);
+  return normalize(Vec3(n(rng), n(rng), n(rng)));
+}
+
+void expectSameHits(const InstancedGrains& g, const Bounds3& region, uint32_t seed, int rays, int minHits) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  int hits = 0;
+  const Vec3 lo = region.lo - region.extent() * 0.2f, size = region.extent() * 1.4f;
+  for (int k = 0; k < rays; ++k) {
+    Vec3 o = lo + Vec3(u(rng), u(rng), u(rng)) * size;
+    Vec3 d = randomDirection(rng) * (0.5f + u(rng));  // not unit: t is the caller's
+    float tmax = k % 3 == 0 ? 5.0f + 20.0f * u(rng) : kInf;
+    InstancedGrainHit a, b;
+    bool ha = g.intersect(o, d, 0.0f, tmax, a);
+    bool hb = g.intersectAll(o, d, 0.0f, tmax, b);
+    ASSERT_EQ(ha, hb) << "ray " << k;
+    EXPECT_EQ(g.occluded(o, d, 0.0f, tmax), hb) << "ray " << k;
+    if (!ha) continue;
+    ++hits;
+    ASSERT_EQ(a.grain, b.grain) << "ray " << k;
+    EXPECT_EQ(a.t, b.t) << "ray " << k;
+    EXPECT_EQ(a.prim, b.prim);
+    EXPECT_NEAR(length(a.ng), 1.0f, 1e-5f);
+  }
+  // Enough rays meet grains for the comparison to mean something.
+  EXPECT_GT(hits, minHits);
+}
+
+}  // namespace
+
+TEST(InstancedGrains, IntersectMatchesBruteForce) {
+  EmbreeDevice device = makeEmbreeDevice();
+  InstancedGrains g;
+  g.build(nonOverlapping(device, 14, 0.7f, 7), device);
+  ASSERT_GT(g.stats().grains, 1500);
+  expectSameHits(g, g.objectBounds(), 11, 3000, 600);
+}
+
+TEST(InstancedGrains, IntersectMatchesBruteForceTransformed) {
+  EmbreeDevice device = makeEmbreeDevice();
+  InstancedGrainsDesc d = nonOverlapping(device, 10, 0.5f, 3);
+  Mat3 r = quatToMat3(0.8f, 0.36f, 0.48f, 0.0f);
+  Transform xf;
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) xf.m[i][j] = 1.5 * r.m[i][j];
+  xf.m[0][3] = 4;
+  xf.m[1][3] = -2;
+  xf.m[2][3] = 7;
+  d.xf = xf;
+  InstancedGrains g;
+  g.build(d, device);
+  Bounds3 world;
+  const Bounds3 b = g.objectBounds();
+  for (int k = 0; k < 8; ++k)
+    world.extend(xf.point(Vec3(k & 1 ? b.hi.x : b.lo.x, k & 2 ? b.hi.y : b.lo.y, k & 4 ? b.hi.z : b.lo.z)));
+  expectSameHits(g, world, 5, 1500, 75);
+}
+
+TEST(InstancedGrains, ForEachGrainMatchesBruteForce) {
+  EmbreeDevice device = makeEmbreeDevice();
+  InstancedGrains g;
+  g.build(nonOverlapping(device, 12, 0.6f, 9), device);
+  std::mt19937 rng(4);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  const Bounds3 all = g.objectBounds();
+  for (int k = 0; k < 40; ++k) {
+    Bounds3 box;
+    Vec3 a = all.lo + Vec3(u(rng), u(rng), u(rng)) * all.extent();
+    Vec3 e = Vec3(u(rng), u(rng), u(rng)) * (k < 35 ? 6.0f : 100.0f);
+    box.extend(a);
+    box.extend(a + e);
+    std::vector<int64_t> want, got;
+    for (int64_t i = 0; i < g.stats().grains; ++i) {
+      InstancedGrain s = g.grain(i);
+      Vec3 c = vmin(vmax(s.center, box.lo), box.hi);
+      if (length2(c - s.center) <= s.radius * s.radius) want.push_back(i);
+    }
+    g.forEachGrain(box, [&](const InstancedGrain& s) { got.push_back(s.index); });
+    EXPECT_EQ(got, want) << "box " << k;
+  }
+}
+
+TEST(InstancedGrains, MemoryPerGrainWithinBound) {
+  EmbreeDevice device = makeEmbreeDevice();
+  InstancedGrains g;
+  g.build(nonOverlapping(device, 47, 1.0f, 1), device);
+  const InstancedGrainsStats& s = g.stats();
+  EXPECT_EQ(s.grains, 47 * 47 * 47);
+  // At most 8 entries per grain (cell edge 3 × the largest bounding radius).
+  EXPECT_LE(s.entries, 8 * s.grains);
+  // The stated bound: 32 bytes per grain beyond the input arrays, for packed grains.
+  EXPECT_LE(s.bytesPerGrain(), 32.0);
+  EXPECT_GT(s.bytesPerGrain(), 4.0);  // at least one uint32 entry each
+}
+
+TEST(InstancedGrains, BuildIsDeterministic) {
+  EmbreeDevice device = makeEmbreeDevice();
+  InstancedGrains a, b;
+  a.build(nonOverlapping(device, 9, 0.8f, 2), device);
+  b.build(nonOverlapping(device, 9, 0.8f, 2), device);
+  std::mt19937 rng(1);
+  const Bounds3 all = a.objectBounds();
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  for (int k = 0; k < 200; ++k) {
+    Vec3 o = all.lo + Vec3(u(rng), u(rng), u(rng)) * all.extent();
+    Vec3 d = randomDirection(rng);
+    InstancedGrainHit ha, hb;
+    ASSERT_EQ(a.intersect(o, d, 0, kInf, ha), b.intersect(o, d, 0, kInf, hb));
+    EXPECT_EQ(ha.grain, hb.grain);
+    EXPECT_EQ(ha.t, hb.t);
+  }
+  EXPECT_EQ(a.stats().entries, b.stats().entries);
+}
+
+TEST(InstancedGrains, EmptyAndMissingRays) {
+  EmbreeDevice device = makeEmbreeDevice();
+  InstancedGrainsDesc d;
+  d.name = "/Sim";
+  d.prototypes = twoPrototypes();
+  InstancedGrains g;
+  g.build(d, device);
+  InstancedGrainHit h;
+  EXPECT_FALSE(g.intersect(Vec3(0.0f), Vec3(1, 0, 0), 0, kInf, h));
+  EXPECT_FALSE(g.occluded(Vec3(0.0f), Vec3(1, 0, 0), 0, kInf));
+  InstancedGrains one;
+  d.positions = {Vec3(0.0f)};
+  d.protoIndices = {0};
+  one.build(d, device);
+  EXPECT_TRUE(one.intersect(Vec3(-5, 0, 0), Vec3(1, 0, 0), 0, kInf, h));
+  EXPECT_NEAR(h.t, 4.0f, 0.1f);  // the icosphere's surface near radius 1
+  EXPECT_FALSE(one.intersect(Vec3(-5, 0, 0), Vec3(1, 0, 0), 0, 3.0f, h));
+  EXPECT_FALSE(one.intersect(Vec3(NAN, 0, 0), Vec3(1, 0, 0), 0, kInf, h));  // no crash, no hit
+}
+
+// ---- validation ---------------------------------------------------------------------------
+
+namespace {
+
+std::string errorOf(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const InputError& e) {
+    return e.what();
+  }
+  return "(no error)";
+}
+
+InstancedGrainsDesc twoApart() {
+  InstancedGrainsDesc d;
+  d.name = "/Sim";
+  d.prototypes = twoPrototypes();
+  d.prototypes.resize(1);
+  d.positions = {Vec3(0.0f), Vec3(3.0f, 0.0f, 0.0f)};
+  d.protoIndices = {0, 0};
+  return d;
+}
+
+}  // namespace
+
+TEST(InstancedGrains, ValidationNamesPrimAndAttribute) {
+  EmbreeDevice device = makeEmbreeDevice();
+  auto build = [&](InstancedGrainsDesc d) {
+    return errorOf([&] {
+      InstancedGrains g;
+      g.build(std::move(d), device);
+    });
+  };
+  EXPECT_EQ(build(twoApart()), "(no error)");
+  InstancedGrainsDesc d = twoApart();
+  d.positions.pop_back();
+  EXPECT_EQ(build(d), "/Sim.positions: has 1 values but protoIndices has 2 (one per instance)");
+  d = twoApart();
+  d.scales = {1.0f};
+  EXPECT_EQ(build(d), "/Sim.scales: has 1 values but protoIndices has 2 (one per instance)");
+  d = twoApart();
+  d.velocities = {Vec3(0.0f)};
+  EXPECT_EQ(build(d), "/Sim.velocities: has 1 values but protoIndices has 2 (one per instance)");
+  d = twoApart();
+  d.positions[1].y = NAN;
+  EXPECT_EQ(build(d).rfind("/Sim.positions: instance 1 is at (3, nan", 0), 0u) << build(d);
+  d = twoApart();
+  d.protoIndices[1] = 1;
+  EXPECT_EQ(build(d), "/Sim.protoIndices: instance 1 has 1, not the index of one of its 1 prototypes");
+  d = twoApart();
+  d.scales = {1.0f, 0.0f};
+  EXPECT_EQ(build(d), "/Sim.scales: instance 1 has scale 0 (must be > 0 and finite)");
+  d = twoApart();
+  d.orientations = {Quat{}, Quat{0, 0, 0, 0}};
+  EXPECT_EQ(build(d), "/Sim.orientations: instance 1 has (0, 0, 0, 0), not a unit quaternion");
+  d = twoApart();
+  d.angularVelocities = {Vec3(0.0f), Vec3(INFINITY, 0, 0)};
+  EXPECT_EQ(build(d), "/Sim.angularVelocities: instance 1 has (inf, 0, 0) (not finite)");
+  d = twoApart();
+  d.prototypes.clear();
+  EXPECT_EQ(build(d), "/Sim.prototypes: is empty (at least one grain prototype mesh is needed)");
+  // Overlaps: bounding radii 1 (an icosphere's circumsphere): 5% of 1 is the limit.
+  d = twoApart();
+  d.positions[1] = Vec3(1.96f, 0, 0);  // 4% deep: allowed
+  EXPECT_EQ(build(d), "(no error)");
+  d.positions.push_back(Vec3(-1.5f, 0, 0));
+  d.protoIndices.push_back(0);
+  EXPECT_EQ(build(d).rfind("/Sim.positions: instances 0 and 2 overlap: their bounding spheres (radii 1", 0), 0u)
+      << build(d);
+}
+
+TEST(InstancedGrains, OverlapCheckFindsEveryPairThroughTheGrid) {
+  // A large random set with one planted overlap far from the first grains.
+  EmbreeDevice device = makeEmbreeDevice();
+  InstancedGrainsDesc d = nonOverlapping(device, 20, 0.9f, 5);
+  const size_t last = d.size() - 1;
+  d.positions[last] = d.positions[last - 1] + Vec3(0.5f, 0, 0);
+  std::string e = errorOf([&] {
+    InstancedGrains g;
+    g.build(d, device);
+  });
+  EXPECT_EQ(e.rfind(str("/Sim.positions: instances ", last - 1, " and ", last, " overlap"), 0), 0u) << e;
+}
+
+// ---- USD meaning (granular_prims.h) -----------------------------------------------------------
+
+namespace {
+
+InstancerPrim instancer() {
+  InstancerPrim p;
+  p.path = "/World/Sand";
+  p.prototypes = {"/World/Sand/Protos/Round"};
+  p.positions = {0, 0, 0, 3, 0, 0};
+  p.orientations = {2, 0, 0, 0, 1, 0, 0, 0};  // (2, 0, 0, 0): normalised
+  p.scales = {1, 1, 1, 0.5f, 0.5f, 0.5f};
+  p.protoIndices = {0, 0};
+  return p;
+}
+
+PrimLookup roundGrain(bool grainApi, bool closed = true) {
+  return [=](const std::string& path, MeshPrim& out) {
+    if (path != "/World/Sand/Protos/Round") return false;
+    out.path = path;
+    out.mesh = makeIcosphere(1);
+    if (!closed) out.mesh.indices.resize(out.mesh.indices.size() - 3);
+    out.apiSchemas = std::vector<std::string>{};
+    if (grainApi) {
+      out.apiSchemas->push_back(kGrainApi);
+      PrimvarValue ior;
+      ior.typeName = "float";
+      ior.numbers = {1.31};
+      out.granular["ior"] = ior;
+    }
+    return true;
+  };
+}
+
+}  // namespace
+
+TEST(InstancedGrains, FromUsdReadsAndNormalises) {
+  SceneDesc scene;
+  InstancedGrainsDesc d = instancedGrainsFromUsd(instancer(), scene, roundGrain(true));
+  ASSERT_EQ(d.size(), 2u);
+  EXPECT_EQ(d.name, "/World/Sand");
+  EXPECT_EQ(d.orientations[0].w, 1.0f);
+  EXPECT_EQ(d.scales[1], 0.5f);
+  ASSERT_EQ(d.prototypes.size(), 1u);
+  ASSERT_EQ(scene.materials.size(), 1u);  // its GranularGrainAPI values
+  EXPECT_EQ(d.prototypes[0].material, 0);
+  EXPECT_FLOAT_EQ(scene.materials[0].ior, 1.31f);
+  // Without the API or a bound material: clear glass, as an aggregate's prototype.
+  SceneDesc plain;
+  EXPECT_EQ(instancedGrainsFromUsd(instancer(), plain, roundGrain(false)).prototypes[0].material, -1);
+  EXPECT_TRUE(plain.materials.empty());
+}
+
+TEST(InstancedGrains, FromUsdErrorsNamePrimAndAttribute) {
+  auto read = [](InstancerPrim p, PrimLookup lookup = roundGrain(true)) {
+    return errorOf([&] {
+      SceneDesc s;
+      instancedGrainsFromUsd(p, s, lookup);
+    });
+  };
+  InstancerPrim p = instancer();
+  p.scales = {1, 1, 1, 0.5f, 0.6f, 0.5f};
+  EXPECT_EQ(read(p), "/World/Sand.scales: instance 1 has non-uniform scale (0.5, 0.6, 0.5): a grain takes one size "
+                     "(scale its prototype instead)");
+  p = instancer();
+  p.scales = {1, 1, 1, -1, -1, -1};
+  EXPECT_EQ(read(p), "/World/Sand.scales: instance 1 has scale (-1, -1, -1) (each must be > 0 and finite)");
+  p = instancer();
+  p.orientations = {1, 0, 0, 0, 0, 0, 0, 0};
+  EXPECT_EQ(read(p), "/World/Sand.orientations: instance 1 has (0, 0, 0, 0), not a rotation");
+  p = instancer();
+  p.protoIndices = {0, 4};
+  EXPECT_EQ(read(p), "/World/Sand.protoIndices: instance 1 has 4, not the index of one of its 1 prototypes");
+  p = instancer();
+  p.positions.pop_back();
+  EXPECT_EQ(read(p), "/World/Sand.positions: has 5 numbers, not 3 per instance");
+  p = instancer();
+  p.positions.resize(3);
+  EXPECT_EQ(read(p), "/World/Sand.positions: has 1 values but protoIndices has 2 (one per instance)");
+  p = instancer();
+  p.prototypes = {"/World/Nowhere"};
+  EXPECT_EQ(read(p), "/World/Sand.prototypes: target /World/Nowhere is not a prim of the stage");
+  EXPECT_EQ(read(instancer(), roundGrain(true, false)).rfind("/World/Sand/Protos/Round", 0), 0u);
+  p = instancer();
+  p.typeName = "Mesh";
+  EXPECT_EQ(read(p), "/World/Sand: GranularInstancedAggregateAPI applies to a PointInstancer, not a Mesh");
+  PrimLookup xform = [](const std::string& path, MeshPrim& out) {
+    out.path = path;
+    out.typeName = "Xform";
+    return true;
+  };
+  EXPECT_EQ(read(instancer(), xform),
+            "/World/Sand.prototypes: target /World/Sand/Protos/Round is a Xform, not a Mesh (a grain prototype is one "
+            "closed mesh)");
+}

@@ -1,0 +1,182 @@
+"""Explicit grains from a PointInstancer (GranularInstancedAggregateAPI): the generated heap
+read through usd-core into core's description, `granular info` reporting it, `granular
+render` warning once and rendering the rest, and bad instancer data named prim.attribute
+with exit status 2."""
+import json
+import sys
+
+import numpy as np
+import pytest
+from conftest import EXAMPLES, add_mesh, run_cli
+from pxr import Gf, Usd, UsdGeom, UsdLux, Vt
+
+import granular_core as core
+from granular import schema, usd_reader
+
+sys.path.insert(0, str(EXAMPLES))
+import make_grain_heap  # noqa: E402
+
+HEAP = "/World/Heap"
+SAND = "/World/Sand"
+
+
+@pytest.fixture(scope="module")
+def heap(tmp_path_factory):
+    path = tmp_path_factory.mktemp("heap") / "heap.usdc"
+    count = make_grain_heap.write(str(path), grains=3000, frames=2, seed=3)
+    return str(path), count
+
+
+def _read(path, time=None):
+    stage = usd_reader.open_stage(path)
+    scene = usd_reader.StageScene(path, stage, usd_reader.as_time_code(time, stage))
+    return scene, usd_reader.read_instanced_grains(scene, stage.GetPrimAtPath(HEAP))
+
+
+def test_generator_is_deterministic_and_non_overlapping(heap, tmp_path):
+    path, count = heap
+    assert 2000 < count < 4000
+    again = tmp_path / "again.usdc"
+    assert make_grain_heap.write(str(again), grains=3000, frames=2, seed=3) == count
+    a, b = Usd.Stage.Open(path), Usd.Stage.Open(str(again))
+    for name in ("positions", "scales", "protoIndices", "orientations", "velocities"):
+        for t in (1, 2):
+            va = np.asarray(a.GetPrimAtPath(HEAP).GetAttribute(name).Get(t))
+            vb = np.asarray(b.GetPrimAtPath(HEAP).GetAttribute(name).Get(t))
+            assert np.array_equal(va, vb), name
+    # The grid's overlap check passes (build() raises otherwise) at both frames.
+    for t in (1, 2):
+        core.InstancedGrains().build(_read(path, t)[1])
+
+
+def test_heap_reads_into_core(heap):
+    path, count = heap
+    scene, desc = _read(path)
+    assert desc.name == HEAP
+    assert desc.num_grains == count
+    assert [p.name for p in desc.prototypes] == [HEAP + "/Prototypes/Round", HEAP + "/Prototypes/Rock"]
+    # Each prototype's GranularGrainAPI material, as for an aggregate's prototypes.
+    assert [scene.desc.materials[p.material].ior for p in desc.prototypes] == pytest.approx([1.55, 1.55])
+    assert desc.has_motion
+    stage = Usd.Stage.Open(path)
+    authored = np.asarray(stage.GetPrimAtPath(HEAP).GetAttribute("positions").Get(1))
+    assert np.array_equal(desc.positions, authored)
+    # Uniform scales read as one size each.
+    assert np.array_equal(desc.scales, np.asarray(stage.GetPrimAtPath(HEAP).GetAttribute("scales").Get(1))[:, 0])
+    # The second frame's positions, as authored there.
+    _, later = _read(path, 2)
+    assert np.array_equal(later.positions, np.asarray(stage.GetPrimAtPath(HEAP).GetAttribute("positions").Get(2)))
+    assert not np.array_equal(later.positions, desc.positions)
+
+
+def test_grid_finds_the_heap_from_above(heap):
+    path, _ = heap
+    _, desc = _read(path)
+    grid = core.InstancedGrains()
+    grid.build(desc)
+    st = grid.stats
+    assert st["grains"] == desc.num_grains
+    assert st["bytes_per_grain"] <= 32
+    # Straight down onto the apex: the first grain met is near the top of the cone.
+    top = float(np.max(desc.positions[:, 1]))
+    hit = grid.intersect((0.0, top + 1.0, 0.0), (0.0, -1.0, 0.0))
+    assert hit is not None
+    assert 1.0 - 0.03 < hit["t"] < 1.0 + 0.03
+    assert hit["normal"][1] > 0
+    assert grid.occluded((0.0, top + 1.0, 0.0), (0.0, -1.0, 0.0))
+    assert grid.intersect((0.0, top + 1.0, 0.0), (0.0, 1.0, 0.0)) is None
+
+
+def test_info_reports_explicit_grains(heap, capsys):
+    path, count = heap
+    rc, out, err = run_cli(["info", path, "--json"], capsys)
+    assert rc == 0, err
+    r = json.loads(out)
+    assert r["aggregates"] == []
+    (e,) = r["explicit_grains"]
+    assert e["prim"] == HEAP and e["grains"] == count and e["rendered"] is False
+    assert 0 < e["bytes_per_grain"] <= 32 and e["grid_bytes"] > 0 and e["build_seconds"] >= 0
+    rc, out, err = run_cli(["info", path], capsys)
+    assert rc == 0, err
+    assert f"grains        {count}" in out and "not rendered yet" in out
+
+
+def test_render_warns_once_and_renders_the_rest(heap, tmp_path, capsys):
+    path, _ = heap
+    rc, out, err = run_cli(["render", path, "-o", tmp_path / "h.exr", "--width", 24, "--height", 16, "--spp", 1],
+                           capsys)
+    assert rc == 0, err
+    warnings = [line for line in err.splitlines() if "explicit grains" in line and line.startswith("warning:")]
+    assert warnings == [f"warning: {HEAP}: explicit grains from a PointInstancer (GranularInstancedAggregateAPI) "
+                        f"are not rendered yet; skipped, the rest of the stage is rendered"]
+    scene = usd_reader.read_stage(path)
+    # The ground is there; no grain prototype is drawn as ordinary geometry.
+    assert [m.name for m in scene.desc.meshes] == ["/World/Ground"]
+
+
+# ---- a small instancer to break -----------------------------------------------------------
+
+def _instancer(path, positions=((0, 0, 0), (3, 0, 0)), indices=(0, 0), scales=None, api=True, proto="Mesh"):
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.Xform.Define(stage, "/World")
+    cam = UsdGeom.Camera.Define(stage, "/World/Camera")
+    UsdGeom.Xformable(cam).AddTranslateOp().Set(Gf.Vec3d(0, 0, 15))
+    UsdLux.DomeLight.Define(stage, "/World/Sky")
+    pi = UsdGeom.PointInstancer.Define(stage, SAND)
+    if api:
+        schema.apply_instanced_aggregate(pi)
+    if proto == "Mesh":
+        grain = add_mesh(stage, SAND + "/Protos/Round", core.make_icosphere(1))
+        schema.apply_grain(grain, ior=1.31, invisible=False)
+        target = grain.GetPath()
+    else:
+        target = UsdGeom.Xform.Define(stage, SAND + "/Protos/Round").GetPath()
+    pi.CreatePrototypesRel().SetTargets([target])
+    pi.CreatePositionsAttr(Vt.Vec3fArray([Gf.Vec3f(*p) for p in positions]))
+    pi.CreateProtoIndicesAttr(Vt.IntArray(list(indices)))
+    if scales is not None:
+        pi.CreateScalesAttr(Vt.Vec3fArray([Gf.Vec3f(*s) for s in scales]))
+    stage.Save()
+    return str(path)
+
+
+def test_a_valid_instancer_reports(tmp_path, capsys):
+    rc, out, err = run_cli(["info", _instancer(tmp_path / "ok.usda")], capsys)
+    assert rc == 0, err
+    assert "grains        2" in out
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"indices": (0, 1)}, f"error: {SAND}.protoIndices: instance 1 has 1, not the index of one of its 1 prototypes"),
+    ({"positions": ((0, 0, 0),)}, f"error: {SAND}.positions: has 1 values but protoIndices has 2 (one per instance)"),
+    ({"positions": ((0, 0, 0), (float("nan"), 0, 0))}, f"error: {SAND}.positions: instance 1 is at (nan, 0, 0)"),
+    ({"scales": ((1, 1, 1), (1, 2, 1))}, f"error: {SAND}.scales: instance 1 has non-uniform scale (1, 2, 1)"),
+    ({"scales": ((1, 1, 1), (0, 0, 0))}, f"error: {SAND}.scales: instance 1 has scale (0, 0, 0)"),
+    ({"positions": ((0, 0, 0), (1.5, 0, 0))}, f"error: {SAND}.positions: instances 0 and 1 overlap"),
+    ({"proto": "Xform"}, f"error: {SAND}.prototypes: target {SAND}/Protos/Round is a Xform, not a Mesh"),
+])
+def test_bad_instancer_data_is_named(tmp_path, capsys, kwargs, message):
+    rc, out, err = run_cli(["info", _instancer(tmp_path / "bad.usda", **kwargs)], capsys)
+    assert rc == 2, err
+    assert err.startswith(message), err
+
+
+def test_grain_prototypes_without_the_api_are_explicit_grains(tmp_path, capsys):
+    """Every prototype a grain (GranularGrainAPI): simulated grains, warned about, not drawn
+    as meshes at every instance."""
+    path = _instancer(tmp_path / "noapi.usda", api=False)
+    scene = usd_reader.read_stage(path)
+    assert [str(p.GetPath()) for p in scene.explicit_grains] == [SAND]
+    assert any("not rendered yet" in w for w in scene.warnings)
+    assert list(scene.desc.meshes) == []
+
+
+def test_aggregate_api_on_an_instancer_points_to_the_sibling(tmp_path, capsys):
+    path = _instancer(tmp_path / "wrong.usda", api=False)
+    stage = Usd.Stage.Open(path)
+    stage.GetPrimAtPath(SAND).ApplyAPI(schema.AGGREGATE_API)
+    stage.Save()
+    rc, out, err = run_cli(["info", path], capsys)
+    assert rc == 2
+    assert err.startswith(f"error: {SAND}: GranularAggregateAPI applies to a Mesh, not a PointInstancer "
+                          f"(explicit grains from a simulation: GranularInstancedAggregateAPI)"), err
