@@ -190,8 +190,11 @@ std::vector<std::pair<std::string, std::string>> stringAttributes(const OIIO::Im
 
 }  // namespace
 
-bool writeExr(const std::string& path, const Image& img) {
-  checkShape(path, img, 1);
+namespace {
+
+// What an EXR needs of an image beyond its shape: unique, non-empty channel names and a
+// data window inside the display window.
+void checkExrChannelsAndWindow(const std::string& path, const Image& img) {
   std::set<std::string> seen;
   for (const std::string& name : img.channels)
     if (name.empty() || !seen.insert(name).second)
@@ -199,6 +202,13 @@ bool writeExr(const std::string& path, const Image& img) {
   if (img.x < 0 || img.y < 0 || img.x + img.width > img.displayWidth() || img.y + img.height > img.displayHeight())
     throw std::runtime_error(failure(path, str("pixels at (", img.x, ", ", img.y, ") of size ", img.width, "x", img.height,
                                                " lie outside the ", img.displayWidth(), "x", img.displayHeight(), " image")));
+}
+
+}  // namespace
+
+bool writeExr(const std::string& path, const Image& img) {
+  checkShape(path, img, 1);
+  checkExrChannelsAndWindow(path, img);
 
   OIIO::ImageSpec spec(img.width, img.height, img.numChannels(), OIIO::TypeDesc::FLOAT);
   spec.channelnames = img.channels;
@@ -223,13 +233,7 @@ bool writeExrTyped(const std::string& path, const Image& img, const std::vector<
     throw std::runtime_error(failure(path, str(types.size(), " pixel types for ", img.channels.size(), " channels")));
   if (!(std::isfinite(pixelAspectRatio) && pixelAspectRatio > 0))
     throw std::runtime_error(failure(path, str("pixel aspect ratio ", pixelAspectRatio, " is not finite and > 0")));
-  std::set<std::string> seen;
-  for (const std::string& name : img.channels)
-    if (name.empty() || !seen.insert(name).second)
-      throw std::runtime_error(failure(path, "channel names must be unique and non-empty"));
-  if (img.x < 0 || img.y < 0 || img.x + img.width > img.displayWidth() || img.y + img.height > img.displayHeight())
-    throw std::runtime_error(failure(path, str("pixels at (", img.x, ", ", img.y, ") of size ", img.width, "x", img.height,
-                                               " lie outside the ", img.displayWidth(), "x", img.displayHeight(), " image")));
+  checkExrChannelsAndWindow(path, img);
   OIIO::ImageSpec spec(img.width, img.height, img.numChannels(), OIIO::TypeDesc::FLOAT);
   spec.channelnames = img.channels;
   spec.channelformats.clear();

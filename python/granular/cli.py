@@ -270,6 +270,14 @@ def _warnings(args, scene):
         _log(args, "warning: " + w)
 
 
+def _log_new_warnings(args, scene, shown):
+    """The scene's warnings not in `shown` (kept over a sequence of frames), each once."""
+    for w in scene.warnings:
+        if w not in shown:
+            shown.add(w)
+            _log(args, "warning: " + w)
+
+
 def _remove(paths):
     for p in paths:
         try:
@@ -475,10 +483,7 @@ def _render_frames(args):
         scene = read_stage(args.scene, camera=args.camera, width=args.width, height=args.height, stage=stage,
                            time=frame, settings_path=getattr(args, "settings", None))
         s = _apply_options(args, scene)
-        for w in scene.warnings:
-            if w not in shown:
-                shown.add(w)
-                _log(args, "warning: " + w)
+        _log_new_warnings(args, scene, shown)
         built, changes = update_scene(scene, built)
         if changes is None:
             _log_build_warnings(args, built, shown)
@@ -581,10 +586,7 @@ def _render_products(args):
                 s.cryptomatte = s.cryptomatte or any(p.needs_cryptomatte for p in products)
                 x0, x1, y0, y1 = core.union_window(products)
                 s.crop = (0, 0, 0, 0) if (x0, x1, y0, y1) == (0, width, 0, height) else (x0, x1, y0, y1)
-                for w in scene.warnings:
-                    if w not in shown:
-                        shown.add(w)
-                        _log(args, "warning: " + w)
+                _log_new_warnings(args, scene, shown)
                 built, changes = update_scene(scene, built)
                 if changes is None:
                     _log_build_warnings(args, built, shown)

@@ -7,16 +7,13 @@
 #include <string>
 
 #include "core/cryptomatte.h"
+#include "test_helpers.h"
 
 using namespace granular;
 
 namespace {
 
-uint32_t bitsOf(float f) {
-  uint32_t u;
-  std::memcpy(&u, &f, 4);
-  return u;
-}
+using granular::testing::bitsOf;
 
 }  // namespace
 

@@ -25,11 +25,7 @@ using namespace granular;
 
 namespace {
 
-uint32_t bitsOf(float f) {
-  uint32_t u;
-  std::memcpy(&u, &f, 4);
-  return u;
-}
+using granular::testing::bitsOf;
 
 float channel(const Image& img, int x, int y, const std::string& name) {
   const int c = img.channelIndex(name);

@@ -1,6 +1,9 @@
 // test_helpers.h — brute-force references and scenes shared by the core tests.
 #pragma once
 
+#include <cstdint>
+#include <cstring>
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -14,6 +17,13 @@
 #include "core/shapes.h"
 
 namespace granular::testing {
+
+// The bit pattern of a float (Cryptomatte ids are hashes stored as float bits).
+inline uint32_t bitsOf(float f) {
+  uint32_t u;
+  std::memcpy(&u, &f, 4);
+  return u;
+}
 
 // Möller–Trumbore; returns t > 0 of the hit or +inf.
 inline float rayTriangle(const Vec3& o, const Vec3& d, const Vec3& a, const Vec3& b, const Vec3& c) {
