@@ -86,25 +86,24 @@ def main():
             render(scene, ref_path, width, height, a.ref_spp, 99, [])
         ref = channels(ref_path, RGB)
         ways = {"raw": [], "denoised": [], "adaptive": [], "adaptive + denoised": []}
-        for spp in (int(s) for s in a.spp.split(",")):
-            out = os.path.join(a.out, f"{name}_{spp}.exr")
-            t = render(scene, out, width, height, spp, 1, ["--denoise"])
-            e_raw, e_den = relmse(channels(out, RGB), ref), relmse(channels(out, DENOISED), ref)
-            ways["raw"].append((t, e_raw))
-            ways["denoised"].append((t, e_den))
-            ladders.append(f"{name} {spp} spp: {t:.2f} s, raw {e_raw:.4f}, denoised {e_den:.4f}")
-            if e_raw <= TARGET and e_den <= TARGET:
-                break
-        cap = max(int(s) for s in a.spp.split(","))
-        for thr in (float(x) for x in a.thresholds.split(",")):
-            out = os.path.join(a.out, f"{name}_t{thr}.exr")
-            t = render(scene, out, width, height, cap, 1, ["--denoise", "--noise-threshold", str(thr)])
-            e_raw, e_den = relmse(channels(out, RGB), ref), relmse(channels(out, DENOISED), ref)
-            ways["adaptive"].append((t, e_raw))
-            ways["adaptive + denoised"].append((t, e_den))
-            ladders.append(f"{name} threshold {thr}: {t:.2f} s, raw {e_raw:.4f}, denoised {e_den:.4f}")
-            if e_raw <= TARGET and e_den <= TARGET:
-                break
+
+        def climb(steps, raw, denoised):
+            """Renders each (file tag, label, spp, extra options) step until both ways are below
+            the target, appending (seconds, relMSE) to ways[raw] and ways[denoised]."""
+            for tag, label, spp, extra in steps:
+                out = os.path.join(a.out, f"{name}_{tag}.exr")
+                t = render(scene, out, width, height, spp, 1, ["--denoise"] + extra)
+                e_raw, e_den = relmse(channels(out, RGB), ref), relmse(channels(out, DENOISED), ref)
+                ways[raw].append((t, e_raw))
+                ways[denoised].append((t, e_den))
+                ladders.append(f"{name} {label}: {t:.2f} s, raw {e_raw:.4f}, denoised {e_den:.4f}")
+                if e_raw <= TARGET and e_den <= TARGET:
+                    break
+
+        counts = [int(x) for x in a.spp.split(",")]
+        climb([(str(n), f"{n} spp", n, []) for n in counts], "raw", "denoised")
+        climb([(f"t{t}", f"threshold {t}", max(counts), ["--noise-threshold", t]) for t in a.thresholds.split(",")],
+              "adaptive", "adaptive + denoised")
         times = {w: crossing(sorted(p)) for w, p in ways.items()}
         rows.append((name, times))
         print(f"{name}: " + ", ".join(f"{w} {t if t is None else round(t, 2)}" for w, t in times.items()), flush=True)

@@ -206,10 +206,13 @@ void checkExrChannelsAndWindow(const std::string& path, const Image& img) {
 
 }  // namespace
 
-bool writeExr(const std::string& path, const Image& img) {
+namespace {
+
+// The header every EXR of ours has: channels, data and display windows, alpha and depth,
+// compression, our writer mark (what merge checks a tile for) and the string metadata.
+OIIO::ImageSpec exrSpec(const std::string& path, const Image& img) {
   checkShape(path, img, 1);
   checkExrChannelsAndWindow(path, img);
-
   OIIO::ImageSpec spec(img.width, img.height, img.numChannels(), OIIO::TypeDesc::FLOAT);
   spec.channelnames = img.channels;
   spec.x = img.x;
@@ -221,21 +224,25 @@ bool writeExr(const std::string& path, const Image& img) {
   spec.alpha_channel = img.channelIndex("A");
   spec.z_channel = img.channelIndex("Z");
   spec.attribute("compression", "zip");
-  spec.attribute(kWriterAttribute, kWriterName);  // what merge checks a tile for
+  spec.attribute(kWriterAttribute, kWriterName);
   addStringAttributes(path, img, spec);
+  return spec;
+}
+
+}  // namespace
+
+bool writeExr(const std::string& path, const Image& img) {
+  const OIIO::ImageSpec spec = exrSpec(path, img);
   return writeAtomically(path, "openexr", spec, OIIO::TypeDesc::FLOAT, img.pixels.data());
 }
 
 bool writeExrTyped(const std::string& path, const Image& img, const std::vector<ExrPixelType>& types,
                    float pixelAspectRatio) {
-  checkShape(path, img, 1);
+  OIIO::ImageSpec spec = exrSpec(path, img);
   if (types.size() != img.channels.size())
     throw std::runtime_error(failure(path, str(types.size(), " pixel types for ", img.channels.size(), " channels")));
   if (!(std::isfinite(pixelAspectRatio) && pixelAspectRatio > 0))
     throw std::runtime_error(failure(path, str("pixel aspect ratio ", pixelAspectRatio, " is not finite and > 0")));
-  checkExrChannelsAndWindow(path, img);
-  OIIO::ImageSpec spec(img.width, img.height, img.numChannels(), OIIO::TypeDesc::FLOAT);
-  spec.channelnames = img.channels;
   spec.channelformats.clear();
   size_t pixelBytes = 0;
   for (ExrPixelType t : types) {
@@ -245,17 +252,7 @@ bool writeExrTyped(const std::string& path, const Image& img, const std::vector<
     spec.channelformats.push_back(d);
     pixelBytes += d.size();
   }
-  spec.x = img.x;
-  spec.y = img.y;
-  spec.full_x = spec.full_y = 0;
-  spec.full_width = img.displayWidth();
-  spec.full_height = img.displayHeight();
-  spec.alpha_channel = img.channelIndex("A");
-  spec.z_channel = img.channelIndex("Z");
-  spec.attribute("compression", "zip");
   spec.attribute("PixelAspectRatio", pixelAspectRatio);
-  spec.attribute(kWriterAttribute, kWriterName);
-  addStringAttributes(path, img, spec);
   // The file's own per-channel layout, converted here: OIIO's conversion would clamp a
   // negative id to 0 on its way to uint.
   const size_t n = size_t(img.width) * img.height, nch = img.channels.size();
@@ -269,8 +266,10 @@ bool writeExrTyped(const std::string& path, const Image& img, const std::vector<
         std::memcpy(out, &h, sizeof h);
         out += sizeof h;
       } else if (types[c] == ExrPixelType::UInt) {
-        const double r = std::isfinite(v) ? std::nearbyint(double(v)) : 0.0;
-        const int32_t k = int32_t(std::clamp(r, -2147483648.0, 2147483647.0));
+        // Ids are whole numbers the film wrote; anything else is a bug upstream, not a 0.
+        if (!std::isfinite(v) || std::fabs(v) >= 2147483648.0f)
+          throw std::runtime_error(failure(path, str("channel ", img.channels[c], " holds ", v, ", not an integer id")));
+        const int32_t k = int32_t(std::nearbyint(double(v)));
         uint32_t u;
         std::memcpy(&u, &k, sizeof u);
         std::memcpy(out, &u, sizeof u);

@@ -432,5 +432,21 @@ TEST_F(ImageIoTest, MergeTilesRefusesGapsOverlapsAndMismatches) {
   EXPECT_FALSE(fs::exists(path("bad.exr")));
 }
 
+TEST_F(ImageIoTest, AnIdChannelThatIsNotAnIntegerIsRefusedNotWrittenAsZero) {
+  // writeExrTyped stores ids as uint holding the int32 bits; a NaN or an out-of-range value
+  // there is a bug upstream, and no file may hide it as id 0.
+  for (float bad : {std::numeric_limits<float>::quiet_NaN(), std::numeric_limits<float>::infinity(), 3e9f}) {
+    Image img(2, 1, {"primId"});
+    img.pixels = {7.0f, bad};
+    const std::string file = path("ids.exr");
+    EXPECT_THROW(writeExrTyped(file, img, {ExrPixelType::UInt}, 1.0f), std::runtime_error) << bad;
+    EXPECT_FALSE(fs::exists(file)) << bad;
+  }
+  Image good(2, 1, {"primId"});
+  good.pixels = {7.0f, -1.0f};
+  writeExrTyped(path("ids.exr"), good, {ExrPixelType::UInt}, 1.0f);
+  EXPECT_TRUE(fs::exists(path("ids.exr")));
+}
+
 }  // namespace
 }  // namespace granular
