@@ -40,6 +40,17 @@ def add_mesh(stage, path, tri, translate=None):
     return m
 
 
+def dome_world(path):
+    """A new stage at `path` with /World, /World/Camera 15 units up +z looking down -z, and a
+    uniform dome /World/Sky: what the instancer tests put their prims into."""
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.Xform.Define(stage, "/World")
+    cam = UsdGeom.Camera.Define(stage, "/World/Camera")
+    UsdGeom.Xformable(cam).AddTranslateOp().Set(Gf.Vec3d(0, 0, 15))
+    UsdLux.DomeLight.Define(stage, "/World/Sky")
+    return stage
+
+
 def dome_card(path, color=(0.5, 0.5, 0.5)):
     """A Lambert card of displayColor `color` filling the view of /Camera under a uniform
     dome: every sample of a pixel carries nearly the same radiance (little noise)."""

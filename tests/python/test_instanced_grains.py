@@ -7,8 +7,8 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import EXAMPLES, add_mesh, run_cli
-from pxr import Gf, Usd, UsdGeom, UsdLux, Vt
+from conftest import EXAMPLES, add_mesh, dome_world, run_cli
+from pxr import Gf, Usd, UsdGeom, Vt
 
 import granular_core as core
 from granular import schema, usd_reader
@@ -117,11 +117,7 @@ def test_render_warns_once_and_renders_the_rest(heap, tmp_path, capsys):
 # ---- a small instancer to break -----------------------------------------------------------
 
 def _instancer(path, positions=((0, 0, 0), (3, 0, 0)), indices=(0, 0), scales=None, api=True, proto="Mesh"):
-    stage = Usd.Stage.CreateNew(str(path))
-    UsdGeom.Xform.Define(stage, "/World")
-    cam = UsdGeom.Camera.Define(stage, "/World/Camera")
-    UsdGeom.Xformable(cam).AddTranslateOp().Set(Gf.Vec3d(0, 0, 15))
-    UsdLux.DomeLight.Define(stage, "/World/Sky")
+    stage = dome_world(path)
     pi = UsdGeom.PointInstancer.Define(stage, SAND)
     if api:
         schema.apply_instanced_aggregate(pi)

@@ -2,8 +2,8 @@
 every visible instance (and nowhere else), Cylinder, Cone and Capsule are tessellated by
 core as in hdGranular, and bad instancer data names the attribute."""
 import numpy as np
-from conftest import run_cli
-from pxr import Gf, Usd, UsdGeom, UsdLux, Vt
+from conftest import dome_world, run_cli
+from pxr import Gf, Usd, UsdGeom, Vt
 
 from granular.usd_reader import read_stage
 
@@ -11,11 +11,7 @@ INSTANCER = "/World/Inst"
 
 
 def _stage(path, positions, proto_indices, invisible=()):
-    stage = Usd.Stage.CreateNew(str(path))
-    UsdGeom.Xform.Define(stage, "/World")
-    cam = UsdGeom.Camera.Define(stage, "/World/Camera")
-    UsdGeom.Xformable(cam).AddTranslateOp().Set(Gf.Vec3d(0, 0, 15))
-    UsdLux.DomeLight.Define(stage, "/World/Sky")
+    stage = dome_world(path)
     inst = UsdGeom.PointInstancer.Define(stage, INSTANCER)
     UsdGeom.Scope.Define(stage, INSTANCER + "/Protos")
     cube = UsdGeom.Cube.Define(stage, INSTANCER + "/Protos/Box")
