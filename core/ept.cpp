@@ -206,12 +206,13 @@ void eptStep(const Scene& scene, PathState& path) {
     path.alive = false;
     return;
   }
-  if (hit.kind == Hit::Grain && !path.touchedAggregate) {
+  if (hit.kind == Hit::Grain && hit.aggregate >= 0 && !path.touchedAggregate) {
     path.touchedAggregate = true;
     // Level of detail: grains well below the footprint here look like their medium.
     float lod = scene.settings().lod;
     float footprint = std::fabs(path.coneWidth + path.coneSpread * hit.t);
-    if (lod > 0 && scene.hasMedia() && scene.aggregates()[hit.aggregate]->grainRadius() < lod * footprint) {
+    if (lod > 0 && scene.hasMedia() && hit.aggregate >= 0 &&
+        scene.aggregates()[hit.aggregate]->grainRadius() < lod * footprint) {
       path.shortcut = true;
       // Under a narrow sun the medium takes the path at the first grain's surface (the
       // ray goes on from there): only the medium can sample the sun (Scene::narrowSun).

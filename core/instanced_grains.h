@@ -45,33 +45,6 @@
 
 namespace granular {
 
-// A unit quaternion (w, x, y, z): the rotation of a grain.
-struct Quat {
-  float w = 1, x = 0, y = 0, z = 0;
-};
-
-inline Vec3 rotate(const Quat& q, const Vec3& v) {
-  const Vec3 u(q.x, q.y, q.z);
-  const Vec3 t = cross(u, v) * 2.0f;
-  return v + t * q.w + cross(u, t);
-}
-
-struct InstancedGrainsDesc {
-  std::string name;                          // the instancer's prim path
-  Transform xf;                              // object-to-world
-  std::vector<GrainPrototypeDesc> prototypes;
-  std::vector<Vec3> positions;               // object space (USD point3f)
-  std::vector<Quat> orientations;            // unit; empty: identity
-  std::vector<float> scales;                 // uniform, > 0; empty: 1
-  std::vector<int32_t> protoIndices;         // one per grain: the number of grains
-  // Kept for motion blur (not used yet); empty or one per grain. Object units per second
-  // and degrees per second about the grain's centre, as USD authors them.
-  std::vector<Vec3> velocities;
-  std::vector<Vec3> angularVelocities;
-  int id = -1;                               // the front end's id (primId AOV, later)
-  size_t size() const { return protoIndices.size(); }
-};
-
 // Lengths, finite values, unit orientations, positive scales, prototype indices in range,
 // a prototype at least: InputError naming <name>.<attribute> and the first bad instance.
 void validateInstancedGrains(const InstancedGrainsDesc& desc);

@@ -232,6 +232,7 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& worldDesc, const Scene* pre
   Bounds3 all = s->buildMeshes(desc, defaults.surface);
   s->buildAggregates(desc, defaults.grain, previous, all,
                      detail == SceneDetail::StandIns && desc.settings.technique != Technique::Ept, log);
+  s->buildInstancedGrains(desc, defaults.grain, previous, all);
   s->sceneScale_ = all.empty() ? 1.0f : std::max(1e-6f, maxComponent(vmax(vabs(all.lo), vabs(all.hi))));
   const std::vector<LightDesc> lights = s->buildLights(desc);
   s->buildIdentities(desc, lights);
@@ -438,6 +439,55 @@ void Scene::buildConcurrently(const SceneDesc& desc, std::vector<BuiltAggregate>
   (standIns ? standInsBuilt_ : aggregatesBuilt_) += int(todo.size());
 }
 
+void Scene::buildInstancedGrains(const SceneDesc& desc, int defaultGrain, const Scene* previous, Bounds3& all) {
+  for (const InstancedGrainsDesc& d : desc.instancedGrains) {
+    BuiltInstanced entry;
+    for (const GrainPrototypeDesc& p : d.prototypes) {
+      entry.materials.push_back(p.material >= 0 ? p.material : defaultGrain);
+      entry.materialDescs.push_back(p.material >= 0 ? desc.materials[size_t(p.material)] : defaultGrainDesc());
+    }
+    entry.id = d.id;
+    // An unchanged instancer (the same arrays, transform, prototypes and materials) is lent.
+    if (previous)
+      for (const BuiltInstanced& b : previous->builtInstanced_) {
+        const InstancedGrainsDesc& old = b.grains->desc();
+        if (old.size() != d.size() || !sameInstancedGrains(old, d) || b.materialDescs.size() != entry.materialDescs.size())
+          continue;
+        bool same = true;
+        for (size_t k = 0; k < b.materialDescs.size() && same; ++k)
+          same = sameMaterial(b.materialDescs[k], entry.materialDescs[k]);
+        if (!same) continue;
+        entry.grains = b.grains;
+        entry.lengthScale = b.lengthScale;
+        entry.worldScale = b.worldScale;
+        entry.bounds = b.bounds;
+        break;
+      }
+    if (!entry.grains) {
+      auto grains = std::make_shared<InstancedGrains>();
+      grains->build(d, device_);
+      entry.worldScale = float(std::cbrt(std::fabs(d.xf.determinant3())));
+      for (const GrainPrototype& p : grains->prototypes()) entry.lengthScale.push_back(p.fitRadius * entry.worldScale);
+      const Bounds3 box = grains->objectBounds();
+      for (int c = 0; c < 8; ++c)
+        entry.bounds.extend(d.xf.point(Vec3(c & 1 ? box.hi.x : box.lo.x, c & 2 ? box.hi.y : box.lo.y,
+                                            c & 4 ? box.hi.z : box.lo.z)));
+      entry.grains = std::move(grains);
+      ++instancedBuilt_;
+    }
+    if (!entry.bounds.empty()) {
+      // Padded like the surfaces' bounds: a ray grazing a face still reaches the grid.
+      const Vec3 pad = vmax(vabs(entry.bounds.lo), vabs(entry.bounds.hi)) * 1e-5f + Vec3(1e-6f);
+      entry.bounds.lo = entry.bounds.lo - pad;
+      entry.bounds.hi = entry.bounds.hi + pad;
+      all.extend(entry.bounds);
+      instancedBounds_.extend(entry.bounds);
+    }
+    instanced_.push_back(entry.grains);
+    builtInstanced_.push_back(std::move(entry));
+  }
+}
+
 void Scene::addMedium(const AggregateDesc& a, BuiltAggregate& entry) {
   const Aggregate& agg = *entry.aggregate;
   if (entry.hasMedium && !agg.standIn() && entry.mediumSauterSize != agg.tile().sauterSize())
@@ -523,6 +573,44 @@ std::string Scene::widenedSunsWarning() const {
 }
 
 bool Scene::intersectSurfaces(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax) const {
+  bool found = intersectMeshes(ray, invD, hit, tmax);
+  if (!instanced_.empty()) found |= intersectInstancedGrains(ray, invD, hit, tmax);
+  return found;
+}
+
+bool Scene::intersectInstancedGrains(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax) const {
+  float t0, t1;
+  if (!instancedBounds_.intersect(ray.o, invD, ray.tmin, tmax, t0, t1)) return false;
+  bool found = false;
+  for (size_t i = 0; i < instanced_.size(); ++i) {
+    const BuiltInstanced& b = builtInstanced_[i];
+    if (!b.bounds.intersect(ray.o, invD, ray.tmin, tmax, t0, t1)) continue;
+    InstancedGrainHit g;
+    if (!b.grains->intersect(ray.o, ray.d, ray.tmin, tmax, g) || !(g.t < tmax)) continue;
+    found = true;
+    tmax = g.t;
+    const InstancedGrain grain = b.grains->grain(g.grain);
+    hit.kind = Hit::Grain;
+    hit.t = g.t;
+    hit.ng = g.ng;
+    hit.aggregate = -1;
+    hit.instancer = int(i);
+    hit.instance = g.grain;
+    hit.material = b.materials[size_t(g.prototype)];
+    hit.lengthScale = b.lengthScale[size_t(g.prototype)];
+    hit.primId = b.id;
+    hit.eps = kGrainEps * grain.radius * b.worldScale;
+    hit.grain = GrainHit();
+    hit.grain.t = g.t;
+    hit.grain.ng = g.ng;
+    hit.grain.prototype = g.prototype;
+    hit.grain.radius = grain.radius * b.worldScale;
+    hit.grain.prim = g.prim;
+  }
+  return found;
+}
+
+bool Scene::intersectMeshes(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax) const {
   float t0, t1;
   if (surfaceBounds_.empty() || !surfaceBounds_.intersect(ray.o, invD, ray.tmin, tmax, t0, t1)) return false;
   if (!traceable(ray.o, ray.d, ray.tmin, tmax)) return false;
@@ -543,6 +631,7 @@ bool Scene::intersectSurfaces(const Ray& ray, const Vec3& invD, Hit& hit, float&
   hit.bv = rh.hit.v;
   hit.lengthScale = 1.0f;
   hit.eps = 0;
+  hit.instancer = -1;
   return true;
 }
 
@@ -601,6 +690,17 @@ void Scene::buildIdentities(const SceneDesc& desc, const std::vector<LightDesc>&
     }
     aggregateIdentity_.push_back(id);
   }
+  for (const auto& g : desc.instancedGrains) {
+    HitIdentity id;
+    id.aggregateId = g.id;
+    id.cryptomatte[0] = cryptomatteId(g.name);
+    names[0].insert(g.name);
+    for (const GrainPrototypeDesc& p : g.prototypes) {
+      const int material = p.material >= 0 ? p.material : defaultGrain;
+      names[1].insert(materialNames[size_t(material)]);
+    }
+    instancedIdentity_.push_back(id);
+  }
   for (const auto& l : lights) {
     HitIdentity id;
     id.cryptomatte[0] = id.cryptomatte[1] = cryptomatteId(l.name);
@@ -617,6 +717,14 @@ Scene::HitIdentity Scene::identify(const Hit& hit) const {
   switch (hit.kind) {
     case Hit::Surface: return meshIdentity_[size_t(hit.geom)];
     case Hit::Grain:
+      if (hit.instancer >= 0) {
+        HitIdentity id = instancedIdentity_[size_t(hit.instancer)];
+        id.instanceId = hit.instance <= std::numeric_limits<int>::max() ? int(hit.instance) : -1;
+        if (hit.material >= 0 && size_t(hit.material) < materialCryptomatte_.size())
+          id.cryptomatte[1] = materialCryptomatte_[size_t(hit.material)];
+        return id;
+      }
+      [[fallthrough]];
     case Hit::Proxy: {
       HitIdentity id = aggregateIdentity_[size_t(hit.aggregate)];
       if (hit.material >= 0 && size_t(hit.material) < materialCryptomatte_.size())
@@ -826,6 +934,14 @@ float Scene::proxyTransmittance(const Vec3& p, const Vec3& dir, float dist, cons
 
 bool Scene::surfacesOccluded(const Vec3& p, const Vec3& dir, float dist) const {
   if (!traceable(p, dir, 0.0f, dist)) return false;
+  if (!instanced_.empty()) {
+    const Vec3 invD(1.0f / dir.x, 1.0f / dir.y, 1.0f / dir.z);
+    float t0, t1;
+    if (instancedBounds_.intersect(p, invD, 0.0f, dist, t0, t1))
+      for (const BuiltInstanced& b : builtInstanced_)
+        if (b.bounds.intersect(p, invD, 0.0f, dist, t0, t1) && b.grains->occluded(p, dir, 0.0f, dist)) return true;
+  }
+  if (surfaceBounds_.empty()) return false;
   RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
   RTCRay r;

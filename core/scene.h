@@ -22,6 +22,7 @@
 #include "cryptomatte.h"
 #include "diffusion.h"
 #include "embree_util.h"
+#include "instanced_grains.h"
 #include "light.h"
 #include "material.h"
 #include "proxy.h"
@@ -49,6 +50,10 @@ struct Hit {
   unsigned prim = 0;
   float bu = 0, bv = 0;
   GrainHit grain;           // Grain, Proxy: which grain of the aggregate
+  // A Grain of an instancer (aggregate -1): its index among Scene::instancedGrains() and
+  // the grain's index in the instancer's arrays (grain.prototype: its prototype).
+  int instancer = -1;
+  int64_t instance = -1;
 };
 
 // The grain a path's next ray starts at (its last hit), inside it or leaving it: a hint
@@ -185,6 +190,14 @@ class Scene {
   const std::vector<Light>& lights() const { return lights_; }
   const std::vector<int>& infiniteLights() const { return infiniteLights_; }
   const std::vector<std::shared_ptr<const Aggregate>>& aggregates() const { return aggregates_; }
+  // Explicit grains from simulations (SceneDesc::instancedGrains), in render space. Every
+  // transport sees them as surfaces, grain by grain (intersect, intersectMedium,
+  // intersectProxies, occluded, transmittance): their equivalent medium is not used yet,
+  // so paths among them stay explicit whatever the technique. A grain's absorption is per
+  // its prototype's bounding radius at scale 1 (the instancer's units times its
+  // transform's scale): grains of one material scaled up absorb more across.
+  const std::vector<std::shared_ptr<const InstancedGrains>>& instancedGrains() const { return instanced_; }
+  int instancedGrainsBuilt() const { return instancedBuilt_; }  // built anew, not lent by the previous scene
   double buildSeconds() const { return buildSeconds_; }
   // Of this build's aggregates: how many were voxelised anew, how many were taken from the
   // previous scene unchanged; and how many media were derived from TT parameters anew.
@@ -223,7 +236,10 @@ class Scene {
   bool intersectAreaLights(const Ray& ray, Hit& hit, float& tmax) const;
   void finishHit(const Ray& ray, Hit& hit) const;  // position and ray-offset scale
   void grainHit(Hit::Kind kind, int aggregate, const GrainHit& g, Hit& hit) const;  // Grain or Proxy
-  bool surfacesOccluded(const Vec3& p, const Vec3& dir, float dist) const;  // meshes only
+  // Meshes and explicit grains from instancers (which every transport sees as surfaces).
+  bool surfacesOccluded(const Vec3& p, const Vec3& dir, float dist) const;
+  bool intersectMeshes(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax) const;
+  bool intersectInstancedGrains(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax) const;
   void updateDiffusionDepths();  // from the media, the emitters inside and the camera
 
   Camera camera_;
@@ -261,10 +277,27 @@ class Scene {
   // Builds the entries' aggregates that were not lent, several at once under a memory cap.
   void buildConcurrently(const SceneDesc& desc, std::vector<BuiltAggregate>& entries, bool standIns,
                          const BuildLog& log);
-  void addMedium(const AggregateDesc& a, BuiltAggregate& entry);  // derived by TT unless lent
+  void addMedium(const AggregateDesc& a, BuiltAggregate& entry);
+  // Explicit grains: lent by the previous scene when their description and materials are
+  // unchanged, else built (their grid in parallel); extends `all` by their bounds.
+  void buildInstancedGrains(const SceneDesc& desc, int defaultGrain, const Scene* previous, Bounds3& all);  // derived by TT unless lent
   std::vector<LightDesc> buildLights(const SceneDesc& desc);      // returns them as built
   void findEmittersInside(const SceneDesc& desc, const std::vector<LightDesc>& lights);  // emitterInside_
   std::vector<BuiltAggregate> built_;
+  struct BuiltInstanced {
+    std::shared_ptr<const InstancedGrains> grains;
+    std::vector<int> materials;               // scene material of each prototype
+    std::vector<MaterialDesc> materialDescs;  // compared when lending
+    std::vector<float> lengthScale;           // per prototype: its world radius at scale 1
+    float worldScale = 1;                     // world length of one unit of the instancer's space
+    Bounds3 bounds;                           // world (render space)
+    int id = -1;
+  };
+  std::vector<BuiltInstanced> builtInstanced_;
+  std::vector<std::shared_ptr<const InstancedGrains>> instanced_;
+  std::vector<HitIdentity> instancedIdentity_;
+  Bounds3 instancedBounds_;
+  int instancedBuilt_ = 0;
   int aggregatesBuilt_ = 0, standInsBuilt_ = 0, aggregatesReused_ = 0, mediaDerived_ = 0;
   std::vector<MediumParams> mediumParams_;
   std::vector<std::shared_ptr<const ProxyTables>> proxyTables_;  // per aggregate

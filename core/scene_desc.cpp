@@ -3,13 +3,17 @@
 // what it is given. Attribute names follow the USD schema (camelCase).
 #include "scene_desc.h"
 
+#include <cstring>
+
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <type_traits>
 #include <utility>
 
 #include "error.h"
+#include "instanced_grains.h"
 #include "light.h"
 
 namespace granular {
@@ -243,6 +247,17 @@ void validateSceneDesc(const SceneDesc& desc) {
       checkMaterialIndex(p.material, desc.materials.size(), pobj);
     }
   }
+
+  for (const InstancedGrainsDesc& g : desc.instancedGrains) {
+    checkTransform(g.xf, g.name, "transform");
+    validateInstancedGrains(g);
+    for (size_t k = 0; k < g.prototypes.size(); ++k) {
+      const GrainPrototypeDesc& p = g.prototypes[k];
+      const std::string pobj = p.name.empty() ? str(g.name, ".prototypes[", k, "]") : p.name;
+      validateClosed(p.mesh, pobj);
+      checkMaterialIndex(p.material, desc.materials.size(), pobj);
+    }
+  }
 }
 
 void validateMaterialDesc(const MaterialDesc& m, const std::string& obj) {
@@ -334,13 +349,16 @@ int textureChannelFromName(const std::string& name, const std::string& obj, cons
 
 namespace {
 
-// World bounds, in double, of a mesh placed by xf.
-void extendWorldBounds(const TriangleMesh& m, const Transform& xf, Vec3d& lo, Vec3d& hi) {
-  for (const Vec3& p : m.points) {
+// World bounds, in double, of points placed by xf.
+void extendWorldBounds(const std::vector<Vec3>& points, const Transform& xf, Vec3d& lo, Vec3d& hi) {
+  for (const Vec3& p : points) {
     const Vec3d w = xf.pointD(p);
     lo = {std::min(lo.x, w.x), std::min(lo.y, w.y), std::min(lo.z, w.z)};
     hi = {std::max(hi.x, w.x), std::max(hi.y, w.y), std::max(hi.z, w.z)};
   }
+}
+void extendWorldBounds(const TriangleMesh& m, const Transform& xf, Vec3d& lo, Vec3d& hi) {
+  extendWorldBounds(m.points, xf, lo, hi);
 }
 
 Transform toRenderSpace(const Transform& xf, const Vec3d& origin) {
@@ -363,6 +381,7 @@ Vec3d renderOrigin(const SceneDesc& desc) {
   constexpr double inf = std::numeric_limits<double>::infinity();
   Vec3d lo{inf, inf, inf}, hi{-inf, -inf, -inf};
   for (const AggregateDesc& a : desc.aggregates) extendWorldBounds(a.boundary, a.xf, lo, hi);
+  for (const InstancedGrainsDesc& g : desc.instancedGrains) extendWorldBounds(g.positions, g.xf, lo, hi);
   if (!(lo.x <= hi.x))
     for (const MeshDesc& m : desc.meshes)
       if (m.visible) extendWorldBounds(m.mesh, m.xf, lo, hi);
@@ -391,6 +410,7 @@ SceneDesc toRenderSpace(const SceneDesc& desc, const Vec3d& origin) {
   for (MeshDesc& m : r.meshes) m.xf = toRenderSpace(m.xf, origin);
   for (LightDesc& l : r.lights) l.xf = toRenderSpace(l.xf, origin);
   for (AggregateDesc& a : r.aggregates) a.xf = toRenderSpace(a.xf, origin);
+  for (InstancedGrainsDesc& g : r.instancedGrains) g.xf = toRenderSpace(g.xf, origin);
   return r;
 }
 
@@ -503,7 +523,8 @@ static_assert(fieldCount<MeshDesc>() == 7, "compare the new field in sameMeshDes
 static_assert(fieldCount<GrainPrototypeDesc>() == 3, "compare the new field in sameAggregateInputs");
 static_assert(fieldCount<AggregateDesc>() == 13, "compare the new field in sameAggregateInputs (or the id check)");
 static_assert(fieldCount<RenderSettings>() == 24, "compare the new field in sameViewSettings or settingsNeedBuild");
-static_assert(fieldCount<SceneDesc>() == 6, "compare the new part in compareScenes");
+static_assert(fieldCount<SceneDesc>() == 7, "compare the new part in compareScenes");
+static_assert(fieldCount<InstancedGrainsDesc>() == 10, "compare the new field in sameInstancedGrains (or the id check)");
 
 bool sameCamera(const CameraDesc& a, const CameraDesc& b) {
   return sameTransform(a.cameraToWorld, b.cameraToWorld) && a.focalLength == b.focalLength &&
@@ -606,9 +627,27 @@ bool validMaterialIndices(const SceneDesc& d) {
 
 }  // namespace
 
+bool sameInstancedGrains(const InstancedGrainsDesc& a, const InstancedGrainsDesc& b) {
+  auto sameQuats = [](const std::vector<Quat>& x, const std::vector<Quat>& y) {
+    return x.size() == y.size() && (x.empty() || std::memcmp(x.data(), y.data(), x.size() * sizeof(Quat)) == 0);
+  };
+  auto sameVecs = [](const std::vector<Vec3>& x, const std::vector<Vec3>& y) {
+    return x.size() == y.size() && (x.empty() || std::memcmp(x.data(), y.data(), x.size() * sizeof(Vec3)) == 0);
+  };
+  if (a.name != b.name || !sameTransform(a.xf, b.xf) || a.prototypes.size() != b.prototypes.size() ||
+      a.protoIndices != b.protoIndices || a.scales != b.scales || !sameVecs(a.positions, b.positions) ||
+      !sameQuats(a.orientations, b.orientations) || !sameVecs(a.velocities, b.velocities) ||
+      !sameVecs(a.angularVelocities, b.angularVelocities))
+    return false;
+  for (size_t k = 0; k < a.prototypes.size(); ++k)
+    if (a.prototypes[k].material != b.prototypes[k].material || !sameMesh(a.prototypes[k].mesh, b.prototypes[k].mesh))
+      return false;
+  return true;
+}
+
 SceneChange SceneChanges::level() const {
   if (meshes || materials || media || renderSpace) return SceneChange::Everything;
-  if (!aggregates.empty() || aggregateList) return SceneChange::Aggregates;
+  if (!aggregates.empty() || aggregateList || instancedGrains) return SceneChange::Aggregates;
   if (lights) return SceneChange::Lights;
   if (camera || settings) return SceneChange::View;
   return SceneChange::Unchanged;
@@ -628,6 +667,10 @@ SceneChanges compareScenes(const SceneDesc& before, const SceneDesc& after) {
              before.settings.defaultLight != after.settings.defaultLight ||
              before.settings.physicalSun != after.settings.physicalSun;
   c.meshes = !sameList(before.meshes, after.meshes, sameMeshDesc);
+  c.instancedGrains = before.instancedGrains.size() != after.instancedGrains.size();
+  for (size_t i = 0; i < after.instancedGrains.size() && !c.instancedGrains; ++i)
+    c.instancedGrains = !sameInstancedGrains(before.instancedGrains[i], after.instancedGrains[i]) ||
+                        before.instancedGrains[i].id != after.instancedGrains[i].id;
   const Vec3d originBefore = renderOrigin(before), originAfter = renderOrigin(after);
   c.renderSpace = !(originBefore == originAfter);
 
@@ -697,6 +740,7 @@ std::string describeChanges(const SceneChanges& c) {
   if (c.lights) parts.push_back("lights");
   if (!c.aggregates.empty())
     parts.push_back(str(c.aggregates.size(), c.aggregates.size() == 1 ? " aggregate" : " aggregates"));
+  if (c.instancedGrains) parts.push_back("explicit grains");
   else if (c.aggregateList && c.level() == SceneChange::Aggregates)
     parts.push_back("the list of aggregates");
   return join(parts) + " changed";

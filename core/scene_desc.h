@@ -156,6 +156,34 @@ struct AggregateDesc {
   int instanceId = -1;         // as MeshDesc::instanceId
 };
 
+// A unit quaternion (w, x, y, z): the rotation of a grain.
+struct Quat {
+  float w = 1, x = 0, y = 0, z = 0;
+};
+
+inline Vec3 rotate(const Quat& q, const Vec3& v) {
+  const Vec3 u(q.x, q.y, q.z);
+  const Vec3 t = cross(u, v) * 2.0f;
+  return v + t * q.w + cross(u, t);
+}
+
+// A PointInstancer's grains as a simulation placed them (instanced_grains.h: the contract).
+struct InstancedGrainsDesc {
+  std::string name;                          // the instancer's prim path
+  Transform xf;                              // object-to-world
+  std::vector<GrainPrototypeDesc> prototypes;
+  std::vector<Vec3> positions;               // object space (USD point3f)
+  std::vector<Quat> orientations;            // unit; empty: identity
+  std::vector<float> scales;                 // uniform, > 0; empty: 1
+  std::vector<int32_t> protoIndices;         // one per grain: the number of grains
+  // Kept for motion blur (not used yet); empty or one per grain. Object units per second
+  // and degrees per second about the grain's centre, as USD authors them.
+  std::vector<Vec3> velocities;
+  std::vector<Vec3> angularVelocities;
+  int id = -1;                               // the front end's id (primId AOV)
+  size_t size() const { return protoIndices.size(); }
+};
+
 // Which transports the integrator may use (Meng et al. 2015's switching between EPT, VPT and
 // DA). Ept is the reference.
 enum class Technique { Ept, EptVpt, Hybrid };
@@ -254,6 +282,8 @@ struct SceneDesc {
   std::vector<MeshDesc> meshes;
   std::vector<LightDesc> lights;
   std::vector<AggregateDesc> aggregates;
+  // Explicit grains from simulations (instanced_grains.h), rendered grain by grain.
+  std::vector<InstancedGrainsDesc> instancedGrains;
   RenderSettings settings;
 };
 
@@ -313,6 +343,7 @@ struct SceneChanges {
   bool materials = false;      // a material that is not a grain's alone (a surface's, an unused one), or their count
   bool media = false;          // the technique to or from ept: every aggregate's medium derived or dropped
   bool renderSpace = false;    // renderOrigin() moved: surfaces and lights in render space (aggregates compare there)
+  bool instancedGrains = false;  // an instancer's grains, prototypes or id, or their count (Scene::build lends the rest)
   SceneChange level() const;
 };
 
@@ -321,6 +352,8 @@ struct SceneChanges {
 bool sameTransform(const Transform& a, const Transform& b);
 bool sameMesh(const TriangleMesh& a, const TriangleMesh& b);
 bool sameMaterial(const MaterialDesc& a, const MaterialDesc& b);
+// Every field but the id (prototype materials by index; Scene::build compares their values).
+bool sameInstancedGrains(const InstancedGrainsDesc& a, const InstancedGrainsDesc& b);
 
 // Compares every field of two descriptions (floats by value: a NaN always differs).
 SceneChanges compareScenes(const SceneDesc& before, const SceneDesc& after);

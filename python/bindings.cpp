@@ -503,7 +503,12 @@ PYBIND11_MODULE(granular_core, m) {
       .def("add_material", [](SceneDesc& d, const MaterialDesc& x) { d.materials.push_back(x); return int(d.materials.size()) - 1; })
       .def("add_mesh", [](SceneDesc& d, const MeshDesc& x) { d.meshes.push_back(x); return int(d.meshes.size()) - 1; })
       .def("add_light", [](SceneDesc& d, const LightDesc& x) { d.lights.push_back(x); return int(d.lights.size()) - 1; })
-      .def("add_aggregate", [](SceneDesc& d, const AggregateDesc& x) { d.aggregates.push_back(x); return int(d.aggregates.size()) - 1; });
+      .def("add_aggregate", [](SceneDesc& d, const AggregateDesc& x) { d.aggregates.push_back(x); return int(d.aggregates.size()) - 1; })
+      .def_property_readonly("num_instanced_grains", [](const SceneDesc& d) { return d.instancedGrains.size(); })
+      .def("add_instanced_grains", [](SceneDesc& d, const InstancedGrainsDesc& x) {
+        d.instancedGrains.push_back(x);
+        return int(d.instancedGrains.size()) - 1;
+      });
 
   m.def("validate_scene_desc", &validateSceneDesc, py::arg("desc"));
 
@@ -917,7 +922,18 @@ PYBIND11_MODULE(granular_core, m) {
         for (size_t i = 0; i < aggs.size(); ++i)
           out.append(aggregateInfo(*aggs[i], s.desc.aggregates[i].tileSpheres, s.scene->renderOrigin()));
         return out;
-      });
+      })
+      .def_property_readonly("instanced_grains", [](const PyScene& s) {
+        py::list out;
+        for (const auto& g : s.scene->instancedGrains()) {
+          py::dict d;
+          d["name"] = g->desc().name;
+          d["grains"] = g->stats().grains;
+          d["grid_bytes"] = g->stats().gridBytes;
+          out.append(d);
+        }
+        return out;
+      }, "per instancer of explicit grains: name, grains, grid_bytes");
 
   py::class_<Image>(m, "Image")
       .def(py::init([](const FloatArray& pixels, const std::vector<std::string>& channels, int x, int y, int fullWidth,

@@ -427,9 +427,12 @@ def _log_transports(args, built, renderer, image):
                    f"DA {means[3]:.4g}{lod}")
     if args.technique != "ept":
         _log(args, "  " + _low_orders(built))
-    if not built.has_media and args.technique != "ept":
+    if not built.has_media and args.technique != "ept" and built.aggregates:
         _log(args, f"  technique {args.technique}: every aggregate is thinner than its mean free path, "
                    f"so explicit grains (EPT) render it all")
+    if built.instanced_grains and args.technique != "ept":
+        _log(args, f"  explicit grains of {len(built.instanced_grains)} instancer(s): traced grain by grain "
+                   f"(their medium is not used yet)")
 
 
 def cmd_render(args):
@@ -634,7 +637,7 @@ def cmd_merge(args):
 
 def _explicit_grains_report(scene):
     """Per PointInstancer of simulated grains: what was read and what its grid costs
-    (core/instanced_grains.h). Not rendered yet."""
+    (core/instanced_grains.h)."""
     import granular_core as core
     from .usd_reader import read_instanced_grains, translate_core_error
     report = []
@@ -651,14 +654,14 @@ def _explicit_grains_report(scene):
                        "cell_size": st["cell_size"], "entries": st["entries"], "blocks": st["occupied_blocks"],
                        "grid_bytes": st["grid_bytes"], "bytes_per_grain": st["bytes_per_grain"],
                        "input_bytes": st["input_bytes"], "build_seconds": st["build_seconds"],
-                       "overlap_seconds": st["overlap_seconds"], "rendered": False})
+                       "overlap_seconds": st["overlap_seconds"], "rendered": True})
     return report
 
 
 def _explicit_lines(r):
     c = r["cells"]
     return [
-        f"{r['prim']}  (explicit grains of a PointInstancer: not rendered yet)",
+        f"{r['prim']}  (explicit grains of a PointInstancer, traced grain by grain)",
         f"  prototypes    {', '.join(r['prototypes'])}",
         f"  grains        {r['grains']}  ({'with' if r['motion'] else 'no'} velocities)",
         f"  grid          {c[0]} x {c[1]} x {c[2]} cells of edge {r['cell_size']:.4g}, {r['entries']} entries "

@@ -20,8 +20,8 @@ range, the earliest time sample). Every time-varying value is read at that time.
 - one UsdGeomCamera (--camera, else the render settings' camera, else the first one);
 - UsdLux lights; the bound material's surface network; displayColor without a material;
 - a PointInstancer of simulated grains (GranularInstancedAggregateAPI, or every prototype
-  a grain) is listed in scene.explicit_grains and read on demand (read_instanced_grains,
-  core's instancedGrainsFromUsd); it is not rendered yet (one warning says so);
+  a grain) is listed in scene.explicit_grains and, when surfaces are read, added to the
+  description as explicit grains (read_instanced_grains, core's instancedGrainsFromUsd);
 - the render settings prim's resolution and camera, and its first product's data window;
   without -o, its render products and vars (read_render_products, core's render_products.h).
 Every problem a user can cause raises UserError naming the prim and the attribute;
@@ -506,7 +506,7 @@ def _explicit_grains(prim):
     return bool(roots) and all(r and r.HasAPI(schema.GRAIN_API) for r in roots)
 
 
-def read_instanced_grains(scene, prim, xf_cache=None, material_cache=None):
+def read_instanced_grains(scene, prim, xf_cache=None, material_cache=None, id=-1):
     """A PointInstancer's explicit grains at scene.time as core.InstancedGrainsDesc
     (core/instanced_grains.h): its arrays handed over as authored, each prototype root's own
     transform, the prototypes read when core asks. core checks everything and names
@@ -540,7 +540,7 @@ def read_instanced_grains(scene, prim, xf_cache=None, material_cache=None):
             str(prim.GetPath()), prim.GetTypeName(), world_matrix(xf_cache, prim), targets, proto_xforms,
             flat(pi.GetPositionsAttr(), 3, "point3f[]"), orientations, flat(pi.GetScalesAttr(), 3, "float3[]"),
             np.zeros(0, np.int64) if indices is None else indices, flat(pi.GetVelocitiesAttr(), 3, "vector3f[]"),
-            flat(pi.GetAngularVelocitiesAttr(), 3, "vector3f[]"), scene.desc, lookup)
+            flat(pi.GetAngularVelocitiesAttr(), 3, "vector3f[]"), scene.desc, lookup, id)
     except core.InputError as e:
         raise translate_core_error(e) from None
 
@@ -651,7 +651,7 @@ def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_c
             cameras.append(prim)
             continue
         if prim.IsA(UsdGeom.PointInstancer) and _explicit_grains(prim):
-            scene.explicit_grains.append(prim)  # read on demand (granular info); not rendered yet
+            scene.explicit_grains.append(prim)  # read after the meshes (their ids come first)
             it.PruneChildren()
             continue
         if not surfaces:
@@ -669,15 +669,15 @@ def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_c
             unsupported.setdefault(prim.GetTypeName(), str(prim.GetPath()))
     for type_name, example in unsupported.items():
         scene.warn(f"{example}: {type_name} prims are not supported; skipped")
-    if scene.explicit_grains and surfaces:
-        paths = ", ".join(str(p.GetPath()) for p in scene.explicit_grains)
-        scene.warn(f"{paths}: explicit grains from a PointInstancer ({schema.INSTANCED_AGGREGATE_API}) are not "
-                   f"rendered yet; skipped, the rest of the stage is rendered")
     # The primId and aggregateId AOVs' ids: each listed prim's place in traversal order
     # (Hydra's are its render index's).
     for i, mp in enumerate(prims):
         mp.id = i
     _assemble(scene, prims, xf_cache, material_cache)
+    if surfaces:
+        for k, prim in enumerate(scene.explicit_grains):
+            scene.desc.add_instanced_grains(
+                read_instanced_grains(scene, prim, xf_cache, material_cache, id=len(prims) + k))
     core.order_usd_lights(scene.desc)
 
     # Resolution and camera: command line, else the render settings prim, else defaults.

@@ -3,13 +3,18 @@
 // errors (core and the USD meaning in granular_prims.h).
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <array>
 #include <cmath>
+#include <cstdio>
 #include <random>
 #include <string>
 
 #include "core/error.h"
 #include "core/granular_prims.h"
 #include "core/instanced_grains.h"
+#include "core/render.h"
+#include "core/scene.h"
 #include "core/shapes.h"
 
 using namespace granular;
@@ -391,4 +396,207 @@ TEST(InstancedGrains, FromUsdErrorsNamePrimAndAttribute) {
   EXPECT_EQ(read(instancer(), xform),
             "/World/Sand.prototypes: target /World/Sand/Protos/Round is a Xform, not a Mesh (a grain prototype is one "
             "closed mesh)");
+}
+
+// ---- in the scene: explicit grains traced as the same grains given as meshes -------------
+
+namespace {
+
+// A dozen grains of two prototypes (lattice spacing 2.3 at scale 1, scales in [0.6, 1],
+// random rotations) under an instancer transform that scales them by 0.4, on a grey floor
+// under a sun and a sky; EPT, 24x24. asMeshes: each grain as a closed Dielectric mesh placed
+// as the instancer places it, with its absorption per world unit (fitRadius: each
+// prototype's bounding radius at scale 1 in the instancer's space).
+SceneDesc instancedScene(bool asMeshes, uint64_t seed, const std::vector<float>& fitRadius = {}) {
+  SceneDesc s;
+  s.settings.width = s.settings.height = 24;
+  s.settings.spp = 96;
+  s.settings.seed = seed;
+  s.settings.technique = Technique::Ept;
+  s.settings.bundleSize = 1;
+  s.camera.cameraToWorld = Transform::lookAt(Vec3(2.4f, 3.0f, 4.9f), Vec3(0.9f, 0.6f, 0.9f), Vec3(0, 1, 0));
+  s.camera.focalLength = 50;
+  s.camera.horizontalAperture = s.camera.verticalAperture = 40;
+  MaterialDesc amber, clear;
+  amber.name = "amber";
+  amber.type = clear.type = MaterialType::Dielectric;
+  amber.ior = 1.55f;
+  amber.absorption = Vec3(0.3f, 0.8f, 2.0f);  // per bounding radius at scale 1
+  clear.name = "clear";
+  clear.ior = 1.31f;
+  clear.absorption = Vec3(0.1f);
+  s.materials = {amber, clear};
+  LightDesc sun;
+  sun.name = "sun";
+  sun.type = LightType::Distant;
+  sun.angle = 5;
+  sun.intensity = 3;
+  sun.xf = Transform::lookAt(Vec3(0.0f), Vec3(-0.4f, -1.0f, -0.5f), Vec3(0, 0, 1));
+  LightDesc sky;
+  sky.name = "sky";
+  sky.type = LightType::Dome;
+  sky.color = Vec3(0.5f, 0.6f, 0.8f);
+  s.lights = {sun, sky};
+  MeshDesc floor;
+  floor.name = "floor";
+  floor.mesh = makeBox(Vec3(-4.0f, -1.0f, -4.0f), Vec3(4.0f, -0.6f, 4.0f));
+  s.meshes.push_back(floor);
+
+  InstancedGrainsDesc g = latticeGrains(3, 0.5f, 11);
+  g.name = "/World/Sim";
+  g.id = 7;
+  g.xf = Transform::translate(Vec3(0.0f, -0.1f, 0.0f)) * Transform::scale(Vec3(0.4f));
+  g.prototypes[0].material = 0;
+  g.prototypes[1].material = 1;
+  if (!asMeshes) {
+    s.instancedGrains.push_back(g);
+    return s;
+  }
+  for (int k = 0; k < 2; ++k) {
+    MaterialDesc m = s.materials[size_t(k)];
+    m.name += "_per_world_unit";
+    m.absorption = m.absorption * (1.0f / (fitRadius[size_t(k)] * 0.4f));
+    s.materials.push_back(m);
+  }
+  for (size_t i = 0; i < g.size(); ++i) {
+    MeshDesc m;
+    m.name = "grain" + std::to_string(i);
+    const int p = g.protoIndices[i];
+    m.mesh = g.prototypes[size_t(p)].mesh;
+    for (Vec3& v : m.mesh.points) v = g.xf.point(g.positions[i] + rotate(g.orientations[i], v) * g.scales[i]);
+    m.material = 2 + p;
+    s.meshes.push_back(m);
+  }
+  return s;
+}
+
+// Per channel: the image's mean and its standard error (pixels independent; each pixel's
+// variance of the mean from the film's variance AOV).
+struct ChannelEstimate {
+  double mean[3] = {0, 0, 0}, se[3] = {0, 0, 0};
+};
+
+ChannelEstimate renderEstimate(const SceneDesc& d, int x0 = 0, int x1 = -1, int y0 = 0, int y1 = -1) {
+  auto scene = Scene::build(d);
+  Renderer r(*scene);
+  EXPECT_TRUE(r.render(d.settings.spp));
+  const Image img = r.film().toImage();
+  const auto& names = img.channels;
+  auto channel = [&](const std::string& n) { return int(std::find(names.begin(), names.end(), n) - names.begin()); };
+  const int var[3] = {channel("variance.R"), channel("variance.G"), channel("variance.B")};
+  if (x1 < 0) x1 = d.settings.width;
+  if (y1 < 0) y1 = d.settings.height;
+  ChannelEstimate e;
+  const double n = double(x1 - x0) * (y1 - y0);
+  for (int y = y0; y < y1; ++y)
+    for (int x = x0; x < x1; ++x) {
+      const float* px = &img.pixels[(size_t(y) * img.width + x) * img.channels.size()];
+      for (int c = 0; c < 3; ++c) {
+        e.mean[c] += px[c] / n;
+        e.se[c] += px[var[c]] / (n * n);
+      }
+    }
+  for (int c = 0; c < 3; ++c) e.se[c] = std::sqrt(e.se[c]);
+  return e;
+}
+
+}  // namespace
+
+TEST(InstancedGrainsInScene, RenderAsTheSameGrainsGivenAsMeshes) {
+  // Two independent seeds: the difference's noise is what the standard errors say.
+  auto probe = Scene::build(instancedScene(false, 1));
+  ASSERT_EQ(probe->instancedGrains().size(), 1u);
+  std::vector<float> fit;
+  for (const GrainPrototype& p : probe->instancedGrains()[0]->prototypes()) fit.push_back(p.fitRadius);
+  for (auto [x0, x1, y0, y1] : {std::array<int, 4>{0, 24, 0, 24}, {4, 12, 4, 12}, {12, 20, 8, 16}, {8, 16, 12, 20}}) {
+    ChannelEstimate inst = renderEstimate(instancedScene(false, 2), x0, x1, y0, y1);
+    ChannelEstimate mesh = renderEstimate(instancedScene(true, 3, fit), x0, x1, y0, y1);
+    for (int c = 0; c < 3; ++c) {
+      const double noise = std::hypot(inst.se[c], mesh.se[c]);
+      std::printf("window [%d,%d)x[%d,%d) channel %d: instanced %.4f, meshes %.4f (noise %.4f)\n", x0, x1, y0, y1, c,
+                  inst.mean[c], mesh.mean[c], noise);
+      EXPECT_GT(inst.mean[c], 0.0);
+      EXPECT_LE(std::fabs(inst.mean[c] - mesh.mean[c]), 4 * noise) << "window " << x0 << "," << y0 << " channel " << c;
+    }
+  }
+}
+
+TEST(InstancedGrainsInScene, HitsNameTheGrainAndTheInstancer) {
+  SceneDesc d = instancedScene(false, 1);
+  auto scene = Scene::build(d);
+  const InstancedGrains& grains = *scene->instancedGrains()[0];
+  // A ray at each grain's centre from above finds that grain or one nearer; whatever it
+  // finds is a grain of the instancer with its prototype's material and the instance index.
+  int checked = 0;
+  for (int64_t i = 0; i < int64_t(grains.desc().size()); ++i) {
+    const Vec3 c = d.instancedGrains[0].xf.point(grains.grain(i).center);
+    Ray ray;
+    ray.o = c + Vec3(0.0f, 5.0f, 0.0f);
+    ray.d = Vec3(0.0f, -1.0f, 0.0f);
+    Hit hit;
+    ASSERT_TRUE(scene->intersect(ray, hit));
+    if (hit.kind != Hit::Grain) continue;  // the floor, around a thin box
+    EXPECT_EQ(hit.aggregate, -1);
+    EXPECT_EQ(hit.instancer, 0);
+    ASSERT_GE(hit.instance, 0);
+    const int proto = grains.desc().protoIndices[size_t(hit.instance)];
+    EXPECT_EQ(hit.grain.prototype, proto);
+    EXPECT_EQ(hit.material, proto);  // the description's material indices 0 and 1
+    EXPECT_FLOAT_EQ(hit.lengthScale, grains.prototypes()[size_t(proto)].fitRadius * 0.4f);
+    const Scene::HitIdentity who = scene->identify(hit);
+    EXPECT_EQ(who.instanceId, int(hit.instance));
+    EXPECT_EQ(who.aggregateId, 7);
+    EXPECT_EQ(who.cryptomatte[0], cryptomatteId("/World/Sim"));
+    EXPECT_EQ(who.cryptomatte[1], cryptomatteId(proto == 0 ? "amber" : "clear"));
+    // Shadow rays see it in every mode.
+    EXPECT_TRUE(scene->occluded(ray.o, ray.d, 10.0f));
+    EXPECT_EQ(maxComponent(scene->transmittance(ray.o, ray.d, 10.0f)), 0.0f);
+    Hit medium;
+    ASSERT_TRUE(scene->intersectMedium(ray, medium));
+    EXPECT_EQ(medium.kind, Hit::Grain);
+    EXPECT_FLOAT_EQ(medium.t, hit.t);
+    ++checked;
+  }
+  EXPECT_GT(checked, 5);
+  const auto& names = scene->cryptomatteNames(CryptomatteType::Object);
+  EXPECT_TRUE(std::find(names.begin(), names.end(), "/World/Sim") != names.end());
+}
+
+TEST(InstancedGrainsInScene, AnUnchangedInstancerIsLentAndAMovedGrainRebuildsIt) {
+  SceneDesc d = instancedScene(false, 1);
+  auto first = Scene::build(d);
+  EXPECT_EQ(first->instancedGrainsBuilt(), 1);
+  d.camera.cameraToWorld = Transform::lookAt(Vec3(2.0f, 3.0f, 5.0f), Vec3(0.9f, 0.6f, 0.9f), Vec3(0, 1, 0));
+  d.lights[0].intensity = 2;
+  auto second = Scene::build(d, first.get());
+  EXPECT_EQ(second->instancedGrainsBuilt(), 0);
+  EXPECT_EQ(second->instancedGrains()[0].get(), first->instancedGrains()[0].get());
+  SceneDesc moved = d;
+  moved.instancedGrains[0].positions[3].x += 0.01f;
+  const SceneChanges c = compareScenes(d, moved);
+  EXPECT_TRUE(c.instancedGrains);
+  EXPECT_EQ(c.level(), SceneChange::Aggregates);
+  auto third = Scene::build(moved, second.get());
+  EXPECT_EQ(third->instancedGrainsBuilt(), 1);
+  EXPECT_NE(third->instancedGrains()[0].get(), second->instancedGrains()[0].get());
+  // A grain material's change rebuilds it too (its materials are compared by value).
+  SceneDesc amberer = d;
+  amberer.materials[0].absorption = Vec3(1.0f);
+  auto fourth = Scene::build(amberer, second.get());
+  EXPECT_EQ(fourth->instancedGrainsBuilt(), 1);
+}
+
+TEST(InstancedGrainsInScene, BadDataIsNamedBySceneValidation) {
+  SceneDesc d = instancedScene(false, 1);
+  d.instancedGrains[0].positions[2] = Vec3(kInf, 0.0f, 0.0f);
+  try {
+    Scene::build(d);
+    FAIL() << "no error";
+  } catch (const InputError& e) {
+    EXPECT_EQ(e.object(), "/World/Sim");
+    EXPECT_EQ(e.attribute(), "positions");
+  }
+  d = instancedScene(false, 1);
+  d.instancedGrains[0].prototypes[1].material = 9;
+  EXPECT_THROW(Scene::build(d), InputError);
 }

@@ -1,7 +1,7 @@
 """Explicit grains from a PointInstancer (GranularInstancedAggregateAPI): the generated heap
 read through usd-core into core's description, `granular info` reporting it, `granular
-render` warning once and rendering the rest, and bad instancer data named prim.attribute
-with exit status 2."""
+render` rendering its grains, and bad instancer data named prim.attribute with exit
+status 2."""
 import json
 import sys
 
@@ -94,24 +94,31 @@ def test_info_reports_explicit_grains(heap, capsys):
     r = json.loads(out)
     assert r["aggregates"] == []
     (e,) = r["explicit_grains"]
-    assert e["prim"] == HEAP and e["grains"] == count and e["rendered"] is False
+    assert e["prim"] == HEAP and e["grains"] == count and e["rendered"] is True
     assert 0 < e["bytes_per_grain"] <= 32 and e["grid_bytes"] > 0 and e["build_seconds"] >= 0
     rc, out, err = run_cli(["info", path], capsys)
     assert rc == 0, err
-    assert f"grains        {count}" in out and "not rendered yet" in out
+    assert f"grains        {count}" in out and "traced grain by grain" in out
 
 
-def test_render_warns_once_and_renders_the_rest(heap, tmp_path, capsys):
-    path, _ = heap
-    rc, out, err = run_cli(["render", path, "-o", tmp_path / "h.exr", "--width", 24, "--height", 16, "--spp", 1],
-                           capsys)
-    assert rc == 0, err
-    warnings = [line for line in err.splitlines() if "explicit grains" in line and line.startswith("warning:")]
-    assert warnings == [f"warning: {HEAP}: explicit grains from a PointInstancer (GranularInstancedAggregateAPI) "
-                        f"are not rendered yet; skipped, the rest of the stage is rendered"]
+def test_render_draws_the_grains(heap, tmp_path, capsys):
+    """The heap's grains are in the description (not its prototypes as meshes) and in the
+    image: the primId AOV shows the instancer where the heap stands, the ground elsewhere."""
+    path, count = heap
     scene = usd_reader.read_stage(path)
-    # The ground is there; no grain prototype is drawn as ordinary geometry.
     assert [m.name for m in scene.desc.meshes] == ["/World/Ground"]
+    assert scene.desc.num_instanced_grains == 1
+    assert not any("explicit grains" in w for w in scene.warnings)
+    out = tmp_path / "h.exr"
+    rc, _, err = run_cli(["render", path, "-o", out, "--width", 32, "--height", 24, "--spp", 1], capsys)
+    assert rc == 0, err
+    img = core.read_exr(str(out))
+    px, ch = np.asarray(img.pixels), list(img.channels)
+    prim_id = px[..., ch.index("primId")]
+    heap_id = 1  # traversal order: the ground (0), then the instancer
+    assert (prim_id == heap_id).sum() > 20
+    assert (prim_id == 0).sum() > 20
+    assert np.isfinite(px[..., ch.index("R")]).all()
 
 
 # ---- a small instancer to break -----------------------------------------------------------
@@ -158,12 +165,12 @@ def test_bad_instancer_data_is_named(tmp_path, capsys, kwargs, message):
 
 
 def test_grain_prototypes_without_the_api_are_explicit_grains(tmp_path, capsys):
-    """Every prototype a grain (GranularGrainAPI): simulated grains, warned about, not drawn
-    as meshes at every instance."""
+    """Every prototype a grain (GranularGrainAPI): simulated grains, not drawn as meshes at
+    every instance."""
     path = _instancer(tmp_path / "noapi.usda", api=False)
     scene = usd_reader.read_stage(path)
     assert [str(p.GetPath()) for p in scene.explicit_grains] == [SAND]
-    assert any("not rendered yet" in w for w in scene.warnings)
+    assert scene.desc.num_instanced_grains == 1
     assert list(scene.desc.meshes) == []
 
 
