@@ -7,7 +7,8 @@ namespace granular {
 
 Camera::Camera(const CameraDesc& desc, int width, int height)
     : toWorld_(desc.cameraToWorld), width_(width), height_(height), clipNear_(desc.clipNear), clipFar_(desc.clipFar),
-      lensRadius_(desc.lensRadius), focusDistance_(desc.focusDistance) {
+      lensRadius_(desc.lensRadius), focusDistance_(desc.focusDistance), shutterOpen_(desc.shutterOpen),
+      shutterClose_(desc.shutterClose) {
   if (!toWorld_.inverse(toCamera_)) throw InputError("camera", "transform", "is singular");
   position_ = toWorld_.point(Vec3(0.0f));
   float apAspect = desc.horizontalAperture / desc.verticalAperture;
@@ -46,10 +47,16 @@ Ray Camera::sampleRay(int x, int y, Rng& rng) const {
   // them (GCC evaluates arguments right to left), so pinhole images are unchanged.
   float fy = float(y) + rng.next1D();
   float fx = float(x) + rng.next1D();
-  if (!hasLens()) return generateRay(fx, fy);
-  float lu = rng.next1D();
-  float lv = rng.next1D();
-  return generateRay(fx, fy, lu, lv);
+  Ray r;
+  if (!hasLens()) {
+    r = generateRay(fx, fy);
+  } else {
+    float lu = rng.next1D();
+    float lv = rng.next1D();
+    r = generateRay(fx, fy, lu, lv);
+  }
+  if (shutterClose_ > shutterOpen_) r.time = shutterOpen_ + (shutterClose_ - shutterOpen_) * rng.next1D();
+  return r;
 }
 
 float Camera::viewDepth(const Vec3& p) const { return -toCamera_.point(p).z; }

@@ -24,7 +24,8 @@ class Camera {
   Ray generateRay(float px, float py, float lensU = 0.5f, float lensV = 0.5f) const;
   // A sample's camera ray through pixel (x, y): the film position from rng (y's jitter,
   // then x's), then (with a lens only, so that pinhole images keep their random numbers)
-  // the lens position.
+  // the lens position, then (with an open shutter only, likewise) the ray's time, uniform
+  // over the shutter (pdf 1 / (close − open)).
   Ray sampleRay(int x, int y, Rng& rng) const;
   bool hasLens() const { return lensRadius_ > 0; }
   // A camera ray cone (ept.h: footprint = width + spread·t): width at the lens and spread.
@@ -45,6 +46,7 @@ class Camera {
   int width_ = 1, height_ = 1;
   float clipNear_ = 0, clipFar_ = kInf;
   float lensRadius_ = 0, focusDistance_ = 1;
+  float shutterOpen_ = 0, shutterClose_ = 0;
 };
 
 }  // namespace granular

@@ -134,13 +134,13 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
         float dist = std::isfinite(ls.dist) ? ls.dist * (1.0f - 1e-4f) : kInf;
         Vec3 Tr(1.0f);
         if (mediaMode) {
-          Tr = scene.transmittance(origin, ls.wi, dist);
+          Tr = scene.transmittance(origin, ls.wi, dist, ray.time);
           cost += 1;
         } else if (path.mode == kPpt) {
-          Tr = Vec3(scene.proxyTransmittance(origin, ls.wi, dist, nullptr, path.rng.nextU32()));
+          Tr = Vec3(scene.proxyTransmittance(origin, ls.wi, dist, nullptr, path.rng.nextU32(), ray.time));
           cost += 1;
         } else {
-          Tr = Vec3(scene.occluded(origin, ls.wi, dist) ? 0.0f : 1.0f);
+          Tr = Vec3(scene.occluded(origin, ls.wi, dist, ray.time) ? 0.0f : 1.0f);
           cost += scene.aggregates().empty() ? 1 : kGrainCastCost;
         }
         if (!isBlack(Tr)) {

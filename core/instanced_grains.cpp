@@ -99,7 +99,7 @@ void validateInstancedGrains(const InstancedGrainsDesc& desc) {
       throw InputError(name, attr, str("instance ", i, " has ", text((*values)[size_t(i)]), " (not finite)"));
 }
 
-InstancedGrain InstancedGrains::grain(int64_t i) const {
+InstancedGrain InstancedGrains::grain(int64_t i, float time) const {
   InstancedGrain g;
   const size_t k = size_t(i);
   g.index = i;
@@ -107,15 +107,48 @@ InstancedGrain InstancedGrains::grain(int64_t i) const {
   if (!desc_.orientations.empty()) g.orientation = desc_.orientations[k];
   if (!desc_.scales.empty()) g.scale = desc_.scales[k];
   const GrainPrototype& p = prototypes_[size_t(g.prototype)];
-  g.center = desc_.positions[k] + rotate(g.orientation, p.fitCenter) * g.scale;
+  Vec3 position = desc_.positions[k];
+  if (time != 0 && !desc_.velocities.empty()) position += desc_.velocities[k] * time;
+  if (time != 0 && !desc_.angularVelocities.empty()) {
+    // USD's order: the orientation, then the spin about the instancer-space axis.
+    const Vec3& w = desc_.angularVelocities[k];
+    const float speed = length(w);
+    if (speed > 0) {
+      const float half = 0.5f * speed * time * kPi / 180.0f, s = std::sin(half) / speed;
+      const Quat r{std::cos(half), w.x * s, w.y * s, w.z * s};
+      const Quat& q = g.orientation;
+      g.orientation = Quat{r.w * q.w - r.x * q.x - r.y * q.y - r.z * q.z, r.w * q.x + r.x * q.w + r.y * q.z - r.z * q.y,
+                           r.w * q.y - r.x * q.z + r.y * q.w + r.z * q.x, r.w * q.z + r.x * q.y - r.y * q.x + r.z * q.w};
+    }
+  }
+  g.center = position + rotate(g.orientation, p.fitCenter) * g.scale;
   g.radius = p.fitRadius * g.scale;
   return g;
 }
 
-void InstancedGrains::build(InstancedGrainsDesc desc, const EmbreeDevice& device, bool checkOverlaps) {
+float InstancedGrains::sweep(int64_t i) const {
+  if (motionSpan_ <= 0) return 0.0f;
+  const size_t k = size_t(i);
+  float s = desc_.velocities.empty() ? 0.0f : length(desc_.velocities[k]) * motionSpan_;
+  if (!desc_.angularVelocities.empty()) {
+    // The bounding centre turns about the instance's position: a chord of at most the angle
+    // swept (radians) times its distance, and never more than the diameter.
+    const GrainPrototype& p = prototypes_[size_t(desc_.protoIndices[k])];
+    const float arm = length(p.fitCenter) * (desc_.scales.empty() ? 1.0f : desc_.scales[k]);
+    const float angle = length(desc_.angularVelocities[k]) * motionSpan_ * kPi / 180.0f;
+    s += arm * std::min(2.0f, angle);
+  }
+  return s * (1.0f + 1e-5f);
+}
+
+void InstancedGrains::build(InstancedGrainsDesc desc, const EmbreeDevice& device, bool checkOverlaps,
+                            float motionSpan) {
   validateInstancedGrains(desc);
+  if (!(motionSpan >= 0) || !std::isfinite(motionSpan))
+    throw InputError(desc.name, "velocities", str("motion span ", motionSpan, " s must be finite and >= 0"));
   device_ = device;
   desc_ = std::move(desc);
+  motionSpan_ = desc_.velocities.empty() && desc_.angularVelocities.empty() ? 0.0f : motionSpan;
   stats_ = InstancedGrainsStats();
   identity_ = isIdentity(desc_.xf);
   if (!desc_.xf.isFinite() || !desc_.xf.inverse(inv_) || desc_.xf.determinant3() == 0)
@@ -178,9 +211,10 @@ void InstancedGrains::buildGrid() {
       [&](const tbb::blocked_range<size_t>& r, Extent e) {
         for (size_t i = r.begin(); i < r.end(); ++i) {
           InstancedGrain g = grain(int64_t(i));
-          e.box.extend(g.center - Vec3(g.radius));
-          e.box.extend(g.center + Vec3(g.radius));
-          e.rmax = std::max(e.rmax, g.radius);
+          const float r = g.radius + sweep(int64_t(i));  // moving grains: the sphere of their sweep
+          e.box.extend(g.center - Vec3(r));
+          e.box.extend(g.center + Vec3(r));
+          e.rmax = std::max(e.rmax, r);
         }
         return e;
       },
@@ -210,7 +244,7 @@ void InstancedGrains::buildGrid() {
     for (size_t i = r.begin(); i < r.end(); ++i) {
       InstancedGrain g = grain(int64_t(i));
       int64_t lo[3], hi[3];
-      cellRange(g.center, g.radius + pad, lo, hi);
+      cellRange(g.center, g.radius + sweep(int64_t(i)) + pad, lo, hi);
       for (int64_t z = lo[2] >> kBlockBits; z <= hi[2] >> kBlockBits; ++z)
         for (int64_t y = lo[1] >> kBlockBits; y <= hi[1] >> kBlockBits; ++y)
           for (int64_t x = lo[0] >> kBlockBits; x <= hi[0] >> kBlockBits; ++x) {
@@ -242,7 +276,7 @@ void InstancedGrains::buildGrid() {
   tbb::parallel_for(size_t(0), cells, [&](size_t c) { count[c].store(0, std::memory_order_relaxed); });
   auto forCells = [&](size_t i, auto&& fn) {
     InstancedGrain g = grain(int64_t(i));
-    const float r = g.radius + pad;
+    const float r = g.radius + sweep(int64_t(i)) + pad;
     int64_t lo[3], hi[3];
     cellRange(g.center, r, lo, hi);
     for (int64_t z = lo[2]; z <= hi[2]; ++z)
@@ -344,9 +378,9 @@ void InstancedGrains::checkOverlaps() {
                        "% of the smaller radius (at most ", 100.0f * kOverlapTolerance, "% is allowed)"));
 }
 
-bool InstancedGrains::traceGrain(int64_t i, const Vec3& o, const Vec3& d, float tmin, float tmax,
+bool InstancedGrains::traceGrain(int64_t i, const Vec3& o, const Vec3& d, float tmin, float tmax, float time,
                                  InstancedGrainHit& hit) const {
-  const InstancedGrain g = grain(i);
+  const InstancedGrain g = grain(i, motionSpan_ > 0 ? time : 0.0f);
   // Bounding sphere first (slightly grown: the BVH, not rounding, decides a grazing ray).
   const Vec3 oc = o - g.center;
   const float r = g.radius * (1.0f + 1e-5f);
@@ -370,7 +404,7 @@ bool InstancedGrains::traceGrain(int64_t i, const Vec3& o, const Vec3& d, float 
   return true;
 }
 
-bool InstancedGrains::walk(const Vec3& o, const Vec3& d, float tmin, float tmax, bool anyHit,
+bool InstancedGrains::walk(const Vec3& o, const Vec3& d, float tmin, float tmax, float time, bool anyHit,
                            InstancedGrainHit& hit) const {
   if (list_.empty() || !(tmin <= tmax)) return false;
   Bounds3 grid;
@@ -421,7 +455,7 @@ bool InstancedGrains::walk(const Vec3& o, const Vec3& d, float tmin, float tmax,
         recent[cursor] = g;
         cursor = (cursor + 1) & 7;
         nRecent = std::min(nRecent + 1, 8);
-        if (traceGrain(g, o, d, tmin, best, hit)) {
+        if (traceGrain(g, o, d, tmin, best, time, hit)) {
           best = hit.t;
           found = true;
           if (anyHit) return true;
@@ -437,32 +471,33 @@ bool InstancedGrains::walk(const Vec3& o, const Vec3& d, float tmin, float tmax,
   return found;
 }
 
-bool InstancedGrains::intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, InstancedGrainHit& hit) const {
+bool InstancedGrains::intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, InstancedGrainHit& hit,
+                                float time) const {
   if (!traceable(o, d, tmin, tmax)) return false;
   const Vec3 ol = identity_ ? o : inv_.point(o), dl = identity_ ? d : inv_.vector(d);
   InstancedGrainHit h;
-  if (!walk(ol, dl, tmin, tmax, false, h)) return false;
+  if (!walk(ol, dl, tmin, tmax, time, false, h)) return false;
   if (!identity_) h.ng = Transform::normal(inv_, h.ng);
   h.ng = normalize(h.ng);
   hit = h;
   return true;
 }
 
-bool InstancedGrains::occluded(const Vec3& o, const Vec3& d, float tmin, float tmax) const {
+bool InstancedGrains::occluded(const Vec3& o, const Vec3& d, float tmin, float tmax, float time) const {
   if (!traceable(o, d, tmin, tmax)) return false;
   InstancedGrainHit h;
-  return walk(identity_ ? o : inv_.point(o), identity_ ? d : inv_.vector(d), tmin, tmax, true, h);
+  return walk(identity_ ? o : inv_.point(o), identity_ ? d : inv_.vector(d), tmin, tmax, time, true, h);
 }
 
-bool InstancedGrains::intersectAll(const Vec3& o, const Vec3& d, float tmin, float tmax,
-                                   InstancedGrainHit& hit) const {
+bool InstancedGrains::intersectAll(const Vec3& o, const Vec3& d, float tmin, float tmax, InstancedGrainHit& hit,
+                                   float time) const {
   if (!traceable(o, d, tmin, tmax)) return false;
   const Vec3 ol = identity_ ? o : inv_.point(o), dl = identity_ ? d : inv_.vector(d);
   InstancedGrainHit h;
   float best = tmax;
   bool found = false;
   for (size_t i = 0; i < desc_.size(); ++i)
-    if (traceGrain(int64_t(i), ol, dl, tmin, best, h)) {
+    if (traceGrain(int64_t(i), ol, dl, tmin, best, time, h)) {
       best = h.t;
       found = true;
     }

@@ -14,7 +14,9 @@
 //    per-grain input kept) and builds a uniform grid over the grains' bounding spheres in
 //    object space: cell edge kCellRadii × the largest bounding radius, so a sphere overlaps
 //    at most 2 cells per axis (8 in all); each cell lists (CSR, uint32 grain indices, in
-//    increasing order) the grains whose bounding spheres overlap it. Cells are stored per
+//    increasing order) the grains whose bounding spheres overlap it (a moving grain's: the
+//    sphere of its sweep over ±motionSpan, InstancedGrainsDesc's velocities and spins;
+//    queries place it at the ray's time). Cells are stored per
 //    occupied block of 4³ cells, found through an open-addressing hash of the block's
 //    coordinates: empty space costs nothing, so sparse and far-flung grains stay cheap.
 //    Memory beyond the input arrays: 4 bytes per list entry (at most 8 per grain) plus
@@ -91,16 +93,22 @@ class InstancedGrains {
   InstancedGrains(const InstancedGrains&) = delete;
   InstancedGrains& operator=(const InstancedGrains&) = delete;
 
-  // Validates (validateInstancedGrains), builds the prototypes and the grid.
-  void build(InstancedGrainsDesc desc, const EmbreeDevice& device, bool checkOverlaps = true);
+  // Validates (validateInstancedGrains), builds the prototypes and the grid. motionSpan:
+  // the longest |time| a query will ask (motionSpan(CameraDesc)); moving grains are listed
+  // by the sphere of their sweep over [−motionSpan, motionSpan].
+  void build(InstancedGrainsDesc desc, const EmbreeDevice& device, bool checkOverlaps = true, float motionSpan = 0);
 
-  bool intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, InstancedGrainHit& hit) const;
-  bool occluded(const Vec3& o, const Vec3& d, float tmin, float tmax) const;
+  // time: seconds from the description's time (|time| <= the build's motionSpan), where
+  // moving grains are placed (InstancedGrainsDesc: velocities, angularVelocities).
+  bool intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, InstancedGrainHit& hit, float time = 0) const;
+  bool occluded(const Vec3& o, const Vec3& d, float tmin, float tmax, float time = 0) const;
   void forEachGrain(const Bounds3& box, const std::function<void(const InstancedGrain&)>& fn) const;
 
-  InstancedGrain grain(int64_t i) const;
+  InstancedGrain grain(int64_t i, float time = 0) const;
   // A brute-force reference over every grain (tests, benchmarks): intersect()'s answer.
-  bool intersectAll(const Vec3& o, const Vec3& d, float tmin, float tmax, InstancedGrainHit& hit) const;
+  bool intersectAll(const Vec3& o, const Vec3& d, float tmin, float tmax, InstancedGrainHit& hit,
+                    float time = 0) const;
+  float motionSpan() const { return motionSpan_; }  // 0: nothing moves (or no blur asked)
 
   const InstancedGrainsDesc& desc() const { return desc_; }
   const std::vector<GrainPrototype>& prototypes() const { return prototypes_; }
@@ -110,8 +118,10 @@ class InstancedGrains {
  private:
   struct Walk;
   // Grain i's bounding sphere against the object-space ray; then its prototype's BVH.
-  bool traceGrain(int64_t i, const Vec3& o, const Vec3& d, float tmin, float tmax, InstancedGrainHit& hit) const;
-  bool walk(const Vec3& o, const Vec3& d, float tmin, float tmax, bool anyHit, InstancedGrainHit& hit) const;
+  bool traceGrain(int64_t i, const Vec3& o, const Vec3& d, float tmin, float tmax, float time,
+                  InstancedGrainHit& hit) const;
+  bool walk(const Vec3& o, const Vec3& d, float tmin, float tmax, float time, bool anyHit, InstancedGrainHit& hit) const;
+  // How far grain i's bounding sphere can move within motionSpan_ (0 when still).
   // The index of a block in starts_ (times the cells per block), or -1 when unoccupied.
   int64_t findBlock(uint64_t key) const;
   uint64_t blockKey(int64_t x, int64_t y, int64_t z) const {
@@ -134,6 +144,8 @@ class InstancedGrains {
   bool identity_ = true;
   Bounds3 bounds_;
   Vec3 origin_;
+  float sweep(int64_t i) const;
+  float motionSpan_ = 0;
   float cell_ = 1, invCell_ = 1;
   int64_t n_[3] = {0, 0, 0};
   std::vector<uint64_t> hashKeys_;   // kEmptyKey where free

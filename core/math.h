@@ -207,6 +207,7 @@ struct Ray {
   Vec3 o, d;
   float tmin = 0.0f;
   float tmax = kInf;
+  float time = 0.0f;  // seconds from the frame's time, within the camera's shutter (motion blur)
 };
 
 // Spawn a ray leaving a surface, offset along the geometric normal by eps (the hit's

@@ -50,7 +50,7 @@ void scatter(const Scene& scene, PathState& path, const Hit& hit, const ProxyTab
       if (d.pdf > 0) {
         const Vec3 from = onSphere(g, frame, table.exitPoint(b, d, uExit));
         const float dist = std::isfinite(ls.dist) ? std::max(0.0f, ls.dist - g.radius) * (1.0f - 1e-4f) : kInf;
-        const float tr = scene.proxyTransmittance(from, ls.wi, dist, &own, path.rng.nextU32());
+        const float tr = scene.proxyTransmittance(from, ls.wi, dist, &own, path.rng.nextU32(), path.ray.time);
         path.cost[0] += 1;
         if (tr > 0) {
           if (ls.delta) {

@@ -440,6 +440,7 @@ void Scene::buildConcurrently(const SceneDesc& desc, std::vector<BuiltAggregate>
 }
 
 void Scene::buildInstancedGrains(const SceneDesc& desc, int defaultGrain, const Scene* previous, Bounds3& all) {
+  const float span = motionSpan(desc.camera);
   for (const InstancedGrainsDesc& d : desc.instancedGrains) {
     BuiltInstanced entry;
     for (const GrainPrototypeDesc& p : d.prototypes) {
@@ -451,7 +452,8 @@ void Scene::buildInstancedGrains(const SceneDesc& desc, int defaultGrain, const 
     if (previous)
       for (const BuiltInstanced& b : previous->builtInstanced_) {
         const InstancedGrainsDesc& old = b.grains->desc();
-        if (old.size() != d.size() || !sameInstancedGrains(old, d) || b.materialDescs.size() != entry.materialDescs.size())
+        if (old.size() != d.size() || !sameInstancedGrains(old, d) || b.materialDescs.size() != entry.materialDescs.size() ||
+            b.grains->motionSpan() != (d.velocities.empty() && d.angularVelocities.empty() ? 0.0f : span))
           continue;
         bool same = true;
         for (size_t k = 0; k < b.materialDescs.size() && same; ++k)
@@ -465,7 +467,7 @@ void Scene::buildInstancedGrains(const SceneDesc& desc, int defaultGrain, const 
       }
     if (!entry.grains) {
       auto grains = std::make_shared<InstancedGrains>();
-      grains->build(d, device_);
+      grains->build(d, device_, true, span);
       entry.worldScale = float(std::cbrt(std::fabs(d.xf.determinant3())));
       for (const GrainPrototype& p : grains->prototypes()) entry.lengthScale.push_back(p.fitRadius * entry.worldScale);
       const Bounds3 box = grains->objectBounds();
@@ -586,7 +588,7 @@ bool Scene::intersectInstancedGrains(const Ray& ray, const Vec3& invD, Hit& hit,
     const BuiltInstanced& b = builtInstanced_[i];
     if (!b.bounds.intersect(ray.o, invD, ray.tmin, tmax, t0, t1)) continue;
     InstancedGrainHit g;
-    if (!b.grains->intersect(ray.o, ray.d, ray.tmin, tmax, g) || !(g.t < tmax)) continue;
+    if (!b.grains->intersect(ray.o, ray.d, ray.tmin, tmax, g, ray.time) || !(g.t < tmax)) continue;
     found = true;
     tmax = g.t;
     const InstancedGrain grain = b.grains->grain(g.grain);
@@ -921,8 +923,8 @@ bool Scene::intersectProxies(const Ray& ray, Hit& hit, const GrainStart* from) c
 }
 
 float Scene::proxyTransmittance(const Vec3& p, const Vec3& dir, float dist, const GrainStart* from,
-                                uint64_t seed) const {
-  if (surfacesOccluded(p, dir, dist)) return 0.0f;
+                                uint64_t seed, float time) const {
+  if (surfacesOccluded(p, dir, dist, time)) return 0.0f;
   float tr = 1.0f;
   for (size_t a = 0; a < aggregates_.size() && tr > 0; ++a) {
     const bool own = from && from->aggregate == int(a);
@@ -932,14 +934,14 @@ float Scene::proxyTransmittance(const Vec3& p, const Vec3& dir, float dist, cons
   return tr;
 }
 
-bool Scene::surfacesOccluded(const Vec3& p, const Vec3& dir, float dist) const {
+bool Scene::surfacesOccluded(const Vec3& p, const Vec3& dir, float dist, float time) const {
   if (!traceable(p, dir, 0.0f, dist)) return false;
   if (!instanced_.empty()) {
     const Vec3 invD(1.0f / dir.x, 1.0f / dir.y, 1.0f / dir.z);
     float t0, t1;
     if (instancedBounds_.intersect(p, invD, 0.0f, dist, t0, t1))
       for (const BuiltInstanced& b : builtInstanced_)
-        if (b.bounds.intersect(p, invD, 0.0f, dist, t0, t1) && b.grains->occluded(p, dir, 0.0f, dist)) return true;
+        if (b.bounds.intersect(p, invD, 0.0f, dist, t0, t1) && b.grains->occluded(p, dir, 0.0f, dist, time)) return true;
   }
   if (surfaceBounds_.empty()) return false;
   RTCIntersectContext ctx;
@@ -952,8 +954,8 @@ bool Scene::surfacesOccluded(const Vec3& p, const Vec3& dir, float dist) const {
   return r.tfar < 0;  // Embree marks a hit by tfar = -inf
 }
 
-Vec3 Scene::transmittance(const Vec3& p, const Vec3& dir, float dist) const {
-  if (surfacesOccluded(p, dir, dist)) return Vec3(0.0f);
+Vec3 Scene::transmittance(const Vec3& p, const Vec3& dir, float dist, float time) const {
+  if (surfacesOccluded(p, dir, dist, time)) return Vec3(0.0f);
   Vec3 opticalDepth(0.0f);
   for (size_t a = 0; a < aggregates_.size(); ++a) {
     // Walk the boundary crossings; a crossing whose normal faces along the ray leaves
@@ -983,8 +985,8 @@ int Scene::mediumAt(const Vec3& p) const {
   return -1;
 }
 
-bool Scene::occluded(const Vec3& p, const Vec3& dir, float dist) const {
-  if (surfacesOccluded(p, dir, dist)) return true;
+bool Scene::occluded(const Vec3& p, const Vec3& dir, float dist, float time) const {
+  if (surfacesOccluded(p, dir, dist, time)) return true;
   for (const auto& a : aggregates_)
     if (a->occluded(p, dir, 0.0f, dist)) return true;
   // Area lights do not block each other's light: they are emitters, not occluders.

@@ -85,14 +85,15 @@ class Scene {
 
   // Explicit grains (EPT): nearest surface, grain or area light.
   bool intersect(const Ray& ray, Hit& hit, const GrainStart* from = nullptr) const;
-  bool occluded(const Vec3& p, const Vec3& dir, float dist) const;
+  // time: the ray's (Ray::time), where moving grains are.
+  bool occluded(const Vec3& p, const Vec3& dir, float dist, float time = 0) const;
 
   // The equivalent media (VPT, DA): nearest surface, area light or aggregate boundary
   // (Hit::Boundary, ng outward); grains are not seen.
   bool intersectMedium(const Ray& ray, Hit& hit) const;
   // Transmittance of a shadow ray through the media: 0 if a surface blocks it, else the
   // product of exp(−σ_t ℓ) over the lengths ℓ it runs inside each aggregate's boundary.
-  Vec3 transmittance(const Vec3& p, const Vec3& dir, float dist) const;
+  Vec3 transmittance(const Vec3& p, const Vec3& dir, float dist, float time = 0) const;
   // Proxies (proxy.h; when useProxies()): nearest surface,
   // area light or proxy sphere entered (Hit::Proxy; its grain's prototype in hit.grain, p
   // on the sphere, ng the sphere's outward normal there). from: the sphere the ray leaves.
@@ -100,7 +101,8 @@ class Scene {
   // Shadow rays among proxies: 0 if a surface blocks the ray, else the chance that it
   // meets no grain of the proxy spheres it crosses (Aggregate::proxyTransmittance; seed:
   // its roulette's random numbers).
-  float proxyTransmittance(const Vec3& p, const Vec3& dir, float dist, const GrainStart* from, uint64_t seed) const;
+  float proxyTransmittance(const Vec3& p, const Vec3& dir, float dist, const GrainStart* from, uint64_t seed,
+                           float time = 0) const;
   // Paths go on among proxies after their first grain (RenderSettings::proxies: On, or Auto
   // under a narrow sun; techniques with media). Their tables are built (or read from the
   // disk cache) when first needed, by build() or setView().
@@ -237,7 +239,7 @@ class Scene {
   void finishHit(const Ray& ray, Hit& hit) const;  // position and ray-offset scale
   void grainHit(Hit::Kind kind, int aggregate, const GrainHit& g, Hit& hit) const;  // Grain or Proxy
   // Meshes and explicit grains from instancers (which every transport sees as surfaces).
-  bool surfacesOccluded(const Vec3& p, const Vec3& dir, float dist) const;
+  bool surfacesOccluded(const Vec3& p, const Vec3& dir, float dist, float time) const;
   bool intersectMeshes(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax) const;
   bool intersectInstancedGrains(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax) const;
   void updateDiffusionDepths();  // from the media, the emitters inside and the camera

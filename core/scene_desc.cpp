@@ -132,6 +132,13 @@ void validateCameraDesc(const CameraDesc& c, const std::string& obj) {
     throw InputError(obj, "clippingRange", str("near ", c.clipNear, " must be finite and > 0"));
   if (std::isnan(c.clipFar) || !(c.clipFar > c.clipNear))
     throw InputError(obj, "clippingRange", str("far ", c.clipFar, " must exceed near ", c.clipNear));
+  // An hour each way is far beyond any shutter; it keeps τ·velocity finite.
+  checkFinite(c.shutterOpen, obj, "shutterOpen");
+  checkFinite(c.shutterClose, obj, "shutterClose");
+  if (std::fabs(c.shutterOpen) > 3600 || std::fabs(c.shutterClose) > 3600)
+    throw InputError(obj, "shutterOpen", str("[", c.shutterOpen, ", ", c.shutterClose, "] s is beyond an hour"));
+  if (c.shutterClose < c.shutterOpen)
+    throw InputError(obj, "shutterClose", str(c.shutterClose, " is before shutterOpen ", c.shutterOpen));
 }
 
 void validateLightDesc(const LightDesc& l, const std::string& obj) {
@@ -515,7 +522,7 @@ constexpr size_t fieldCount() {
 // A field added to a description changes its count here and stops the build: compare it
 // below (and decide what its change needs), then update the count.
 static_assert(fieldCount<TriangleMesh>() == 3, "compare the new field in sameMesh");
-static_assert(fieldCount<CameraDesc>() == 10, "compare the new field in sameCamera");
+static_assert(fieldCount<CameraDesc>() == 12, "compare the new field in sameCamera");
 static_assert(fieldCount<TextureDesc>() == 14, "compare the new field in sameTexture (scale, bias: 4 each)");
 static_assert(fieldCount<MaterialDesc>() == 13, "compare the new field in sameMaterial");
 static_assert(fieldCount<LightDesc>() == 12, "compare the new field in sameLight");
@@ -531,7 +538,8 @@ bool sameCamera(const CameraDesc& a, const CameraDesc& b) {
          a.horizontalAperture == b.horizontalAperture && a.verticalAperture == b.verticalAperture &&
          a.horizontalApertureOffset == b.horizontalApertureOffset &&
          a.verticalApertureOffset == b.verticalApertureOffset && a.clipNear == b.clipNear && a.clipFar == b.clipFar &&
-         a.lensRadius == b.lensRadius && a.focusDistance == b.focusDistance;
+         a.lensRadius == b.lensRadius && a.focusDistance == b.focusDistance && a.shutterOpen == b.shutterOpen &&
+         a.shutterClose == b.shutterClose;
 }
 
 bool sameTexture(const TextureDesc& a, const TextureDesc& b) {
@@ -668,6 +676,10 @@ SceneChanges compareScenes(const SceneDesc& before, const SceneDesc& after) {
              before.settings.physicalSun != after.settings.physicalSun;
   c.meshes = !sameList(before.meshes, after.meshes, sameMeshDesc);
   c.instancedGrains = before.instancedGrains.size() != after.instancedGrains.size();
+  // Moving grains' grids cover their sweep over the shutter (Scene::build).
+  if (motionSpan(before.camera) != motionSpan(after.camera))
+    for (const InstancedGrainsDesc& g : after.instancedGrains)
+      c.instancedGrains = c.instancedGrains || !g.velocities.empty() || !g.angularVelocities.empty();
   for (size_t i = 0; i < after.instancedGrains.size() && !c.instancedGrains; ++i)
     c.instancedGrains = !sameInstancedGrains(before.instancedGrains[i], after.instancedGrains[i]) ||
                         before.instancedGrains[i].id != after.instancedGrains[i].id;

@@ -7,6 +7,8 @@
 // with +Y up, distant and rect lights emit along local -Z.
 #pragma once
 
+#include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -30,7 +32,18 @@ struct CameraDesc {
   // focalLength / (2 fStop), the focal length in scene units (UsdGeomCamera stores tenths).
   float lensRadius = 0.0f;
   float focusDistance = 1.0f;
+  // Motion blur: the shutter's interval in seconds relative to the frame's time (USD's
+  // shutter:open and shutter:close are in time codes: divided by timeCodesPerSecond). Each
+  // camera ray takes a time uniform in it; open == close: no blur. Moving grains
+  // (InstancedGrainsDesc::velocities, angularVelocities) are placed at the ray's time.
+  float shutterOpen = 0.0f;
+  float shutterClose = 0.0f;
 };
+
+// The longest time from the frame's time a camera ray can have (0 without motion blur).
+inline float motionSpan(const CameraDesc& c) {
+  return c.shutterClose > c.shutterOpen ? std::max(std::fabs(c.shutterOpen), std::fabs(c.shutterClose)) : 0.0f;
+}
 
 // A thin lens's radius in scene units from UsdGeomCamera's focalLength (tenths of a scene
 // unit, as its apertures) and fStop: focalLength / 10 / (2 fStop), as Hydra's HdCamera
@@ -176,8 +189,11 @@ struct InstancedGrainsDesc {
   std::vector<Quat> orientations;            // unit; empty: identity
   std::vector<float> scales;                 // uniform, > 0; empty: 1
   std::vector<int32_t> protoIndices;         // one per grain: the number of grains
-  // Kept for motion blur (not used yet); empty or one per grain. Object units per second
-  // and degrees per second about the grain's centre, as USD authors them.
+  // Motion blur (CameraDesc's shutter); empty or one per grain. Object units per second,
+  // and degrees per second about an axis through the instance's position, as USD authors
+  // them: at time τ grain i is at positions[i] + τ velocities[i], turned by
+  // R(angularVelocities[i], τ |angularVelocities[i]|) after its orientation
+  // (UsdGeomPointInstancer::ComputeInstanceTransformsAtTime's convention).
   std::vector<Vec3> velocities;
   std::vector<Vec3> angularVelocities;
   int id = -1;                               // the front end's id (primId AOV)

@@ -4,7 +4,9 @@
 // refused), focalLength (50), horizontalAperture (20.955), verticalAperture (15.2908),
 // horizontalApertureOffset and verticalApertureOffset (0), all in tenths of a scene unit;
 // clippingRange ((1, 1000000)); fStop (0: a pinhole; else lensRadiusFromFStop) and
-// focusDistance (must be > 0 with a lens). Every check names prim.attribute.
+// focusDistance (must be > 0 with a lens); shutter:open and shutter:close (0, 0: no motion
+// blur; in time codes relative to the frame, made seconds by the stage's
+// timeCodesPerSecond). Every check names prim.attribute.
 #pragma once
 
 #include <string>
@@ -18,6 +20,6 @@ namespace granular {
 const std::vector<std::string>& usdCameraAttributeNames();
 
 // The camera (cameraToWorld = record.xf).
-CameraDesc cameraFromUsd(const UsdPrimRecord& camera);
+CameraDesc cameraFromUsd(const UsdPrimRecord& camera, double timeCodesPerSecond = 24.0);
 
 }  // namespace granular

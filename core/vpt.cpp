@@ -107,7 +107,7 @@ void mediumNee(const Scene& scene, PathState& path, const HomogeneousMedium& med
     if (lights[li].sampleLi(p, u1, u2, ls) && !isBlack(ls.Li)) {
       Vec3 f = med.phase(wi, ls.wi);
       float dist = std::isfinite(ls.dist) ? ls.dist * (1.0f - 1e-4f) : kInf;
-      Vec3 Tr = scene.transmittance(p, ls.wi, dist);
+      Vec3 Tr = scene.transmittance(p, ls.wi, dist, path.ray.time);
       path.cost[1] += 1;
       if (reducedSigmaT && !isBlack(Tr)) {
         // The flight to the own medium's boundary in the reduced medium (diffusion.h).

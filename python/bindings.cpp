@@ -338,7 +338,9 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("clip_near", &CameraDesc::clipNear)
       .def_readwrite("clip_far", &CameraDesc::clipFar)
       .def_readwrite("lens_radius", &CameraDesc::lensRadius)
-      .def_readwrite("focus_distance", &CameraDesc::focusDistance);
+      .def_readwrite("focus_distance", &CameraDesc::focusDistance)
+      .def_readwrite("shutter_open", &CameraDesc::shutterOpen)
+      .def_readwrite("shutter_close", &CameraDesc::shutterClose);
 
   py::enum_<MaterialType>(m, "MaterialType")
       .value("Lambert", MaterialType::Lambert)
@@ -688,7 +690,7 @@ PYBIND11_MODULE(granular_core, m) {
            },
            py::arg("origin"), py::arg("direction"), py::arg("tmin") = 0.0f, py::arg("tmax") = kInf)
       .def("occluded", &InstancedGrains::occluded, py::arg("origin"), py::arg("direction"), py::arg("tmin") = 0.0f,
-           py::arg("tmax") = kInf)
+           py::arg("tmax") = kInf, py::arg("time") = 0.0f)
       .def_property_readonly("stats", [](const InstancedGrains& g) {
         const InstancedGrainsStats& s = g.stats();
         py::dict r;
@@ -762,7 +764,7 @@ PYBIND11_MODULE(granular_core, m) {
         return py::make_tuple(l ? py::cast(*l) : py::none(), w);
       },
       py::arg("record"), "(LightDesc or None when the type is not rendered, [warnings])");
-  m.def("camera_from_usd", &cameraFromUsd, py::arg("record"));
+  m.def("camera_from_usd", &cameraFromUsd, py::arg("record"), py::arg("time_codes_per_second") = 24.0);
   m.def(
       "material_from_usd",
       [](const UsdMaterialNetwork& n) -> py::tuple {

@@ -592,7 +592,7 @@ def read_camera(scene, prim, xf_cache):
     """The camera prim through core (usd_camera.h)."""
     path = str(prim.GetPath())
     record = prim_record(prim, core.usd_camera_attribute_names(), scene.time, xf_cache)
-    scene.desc.camera = _core_call(core.camera_from_usd, record)
+    scene.desc.camera = _core_call(core.camera_from_usd, record, scene.stage.GetTimeCodesPerSecond())
     scene.camera_path = path
     # Later checks of the whole description (the field of view) name the camera's attributes.
     attrs = {k: (path, k) for k in ("focalLength", "horizontalAperture", "verticalAperture",

@@ -183,3 +183,50 @@ def test_aggregate_api_on_an_instancer_points_to_the_sibling(tmp_path, capsys):
     assert rc == 2
     assert err.startswith(f"error: {SAND}: GranularAggregateAPI applies to a Mesh, not a PointInstancer "
                           f"(explicit grains from a simulation: GranularInstancedAggregateAPI)"), err
+
+
+# ---- motion blur ---------------------------------------------------------------------------
+
+def _moving(path, shutter=(-0.5, 0.5), fps=24.0):
+    """Two grains moving apart along x at 48 units per second (2 units per frame) under a
+    camera whose shutter is open over `shutter` (time codes about the frame)."""
+    p = _instancer(path, positions=((-3, 0, 0), (3, 0, 0)))
+    stage = Usd.Stage.Open(p)
+    stage.SetTimeCodesPerSecond(fps)
+    UsdGeom.PointInstancer(stage.GetPrimAtPath(SAND)).CreateVelocitiesAttr(
+        Vt.Vec3fArray([Gf.Vec3f(-48, 0, 0), Gf.Vec3f(48, 0, 0)]))
+    cam = UsdGeom.Camera(stage.GetPrimAtPath("/World/Camera"))
+    cam.CreateShutterOpenAttr(shutter[0])
+    cam.CreateShutterCloseAttr(shutter[1])
+    stage.Save()
+    return p
+
+
+def test_camera_shutter_is_read_in_seconds(tmp_path):
+    scene = usd_reader.read_stage(_moving(tmp_path / "m.usda", shutter=(-0.25, 0.5), fps=25.0))
+    assert scene.desc.camera.shutter_open == pytest.approx(-0.01)
+    assert scene.desc.camera.shutter_close == pytest.approx(0.02)
+
+
+def test_motion_blur_smears_the_grains_over_the_shutter(tmp_path, capsys):
+    """Alpha (coverage) of the row through the grains: still, each grain covers its own
+    disc; blurred over a frame, each sweeps 2 units each way, so the covered span widens and
+    its edge pixels are partly covered."""
+    def row_alpha(path, name):
+        out = tmp_path / name
+        rc, _, err = run_cli(["render", path, "-o", out, "--width", 64, "--height", 32, "--spp", 32, "--quiet"], capsys)
+        assert rc == 0, err
+        img = core.read_exr(str(out))
+        px, ch = np.asarray(img.pixels), list(img.channels)
+        return px[16, :, ch.index("A")]
+    blurred = row_alpha(_moving(tmp_path / "b.usda"), "b.exr")
+    still = row_alpha(_moving(tmp_path / "s.usda", shutter=(0, 0)), "s.exr")
+    assert (blurred > 0.02).sum() >= (still > 0.02).sum() + 4
+    assert ((blurred > 0.05) & (blurred < 0.95)).sum() > ((still > 0.05) & (still < 0.95)).sum()
+
+
+def test_a_shutter_that_closes_before_it_opens_is_named(tmp_path, capsys):
+    rc, out, err = run_cli(["render", _moving(tmp_path / "bad.usda", shutter=(0.5, -0.5)), "-o",
+                            tmp_path / "x.exr", "--width", 8, "--height", 8, "--spp", 1], capsys)
+    assert rc == 2
+    assert err.startswith("error: /World/Camera.shutter:close: -0.5 is before shutter:open 0.5"), err
