@@ -20,6 +20,7 @@
 #include <openvdb/tools/MeshToVolume.h>
 
 #include "error.h"
+#include "grain_density.h"
 #include "output_file.h"
 
 namespace granular {
@@ -132,6 +133,85 @@ DensityExportResult writeDensityVdb(const std::string& path, const TriangleMesh&
   try {
     openvdb::io::File file(out.temporaryPath());
     file.write({density});
+    file.close();
+  } catch (const openvdb::Exception& e) {
+    throw std::runtime_error(str("cannot write \"", path, "\": ", e.what()));
+  }
+  result.replacedOther = out.commit();
+  return result;
+}
+
+namespace {
+
+// A float fog volume of the leaves' values (OpenVDB's leaf layout is theirs), active where > 0.
+openvdb::FloatGrid::Ptr leavesToGrid(const VoxelLeaves& leaves, const VoxelLeaves& activeBy, const std::string& name,
+                                     const openvdb::math::Transform& xform) {
+  using Leaf = openvdb::FloatGrid::TreeType::LeafNodeType;
+  openvdb::FloatGrid::Ptr grid = openvdb::FloatGrid::create(0.0f);
+  grid->setTransform(xform.copy());
+  for (size_t l = 0; l < leaves.origins.size(); ++l) {
+    const auto& o = leaves.origins[l];
+    auto* leaf = new Leaf(openvdb::Coord(o[0], o[1], o[2]), 0.0f, false);
+    const float* v = leaves.values.data() + l * VoxelLeaves::kLeafVoxels;
+    const float* a = activeBy.values.data() + l * VoxelLeaves::kLeafVoxels;
+    for (openvdb::Index i = 0; i < Leaf::SIZE; ++i)
+      if (a[i] > 0) leaf->setValueOn(i, v[i]);
+    grid->tree().addLeaf(leaf);
+  }
+  grid->setName(name);
+  grid->setGridClass(openvdb::GRID_FOG_VOLUME);
+  grid->setSaveFloatAsHalf(false);
+  return grid;
+}
+
+}  // namespace
+
+DensityExportResult writeGrainDensityVdb(const std::string& path, const GrainDensity& density,
+                                         const DensityExportOptions& options, const std::string& object) {
+  initVdb();
+  if (options.gridName.empty()) throw InputError(object, "gridName", "is empty");
+  const float voxel = density.packing.voxelSize;
+  openvdb::math::Transform::Ptr xform;
+  try {
+    xform = openvdb::math::Transform::createLinearTransform(voxel);
+  } catch (const openvdb::Exception&) {
+    throw InputError(object, "voxelSize",
+                     str(voxel, " is below the smallest voxel of an OpenVDB world-space grid (about 1e-5 "
+                                "scene units): scale the scene up"));
+  }
+  openvdb::GridPtrVec grids;
+  openvdb::FloatGrid::Ptr f = leavesToGrid(density.packing, density.packing, options.gridName, *xform);
+  f->insertMeta("granular:object", openvdb::StringMetadata(object));
+  f->insertMeta("granular:kernelWidth", openvdb::FloatMetadata(density.kernelWidth));
+  f->insertMeta("granular:meanRadius", openvdb::FloatMetadata(density.stats.meanRadius));
+  f->insertMeta("granular:grains", openvdb::Int64Metadata(density.stats.grains));
+  for (const auto& kv : options.floatMetadata) f->insertMeta(kv.first, openvdb::FloatMetadata(kv.second));
+  for (const auto& kv : options.vec3Metadata)
+    f->insertMeta(kv.first, openvdb::Vec3SMetadata(openvdb::Vec3s(kv.second.x, kv.second.y, kv.second.z)));
+  for (const auto& kv : options.stringMetadata) f->insertMeta(kv.first, openvdb::StringMetadata(kv.second));
+  grids.push_back(f);
+  for (size_t k = 0; k < density.fractions.size(); ++k) {
+    openvdb::FloatGrid::Ptr g = leavesToGrid(density.fractions[k], density.packing, str("fraction.", k), *xform);
+    g->insertMeta("granular:object", openvdb::StringMetadata(object));
+    if (k < density.prototypeNames.size())
+      g->insertMeta("granular:prototype", openvdb::StringMetadata(density.prototypeNames[k]));
+    grids.push_back(g);
+  }
+
+  DensityExportResult result;
+  result.voxelSize = voxel;
+  result.activeVoxels = int64_t(f->activeVoxelCount());
+  openvdb::CoordBBox bbox = f->evalActiveVoxelBoundingBox();
+  if (!bbox.empty()) {
+    openvdb::Vec3d lo = xform->indexToWorld(bbox.min()), hi = xform->indexToWorld(bbox.max());
+    result.worldBounds.extend(Vec3(float(lo.x()), float(lo.y()), float(lo.z())));
+    result.worldBounds.extend(Vec3(float(hi.x()), float(hi.y()), float(hi.z())));
+  }
+  OutputFile out(path);
+  out.close();
+  try {
+    openvdb::io::File file(out.temporaryPath());
+    file.write(grids);
     file.close();
   } catch (const openvdb::Exception& e) {
     throw std::runtime_error(str("cannot write \"", path, "\": ", e.what()));

@@ -12,6 +12,14 @@
 // non-finite or negative sigmaT, a voxel size too small for the boundary) throws
 // InputError naming `object`; I/O failures throw std::runtime_error naming the path.
 //
+// writeGrainDensityVdb() writes explicit grains' packing rate (grain_density.h) the same
+// way: a float fog volume "density" holding f (grain volume per volume, dimensionless) at
+// the density's voxels, with voxel size Δ and voxel centres at integer multiples of it
+// (world space), active where some grain's kernel reaches; and, where several prototypes
+// mix, one float grid "fraction.<k>" per prototype k (its number fraction; metadata
+// "granular:prototype" names it). Metadata granular:kernelWidth, granular:meanRadius,
+// granular:grains and the options' own.
+//
 // readVdbGrids()/sampleVdbGrid() read any .vdb file back (for tests and tools): the
 // grids' names, types, voxel sizes, active-voxel counts and metadata, and a float grid's
 // values at world points (nearest voxel). They throw InputError(path, grid, ...) when
@@ -48,6 +56,10 @@ struct DensityExportResult {
 // worldBoundary: closed, in world space. Throws InputError(object, ...) or runtime_error.
 DensityExportResult writeDensityVdb(const std::string& path, const TriangleMesh& worldBoundary, float sigmaT,
                                     const DensityExportOptions& options, const std::string& object);
+
+struct GrainDensity;
+DensityExportResult writeGrainDensityVdb(const std::string& path, const GrainDensity& density,
+                                         const DensityExportOptions& options, const std::string& object);
 
 struct VdbGridInfo {
   std::string name;

@@ -29,7 +29,9 @@
 #include "core/denoise.h"
 #include "core/density_export.h"
 #include "core/error.h"
+#include "core/grain_density.h"
 #include "core/granular_prims.h"
+#include "core/heterogeneous_medium.h"
 #include "core/image_io.h"
 #include "core/instanced_grains.h"
 #include "core/medium.h"
@@ -1247,4 +1249,172 @@ PYBIND11_MODULE(granular_core, m) {
         return out;
       },
       "TT and RTE parameters of every aggregate (world space), as dicts; the GIL is released.");
+
+  // ---- explicit grains' packing rate and the heterogeneous medium ---------------------------
+  m.def(
+      "instanced_grains_desc",
+      [](const std::string& name, const std::vector<TriangleMesh>& prototypes, const FloatArray& positions,
+         const FloatArray& scales, const IntArray& protoIndices, const FloatArray& orientations, const Transform& xf) {
+        InstancedGrainsDesc d;
+        d.name = name;
+        d.xf = xf;
+        for (size_t k = 0; k < prototypes.size(); ++k) {
+          GrainPrototypeDesc p;
+          p.name = str(name, "/Prototype", k);
+          p.mesh = prototypes[k];
+          d.prototypes.push_back(std::move(p));
+        }
+        d.positions = toPoints(positions, "positions");
+        if (scales.ndim() != 1) throw py::value_error("scales must be a 1-D array");
+        d.scales.assign(scales.data(), scales.data() + scales.size());
+        for (int64_t i : toInts(protoIndices, "proto_indices")) d.protoIndices.push_back(int32_t(i));
+        if (orientations.size() > 0) {
+          if (orientations.ndim() != 2 || orientations.shape(1) != 4)
+            throw py::value_error("orientations must be an array of shape (N, 4) of (w, x, y, z)");
+          auto r = orientations.unchecked<2>();
+          for (py::ssize_t i = 0; i < orientations.shape(0); ++i) d.orientations.push_back({r(i, 0), r(i, 1), r(i, 2), r(i, 3)});
+        }
+        validateInstancedGrains(d);
+        return d;
+      },
+      py::arg("name"), py::arg("prototypes"), py::arg("positions"), py::arg("scales"), py::arg("proto_indices"),
+      py::arg("orientations") = FloatArray(), py::arg("xf") = Transform(),
+      "An InstancedGrainsDesc from arrays (synthetic grains for tests and benchmarks); prototype k is named "
+      "<name>/Prototype<k>. InputError as validateInstancedGrains.");
+  py::class_<GrainDensity>(m, "GrainDensity")
+      .def_readonly("kernel_width", &GrainDensity::kernelWidth)
+      .def_property_readonly("voxel_size", [](const GrainDensity& g) { return g.packing.voxelSize; })
+      .def_readonly("prototype_names", &GrainDensity::prototypeNames)
+      .def("packing_rate",
+           [](const GrainDensity& g, const FloatArray& points) {
+             std::vector<Vec3> p = toPoints(points, "points");
+             py::array_t<float> a(py::ssize_t(p.size()));
+             float* out = a.mutable_data();
+             for (size_t i = 0; i < p.size(); ++i) out[i] = g.packingRate(p[i]);
+             return a;
+           },
+           py::arg("points"), "f at world points (trilinear)")
+      .def("number_fraction",
+           [](const GrainDensity& g, int k, const FloatArray& points) {
+             std::vector<Vec3> p = toPoints(points, "points");
+             py::array_t<float> a(py::ssize_t(p.size()));
+             float* out = a.mutable_data();
+             for (size_t i = 0; i < p.size(); ++i) out[i] = g.numberFraction(k, p[i]);
+             return a;
+           },
+           py::arg("prototype"), py::arg("points"), "prototype k's number fraction at the nearest voxel")
+      .def_property_readonly("stats", [](const GrainDensity& g) {
+        const GrainDensityStats& s = g.stats;
+        py::dict r;
+        r["grains"] = s.grains;
+        r["leaves"] = s.leaves;
+        r["active_voxels"] = s.activeVoxels;
+        r["total_volume"] = s.totalVolume;
+        r["mean_radius"] = s.meanRadius;
+        r["bytes"] = s.bytes;
+        r["build_bytes"] = s.buildBytes;
+        r["seconds"] = s.seconds;
+        r["kernel_width"] = g.kernelWidth;
+        r["voxel_size"] = g.packing.voxelSize;
+        return r;
+      });
+  m.def(
+      "build_grain_density",
+      [](const InstancedGrainsDesc& desc, float kernelWidth, float kernelRadii, float voxelSize, bool fractions) {
+        GrainDensityOptions o;
+        o.kernelWidth = kernelWidth;
+        o.kernelRadii = kernelRadii;
+        o.voxelSize = voxelSize;
+        o.fractions = fractions;
+        return buildGrainDensity(desc, o);
+      },
+      py::arg("desc"), py::arg("kernel_width") = 0.0f, py::arg("kernel_radii") = 3.0f, py::arg("voxel_size") = 0.0f,
+      py::arg("fractions") = true, py::call_guard<py::gil_scoped_release>(),
+      "The grains' packing rate on a sparse voxel grid (core/grain_density.h); the GIL is released.");
+  m.def(
+      "write_grain_density_vdb",
+      [](const std::string& path, const GrainDensity& density, const std::string& object,
+         const std::map<std::string, float>& floatMeta, const std::map<std::string, Vec3>& vec3Meta,
+         const std::map<std::string, std::string>& stringMeta) {
+        DensityExportOptions o;
+        o.floatMetadata = floatMeta;
+        o.vec3Metadata = vec3Meta;
+        o.stringMetadata = stringMeta;
+        DensityExportResult r;
+        {
+          py::gil_scoped_release release;
+          r = writeGrainDensityVdb(path, density, o, object);
+        }
+        py::dict d;
+        d["voxel_size"] = r.voxelSize;
+        d["active_voxels"] = r.activeVoxels;
+        d["replaced_other"] = r.replacedOther;
+        d["bounds"] = boundsDict(r.worldBounds);
+        return d;
+      },
+      py::arg("path"), py::arg("density"), py::arg("object") = "",
+      py::arg("float_metadata") = std::map<std::string, float>(),
+      py::arg("vec3_metadata") = std::map<std::string, Vec3>(),
+      py::arg("string_metadata") = std::map<std::string, std::string>(),
+      "Float grid 'density' (the packing rate f) and, for mixtures, 'fraction.<k>' (core/density_export.h).");
+  py::class_<HeterogeneousMedium>(m, "HeterogeneousMedium")
+      .def(py::init([](const GrainDensity& density, const Vec3& sigmaT, const Vec3& albedo, float packingRate) {
+             return HeterogeneousMedium(density.packing, packingRate,
+                                        HomogeneousMedium(sigmaT, albedo, PhaseTable::isotropic()), "medium");
+           }),
+           py::arg("density"), py::arg("sigma_t"), py::arg("albedo"), py::arg("packing_rate"),
+           "sigma_t(x) = sigma_t * f(x) / packing_rate (isotropic phase here)")
+      .def("sigma_t", &HeterogeneousMedium::sigmaT, py::arg("point"))
+      .def("majorant", &HeterogeneousMedium::majorant, py::arg("point"))
+      .def_property_readonly("bytes", &HeterogeneousMedium::bytes)
+      .def_property_readonly("bounds", [](const HeterogeneousMedium& h) { return boundsDict(h.bounds()); })
+      .def(
+          "estimate_transmittance",
+          [](const HeterogeneousMedium& h, const FloatArray& origins, const FloatArray& directions, float tmax,
+             int samples, uint64_t seed, const std::string& method) {
+            const std::vector<Vec3> o = toPoints(origins, "origins"), d = toPoints(directions, "directions");
+            if (o.size() != d.size()) throw py::value_error("origins and directions differ in length");
+            if (samples < 2) throw py::value_error("samples must be >= 2");
+            if (method != "ratio" && method != "ratio_roulette" && method != "delta")
+              throw py::value_error("method must be ratio, ratio_roulette or delta");
+            py::array_t<double> mean({py::ssize_t(o.size()), py::ssize_t(3)}), var({py::ssize_t(o.size()), py::ssize_t(3)});
+            double* m = mean.mutable_data();
+            double* v = var.mutable_data();
+            int64_t lookups = 0;
+            double seconds = 0;
+            {
+              py::gil_scoped_release release;
+              const auto start = std::chrono::steady_clock::now();
+              for (size_t r = 0; r < o.size(); ++r) {
+                Ray ray;
+                ray.o = o[r];
+                ray.d = d[r];
+                Rng rng(seed, r);
+                double s[3] = {0, 0, 0}, q[3] = {0, 0, 0};
+                for (int k = 0; k < samples; ++k) {
+                  const Vec3 T = method == "delta" ? h.transmittanceDelta(ray, tmax, rng, &lookups)
+                                                   : h.transmittance(ray, tmax, rng, method == "ratio_roulette", &lookups);
+                  for (int c = 0; c < 3; ++c) {
+                    s[c] += T[c];
+                    q[c] += double(T[c]) * T[c];
+                  }
+                }
+                for (int c = 0; c < 3; ++c) {
+                  m[3 * r + size_t(c)] = s[c] / samples;
+                  v[3 * r + size_t(c)] = std::max(0.0, (q[c] - s[c] * s[c] / samples) / (samples - 1));
+                }
+              }
+              seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+            }
+            py::dict out;
+            out["mean"] = mean;
+            out["variance"] = var;  // of one sample
+            out["lookups"] = lookups;
+            out["seconds"] = seconds;
+            return out;
+          },
+          py::arg("origins"), py::arg("directions"), py::arg("tmax"), py::arg("samples"), py::arg("seed") = 0,
+          py::arg("method") = "ratio",
+          "Per ray, `samples` transmittance estimates to tmax (ratio, ratio_roulette or delta tracking): their mean "
+          "and one sample's variance (N, 3), the density lookups and the seconds, single-threaded.");
 }

@@ -690,11 +690,21 @@ def cmd_info(args):
 
 
 def cmd_export_vdb(args):
+    """An aggregate's coarse density (sigma_t inside its boundary), or an instancer of
+    explicit grains' packing rate (grain_density.py)."""
+    from . import grain_density
     check_output(args.output, "-o", (".vdb",))
     claim_outputs(args.output)
-    r = api.export_density(args.prim, args.output, args.voxel_size, path=args.scene)
+    scene = api.read_aggregates(args.scene)
+    instancer = grain_density.explicit_grains_prim(scene, args.prim)
+    if instancer is not None:
+        r = grain_density.export_grain_density(scene, instancer, args.output, args.voxel_size, source=args.scene)
+        summary = grain_density.export_summary(args.prim, args.output, r)
+    else:
+        r = api.export_density(args.prim, args.output, args.voxel_size, path=args.scene, stage=scene.stage)
+        summary = api.export_summary(args.prim, args.output, r)
     warn_if_replaced(r.get("replaced_other"), args.output)
-    _log(args, api.export_summary(args.prim, args.output, r))
+    _log(args, summary)
     return EXIT_OK
 
 
