@@ -134,7 +134,7 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
         float dist = std::isfinite(ls.dist) ? ls.dist * (1.0f - 1e-4f) : kInf;
         Vec3 Tr(1.0f);
         if (mediaMode) {
-          Tr = scene.transmittance(origin, ls.wi, dist, ray.time);
+          Tr = scene.transmittance(origin, ls.wi, dist, ray.time, &path.rng);
           cost += 1;
         } else if (path.mode == kPpt) {
           Tr = Vec3(scene.proxyTransmittance(origin, ls.wi, dist, nullptr, path.rng.nextU32(), ray.time));
@@ -206,19 +206,23 @@ void eptStep(const Scene& scene, PathState& path) {
     path.alive = false;
     return;
   }
-  if (hit.kind == Hit::Grain && hit.aggregate >= 0 && !path.touchedAggregate) {
+  // An aggregate's grain, or an instancer's that has a medium.
+  const bool mediumGrain =
+      hit.kind == Hit::Grain && (hit.aggregate >= 0 || (hit.instancer >= 0 && scene.instancedMedium(hit.instancer)));
+  if (mediumGrain && !path.touchedAggregate) {
     path.touchedAggregate = true;
     // Level of detail: grains well below the footprint here look like their medium.
     float lod = scene.settings().lod;
     float footprint = std::fabs(path.coneWidth + path.coneSpread * hit.t);
-    if (lod > 0 && scene.hasMedia() && hit.aggregate >= 0 &&
-        scene.aggregates()[hit.aggregate]->grainRadius() < lod * footprint) {
+    const float radius = hit.aggregate >= 0 ? scene.aggregates()[hit.aggregate]->grainRadius()
+                                            : scene.instancedGrainRadius(hit.instancer);
+    if (lod > 0 && scene.hasMedia() && radius < lod * footprint) {
       path.shortcut = true;
       // Under a narrow sun the medium takes the path at the first grain's surface (the
       // ray goes on from there): only the medium can sample the sun (Scene::narrowSun).
       // A grain of the surface layer may stick out of the boundary: the path then enters
       // the medium where its ray crosses the boundary.
-      if (scene.narrowSun() && scene.useProxies()) {
+      if (scene.narrowSun() && scene.useProxies() && hit.aggregate >= 0) {
         // Proxies reach any sun: the path goes on among them from here, where the first
         // sphere it enters is met as a proxy.
         path.mode = path.credit = kPpt;
@@ -227,7 +231,7 @@ void eptStep(const Scene& scene, PathState& path) {
       }
       if (scene.narrowSun()) {
         path.mode = path.credit = kVpt;
-        path.medium = scene.aggregates()[hit.aggregate]->insideBoundary(hit.p) ? hit.aggregate : -1;
+        path.medium = hit.aggregate >= 0 && scene.aggregates()[hit.aggregate]->insideBoundary(hit.p) ? hit.aggregate : -1;
         path.ray.o = hit.p;
         path.ray.tmin = 0;
         path.ray.tmax = kInf;

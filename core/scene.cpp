@@ -18,6 +18,12 @@ namespace granular {
 
 namespace {
 
+uint64_t floatBits(float f) {
+  uint32_t u;
+  std::memcpy(&u, &f, sizeof u);
+  return u;
+}
+
 // Does the segment a→b cross the aggregate's boundary, or does a lie inside it?
 bool segmentReachesInto(const Aggregate& agg, const Vec3& a, const Vec3& b) {
   if (agg.bounds().contains(a) && agg.insideBoundary(a)) return true;
@@ -465,6 +471,10 @@ void Scene::buildInstancedGrains(const SceneDesc& desc, int defaultGrain, const 
         entry.bounds = b.bounds;
         break;
       }
+    if (entry.grains && previous) {
+      for (const BuiltInstanced& b : previous->builtInstanced_)
+        if (b.grains == entry.grains) entry.medium = b.medium, entry.meanRadius = b.meanRadius;
+    }
     if (!entry.grains) {
       auto grains = std::make_shared<InstancedGrains>();
       grains->build(d, device_, true, span);
@@ -485,9 +495,99 @@ void Scene::buildInstancedGrains(const SceneDesc& desc, int defaultGrain, const 
       all.extend(entry.bounds);
       instancedBounds_.extend(entry.bounds);
     }
+    if (desc.settings.technique == Technique::Ept) {
+      entry.medium.reset();
+    } else if (!entry.medium && entry.grains->stats().grains > 0) {
+      entry.medium = buildInstancedMedium(*entry.grains, entry.materials, entry.worldScale);
+      if (entry.medium) entry.meanRadius = entry.medium->density.stats.meanRadius;
+    }
+    if (entry.medium) {
+      ++instancedMedia_;
+      // The hybrid's switch measures the spread of a bundle against the largest grain.
+      maxGrainRadius_ = std::max(maxGrainRadius_, entry.grains->objectBounds().empty() ? 0.0f
+                                                  : entry.grains->stats().cellSize / InstancedGrains::kCellRadii *
+                                                        entry.worldScale);
+    }
     instanced_.push_back(entry.grains);
     builtInstanced_.push_back(std::move(entry));
   }
+}
+
+std::shared_ptr<const Scene::InstancedMedium> Scene::buildInstancedMedium(const InstancedGrains& grains,
+                                                                          const std::vector<int>& materials,
+                                                                          float worldScale) const {
+  const InstancedGrainsDesc& d = grains.desc();
+  auto m = std::make_shared<InstancedMedium>();
+  m->density = buildGrainDensity(d);
+  const VoxelLeaves& f = m->density.packing;
+  // The bulk's packing rate: f averaged over the grains' volume (Σ f² / Σ f over voxels),
+  // where the linear σ_t(f) is exact (heterogeneous_medium.h).
+  double s1 = 0, s2 = 0, fmax = 0;
+  for (float v : f.values)
+    if (v > 0) s1 += v, s2 += double(v) * v, fmax = std::max(fmax, double(v));
+  if (!(s1 > 0)) return nullptr;
+  const double fGrains = s2 / s1;
+  // The grains' sizes: each prototype's mean bounding radius, the Sauter mean of all, in
+  // units of the mean radius R̄; absorption per R̄ (TT's unit) from per prototype radius.
+  const size_t np = grains.prototypes().size();
+  std::vector<double> count(np, 0.0), sum(np, 0.0);
+  double s2r = 0, s3r = 0;
+  const float meanR = m->density.stats.meanRadius;
+  for (size_t i = 0; i < d.size(); ++i) {
+    const InstancedGrain g = grains.grain(int64_t(i));
+    const double s = double(g.radius) * worldScale / meanR;
+    count[size_t(g.prototype)] += 1;
+    sum[size_t(g.prototype)] += s;
+    s2r += s * s;
+    s3r += s * s * s;
+  }
+  // TT's packing rate is the bounding spheres' (Meng et al. 2015: a sphere packing, a grain
+  // in each sphere); the density counts the grains' own volume, a fraction φ of their spheres.
+  const double sphereVolume = 4.0 / 3.0 * kPiD * double(meanR) * meanR * meanR * s3r;
+  const double phi = sphereVolume > 0 ? std::clamp(m->density.stats.totalVolume / sphereVolume, 0.05, 1.0) : 1.0;
+  const float fRef = float(std::clamp(fGrains / phi, 0.01, 0.64));
+  AggregateDesc a;
+  a.name = d.name;
+  a.grainRadius = meanR;
+  a.packingRate = fRef;
+  std::vector<const TriangleMesh*> meshes;
+  std::vector<Material> mats;
+  for (size_t k = 0; k < np; ++k) {
+    const GrainPrototype& p = grains.prototypes()[k];
+    a.prototypes.push_back(d.prototypes[k]);
+    a.weights.push_back(float(count[k]));
+    a.sizes.push_back(count[k] > 0 ? float(std::clamp(sum[k] / count[k], 0.1, 10.0)) : 1.0f);
+    meshes.push_back(&p.mesh);
+    Material mat = materials_[size_t(materials[k])];
+    mat.absorption = mat.absorption * (meanR / (p.fitRadius * worldScale));
+    mats.push_back(mat);
+  }
+  m->params = aggregateMedium(meshes, mats, a, s3r / std::max(1e-30, s2r));
+  // Thinner than its mean free path at its densest across its narrowest extent: EPT alone.
+  const Vec3 extent = m->density.packing.voxelSize > 0 ? grains.objectBounds().extent() * worldScale : Vec3(0.0f);
+  const float sigmaMax = maxComponent(m->params.sigmaT) * float(fmax) / fRef;
+  if (!(sigmaMax * 0.5f * minComponent(extent) > 1.0f)) return nullptr;
+  // σ_t(x) follows the grains' volume fraction, equal to f_ref φ in the bulk.
+  MediumParams scaled = m->params;
+  scaled.packingRate = float(fGrains);
+  m->medium = HeterogeneousMedium(m->density, scaled, d.name);
+  return m;
+}
+
+bool Scene::firstInstancedMedium(const Ray& ray, float tmax, int& index, float& t0, float& t1) const {
+  const Vec3 invD(1.0f / ray.d.x, 1.0f / ray.d.y, 1.0f / ray.d.z);
+  float best = kInf;
+  for (size_t i = 0; i < builtInstanced_.size(); ++i) {
+    const BuiltInstanced& b = builtInstanced_[i];
+    if (!b.medium) continue;
+    float a0, a1;
+    if (!b.medium->medium.bounds().intersect(ray.o, invD, ray.tmin, tmax, a0, a1) || !(a0 < best)) continue;
+    best = a0;
+    index = int(i);
+    t0 = a0;
+    t1 = a1;
+  }
+  return std::isfinite(best);
 }
 
 void Scene::addMedium(const AggregateDesc& a, BuiltAggregate& entry) {
@@ -574,18 +674,19 @@ std::string Scene::widenedSunsWarning() const {
              "delta light (set its angle to choose another size)");
 }
 
-bool Scene::intersectSurfaces(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax) const {
+bool Scene::intersectSurfaces(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax, bool mediaMode) const {
   bool found = intersectMeshes(ray, invD, hit, tmax);
-  if (!instanced_.empty()) found |= intersectInstancedGrains(ray, invD, hit, tmax);
+  if (!instanced_.empty()) found |= intersectInstancedGrains(ray, invD, hit, tmax, mediaMode);
   return found;
 }
 
-bool Scene::intersectInstancedGrains(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax) const {
+bool Scene::intersectInstancedGrains(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax, bool mediaMode) const {
   float t0, t1;
   if (!instancedBounds_.intersect(ray.o, invD, ray.tmin, tmax, t0, t1)) return false;
   bool found = false;
   for (size_t i = 0; i < instanced_.size(); ++i) {
     const BuiltInstanced& b = builtInstanced_[i];
+    if (mediaMode && b.medium) continue;  // the media see its medium instead
     if (!b.bounds.intersect(ray.o, invD, ray.tmin, tmax, t0, t1)) continue;
     InstancedGrainHit g;
     if (!b.grains->intersect(ray.o, ray.d, ray.tmin, tmax, g, ray.time) || !(g.t < tmax)) continue;
@@ -851,6 +952,14 @@ void Scene::updateExplicitBounces() {
     const float depthMfp = aggregates_[a]->stats().maxInteriorDepth / std::max(1e-30f, maxComponent(m.lambdaT));
     explicitBounces_ = std::max(explicitBounces_, explicitBouncesFor(m.albedo, m.g, depthMfp));
   }
+  for (const BuiltInstanced& b : builtInstanced_)
+    if (b.medium) {
+      // Half its narrowest extent stands for its interior depth.
+      const MediumParams& m = b.medium->params;
+      const float depth = 0.5f * minComponent(b.bounds.extent());
+      explicitBounces_ = std::max(explicitBounces_,
+                                  explicitBouncesFor(m.albedo, m.g, depth / std::max(1e-30f, maxComponent(m.lambdaT))));
+    }
 }
 
 void Scene::updateDiffusionDepths() {
@@ -875,7 +984,7 @@ void Scene::setMedium(int aggregate, const MediumParams& params) {
 
 bool Scene::intersectMedium(const Ray& ray, Hit& hit) const {
   float tmax = ray.tmax;
-  bool found = intersectSurfaces(ray, Vec3(1.0f / ray.d.x, 1.0f / ray.d.y, 1.0f / ray.d.z), hit, tmax);
+  bool found = intersectSurfaces(ray, Vec3(1.0f / ray.d.x, 1.0f / ray.d.y, 1.0f / ray.d.z), hit, tmax, true);
   for (size_t a = 0; a < aggregates_.size(); ++a) {
     float t;
     Vec3 ng;
@@ -934,14 +1043,16 @@ float Scene::proxyTransmittance(const Vec3& p, const Vec3& dir, float dist, cons
   return tr;
 }
 
-bool Scene::surfacesOccluded(const Vec3& p, const Vec3& dir, float dist, float time) const {
+bool Scene::surfacesOccluded(const Vec3& p, const Vec3& dir, float dist, float time, bool mediaMode) const {
   if (!traceable(p, dir, 0.0f, dist)) return false;
   if (!instanced_.empty()) {
     const Vec3 invD(1.0f / dir.x, 1.0f / dir.y, 1.0f / dir.z);
     float t0, t1;
     if (instancedBounds_.intersect(p, invD, 0.0f, dist, t0, t1))
       for (const BuiltInstanced& b : builtInstanced_)
-        if (b.bounds.intersect(p, invD, 0.0f, dist, t0, t1) && b.grains->occluded(p, dir, 0.0f, dist, time)) return true;
+        if (!(mediaMode && b.medium) && b.bounds.intersect(p, invD, 0.0f, dist, t0, t1) &&
+            b.grains->occluded(p, dir, 0.0f, dist, time))
+          return true;
   }
   if (surfaceBounds_.empty()) return false;
   RTCIntersectContext ctx;
@@ -954,8 +1065,19 @@ bool Scene::surfacesOccluded(const Vec3& p, const Vec3& dir, float dist, float t
   return r.tfar < 0;  // Embree marks a hit by tfar = -inf
 }
 
-Vec3 Scene::transmittance(const Vec3& p, const Vec3& dir, float dist, float time) const {
-  if (surfacesOccluded(p, dir, dist, time)) return Vec3(0.0f);
+Vec3 Scene::transmittance(const Vec3& p, const Vec3& dir, float dist, float time, Rng* rng) const {
+  if (surfacesOccluded(p, dir, dist, time, true)) return Vec3(0.0f);
+  Vec3 tr(1.0f);
+  if (instancedMedia_ > 0) {
+    Rng own(hashInts(floatBits(p.x), floatBits(p.y), floatBits(p.z), floatBits(dir.x) ^ (uint64_t(floatBits(dir.y)) << 32)),
+            floatBits(dir.z));
+    Ray ray{p, dir, 0.0f, kInf, time};
+    for (const BuiltInstanced& b : builtInstanced_)
+      if (b.medium) {
+        tr *= b.medium->medium.transmittance(ray, dist, rng ? *rng : own);
+        if (isBlack(tr)) return tr;
+      }
+  }
   Vec3 opticalDepth(0.0f);
   for (size_t a = 0; a < aggregates_.size(); ++a) {
     // Walk the boundary crossings; a crossing whose normal faces along the ray leaves
@@ -976,7 +1098,7 @@ Vec3 Scene::transmittance(const Vec3& p, const Vec3& dir, float dist, float time
     }
     if (inside > 0) opticalDepth += media_[a].sigmaT() * inside;
   }
-  return vexp(-opticalDepth);
+  return tr * vexp(-opticalDepth);
 }
 
 int Scene::mediumAt(const Vec3& p) const {

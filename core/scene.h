@@ -22,6 +22,8 @@
 #include "cryptomatte.h"
 #include "diffusion.h"
 #include "embree_util.h"
+#include "grain_density.h"
+#include "heterogeneous_medium.h"
 #include "instanced_grains.h"
 #include "light.h"
 #include "material.h"
@@ -93,7 +95,8 @@ class Scene {
   bool intersectMedium(const Ray& ray, Hit& hit) const;
   // Transmittance of a shadow ray through the media: 0 if a surface blocks it, else the
   // product of exp(−σ_t ℓ) over the lengths ℓ it runs inside each aggregate's boundary.
-  Vec3 transmittance(const Vec3& p, const Vec3& dir, float dist, float time = 0) const;
+  // Instancers' media are crossed by ratio tracking, from rng (without one: from a hash of the ray).
+  Vec3 transmittance(const Vec3& p, const Vec3& dir, float dist, float time = 0, Rng* rng = nullptr) const;
   // Proxies (proxy.h; when useProxies()): nearest surface,
   // area light or proxy sphere entered (Hit::Proxy; its grain's prototype in hit.grain, p
   // on the sphere, ng the sphere's outward normal there). from: the sphere the ray leaves.
@@ -117,7 +120,7 @@ class Scene {
   int mediumAt(const Vec3& p) const;
   // Media exist (one per aggregate) when the technique uses them and some aggregate is
   // thicker than its mean free path (else EPT alone renders it: nothing to gain).
-  bool hasMedia() const { return !media_.empty(); }
+  bool hasMedia() const { return !media_.empty() || instancedMedia_ > 0; }
   const HomogeneousMedium& medium(int aggregate) const { return media_[aggregate]; }
   const MediumParams& mediumParams(int aggregate) const { return mediumParams_[aggregate]; }
   float maxGrainRadius() const { return maxGrainRadius_; }
@@ -192,13 +195,29 @@ class Scene {
   const std::vector<Light>& lights() const { return lights_; }
   const std::vector<int>& infiniteLights() const { return infiniteLights_; }
   const std::vector<std::shared_ptr<const Aggregate>>& aggregates() const { return aggregates_; }
-  // Explicit grains from simulations (SceneDesc::instancedGrains), in render space. Every
-  // transport sees them as surfaces, grain by grain (intersect, intersectMedium,
-  // intersectProxies, occluded, transmittance): their equivalent medium is not used yet,
-  // so paths among them stay explicit whatever the technique. A grain's absorption is per
-  // its prototype's bounding radius at scale 1 (the instancer's units times its
-  // transform's scale): grains of one material scaled up absorb more across.
+  // Explicit grains from simulations (SceneDesc::instancedGrains), in render space. A
+  // grain's absorption is per its prototype's bounding radius at scale 1 (the instancer's
+  // units times its transform's scale): grains of one material scaled up absorb more across.
+  // EPT traces them grain by grain (intersect, occluded); so do proxies (no proxy tables for
+  // them yet). With a technique that uses media, an instancer thicker than its mean free
+  // path also has its equivalent heterogeneous medium (heterogeneous_medium.h: σ_t follows
+  // the grains' packing rate, grain_density.h; α_s and phase by TT for its prototypes at
+  // the bulk's packing rate and the grains' sizes). In the media (VPT: intersectMedium,
+  // transmittance) such an instancer is that medium and no longer grains: a path enters it
+  // where the hybrid switches it (after the explicit bounces, as for aggregates), or at its
+  // first grain by the level-of-detail shortcut. No DA in it (its density is not uniform).
+  // Media of instancers are assumed not to overlap: a segment is tracked through the
+  // first medium whose bounds it enters, up to their exit.
   const std::vector<std::shared_ptr<const InstancedGrains>>& instancedGrains() const { return instanced_; }
+  // Instancer i's medium, or null (technique ept, or thinner than its mean free path).
+  const HeterogeneousMedium* instancedMedium(int i) const {
+    return builtInstanced_[size_t(i)].medium ? &builtInstanced_[size_t(i)].medium->medium : nullptr;
+  }
+  // The first instancer medium whose bounds the ray enters within [ray.tmin, tmax): its
+  // index and the parameters where the ray is inside those bounds; false: none.
+  bool firstInstancedMedium(const Ray& ray, float tmax, int& index, float& t0, float& t1) const;
+  // Of instancer i (which has a medium): the grains' mean bounding radius (world).
+  float instancedGrainRadius(int i) const { return builtInstanced_[size_t(i)].meanRadius; }
   int instancedGrainsBuilt() const { return instancedBuilt_; }  // built anew, not lent by the previous scene
   double buildSeconds() const { return buildSeconds_; }
   // Of this build's aggregates: how many were voxelised anew, how many were taken from the
@@ -234,14 +253,16 @@ class Scene {
 
  private:
   // Parts of intersect()/intersectMedium(): nearest hit below tmax (which they lower).
-  bool intersectSurfaces(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax) const;  // invD: 1 / ray.d
+  bool intersectSurfaces(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax,
+                         bool mediaMode = false) const;  // invD: 1 / ray.d
   bool intersectAreaLights(const Ray& ray, Hit& hit, float& tmax) const;
   void finishHit(const Ray& ray, Hit& hit) const;  // position and ray-offset scale
   void grainHit(Hit::Kind kind, int aggregate, const GrainHit& g, Hit& hit) const;  // Grain or Proxy
   // Meshes and explicit grains from instancers (which every transport sees as surfaces).
-  bool surfacesOccluded(const Vec3& p, const Vec3& dir, float dist, float time) const;
+  // mediaMode: instancers with a medium are that medium (transmittance), not grains.
+  bool surfacesOccluded(const Vec3& p, const Vec3& dir, float dist, float time, bool mediaMode = false) const;
   bool intersectMeshes(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax) const;
-  bool intersectInstancedGrains(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax) const;
+  bool intersectInstancedGrains(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax, bool mediaMode) const;
   void updateDiffusionDepths();  // from the media, the emitters inside and the camera
 
   Camera camera_;
@@ -286,8 +307,15 @@ class Scene {
   std::vector<LightDesc> buildLights(const SceneDesc& desc);      // returns them as built
   void findEmittersInside(const SceneDesc& desc, const std::vector<LightDesc>& lights);  // emitterInside_
   std::vector<BuiltAggregate> built_;
+  struct InstancedMedium {
+    GrainDensity density;
+    MediumParams params;  // TT, at the bulk's packing rate (params.packingRate)
+    HeterogeneousMedium medium;
+  };
   struct BuiltInstanced {
     std::shared_ptr<const InstancedGrains> grains;
+    std::shared_ptr<const InstancedMedium> medium;  // null: none (yet)
+    float meanRadius = 0;                           // world
     std::vector<int> materials;               // scene material of each prototype
     std::vector<MaterialDesc> materialDescs;  // compared when lending
     std::vector<float> lengthScale;           // per prototype: its world radius at scale 1
@@ -300,6 +328,11 @@ class Scene {
   std::vector<HitIdentity> instancedIdentity_;
   Bounds3 instancedBounds_;
   int instancedBuilt_ = 0;
+  int instancedMedia_ = 0;  // instancers with a medium
+  // The medium of an instancer's grains (see instancedGrains()), or null when it is thinner
+  // than its mean free path.
+  std::shared_ptr<const InstancedMedium> buildInstancedMedium(const InstancedGrains& grains,
+                                                             const std::vector<int>& materials, float worldScale) const;
   int aggregatesBuilt_ = 0, standInsBuilt_ = 0, aggregatesReused_ = 0, mediaDerived_ = 0;
   std::vector<MediumParams> mediumParams_;
   std::vector<std::shared_ptr<const ProxyTables>> proxyTables_;  // per aggregate

@@ -107,7 +107,7 @@ void mediumNee(const Scene& scene, PathState& path, const HomogeneousMedium& med
     if (lights[li].sampleLi(p, u1, u2, ls) && !isBlack(ls.Li)) {
       Vec3 f = med.phase(wi, ls.wi);
       float dist = std::isfinite(ls.dist) ? ls.dist * (1.0f - 1e-4f) : kInf;
-      Vec3 Tr = scene.transmittance(p, ls.wi, dist, path.ray.time);
+      Vec3 Tr = scene.transmittance(p, ls.wi, dist, path.ray.time, &path.rng);
       path.cost[1] += 1;
       if (reducedSigmaT && !isBlack(Tr)) {
         // The flight to the own medium's boundary in the reduced medium (diffusion.h).
@@ -201,6 +201,33 @@ void vptStep(const Scene& scene, PathState& path) {
       }
       // Passing to the hit: weight T(s) / P(flight >= s).
       path.beta *= med.transmittance(tHit) / med.survivalProbability(tHit);
+    } else if (scene.hasMedia()) {
+      // An instancer's heterogeneous medium (Scene::instancedGrains): spectral tracking
+      // through it up to the hit or the end of its bounds, whose weight carries α_s at a
+      // scattering (heterogeneous_medium.h).
+      int m;
+      float t0, t1;
+      const float tHit = found ? hit.t : kInf;
+      if (scene.firstInstancedMedium(path.ray, tHit, m, t0, t1)) {
+        const HeterogeneousMedium& med = *scene.instancedMedium(m);
+        const float tEnd = std::min(tHit, t1);
+        const MediumFlight flight = med.sampleFlight(path.ray, tEnd, path.rng, path.beta);
+        path.cost[1] += 0.1 * double(flight.lookups);
+        path.beta *= flight.weight;
+        if (flight.scattered) {
+          scatterInMedium(scene, path, med.reference(), path.ray.o + path.ray.d * flight.t);
+          return;
+        }
+        if (isBlack(path.beta)) {
+          path.alive = false;
+          return;
+        }
+        if (tEnd < tHit) {  // out of its bounds before the hit: go on from there
+          path.ray.o = path.ray.o + path.ray.d * tEnd;
+          path.ray.tmin = 0;
+          continue;
+        }
+      }
     }
     if (endsAtLight(scene, path, found, hit)) return;
     if (hit.kind == Hit::Boundary) {

@@ -929,15 +929,17 @@ PYBIND11_MODULE(granular_core, m) {
       })
       .def_property_readonly("instanced_grains", [](const PyScene& s) {
         py::list out;
-        for (const auto& g : s.scene->instancedGrains()) {
+        const auto& all = s.scene->instancedGrains();
+        for (size_t i = 0; i < all.size(); ++i) {
           py::dict d;
-          d["name"] = g->desc().name;
-          d["grains"] = g->stats().grains;
-          d["grid_bytes"] = g->stats().gridBytes;
+          d["name"] = all[i]->desc().name;
+          d["grains"] = all[i]->stats().grains;
+          d["grid_bytes"] = all[i]->stats().gridBytes;
+          d["has_medium"] = s.scene->instancedMedium(int(i)) != nullptr;
           out.append(d);
         }
         return out;
-      }, "per instancer of explicit grains: name, grains, grid_bytes");
+      }, "per instancer of explicit grains: name, grains, grid_bytes, has_medium");
 
   py::class_<Image>(m, "Image")
       .def(py::init([](const FloatArray& pixels, const std::vector<std::string>& channels, int x, int y, int fullWidth,

@@ -430,9 +430,11 @@ def _log_transports(args, built, renderer, image):
     if not built.has_media and args.technique != "ept" and built.aggregates:
         _log(args, f"  technique {args.technique}: every aggregate is thinner than its mean free path, "
                    f"so explicit grains (EPT) render it all")
-    if built.instanced_grains and args.technique != "ept":
-        _log(args, f"  explicit grains of {len(built.instanced_grains)} instancer(s): traced grain by grain "
-                   f"(their medium is not used yet)")
+    for g in built.instanced_grains:
+        if args.technique != "ept":
+            how = "with its heterogeneous medium after the explicit bounces" if g["has_medium"] else \
+                "grain by grain (thinner than its mean free path: no medium)"
+            _log(args, f"  {g['name']}: {g['grains']} explicit grains, {how}")
 
 
 def cmd_render(args):

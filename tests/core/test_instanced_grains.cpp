@@ -728,3 +728,133 @@ TEST(InstancedGrainsInScene, MotionBlurIsTheAverageOfTheShutter) {
   // The test can tell: without the blur, blocks differ far beyond the noise.
   EXPECT_GT(stillWorst, 8.0);
 }
+
+// ---- their medium -----------------------------------------------------------------------
+
+namespace {
+
+// A slab of grains placed by random sequential addition (a random packing, as a poured
+// material has, not a lattice whose channels let light through), uniform or with a
+// gradient in packing rate (candidates kept with a probability rising with height), of
+// rock and round prototypes of one amber material, scaled by 0.05; under a sun and a sky,
+// seen from above at an angle. EPT or the hybrid's EPT+VPT.
+SceneDesc slabScene(Technique technique, uint64_t seed, bool gradient, int explicitBounces = -1) {
+  SceneDesc s;
+  s.settings.width = s.settings.height = 16;
+  s.settings.spp = 128;
+  s.settings.seed = seed;
+  s.settings.technique = technique;
+  s.settings.explicitBounces = explicitBounces;
+  s.settings.roulette = 1.0f;
+  s.camera.cameraToWorld = Transform::lookAt(Vec3(0.0f, 2.2f, 1.6f), Vec3(0.0f, 0.0f, 0.0f), Vec3(0, 1, 0));
+  s.camera.focalLength = 50;
+  s.camera.horizontalAperture = s.camera.verticalAperture = 20;
+  MaterialDesc sand;
+  sand.name = "sand";
+  sand.type = MaterialType::Dielectric;
+  sand.ior = 1.5f;
+  sand.absorption = Vec3(0.05f, 0.1f, 0.3f);
+  s.materials = {sand};
+  LightDesc sun;
+  sun.name = "sun";
+  sun.type = LightType::Distant;
+  sun.angle = 5;
+  sun.intensity = 3;
+  sun.xf = Transform::lookAt(Vec3(0.0f), Vec3(-0.4f, -1.0f, -0.5f), Vec3(0, 0, 1));
+  LightDesc sky;
+  sky.name = "sky";
+  sky.type = LightType::Dome;
+  sky.color = Vec3(0.5f, 0.6f, 0.8f);
+  s.lights = {sun, sky};
+  std::mt19937 rng(31);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  InstancedGrainsDesc g;
+  g.name = "/World/Slab";
+  g.id = 3;
+  GrainPrototypeDesc round, rock;
+  round.name = "/World/Slab/Round";
+  round.mesh = makeIcosphere(1);
+  rock.name = "/World/Slab/Rock";
+  rock.mesh = makeRock(1, 0.2f, 2);
+  round.material = rock.material = 0;
+  g.prototypes = {round, rock};
+  // Bounding radii at most 1.3 (the rock's is about 1.25 at scale 1) times the scale.
+  const float X = 40.0f, H = 24.0f, cell = 2.6f;
+  const int nc[3] = {int(2 * X / cell) + 1, int(H / cell) + 1, int(2 * X / cell) + 1};
+  std::vector<std::vector<int>> grid(size_t(nc[0]) * nc[1] * nc[2]);
+  for (int attempt = 0; attempt < 60000; ++attempt) {
+    const Vec3 c(X * (2 * u(rng) - 1), -H * u(rng), X * (2 * u(rng) - 1));
+    const float scale = 0.8f + 0.1f * u(rng), bound = 1.3f * scale;
+    const float keep = gradient ? 0.25f + 0.75f * (1.0f + c.y / H) : 1.0f;
+    if (u(rng) >= keep) continue;
+    const int ci[3] = {int((c.x + X) / cell), int(-c.y / cell), int((c.z + X) / cell)};
+    bool free = true;
+    for (int dz = -1; dz <= 1 && free; ++dz)
+      for (int dy = -1; dy <= 1 && free; ++dy)
+        for (int dx = -1; dx <= 1 && free; ++dx) {
+          const int x = ci[0] + dx, y = ci[1] + dy, z = ci[2] + dz;
+          if (x < 0 || y < 0 || z < 0 || x >= nc[0] || y >= nc[1] || z >= nc[2]) continue;
+          for (int k : grid[(size_t(z) * nc[1] + y) * nc[0] + x])
+            if (length(g.positions[size_t(k)] - c) < bound + 1.3f * g.scales[size_t(k)]) free = false;
+        }
+    if (!free) continue;
+    grid[(size_t(ci[2]) * nc[1] + ci[1]) * nc[0] + ci[0]].push_back(int(g.positions.size()));
+    g.positions.push_back(c);
+    g.orientations.push_back(randomRotation(rng));
+    g.scales.push_back(scale);
+    g.protoIndices.push_back(u(rng) < 0.5f ? 0 : 1);
+  }
+  g.xf = Transform::scale(Vec3(0.05f));
+  s.instancedGrains.push_back(g);
+  return s;
+}
+
+}  // namespace
+
+TEST(InstancedGrainsInScene, AThickInstancerHasAMediumThatFollowsItsDensity) {
+  auto scene = Scene::build(slabScene(Technique::EptVpt, 1, true));
+  ASSERT_TRUE(scene->hasMedia());
+  const HeterogeneousMedium* med = scene->instancedMedium(0);
+  ASSERT_NE(med, nullptr);
+  // Denser higher up the gradient (candidates kept with probability 0.75) than lower (0.5),
+  // both a kernel's reach inside the slab; positions in render space.
+  const Vec3 origin(float(scene->renderOrigin().x), float(scene->renderOrigin().y), float(scene->renderOrigin().z));
+  const float top = med->density(Vec3(0.0f, -0.05f * 8.0f, 0.0f) - origin);
+  const float bottom = med->density(Vec3(0.0f, -0.05f * 16.0f, 0.0f) - origin);
+  std::printf("packing rate near the top %.3f, near the bottom %.3f; %d explicit bounces\n", top, bottom,
+              scene->explicitBounces());
+  EXPECT_GT(top, 1.15f * bottom);
+  EXPECT_GT(bottom, 0.05f);
+  // EPT builds none.
+  auto ept = Scene::build(slabScene(Technique::Ept, 1, true));
+  EXPECT_EQ(ept->instancedMedium(0), nullptr);
+  EXPECT_FALSE(ept->hasMedia());
+  // A handful of grains is thinner than its mean free path: none.
+  auto thin = Scene::build(instancedScene(false, 1));
+  EXPECT_EQ(thin->instancedMedium(0), nullptr);
+}
+
+TEST(InstancedGrainsInScene, TheHybridMatchesExplicitGrainsOnASlab) {
+  // Per 8x8 block and channel against EPT on the same grains: with the automatic explicit
+  // bounces (32 for grains this absorbing, Scene::explicitBouncesFor) within noise; with
+  // none, the medium alone carries everything after the first grain, within the equivalent
+  // medium's known low-order error (a few percent dark: bench/README.md) plus noise.
+  for (bool gradient : {false, true}) {
+    const auto windows = blocks(16, 2);
+    const auto ept = renderEstimates(slabScene(Technique::Ept, 5, gradient), windows);
+    for (int bounces : {-1, 0}) {
+      const auto hyb = renderEstimates(slabScene(Technique::EptVpt, 6, gradient, bounces), windows);
+      for (size_t b = 0; b < windows.size(); ++b)
+        for (int c = 0; c < 3; ++c) {
+          const double noise = std::hypot(ept[b].se[c], hyb[b].se[c]);
+          const double diff = hyb[b].mean[c] - ept[b].mean[c];
+          std::printf("%s, %d explicit bounces, block %zu channel %d: EPT %.4f, EPT+VPT %.4f (%+.1f%%, noise %.1f%%)\n",
+                      gradient ? "gradient" : "uniform", bounces, b, c, ept[b].mean[c], hyb[b].mean[c],
+                      100 * diff / ept[b].mean[c], 100 * noise / ept[b].mean[c]);
+          const double allowed = 4 * noise + (bounces == 0 ? 0.05 * ept[b].mean[c] : 0.0);
+          EXPECT_LE(std::fabs(diff), allowed) << (gradient ? "gradient" : "uniform") << ", " << bounces
+                                              << " explicit bounces, block " << b << ", channel " << c;
+        }
+    }
+  }
+}
