@@ -669,4 +669,67 @@ InstancedGrainsDesc instancedGrainsFromUsd(const InstancerPrim& prim, SceneDesc&
   return g;
 }
 
+bool isExplicitGrainInstancer(const std::optional<std::vector<std::string>>& instancerApiSchemas,
+                              const std::vector<MeshPrim>& prototypes) {
+  if (instancerApiSchemas && std::find(instancerApiSchemas->begin(), instancerApiSchemas->end(),
+                                       kInstancedAggregateApi) != instancerApiSchemas->end())
+    return true;
+  return !prototypes.empty() && std::all_of(prototypes.begin(), prototypes.end(), [](const MeshPrim& p) {
+    return p.apiSchemas ? hasApi(p, kGrainApi) : anyGrainPrimvar(p);
+  });
+}
+
+InstancedGrainsDesc instancedGrainsFromPrototypeInstances(InstancerPrim prim,
+                                                          const std::vector<std::vector<int64_t>>& instancesOf,
+                                                          const std::vector<int64_t>& authoredProtoIndices,
+                                                          SceneDesc& desc, const PrimLookup& lookup) {
+  // As many instances as any array or list implies: a list or protoIndices longer than
+  // positions is then reported by instancedGrainsFromUsd as the lengths' mismatch.
+  size_t n = std::max(prim.positions.size() / 3, authoredProtoIndices.size());
+  for (const std::vector<int64_t>& list : instancesOf)
+    for (int64_t i : list) {
+      if (i < 0) throw InputError(prim.path, "protoIndices", str("the host lists instance ", i, " (not an index)"));
+      n = std::max(n, size_t(i) + 1);
+    }
+  std::vector<int64_t> owner(n, -1);
+  for (size_t k = 0; k < instancesOf.size(); ++k)
+    for (int64_t i : instancesOf[k]) {
+      if (owner[size_t(i)] >= 0)
+        throw InputError(prim.path, "protoIndices", str("instance ", i, " is drawn with prototypes ", owner[size_t(i)],
+                                                        " and ", k, " (one each)"));
+      owner[size_t(i)] = int64_t(k);
+    }
+  const int64_t protos = int64_t(prim.prototypes.size());
+  std::vector<char> drawn(n, 1);
+  prim.protoIndices.assign(n, 0);
+  for (size_t i = 0; i < n; ++i) {
+    if (owner[i] >= 0) {
+      prim.protoIndices[i] = owner[i];
+      continue;
+    }
+    const bool authored = i < authoredProtoIndices.size();
+    if (authored && (authoredProtoIndices[i] < 0 || authoredProtoIndices[i] >= protos)) {
+      prim.protoIndices[i] = authoredProtoIndices[i];  // reported below, as granular render reports it
+      continue;
+    }
+    drawn[i] = 0;  // masked: checked as the first prototype's, then left out
+  }
+  InstancedGrainsDesc g = instancedGrainsFromUsd(prim, desc, lookup);
+  if (std::find(drawn.begin(), drawn.end(), 0) == drawn.end()) return g;
+  auto keep = [&](auto& values) {
+    if (values.size() != n) return;  // unauthored
+    size_t out = 0;
+    for (size_t i = 0; i < n; ++i)
+      if (drawn[i]) values[out++] = values[i];
+    values.resize(out);
+  };
+  keep(g.positions);
+  keep(g.orientations);
+  keep(g.scales);
+  keep(g.protoIndices);
+  keep(g.velocities);
+  keep(g.angularVelocities);
+  return g;
+}
+
 }  // namespace granular

@@ -139,4 +139,31 @@ struct InstancerPrim {
 // prototypes), or the prototype's own prim. Overlaps are checked when the grid is built.
 InstancedGrainsDesc instancedGrainsFromUsd(const InstancerPrim& prim, SceneDesc& desc, const PrimLookup& lookup);
 
+// ---- explicit grains where the front end sees no protoIndices (Hydra) --------------------
+//
+// Whether a PointInstancer holds a simulation's grains, read by instancedGrainsFromUsd rather
+// than drawn as instanced meshes. Where the front end sees applied API schemas (usd-core):
+// GranularInstancedAggregateAPI on the instancer, or GranularGrainAPI on every prototype.
+// Where it does not (a Hydra scene delegate, instancerApiSchemas unset and the prototypes'
+// apiSchemas unset): every prototype carrying a GranularGrainAPI primvar (ior, absorption,
+// roughness; authored on it or inherited from the instancer). No prototype: no grains.
+bool isExplicitGrainInstancer(const std::optional<std::vector<std::string>>& instancerApiSchemas,
+                              const std::vector<MeshPrim>& prototypes);
+
+// instancedGrainsFromUsd for a front end that sees, instead of protoIndices, the instances
+// drawn with each prototype (a Hydra scene delegate's GetInstanceIndices): instancesOf[k]
+// lists indices into prim's per-instance arrays drawn with prim.prototypes[k]; prim's arrays
+// are whole (all instances) and prim.protoIndices is ignored. An instance in no list is one
+// the host does not draw: USD's invisibleIds and inactiveIds, or a protoIndices entry that
+// names no prototype. Where the front end also sees the authored protoIndices
+// (authoredProtoIndices, one per instance; empty: unseen), such an entry is reported as
+// instancedGrainsFromUsd reports it; the other undrawn instances are left out of the grains
+// (after every check, so that errors name instances by their authored index; the grains'
+// indices, e.g. the instanceId AOV's, then count the drawn ones). An instance in two lists
+// is an InputError on protoIndices.
+InstancedGrainsDesc instancedGrainsFromPrototypeInstances(InstancerPrim prim,
+                                                          const std::vector<std::vector<int64_t>>& instancesOf,
+                                                          const std::vector<int64_t>& authoredProtoIndices,
+                                                          SceneDesc& desc, const PrimLookup& lookup);
+
 }  // namespace granular

@@ -9,6 +9,7 @@
 #include "pxr/imaging/hd/renderIndex.h"
 #include "pxr/imaging/hd/sceneDelegate.h"
 #include "pxr/imaging/hd/tokens.h"
+#include "renderParam.h"
 
 PXR_NAMESPACE_OPEN_SCOPE
 
@@ -48,18 +49,73 @@ bool transformAt(VtValue const& v, size_t i, GfMatrix4d& m) {
   return true;
 }
 
+// A VtVec3fArray primvar's numbers, 3 per instance; empty for any other value.
+std::vector<float> vectors(VtValue const& v) {
+  std::vector<float> out;
+  if (!v.IsHolding<VtVec3fArray>()) return out;
+  VtVec3fArray const& a = v.UncheckedGet<VtVec3fArray>();
+  out.reserve(3 * a.size());
+  for (GfVec3f const& x : a) out.insert(out.end(), {x[0], x[1], x[2]});
+  return out;
+}
+
+// Orientations (quath, quatf, or float4 as w, x, y, z) as (w, x, y, z) numbers.
+std::vector<float> quaternions(VtValue const& v) {
+  std::vector<float> out;
+  auto add = [&out](auto const& array) {
+    out.reserve(4 * array.size());
+    for (auto const& q : array) {
+      auto const& i = q.GetImaginary();
+      out.insert(out.end(), {float(q.GetReal()), float(i[0]), float(i[1]), float(i[2])});
+    }
+  };
+  if (v.IsHolding<VtQuathArray>()) add(v.UncheckedGet<VtQuathArray>());
+  else if (v.IsHolding<VtQuatfArray>()) add(v.UncheckedGet<VtQuatfArray>());
+  else if (v.IsHolding<VtVec4fArray>())
+    for (GfVec4f const& c : v.UncheckedGet<VtVec4fArray>()) out.insert(out.end(), {c[0], c[1], c[2], c[3]});
+  return out;
+}
+
+// An integer array attribute as int64 numbers; empty for any other value.
+std::vector<int64_t> integers(VtValue const& v) {
+  if (v.IsHolding<VtIntArray>()) return {v.UncheckedGet<VtIntArray>().begin(), v.UncheckedGet<VtIntArray>().end()};
+  if (v.IsHolding<VtInt64Array>())
+    return {v.UncheckedGet<VtInt64Array>().begin(), v.UncheckedGet<VtInt64Array>().end()};
+  return {};
+}
+
 }  // namespace
 
 HdGranularInstancer::HdGranularInstancer(HdSceneDelegate* delegate, SdfPath const& id) : HdInstancer(delegate, id) {}
 
-void HdGranularInstancer::Sync(HdSceneDelegate* delegate, HdRenderParam*, HdDirtyBits* dirtyBits) {
+void HdGranularInstancer::Sync(HdSceneDelegate* delegate, HdRenderParam* renderParam, HdDirtyBits* dirtyBits) {
   _UpdateInstancer(delegate, dirtyBits);
+  std::lock_guard<std::mutex> lock(_mutex);
   if (HdChangeTracker::IsAnyPrimvarDirty(*dirtyBits, GetId())) {
-    std::lock_guard<std::mutex> lock(_mutex);
     _primvars.clear();
     for (HdPrimvarDescriptor const& pv : delegate->GetPrimvarDescriptors(GetId(), HdInterpolationInstance))
       _primvars[pv.name] = delegate->Get(GetId(), pv.name);
   }
+  // What explicit grains are read from (core decides whether they are grains), on any edit.
+  auto get = [&](TfToken const& t) {
+    auto it = _primvars.find(t);
+    return it == _primvars.end() ? VtValue() : it->second;
+  };
+  HdGranularRenderParam::Instancer r;
+  r.parentId = GetParentId();
+  r.xf = HdGranularToCore(delegate->GetInstancerTransform(GetId()));
+  r.positions = vectors(get(HdInstancerTokens->instanceTranslations));
+  r.orientations = quaternions(get(HdInstancerTokens->instanceRotations));
+  r.scales = vectors(get(HdInstancerTokens->instanceScales));
+  r.velocities = vectors(get(HdTokens->velocities));
+  r.angularVelocities = vectors(get(HdTokens->angularVelocities));
+  r.transforms = !get(HdInstancerTokens->instanceTransforms).IsEmpty();
+  r.protoIndices = integers(delegate->Get(GetId(), TfToken("protoIndices")));
+  static_cast<HdGranularRenderParam*>(renderParam)->SetInstancer(GetId(), std::move(r));
+}
+
+void HdGranularInstancer::Finalize(HdRenderParam* renderParam) {
+  static_cast<HdGranularRenderParam*>(renderParam)->Remove(GetId());
 }
 
 VtMatrix4dArray HdGranularInstancer::ComputeInstanceTransforms(SdfPath const& prototypeId) {

@@ -1,5 +1,7 @@
 // instancer.h — Hydra instancers (UsdGeomPointInstancer, native instancing): the
-// world transforms of a prototype's instances, nested instancers included.
+// world transforms of a prototype's instances, nested instancers included; and, for
+// explicit grains, the instancer's per-instance arrays as found, handed to the render
+// param on every Sync (renderParam.h: Instancer), removed on Finalize.
 #ifndef HDGRANULAR_INSTANCER_H
 #define HDGRANULAR_INSTANCER_H
 
@@ -17,6 +19,7 @@ class HdGranularInstancer final : public HdInstancer {
  public:
   HdGranularInstancer(HdSceneDelegate* delegate, SdfPath const& id);
   void Sync(HdSceneDelegate* delegate, HdRenderParam* param, HdDirtyBits* dirtyBits) override;
+  void Finalize(HdRenderParam* param) override;
   // Row-vector matrices (USD's): instance transform, then scale, rotate, translate,
   // then the instancer's own transform, then the parent instancer's instances.
   VtMatrix4dArray ComputeInstanceTransforms(SdfPath const& prototypeId);

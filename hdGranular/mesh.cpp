@@ -1,3 +1,4 @@
+#include <algorithm>
 #include <cmath>
 
 #include "mesh.h"
@@ -110,17 +111,6 @@ void HdGranularMesh::Sync(HdSceneDelegate* delegate, HdRenderParam* renderParam,
     }
   }
 
-  const GfMatrix4d xf = delegate->GetTransform(id);
-  if (GetInstancerId().IsEmpty()) {
-    m.prim.instances = {HdGranularToCore(xf)};
-  } else if (HdInstancer* inst = delegate->GetRenderIndex().GetInstancer(GetInstancerId())) {
-    auto* instancer = static_cast<HdGranularInstancer*>(inst);
-    for (GfMatrix4d const& i : instancer->ComputeInstanceTransforms(id))
-      m.prim.instances.push_back(HdGranularToCore(xf * i));  // row vectors: mesh, then instance
-    const VtIntArray indices = instancer->ComputeInstanceIndices(id);  // the instanceId AOV's
-    if (indices.size() == m.prim.instances.size()) m.prim.instanceIds.assign(indices.begin(), indices.end());
-  }
-
   // Granular primvars of any interpolation: core rejects all but constant, by name.
   static const std::pair<HdInterpolation, const char*> kInterpolations[] = {
       {HdInterpolationUniform, "uniform"}, {HdInterpolationVarying, "varying"}, {HdInterpolationVertex, "vertex"},
@@ -137,6 +127,26 @@ void HdGranularMesh::Sync(HdSceneDelegate* delegate, HdRenderParam* renderParam,
     if (name.rfind("primvars:", 0) == 0) name = name.substr(9);
     if (name.rfind("granular:", 0) == 0) m.prim.granular[name.substr(9)] = toPrimvarValue(delegate->Get(id, pv.name));
   }
+  const GfMatrix4d xf = delegate->GetTransform(id);
+  m.local = HdGranularToCore(xf);
+  m.instancerId = GetInstancerId();
+  if (GetInstancerId().IsEmpty()) {
+    m.prim.instances = {m.local};
+  } else if (HdInstancer* inst = delegate->GetRenderIndex().GetInstancer(GetInstancerId())) {
+    auto* instancer = static_cast<HdGranularInstancer*>(inst);
+    const VtIntArray indices = instancer->ComputeInstanceIndices(id);  // the instanceId AOV's
+    // A mesh with grain primvars is never drawn as a mesh (core/granular_prims.h): a grain
+    // prototype needs its instances' indices only, not 10^6 transforms.
+    if (std::any_of(m.prim.granular.begin(), m.prim.granular.end(),
+                    [](auto const& v) { return granular::isGrainPrimvar(v.first); })) {
+      m.prim.instanceIds.assign(indices.begin(), indices.end());
+    } else {
+      for (GfMatrix4d const& i : instancer->ComputeInstanceTransforms(id))
+        m.prim.instances.push_back(HdGranularToCore(xf * i));  // row vectors: mesh, then instance
+      if (indices.size() == m.prim.instances.size()) m.prim.instanceIds.assign(indices.begin(), indices.end());
+    }
+  }
+
   // displayColor of any interpolation, as found; core averages and checks it.
   static const char* const kInterpolationNames[] = {"constant", "uniform", "varying", "vertex", "faceVarying"};
   for (HdInterpolation interp : {HdInterpolationConstant, HdInterpolationUniform, HdInterpolationVarying,

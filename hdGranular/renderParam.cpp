@@ -12,6 +12,12 @@ void HdGranularRenderParam::SetMesh(SdfPath const& id, Mesh mesh) {
   ++_version;
 }
 
+void HdGranularRenderParam::SetInstancer(SdfPath const& id, Instancer instancer) {
+  std::lock_guard<std::mutex> lock(_mutex);
+  _instancers[id] = std::move(instancer);
+  ++_version;
+}
+
 void HdGranularRenderParam::SetLight(SdfPath const& id, granular::LightDesc light) {
   std::lock_guard<std::mutex> lock(_mutex);
   _errors.erase(id);
@@ -37,7 +43,8 @@ void HdGranularRenderParam::Remove(SdfPath const& id) {
   // Only a real removal is a scene edit: hosts re-sync prims we do not keep (usdview's
   // camera light follows the camera), and a rebuild on every camera move would be wrong.
   _materialSt.erase(id);
-  if (_meshes.erase(id) + _lights.erase(id) + _materials.erase(id) + _errors.erase(id)) ++_version;
+  if (_meshes.erase(id) + _instancers.erase(id) + _lights.erase(id) + _materials.erase(id) + _errors.erase(id))
+    ++_version;
 }
 
 void HdGranularRenderParam::SetError(SdfPath const& id, granular::InputError const& error) {
@@ -72,6 +79,68 @@ void HdGranularRenderParam::SetRenderError(std::string error) {
 std::string HdGranularRenderParam::RenderError() const {
   std::lock_guard<std::mutex> lock(_mutex);
   return _renderError;
+}
+
+std::map<SdfPath, std::vector<size_t>> HdGranularRenderParam::_GrainInstancers(
+    std::vector<granular::MeshPrim> const& prims) const {
+  std::map<SdfPath, std::vector<size_t>> out;
+  if (_instancers.empty()) return out;
+  std::map<SdfPath, std::vector<size_t>> meshesOf;  // instancer -> its prototype meshes
+  size_t i = 0;
+  for (auto const& [path, m] : _meshes) {  // prims holds _meshes in this order
+    if (!m.instancerId.IsEmpty()) meshesOf[m.instancerId].push_back(i);
+    ++i;
+  }
+  std::set<SdfPath> outer;  // instancers that instance an instancer
+  for (auto const& [id, inst] : _instancers)
+    if (!inst.parentId.IsEmpty()) outer.insert(inst.parentId);
+  for (auto const& [id, inst] : _instancers) {
+    auto it = meshesOf.find(id);
+    if (it == meshesOf.end() || !inst.parentId.IsEmpty() || outer.count(id) || inst.transforms) continue;
+    std::vector<granular::MeshPrim> seen;  // what decides: their granular primvars
+    for (size_t k : it->second) {
+      granular::MeshPrim p;
+      p.path = prims[k].path;
+      p.granular = prims[k].granular;
+      seen.push_back(std::move(p));
+    }
+    if (granular::isExplicitGrainInstancer(std::nullopt, seen)) out.emplace(id, it->second);
+  }
+  return out;
+}
+
+granular::InstancedGrainsDesc HdGranularRenderParam::_ReadGrains(SdfPath const& id,
+                                                                 std::vector<size_t> const& prototypes,
+                                                                 std::vector<granular::MeshPrim> const& prims,
+                                                                 granular::SceneDesc& desc) const {
+  Instancer const& inst = _instancers.at(id);
+  granular::InstancerPrim prim;
+  prim.path = id.GetString();
+  prim.xf = inst.xf;
+  prim.positions = inst.positions;
+  prim.orientations = inst.orientations;
+  prim.scales = inst.scales;
+  prim.velocities = inst.velocities;
+  prim.angularVelocities = inst.angularVelocities;
+  // The primId and aggregateId AOVs' id: an instancer is no rprim; its first prototype's
+  // id and a grain's instanceId are what a Hydra host resolves an instance pick from.
+  prim.id = prims[prototypes.front()].id;
+  std::vector<std::vector<int64_t>> instancesOf;
+  for (size_t k : prototypes) {
+    prim.prototypes.push_back(prims[k].path);
+    prim.prototypeXforms.push_back(_meshes.at(SdfPath(prims[k].path)).local);
+    instancesOf.emplace_back(prims[k].instanceIds.begin(), prims[k].instanceIds.end());
+  }
+  auto lookup = [&](std::string const& path, granular::MeshPrim& found) {
+    for (size_t k : prototypes)
+      if (prims[k].path == path) {
+        found = prims[k];
+        return true;
+      }
+    return false;
+  };
+  return granular::instancedGrainsFromPrototypeInstances(std::move(prim), instancesOf, inst.protoIndices, desc,
+                                                         lookup);
 }
 
 granular::SceneDesc HdGranularRenderParam::Assemble() const {
@@ -114,7 +183,20 @@ granular::SceneDesc HdGranularRenderParam::Assemble() const {
     }
     prims.push_back(std::move(p));
   }
-  granular::assembleGranularScene(prims, desc);
+  // Explicit grains' prototypes are not meshes of the scene; the grains come after the
+  // meshes, as granular render reads them.
+  const std::map<SdfPath, std::vector<size_t>> grains = _GrainInstancers(prims);
+  if (grains.empty()) {
+    granular::assembleGranularScene(prims, desc);
+  } else {
+    std::set<size_t> grainPrototypes;
+    for (auto const& [id, protos] : grains) grainPrototypes.insert(protos.begin(), protos.end());
+    std::vector<granular::MeshPrim> meshes;
+    for (size_t i = 0; i < prims.size(); ++i)
+      if (!grainPrototypes.count(i)) meshes.push_back(std::move(prims[i]));
+    granular::assembleGranularScene(meshes, desc);
+    for (auto const& [id, protos] : grains) desc.instancedGrains.push_back(_ReadGrains(id, protos, prims, desc));
+  }
   for (auto const& [path, l] : _lights) desc.lights.push_back(l);
   granular::orderUsdLights(desc.lights);  // as granular render orders them
   return desc;

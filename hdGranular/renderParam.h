@@ -1,6 +1,6 @@
 // renderParam.h — what the Hydra prims of one render delegate share: the scene as plain
-// data (meshes with their granular primvars, lights, materials) and a version that every
-// edit bumps, so the render pass knows when to rebuild the core scene.
+// data (meshes with their granular primvars, point instancers, lights, materials) and a
+// version that every edit bumps, so the render pass knows when to rebuild the core scene.
 //
 // Contract: the Sync methods of rprims and sprims write here (Hydra may run them in
 // parallel, hence the mutex); the render pass reads Assemble() between renders. The
@@ -11,10 +11,13 @@
 
 #include <atomic>
 #include <cmath>
+#include <cstdint>
 #include <map>
 #include <mutex>
 #include <optional>
 #include <set>
+#include <string>
+#include <vector>
 
 #include "core/error.h"
 #include "core/granular_prims.h"
@@ -52,9 +55,29 @@ class HdGranularRenderParam final : public HdRenderParam {
     // Texture coordinates: each float2 primvar as found, by name; the bound material's
     // textures pick theirs, expanded to prim.mesh's corners by core.
     std::map<std::string, granular::UsdValue> uvSets;
+    // Instanced: the instancer, and the mesh's transform relative to it (a PointInstancer
+    // prototype's, its root's own transform included), which explicit grains need alone.
+    SdfPath instancerId;
+    granular::Transform local;
+  };
+  // An instancer as its scene delegate hands it, for explicit grains (Assemble): the
+  // per-instance arrays whole, as authored (USD's masks are in the prototypes' instance
+  // indices instead).
+  struct Instancer {
+    SdfPath parentId;                 // a nested instancer's outer one
+    granular::Transform xf;           // the instancer's object-to-world
+    std::vector<float> positions;     // hydra:instanceTranslations, 3 each
+    std::vector<float> orientations;  // hydra:instanceRotations as (w, x, y, z)
+    std::vector<float> scales;        // hydra:instanceScales, 3 each
+    std::vector<float> velocities, angularVelocities;
+    bool transforms = false;          // has hydra:instanceTransforms: not a PointInstancer's
+    // protoIndices as authored where the scene delegate hands the attribute over (OpenUSD's
+    // UsdImagingDelegate does; a scene index does not): empty when not.
+    std::vector<int64_t> protoIndices;
   };
 
   void SetMesh(SdfPath const& id, Mesh mesh);
+  void SetInstancer(SdfPath const& id, Instancer instancer);
   void SetLight(SdfPath const& id, granular::LightDesc light);
   // st: the primvar the material's textures read ("" when it has none). No material: the
   // bound material has no supported surface, and its meshes use the default material.
@@ -72,7 +95,12 @@ class HdGranularRenderParam final : public HdRenderParam {
   void SetRenderError(std::string error);
   std::string RenderError() const;
 
-  // The scene as the core sees it; throws granular::InputError on bad data.
+  // The scene as the core sees it; throws granular::InputError on bad data. A PointInstancer
+  // of explicit grains (core's isExplicitGrainInstancer on its prototype meshes: each carries
+  // a grain primvar), neither nested nor holding an instancer, becomes an InstancedGrainsDesc
+  // through core's instancedGrainsFromPrototypeInstances, as granular render reads it; its
+  // prototypes are then not handed over as meshes. Other instancers' prototypes are meshes
+  // with one instance transform each.
   granular::SceneDesc Assemble() const;
   // Bumped by every edit above.
   int Version() const { return _version.load(); }
@@ -83,8 +111,17 @@ class HdGranularRenderParam final : public HdRenderParam {
   void StopRenderForEdit();
 
  private:
+  // Assemble's PointInstancers of explicit grains, each with its prototype meshes (indices
+  // into prims: _meshes' records in _meshes' order, materials resolved); and one's grains,
+  // read by core. With _mutex held.
+  std::map<SdfPath, std::vector<size_t>> _GrainInstancers(std::vector<granular::MeshPrim> const& prims) const;
+  granular::InstancedGrainsDesc _ReadGrains(SdfPath const& id, std::vector<size_t> const& prototypes,
+                                            std::vector<granular::MeshPrim> const& prims,
+                                            granular::SceneDesc& desc) const;
+
   mutable std::mutex _mutex;
   std::map<SdfPath, Mesh> _meshes;
+  std::map<SdfPath, Instancer> _instancers;
   std::map<SdfPath, granular::LightDesc> _lights;
   std::map<SdfPath, std::optional<granular::MaterialDesc>> _materials;
   std::map<SdfPath, granular::InputError> _errors;

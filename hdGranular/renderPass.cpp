@@ -43,7 +43,7 @@ bool cameraFromMatrices(GfMatrix4d const& view, GfMatrix4d const& proj, granular
 }
 
 // The pass's camera as core reads a UsdGeomCamera (core/usd_camera.h: its checks, the thin
-// lens from fStop and focusDistance), from HdCamera's values (which keeps lengths in scene
+// lens from fStop and focusDistance, the shutter), from HdCamera's values (which keeps lengths in scene
 // units, a tenth of USD's). Its framing comes from the host's matrices instead, which
 // apply the host's window policy. No camera prim (free matrices): a pinhole.
 granular::CameraDesc coreCamera(HdCamera const* camera) {
@@ -72,6 +72,10 @@ granular::CameraDesc coreCamera(HdCamera const* camera) {
   number("verticalApertureOffset", 10.0 * camera->GetVerticalApertureOffset());
   number("fStop", camera->GetFStop());
   number("focusDistance", camera->GetFocusDistance());
+  // Motion blur of explicit grains. In time codes: made seconds at USD's 24 per second, the
+  // stage's timeCodesPerSecond being no part of what a scene delegate hands over.
+  number("shutter:open", camera->GetShutterOpen());
+  number("shutter:close", camera->GetShutterClose());
   granular::UsdValue clip;
   clip.typeName = "float2";
   clip.numbers = {camera->GetClippingRange().GetMin(), camera->GetClippingRange().GetMax()};
@@ -238,6 +242,13 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
                   a.boundary.points.size(), a.xf.m[0][3], a.xf.m[1][3], a.xf.m[2][3]);
           for (size_t i = 0; i < a.prototypes.size(); ++i)
             fprintf(stderr, " [%s w %g mat %d]", a.prototypes[i].name.c_str(), a.weights[i], a.prototypes[i].material);
+          fprintf(stderr, "\n");
+        }
+        for (auto const& g : desc.instancedGrains) {
+          fprintf(stderr, "hdGranular: instanced grains %s: %zu grains, t (%g %g %g)", g.name.c_str(), g.size(),
+                  g.xf.m[0][3], g.xf.m[1][3], g.xf.m[2][3]);
+          for (auto const& p : g.prototypes)
+            fprintf(stderr, " [%s points %zu mat %d]", p.name.c_str(), p.mesh.points.size(), p.material);
           fprintf(stderr, "\n");
         }
         for (auto const& m : desc.materials)

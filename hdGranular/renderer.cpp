@@ -283,6 +283,11 @@ VtDictionary HdGranularRenderer::GetStats() const {
     // The image is of stand-ins (the media alone) while the full build runs.
     stats["granular:standIns"] = VtValue(_scene->standIns());
   }
+  // Explicit grains (PointInstancers of a simulation's grains) in the scene: 0 without one.
+  int64_t instancedGrains = 0;
+  if (_scene)
+    for (auto const& g : _scene->instancedGrains()) instancedGrains += g->stats().grains;
+  stats["granular:instancedGrains"] = VtValue(instancedGrains);
   stats["granular:fullBuildPending"] = VtValue(_builder.Pending());
   stats["granular:nonFiniteSamples"] = VtValue(int(_nonFinite.load()));
   // Whether granular:denoise can denoise in this build (core/denoise.h).

@@ -579,3 +579,116 @@ INSTANTIATE_TEST_SUITE_P(
                   [](Stage& s) { s["/World/Castle"].instances = {Transform(), Transform::scale(Vec3(1, 0, 1))}; },
                   "/World/Castle.transform: is singular (not invertible)"}),
     [](const ::testing::TestParamInfo<ErrorCase>& info) { return std::string(info.param.name); });
+
+// ---- explicit grains as a Hydra front end sees them -------------------------------------------
+
+namespace {
+
+// /World/Sim's prototype /World/Sim/Protos/<name>: a closed icosphere with a grain primvar
+// (Hydra: no API schemas known) or none.
+PrimLookup hydraPrototypes(bool grainPrimvar = true) {
+  return [=](const std::string& path, MeshPrim& out) {
+    if (path.rfind("/World/Sim/Protos/", 0) != 0) return false;
+    out.path = path;
+    out.mesh = makeIcosphere(1);
+    if (grainPrimvar) out.granular["ior"] = number("float", 1.31);
+    return true;
+  };
+}
+
+// Five instances 3 apart along x, two prototypes.
+InstancerPrim hydraInstancer() {
+  InstancerPrim p;
+  p.path = "/World/Sim";
+  p.prototypes = {"/World/Sim/Protos/A", "/World/Sim/Protos/B"};
+  for (int i = 0; i < 5; ++i) p.positions.insert(p.positions.end(), {3.0f * float(i), 0, 0});
+  for (int i = 0; i < 5; ++i) p.scales.insert(p.scales.end(), {1.0f + 0.1f * float(i), 1.0f + 0.1f * float(i), 1.0f + 0.1f * float(i)});
+  return p;
+}
+
+std::string errorOf(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const InputError& e) {
+    return e.what();
+  }
+  return "(no error)";
+}
+
+}  // namespace
+
+TEST(GranularPrims, AnInstancerIsOfExplicitGrainsByItsApiOrItsPrototypes) {
+  MeshPrim grain = meshPrim("/G", makeIcosphere(1), {kGrainApi}), plain = meshPrim("/P", makeIcosphere(1));
+  const std::vector<std::string> api = {kInstancedAggregateApi}, none = {};
+  // usd-core sees API schemas: the instancer's API, or GranularGrainAPI on every prototype.
+  EXPECT_TRUE(isExplicitGrainInstancer(api, {plain}));
+  EXPECT_TRUE(isExplicitGrainInstancer(none, {grain, grain}));
+  EXPECT_FALSE(isExplicitGrainInstancer(none, {grain, plain}));
+  EXPECT_FALSE(isExplicitGrainInstancer(none, {}));
+  // Hydra sees none: a grain primvar on every prototype decides (authored, or inherited from
+  // the instancer); the API alone is invisible there.
+  MeshPrim hydraGrain = meshPrim("/G", makeIcosphere(1)), hydraPlain = meshPrim("/P", makeIcosphere(1));
+  hydraGrain.apiSchemas.reset();
+  hydraPlain.apiSchemas.reset();
+  hydraGrain.granular["absorption"] = numbers("color3f", {1, 1, 1}, false);
+  hydraPlain.granular["grainRadius"] = number("float", 0.1);  // an aggregate's primvar: no grain
+  EXPECT_TRUE(isExplicitGrainInstancer(std::nullopt, {hydraGrain, hydraGrain}));
+  EXPECT_FALSE(isExplicitGrainInstancer(std::nullopt, {hydraGrain, hydraPlain}));
+  EXPECT_FALSE(isExplicitGrainInstancer(std::nullopt, {}));
+}
+
+// Hydra lists each prototype's instances, not protoIndices: they are rebuilt from the lists,
+// masked instances (in no list) left out after the checks, and the result is
+// instancedGrainsFromUsd's on the same instancer with those protoIndices.
+TEST(GranularPrims, InstancedGrainsFromEachPrototypesInstances) {
+  SceneDesc viaLists, viaIndices;
+  InstancedGrainsDesc g =
+      instancedGrainsFromPrototypeInstances(hydraInstancer(), {{0, 3}, {1, 2, 4}}, {}, viaLists, hydraPrototypes());
+  InstancerPrim authored = hydraInstancer();
+  authored.protoIndices = {0, 1, 1, 0, 1};
+  InstancedGrainsDesc expected = instancedGrainsFromUsd(authored, viaIndices, hydraPrototypes());
+  EXPECT_EQ(g.protoIndices, expected.protoIndices);
+  ASSERT_EQ(g.size(), 5u);
+  for (size_t i = 0; i < 5; ++i) {
+    EXPECT_EQ(g.positions[i], expected.positions[i]);
+    EXPECT_EQ(g.scales[i], expected.scales[i]);
+  }
+  EXPECT_EQ(viaLists.materials.size(), 2u);  // each prototype's grain primvars
+
+  // Instances 1 and 3 masked (USD's invisibleIds): left out, the rest in order.
+  SceneDesc masked;
+  g = instancedGrainsFromPrototypeInstances(hydraInstancer(), {{0}, {2, 4}}, {}, masked, hydraPrototypes());
+  EXPECT_EQ(g.protoIndices, (std::vector<int32_t>{0, 1, 1}));
+  ASSERT_EQ(g.size(), 3u);
+  EXPECT_EQ(g.positions[1], Vec3(6, 0, 0));
+  EXPECT_EQ(g.positions[2], Vec3(12, 0, 0));
+  EXPECT_FLOAT_EQ(g.scales[2], 1.4f);
+  // The authored protoIndices, where seen, tell a mask from an index naming no prototype.
+  SceneDesc seen;
+  g = instancedGrainsFromPrototypeInstances(hydraInstancer(), {{0}, {2, 4}}, {0, 1, 1, 0, 1}, seen, hydraPrototypes());
+  EXPECT_EQ(g.size(), 3u);
+}
+
+TEST(GranularPrims, InstancedGrainsFromEachPrototypesInstancesNameTheAttribute) {
+  auto read = [](InstancerPrim p, std::vector<std::vector<int64_t>> lists, std::vector<int64_t> authored = {}) {
+    return errorOf([&] {
+      SceneDesc s;
+      instancedGrainsFromPrototypeInstances(p, lists, authored, s, hydraPrototypes());
+    });
+  };
+  // An authored index naming no prototype (Hydra drew that instance with none).
+  EXPECT_EQ(read(hydraInstancer(), {{0, 3}, {1, 4}}, {0, 1, 7, 0, 1}),
+            "/World/Sim.protoIndices: instance 2 has 7, not the index of one of its 2 prototypes");
+  // Checks name instances by their authored index, masked ones included.
+  InstancerPrim p = hydraInstancer();
+  p.positions[3 * 3] = NAN;
+  EXPECT_EQ(read(p, {{0}, {1, 2, 4}}), "/World/Sim.positions: instance 3 is at (nan, 0, 0) (not finite)");
+  p = hydraInstancer();
+  p.positions.resize(4 * 3);  // the host lists an instance beyond the positions
+  EXPECT_EQ(read(p, {{0, 3}, {1, 2, 4}}), "/World/Sim.positions: has 4 values but protoIndices has 5 (one per instance)");
+  EXPECT_EQ(read(hydraInstancer(), {{0, 3}, {1, 3}}),
+            "/World/Sim.protoIndices: instance 3 is drawn with prototypes 0 and 1 (one each)");
+  p = hydraInstancer();
+  p.scales[4] = 2;
+  EXPECT_EQ(read(p, {{0, 3}, {1, 2, 4}}).rfind("/World/Sim.scales: instance 1 has non-uniform scale", 0), 0u);
+}

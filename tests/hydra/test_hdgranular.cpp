@@ -351,6 +351,7 @@ TEST(HdGranular, EveryDocumentedRenderStatIsReported) {
   EXPECT_EQ(stat<int>(stats, "granular:aggregatesBuilt"), 1);
   EXPECT_EQ(stat<int>(stats, "granular:aggregatesReused"), 0);
   EXPECT_EQ(stat<int>(stats, "granular:mediaDerived"), 1);
+  EXPECT_EQ(stat<int64_t>(stats, "granular:instancedGrains"), 0);  // no instancer of explicit grains
 }
 
 // The albedo AOV is core's: a Lambert card's displayColor wherever the card is seen, as
@@ -951,4 +952,209 @@ TEST(HdGranular, StandInsShowFirstAndTheFullBuildReplacesThemAsAnEagerBuild) {
   EXPECT_EQ(stat<int>(eagerEngine->GetRenderStats(), "granular:standInsBuilt"), 0);
   expectSameFrame(lazy, eager, 0);
   EXPECT_GT(mean(lazy, 0), 0.01);
+}
+
+// ---- explicit grains: a PointInstancer of a simulation's grains --------------------------------
+
+namespace {
+
+// An octahedron of radius r (closed), as a Mesh's attribute lines.
+std::string octahedron(double r) {
+  const std::string s = std::to_string(r);
+  return "point3f[] points = [(" + s + ", 0, 0), (-" + s + ", 0, 0), (0, " + s + ", 0), (0, -" + s + ", 0), (0, 0, " +
+         s + "), (0, 0, -" + s + R"()]
+        int[] faceVertexCounts = [3, 3, 3, 3, 3, 3, 3, 3]
+        int[] faceVertexIndices = [0, 2, 4, 2, 1, 4, 1, 3, 4, 3, 0, 4, 2, 0, 5, 1, 2, 5, 3, 1, 5, 0, 3, 5])";
+}
+
+struct GrainLayout {
+  std::vector<GfVec3f> positions;
+  std::vector<int> protoIndices;
+};
+
+// 6 x 6 grains 1 apart in the plane z = 0, x and y in [-2.5, 2.5] (row by row from the
+// bottom); every third one of prototype 1 ("Small"), the others of prototype 0 ("Big").
+GrainLayout sixBySix() {
+  GrainLayout g;
+  for (int i = 0; i < 36; ++i) {
+    g.positions.emplace_back(-2.5f + float(i % 6), -2.5f + float(i / 6), 0.0f);
+    g.protoIndices.push_back(i % 3 == 0 ? 1 : 0);
+  }
+  return g;
+}
+
+// The text of /World/Sim, a PointInstancer (with GranularInstancedAggregateAPI unless
+// `api` is false) of two grain prototypes carrying GranularGrainAPI primvars, as a
+// simulation writes them.
+std::string grainInstancer(GrainLayout const& g, bool api = true) {
+  std::string positions, indices, orientations;
+  for (size_t i = 0; i < g.positions.size(); ++i) {
+    const GfVec3f& p = g.positions[i];
+    positions += TfStringPrintf("%s(%.9g, %.9g, %.9g)", i ? ", " : "", p[0], p[1], p[2]);
+    indices += TfStringPrintf("%s%d", i ? ", " : "", g.protoIndices[i]);
+    orientations += std::string(i ? ", " : "") + (i % 2 ? "(0.92388, 0, 0, 0.38268)" : "(1, 0, 0, 0)");
+  }
+  return std::string(R"(
+  def PointInstancer "Sim" )") + (api ? R"((
+    prepend apiSchemas = ["GranularInstancedAggregateAPI"]
+  ) )" : "") + R"({
+    rel prototypes = [</World/Sim/Protos/Big>, </World/Sim/Protos/Small>]
+    int[] protoIndices = [)" + indices + R"(]
+    point3f[] positions = [)" + positions + R"(]
+    quath[] orientations = [)" + orientations + R"(]
+    def Scope "Protos" {
+      def Mesh "Big" (
+        prepend apiSchemas = ["GranularGrainAPI"]
+      ) {
+        )" + octahedron(0.4) + R"(
+        float primvars:granular:ior = 1.5
+        color3f primvars:granular:absorption = (0.5, 1, 2)
+      }
+      def Mesh "Small" (
+        prepend apiSchemas = ["GranularGrainAPI"]
+      ) {
+        )" + octahedron(0.25) + R"(
+        float primvars:granular:ior = 1.31
+      }
+    }
+  }
+)";
+}
+
+// domeLitStage(40) (the view is [-4, 4]^2 at z = 0) with grainInstancer(g).
+UsdStageRefPtr grainInstancerStage(GrainLayout const& g) { return domeLitStage(40, grainInstancer(g)); }
+
+// The pixel (column, row from the bottom, as render buffers hold rows) of a point of the
+// plane z = 0 in an image of w x w pixels of the view [-4, 4]^2 (its samples are jittered
+// over the pixel: a grain is seen there when it covers the whole pixel).
+std::pair<int, int> pixelOf(GfVec3f const& p, int w) {
+  return {int((p[0] + 4.0f) / 8.0f * float(w)), int((p[1] + 4.0f) / 8.0f * float(w))};
+}
+
+}  // namespace
+
+// An instancer of 36 simulated grains reaches core as one InstancedGrainsDesc: 36 grains (render
+// stat granular:instancedGrains), grain i where its position projects (instanceId AOV i there),
+// of its prototype (the CryptoMaterial layer names the prototype's grain material), not as
+// instanced meshes (no mesh hit: primId and aggregateId are the grains' one id). An edit of
+// the positions moves them; invisibleIds hide grains, as USD masks instances.
+TEST(HdGranularExplicitGrains, AnInstancerOfGrainsIsReadIntoCoresInstancedGrains) {
+  GrainLayout g = sixBySix();
+  UsdStageRefPtr stage = grainInstancerStage(g);
+  auto engine = makeEngine(1);
+  const int w = 40;  // 5 pixels a unit: every grain's centre is a pixel's centre, before and after the move
+  auto expectGrainsAt = [&](GrainLayout const& layout, std::set<int> const& hidden) {
+    Frame ids = render(*engine, stage, HdAovTokens->instanceId, w, w);
+    ASSERT_TRUE(ids.converged);
+    ASSERT_EQ(ids.channels, 1);
+    for (size_t i = 0; i < layout.positions.size(); ++i) {
+      auto [x, y] = pixelOf(layout.positions[i], w);
+      const int seen = int(ids.values[size_t(y) * w + x]);
+      if (hidden.count(int(i))) EXPECT_EQ(seen, -1) << "grain " << i << " is hidden";
+      else if (hidden.empty()) EXPECT_EQ(seen, int(i)) << "grain " << i << " at pixel " << x << ", " << y;
+      else EXPECT_GE(seen, 0) << "grain " << i;
+    }
+    VtDictionary stats = engine->GetRenderStats();
+    EXPECT_EQ(stat<std::string>(stats, "granular:error"), "");
+    EXPECT_EQ(stat<int64_t>(stats, "granular:instancedGrains"), int64_t(layout.positions.size() - hidden.size()));
+  };
+  expectGrainsAt(g, {});
+
+  // Each grain's prototype: its grain material's name (the prototype's Hydra prim) names it.
+  Frame mat = render(*engine, stage, TfToken("CryptoMaterial00"), w, w);
+  auto materials = parseManifest(
+      stat<std::string>(stat<VtDictionary>(engine->GetRenderStats(), "granular:cryptomatte"), "CryptoMaterial"));
+  std::map<uint32_t, std::string> nameOf;
+  for (auto const& [name, id] : materials) nameOf[id] = name;
+  for (size_t i = 0; i < g.positions.size(); ++i) {
+    auto [x, y] = pixelOf(g.positions[i], w);
+    const std::string name = nameOf[bitsOf(mat.values[(size_t(y) * w + x) * 4])];
+    EXPECT_NE(name.find(g.protoIndices[i] ? "Small" : "Big"), std::string::npos) << "grain " << i << ": " << name;
+  }
+  // One object id over all grains, and no mesh: the aggregateId AOV is the primId wherever seen.
+  Frame agg = render(*engine, stage, TfToken("aggregateId"), w, w);
+  Frame prim = render(*engine, stage, HdAovTokens->primId, w, w);
+  std::set<float> aggregateIds;
+  for (size_t i = 0; i < agg.values.size(); ++i)
+    if (prim.values[i] >= 0) {
+      EXPECT_EQ(agg.values[i], prim.values[i]) << i;
+      aggregateIds.insert(agg.values[i]);
+    }
+  EXPECT_EQ(aggregateIds.size(), 1u);
+
+  // The simulation's next frame: every grain a pixel (0.2) to the right.
+  VtVec3fArray moved;
+  for (GfVec3f& p : g.positions) moved.push_back(p += GfVec3f(0.2f, 0, 0));
+  stage->GetPrimAtPath(SdfPath("/World/Sim")).GetAttribute(TfToken("positions")).Set(moved);
+  expectGrainsAt(g, {});
+  stage->GetPrimAtPath(SdfPath("/World/Sim")).CreateAttribute(TfToken("invisibleIds"), SdfValueTypeNames->Int64Array)
+      .Set(VtInt64Array{0, 7});
+  expectGrainsAt(g, {0, 7});
+}
+
+// Bad instancer data is refused with core's error naming the instancer and the attribute, as
+// granular render refuses it: nothing drawn, the render converges, the error is reported.
+TEST(HdGranularExplicitGrains, BadInstancerDataIsRefusedNamingTheAttribute) {
+  struct Case {
+    std::function<void(GrainLayout&)> edit;
+    std::string message;
+  };
+  const std::vector<Case> cases = {
+      {[](GrainLayout& g) { g.protoIndices[4] = 7; },
+       "/World/Sim.protoIndices: instance 4 has 7, not the index of one of its 2 prototypes"},
+      {[](GrainLayout& g) { g.positions[5][0] = std::nanf(""); }, "/World/Sim.positions: instance 5 is at (nan, "},
+      {[](GrainLayout& g) { g.positions[9] = g.positions[8] + GfVec3f(0.1f, 0, 0); },
+       "/World/Sim.positions: instances 8 and 9 overlap"},
+  };
+  for (const Case& c : cases) {
+    GrainLayout g = sixBySix();
+    c.edit(g);
+    UsdStageRefPtr stage = grainInstancerStage(g);
+    TfErrorMark mark;
+    auto engine = makeEngine(1);
+    Frame f = render(*engine, stage, HdAovTokens->color, 16, 16);
+    std::string errors;
+    for (auto e = mark.GetBegin(); e != mark.GetEnd(); ++e) errors += e->GetCommentary() + "\n";
+    mark.Clear();
+    EXPECT_NE(errors.find(c.message), std::string::npos) << errors;
+    EXPECT_EQ(stat<std::string>(engine->GetRenderStats(), "granular:error").rfind(c.message, 0), 0u)
+        << stat<std::string>(engine->GetRenderStats(), "granular:error");
+    EXPECT_EQ(stat<int64_t>(engine->GetRenderStats(), "granular:instancedGrains"), 0);
+    EXPECT_TRUE(f.converged);
+    for (size_t i = 0; i < f.values.size(); i += 4)  // the clear colour: nothing was drawn
+      for (int k = 0; k < 3; ++k) ASSERT_EQ(f.values[i + k], 0.0f) << i;
+  }
+}
+
+// Without GranularInstancedAggregateAPI (which Hydra does not see) the prototypes' grain
+// primvars decide, as core's isExplicitGrainInstancer says; an instancer whose prototypes
+// carry none stays an instancer of meshes. Nested in another instancer, grains are not read
+// either (as before: their prototypes, meshes with grain primvars, are not drawn).
+TEST(HdGranularExplicitGrains, ThePrototypesGrainPrimvarsDecide) {
+  auto grainsOf = [](UsdStageRefPtr const& stage) {
+    auto engine = makeEngine(1);
+    Frame f = render(*engine, stage, HdAovTokens->color, 16, 16);
+    EXPECT_TRUE(f.converged);
+    EXPECT_EQ(stat<std::string>(engine->GetRenderStats(), "granular:error"), "");
+    return stat<int64_t>(engine->GetRenderStats(), "granular:instancedGrains");
+  };
+  UsdStageRefPtr stage = domeLitStage(40, grainInstancer(sixBySix(), /*api=*/false));
+  EXPECT_EQ(grainsOf(stage), 36);
+  // One prototype without grain primvars (a grain of a bound material, say): not seen as grains.
+  for (const char* name : {"primvars:granular:ior", "primvars:granular:absorption"})
+    stage->GetPrimAtPath(SdfPath("/World/Sim/Protos/Big")).RemoveProperty(TfToken(name));
+  EXPECT_EQ(grainsOf(stage), 0);
+  EXPECT_EQ(grainsOf(quadInstancerStage(3)), 0);
+  // /World/Outer instancing the grain instancer twice.
+  std::string inner = grainInstancer(sixBySix());
+  inner = TfStringReplace(inner, "</World/Sim/", "</World/Outer/Protos/Sim/");
+  EXPECT_EQ(grainsOf(domeLitStage(40, R"(
+  def PointInstancer "Outer" {
+    rel prototypes = [</World/Outer/Protos/Sim>]
+    int[] protoIndices = [0, 0]
+    point3f[] positions = [(0, 0, -1), (0, 0, -3)]
+    def Scope "Protos" {)" + inner + R"(
+    }
+  }
+)")), 0);
 }
