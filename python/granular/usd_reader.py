@@ -535,14 +535,28 @@ def read_instanced_grains(scene, prim, xf_cache=None, material_cache=None, id=-1
         p = scene.stage.GetPrimAtPath(path)
         return _mesh_prim(scene, p, xf_cache, material_cache, drawn=False) if p else None
 
-    try:
-        return core.instanced_grains_from_usd(
-            str(prim.GetPath()), prim.GetTypeName(), world_matrix(xf_cache, prim), targets, proto_xforms,
-            flat(pi.GetPositionsAttr(), 3, "point3f[]"), orientations, flat(pi.GetScalesAttr(), 3, "float3[]"),
-            np.zeros(0, np.int64) if indices is None else indices, flat(pi.GetVelocitiesAttr(), 3, "vector3f[]"),
-            flat(pi.GetAngularVelocitiesAttr(), 3, "vector3f[]"), scene.desc, lookup, id)
-    except core.InputError as e:
-        raise translate_core_error(e) from None
+    arrays = [flat(pi.GetPositionsAttr(), 3, "point3f[]"), orientations, flat(pi.GetScalesAttr(), 3, "float3[]"),
+              np.zeros(0, np.int64) if indices is None else indices, flat(pi.GetVelocitiesAttr(), 3, "vector3f[]"),
+              flat(pi.GetAngularVelocitiesAttr(), 3, "vector3f[]")]
+    widths = [3, 4, 3, 1, 3, 3]
+
+    def read(arrays, into):
+        try:
+            return core.instanced_grains_from_usd(
+                str(prim.GetPath()), prim.GetTypeName(), world_matrix(xf_cache, prim), targets, proto_xforms,
+                *arrays, into, lookup, id)
+        except core.InputError as e:
+            raise translate_core_error(e) from None
+
+    # invisibleIds and inactiveIds hide instances, as in every USD host: checked as authored
+    # (errors name the authored index), then read without them.
+    mask = pi.ComputeMaskAtTime(time)
+    if not mask or all(mask):
+        return read(arrays, scene.desc)
+    read(arrays, core.SceneDesc())
+    keep = np.asarray(mask, dtype=bool)
+    kept = [a.reshape(-1, w)[keep].reshape(-1) if a.size else a for a, w in zip(arrays, widths)]
+    return read(kept, scene.desc)
 
 
 def _assemble(scene, prims, xf_cache, material_cache):

@@ -59,10 +59,6 @@ KNOWN_DIFFERENCES = {
         "/World/HeapA/proto_Pile_id1.primvars:granular:prototypes: prototype \"../Grains/A\" "
         "(/World/HeapA/Grains/A) does not exist: the relative path is resolved against the instance's "
         "Hydra prim, not the aggregate's place in the prototype",
-    "explicit_grains_invisible_ids":
-        "granular render draws the grains invisibleIds hides (read_instanced_grains hands the arrays over "
-        "without the instancer's mask), hdGranular hides them as Hydra masks instances (2026-12-03: image "
-        "means +7.7%, tolerance 2%)",
     "explicit_grains_xform_prototype":
         "granular render: error /World/Sim.prototypes: target /World/Sim/Protos/B is a Xform, not a Mesh; "
         "hdGranular renders it: a scene delegate shows the prototype's Mesh under its root's transform, not "

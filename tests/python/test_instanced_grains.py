@@ -230,3 +230,21 @@ def test_a_shutter_that_closes_before_it_opens_is_named(tmp_path, capsys):
                             tmp_path / "x.exr", "--width", 8, "--height", 8, "--spp", 1], capsys)
     assert rc == 2
     assert err.startswith("error: /World/Camera.shutter:close: -0.5 is before shutter:open 0.5"), err
+
+
+def test_invisible_ids_hide_grains(tmp_path):
+    """invisibleIds (and inactiveIds) hide instances, as USD hosts and the Hydra delegate do."""
+    path = _instancer(tmp_path / "hidden.usda", positions=((-3, 0, 0), (0, 0, 0), (3, 0, 0)), indices=(0, 0, 0))
+    stage = Usd.Stage.Open(path)
+    pi = UsdGeom.PointInstancer(stage.GetPrimAtPath(SAND))
+    pi.CreateInvisibleIdsAttr([1])
+    stage.Save()
+    scene, desc = _read_at(path, SAND)
+    assert desc.num_grains == 2
+    assert np.array_equal(desc.positions, np.array([[-3, 0, 0], [3, 0, 0]], np.float32))
+
+
+def _read_at(path, prim_path):
+    stage = usd_reader.open_stage(path)
+    scene = usd_reader.StageScene(path, stage, usd_reader.as_time_code(None, stage))
+    return scene, usd_reader.read_instanced_grains(scene, stage.GetPrimAtPath(prim_path))
