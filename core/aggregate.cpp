@@ -201,7 +201,12 @@ void Aggregate::buildCells(const AggregateDesc& desc, float voxel, float margin,
   products.cellSize = L_;
   products.voxelSize = voxel;
   products.bandWidth = DistanceField::bandVoxels(voxel, margin + voxel) * voxel;
-  const uint64_t key = buildKey(desc, boundary_, tile_);
+  // An axis-aligned box's field is written exactly (DistanceField::buildBox), not voxelised:
+  // other values than mesh-to-level-set's, so another cache entry.
+  Bounds3 box;
+  const bool exactBox = DistanceField::isAxisAlignedBox(boundary_, box);
+  const uint64_t key = exactBox ? hashInts(buildKey(desc, boundary_, tile_), 0x424f58u /* "BOX" */)
+                                : buildKey(desc, boundary_, tile_);
   if (loadBuild(key, spheres_.size(), products) && longestSubList(products.subStart) <= kMaxSubList) {
     exchangeProducts(products);
     stats_.fromCache = true;
@@ -209,7 +214,8 @@ void Aggregate::buildCells(const AggregateDesc& desc, float voxel, float margin,
   } else {
     if (log)
       log(str(name_, ": building its distance field and ", stats_.cells, " cells (not cached yet)"));
-    sdf_.build(boundary_, voxel, margin + voxel);
+    if (exactBox) sdf_.buildBox(box, voxel, margin + voxel);
+    else sdf_.build(boundary_, voxel, margin + voxel);
     stats_.sdfSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - ts).count();
     classifyCells(margin);
     listSubCells(meanSize);

@@ -1,5 +1,7 @@
 #include "distance_field.h"
 
+#include <algorithm>
+#include <array>
 #include <atomic>
 #include <istream>
 #include <limits>
@@ -13,6 +15,8 @@
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/Interpolation.h>
 #include <openvdb/tools/MeshToVolume.h>
+#include <openvdb/tools/SignedFloodFill.h>
+#include <tbb/parallel_for.h>
 
 namespace granular {
 
@@ -74,6 +78,113 @@ void DistanceField::build(const TriangleMesh& mesh, float voxelSize, float minBa
   voxel_ = voxelSize;
   invVoxel_ = 1.0 / double(voxel_);
   band_ = halfWidthVoxels * voxelSize;
+}
+
+void DistanceField::buildBox(const Bounds3& box, float voxelSize, float minBand) {
+  using Leaf = openvdb::FloatTree::LeafNodeType;
+  initialiseOpenVdb();
+  // Index space, the corners rounded as build() rounds a mesh's points.
+  const double inv = 1.0 / double(voxelSize);
+  double lo[3], hi[3];
+  for (int a = 0; a < 3; ++a) {
+    lo[a] = double(float(box.lo[a] * inv));
+    hi[a] = double(float(box.hi[a] * inv));
+  }
+  const float halfWidth = bandVoxels(voxelSize, minBand);
+  const double band = halfWidth;
+  openvdb::FloatGrid::Ptr grid = openvdb::FloatGrid::create(halfWidth);
+  grid->setTransform(openvdb::math::Transform::createLinearTransform(1.0));
+  grid->setGridClass(openvdb::GRID_LEVEL_SET);
+  // The leaves (blocks of 8³ voxels) that reach into the band: not wholly deeper than the
+  // band inside the box, nor a band or more outside it.
+  const int dim = int(Leaf::DIM);
+  int first[3], last[3];
+  for (int a = 0; a < 3; ++a) {
+    first[a] = int(std::floor((lo[a] - band) / dim)) * dim;
+    last[a] = int(std::floor((hi[a] + band) / dim)) * dim;
+  }
+  std::vector<openvdb::Coord> origins;
+  for (int z = first[2]; z <= last[2]; z += dim)
+    for (int y = first[1]; y <= last[1]; y += dim)
+      for (int x = first[0]; x <= last[0]; x += dim) {
+        const int o[3] = {x, y, z};
+        double outside2 = 0;
+        bool deep = true;
+        for (int a = 0; a < 3; ++a) {
+          const double b0 = o[a], b1 = o[a] + dim - 1;  // the block's voxel centres
+          const double e = std::max({lo[a] - b1, 0.0, b0 - hi[a]});
+          outside2 += e * e;
+          deep = deep && b0 - lo[a] >= band && hi[a] - b1 >= band;
+        }
+        if (!deep && outside2 < band * band) origins.emplace_back(x, y, z);
+      }
+  openvdb::FloatTree& tree = grid->tree();
+  std::vector<Leaf*> leaves(origins.size());
+  for (size_t n = 0; n < origins.size(); ++n) leaves[n] = tree.touchLeaf(origins[n]);
+  tbb::parallel_for(size_t(0), leaves.size(), [&](size_t n) {
+    Leaf& leaf = *leaves[n];
+    const openvdb::Coord o = leaf.origin();
+    for (openvdb::Index i = 0; i < Leaf::SIZE; ++i) {
+      const openvdb::Coord c = o + Leaf::offsetToLocalCoord(i);
+      const double p[3] = {double(c.x()), double(c.y()), double(c.z())};
+      // Outside: the distance to the nearest point of the box; inside: to the nearest face.
+      double outside2 = 0, depth = std::numeric_limits<double>::infinity();
+      for (int a = 0; a < 3; ++a) {
+        const double e = std::max({lo[a] - p[a], 0.0, p[a] - hi[a]});
+        outside2 += e * e;
+        depth = std::min({depth, p[a] - lo[a], hi[a] - p[a]});
+      }
+      const double d = outside2 > 0 ? std::sqrt(outside2) : -depth;
+      if (d >= band) leaf.setValueOff(i, halfWidth);
+      else if (d <= -band) leaf.setValueOff(i, -halfWidth);
+      else leaf.setValueOn(i, float(d));
+    }
+  });
+  // The tiles between the leaves take the inside's or the outside's value.
+  openvdb::tools::signedFloodFill(tree);
+  grid->setName("boundary_sdf");
+  impl_ = std::make_unique<Impl>();
+  impl_->grid = grid;
+  impl_->id = nextFieldId++;
+  voxel_ = voxelSize;
+  invVoxel_ = 1.0 / double(voxel_);
+  band_ = halfWidth * voxelSize;
+}
+
+bool DistanceField::isAxisAlignedBox(const TriangleMesh& mesh, Bounds3& box) {
+  if (mesh.numTriangles() != 12 || mesh.points.empty()) return false;
+  box = mesh.bounds();
+  for (int a = 0; a < 3; ++a)
+    if (!(box.hi[a] > box.lo[a])) return false;
+  for (const Vec3& p : mesh.points)
+    for (int a = 0; a < 3; ++a)
+      if (p[a] != box.lo[a] && p[a] != box.hi[a]) return false;
+  // Each triangle three corners of one face; a face two triangles that leave out opposite
+  // corners (they meet on a diagonal and cover it). With every point a corner, that is the
+  // box's surface. A corner's id: bit a set where it lies on the box's high side of axis a.
+  std::array<int, 6> perFace{}, leftOut{};
+  for (size_t t = 0; t < mesh.numTriangles(); ++t) {
+    int id[3];
+    for (int k = 0; k < 3; ++k) {
+      const Vec3& p = mesh.points[mesh.indices[3 * t + size_t(k)]];
+      id[k] = int(p.x == box.hi.x) | int(p.y == box.hi.y) << 1 | int(p.z == box.hi.z) << 2;
+    }
+    if (id[0] == id[1] || id[1] == id[2] || id[0] == id[2]) return false;
+    int face = -1;
+    for (int a = 0; a < 3 && face < 0; ++a) {
+      const int bit = 1 << a;
+      if ((id[0] & bit) == (id[1] & bit) && (id[1] & bit) == (id[2] & bit)) face = 2 * a + ((id[0] & bit) ? 1 : 0);
+    }
+    if (face < 0 || perFace[size_t(face)] == 2) return false;
+    // The face's fourth corner: its four ids XOR to 0 (each in-plane bit set twice).
+    leftOut[size_t(face)] ^= (perFace[size_t(face)]++ ? 0 : 8) | (id[0] ^ id[1] ^ id[2]);
+  }
+  for (int f = 0; f < 6; ++f) {
+    const int a = f / 2, inPlane = 7 & ~(1 << a);
+    // 8 | o1, then XOR o2: 8 | (o1 ^ o2), opposite corners when o1 ^ o2 is both in-plane bits.
+    if (perFace[size_t(f)] != 2 || leftOut[size_t(f)] != (8 | inPlane)) return false;
+  }
+  return true;
 }
 
 float DistanceField::bandVoxels(float voxelSize, float minBand) {

@@ -7,6 +7,12 @@
 // was rescheduled (version) or its partner changed velocity (collision count). Every pair's true
 // contact time is then never earlier than the earlier of the two spheres' scheduled events,
 // so popping the queue in order never misses a collision.
+// The growth is chaotic: a single rounding changed anywhere gives another tile. So the
+// neighbour search, nearly all of the time, is made fast without changing one operation
+// or its order: the spheres' motion lives in their cells' slots (a search reads a few
+// contiguous runs), the neighbours are gathered and their quadratics computed with no
+// data-dependent branch, and only then are the survivors taken in the original order
+// (tests/core/test_packing.cpp holds checksums of tiles packed before the change).
 #include "packing.h"
 
 #include <algorithm>
@@ -47,15 +53,16 @@ double packingRateOf(int n, double r) { return n * (4.0 / 3.0) * kPiD * r * r * 
 // each coordinate moves by at most 2^-25, a difference by 2^-24, a length by sqrt(3) 2^-24.
 constexpr double kFloatRoundingGap = 1.7320508075688772 * 0x1p-24;
 
-struct Sphere {
-  double x[3];  // position at time t (in its cell)
+// A sphere's motion: position x at time t, velocity v, and its relative diameter a (the
+// pair terms need it). Kept in its cell's slots (LsSystem), so that a neighbour search
+// reads the 27 cells' spheres from a few contiguous runs instead of chasing indices.
+struct Body {
+  double x[3];
   double v[3];
-  double t = 0;
-  int cell[3];
-  int slot = -1;               // index in its cell's member list
-  uint32_t version = 0;        // bumped when this sphere's scheduled event is replaced
-  uint32_t collisions = 0;     // bumped when its velocity changes
+  double t;
+  double a;
 };
+static_assert(sizeof(Body) == 64, "a body is a cache line's worth");
 
 struct Event {
   double t;
@@ -70,12 +77,20 @@ struct LaterFirst {
   bool operator()(const Event& a, const Event& b) const { return a.t > b.t; }
 };
 
+// The coefficients of |dx + dv tau|^2 - (D + g tau)^2 = A tau^2 + 2B tau + C.
+struct Quadratic {
+  double A, B, C;
+};
+
+Quadratic contactQuadratic(const double dx[3], const double dv[3], double D, double g) {
+  return {dv[0] * dv[0] + dv[1] * dv[1] + dv[2] * dv[2] - g * g, dx[0] * dv[0] + dx[1] * dv[1] + dx[2] * dv[2] - D * g,
+          dx[0] * dx[0] + dx[1] * dx[1] + dx[2] * dx[2] - D * D};
+}
+
 // Earliest tau >= 0 at which |dx + dv tau| = D + g tau (spheres touching, diameters growing),
 // or +inf. Roots of A tau^2 + 2B tau + C, written in the cancellation-free form.
-double contactTime(const double dx[3], const double dv[3], double D, double g) {
-  double A = dv[0] * dv[0] + dv[1] * dv[1] + dv[2] * dv[2] - g * g;
-  double B = dx[0] * dv[0] + dx[1] * dv[1] + dx[2] * dv[2] - D * g;
-  double C = dx[0] * dx[0] + dx[1] * dx[1] + dx[2] * dx[2] - D * D;
+double contactTime(const Quadratic& q) {
+  const double A = q.A, B = q.B, C = q.C;
   if (C <= 0) {  // touching (or overlapping by rounding)
     if (B < 0) return 0;
     if (A >= 0) return kInfD;
@@ -97,9 +112,8 @@ class LsSystem {
   // dStop: diameter at which growth stops; gamma: dimensionless growth rate.
   // a: each sphere's diameter relative to the largest (empty: all 1); a pair touches when
   // its centres are (a_i + a_j)/2 · D apart, D the largest diameter.
-  LsSystem(int n, double dStop, double gamma, uint64_t seed, std::vector<double> a = {})
-      : n_(n), dStop_(dStop), a_(std::move(a)) {
-    if (a_.empty()) a_.assign(size_t(n), 1.0);
+  LsSystem(int n, double dStop, double gamma, uint64_t seed, const std::vector<double>& a = {})
+      : n_(n), dStop_(dStop), equal_(a.empty()) {
     g_ = gamma * dStop;
     tStop_ = dStop_ / g_;
     // Cells at least one final diameter wide (with a margin for rounding), and not many more
@@ -107,27 +121,37 @@ class LsSystem {
     int nc = int(std::floor(1.0 / (dStop * (1.0 + 1e-9))));
     int ncCap = std::max(1, int(std::cbrt(2.0 * n)));
     nc_ = std::max(1, std::min(nc, ncCap));
-    cells_.assign(size_t(nc_) * nc_ * nc_, {});
+    const size_t cells = size_t(nc_) * nc_ * nc_;
+    count_.assign(cells, 0);
+    bodies_.resize(cells * size_t(capacity_));
+    ids_.resize(bodies_.size());
+    cell_.resize(size_t(n));
+    home_.resize(size_t(n));
+    slot_.resize(size_t(n));
+    version_.assign(size_t(n), 0);
+    collisions_.assign(size_t(n), 0);
 
     Rng rng(hashInts(seed, 0x4c53u /* "LS" */), 0x70616b);
-    s_.resize(n);
+    std::vector<Body> init(static_cast<size_t>(n));
     double mean[3] = {0, 0, 0};
     for (int i = 0; i < n; ++i) {
-      Sphere& a = s_[i];
+      Body& b = init[size_t(i)];
+      b.t = 0;
+      b.a = a.empty() ? 1.0 : a[size_t(i)];
       for (int k = 0; k < 3; ++k) {
-        a.x[k] = rng.nextDouble();
-        a.cell[k] = std::min(nc_ - 1, int(a.x[k] * nc_));
+        b.x[k] = rng.nextDouble();
+        cell_[size_t(i)].c[k] = std::min(nc_ - 1, int(b.x[k] * nc_));
       }
       // Gaussian velocities (Box–Muller), kT/m = 1 per component.
       for (int k = 0; k < 3; ++k) {
         double u1 = 1.0 - rng.nextDouble(), u2 = rng.nextDouble();
-        a.v[k] = std::sqrt(-2.0 * std::log(u1)) * std::cos(2.0 * kPiD * u2);
-        mean[k] += a.v[k] / n;
+        b.v[k] = std::sqrt(-2.0 * std::log(u1)) * std::cos(2.0 * kPiD * u2);
+        mean[k] += b.v[k] / n;
       }
-      insert(i);
     }
-    for (Sphere& a : s_)
-      for (int k = 0; k < 3; ++k) a.v[k] -= mean[k];  // zero momentum: no drift of the tile
+    for (Body& b : init)
+      for (int k = 0; k < 3; ++k) b.v[k] -= mean[k];  // zero momentum: no drift of the tile
+    for (int i = 0; i < n; ++i) insert(i, init[size_t(i)]);
     normaliseKineticEnergy();
   }
 
@@ -143,14 +167,14 @@ class LsSystem {
       if (++events > budget)
         throw std::runtime_error(str("tile: Lubachevsky-Stillinger growth of ", n_, " spheres exceeded its budget of ",
                                      budget, " events at f=", packingRateOf(n_, 0.5 * diameter()), " (a bug)"));
-      if (e.version != s_[e.i].version) continue;  // superseded
+      if (e.version != version_[size_t(e.i)]) continue;  // superseded
       now_ = e.t;
       if (e.j < 0) {
         cross(e.i, e.axis, e.dir);
         schedule(e.i);
         continue;
       }
-      if (s_[e.j].collisions != e.partnerCollisions) {  // partner changed course: look again
+      if (collisions_[size_t(e.j)] != e.partnerCollisions) {  // partner changed course: look again
         schedule(e.i);
         continue;
       }
@@ -164,56 +188,104 @@ class LsSystem {
   }
 
   double diameter() const { return d0_ + g_ * now_; }
-  const std::vector<Sphere>& spheres() const { return s_; }
+  // Sphere i's centre (advanced to the end by run()), not wrapped into [0, 1).
+  const double* position(int i) const { return body(i).x; }
 
  private:
+  struct Cell {
+    int c[3];
+  };
+
   int cellIndex(const int c[3]) const { return (c[2] * nc_ + c[1]) * nc_ + c[0]; }
   double bound(int c) const { return double(c) / double(nc_); }  // exact 0 and 1 at the ends
+  Body& body(int i) { return bodies_[size_t(home_[size_t(i)]) * capacity_ + size_t(slot_[size_t(i)])]; }
+  const Body& body(int i) const { return bodies_[size_t(home_[size_t(i)]) * capacity_ + size_t(slot_[size_t(i)])]; }
 
-  // Cells hold index arrays, not linked lists: neighbour loads then do not wait on each other.
-  void insert(int i) {
-    std::vector<int>& members = cells_[cellIndex(s_[i].cell)];
-    s_[i].slot = int(members.size());
-    members.push_back(i);
+  // A cell's bodies fill its first count_ slots in the order of arrival; a removal moves
+  // the last one into the hole. That order is the neighbour search's, so it decides ties.
+  void insert(int i, const Body& b) {
+    const int cell = cellIndex(cell_[size_t(i)].c);
+    if (count_[size_t(cell)] == capacity_) grow();
+    const int slot = count_[size_t(cell)]++;
+    home_[size_t(i)] = cell;
+    slot_[size_t(i)] = slot;
+    bodies_[size_t(cell) * capacity_ + size_t(slot)] = b;
+    ids_[size_t(cell) * capacity_ + size_t(slot)] = i;
   }
-  void remove(int i) {
-    std::vector<int>& members = cells_[cellIndex(s_[i].cell)];
-    int last = members.back();
-    members[s_[i].slot] = last;
-    s_[last].slot = s_[i].slot;
-    members.pop_back();
+  Body remove(int i) {
+    const size_t base = size_t(home_[size_t(i)]) * capacity_;
+    const int slot = slot_[size_t(i)], last = --count_[size_t(home_[size_t(i)])];
+    const Body b = bodies_[base + size_t(slot)];
+    const int moved = ids_[base + size_t(last)];
+    bodies_[base + size_t(slot)] = bodies_[base + size_t(last)];
+    ids_[base + size_t(slot)] = moved;
+    slot_[size_t(moved)] = slot;
+    return b;
+  }
+  // More slots per cell for a crowded cell (mostly while the spheres are still small), and
+  // fewer again at the end of an epoch once the cells have thinned out: the slots of the
+  // 27 cells a search reads then stay in the cache.
+  void grow() { relayout(2 * capacity_); }
+  void shrinkToFit() {
+    int most = *std::max_element(count_.begin(), count_.end()), fit = kFastSlots;
+    while (fit < most) fit *= 2;
+    if (fit < capacity_) relayout(fit);
+  }
+  void relayout(int slots) {
+    std::vector<Body> bodies(count_.size() * size_t(slots));
+    std::vector<int> ids(bodies.size());
+    for (size_t c = 0; c < count_.size(); ++c)
+      for (int s = 0; s < count_[c]; ++s) {
+        bodies[c * slots + size_t(s)] = bodies_[c * capacity_ + size_t(s)];
+        ids[c * slots + size_t(s)] = ids_[c * capacity_ + size_t(s)];
+      }
+    bodies_.swap(bodies);
+    ids_.swap(ids);
+    capacity_ = slots;
   }
 
-  void positionAt(const Sphere& a, double t, double out[3]) const {
+  static void positionAt(const Body& a, double t, double out[3]) {
     for (int k = 0; k < 3; ++k) out[k] = a.x[k] + a.v[k] * (t - a.t);
   }
-  void advance(Sphere& a, double t) {
+  static void advance(Body& a, double t) {
     for (int k = 0; k < 3; ++k) a.x[k] += a.v[k] * (t - a.t);
     a.t = t;
   }
+  // Every body, in the spheres' order (the sums below are order-dependent).
+  template <typename F>
+  void forEachBody(F&& f) {
+    for (int i = 0; i < n_; ++i) f(body(i));
+  }
   void advanceAll(double t) {
-    for (Sphere& a : s_) advance(a, t);
+    forEachBody([t](Body& a) { advance(a, t); });
   }
 
   void normaliseKineticEnergy() {
     double sum = 0;
-    for (const Sphere& a : s_) sum += a.v[0] * a.v[0] + a.v[1] * a.v[1] + a.v[2] * a.v[2];
+    forEachBody([&sum](Body& a) { sum += a.v[0] * a.v[0] + a.v[1] * a.v[1] + a.v[2] * a.v[2]; });
     if (!(sum > 0)) return;  // a single sphere has nothing to move for
     double scale = std::sqrt(3.0 * n_ / sum);
-    for (Sphere& a : s_)
+    forEachBody([scale](Body& a) {
       for (double& v : a.v) v *= scale;
+    });
   }
 
   // Finds sphere i's earliest event (cell crossing or contact with a neighbour's image) from now.
+  // In two passes with the same arithmetic as one: the first computes every neighbour's
+  // contact quadratic and drops, without a branch, the pairs that separate faster than
+  // their surfaces grow; the second takes the rest in the same order against the running
+  // earliest time. Same candidates, same order, same comparisons: the same event, bit for
+  // bit, at a fraction of the mispredicted branches.
   void schedule(int i) {
-    Sphere& a = s_[i];
+    const Body& a = body(i);
+    const int* ca = cell_[size_t(i)].c;
     double xa[3];
     positionAt(a, now_, xa);
     Event best{kInfD, i, -1, 0, 0, 0, 0};
     for (int k = 0; k < 3; ++k) {
       double dt = kInfD;
-      if (a.v[k] > 0) dt = (bound(a.cell[k] + 1) - xa[k]) / a.v[k];
-      else if (a.v[k] < 0) dt = (bound(a.cell[k]) - xa[k]) / a.v[k];
+      if (a.v[k] > 0) dt = (bound(ca[k] + 1) - xa[k]) / a.v[k];
+      else if (a.v[k] < 0) dt = (bound(ca[k]) - xa[k]) / a.v[k];
       dt = std::max(dt, 0.0);
       if (now_ + dt < best.t) {
         best.t = now_ + dt;
@@ -224,44 +296,106 @@ class LsSystem {
     const double Dmax = diameter();
     // The 27 neighbour cells of the infinite periodic grid; with fewer than 3 cells a side the
     // same cell appears under different shifts, i.e. as different images, as it should.
-    for (int dz = -1; dz <= 1; ++dz)
-      for (int dy = -1; dy <= 1; ++dy)
-        for (int dx = -1; dx <= 1; ++dx) {
-          int c[3] = {a.cell[0] + dx, a.cell[1] + dy, a.cell[2] + dz};
-          double shift[3];
-          for (int k = 0; k < 3; ++k) {
-            shift[k] = 0;
-            if (c[k] < 0) { c[k] += nc_; shift[k] = -1; }
-            else if (c[k] >= nc_) { c[k] -= nc_; shift[k] = 1; }
-          }
-          for (int j : cells_[cellIndex(c)]) {
-            if (j == i) continue;  // own images stay >= 1 apart, and D <= 1 is checked up front
-            const Sphere& b = s_[j];
-            const double pair = 0.5 * (a_[size_t(i)] + a_[size_t(j)]);  // exactly 1 for equal spheres
-            const double D = pair * Dmax, g = pair * g_;
-            double xb[3], d[3], dv[3];
-            positionAt(b, now_, xb);
-            for (int k = 0; k < 3; ++k) {
-              d[k] = xb[k] + shift[k] - xa[k];
-              dv[k] = b.v[k] - a.v[k];
+    int cc[3][3];
+    double shift[3][3];
+    for (int k = 0; k < 3; ++k)
+      for (int o = 0; o < 3; ++o) {
+        int c = ca[k] + o - 1;
+        shift[k][o] = 0;
+        if (c < 0) { c += nc_; shift[k][o] = -1; }
+        else if (c >= nc_) { c -= nc_; shift[k][o] = 1; }
+        cc[k][o] = c;
+      }
+    // Gather the neighbours (own images stay >= 1 apart, and D <= 1 is checked up front).
+    // A cell's first kFastSlots slots are copied whether filled or not and the count
+    // advanced by its bodies: a cell's count (0 to 3 mostly) then costs no mispredicted
+    // loop exit.
+    const Body* self = &a;
+    const int home = home_[size_t(i)];
+    Gathered& G = gathered_;
+    G.reserve(size_t(27 * capacity_ + kFastSlots));
+    size_t m = 0;
+    for (int oz = 0; oz < 3; ++oz)
+      for (int oy = 0; oy < 3; ++oy)
+        for (int ox = 0; ox < 3; ++ox) {
+          const int cell = (cc[2][oz] * nc_ + cc[1][oy]) * nc_ + cc[0][ox];
+          const Body* b = &bodies_[size_t(cell) * capacity_];
+          const int count = count_[size_t(cell)];
+          const int image = (oz * 3 + oy) * 3 + ox;
+          if (cell == home || count > kFastSlots) {
+            for (int s = 0; s < count; ++s) {
+              if (b + s == self) continue;
+              G.body[m] = b + s;
+              G.image[m++] = image;
             }
-            // Cheap rejections first; contactTime is the exact answer for the rest.
-            double B = d[0] * dv[0] + d[1] * dv[1] + d[2] * dv[2] - D * g;
-            double A = dv[0] * dv[0] + dv[1] * dv[1] + dv[2] * dv[2] - g * g;
-            if (B >= 0 && A >= 0) continue;  // separating faster than the surfaces grow
-            // For A >= 0 the contact time is at least C / (-2B): skip if that is too late.
-            double C = d[0] * d[0] + d[1] * d[1] + d[2] * d[2] - D * D;
-            if (A >= 0 && C > 0 && C >= -2.0 * B * (best.t - now_)) continue;
-            double t = now_ + contactTime(d, dv, D, g);
-            if (t < best.t) {
-              best.t = t;
-              best.j = j;
-              best.partnerCollisions = b.collisions;
-            }
+            continue;
           }
+          for (int s = 0; s < kFastSlots; ++s) {
+            G.body[m + size_t(s)] = b + s;
+            G.image[m + size_t(s)] = image;
+          }
+          m += size_t(count);
         }
-    best.version = ++a.version;
+    // Their contact quadratics; the pairs not dropped there are taken in order against the
+    // running earliest time, as one loop over the cells would.
+    double shifts[27][3];
+    for (int oz = 0; oz < 3; ++oz)
+      for (int oy = 0; oy < 3; ++oy)
+        for (int ox = 0; ox < 3; ++ox) {
+          double* sh = shifts[(oz * 3 + oy) * 3 + ox];
+          sh[0] = shift[0][ox];
+          sh[1] = shift[1][oy];
+          sh[2] = shift[2][oz];
+        }
+    const size_t kept = equal_ ? quadratics<true>(a, xa, Dmax, shifts, m) : quadratics<false>(a, xa, Dmax, shifts, m);
+    const Body* winner = nullptr;
+    for (size_t r = 0; r < kept; ++r) {
+      const Quadratic& q = G.q[r];
+      // For A >= 0 the contact time is at least C / (-2B): skip if that is too late.
+      if (q.A >= 0 && q.C > 0 && q.C >= -2.0 * q.B * (best.t - now_)) continue;
+      double t = now_ + contactTime(q);
+      if (t < best.t) {
+        best.t = t;
+        winner = G.keep[r];
+      }
+    }
+    if (winner) best.j = ids_[size_t(winner - bodies_.data())];
+    if (best.j >= 0) best.partnerCollisions = collisions_[size_t(best.j)];
+    best.version = ++version_[size_t(i)];
     if (best.t < kInfD) queue_.push(best);
+  }
+
+  // schedule()'s contact quadratics of the m gathered neighbours, as contactQuadratic
+  // computes them, and the cheap rejection without a branch: the pairs separating faster
+  // than their surfaces grow are dropped. Returns how many are kept (in G.q and G.keep).
+  // Equal spheres: every pair's factor (a_i + a_j)/2 is exactly 1, so D and g are the
+  // largest diameter and its growth as they stand.
+  template <bool kEqual>
+  size_t quadratics(const Body& a, const double xa[3], double Dmax, const double (*shifts)[3], size_t m) {
+    Gathered& G = gathered_;
+    size_t kept = 0;
+    for (size_t k = 0; k < m; ++k) {
+      const Body& b = *G.body[k];
+      const double* sh = shifts[G.image[k]];
+      const double pair = kEqual ? 1.0 : 0.5 * (a.a + b.a);
+      const double D = kEqual ? Dmax : pair * Dmax, g = kEqual ? g_ : pair * g_;
+      double xb[3], d[3], dv[3];
+      positionAt(b, now_, xb);
+      for (int e = 0; e < 3; ++e) {
+        d[e] = xb[e] + sh[e] - xa[e];
+        dv[e] = b.v[e] - a.v[e];
+      }
+      // Field by field: a copy of the whole struct went through the stack and stalled
+      // (a 16-byte load of two 8-byte stores cannot be forwarded).
+      const Quadratic q = contactQuadratic(d, dv, D, g);
+      Quadratic& out = G.q[kept];
+      out.A = q.A;
+      out.B = q.B;
+      out.C = q.C;
+      G.keep[kept] = G.body[k];
+      kept += size_t(int(!(q.B >= 0)) | int(!(q.A >= 0)));
+    }
+    return kept;
   }
 
   void scheduleAll() {
@@ -270,25 +404,25 @@ class LsSystem {
   }
 
   void cross(int i, int axis, int dir) {
-    Sphere& a = s_[i];
-    advance(a, now_);
-    remove(i);
+    advance(body(i), now_);
+    Body a = remove(i);
+    int* cell = cell_[size_t(i)].c;
     // Snap onto the face so rounding never lets a sphere drift out of its cell.
     if (dir > 0) {
-      a.x[axis] = bound(++a.cell[axis]);
-      if (a.cell[axis] == nc_) { a.cell[axis] = 0; a.x[axis] -= 1.0; }
+      a.x[axis] = bound(++cell[axis]);
+      if (cell[axis] == nc_) { cell[axis] = 0; a.x[axis] -= 1.0; }
     } else {
-      a.x[axis] = bound(a.cell[axis]--);
-      if (a.cell[axis] < 0) { a.cell[axis] = nc_ - 1; a.x[axis] += 1.0; }
+      a.x[axis] = bound(cell[axis]--);
+      if (cell[axis] < 0) { cell[axis] = nc_ - 1; a.x[axis] += 1.0; }
     }
-    insert(i);
+    insert(i, a);
   }
 
   // Elastic collision in the frame of the growing surfaces: the normal relative velocity u
   // becomes 2g - u, so the pair separates faster than its surfaces grow (Skoge et al. 2006).
   void collide(int i, int j) {
-    Sphere& a = s_[i];
-    Sphere& b = s_[j];
+    Body& a = body(i);
+    Body& b = body(j);
     advance(a, now_);
     advance(b, now_);
     double d[3], len2 = 0;
@@ -302,7 +436,7 @@ class LsSystem {
     double u = 0;
     for (int k = 0; k < 3; ++k) u += (b.v[k] - a.v[k]) * d[k] / len;
     // The pair's contact distance grows at g = (a_i + a_j)/2 · g_.
-    const double pair = 0.5 * (a_[size_t(i)] + a_[size_t(j)]), g = pair * g_;
+    const double pair = 0.5 * (a.a + b.a), g = pair * g_;
     // Never leave a pair that would touch again at once (rounding, grazing contacts): the
     // floor keeps the contact-time numerator B = |d| u' - D g clearly positive.
     double uMin = g * pair * diameter() / len + 1e-3 * g;
@@ -312,8 +446,8 @@ class LsSystem {
       a.v[k] -= impulse * d[k] / len;
       b.v[k] += impulse * d[k] / len;
     }
-    ++a.collisions;
-    ++b.collisions;
+    ++collisions_[size_t(i)];
+    ++collisions_[size_t(j)];
     virial_ += len * impulse;
   }
 
@@ -322,7 +456,7 @@ class LsSystem {
   bool endEpoch() {
     advanceAll(now_);
     double sumV2 = 0;
-    for (const Sphere& a : s_) sumV2 += a.v[0] * a.v[0] + a.v[1] * a.v[1] + a.v[2] * a.v[2];
+    forEachBody([&sumV2](Body& a) { sumV2 += a.v[0] * a.v[0] + a.v[1] * a.v[1] + a.v[2] * a.v[2]; });
     // Virial: PV = NkT + sum(r.J) / (3 dt), with NkT = sum(m v^2) / 3.
     pressure_ = now_ > 0 && sumV2 > 0 ? 1.0 + virial_ / (now_ * sumV2) : kInfD;
     virial_ = 0;
@@ -331,21 +465,45 @@ class LsSystem {
     d0_ = diameter();
     now_ = 0;
     tStop_ = (dStop_ - d0_) / g_;
-    for (Sphere& a : s_) a.t = 0;
+    forEachBody([](Body& a) { a.t = 0; });
+    shrinkToFit();
     scheduleAll();
     return !(pressure_ > kJamPressure);
   }
 
+  // schedule()'s neighbours: their bodies, image shifts and ids; the quadratics of those
+  // kept and where they are.
+  struct Gathered {
+    std::vector<const Body*> body, keep;
+    std::vector<int> image;  // the neighbour cell, (oz * 3 + oy) * 3 + ox
+    std::vector<Quadratic> q;
+    void reserve(size_t n) {
+      if (body.size() >= n) return;
+      body.resize(n);
+      keep.resize(n);
+      image.resize(n);
+      q.resize(n);
+    }
+  };
+  static constexpr int kFastSlots = 4;
+
   int n_;
   double dStop_;
-  std::vector<double> a_;  // relative diameters
+  bool equal_;         // every sphere of one size
   double g_ = 0;       // diameter growth per unit time
   double d0_ = 0;      // diameter at time 0 of the current epoch
   double now_ = 0;
   double tStop_ = 0;
   int nc_ = 1;
-  std::vector<std::vector<int>> cells_;
-  std::vector<Sphere> s_;
+  int capacity_ = kFastSlots;    // slots per cell
+  std::vector<Body> bodies_;     // capacity_ slots per cell
+  std::vector<int> ids_;         // the sphere in each slot
+  std::vector<int> count_;       // bodies per cell
+  std::vector<Cell> cell_;       // per sphere: its cell's coordinates,
+  std::vector<int> home_, slot_; // its cell's index and its slot there,
+  std::vector<uint32_t> version_;     // bumped when its scheduled event is replaced,
+  std::vector<uint32_t> collisions_;  // bumped when its velocity changes
+  Gathered gathered_;
   std::priority_queue<Event, std::vector<Event>, LaterFirst> queue_;
   uint64_t epochCollisions_ = 0;
   double virial_ = 0;
@@ -587,10 +745,11 @@ Tile generateTile(int n, double targetF, uint64_t seed, const TileSizes& sizes) 
     tile.radius = radius;
     tile.seed = seed;
     tile.centers.reserve(n);
-    for (const Sphere& a : sys.spheres()) {
+    for (int i = 0; i < n; ++i) {
+      const double* p = sys.position(i);
       Vec3 c;
       for (int k = 0; k < 3; ++k) {
-        double x = a.x[k] - std::floor(a.x[k]);
+        double x = p[k] - std::floor(p[k]);
         float xf = float(x);
         c[k] = xf >= 1.0f ? 0.0f : xf;  // 1 - 2^-26 rounds up to 1
       }
