@@ -56,6 +56,32 @@ openvdb::GridPtrVecPtr readAll(const std::string& path) {
   }
 }
 
+// Writes the grids through an OutputFile (output_file.h; OpenVDB writes by name, so by the
+// temporary's); the result describes `main`, the grid of the density.
+DensityExportResult writeGrids(const std::string& path, const openvdb::GridPtrVec& grids, const openvdb::FloatGrid& main,
+                               const openvdb::math::Transform& xform, float voxel) {
+  DensityExportResult result;
+  result.voxelSize = voxel;
+  result.activeVoxels = int64_t(main.activeVoxelCount());
+  openvdb::CoordBBox bbox = main.evalActiveVoxelBoundingBox();
+  if (!bbox.empty()) {
+    openvdb::Vec3d lo = xform.indexToWorld(bbox.min()), hi = xform.indexToWorld(bbox.max());
+    result.worldBounds.extend(Vec3(float(lo.x()), float(lo.y()), float(lo.z())));
+    result.worldBounds.extend(Vec3(float(hi.x()), float(hi.y()), float(hi.z())));
+  }
+  OutputFile out(path);
+  out.close();
+  try {
+    openvdb::io::File file(out.temporaryPath());
+    file.write(grids);
+    file.close();
+  } catch (const openvdb::Exception& e) {
+    throw std::runtime_error(str("cannot write \"", path, "\": ", e.what()));
+  }
+  result.replacedOther = out.commit();
+  return result;
+}
+
 }  // namespace
 
 DensityExportResult writeDensityVdb(const std::string& path, const TriangleMesh& worldBoundary, float sigmaT,
@@ -117,28 +143,7 @@ DensityExportResult writeDensityVdb(const std::string& path, const TriangleMesh&
     density->insertMeta(kv.first, openvdb::Vec3SMetadata(openvdb::Vec3s(kv.second.x, kv.second.y, kv.second.z)));
   for (const auto& kv : options.stringMetadata) density->insertMeta(kv.first, openvdb::StringMetadata(kv.second));
 
-  DensityExportResult result;
-  result.voxelSize = voxel;
-  result.activeVoxels = int64_t(density->activeVoxelCount());
-  openvdb::CoordBBox bbox = density->evalActiveVoxelBoundingBox();
-  if (!bbox.empty()) {
-    openvdb::Vec3d lo = xform->indexToWorld(bbox.min()), hi = xform->indexToWorld(bbox.max());
-    result.worldBounds.extend(Vec3(float(lo.x()), float(lo.y()), float(lo.z())));
-    result.worldBounds.extend(Vec3(float(hi.x()), float(hi.y()), float(hi.z())));
-  }
-
-  // Through an OutputFile (output_file.h); OpenVDB writes by name, so by the temporary's.
-  OutputFile out(path);
-  out.close();
-  try {
-    openvdb::io::File file(out.temporaryPath());
-    file.write({density});
-    file.close();
-  } catch (const openvdb::Exception& e) {
-    throw std::runtime_error(str("cannot write \"", path, "\": ", e.what()));
-  }
-  result.replacedOther = out.commit();
-  return result;
+  return writeGrids(path, {density}, *density, *xform, voxel);
 }
 
 namespace {
@@ -198,26 +203,7 @@ DensityExportResult writeGrainDensityVdb(const std::string& path, const GrainDen
     grids.push_back(g);
   }
 
-  DensityExportResult result;
-  result.voxelSize = voxel;
-  result.activeVoxels = int64_t(f->activeVoxelCount());
-  openvdb::CoordBBox bbox = f->evalActiveVoxelBoundingBox();
-  if (!bbox.empty()) {
-    openvdb::Vec3d lo = xform->indexToWorld(bbox.min()), hi = xform->indexToWorld(bbox.max());
-    result.worldBounds.extend(Vec3(float(lo.x()), float(lo.y()), float(lo.z())));
-    result.worldBounds.extend(Vec3(float(hi.x()), float(hi.y()), float(hi.z())));
-  }
-  OutputFile out(path);
-  out.close();
-  try {
-    openvdb::io::File file(out.temporaryPath());
-    file.write(grids);
-    file.close();
-  } catch (const openvdb::Exception& e) {
-    throw std::runtime_error(str("cannot write \"", path, "\": ", e.what()));
-  }
-  result.replacedOther = out.commit();
-  return result;
+  return writeGrids(path, grids, *f, *xform, voxel);
 }
 
 std::vector<VdbGridInfo> readVdbGrids(const std::string& path) {

@@ -18,6 +18,9 @@ namespace granular {
 
 namespace {
 
+// The kernel width of an instancer's packing-rate grid, in mean bounding radii.
+constexpr double kKernelRadii = 3.0;
+
 uint64_t floatBits(float f) {
   uint32_t u;
   std::memcpy(&u, &f, sizeof u);
@@ -518,7 +521,15 @@ std::shared_ptr<const Scene::InstancedMedium> Scene::buildInstancedMedium(const 
                                                                           float worldScale) const {
   const InstancedGrainsDesc& d = grains.desc();
   auto m = std::make_shared<InstancedMedium>();
-  m->density = buildGrainDensity(d);
+  // The kernel of 3 mean radii, sampled on voxels as wide as the kernel: its largest voxel
+  // (grain_density.h), 8 times fewer than at half of it, for 64 voxels a grain instead of
+  // 512 (bench/README.md: at 10^6 grains 0.34 s and 13 MiB instead of 1.1 s and 92 MiB).
+  double radiusSum = 0;
+  for (size_t i = 0; i < d.size(); ++i) radiusSum += grains.grain(int64_t(i)).radius;
+  GrainDensityOptions options;
+  options.kernelWidth = float(kKernelRadii * radiusSum / double(std::max<size_t>(1, d.size())) * worldScale);
+  options.voxelSize = options.kernelWidth;
+  m->density = buildGrainDensity(d, options);
   const VoxelLeaves& f = m->density.packing;
   // The bulk's packing rate: f averaged over the grains' volume (Σ f² / Σ f over voxels),
   // where the linear σ_t(f) is exact (heterogeneous_medium.h).

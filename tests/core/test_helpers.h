@@ -86,6 +86,22 @@ inline AggregateDesc smallAggregate(float R = 0.08f, float f = 0.55f, uint64_t s
   return a;
 }
 
+// A sun of 5 degrees (intensity 3, from above and aside) and a blue sky: the light of the
+// hybrid, LOD and explicit-grain tests.
+inline std::vector<LightDesc> sunAndSky() {
+  LightDesc sun;
+  sun.name = "sun";
+  sun.type = LightType::Distant;
+  sun.angle = 5;
+  sun.intensity = 3;
+  sun.xf = Transform::lookAt(Vec3(0.0f), Vec3(-0.4f, -1.0f, -0.5f), Vec3(0, 0, 1));
+  LightDesc sky;
+  sky.name = "sky";
+  sky.type = LightType::Dome;
+  sky.color = Vec3(0.5f, 0.6f, 0.8f);
+  return {sun, sky};
+}
+
 // A ball (radius 1) of bright sand grains of radius R under a sun and a sky, seen from
 // eye towards target with square apertures (focal length 50): the scene of the hybrid
 // and LOD tests.
@@ -101,18 +117,7 @@ inline SceneDesc sandBallScene(const Vec3& eye, float aperture, float R, uint64_
   sand.ior = 1.5f;
   sand.absorption = Vec3(0.02f, 0.04f, 0.1f);
   s.materials.push_back(sand);
-  LightDesc sun;
-  sun.name = "sun";
-  sun.type = LightType::Distant;
-  sun.angle = 5;
-  sun.intensity = 3;
-  sun.xf = Transform::lookAt(Vec3(0.0f), Vec3(-0.4f, -1.0f, -0.5f), Vec3(0, 0, 1));
-  s.lights.push_back(sun);
-  LightDesc sky;
-  sky.name = "sky";
-  sky.type = LightType::Dome;
-  sky.color = Vec3(0.5f, 0.6f, 0.8f);
-  s.lights.push_back(sky);
+  s.lights = sunAndSky();
   AggregateDesc a;
   a.name = "ball";
   a.boundary = makeIcosphere(3);

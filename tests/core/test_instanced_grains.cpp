@@ -16,6 +16,7 @@
 #include "core/render.h"
 #include "core/scene.h"
 #include "core/shapes.h"
+#include "test_helpers.h"
 
 using namespace granular;
 
@@ -426,17 +427,7 @@ SceneDesc instancedScene(bool asMeshes, uint64_t seed, const std::vector<float>&
   clear.ior = 1.31f;
   clear.absorption = Vec3(0.1f);
   s.materials = {amber, clear};
-  LightDesc sun;
-  sun.name = "sun";
-  sun.type = LightType::Distant;
-  sun.angle = 5;
-  sun.intensity = 3;
-  sun.xf = Transform::lookAt(Vec3(0.0f), Vec3(-0.4f, -1.0f, -0.5f), Vec3(0, 0, 1));
-  LightDesc sky;
-  sky.name = "sky";
-  sky.type = LightType::Dome;
-  sky.color = Vec3(0.5f, 0.6f, 0.8f);
-  s.lights = {sun, sky};
+  s.lights = granular::testing::sunAndSky();
   MeshDesc floor;
   floor.name = "floor";
   floor.mesh = makeBox(Vec3(-4.0f, -1.0f, -4.0f), Vec3(4.0f, -0.6f, 4.0f));
@@ -755,17 +746,7 @@ SceneDesc slabScene(Technique technique, uint64_t seed, bool gradient, int expli
   sand.ior = 1.5f;
   sand.absorption = Vec3(0.05f, 0.1f, 0.3f);
   s.materials = {sand};
-  LightDesc sun;
-  sun.name = "sun";
-  sun.type = LightType::Distant;
-  sun.angle = 5;
-  sun.intensity = 3;
-  sun.xf = Transform::lookAt(Vec3(0.0f), Vec3(-0.4f, -1.0f, -0.5f), Vec3(0, 0, 1));
-  LightDesc sky;
-  sky.name = "sky";
-  sky.type = LightType::Dome;
-  sky.color = Vec3(0.5f, 0.6f, 0.8f);
-  s.lights = {sun, sky};
+  s.lights = granular::testing::sunAndSky();
   std::mt19937 rng(31);
   std::uniform_real_distribution<float> u(0.0f, 1.0f);
   InstancedGrainsDesc g;
