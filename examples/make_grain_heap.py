@@ -3,7 +3,7 @@
 GranularInstancedAggregateAPI, as a grain solver exports one (positions, orientations,
 scales, protoIndices, velocities, angularVelocities), over a few frames:
 
-    .venv/bin/python examples/make_grain_heap.py OUT.usdc [--grains N] [--frames K] [--seed S]
+    .venv/bin/python examples/make_grain_heap.py OUT.usdc [--grains N] [--frames K] [--seed S] [--shutter OPEN CLOSE]
 
 The heap is a cone at the angle of repose of dry sand (about 31 degrees) on a ground card,
 with a camera and a sun. Grains are placed one per cell of a cubic grid (cells whose centre
@@ -76,7 +76,7 @@ def heap(grains, seed):
     return centres, sizes, q, protos, height
 
 
-def write(path, grains=100000, frames=3, seed=1):
+def write(path, grains=100000, frames=3, seed=1, shutter=None):
     centres, sizes, quats, protos, height = heap(grains, seed)
     count = len(centres)
     rng = np.random.default_rng(seed + 1)
@@ -136,6 +136,9 @@ def write(path, grains=100000, frames=3, seed=1):
     UsdGeom.Xformable(cam).AddTransformOp().Set(look)
     cam.CreateFocalLengthAttr(35.0)
     cam.CreateClippingRangeAttr(Gf.Vec2f(0.001, 100.0))
+    if shutter is not None:  # motion blur from the grains' velocities and spins
+        cam.CreateShutterOpenAttr(float(shutter[0]))
+        cam.CreateShutterCloseAttr(float(shutter[1]))
     sun = UsdLux.DistantLight.Define(stage, "/World/Sun")
     sun.CreateIntensityAttr(3.0)
     UsdGeom.Xformable(sun).AddRotateXYZOp().Set(Gf.Vec3f(-50, 30, 0))
@@ -150,10 +153,12 @@ def main(argv=None):
     p.add_argument("--grains", type=int, default=100000, help="about this many grains (default 100000)")
     p.add_argument("--frames", type=int, default=3, help="time samples 1..K (default 3)")
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--shutter", type=float, nargs=2, metavar=("OPEN", "CLOSE"),
+                   help="the camera's shutter:open and shutter:close in frames (e.g. -0.25 0.25): motion blur")
     a = p.parse_args(argv)
     if a.grains < 1 or a.frames < 1:
         p.error("--grains and --frames must be >= 1")
-    n = write(a.output, a.grains, a.frames, a.seed)
+    n = write(a.output, a.grains, a.frames, a.seed, a.shutter)
     print(f"wrote {a.output}: {n} grains, {a.frames} frames")
     return 0
 
