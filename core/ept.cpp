@@ -32,6 +32,8 @@ Vec3 primaryAlbedo(const Scene& scene, const Hit& hit) {
     case Hit::Grain:
     case Hit::Boundary:
     case Hit::Proxy: {
+      if (hit.instancer >= 0 && scene.instancedMedium(hit.instancer))
+        return scene.instancedDiffuseReflectance(hit.instancer);
       if (!scene.hasMedia() || hit.aggregate < 0) return Vec3(1.0f);
       return scene.diffusionProfile(hit.aggregate).diffuseReflectance;
     }

@@ -46,8 +46,9 @@ void recordPrimary(const Scene& scene, PathState& path, const Hit& hit);
 // a Lambert surface's albedo (textured), 1 on a dielectric surface and on lights; on an
 // aggregate (a grain or its boundary), the total diffuse reflectance of its equivalent
 // medium (DiffusionProfile::diffuseReflectance), per channel, so
-// that a denoiser sees the colour the aggregate has from afar; 1 when the scene has no
-// media (EPT alone: the grains are clear dielectrics).
+// that a denoiser sees the colour the aggregate has from afar (an instancer's grain: its
+// heterogeneous medium's bulk); 1 when the scene has no media (EPT alone: the grains are
+// clear dielectrics).
 Vec3 primaryAlbedo(const Scene& scene, const Hit& hit);
 
 // Emission of an area light that the path's last sampled direction reached, MIS-weighted.

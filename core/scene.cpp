@@ -582,6 +582,7 @@ std::shared_ptr<const Scene::InstancedMedium> Scene::buildInstancedMedium(const 
   MediumParams scaled = m->params;
   scaled.packingRate = float(fGrains);
   m->medium = HeterogeneousMedium(m->density, scaled, d.name);
+  m->diffuseReflectance = DiffusionProfile(m->params).diffuseReflectance;
   return m;
 }
 

@@ -216,8 +216,10 @@ class Scene {
   // The first instancer medium whose bounds the ray enters within [ray.tmin, tmax): its
   // index and the parameters where the ray is inside those bounds; false: none.
   bool firstInstancedMedium(const Ray& ray, float tmax, int& index, float& t0, float& t1) const;
-  // Of instancer i (which has a medium): the grains' mean bounding radius (world).
+  // Of instancer i (which has a medium): the grains' mean bounding radius (world), and the
+  // total diffuse reflectance of its bulk's medium (the albedo AOV, as an aggregate's).
   float instancedGrainRadius(int i) const { return builtInstanced_[size_t(i)].meanRadius; }
+  Vec3 instancedDiffuseReflectance(int i) const { return builtInstanced_[size_t(i)].medium->diffuseReflectance; }
   int instancedGrainsBuilt() const { return instancedBuilt_; }  // built anew, not lent by the previous scene
   double buildSeconds() const { return buildSeconds_; }
   // Of this build's aggregates: how many were voxelised anew, how many were taken from the
@@ -311,6 +313,7 @@ class Scene {
     GrainDensity density;
     MediumParams params;  // TT, at the bulk's packing rate (params.packingRate)
     HeterogeneousMedium medium;
+    Vec3 diffuseReflectance;  // DiffusionProfile(params)'s
   };
   struct BuiltInstanced {
     std::shared_ptr<const InstancedGrains> grains;

@@ -10,6 +10,7 @@
 #include <random>
 #include <string>
 
+#include "core/ept.h"
 #include "core/error.h"
 #include "core/granular_prims.h"
 #include "core/instanced_grains.h"
@@ -838,4 +839,26 @@ TEST(InstancedGrainsInScene, TheHybridMatchesExplicitGrainsOnASlab) {
         }
     }
   }
+}
+
+TEST(InstancedGrainsInScene, TheAlbedoAovOfAGrainWithAMediumIsTheMediumsColour) {
+  // As an aggregate's grain (ept.h: primaryAlbedo): the bulk's diffuse reflectance, below 1
+  // for absorbing grains and bluish-dark for this amber; 1 without a medium (EPT).
+  auto scene = Scene::build(slabScene(Technique::EptVpt, 1, false));
+  ASSERT_NE(scene->instancedMedium(0), nullptr);
+  Ray ray;
+  const Vec3 origin(float(scene->renderOrigin().x), float(scene->renderOrigin().y), float(scene->renderOrigin().z));
+  ray.o = Vec3(0.0f, 1.0f, 0.0f) - origin;
+  ray.d = Vec3(0.0f, -1.0f, 0.0f);
+  Hit hit;
+  ASSERT_TRUE(scene->intersect(ray, hit));
+  ASSERT_EQ(hit.kind, Hit::Grain);
+  const Vec3 a = primaryAlbedo(*scene, hit);
+  EXPECT_GT(minComponent(a), 0.0f);
+  EXPECT_LT(maxComponent(a), 1.0f);
+  EXPECT_GT(a.x, a.z);  // absorbs blue most
+  auto ept = Scene::build(slabScene(Technique::Ept, 1, false));
+  Hit h2;
+  ASSERT_TRUE(ept->intersect(ray, h2));
+  EXPECT_EQ(primaryAlbedo(*ept, h2), Vec3(1.0f));
 }
