@@ -19,12 +19,16 @@ EmbreeScene makeEmbreeScene(const EmbreeDevice& device) {
 }
 
 unsigned attachTriangleMesh(RTCDevice device, RTCScene scene, const TriangleMesh& mesh, RTCFilterFunctionN filter,
-                            void* filterData) {
+                            void* filterData, const TriangleMesh* atClose) {
   RTCGeometry g = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
-  auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
-                                                        3 * sizeof(float), mesh.points.size()));
-  for (size_t i = 0; i < mesh.points.size(); ++i) {
-    v[3 * i] = mesh.points[i].x; v[3 * i + 1] = mesh.points[i].y; v[3 * i + 2] = mesh.points[i].z;
+  if (atClose) rtcSetGeometryTimeStepCount(g, 2);
+  for (unsigned slot = 0; slot < (atClose ? 2u : 1u); ++slot) {
+    const TriangleMesh& m = slot == 0 ? mesh : *atClose;
+    auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, slot, RTC_FORMAT_FLOAT3,
+                                                          3 * sizeof(float), m.points.size()));
+    for (size_t i = 0; i < m.points.size(); ++i) {
+      v[3 * i] = m.points[i].x; v[3 * i + 1] = m.points[i].y; v[3 * i + 2] = m.points[i].z;
+    }
   }
   auto* idx = static_cast<unsigned*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
                                                              3 * sizeof(unsigned), mesh.numTriangles()));

@@ -20,9 +20,11 @@ EmbreeDevice makeEmbreeDevice();
 EmbreeScene makeEmbreeScene(const EmbreeDevice& device);
 // Adds mesh as a triangle geometry to scene (not committed); returns its geometry id.
 // A filter (with its user data), if given, sees every candidate hit of intersection and
-// occlusion rays and may reject it (cut-outs).
+// occlusion rays and may reject it (cut-outs). atClose (same topology): the mesh moves
+// linearly from `mesh` at ray time 0 to it at ray time 1 (two time steps).
 unsigned attachTriangleMesh(RTCDevice device, RTCScene scene, const TriangleMesh& mesh,
-                            RTCFilterFunctionN filter = nullptr, void* filterData = nullptr);
+                            RTCFilterFunctionN filter = nullptr, void* filterData = nullptr,
+                            const TriangleMesh* atClose = nullptr);
 EmbreeScene buildTriangleScene(const EmbreeDevice& device, const TriangleMesh& mesh);
 
 // Unit outward normal of triangle prim (counter-clockwise winding seen from outside).

@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_sort.h>
@@ -293,9 +294,13 @@ GrainDensity buildGrainDensity(const InstancedGrainsDesc& desc, const GrainDensi
       if (!any) continue;
       bool nonzero = false;
       for (int o = 0; o < VoxelLeaves::kLeafVoxels; ++o) {
-        values[t * VoxelLeaves::kLeafVoxels + size_t(o)] = float(acc[size_t(o)]);
-        nonzero |= acc[size_t(o)] > 0;
-        if (!mix) continue;
+        // Below float's smallest normal a value is 0: a denormal reads as 0 wherever the
+        // floating-point mode flushes them (the fractions follow the value kept).
+        float f = float(acc[size_t(o)]);
+        if (!(f >= std::numeric_limits<float>::min())) f = 0.0f;
+        values[t * VoxelLeaves::kLeafVoxels + size_t(o)] = f;
+        nonzero |= f > 0;
+        if (!mix || f == 0.0f) continue;
         double total = 0;
         for (size_t p = 0; p < P; ++p) total += num[p * VoxelLeaves::kLeafVoxels + size_t(o)];
         for (size_t p = 0; p < P; ++p)

@@ -291,18 +291,33 @@ Bounds3 Scene::buildMeshes(const SceneDesc& desc, int defaultSurface) {
   surfaces_ = makeEmbreeScene(device_);
   cutoutData_.reserve(desc.meshes.size());
   Bounds3 all;
+  const CameraDesc& cam = desc.camera;
+  shutterOpen_ = cam.shutterOpen;
+  shutterClose_ = cam.shutterClose;
+  const bool blur = cam.shutterClose > cam.shutterOpen;
   for (const auto& m : desc.meshes) {
     if (!m.visible) continue;
-    TriangleMesh w = m.mesh.transformed(m.xf);
+    // A moving mesh: at the shutter's open in slot 0 (what textures and normals start
+    // from), at its close in slot 1.
+    const bool moves = blur && m.shutterXf;
+    TriangleMesh w = m.mesh.transformed(moves ? m.shutterXf->first : m.xf);
+    TriangleMesh atClose;
+    if (moves) {
+      atClose = m.mesh.transformed(m.shutterXf->second);
+      all.extend(atClose.bounds());
+      movingMeshes_ = true;
+    }
     all.extend(w.bounds());
     const int material = m.material >= 0 ? m.material : defaultSurface;
+    const TriangleMesh* closeMesh = moves ? &atClose : nullptr;
     if (surfaceMaps_[material].cutout) {
       cutoutData_.push_back({this, int(worldMeshes_.size())});
-      attachTriangleMesh(device_.get(), surfaces_.get(), w, cutoutFilter, &cutoutData_.back());
+      attachTriangleMesh(device_.get(), surfaces_.get(), w, cutoutFilter, &cutoutData_.back(), closeMesh);
     } else {
-      attachTriangleMesh(device_.get(), surfaces_.get(), w);
+      attachTriangleMesh(device_.get(), surfaces_.get(), w, nullptr, nullptr, closeMesh);
     }
     worldMeshes_.push_back(std::move(w));
+    worldMeshesAtClose_.push_back(std::move(atClose));
     meshMaterial_.push_back(material);
     meshId_.push_back(m.id);
   }
@@ -732,12 +747,25 @@ bool Scene::intersectMeshes(const Ray& ray, const Vec3& invD, Hit& hit, float& t
   RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
   RTCRayHit rh = makeRayHit(ray.o, ray.d, ray.tmin, tmax);
+  rh.ray.time = shutterFraction(ray.time);
   rtcIntersect1(surfaces_.get(), &ctx, &rh);
   if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
   tmax = rh.ray.tfar;
   hit.kind = Hit::Surface;
   hit.t = tmax;
-  hit.ng = triangleNormal(worldMeshes_[rh.hit.geomID], rh.hit.primID);
+  const TriangleMesh& atClose = worldMeshesAtClose_[rh.hit.geomID];
+  if (atClose.points.empty()) {
+    hit.ng = triangleNormal(worldMeshes_[rh.hit.geomID], rh.hit.primID);
+  } else {  // the moving triangle where the ray met it
+    const TriangleMesh& atOpen = worldMeshes_[rh.hit.geomID];
+    const float u = rh.ray.time;
+    Vec3 v[3];
+    for (int k = 0; k < 3; ++k) {
+      const uint32_t i = atOpen.indices[3 * size_t(rh.hit.primID) + k];
+      v[k] = atOpen.points[i] * (1.0f - u) + atClose.points[i] * u;
+    }
+    hit.ng = normalize(cross(v[1] - v[0], v[2] - v[0]));
+  }
   hit.material = meshMaterial_[rh.hit.geomID];
   hit.primId = meshId_[rh.hit.geomID];
   hit.geom = int(rh.hit.geomID);
@@ -1072,7 +1100,7 @@ bool Scene::surfacesOccluded(const Vec3& p, const Vec3& dir, float dist, float t
   RTCRay r;
   r.org_x = p.x; r.org_y = p.y; r.org_z = p.z;
   r.dir_x = dir.x; r.dir_y = dir.y; r.dir_z = dir.z;
-  r.tnear = 0; r.tfar = dist; r.time = 0; r.mask = 0xffffffffu; r.id = 0; r.flags = 0;
+  r.tnear = 0; r.tfar = dist; r.time = shutterFraction(time); r.mask = 0xffffffffu; r.id = 0; r.flags = 0;
   rtcOccluded1(surfaces_.get(), &ctx, &r);
   return r.tfar < 0;  // Embree marks a hit by tfar = -inf
 }

@@ -350,7 +350,14 @@ class Scene {
   void updateExplicitBounces();  // from the settings and the media
   void updateProxies();          // useProxies_ and the tables it needs
   bool useProxies_ = false, proxyLightSampling_ = false;
-  std::vector<TriangleMesh> worldMeshes_;   // per Embree geometry id
+  std::vector<TriangleMesh> worldMeshes_;   // per Embree geometry id (moving: at the shutter's open)
+  std::vector<TriangleMesh> worldMeshesAtClose_;  // per geometry id: at the shutter's close; empty when still
+  bool movingMeshes_ = false;
+  float shutterOpen_ = 0, shutterClose_ = 0;
+  // A ray's time as Embree's, [0, 1] over the shutter (0 without blur).
+  float shutterFraction(float time) const {
+    return movingMeshes_ ? std::clamp((time - shutterOpen_) / (shutterClose_ - shutterOpen_), 0.0f, 1.0f) : 0.0f;
+  }
   // Textures and cut-outs (indices into textures_; -1: none) of each material.
   struct SurfaceMaps {
     int albedo = -1, emission = -1, opacity = -1;

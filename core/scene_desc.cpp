@@ -235,6 +235,12 @@ void validateSceneDesc(const SceneDesc& desc) {
     checkMaterialIndex(m.material, desc.materials.size(), obj);
     checkTransform(m.xf, obj, "transform");
     checkWorldPoints(m.mesh, m.xf, obj);
+    if (m.shutterXf) {
+      checkTransform(m.shutterXf->first, obj, "transform");
+      checkWorldPoints(m.mesh, m.shutterXf->first, obj);
+      checkTransform(m.shutterXf->second, obj, "transform");
+      checkWorldPoints(m.mesh, m.shutterXf->second, obj);
+    }
     checkInt(m.instanceId, -1, INT32_MAX, obj, "instanceId");
   }
 
@@ -414,7 +420,10 @@ SceneDesc toRenderSpace(const SceneDesc& desc, const Vec3d& origin) {
   SceneDesc r = desc;
   if (origin == Vec3d{}) return r;
   r.camera = toRenderSpace(desc.camera, origin);
-  for (MeshDesc& m : r.meshes) m.xf = toRenderSpace(m.xf, origin);
+  for (MeshDesc& m : r.meshes) {
+    m.xf = toRenderSpace(m.xf, origin);
+    if (m.shutterXf) m.shutterXf = std::make_pair(toRenderSpace(m.shutterXf->first, origin), toRenderSpace(m.shutterXf->second, origin));
+  }
   for (LightDesc& l : r.lights) l.xf = toRenderSpace(l.xf, origin);
   for (AggregateDesc& a : r.aggregates) a.xf = toRenderSpace(a.xf, origin);
   for (InstancedGrainsDesc& g : r.instancedGrains) g.xf = toRenderSpace(g.xf, origin);
@@ -526,7 +535,7 @@ static_assert(fieldCount<CameraDesc>() == 12, "compare the new field in sameCame
 static_assert(fieldCount<TextureDesc>() == 14, "compare the new field in sameTexture (scale, bias: 4 each)");
 static_assert(fieldCount<MaterialDesc>() == 13, "compare the new field in sameMaterial");
 static_assert(fieldCount<LightDesc>() == 12, "compare the new field in sameLight");
-static_assert(fieldCount<MeshDesc>() == 7, "compare the new field in sameMeshDesc");
+static_assert(fieldCount<MeshDesc>() == 8, "compare the new field in sameMeshDesc");
 static_assert(fieldCount<GrainPrototypeDesc>() == 3, "compare the new field in sameAggregateInputs");
 static_assert(fieldCount<AggregateDesc>() == 13, "compare the new field in sameAggregateInputs (or the id check)");
 static_assert(fieldCount<RenderSettings>() == 24, "compare the new field in sameViewSettings or settingsNeedBuild");
@@ -582,7 +591,10 @@ bool sameLight(const LightDesc& a, const LightDesc& b) {
 
 bool sameMeshDesc(const MeshDesc& a, const MeshDesc& b) {
   return a.name == b.name && sameMesh(a.mesh, b.mesh) && sameTransform(a.xf, b.xf) && a.material == b.material &&
-         a.visible == b.visible && a.id == b.id && a.instanceId == b.instanceId;
+         a.visible == b.visible && a.id == b.id && a.instanceId == b.instanceId &&
+         a.shutterXf.has_value() == b.shutterXf.has_value() &&
+         (!a.shutterXf || (sameTransform(a.shutterXf->first, b.shutterXf->first) &&
+                           sameTransform(a.shutterXf->second, b.shutterXf->second)));
 }
 
 // Settings Scene::setView applies (all but those of settingsNeedBuild).
@@ -676,7 +688,10 @@ SceneChanges compareScenes(const SceneDesc& before, const SceneDesc& after) {
              before.settings.physicalSun != after.settings.physicalSun;
   c.meshes = !sameList(before.meshes, after.meshes, sameMeshDesc);
   c.instancedGrains = before.instancedGrains.size() != after.instancedGrains.size();
-  // Moving grains' grids cover their sweep over the shutter (Scene::build).
+  // Moving meshes are built at the shutter's ends, and moving grains' grids cover their
+  // sweep over it (Scene::build).
+  if (motionSpan(before.camera) != motionSpan(after.camera) || before.camera.shutterOpen != after.camera.shutterOpen)
+    for (const MeshDesc& m : after.meshes) c.meshes = c.meshes || m.shutterXf.has_value();
   if (motionSpan(before.camera) != motionSpan(after.camera))
     for (const InstancedGrainsDesc& g : after.instancedGrains)
       c.instancedGrains = c.instancedGrains || !g.velocities.empty() || !g.angularVelocities.empty();

@@ -10,7 +10,9 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "math.h"
@@ -140,6 +142,10 @@ struct MeshDesc {
   // The index of the instance this mesh is of a flattened instancer (a PointInstancer's
   // instance index), reported by the instanceId AOV; -1: not instanced. >= -1.
   int instanceId = -1;
+  // Transform motion blur: the object-to-world transforms at the camera's shutter open and
+  // close (CameraDesc); the mesh moves vertex by vertex linearly between them over the
+  // shutter (Embree's linear motion blur). Unset, or without an open shutter: still at xf.
+  std::optional<std::pair<Transform, Transform>> shutterXf;
 };
 
 struct GrainPrototypeDesc {

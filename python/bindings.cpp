@@ -422,7 +422,9 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("material", &MeshDesc::material)
       .def_readwrite("visible", &MeshDesc::visible)
       .def_readwrite("id", &MeshDesc::id)
-      .def_readwrite("instance_id", &MeshDesc::instanceId);
+      .def_readwrite("instance_id", &MeshDesc::instanceId)
+      .def_readwrite("shutter_xf", &MeshDesc::shutterXf,
+                     "(transform at the shutter's open, at its close) for motion blur, or None: still");
 
   py::class_<GrainPrototypeDesc>(m, "GrainPrototypeDesc")
       .def(py::init<>())

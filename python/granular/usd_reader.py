@@ -627,6 +627,39 @@ def read_light(scene, prim, xf_cache):
         scene.desc.add_light(light)
 
 
+def _transform_varies(prim):
+    """Whether the prim's world transform may change with time (its own ops or an ancestor's)."""
+    while prim and not prim.IsPseudoRoot():
+        if prim.IsA(UsdGeom.Xformable) and UsdGeom.Xformable(prim).TransformMightBeTimeVarying():
+            return True
+        prim = prim.GetParent()
+    return False
+
+
+def _mesh_motion(scene, time):
+    """Transform motion blur: with the camera's shutter open, each mesh whose world transform
+    changes over it gets its transforms at the shutter's open and close (core's
+    MeshDesc.shutterXf; it moves linearly between them). A PointInstancer's flattened
+    instances stay still."""
+    c = scene.desc.camera
+    if not c.shutter_close > c.shutter_open or time.IsDefault():
+        return
+    fps = scene.stage.GetTimeCodesPerSecond()
+    at_open = UsdGeom.XformCache(Usd.TimeCode(time.GetValue() + c.shutter_open * fps))
+    at_close = UsdGeom.XformCache(Usd.TimeCode(time.GetValue() + c.shutter_close * fps))
+    meshes, moved = list(scene.desc.meshes), False
+    for m in meshes:
+        prim = scene.stage.GetPrimAtPath(m.name) if m.instance_id < 0 and Sdf.Path.IsValidPathString(m.name)[0] else None
+        if not prim or not _transform_varies(prim):
+            continue
+        a, b = world_matrix(at_open, prim), world_matrix(at_close, prim)
+        if a != b:
+            m.shutter_xf = (a, b)
+            moved = True
+    if moved:
+        scene.desc.meshes = meshes
+
+
 def _is_light(prim):
     return prim.HasAPI(UsdLux.LightAPI)
 
@@ -722,6 +755,7 @@ def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_c
         cam_prim = cameras[0]
     if cam_prim is not None:
         read_camera(scene, cam_prim, xf_cache)
+        _mesh_motion(scene, time)
     elif need_camera:
         raise UserError(path, "", "the stage has no UsdGeomCamera (add one, or pass --camera)")
 

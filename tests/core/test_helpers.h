@@ -1,6 +1,8 @@
 // test_helpers.h — brute-force references and scenes shared by the core tests.
 #pragma once
 
+#include <algorithm>
+#include <array>
 #include <cstdint>
 #include <cstring>
 
@@ -9,6 +11,8 @@
 #include <cmath>
 
 #include "core/image_io.h"
+#include "core/render.h"
+#include "core/scene.h"
 
 #include "core/material.h"
 #include "core/math.h"
@@ -216,6 +220,51 @@ inline Material dielectric(float ior, Vec3 absorption = Vec3(0.0f)) {
   m.ior = ior;
   m.absorption = absorption;
   return m;
+}
+
+// Per channel: the image's mean and its standard error (pixels independent; each pixel's
+// variance of the mean from the film's variance AOV).
+struct ChannelEstimate {
+  double mean[3] = {0, 0, 0}, se[3] = {0, 0, 0};
+};
+
+// One render's estimates over windows of the image: each [x0, x1) x [y0, y1).
+inline std::vector<ChannelEstimate> renderEstimates(const SceneDesc& d, const std::vector<std::array<int, 4>>& windows) {
+  auto scene = Scene::build(d);
+  Renderer r(*scene);
+  EXPECT_TRUE(r.render(d.settings.spp));
+  const Image img = r.film().toImage();
+  const auto& names = img.channels;
+  auto channel = [&](const std::string& n) { return int(std::find(names.begin(), names.end(), n) - names.begin()); };
+  const int var[3] = {channel("variance.R"), channel("variance.G"), channel("variance.B")};
+  std::vector<ChannelEstimate> out;
+  for (const auto& [x0, x1, y0, y1] : windows) {
+    ChannelEstimate e;
+    const double n = double(x1 - x0) * (y1 - y0);
+    for (int y = y0; y < y1; ++y)
+      for (int x = x0; x < x1; ++x) {
+        const float* px = &img.pixels[(size_t(y) * img.width + x) * img.channels.size()];
+        for (int c = 0; c < 3; ++c) {
+          e.mean[c] += px[c] / n;
+          e.se[c] += px[var[c]] / (n * n);
+        }
+      }
+    for (int c = 0; c < 3; ++c) e.se[c] = std::sqrt(e.se[c]);
+    out.push_back(e);
+  }
+  return out;
+}
+
+inline ChannelEstimate renderEstimate(const SceneDesc& d, int x0 = 0, int x1 = -1, int y0 = 0, int y1 = -1) {
+  return renderEstimates(d, {{x0, x1 < 0 ? d.settings.width : x1, y0, y1 < 0 ? d.settings.height : y1}})[0];
+}
+
+// A side x side grid of blocks over a square image of `size` pixels.
+inline std::vector<std::array<int, 4>> blocks(int size, int side) {
+  std::vector<std::array<int, 4>> w;
+  for (int j = 0; j < side; ++j)
+    for (int i = 0; i < side; ++i) w.push_back({i * size / side, (i + 1) * size / side, j * size / side, (j + 1) * size / side});
+  return w;
 }
 
 }  // namespace granular::testing

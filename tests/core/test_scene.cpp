@@ -223,3 +223,68 @@ TEST(Scene, AggregatesBuiltSideBySideAreThoseBuiltOneAtATime) {
     EXPECT_EQ(e.object(), "ball");
   }
 }
+
+TEST(Scene, AMovingMeshBlursAsTheAverageOfTheShutter) {
+  // A box sliding sideways by most of its width while the shutter is open, on a floor, under
+  // a sun and a sky: the blurred image equals the average of 16 still images across the
+  // shutter (a translation: Embree's linear motion is exact), per block and channel.
+  const Vec3 from(-0.6f, 0.0f, 0.0f), to(0.5f, 0.1f, 0.0f);
+  const float open = -0.02f, close = 0.02f;
+  auto scene = [&](bool blur, float f, uint64_t seed, int spp) {
+    SceneDesc s;
+    s.settings.width = s.settings.height = 24;
+    s.settings.spp = spp;
+    s.settings.seed = seed;
+    s.settings.technique = Technique::Ept;
+    s.camera.cameraToWorld = Transform::lookAt(Vec3(0.0f, 1.5f, 4.0f), Vec3(0.0f, 0.0f, 0.0f), Vec3(0, 1, 0));
+    s.camera.focalLength = 50;
+    s.camera.horizontalAperture = s.camera.verticalAperture = 30;
+    s.lights = granular::testing::sunAndSky();
+    MeshDesc floor;
+    floor.name = "floor";
+    floor.mesh = makeBox(Vec3(-3.0f, -0.8f, -3.0f), Vec3(3.0f, -0.5f, 3.0f));
+    MeshDesc box;
+    box.name = "box";
+    box.mesh = makeBox(Vec3(-0.4f), Vec3(0.4f));
+    box.xf = Transform::translate(from + (to - from) * f);
+    if (blur) {
+      box.shutterXf = std::make_pair(Transform::translate(from), Transform::translate(to));
+      s.camera.shutterOpen = open;
+      s.camera.shutterClose = close;
+    }
+    s.meshes = {floor, box};
+    return s;
+  };
+  const auto windows = granular::testing::blocks(24, 4);
+  const auto blurred = granular::testing::renderEstimates(scene(true, 0.5f, 3, 256), windows);
+  constexpr int kSlices = 16;
+  std::vector<granular::testing::ChannelEstimate> average(windows.size());
+  for (int k = 0; k < kSlices; ++k) {
+    const auto e = granular::testing::renderEstimates(scene(false, (float(k) + 0.5f) / kSlices, 50 + uint64_t(k), 256 / kSlices), windows);
+    for (size_t b = 0; b < windows.size(); ++b)
+      for (int c = 0; c < 3; ++c) {
+        average[b].mean[c] += e[b].mean[c] / kSlices;
+        average[b].se[c] += e[b].se[c] * e[b].se[c] / (kSlices * kSlices);
+      }
+  }
+  const auto still = granular::testing::renderEstimates(scene(false, 0.5f, 9, 256), windows);
+  double worst = 0, stillWorst = 0;
+  for (size_t b = 0; b < windows.size(); ++b)
+    for (int c = 0; c < 3; ++c) {
+      // Blocks of sky alone have no noise: float rounding is their tolerance.
+      const double se = std::sqrt(average[b].se[c]), rounding = 1e-5 * std::fabs(average[b].mean[c]) + 1e-12;
+      const double z = std::fabs(blurred[b].mean[c] - average[b].mean[c]) / (std::hypot(blurred[b].se[c], se) + rounding);
+      worst = std::max(worst, z);
+      stillWorst = std::max(stillWorst, std::fabs(blurred[b].mean[c] - still[b].mean[c]) /
+                                            (std::hypot(blurred[b].se[c], still[b].se[c]) + rounding));
+      EXPECT_LE(z, 4.0) << "block " << b << " channel " << c;
+    }
+  std::printf("worst block: %.2f standard errors from the shutter's average; the still box at mid-shutter: %.1f\n",
+              worst, stillWorst);
+  EXPECT_GT(stillWorst, 8.0);
+  // Without an open shutter the transforms at its ends are not used: the still image at xf.
+  SceneDesc shut = scene(true, 0.5f, 9, 256);
+  shut.camera.shutterOpen = shut.camera.shutterClose = 0;
+  const auto atXf = granular::testing::renderEstimates(shut, windows);
+  for (size_t b = 0; b < windows.size(); ++b) EXPECT_EQ(atXf[b].mean[0], still[b].mean[0]);
+}

@@ -248,3 +248,41 @@ def _read_at(path, prim_path):
     stage = usd_reader.open_stage(path)
     scene = usd_reader.StageScene(path, stage, usd_reader.as_time_code(None, stage))
     return scene, usd_reader.read_instanced_grains(scene, stage.GetPrimAtPath(prim_path))
+
+
+def test_a_moving_mesh_blurs_over_the_shutter(tmp_path, capsys):
+    """Transform motion blur of an ordinary mesh: a cube whose translate is time-sampled gets
+    its world transforms at the shutter's ends (core's MeshDesc.shutterXf), and its alpha
+    footprint widens over the shutter as the grains' does."""
+    def stage(name, shutter):
+        path = tmp_path / name
+        s = dome_world(path)
+        s.SetTimeCodesPerSecond(24)
+        s.SetStartTimeCode(1)
+        s.SetEndTimeCode(1)
+        cube = UsdGeom.Cube.Define(s, "/World/Box")
+        op = UsdGeom.Xformable(cube).AddTranslateOp()
+        op.Set(Gf.Vec3d(-2, 0, 0), 0)
+        op.Set(Gf.Vec3d(2, 0, 0), 2)
+        cam = UsdGeom.Camera(s.GetPrimAtPath("/World/Camera"))
+        cam.CreateShutterOpenAttr(shutter[0])
+        cam.CreateShutterCloseAttr(shutter[1])
+        s.Save()
+        return str(path)
+
+    blurred_stage, still_stage = stage("m.usda", (-0.5, 0.5)), stage("s.usda", (0, 0))
+    (box,) = [m for m in usd_reader.read_stage(blurred_stage).desc.meshes if m.name == "/World/Box"]
+    assert box.shutter_xf is not None
+    assert box.shutter_xf[0][0][3] == pytest.approx(-1.0) and box.shutter_xf[1][0][3] == pytest.approx(1.0)
+    assert all(m.shutter_xf is None for m in usd_reader.read_stage(still_stage).desc.meshes)
+
+    def row_alpha(path, name):
+        out = tmp_path / name
+        rc, _, err = run_cli(["render", path, "-o", out, "--width", 64, "--height", 32, "--spp", 32, "--quiet"], capsys)
+        assert rc == 0, err
+        img = core.read_exr(str(out))
+        px, ch = np.asarray(img.pixels), list(img.channels)
+        return px[16, :, ch.index("A")]
+    blurred, still = row_alpha(blurred_stage, "b.exr"), row_alpha(still_stage, "s.exr")
+    assert (blurred > 0.02).sum() >= (still > 0.02).sum() + 4
+    assert ((blurred > 0.05) & (blurred < 0.95)).sum() > ((still > 0.05) & (still < 0.95)).sum()
