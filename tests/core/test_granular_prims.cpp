@@ -10,9 +10,11 @@
 
 #include "core/error.h"
 #include "core/granular_prims.h"
+#include "test_helpers.h"
 #include "core/shapes.h"
 
 using namespace granular;
+using granular::testing::errorOf;
 
 namespace {
 
@@ -606,14 +608,6 @@ InstancerPrim hydraInstancer() {
   return p;
 }
 
-std::string errorOf(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const InputError& e) {
-    return e.what();
-  }
-  return "(no error)";
-}
 
 }  // namespace
 

@@ -5,11 +5,14 @@
 #include <array>
 #include <cstdint>
 #include <cstring>
+#include <functional>
+#include <string>
 
 #include <gtest/gtest.h>
 
 #include <cmath>
 
+#include "core/error.h"
 #include "core/image_io.h"
 #include "core/render.h"
 #include "core/scene.h"
@@ -59,6 +62,16 @@ inline bool pointInMesh(const TriangleMesh& m, const Vec3& p) {
     votes += crossings & 1;
   }
   return votes >= 2;
+}
+
+// The message of the InputError f throws, or "(no error)".
+inline std::string errorOf(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const InputError& e) {
+    return e.what();
+  }
+  return "(no error)";
 }
 
 // Images equal value for value, every channel (NaN never equals; +inf where nothing was

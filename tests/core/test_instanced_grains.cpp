@@ -21,6 +21,7 @@
 
 using namespace granular;
 using granular::testing::ChannelEstimate;
+using granular::testing::errorOf;
 using granular::testing::blocks;
 using granular::testing::renderEstimate;
 using granular::testing::renderEstimates;
@@ -228,15 +229,6 @@ TEST(InstancedGrains, EmptyAndMissingRays) {
 // ---- validation ---------------------------------------------------------------------------
 
 namespace {
-
-std::string errorOf(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const InputError& e) {
-    return e.what();
-  }
-  return "(no error)";
-}
 
 InstancedGrainsDesc twoApart() {
   InstancedGrainsDesc d;

@@ -202,6 +202,22 @@ def _moving(path, shutter=(-0.5, 0.5), fps=24.0):
     return p
 
 
+def _row_alpha(tmp_path, capsys, path, name):
+    """Alpha of the middle row of a 64x32 render of the stage."""
+    out = tmp_path / name
+    rc, _, err = run_cli(["render", path, "-o", out, "--width", 64, "--height", 32, "--spp", 32, "--quiet"], capsys)
+    assert rc == 0, err
+    img = core.read_exr(str(out))
+    px, ch = np.asarray(img.pixels), list(img.channels)
+    return px[16, :, ch.index("A")]
+
+
+def _assert_smeared(blurred, still):
+    """The blurred row covers a wider span than the still one, with more partly covered pixels."""
+    assert (blurred > 0.02).sum() >= (still > 0.02).sum() + 4
+    assert ((blurred > 0.05) & (blurred < 0.95)).sum() > ((still > 0.05) & (still < 0.95)).sum()
+
+
 def test_camera_shutter_is_read_in_seconds(tmp_path):
     scene = usd_reader.read_stage(_moving(tmp_path / "m.usda", shutter=(-0.25, 0.5), fps=25.0))
     assert scene.desc.camera.shutter_open == pytest.approx(-0.01)
@@ -212,17 +228,8 @@ def test_motion_blur_smears_the_grains_over_the_shutter(tmp_path, capsys):
     """Alpha (coverage) of the row through the grains: still, each grain covers its own
     disc; blurred over a frame, each sweeps 2 units each way, so the covered span widens and
     its edge pixels are partly covered."""
-    def row_alpha(path, name):
-        out = tmp_path / name
-        rc, _, err = run_cli(["render", path, "-o", out, "--width", 64, "--height", 32, "--spp", 32, "--quiet"], capsys)
-        assert rc == 0, err
-        img = core.read_exr(str(out))
-        px, ch = np.asarray(img.pixels), list(img.channels)
-        return px[16, :, ch.index("A")]
-    blurred = row_alpha(_moving(tmp_path / "b.usda"), "b.exr")
-    still = row_alpha(_moving(tmp_path / "s.usda", shutter=(0, 0)), "s.exr")
-    assert (blurred > 0.02).sum() >= (still > 0.02).sum() + 4
-    assert ((blurred > 0.05) & (blurred < 0.95)).sum() > ((still > 0.05) & (still < 0.95)).sum()
+    _assert_smeared(_row_alpha(tmp_path, capsys, _moving(tmp_path / "b.usda"), "b.exr"),
+                    _row_alpha(tmp_path, capsys, _moving(tmp_path / "s.usda", shutter=(0, 0)), "s.exr"))
 
 
 def test_a_shutter_that_closes_before_it_opens_is_named(tmp_path, capsys):
@@ -276,13 +283,5 @@ def test_a_moving_mesh_blurs_over_the_shutter(tmp_path, capsys):
     assert box.shutter_xf[0][0][3] == pytest.approx(-1.0) and box.shutter_xf[1][0][3] == pytest.approx(1.0)
     assert all(m.shutter_xf is None for m in usd_reader.read_stage(still_stage).desc.meshes)
 
-    def row_alpha(path, name):
-        out = tmp_path / name
-        rc, _, err = run_cli(["render", path, "-o", out, "--width", 64, "--height", 32, "--spp", 32, "--quiet"], capsys)
-        assert rc == 0, err
-        img = core.read_exr(str(out))
-        px, ch = np.asarray(img.pixels), list(img.channels)
-        return px[16, :, ch.index("A")]
-    blurred, still = row_alpha(blurred_stage, "b.exr"), row_alpha(still_stage, "s.exr")
-    assert (blurred > 0.02).sum() >= (still > 0.02).sum() + 4
-    assert ((blurred > 0.05) & (blurred < 0.95)).sum() > ((still > 0.05) & (still < 0.95)).sum()
+    _assert_smeared(_row_alpha(tmp_path, capsys, blurred_stage, "b.exr"),
+                    _row_alpha(tmp_path, capsys, still_stage, "s.exr"))
