@@ -94,8 +94,12 @@ def write(path, grains=100000, frames=3, seed=1, shutter=None):
     UsdGeom.Scope.Define(stage, "/World/Heap/Prototypes")
     round_ = _mesh(stage, "/World/Heap/Prototypes/Round", core.make_icosphere(2))
     rock = _mesh(stage, "/World/Heap/Prototypes/Rock", core.make_rock(2, 0.3, seed))
+    # Absorption is per the prototype's bounding radius at scale 1 (schemas/README.md), the
+    # unit ball here: quartz's absorption per grain radius over RADIUS, so that grains scaled
+    # to RADIUS absorb as quartz grains of that size.
+    absorption = tuple(a / RADIUS for a in QUARTZ_SAND.absorption_per_radius(RADIUS))
     for m in (round_, rock):  # visible: a prototype's visibility is its instances'
-        schema.apply_grain(m, ior=QUARTZ_SAND.ior, absorption=QUARTZ_SAND.absorption_per_radius(RADIUS), invisible=False)
+        schema.apply_grain(m, ior=QUARTZ_SAND.ior, absorption=absorption, invisible=False)
     pi.CreatePrototypesRel().SetTargets([round_.GetPath(), rock.GetPath()])
     pi.CreateProtoIndicesAttr(Vt.IntArray.FromNumpy(protos))
     pi.CreateScalesAttr(Vt.Vec3fArray.FromNumpy(np.repeat(sizes[:, None], 3, axis=1).astype(np.float32)))
