@@ -60,6 +60,9 @@ import time
 
 import numpy as np
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from instanced_hybrid import crossing  # noqa: E402  (one interpolation for both benches)
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 SUN_DISTANCE = 1.0e4  # far enough that the heap sees the disk within 3e-3° of its direction
@@ -334,15 +337,6 @@ def load_ours(path):
 
 def rel_mse(img, ref, heap):
     return float((((img - ref) ** 2) / (ref ** 2 + 0.01))[heap].mean())
-
-
-def crossing(ladder, target):
-    """Time at which relMSE reaches target, log-log between the steps around it; None if never."""
-    for (t0, e0), (t1, e1) in zip(ladder, ladder[1:]):
-        if e0 > target >= e1:
-            f = (math.log(target) - math.log(e0)) / (math.log(e1) - math.log(e0))
-            return math.exp(math.log(t0) + f * (math.log(t1) - math.log(t0)))
-    return ladder[0][0] if ladder and ladder[0][1] <= target else None
 
 
 def heap_stage(args, n):
