@@ -936,7 +936,8 @@ void Scene::setView(const CameraDesc& camera, const RenderSettings& settings) {
   check.camera = camera;
   check.settings = settings;
   validateSceneDesc(check);
-  if ((settings.technique == Technique::Ept) != (settings_.technique == Technique::Ept) && !aggregates_.empty())
+  if ((settings.technique == Technique::Ept) != (settings_.technique == Technique::Ept) &&
+      (!aggregates_.empty() || !instanced_.empty()))
     throw InputError("render", "technique", "a change between ept and the hybrid needs the scene built anew");
   settings_ = settings;
   textureFilterScale_ = textureFilterScale(settings.spp);

@@ -813,3 +813,14 @@ TEST(InstancedGrainsInScene, TheAlbedoAovOfAGrainWithAMediumIsTheMediumsColour) 
   ASSERT_TRUE(ept->intersect(ray, h2));
   EXPECT_EQ(primaryAlbedo(*ept, h2), Vec3(1.0f));
 }
+
+TEST(InstancedGrainsInScene, ANewViewCannotSwitchBetweenEptAndTheHybrid) {
+  // The medium is built with the scene (or not, for EPT): switching needs a build, as for
+  // aggregates.
+  SceneDesc d = slabScene(Technique::Ept, 1, false);
+  auto scene = Scene::build(d);
+  RenderSettings hybrid = d.settings;
+  hybrid.technique = Technique::Hybrid;
+  EXPECT_THROW(scene->setView(d.camera, hybrid), InputError);
+  EXPECT_TRUE(settingsNeedBuild(d.settings, hybrid));
+}
