@@ -401,6 +401,7 @@ bool InstancedGrains::traceGrain(int64_t i, const Vec3& o, const Vec3& d, float 
   hit.prototype = g.prototype;
   hit.prim = prim;
   hit.ng = ng;
+  hit.radius = g.radius;
   return true;
 }
 

@@ -57,6 +57,7 @@ struct InstancedGrainHit {
   int prototype = -1;
   unsigned prim = 0;   // the prototype's triangle hit
   Vec3 ng;             // world, outward from the grain, unit
+  float radius = 0;    // the grain's bounding radius (object space)
 };
 
 // One grain's placement, as the grid sees it (object space).

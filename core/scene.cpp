@@ -487,12 +487,9 @@ void Scene::buildInstancedGrains(const SceneDesc& desc, int defaultGrain, const 
         entry.lengthScale = b.lengthScale;
         entry.worldScale = b.worldScale;
         entry.bounds = b.bounds;
+        entry.medium = b.medium;  // null when built for EPT: made below if needed
         break;
       }
-    if (entry.grains && previous) {
-      for (const BuiltInstanced& b : previous->builtInstanced_)
-        if (b.grains == entry.grains) entry.medium = b.medium, entry.meanRadius = b.meanRadius;
-    }
     if (!entry.grains) {
       auto grains = std::make_shared<InstancedGrains>();
       grains->build(d, device_, true, span);
@@ -517,14 +514,11 @@ void Scene::buildInstancedGrains(const SceneDesc& desc, int defaultGrain, const 
       entry.medium.reset();
     } else if (!entry.medium && entry.grains->stats().grains > 0) {
       entry.medium = buildInstancedMedium(*entry.grains, entry.materials, entry.worldScale);
-      if (entry.medium) entry.meanRadius = entry.medium->density.stats.meanRadius;
     }
     if (entry.medium) {
       ++instancedMedia_;
       // The hybrid's switch measures the spread of a bundle against the largest grain.
-      maxGrainRadius_ = std::max(maxGrainRadius_, entry.grains->objectBounds().empty() ? 0.0f
-                                                  : entry.grains->stats().cellSize / InstancedGrains::kCellRadii *
-                                                        entry.worldScale);
+      maxGrainRadius_ = std::max(maxGrainRadius_, entry.medium->maxRadius);
     }
     instanced_.push_back(entry.grains);
     builtInstanced_.push_back(std::move(entry));
@@ -536,13 +530,28 @@ std::shared_ptr<const Scene::InstancedMedium> Scene::buildInstancedMedium(const 
                                                                           float worldScale) const {
   const InstancedGrainsDesc& d = grains.desc();
   auto m = std::make_shared<InstancedMedium>();
+  // The grains' sizes (world bounding radii): per prototype their count and sum, and the
+  // second and third moments of all, for the mean, the Sauter mean and the largest.
+  const size_t np = grains.prototypes().size();
+  std::vector<double> count(np, 0.0), sum(np, 0.0);
+  double r1 = 0, r2 = 0, r3 = 0;
+  for (size_t i = 0; i < d.size(); ++i) {
+    const InstancedGrain g = grains.grain(int64_t(i));
+    const double r = double(g.radius) * worldScale;
+    count[size_t(g.prototype)] += 1;
+    sum[size_t(g.prototype)] += r;
+    r1 += r;
+    r2 += r * r;
+    r3 += r * r * r;
+    m->maxRadius = std::max(m->maxRadius, float(r));
+  }
+  const float meanR = float(r1 / double(std::max<size_t>(1, d.size())));
+  m->meanRadius = meanR;
   // The kernel of 3 mean radii, sampled on voxels as wide as the kernel: its largest voxel
   // (grain_density.h), 8 times fewer than at half of it, for 64 voxels a grain instead of
   // 512 (bench/README.md: at 10^6 grains 0.34 s and 13 MiB instead of 1.1 s and 92 MiB).
-  double radiusSum = 0;
-  for (size_t i = 0; i < d.size(); ++i) radiusSum += grains.grain(int64_t(i)).radius;
   GrainDensityOptions options;
-  options.kernelWidth = float(kKernelRadii * radiusSum / double(std::max<size_t>(1, d.size())) * worldScale);
+  options.kernelWidth = float(kKernelRadii) * meanR;
   options.voxelSize = options.kernelWidth;
   m->density = buildGrainDensity(d, options);
   const VoxelLeaves& f = m->density.packing;
@@ -553,23 +562,9 @@ std::shared_ptr<const Scene::InstancedMedium> Scene::buildInstancedMedium(const 
     if (v > 0) s1 += v, s2 += double(v) * v, fmax = std::max(fmax, double(v));
   if (!(s1 > 0)) return nullptr;
   const double fGrains = s2 / s1;
-  // The grains' sizes: each prototype's mean bounding radius, the Sauter mean of all, in
-  // units of the mean radius R̄; absorption per R̄ (TT's unit) from per prototype radius.
-  const size_t np = grains.prototypes().size();
-  std::vector<double> count(np, 0.0), sum(np, 0.0);
-  double s2r = 0, s3r = 0;
-  const float meanR = m->density.stats.meanRadius;
-  for (size_t i = 0; i < d.size(); ++i) {
-    const InstancedGrain g = grains.grain(int64_t(i));
-    const double s = double(g.radius) * worldScale / meanR;
-    count[size_t(g.prototype)] += 1;
-    sum[size_t(g.prototype)] += s;
-    s2r += s * s;
-    s3r += s * s * s;
-  }
   // TT's packing rate is the bounding spheres' (Meng et al. 2015: a sphere packing, a grain
   // in each sphere); the density counts the grains' own volume, a fraction φ of their spheres.
-  const double sphereVolume = 4.0 / 3.0 * kPiD * double(meanR) * meanR * meanR * s3r;
+  const double sphereVolume = 4.0 / 3.0 * kPiD * r3;
   const double phi = sphereVolume > 0 ? std::clamp(m->density.stats.totalVolume / sphereVolume, 0.05, 1.0) : 1.0;
   const float fRef = float(std::clamp(fGrains / phi, 0.01, 0.64));
   AggregateDesc a;
@@ -582,15 +577,16 @@ std::shared_ptr<const Scene::InstancedMedium> Scene::buildInstancedMedium(const 
     const GrainPrototype& p = grains.prototypes()[k];
     a.prototypes.push_back(d.prototypes[k]);
     a.weights.push_back(float(count[k]));
-    a.sizes.push_back(count[k] > 0 ? float(std::clamp(sum[k] / count[k], 0.1, 10.0)) : 1.0f);
+    // Sizes in units of R̄ (TT's unit, as absorption per R̄ below), within deriveMedium's range.
+    a.sizes.push_back(count[k] > 0 ? float(std::clamp(sum[k] / count[k] / meanR, 0.1, 10.0)) : 1.0f);
     meshes.push_back(&p.mesh);
     Material mat = materials_[size_t(materials[k])];
     mat.absorption = mat.absorption * (meanR / (p.fitRadius * worldScale));
     mats.push_back(mat);
   }
-  m->params = aggregateMedium(meshes, mats, a, s3r / std::max(1e-30, s2r));
+  m->params = aggregateMedium(meshes, mats, a, r3 / std::max(1e-30, r2) / meanR);  // Sauter mean, in R̄
   // Thinner than its mean free path at its densest across its narrowest extent: EPT alone.
-  const Vec3 extent = m->density.packing.voxelSize > 0 ? grains.objectBounds().extent() * worldScale : Vec3(0.0f);
+  const Vec3 extent = grains.objectBounds().extent() * worldScale;
   const float sigmaMax = maxComponent(m->params.sigmaT) * float(fmax) / fRef;
   if (!(sigmaMax * 0.5f * minComponent(extent) > 1.0f)) return nullptr;
   // σ_t(x) follows the grains' volume fraction, equal to f_ref φ in the bulk.
@@ -719,7 +715,6 @@ bool Scene::intersectInstancedGrains(const Ray& ray, const Vec3& invD, Hit& hit,
     if (!b.grains->intersect(ray.o, ray.d, ray.tmin, tmax, g, ray.time) || !(g.t < tmax)) continue;
     found = true;
     tmax = g.t;
-    const InstancedGrain grain = b.grains->grain(g.grain);
     hit.kind = Hit::Grain;
     hit.t = g.t;
     hit.ng = g.ng;
@@ -729,12 +724,12 @@ bool Scene::intersectInstancedGrains(const Ray& ray, const Vec3& invD, Hit& hit,
     hit.material = b.materials[size_t(g.prototype)];
     hit.lengthScale = b.lengthScale[size_t(g.prototype)];
     hit.primId = b.id;
-    hit.eps = kGrainEps * grain.radius * b.worldScale;
+    hit.eps = kGrainEps * g.radius * b.worldScale;
     hit.grain = GrainHit();
     hit.grain.t = g.t;
     hit.grain.ng = g.ng;
     hit.grain.prototype = g.prototype;
-    hit.grain.radius = grain.radius * b.worldScale;
+    hit.grain.radius = g.radius * b.worldScale;
     hit.grain.prim = g.prim;
   }
   return found;
@@ -1110,12 +1105,15 @@ Vec3 Scene::transmittance(const Vec3& p, const Vec3& dir, float dist, float time
   if (surfacesOccluded(p, dir, dist, time, true)) return Vec3(0.0f);
   Vec3 tr(1.0f);
   if (instancedMedia_ > 0) {
-    Rng own(hashInts(floatBits(p.x), floatBits(p.y), floatBits(p.z), floatBits(dir.x) ^ (uint64_t(floatBits(dir.y)) << 32)),
-            floatBits(dir.z));
+    std::optional<Rng> own;  // without the path's: from a hash of the ray, reproducible
+    if (!rng)
+      rng = &own.emplace(hashInts(floatBits(p.x), floatBits(p.y), floatBits(p.z),
+                                  floatBits(dir.x) ^ (uint64_t(floatBits(dir.y)) << 32)),
+                         floatBits(dir.z));
     Ray ray{p, dir, 0.0f, kInf, time};
     for (const BuiltInstanced& b : builtInstanced_)
       if (b.medium) {
-        tr *= b.medium->medium.transmittance(ray, dist, rng ? *rng : own);
+        tr *= b.medium->medium.transmittance(ray, dist, *rng);
         if (isBlack(tr)) return tr;
       }
   }

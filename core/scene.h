@@ -218,7 +218,7 @@ class Scene {
   bool firstInstancedMedium(const Ray& ray, float tmax, int& index, float& t0, float& t1) const;
   // Of instancer i (which has a medium): the grains' mean bounding radius (world), and the
   // total diffuse reflectance of its bulk's medium (the albedo AOV, as an aggregate's).
-  float instancedGrainRadius(int i) const { return builtInstanced_[size_t(i)].meanRadius; }
+  float instancedGrainRadius(int i) const { return builtInstanced_[size_t(i)].medium->meanRadius; }
   Vec3 instancedDiffuseReflectance(int i) const { return builtInstanced_[size_t(i)].medium->diffuseReflectance; }
   int instancedGrainsBuilt() const { return instancedBuilt_; }  // built anew, not lent by the previous scene
   double buildSeconds() const { return buildSeconds_; }
@@ -314,11 +314,11 @@ class Scene {
     MediumParams params;  // TT, at the bulk's packing rate (params.packingRate)
     HeterogeneousMedium medium;
     Vec3 diffuseReflectance;  // DiffusionProfile(params)'s
+    float meanRadius = 0, maxRadius = 0;  // the grains' bounding radii (world)
   };
   struct BuiltInstanced {
     std::shared_ptr<const InstancedGrains> grains;
     std::shared_ptr<const InstancedMedium> medium;  // null: none (yet)
-    float meanRadius = 0;                           // world
     std::vector<int> materials;               // scene material of each prototype
     std::vector<MaterialDesc> materialDescs;  // compared when lending
     std::vector<float> lengthScale;           // per prototype: its world radius at scale 1
