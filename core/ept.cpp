@@ -224,11 +224,12 @@ void eptStep(const Scene& scene, PathState& path) {
       // ray goes on from there): only the medium can sample the sun (Scene::narrowSun).
       // A grain of the surface layer may stick out of the boundary: the path then enters
       // the medium where its ray crosses the boundary.
-      if (scene.narrowSun() && scene.useProxies() && hit.aggregate >= 0) {
+      if (scene.narrowSun() && hit.aggregate >= 0 && scene.useProxies(hit.aggregate)) {
         // Proxies reach any sun: the path goes on among them from here, where the first
-        // sphere it enters is met as a proxy.
+        // sphere it enters is met as a proxy — the first grain, so not a visit after it.
         path.mode = path.credit = kPpt;
         path.from = GrainStart();
+        path.proxyVisits = -1;
         return;
       }
       if (scene.narrowSun()) {
@@ -247,9 +248,9 @@ void eptStep(const Scene& scene, PathState& path) {
     path.mode = path.credit = kPpt;
     return;
   }
-  // The shortcut keeps the first grain and the low orders explicit (Scene::explicitBounces:
+  // The shortcut keeps the first grain and the low orders explicit (ppt.h, lowOrdersDone:
   // the medium misses the packing's shadow hiding), then leaves for the medium.
-  if (path.shortcut && path.alive && !path.inGrain && path.depth >= scene.explicitBounces()) {
+  if (path.shortcut && path.alive && !path.inGrain && lowOrdersDone(scene, path)) {
     path.mode = path.credit = kVpt;
     path.medium = scene.mediumAt(path.ray.o);
   }

@@ -44,7 +44,8 @@ BundleStats traceBundle(const Scene& scene, std::vector<PathState>& paths, float
   bool decided = rs.technique == Technique::Ept || !scene.hasMedia() || N < 2;
   BundleStats stats;
   for (int k = 0;; ++k) {
-    int alive = 0, minDepth = std::numeric_limits<int>::max();
+    int alive = 0;
+    bool lowOrders = true;  // every live path out of the media has done its low orders
     Vec3 centroid(0.0f);
     for (PathState& p : paths) {
       if (!p.alive) continue;
@@ -55,13 +56,12 @@ BundleStats traceBundle(const Scene& scene, std::vector<PathState>& paths, float
       if (p.alive) {
         ++alive;
         centroid += p.ray.o;
-        if (p.mode != kVpt) minDepth = std::min(minDepth, p.depth);
+        if (p.mode != kVpt && lowOrders && !decided) lowOrders = lowOrdersDone(scene, p);
       }
     }
     if (alive == 0) break;
-    // Not before every live path still out of the media has done the explicit bounces
-    // (proxies count kProxyOrders each).
-    if (decided || alive < 2 || minDepth < scene.explicitBounces()) continue;
+    // Not before every live path still out of the media has done its low orders (ppt.h).
+    if (decided || alive < 2 || !lowOrders) continue;
     // σ_k: RMS distance of the live vertices to their centroid.
     centroid /= float(alive);
     double s2 = 0;

@@ -2,8 +2,8 @@
 // part (Meng et al. 2015's switch between EPT, VPT and DA, and its Russian roulette).
 //
 // Contract. traceBundle() traces the N paths of one pixel's bundle in lock-step with EPT.
-// After each bounce k (from Scene::explicitBounces() on: low orders stay explicit,
-// scene_desc.h) it measures σ_k, the root-mean-square distance of the N_k live paths'
+// After each bounce k (once every live path has done its low orders, ppt.h:
+// lowOrdersDone; switching.h) it measures σ_k, the root-mean-square distance of the N_k live paths'
 // vertices to their centroid; once σ_k > τ R_max N_k / N (R_max: the largest grain
 // radius) every live path switches to the equivalent media (VPT), as soon as it is out
 // of the grain it is in. At the switch a path survives with probability P_a (weight

@@ -38,6 +38,7 @@ struct PathState {
   Vec3 beta{1.0f};
   Vec3 L[kTransports];     // radiance gathered by EPT, VPT, DA and PPT
   int depth = 0;           // scattering events so far (a proxy's counts kProxyOrders, ppt.h)
+  int proxyVisits = 0;     // grains met among proxies after the first (ppt.h: lowOrdersDone)
   bool alive = true;
   bool lastDelta = true;   // camera rays and delta bounces see emitters unweighted
   float lastPdf = 0;       // solid-angle pdf of the last sampled direction

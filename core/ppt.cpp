@@ -84,13 +84,24 @@ void scatter(const Scene& scene, PathState& path, const Hit& hit, const ProxyTab
   path.ray.tmax = kInf;
   path.coneSpread = std::max(path.coneSpread, kDiffuseConeSpread);
   path.depth += kProxyOrders;
+  ++path.proxyVisits;
   if (!russianRoulette(scene, path) || !isFinite(path.beta) || isBlack(path.beta)) path.alive = false;
 }
 
 }  // namespace
 
 bool entersProxies(const Scene& scene, const PathState& path) {
-  return path.mode == kEpt && path.alive && !path.inGrain && path.from.aggregate >= 0 && scene.useProxies();
+  return path.mode == kEpt && path.alive && !path.inGrain && path.from.aggregate >= 0 &&
+         scene.useProxies(path.from.aggregate);
+}
+
+bool lowOrdersDone(const Scene& scene, const PathState& path) {
+  const int set = scene.settings().explicitBounces;
+  if (set >= 0) return path.depth >= set;
+  const int a = path.from.aggregate;
+  if (path.mode == kPpt) return path.proxyVisits >= scene.proxyVisits(a);
+  if (a >= 0 && scene.useProxies(a)) return scene.proxyVisits(a) == 0;
+  return path.depth >= scene.explicitBounces(a);
 }
 
 void pptStep(const Scene& scene, PathState& path) {
@@ -123,8 +134,8 @@ void pptStep(const Scene& scene, PathState& path) {
     path.from.grain = g;
     path.from.inside = false;
   }
-  // The level-of-detail shortcut leaves for the medium after the explicit bounces (ept.h).
-  if (path.shortcut && path.alive && path.depth >= scene.explicitBounces() && scene.hasMedia()) {
+  // The level-of-detail shortcut leaves for the medium after the low orders (ept.h).
+  if (path.shortcut && path.alive && scene.hasMedia() && lowOrdersDone(scene, path)) {
     path.mode = path.credit = kVpt;
     path.medium = scene.mediumAt(path.ray.o);
   }

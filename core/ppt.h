@@ -16,8 +16,8 @@
 //    tables are smooth in direction, so delta and narrow suns are reached like any light;
 //  - the next direction from the table (weight f_c / pdf), leaving from its exit point.
 // Surfaces are shaded as EPT shades them, shadow rays crossing proxies as above. The path
-// leaves PPT as EPT would leave its explicit bounces: for the media at the hybrid's switch
-// (hybrid.h) or, when it took the level-of-detail shortcut, after Scene::explicitBounces().
+// leaves PPT for the media at the hybrid's switch (hybrid.h) or, when it took the
+// level-of-detail shortcut, at once, both once lowOrdersDone() (below).
 // Radiance goes to PathState::L[kPpt] (the AOV ppt.*), a low-order part as EPT's is.
 #pragma once
 
@@ -28,15 +28,26 @@ namespace granular {
 void pptStep(const Scene& scene, PathState& path);
 
 // What a proxy's scattering counts as scattering events (PathState::depth: against
-// Scene::explicitBounces(), Russian roulette's rrDepth, maxDepth): a grain visit is ~3.3
+// Scene::explicitBounces(), Russian roulette's rrDepth, maxDepth; PathState::proxyVisits
+// counts the visits themselves): a grain visit is ~3.3
 // explicit bounces (interfaces), but the bias the medium leaves after K proxy visits is
 // that of ~2K explicit bounces (the IOR 2.4 ball of the accuracy matrix: −1.2% after 8
 // visits, −0.6% after 16; explicit grains −1.1% after 16 bounces, −0.35% after 32), so a
 // visit counts 2.
 constexpr int kProxyOrders = 2;
 
-// After an explicit grain bounce: whether the path goes on among proxies (the scene's
-// setting, a technique with media, the path out of its grain and in EPT).
+// After an explicit grain bounce: whether the path goes on among proxies (its grain's
+// aggregate uses them, Scene::useProxies(a); the path out of its grain and in EPT).
 bool entersProxies(const Scene& scene, const PathState& path);
+
+// Whether a path (not in the media) has done the low orders that stay discrete before the
+// medium may take it (the hybrid's switch, the level-of-detail shortcut), by the aggregate
+// of its last grain (Scene::proxyVisits, explicitBounces; switching.h):
+//  - with RenderSettings::explicitBounces set: its depth has reached them;
+//  - among proxies: its visits after the first grain have reached the aggregate's;
+//  - in EPT in an aggregate that uses proxies: the aggregate needs none (else the path
+//    is still in its first grain and has its visits to make);
+//  - else (explicit grains, or no aggregate yet): its depth has reached the explicit bounces.
+bool lowOrdersDone(const Scene& scene, const PathState& path);
 
 }  // namespace granular

@@ -10,9 +10,15 @@
 #include <cstring>
 #include <set>
 
+#include <tbb/task_arena.h>
+
+#include "build_cache.h"
+#include "cache.h"
 #include "error.h"
 #include "microfacet.h"
+#include "ppt.h"
 #include "rng.h"
+#include "tt.h"
 
 namespace granular {
 
@@ -247,8 +253,7 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& worldDesc, const Scene* pre
   s->buildIdentities(desc, lights);
   s->findEmittersInside(desc, lights);
   s->updateDiffusionDepths();
-  s->updateExplicitBounces();
-  s->updateProxies();
+  s->updateSwitching();
   s->buildSeconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return s;
 }
@@ -383,6 +388,7 @@ Scene::BuiltAggregate Scene::lend(const SceneDesc& desc, const AggregateDesc& a,
     entry.medium = old->medium;
     entry.mediumSauterSize = old->mediumSauterSize;
     entry.proxies = old->proxies;
+    if (!old->mediumReplaced) entry.switching = old->switching;
     ++aggregatesReused_;
   }
   return entry;
@@ -938,15 +944,10 @@ void Scene::setView(const CameraDesc& camera, const RenderSettings& settings) {
   textureFilterScale_ = textureFilterScale(settings.spp);
   camera_ = Camera(toRenderSpace(camera, renderOrigin_), settings.width, settings.height);
   updateDiffusionDepths();  // the camera may have moved into or out of an aggregate
-  updateExplicitBounces();
-  updateProxies();
+  updateSwitching();
 }
 
-void Scene::updateProxies() {
-  const ProxyUse use = settings_.proxies;
-  useProxies_ = settings_.technique != Technique::Ept && !standIns_ &&
-                (use == ProxyUse::On || (use == ProxyUse::Auto && narrowSun_)) && !aggregates_.empty();
-  if (!useProxies_) return;
+void Scene::updateProxyTables() {
   proxyTables_.clear();
   for (BuiltAggregate& entry : built_) {
     entry.aggregate->prepareProxies();
@@ -969,6 +970,71 @@ void Scene::updateProxies() {
   }
 }
 
+void Scene::measureSwitching(size_t a) {
+  BuiltAggregate& entry = built_[a];
+  if (entry.switching) return;
+  const Aggregate& agg = *entry.aggregate;
+  const MediumParams& m = mediumParams_[a];
+  // The cache key: what the aggregate's build depends on, its grains, and its medium
+  // (setMedium may have replaced the TT-derived one).
+  uint64_t key = hashInts(0x47525357 /* "GRSW" */, buildKey(entry.desc, agg.boundary(), agg.tile()));
+  for (size_t i = 0; i < agg.prototypes().size(); ++i)
+    key = hashGrainInputs(key, agg.prototypes()[i].mesh, materials_[size_t(entry.materials[i])]);
+  for (const Vec3* v : {&m.sigmaT, &m.albedo, &m.g}) key = hashBytes(key, v, sizeof(Vec3));
+  // As many threads as the render may use (the result does not depend on them).
+  auto run = [&] { return measureSwitch(agg, *entry.proxies, media_[a], {}, key); };
+  if (settings_.threads > 0) {
+    tbb::task_arena arena(settings_.threads);
+    entry.switching = std::make_shared<const SwitchMeasure>(arena.execute(run));
+  } else {
+    entry.switching = std::make_shared<const SwitchMeasure>(run());
+  }
+}
+
+void Scene::updateSwitching() {
+  const size_t n = aggregates_.size();
+  aggregateProxies_.assign(n, 0);
+  proxyVisits_.assign(n, 0);
+  aggregateBounces_.assign(n, 0);
+  switching_.assign(n, nullptr);
+  const bool canUse = settings_.technique != Technique::Ept && !standIns_ && n > 0;
+  const bool measure = canUse && !media_.empty() && settings_.explicitBounces < 0;
+  const ProxyUse use = settings_.proxies;
+  proxyTables_.clear();
+  if (canUse && (measure || use == ProxyUse::On || (use == ProxyUse::Auto && narrowSun_))) updateProxyTables();
+  explicitBounces_ = std::max(0, settings_.explicitBounces);
+  maxProxyVisits_ = 0;
+  useProxies_ = false;
+  for (size_t a = 0; a < n; ++a) {
+    if (measure) {
+      measureSwitching(a);
+      switching_[a] = built_[a].switching;
+    }
+    const int k = switching_[a] ? switching_[a]->visits : -1;
+    const bool proxies = canUse && (use == ProxyUse::On || (use == ProxyUse::Auto && (narrowSun_ || k > 0)));
+    aggregateProxies_[a] = proxies;
+    useProxies_ = useProxies_ || proxies;
+    if (k >= 0) {
+      proxyVisits_[a] = k;
+      aggregateBounces_[a] = kProxyOrders * k;
+    } else {
+      aggregateBounces_[a] = std::max(0, settings_.explicitBounces);
+      proxyVisits_[a] = (aggregateBounces_[a] + kProxyOrders - 1) / kProxyOrders;
+    }
+    explicitBounces_ = std::max(explicitBounces_, aggregateBounces_[a]);
+    maxProxyVisits_ = std::max(maxProxyVisits_, proxyVisits_[a]);
+  }
+  if (settings_.explicitBounces >= 0) return;
+  for (const BuiltInstanced& b : builtInstanced_)
+    if (b.medium) {
+      // Half its narrowest extent stands for its interior depth.
+      const MediumParams& m = b.medium->params;
+      const float depth = 0.5f * minComponent(b.bounds.extent());
+      explicitBounces_ = std::max(explicitBounces_,
+                                  explicitBouncesFor(m.albedo, m.g, depth / std::max(1e-30f, maxComponent(m.lambdaT))));
+    }
+}
+
 int Scene::explicitBouncesFor(const Vec3& albedo, const Vec3& g, float depthMfp) {
   float x = 0;  // the absorption of back-scattered light, (1 − α_s)(1 − g), worst channel
   for (int c = 0; c < 3; ++c) x = std::max(x, (1.0f - albedo[c]) * (1.0f - g[c]));
@@ -978,24 +1044,6 @@ int Scene::explicitBouncesFor(const Vec3& albedo, const Vec3& g, float depthMfp)
   if (lowest < kThinAlbedo && depthMfp < 20.0f)
     k = std::max(k, int(std::lround(32.0f * std::clamp((20.0f - depthMfp) / 10.0f, 0.0f, 1.0f))));
   return k;
-}
-
-void Scene::updateExplicitBounces() {
-  explicitBounces_ = std::max(0, settings_.explicitBounces);
-  if (settings_.explicitBounces >= 0) return;
-  for (size_t a = 0; a < media_.size(); ++a) {
-    const MediumParams& m = mediumParams_[a];
-    const float depthMfp = aggregates_[a]->stats().maxInteriorDepth / std::max(1e-30f, maxComponent(m.lambdaT));
-    explicitBounces_ = std::max(explicitBounces_, explicitBouncesFor(m.albedo, m.g, depthMfp));
-  }
-  for (const BuiltInstanced& b : builtInstanced_)
-    if (b.medium) {
-      // Half its narrowest extent stands for its interior depth.
-      const MediumParams& m = b.medium->params;
-      const float depth = 0.5f * minComponent(b.bounds.extent());
-      explicitBounces_ = std::max(explicitBounces_,
-                                  explicitBouncesFor(m.albedo, m.g, depth / std::max(1e-30f, maxComponent(m.lambdaT))));
-    }
 }
 
 void Scene::updateDiffusionDepths() {
@@ -1014,8 +1062,10 @@ void Scene::setMedium(int aggregate, const MediumParams& params) {
   mediumParams_[aggregate] = params;
   media_[aggregate] = HomogeneousMedium(params);
   diffusionProfiles_[aggregate] = DiffusionProfile(params);
+  built_[size_t(aggregate)].switching.reset();  // measured with the medium it replaces
+  built_[size_t(aggregate)].mediumReplaced = true;
   updateDiffusionDepths();
-  updateExplicitBounces();
+  updateSwitching();
 }
 
 bool Scene::intersectMedium(const Ray& ray, Hit& hit) const {

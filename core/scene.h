@@ -28,6 +28,7 @@
 #include "light.h"
 #include "material.h"
 #include "proxy.h"
+#include "switching.h"
 #include "scene_desc.h"
 #include "texture.h"
 #include "medium.h"
@@ -106,16 +107,36 @@ class Scene {
   // its roulette's random numbers).
   float proxyTransmittance(const Vec3& p, const Vec3& dir, float dist, const GrainStart* from, uint64_t seed,
                            float time = 0) const;
-  // Paths go on among proxies after their first grain (RenderSettings::proxies: On, or Auto
-  // under a narrow sun; techniques with media). Their tables are built (or read from the
-  // disk cache) when first needed, by build() or setView().
+  // Paths go on among proxies after their first grain in some aggregate (useProxies(a)).
+  // Their tables are built (or read from the disk cache) when first needed, by build() or
+  // setView(): for every aggregate once any uses proxies or switching is measured.
   bool useProxies() const { return useProxies_; }
+  // Switching per aggregate (switching.h; -1: a path not in an aggregate, which takes the
+  // largest over them). With RenderSettings::explicitBounces automatic (-1) and media, the
+  // proxy visits after the first grain before the medium are measured (switchMeasure);
+  // RenderSettings::proxies On: every aggregate uses proxies; Auto: those whose medium is
+  // biased after the first grain (measured visits > 0), and all under a narrow sun; Off:
+  // none, and the explicit bounces are kProxyOrders per measured visit (ppt.h: what a visit
+  // is worth against an explicit bounce). Without a measurement (explicitBounces set, or
+  // no media) the visits are the setting's bounces over kProxyOrders.
+  bool useProxies(int aggregate) const {
+    return aggregate >= 0 ? aggregateProxies_[size_t(aggregate)] != 0 : useProxies_;
+  }
+  int proxyVisits(int aggregate) const {
+    return aggregate >= 0 ? proxyVisits_[size_t(aggregate)] : maxProxyVisits_;
+  }
+  int explicitBounces(int aggregate) const {
+    return aggregate >= 0 ? aggregateBounces_[size_t(aggregate)] : explicitBounces_;
+  }
+  // Null when not measured (see above).
+  const SwitchMeasure* switchMeasure(int aggregate) const { return switching_[size_t(aggregate)].get(); }
   // Whether proxies make next-event estimation (ppt.h): for every light but domes.
   bool proxyLightSampling() const { return proxyLightSampling_; }
   // size: the grain's bounding radius in units of the aggregate's grain radius.
   const ProxyTable& proxyTable(int aggregate, int prototype, float size = 1.0f) const {
     return proxyTables_[size_t(aggregate)]->at(prototype, size);
   }
+  const ProxyTables& proxyTables(int aggregate) const { return *proxyTables_[size_t(aggregate)]; }
   // Index of the aggregate whose boundary contains p, or -1.
   int mediumAt(const Vec3& p) const;
   // Media exist (one per aggregate) when the technique uses them and some aggregate is
@@ -124,10 +145,12 @@ class Scene {
   const HomogeneousMedium& medium(int aggregate) const { return media_[aggregate]; }
   const MediumParams& mediumParams(int aggregate) const { return mediumParams_[aggregate]; }
   float maxGrainRadius() const { return maxGrainRadius_; }
-  // Bounces every path keeps explicit before it may enter a medium: the settings' value,
-  // or with -1 the largest over the media of explicitBouncesFor(their albedo, g, depth).
+  // Bounces a path not in an aggregate keeps explicit before it may enter a medium: the
+  // settings' value, or with -1 the largest over the aggregates (explicitBounces(a)) and
+  // over the instancers' media of explicitBouncesFor(their albedo, g, depth).
   int explicitBounces() const { return explicitBounces_; }
-  // Automatic explicit bounces of a medium of albedo α_s and mean cosine g in an object
+  // Automatic explicit bounces of an instancer's medium (no proxies, so no measured
+  // switching there yet): a rule of albedo α_s and mean cosine g in an object
   // whose half thickness is depthMfp of its longest mean free path. The medium's
   // low-order error is an error in how much is absorbed near the surface (a Poisson
   // medium misses the packing's shadow hiding; bench/accuracy_matrix.py), largest where
@@ -283,6 +306,8 @@ class Scene {
     MediumParams medium;
     double mediumSauterSize = 0;                // the Sauter size it was derived with
     std::shared_ptr<const ProxyTables> proxies;  // made when first needed (updateProxies)
+    std::shared_ptr<const SwitchMeasure> switching;  // likewise (updateSwitching)
+    bool mediumReplaced = false;                     // setMedium: switching is not lent
   };
   // fullOnly: a stand-in is not lent (its medium is, through `medium`).
   const BuiltAggregate* findBuilt(const AggregateDesc& desc, const std::vector<int>& materials,
@@ -346,9 +371,15 @@ class Scene {
   int diffusionExitMaterial_ = -1;
   bool mediaNeeded_ = false;
   float maxGrainRadius_ = 0;
-  int explicitBounces_ = 0;
-  void updateExplicitBounces();  // from the settings and the media
-  void updateProxies();          // useProxies_ and the tables it needs
+  int explicitBounces_ = 0, maxProxyVisits_ = 0;
+  std::vector<int> proxyVisits_, aggregateBounces_;
+  std::vector<char> aggregateProxies_;
+  std::vector<std::shared_ptr<const SwitchMeasure>> switching_;
+  // Proxies and switching per aggregate, from the settings and the media: the tables and
+  // measurements they need (lent by an unchanged aggregate, else cached on disk or made).
+  void updateSwitching();
+  void updateProxyTables();
+  void measureSwitching(size_t aggregate);
   bool useProxies_ = false, proxyLightSampling_ = false;
   std::vector<TriangleMesh> worldMeshes_;   // per Embree geometry id (moving: at the shutter's open)
   std::vector<TriangleMesh> worldMeshesAtClose_;  // per geometry id: at the shutter's close; empty when still

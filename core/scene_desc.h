@@ -211,8 +211,9 @@ struct InstancedGrainsDesc {
 enum class Technique { Ept, EptVpt, Hybrid };
 
 // Where proxies (proxy.h, ppt.h) carry a path's low orders after its first grain: never,
-// where the medium could not see the light (Auto: under a narrow sun, Scene::narrowSun),
-// or always (On). Techniques ept+vpt and hybrid; EPT, the reference, never uses them.
+// where they are needed (Auto: in aggregates whose medium is measured biased right after
+// the first grain, switching.h, and everywhere under a narrow sun, Scene::narrowSun), or
+// always (On). Techniques ept+vpt and hybrid; EPT, the reference, never uses them.
 enum class ProxyUse { Off, Auto, On };
 
 struct RenderSettings {
@@ -233,7 +234,8 @@ struct RenderSettings {
   // through the gaps it came in by (shadow hiding), which the medium misses — up to 6–9%
   // too dark on absorbing and high-IOR grains when paths switched at once, nothing on
   // clear ones, whose energy does not depend on where it leaves (bench/accuracy_matrix.py).
-  // -1: automatic, from the grains' albedo (Scene::explicitBounces).
+  // -1: automatic, measured per aggregate (switching.h: the proxy visits after which the
+  // medium's bias is within tolerance; kProxyOrders bounces per visit without proxies).
   int explicitBounces = -1;
   // Diffusion (technique Hybrid, diffusion.h): DA replaces VPT at a scattering deeper than
   // daDepthFactor × Meng et al. 2015's min(1/σ'_t, 0.5/σ_tr), of a path that has scattered

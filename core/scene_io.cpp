@@ -445,6 +445,12 @@ void parseCamera(const Obj& o, CameraDesc& c) {
   // Depth of field as UsdGeomCamera gives it: f_stop (0: pinhole) and focus_distance.
   c.lensRadius = checkedLensRadius(c.focalLength, o.num("f_stop", 0.0f), o.label(), "f_stop");
   c.focusDistance = o.num("focus_distance", c.focusDistance);  // checked with the lens (validateSceneDesc)
+  // Motion blur: the shutter in seconds about the frame (CameraDesc; USD's shutter:open and
+  // shutter:close divided by timeCodesPerSecond). The range is checked by validateSceneDesc.
+  c.shutterOpen = o.num("shutter_open", c.shutterOpen);
+  c.shutterClose = o.num("shutter_close", c.shutterClose);
+  if (c.shutterClose < c.shutterOpen)
+    throw InputError(o.label(), "shutter_close", str(c.shutterClose, " is before shutter_open ", c.shutterOpen));
   if (const json* cr = o.find("clipping_range")) {
     if (!cr->is_array() || cr->size() != 2)
       throw InputError(o.label(), "clipping_range", "expected [near, far], got " + describe(*cr));
@@ -517,12 +523,61 @@ void parseMaterials(const json& v, SceneDesc& desc, MaterialIndex& index, const 
   }
 }
 
+// An aggregate's or an instancer's grain prototypes: [{"name", "shape"*, "material"}], named
+// like USD child prims ("castle/rock"), else "castle.prototypes[j]".
+std::vector<GrainPrototypeDesc> parsePrototypes(const json& v, const std::string& label, const MaterialIndex& mats,
+                                                const Context& ctx) {
+  std::vector<GrainPrototypeDesc> out;
+  const json& protos = toArray(v, label, "prototypes");
+  std::set<std::string> protoNames;
+  for (size_t k = 0; k < protos.size(); ++k) {
+    std::string indexed = str(label, ".prototypes[", k, "]");
+    GrainPrototypeDesc p;
+    p.name = indexed;
+    if (protos[k].is_object() && protos[k].contains("name")) {
+      std::string n = toString(protos[k].at("name"), indexed, "name");
+      if (!protoNames.insert(n).second)
+        throw InputError(indexed, "name", str("\"", n, "\" is used by another prototype of ", label));
+      p.name = label + "/" + n;
+    }
+    Obj po(protos[k], label, str("prototypes[", k, "]"), p.name, {"name", "shape", "material"});
+    p.mesh = parseShape(po.required("shape"), p.name, "shape", ctx);
+    p.material = lookupMaterial(po, mats, -1);
+    out.push_back(std::move(p));
+  }
+  return out;
+}
+
+// A mesh's transforms at the shutter's open and close, checked as validateSceneDesc checks
+// its transform (affine, invertible, world points within range), named by the JSON key.
+// A mesh that is bad in itself is left to validateSceneDesc, which names what is wrong.
+void checkShutterTransforms(const MeshDesc& m) {
+  SceneDesc one;
+  MeshDesc& copy = one.meshes.emplace_back();
+  copy.name = m.name;
+  copy.mesh = m.mesh;
+  try {
+    validateSceneDesc(one);
+  } catch (const InputError&) {
+    return;
+  }
+  for (const Transform* xf : {&m.shutterXf->first, &m.shutterXf->second}) {
+    copy.xf = *xf;
+    try {
+      validateSceneDesc(one);
+    } catch (const InputError& e) {
+      throw InputError(m.name, "shutter_transforms", bareMessage(e));
+    }
+  }
+}
+
 void parseMeshes(const json& v, SceneDesc& desc, const MaterialIndex& mats, const Context& ctx) {
   std::set<std::string> seen;
   const json& a = toArray(v, "scene", "meshes");
   for (size_t i = 0; i < a.size(); ++i) {
     std::string label = itemLabel(a[i], "meshes", i);
-    Obj o(a[i], "meshes", str("[", i, "]"), label, {"name", "shape", "material", "transform", "visible"});
+    Obj o(a[i], "meshes", str("[", i, "]"), label,
+          {"name", "shape", "material", "transform", "visible", "shutter_transforms"});
     checkUnique(seen, label, "meshes", i);
     MeshDesc m;
     m.name = label;
@@ -530,6 +585,14 @@ void parseMeshes(const json& v, SceneDesc& desc, const MaterialIndex& mats, cons
     m.material = lookupMaterial(o, mats, -1);
     if (const json* t = o.find("transform")) m.xf = parseTransform(*t, label, "transform");
     m.visible = o.flag("visible", true);
+    // Transform motion blur: [T at the shutter's open, T at its close] (MeshDesc::shutterXf).
+    if (const json* st = o.find("shutter_transforms")) {
+      if (!st->is_array() || st->size() != 2)
+        throw InputError(label, "shutter_transforms", "expected [transform at open, transform at close], got " + describe(*st));
+      m.shutterXf = std::make_pair(parseTransform((*st)[0], label, "shutter_transforms"),
+                                   parseTransform((*st)[1], label, "shutter_transforms"));
+      checkShutterTransforms(m);
+    }
     desc.meshes.push_back(std::move(m));
   }
 }
@@ -611,24 +674,7 @@ void parseAggregates(const json& v, SceneDesc& desc, const MaterialIndex& mats, 
     ag.packingRate = o.num("packing_rate", ag.packingRate);
     ag.seed = o.u64("seed", ag.seed);
     ag.tileSpheres = o.integer("tile_spheres", ag.tileSpheres);
-    const json& protos = toArray(o.required("prototypes"), label, "prototypes");
-    std::set<std::string> protoNames;
-    for (size_t k = 0; k < protos.size(); ++k) {
-      // Named prototypes read like USD child prims: "castle/rock".
-      std::string indexed = str(label, ".prototypes[", k, "]");
-      GrainPrototypeDesc p;
-      p.name = indexed;
-      if (protos[k].is_object() && protos[k].contains("name")) {
-        std::string n = toString(protos[k].at("name"), indexed, "name");
-        if (!protoNames.insert(n).second)
-          throw InputError(indexed, "name", str("\"", n, "\" is used by another prototype of ", label));
-        p.name = label + "/" + n;
-      }
-      Obj po(protos[k], label, str("prototypes[", k, "]"), p.name, {"name", "shape", "material"});
-      p.mesh = parseShape(po.required("shape"), p.name, "shape", ctx);
-      p.material = lookupMaterial(po, mats, -1);
-      ag.prototypes.push_back(std::move(p));
-    }
+    ag.prototypes = parsePrototypes(o.required("prototypes"), label, mats, ctx);
     if (const json* w = o.find("weights"))
       ag.weights = toFloats(*w, label, "weights");
     else
@@ -637,6 +683,44 @@ void parseAggregates(const json& v, SceneDesc& desc, const MaterialIndex& mats, 
     if (const json* z = o.find("sizes")) ag.sizes = toFloats(*z, label, "sizes");
     ag.sizeSpread = o.num("size_spread", ag.sizeSpread);
     desc.aggregates.push_back(std::move(ag));
+  }
+}
+
+// [[w, x, y, z], ...]: unit quaternions (USD's quath order: real part first).
+std::vector<Quat> parseQuats(const json& v, const std::string& obj, const std::string& key) {
+  std::vector<Quat> out;
+  for (const json& e : toArray(v, obj, key)) {
+    if (!e.is_array() || e.size() != 4) throw InputError(obj, key, "expected [w, x, y, z] quaternions, got " + describe(e));
+    out.push_back({toFloat(e[0], obj, key), toFloat(e[1], obj, key), toFloat(e[2], obj, key), toFloat(e[3], obj, key)});
+  }
+  return out;
+}
+
+// Simulated grains, as a UsdGeomPointInstancer with GranularInstancedAggregateAPI holds them
+// (InstancedGrainsDesc): per-grain arrays in the instancer's space, prototypes by index.
+// Lengths, unit orientations, scales, indices and finiteness are validateInstancedGrains'
+// (through validateSceneDesc), named <name>.<key>.
+void parseInstancedGrains(const json& v, SceneDesc& desc, const MaterialIndex& mats, const Context& ctx) {
+  std::set<std::string> seen;
+  const json& a = toArray(v, "scene", "instanced_grains");
+  for (size_t i = 0; i < a.size(); ++i) {
+    std::string label = itemLabel(a[i], "instanced_grains", i);
+    Obj o(a[i], "instanced_grains", str("[", i, "]"), label,
+          {"name", "transform", "prototypes", "positions", "orientations", "scales", "proto_indices", "velocities",
+           "angular_velocities"});
+    checkUnique(seen, label, "instanced_grains", i);
+    InstancedGrainsDesc g;
+    g.name = label;
+    if (const json* t = o.find("transform")) g.xf = parseTransform(*t, label, "transform");
+    g.prototypes = parsePrototypes(o.required("prototypes"), label, mats, ctx);
+    g.positions = parsePoints(o.required("positions"), label, "positions");
+    const std::vector<int> indices = parseInts(o.required("proto_indices"), label, "proto_indices");
+    g.protoIndices.assign(indices.begin(), indices.end());
+    if (const json* q = o.find("orientations")) g.orientations = parseQuats(*q, label, "orientations");
+    if (const json* z = o.find("scales")) g.scales = toFloats(*z, label, "scales");
+    if (const json* w = o.find("velocities")) g.velocities = parsePoints(*w, label, "velocities");
+    if (const json* w = o.find("angular_velocities")) g.angularVelocities = parsePoints(*w, label, "angular_velocities");
+    desc.instancedGrains.push_back(std::move(g));
   }
 }
 
@@ -782,21 +866,32 @@ SceneDesc parseSceneJson(const std::string& text, const std::string& sourceName)
   try {
     Context ctx;
     ctx.base = fs::path(sourceName).parent_path();
-    Obj top(root, sourceName, "", "scene", {"render", "camera", "materials", "meshes", "lights", "aggregates"});
-    if (const json* r = top.find("render"))
-      parseRender(Obj(*r, "scene", "render", "render", {"width", "height", "spp", "seed", "max_depth", "rr_depth", "threads", "technique", "bundle_size", "tau", "explicit_bounces", "da_depth_factor", "da_min_order", "roulette", "lod", "proxies", "default_light", "physical_sun", "crop"}),
-                  desc.settings);
+    Obj top(root, sourceName, "", "scene",
+            {"render", "camera", "materials", "meshes", "lights", "aggregates", "instanced_grains"});
+    bool motionBlur = true;
+    if (const json* r = top.find("render")) {
+      Obj ro(*r, "scene", "render", "render", {"width", "height", "spp", "seed", "max_depth", "rr_depth", "threads", "technique", "bundle_size", "tau", "explicit_bounces", "da_depth_factor", "da_min_order", "roulette", "lod", "proxies", "default_light", "physical_sun", "crop", "motion_blur"});
+      parseRender(ro, desc.settings);
+      motionBlur = ro.flag("motion_blur", true);
+    }
     if (const json* c = top.find("camera"))
       parseCamera(Obj(*c, "scene", "camera", "camera",
                       {"look_at", "transform", "focal_length", "horizontal_aperture", "vertical_aperture",
                        "horizontal_aperture_offset", "vertical_aperture_offset", "clipping_range", "f_stop",
-                       "focus_distance"}),
+                       "focus_distance", "shutter_open", "shutter_close"}),
                   desc.camera);
     MaterialIndex mats;
     if (const json* m = top.find("materials")) parseMaterials(*m, desc, mats, ctx);
     if (const json* m = top.find("meshes")) parseMeshes(*m, desc, mats, ctx);
     if (const json* l = top.find("lights")) parseLights(*l, desc, ctx);
     if (const json* a = top.find("aggregates")) parseAggregates(*a, desc, mats, ctx);
+    if (const json* g = top.find("instanced_grains")) parseInstancedGrains(*g, desc, mats, ctx);
+    // "motion_blur": false renders the frame's instant (as UsdRender's disableMotionBlur
+    // and --no-motion-blur): the shutter closed, every mesh still at its transform.
+    if (!motionBlur) {
+      desc.camera.shutterOpen = desc.camera.shutterClose = 0;
+      for (MeshDesc& m : desc.meshes) m.shutterXf.reset();
+    }
   } catch (const json::exception& e) {
     // Converters check types before every get<>(), so this is a safety net only.
     throw InputError(sourceName, "", str("unexpected JSON error: ", e.what()));

@@ -9,14 +9,17 @@
 //
 // Format (// comments allowed; every key optional unless marked *):
 // {
-//  "render": {"width":640, "height":480, "spp":16, "seed":0, "max_depth":4096, "rr_depth":8, "threads":0},
+//  "render": {"width":640, "height":480, "spp":16, "seed":0, "max_depth":4096, "rr_depth":8, "threads":0,
+//             "motion_blur":true},   // false: the shutter's instant (no blur, meshes still)
 //  "camera": {"look_at": {"eye":[0,1,5], "target":[0,0,0], "up":[0,1,0]},  // or "transform": T
 //             "focal_length":50, "horizontal_aperture":36, "vertical_aperture":24,
-//             "horizontal_aperture_offset":0, "vertical_aperture_offset":0, "clipping_range":[0.01,1000]},
+//             "horizontal_aperture_offset":0, "vertical_aperture_offset":0, "clipping_range":[0.01,1000],
+//             "shutter_open":0, "shutter_close":0},  // seconds about the frame: motion blur
 //  "materials": {"sand":  {"type":"dielectric", "ior":1.5, "absorption":[0.1,0.2,0.4],
 //                         "roughness":0, "energy_compensation":true},
 //                "floor": {"type":"lambert", "albedo":[0.5,0.5,0.5], "emission":0}},
-//  "meshes": [{"name":"floor", "shape"*: S, "material":"floor", "transform": T, "visible":true}],
+//  "meshes": [{"name":"floor", "shape"*: S, "material":"floor", "transform": T, "visible":true,
+//              "shutter_transforms": [T_open, T_close]}],  // moves linearly over the shutter
 //  "lights": [{"type"*:"distant", "direction":[0,-1,-1], "angle":0.53},   // or "transform": T
 //             {"type"*:"sphere", "position":[0,3,0], "radius":0.5},         // or "transform": T
 //             {"type"*:"rect", "transform":T, "width":1, "height":1},
@@ -26,7 +29,13 @@
 //  "aggregates": [{"name":"castle", "boundary"*: S, "transform": T, "grain_radius":0.01,
 //                  "packing_rate":0.6, "seed":1, "tile_spheres":512,
 //                  "prototypes"*: [{"name":"rock", "shape"*: S, "material":"sand"}],
-//                  "weights":[1]}]   // default: all 1
+//                  "weights":[1]}],  // default: all 1
+//  "instanced_grains": [{"name":"pile", "transform": T,     // a simulation's grains (PointInstancer)
+//                  "prototypes"*: [{"name":"rock", "shape"*: S, "material":"sand"}],
+//                  "positions"*: [[x,y,z], ...], "proto_indices"*: [0, ...],  // one per grain
+//                  "orientations": [[w,x,y,z], ...], "scales": [s, ...],      // unit; > 0
+//                  "velocities": [[x,y,z], ...],           // units per second
+//                  "angular_velocities": [[x,y,z], ...]}]  // degrees per second
 // }
 // Transform T: [16 numbers] row-major, acting on column vectors (like Transform), or
 //   {"matrix":[16 numbers]}, or {"translate":[x,y,z], "rotate":[deg,ax,ay,az],
@@ -40,8 +49,8 @@
 //   {"mesh": {"points"*: [[x,y,z], ...] or [x,y,z, ...], "face_vertex_indices"*: [...],
 //             "face_vertex_counts": [...]}}   // counts default to all triangles
 //   {"obj": "path.obj"}                        // Wavefront OBJ, v and f lines only
-// Names default to "meshes[i]", "lights[i]", "aggregates[i]"; a prototype is named
-// "<aggregate>/<name>" (or "<aggregate>.prototypes[j]"). Materials are referenced by
+// Names default to "meshes[i]", "lights[i]", "aggregates[i]", "instanced_grains[i]"; a
+// prototype is named "<aggregate>/<name>" (or "<aggregate>.prototypes[j]"). Materials are referenced by
 // name; a mesh without one is grey Lambert, a prototype without one clear glass.
 #pragma once
 

@@ -66,6 +66,12 @@ void HdGranularRenderDelegate::_Initialize() {
       {"Stand-ins (the medium alone) while aggregates build", HdGranularSettingsTokens->standIns, VtValue(true)},
       {"Denoise the color AOV after each pass (Intel Open Image Denoise)", HdGranularSettingsTokens->denoise,
        VtValue(false)},
+      // A scene delegate hands the camera's shutter in time codes but not the stage's
+      // timeCodesPerSecond, which velocities (units per second) need: 24 unless told.
+      {"Motion blur over the camera's shutter (UsdRender disableMotionBlur also turns it off)",
+       HdGranularSettingsTokens->motionBlur, VtValue(true)},
+      {"Time codes per second of the stage (the shutter in seconds for velocities)",
+       HdGranularSettingsTokens->timeCodesPerSecond, VtValue(24.0)},
   };
   _PopulateDefaultSettings(_descriptors);
 }

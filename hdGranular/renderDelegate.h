@@ -30,7 +30,9 @@ PXR_NAMESPACE_OPEN_SCOPE
   ((physicalSun, "granular:physicalSun"))             \
   ((preview, "granular:preview"))                     \
   ((standIns, "granular:standIns"))                   \
-  ((denoise, "granular:denoise"))
+  ((denoise, "granular:denoise"))                   \
+  ((motionBlur, "granular:motionBlur"))             \
+  ((timeCodesPerSecond, "granular:timeCodesPerSecond"))
 
 TF_DECLARE_PUBLIC_TOKENS(HdGranularSettingsTokens, HDGRANULAR_SETTINGS_TOKENS);
 

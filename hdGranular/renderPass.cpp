@@ -9,6 +9,8 @@
 #include "pxr/imaging/hd/camera.h"
 #include "pxr/imaging/hd/renderDelegate.h"
 #include "pxr/imaging/hd/renderIndex.h"
+#include "pxr/imaging/hd/sceneDelegate.h"
+#include "pxr/imaging/hd/timeSampleArray.h"
 #include "pxr/imaging/hd/tokens.h"
 #include "renderBuffer.h"
 #include "renderDelegate.h"
@@ -45,8 +47,9 @@ bool cameraFromMatrices(GfMatrix4d const& view, GfMatrix4d const& proj, granular
 // The pass's camera as core reads a UsdGeomCamera (core/usd_camera.h: its checks, the thin
 // lens from fStop and focusDistance, the shutter), from HdCamera's values (which keeps lengths in scene
 // units, a tenth of USD's). Its framing comes from the host's matrices instead, which
-// apply the host's window policy. No camera prim (free matrices): a pinhole.
-granular::CameraDesc coreCamera(HdCamera const* camera) {
+// apply the host's window policy. No camera prim (free matrices): a pinhole. `shutter`:
+// shutterOf's, in time codes about the frame, made seconds at timeCodesPerSecond.
+granular::CameraDesc coreCamera(HdCamera const* camera, GfVec2d const& shutter, double timeCodesPerSecond) {
   if (!camera) {
     granular::CameraDesc pinhole;
     pinhole.focalLength = 1.0f;  // free matrices: only the window matters
@@ -72,15 +75,13 @@ granular::CameraDesc coreCamera(HdCamera const* camera) {
   number("verticalApertureOffset", 10.0 * camera->GetVerticalApertureOffset());
   number("fStop", camera->GetFStop());
   number("focusDistance", camera->GetFocusDistance());
-  // Motion blur of explicit grains. In time codes: made seconds at USD's 24 per second, the
-  // stage's timeCodesPerSecond being no part of what a scene delegate hands over.
-  number("shutter:open", camera->GetShutterOpen());
-  number("shutter:close", camera->GetShutterClose());
+  number("shutter:open", shutter[0]);
+  number("shutter:close", shutter[1]);
   granular::UsdValue clip;
   clip.typeName = "float2";
   clip.numbers = {camera->GetClippingRange().GetMin(), camera->GetClippingRange().GetMax()};
   r.attributes["clippingRange"] = clip;
-  return granular::cameraFromUsd(r);
+  return granular::cameraFromUsd(r, timeCodesPerSecond);
 }
 
 // A setting of the type we want, whatever numeric type (or token) the host stored.
@@ -106,6 +107,48 @@ bool defaultLightSetting(HdRenderDelegate* d) {
 
 bool physicalSunSetting(HdRenderDelegate* d) {
   return setting<bool>(d, HdGranularSettingsTokens->physicalSun, granular::RenderSettings().physicalSun);
+}
+
+// The shutter the image is blurred over, in time codes about the frame (HdCamera's, as
+// USD's shutter:open and shutter:close): the camera's, or the instant (0, 0) when motion blur
+// is off (render setting granular:motionBlur false, or the active UsdRenderSettings'
+// disableMotionBlur, as granular render --no-motion-blur and its reading of the prim).
+GfVec2d shutterOf(HdCamera const* camera, HdRenderDelegate* d, HdRenderIndex* index) {
+  if (!camera || !setting<bool>(d, HdGranularSettingsTokens->motionBlur, true) || HdGranularMotionBlurDisabled(index))
+    return GfVec2d(0.0);
+  return GfVec2d(camera->GetShutterOpen(), camera->GetShutterClose());
+}
+
+// The stage's timeCodesPerSecond, which no scene delegate hands over (HdSceneGlobalsSchema
+// has the frame, not the rate): the render setting, 24 unless told. Velocities are per
+// second, the shutter in time codes: grains blur by velocity × shutter / timeCodesPerSecond.
+double timeCodesPerSecond(HdRenderDelegate* d) {
+  const double tcps = setting<double>(d, HdGranularSettingsTokens->timeCodesPerSecond, 24.0);
+  if (!(tcps > 0) || !std::isfinite(tcps))
+    throw granular::InputError("render settings", "granular:timeCodesPerSecond",
+                               granular::str(tcps, " must be finite and > 0"));
+  return tcps;
+}
+
+// Transform motion blur, as granular render's reading (usd_reader._mesh_motion): each mesh
+// drawn once (not an instance) whose world transform differs between the shutter's ends gets
+// its transforms there (MeshDesc::shutterXf), sampled from its scene delegate over the
+// shutter (times relative to the frame; the samples hold the interval's ends, exact, and
+// resampling gives them whatever the delegate hands back).
+void sampleMeshMotion(HdRenderIndex& index, GfVec2d const& shutter, granular::SceneDesc& desc) {
+  if (!(shutter[1] > shutter[0])) return;
+  const float open = float(shutter[0]), close = float(shutter[1]);
+  for (granular::MeshDesc& m : desc.meshes) {
+    if (m.instanceId >= 0 || !SdfPath::IsValidPathString(m.name)) continue;
+    const SdfPath id(m.name);
+    HdSceneDelegate* const delegate = index.GetRprim(id) ? index.GetSceneDelegateForRprim(id) : nullptr;
+    if (!delegate) continue;
+    HdTimeSampleArray<GfMatrix4d, 4> xf;
+    delegate->SampleTransform(id, open, close, &xf);
+    if (xf.count < 2) continue;  // one sample: still
+    const GfMatrix4d a = xf.Resample(open), b = xf.Resample(close);
+    if (a != b) m.shutterXf = std::make_pair(HdGranularToCore(a), HdGranularToCore(b));
+  }
 }
 
 granular::RenderSettings renderSettings(HdRenderDelegate* d, int width, int height) {
@@ -171,12 +214,15 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
   const GfMatrix4d view = state->GetWorldToViewMatrix(), proj = state->GetProjectionMatrix();
   HdCamera const* const camera = state->GetCamera();
   const GfVec2f lens = camera ? GfVec2f(camera->GetFStop(), camera->GetFocusDistance()) : GfVec2f(0.0f);
+  const GfVec2d shutter = shutterOf(camera, delegate, GetRenderIndex());
 
   const int sceneVersion = _param->Version(), settingsVersion = delegate->GetRenderSettingsVersion();
   // An edit of the scene or of the settings: the description is assembled again and
   // compared with the one the scene was built from (compareScenes), which decides between
-  // a new view and a build. A camera move or a resize alone is a new view.
-  const bool edited = !_started || sceneVersion != _sceneVersion || settingsVersion != _settingsVersion;
+  // a new view and a build. A camera move or a resize alone is a new view; a new shutter
+  // samples moving meshes anew.
+  const bool edited = !_started || sceneVersion != _sceneVersion || settingsVersion != _settingsVersion ||
+                      shutter != _shutter;
   const bool reframe = edited || view != _view || proj != _projection || width != _width || height != _height ||
                        crop != _crop || lens != _lens;
   // The full build behind stand-ins has ended (renderer.h): its scene takes their place.
@@ -195,13 +241,14 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
   _view = view;
   _projection = proj;
   _lens = lens;
+  _shutter = shutter;
   _width = width;
   _height = height;
   _crop = crop;
   _bindings = bindings;
   try {
     if (cropError) throw *cropError;
-    granular::CameraDesc cam = coreCamera(camera);
+    granular::CameraDesc cam = coreCamera(camera, shutter, timeCodesPerSecond(delegate));
     if (!cameraFromMatrices(view, proj, cam))
       throw granular::InputError("camera", "projection", "only perspective cameras are supported");
     granular::RenderSettings rs = renderSettings(delegate, width, height);
@@ -232,10 +279,12 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
     granular::Scene* const scene = _renderer->GetScene();  // none: the last attempt failed (e.g. a bad camera)
     if (edited || !scene || !_built) {
       granular::SceneDesc desc = _param->Assemble();
+      sampleMeshMotion(*GetRenderIndex(), shutter, desc);
       if (TfGetenvBool("GRANULAR_HD_DEBUG", false)) {  // what the core is given, for users' bug reports
         for (auto const& l : desc.lights)
           fprintf(stderr, "hdGranular: light %s type %d intensity %g\n", l.name.c_str(), int(l.type), l.intensity);
-        for (auto const& m : desc.meshes) fprintf(stderr, "hdGranular: mesh %s\n", m.name.c_str());
+        for (auto const& m : desc.meshes)
+          fprintf(stderr, "hdGranular: mesh %s%s\n", m.name.c_str(), m.shutterXf ? " (moving over the shutter)" : "");
         for (auto const& a : desc.aggregates) {
           fprintf(stderr, "hdGranular: aggregate %s radius %g packing %g seed %llu tile %d points %zu t (%g %g %g)",
                   a.name.c_str(), a.grainRadius, a.packingRate, (unsigned long long)a.seed, a.tileSpheres,

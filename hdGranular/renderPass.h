@@ -20,6 +20,7 @@
 #include <string>
 
 #include "pxr/base/gf/matrix4d.h"
+#include "pxr/base/gf/vec2d.h"
 #include "pxr/base/gf/vec2f.h"
 #include "pxr/imaging/hd/renderPass.h"
 #include "pxr/imaging/hd/renderPassState.h"
@@ -51,6 +52,7 @@ class HdGranularRenderPass final : public HdRenderPass {
   std::string _sunsWarned;  // the last widened-suns warning given
   GfMatrix4d _view{0.0}, _projection{0.0};
   GfVec2f _lens{0.0f};  // the camera's (fStop, focusDistance)
+  GfVec2d _shutter{0.0};  // the shutter blurred over, in time codes (shutterOf)
   int _width = 0, _height = 0;
   granular::PixelWindow _crop;  // of the active render settings (renderSettings.h)
   HdRenderPassAovBindingVector _bindings;

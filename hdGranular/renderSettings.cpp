@@ -80,4 +80,13 @@ granular::PixelWindow HdGranularDataWindow(HdRenderIndex* index, int width, int 
   return all.value_or(whole);
 }
 
+bool HdGranularMotionBlurDisabled(HdRenderIndex* index) {
+  SdfPath active;
+  if (!index->IsBprimTypeSupported(HdPrimTypeTokens->renderSettings) ||
+      !HdUtils::HasActiveRenderSettingsPrim(index->GetTerminalSceneIndex(), &active) || active.IsEmpty())
+    return false;
+  auto* rs = dynamic_cast<HdRenderSettings*>(index->GetBprim(HdPrimTypeTokens->renderSettings, active));
+  return rs && !rs->GetRenderProducts().empty() && rs->GetRenderProducts().front().disableMotionBlur;
+}
+
 PXR_NAMESPACE_CLOSE_SCOPE

@@ -51,6 +51,11 @@ class HdGranularRenderSettings final : public HdRenderSettings {
 granular::PixelWindow HdGranularDataWindow(HdRenderIndex* index, int width, int height,
                                            granular::UsdWarnings& warnings);
 
+// UsdRenderSettings' disableMotionBlur of the active render settings prim, as granular
+// render reads it: its first render product's (Hydra flattens the settings prim's value
+// into each product); false when there is no active prim or it has no product.
+bool HdGranularMotionBlurDisabled(HdRenderIndex* index);
+
 PXR_NAMESPACE_CLOSE_SCOPE
 
 #endif

@@ -41,6 +41,7 @@
 #include "core/scene_desc.h"
 #include "core/scene_io.h"
 #include "core/shapes.h"
+#include "core/switching.h"
 #include "core/tt.h"
 #include "core/usd_camera.h"
 #include "core/usd_implicit.h"
@@ -916,12 +917,44 @@ PYBIND11_MODULE(granular_core, m) {
       .def_property_readonly("use_proxies", [](const PyScene& s) { return s.scene->useProxies(); },
                              "whether paths go on among proxies after their first grain (RenderSettings.proxies)")
       .def_property_readonly("explicit_bounces", [](const PyScene& s) { return s.scene->explicitBounces(); },
-                             "bounces every path keeps explicit before it may enter a medium (the setting, or automatic)")
+                             "bounces a path not in an aggregate keeps explicit before it may enter a medium (the setting, or "
+                             "the largest over the aggregates and instancers)")
+      .def_property_readonly(
+          "switching",
+          [](const PyScene& s) {
+            py::list out;
+            for (size_t a = 0; a < s.scene->aggregates().size(); ++a) {
+              py::dict d;
+              const int ai = int(a);
+              d["uses_proxies"] = s.scene->useProxies(ai);
+              d["proxy_visits"] = s.scene->proxyVisits(ai);
+              d["explicit_bounces"] = s.scene->explicitBounces(ai);
+              const SwitchMeasure* m = s.scene->switchMeasure(ai);
+              d["measured"] = m != nullptr;
+              if (m) {
+                d["candidates"] = std::vector<int>(std::begin(kSwitchVisits), std::end(kSwitchVisits));
+                d["bias"] = m->bias;
+                d["bias_se"] = m->biasSE;
+                d["albedo"] = m->albedo;
+                d["albedo_se"] = m->albedoSE;
+                d["chosen"] = m->visits;
+                d["seconds"] = m->seconds;
+                d["from_cache"] = m->fromCache;
+              }
+              out.append(d);
+            }
+            return out;
+          },
+          "per aggregate: whether paths go on among proxies after their first grain, the proxy visits (or "
+          "explicit bounces without proxies) before the medium, and the measurement they come from (switching.h): "
+          "candidates (visits tried), bias and bias_se per candidate (relative, RGB), albedo, chosen, seconds, "
+          "from_cache")
       .def_static(
           "explicit_bounces_for",
           [](const Vec3& albedo, const Vec3& g, float depthMfp) { return Scene::explicitBouncesFor(albedo, g, depthMfp); },
           py::arg("albedo"), py::arg("g"), py::arg("depth_mfp"),
-          "the automatic explicit bounces of one medium (albedo, mean cosine, depth in mean free paths)")
+          "the rule for the explicit bounces of an instancer's medium (albedo, mean cosine, depth in mean "
+          "free paths); aggregates' are measured (Scene.switching)")
       .def_property_readonly("aggregates", [](const PyScene& s) {
         py::list out;
         const auto& aggs = s.scene->aggregates();

@@ -67,9 +67,8 @@ def _report(scene, built, media):
         r["rte"] = {key: [_f32(x) for x in m[key]] for key in ("sigma_t", "albedo", "g", "sigma_t_reduced", "albedo_reduced",
                                                   "sigma_a", "sigma_tr")}
         r["mean_free_path"] = [_f32(x) for x in m["mean_free_path"]]
-        # What the hybrid keeps explicit for this medium when explicit_bounces is automatic.
-        depth = info["max_interior_depth"] / max(max(m["mean_free_path"]), 1e-30)
-        r["explicit_bounces"] = core.Scene.explicit_bounces_for(tuple(m["albedo"]), tuple(m["g"]), depth)
+        # What carries this aggregate's low orders before the medium (switching.h).
+        r["switching"] = built.switching[k]
         out.append(r)
     return out
 
@@ -97,11 +96,29 @@ def report_lines(r):
         f"  diffusion     sigma'_t {_fmt3(rte['sigma_t_reduced'])}, albedo' {_fmt3(rte['albedo_reduced'])}, "
         f"sigma_tr {_fmt3(rte['sigma_tr'])}",
         f"  mean free path {_fmt3(r['mean_free_path'])} (world units, per RGB channel)",
-        "  hybrid        " + (f"switches to these media (VPT, DA) after {r['explicit_bounces']} explicit bounces "
-                              "(automatic)" if r["media_used_by_renderer"] else
+        "  hybrid        " + (_switching_text(r["switching"]) if r["media_used_by_renderer"] else
                               "does not use media here: the scene's aggregates are thinner than their mean "
                               "free paths, so EPT renders them"),
     ]
+
+
+def _switching_text(sw):
+    """Where the hybrid hands this aggregate's paths to its medium, in words."""
+    if sw["uses_proxies"]:
+        what = (f"after the first grain, {sw['proxy_visits']} visits among proxies" if sw["measured"] else
+                f"after the first grain, proxies to bounce {sw['explicit_bounces']}")
+    elif sw["explicit_bounces"] > 0:
+        what = f"after {sw['explicit_bounces']} explicit bounces"
+    else:
+        what = "after the first grain"
+    what = "switches to these media (VPT, DA) " + what
+    if not sw["measured"]:
+        return what + " (the render setting explicit_bounces)"
+    k = sw["candidates"].index(sw["chosen"])
+    worst = lambda b: 100 * max(b, key=abs)  # noqa: E731
+    c = max(range(3), key=lambda i: abs(sw["bias"][k][i]))
+    return (what + f" (measured: the medium's bias there {worst(sw['bias'][k]):+.2f}% ± "
+            f"{100 * sw['bias_se'][k][c]:.2f}%, {worst(sw['bias'][0]):+.1f}% right after the first grain)")
 
 
 def export_summary(prim, output, r):

@@ -3,7 +3,7 @@
     granular render SCENE.usda -o OUT.exr [--png OUT.png] [--width W --height H] [--spp N]
                     [--camera /path] [--seed S] [--threads T] [--exposure E] [--quiet]
                     [--technique ept|ept+vpt|hybrid] [--roulette P_a] [--lod L] [--no-default-light]
-                    [--no-physical-sun]
+                    [--no-physical-sun] [--no-motion-blur]
                     [--frames A:B[xSTEP]]   (then -o and --png name a run of '#': OUT.####.exr)
                     [--crop X0:X1,Y0:Y1]    (only those pixels; the EXR keeps their place)
     granular render SCENE.usda [--settings /Render/Settings] [--frames A:B] [render options]
@@ -190,6 +190,9 @@ def _render_options(r):
                    help="keep delta suns (distant lights of angle 0) delta; by default, over smooth dielectric "
                         "grains, they are rendered as the physical 0.53 degree sun of the same irradiance, "
                         "with a warning")
+    r.add_argument("--no-motion-blur", action="store_true",
+                   help="render the frame's instant: the camera's shutter closed, moving grains and meshes "
+                        "still (as the render settings' disableMotionBlur)")
 
 
 def build_parser():
@@ -404,12 +407,38 @@ def _render_image(args, built):
     return renderer, image
 
 
+def _worst(bias, se):
+    """The channel of largest |bias|: (bias, its standard error), in percent."""
+    c = max(range(3), key=lambda i: abs(bias[i]))
+    return 100 * bias[c], 100 * se[c]
+
+
 def _low_orders(built):
-    """What carries the paths' low orders after their first grain, in one line."""
-    level = "proxies" if built.use_proxies else "explicit grains"
+    """What carries the paths' low orders after their first grain: one line per aggregate
+    (switching.h: measured per aggregate when explicit bounces are automatic)."""
     if not built.has_media:
-        return f"after the first grain: {level}"
-    return f"after the first grain: {level} to bounce {built.explicit_bounces}, then the medium"
+        level = "proxies" if built.use_proxies else "explicit grains"
+        return [f"after the first grain: {level}"]
+    lines = []
+    for info, sw in zip(built.aggregates, built.switching):
+        name = info["name"]
+        if sw["uses_proxies"]:
+            what = (f"proxies for {sw['proxy_visits']} visits, then the medium" if sw["measured"] else
+                    f"proxies to bounce {sw['explicit_bounces']}, then the medium")
+        elif sw["explicit_bounces"] > 0:
+            what = f"explicit grains to bounce {sw['explicit_bounces']}, then the medium"
+        else:
+            what = "the medium"
+        if sw["measured"]:
+            k = sw["candidates"].index(sw["chosen"])
+            b, se = _worst(sw["bias"][k], sw["bias_se"][k])
+            b0, _ = _worst(sw["bias"][0], sw["bias_se"][0])
+            what += (f" ({name}; measured: the medium's bias after {sw['chosen']} visits {b:+.2f}% ± {se:.2f}%, "
+                     f"after none {b0:+.1f}%{', from the cache' if sw['from_cache'] else ''})")
+        else:
+            what += f" ({name})"
+        lines.append("after the first grain: " + what)
+    return lines
 
 
 def _log_transports(args, built, renderer, image):
@@ -426,7 +455,8 @@ def _log_transports(args, built, renderer, image):
                    f"mean luminance by transport: EPT {means[0]:.4g}, PPT {means[1]:.4g}, VPT {means[2]:.4g}, "
                    f"DA {means[3]:.4g}{lod}")
     if args.technique != "ept":
-        _log(args, "  " + _low_orders(built))
+        for line in _low_orders(built):
+            _log(args, "  " + line)
     if not built.has_media and args.technique != "ept" and built.aggregates:
         _log(args, f"  technique {args.technique}: every aggregate is thinner than its mean free path, "
                    f"so explicit grains (EPT) render it all")

@@ -660,6 +660,30 @@ def _mesh_motion(scene, time):
         scene.desc.meshes = meshes
 
 
+def still_frame(desc):
+    """No motion blur (--no-motion-blur, UsdRender's disableMotionBlur): the camera's shutter
+    closed at the frame's instant, every mesh still at its transform."""
+    desc.camera.shutter_open = desc.camera.shutter_close = 0.0
+    meshes = list(desc.meshes)
+    if any(m.shutter_xf is not None for m in meshes):
+        for m in meshes:
+            m.shutter_xf = None
+        desc.meshes = meshes
+
+
+def _motion_blur_disabled(settings):
+    """UsdRender's disableMotionBlur as Hydra flattens it: the settings prim's first render
+    product's where authored there, else the settings prim's."""
+    targets = UsdRender.Settings(settings).GetProductsRel().GetForwardedTargets()
+    product = settings.GetStage().GetPrimAtPath(targets[0]) if targets else None
+    for prim in (product, settings):
+        if prim and prim.IsA(UsdRender.SettingsBase):
+            attr = UsdRender.SettingsBase(prim).GetDisableMotionBlurAttr()
+            if attr.HasAuthoredValue():
+                return bool(attr.Get())
+    return False
+
+
 def _is_light(prim):
     return prim.HasAPI(UsdLux.LightAPI)
 
@@ -755,6 +779,8 @@ def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_c
         cam_prim = cameras[0]
     if cam_prim is not None:
         read_camera(scene, cam_prim, xf_cache)
+        if settings is not None and _motion_blur_disabled(settings):
+            still_frame(scene.desc)
         _mesh_motion(scene, time)
     elif need_camera:
         raise UserError(path, "", "the stage has no UsdGeomCamera (add one, or pass --camera)")

@@ -345,11 +345,17 @@ TEST(HybridAccuracy, TheAmberAndFlintMixtureInTheMediumMatchesExplicitGrains) {
 
 TEST(HybridAccuracy, ASmallBallOfAbsorbingGrainsInTheMediumMatchesExplicitGrains) {
   // 25 grains across (6 mean free paths deep), α_s 0.89: −1.1 ± 0.2% here (6 standard
-  // errors) with the 9 bounces its albedo alone gives; the thin-object rule keeps 32.
+  // errors) with the 9 explicit bounces its albedo alone once gave. The measured switch
+  // (switching.h) sees the thin object: proxies carry its low orders.
   SceneDesc d = granular::testing::matrixBall(false, 1.55f);
   d.aggregates[0].grainRadius = 0.04f;
   d.settings.spp = 256;
-  EXPECT_EQ(Scene::build(d)->explicitBounces(), 32);
+  {
+    d.settings.technique = Technique::EptVpt;
+    auto scene = Scene::build(d);
+    EXPECT_TRUE(scene->useProxies(0));
+    EXPECT_GE(scene->proxyVisits(0), 4);
+  }
   expectMediumMatchesEpt(d);
 }
 
@@ -383,8 +389,8 @@ TEST(HybridAccuracy, ForwardScatteringGrainsThroughDiffusionMatchExplicitGrains)
   expectMediumMatchesEpt(d, Technique::Hybrid);
 }
 
-TEST(HybridAccuracy, ExplicitBouncesFollowTheGrainsAlbedoUnlessSet) {
-  // Automatic, from x = (1 − α_s)(1 − g) of the worst channel: none up to 0.03, 16
+TEST(HybridAccuracy, InstancersExplicitBouncesFollowTheirMediumsAlbedoAggregatesAreMeasured) {
+  // Instancers' media (no proxies there): from x = (1 − α_s)(1 − g) of the worst channel: none up to 0.03, 16
   // from 0.04, 32 from 0.10; monotone in absorption and in back-scattering.
   const Vec3 g(0.5f);
   EXPECT_EQ(Scene::explicitBouncesFor(Vec3(1.0f), g), 0);
@@ -423,12 +429,17 @@ TEST(HybridAccuracy, ExplicitBouncesFollowTheGrainsAlbedoUnlessSet) {
     EXPECT_GE(k, last) << depth;
     last = k;
   }
-  // In a scene: the IOR 2.4 ball's medium (α_s ≈ 0.80, g ≈ 0.26) gets 32; a set value
-  // wins, also through setView; a scene without media has nothing to keep.
+  // In a scene, aggregates' low orders are measured (switching.h): the IOR 2.4 ball's
+  // medium is biased after the first grain, so proxies carry some visits, worth
+  // kProxyOrders bounces each without proxies; a set value wins, also through setView; a
+  // scene without media has nothing to keep.
   SceneDesc d = granular::testing::matrixBall(false);
   auto scene = Scene::build(d);
   ASSERT_TRUE(scene->hasMedia());
-  EXPECT_EQ(scene->explicitBounces(), 32);
+  ASSERT_NE(scene->switchMeasure(0), nullptr);
+  EXPECT_GT(scene->proxyVisits(0), 0);
+  EXPECT_EQ(scene->proxyVisits(0), scene->switchMeasure(0)->visits);
+  EXPECT_EQ(scene->explicitBounces(), 2 * scene->proxyVisits(0));
   d.settings.explicitBounces = 3;
   scene->setView(d.camera, d.settings);
   EXPECT_EQ(scene->explicitBounces(), 3);

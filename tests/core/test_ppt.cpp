@@ -154,10 +154,25 @@ TEST(Ppt, ADeltaSunReachedByLightSamplingMatchesADiskSunReachedBySampling) {
   EXPECT_TRUE(within(ppt, ept, "proxies under a delta sun"));
 }
 
-TEST(Ppt, AutoUsesProxiesOnlyUnderANarrowSun) {
-  SceneDesc d = granular::testing::matrixBall(false, 1.55f);
+TEST(Ppt, AutoUsesProxiesWhereTheMediumIsBiasedAndUnderANarrowSun) {
+  // Clear grains: the medium right after the first grain is measured unbiased
+  // (switching.h), so under a dome no proxies; absorbing grains of IOR 1.55 need visits
+  // among them.
+  SceneDesc d = granular::testing::matrixBall(false, 1.31f);
+  d.materials[0].absorption = Vec3(0.0f);
   d.settings.technique = Technique::EptVpt;
-  EXPECT_FALSE(Scene::build(d)->useProxies()) << "dome only: the explicit bounces see it";
+  {
+    auto clear = Scene::build(d);
+    ASSERT_NE(clear->switchMeasure(0), nullptr);
+    EXPECT_EQ(clear->proxyVisits(0), 0);
+    EXPECT_FALSE(clear->useProxies()) << "dome only, a medium measured unbiased";
+  }
+  d.materials[0].ior = 1.55f;
+  d.materials[0].absorption = Vec3(0.05f);
+  EXPECT_TRUE(Scene::build(d)->useProxies()) << "dome only, a medium measured biased";
+  d.settings.explicitBounces = 0;
+  EXPECT_FALSE(Scene::build(d)->useProxies()) << "no low orders asked for: the medium after the first grain";
+  d.settings.explicitBounces = -1;
   LightDesc sun;
   sun.name = "sun";
   sun.type = LightType::Distant;
@@ -174,8 +189,10 @@ TEST(Ppt, AutoUsesProxiesOnlyUnderANarrowSun) {
   EXPECT_FALSE(Scene::build(d)->useProxies()) << "the explicit reference never uses proxies";
   // Turned on by a view change, the tables are made then.
   d.settings.technique = Technique::EptVpt;
+  d.settings.explicitBounces = 0;
   d.lights.pop_back();
   scene = Scene::build(d);
+  EXPECT_FALSE(scene->useProxies());
   rs = d.settings;
   rs.proxies = ProxyUse::On;
   scene->setView(d.camera, rs);

@@ -514,3 +514,127 @@ TEST(SceneIo, GrainSizesAndSpread) {
   EXPECT_CONTAINS(errorAfter([](json& k) { k["aggregates"][0]["size_spread"] = 0.7; }),
                   "castle.size_spread: 0.7 is outside [0, 0.5]");
 }
+
+// ---- motion blur and simulated grains ----------------------------------------------------
+
+namespace {
+
+// A scene with the camera's shutter open, a box that moves over it and an instancer's grains
+// with every per-grain array: what a simulation hands a pipeline without USD.
+json movingScene() {
+  json j = base();
+  j["camera"]["shutter_open"] = -0.01;
+  j["camera"]["shutter_close"] = 0.02;
+  j["meshes"][0]["shutter_transforms"] = {{{"translate", {-1, 0, 0}}}, {{"translate", {1, 0.5, 0}}}};
+  j["instanced_grains"] = json::parse(R"([
+    {"name": "pile", "transform": {"translate": [0, 1, 0]},
+     "prototypes": [{"name": "rock", "shape": {"icosphere": {"subdivisions": 1}}, "material": "sand"},
+                    {"shape": {"box": {}}}],
+     "positions": [[0, 0, 0], [0.5, 0, 0], [0, 0.5, 0]],
+     "orientations": [[1, 0, 0, 0], [0, 1, 0, 0], [0.6, 0, 0.8, 0]],
+     "scales": [0.1, 0.2, 0.1],
+     "proto_indices": [0, 1, 0],
+     "velocities": [[1, 0, 0], [0, 2, 0], [0, 0, 3]],
+     "angular_velocities": [[0, 90, 0], [0, 0, 0], [360, 0, 0]]}
+  ])");
+  return j;
+}
+
+}  // namespace
+
+TEST(SceneIo, ShutterMovingMeshesAndInstancedGrainsReadAsTheDescription) {
+  const SceneDesc d = parseSceneJson(movingScene().dump(), "scenes/test.json");
+  EXPECT_FLOAT_EQ(d.camera.shutterOpen, -0.01f);
+  EXPECT_FLOAT_EQ(d.camera.shutterClose, 0.02f);
+  ASSERT_TRUE(d.meshes[0].shutterXf.has_value());
+  EXPECT_TRUE(sameTransform(d.meshes[0].shutterXf->first, Transform::translate(Vec3(-1, 0, 0))));
+  EXPECT_TRUE(sameTransform(d.meshes[0].shutterXf->second, Transform::translate(Vec3(1, 0.5f, 0))));
+  EXPECT_FALSE(d.meshes[1].shutterXf.has_value());
+
+  // The description a USD front end would fill for the same instancer, field by field.
+  InstancedGrainsDesc want;
+  want.name = "pile";
+  want.xf = Transform::translate(Vec3(0, 1, 0));
+  want.prototypes.resize(2);
+  want.prototypes[0].name = "pile/rock";
+  want.prototypes[0].mesh = makeIcosphere(1);
+  want.prototypes[1].name = "pile.prototypes[1]";
+  want.prototypes[1].mesh = makeBox(Vec3(-1.0f), Vec3(1.0f));
+  want.positions = {{0, 0, 0}, {0.5f, 0, 0}, {0, 0.5f, 0}};
+  want.orientations = {{1, 0, 0, 0}, {0, 1, 0, 0}, {0.6f, 0, 0.8f, 0}};
+  want.scales = {0.1f, 0.2f, 0.1f};
+  want.protoIndices = {0, 1, 0};
+  want.velocities = {{1, 0, 0}, {0, 2, 0}, {0, 0, 3}};
+  want.angularVelocities = {{0, 90, 0}, {0, 0, 0}, {360, 0, 0}};
+  ASSERT_EQ(d.instancedGrains.size(), 1u);
+  const InstancedGrainsDesc& g = d.instancedGrains[0];
+  want.prototypes[0].material = g.prototypes[0].material;  // by index: checked by name below
+  want.prototypes[1].material = -1;                        // clear glass, as an aggregate's
+  EXPECT_EQ(d.materials[size_t(g.prototypes[0].material)].name, "sand");
+  EXPECT_EQ(g.prototypes[0].name, want.prototypes[0].name);
+  EXPECT_EQ(g.prototypes[1].name, want.prototypes[1].name);
+  EXPECT_TRUE(sameInstancedGrains(g, want));
+
+  // Optional arrays may be left out (identity, scale 1, still), as in USD.
+  json j = movingScene();
+  for (const char* k : {"orientations", "scales", "velocities", "angular_velocities"}) j["instanced_grains"][0].erase(k);
+  const SceneDesc still = parseSceneJson(j.dump(), "scenes/test.json");
+  EXPECT_TRUE(still.instancedGrains[0].orientations.empty() && still.instancedGrains[0].scales.empty() &&
+              still.instancedGrains[0].velocities.empty() && still.instancedGrains[0].angularVelocities.empty());
+}
+
+TEST(SceneIo, MotionBlurOffRendersTheInstant) {
+  json j = movingScene();
+  j["render"]["motion_blur"] = false;
+  const SceneDesc d = parseSceneJson(j.dump(), "scenes/test.json");
+  EXPECT_EQ(d.camera.shutterOpen, 0.0f);
+  EXPECT_EQ(d.camera.shutterClose, 0.0f);
+  EXPECT_EQ(motionSpan(d.camera), 0.0f);
+  for (const MeshDesc& m : d.meshes) EXPECT_FALSE(m.shutterXf.has_value()) << m.name;
+  // The grains keep their velocities: with the shutter closed they are placed at the frame.
+  EXPECT_EQ(d.instancedGrains[0].velocities.size(), 3u);
+}
+
+TEST(SceneIo, BadMotionBlurAndInstancedGrainsNameTheObjectAndKey) {
+  auto errorIn = [](const std::function<void(json&)>& edit) {
+    json j = movingScene();
+    edit(j);
+    return errorOf(j);
+  };
+  auto grains = [](json& j) -> json& { return j["instanced_grains"][0]; };
+  EXPECT_CONTAINS(errorIn([](json& j) { j["camera"]["shutter_close"] = -0.5; }),
+                  "camera.shutter_close: -0.5 is before shutter_open -0.01");
+  EXPECT_CONTAINS(errorIn([](json& j) { j["camera"]["shutter_close"] = 7200; }), "camera.shutter_open: [-0.01, 7200] s is beyond an hour");
+  EXPECT_CONTAINS(errorIn([](json& j) { j["camera"]["shutter_open"] = "now"; }),
+                  "camera.shutter_open: expected a number");
+  EXPECT_CONTAINS(errorIn([](json& j) { j["render"]["motion_blur"] = 0; }), "render.motion_blur: expected true or false");
+  EXPECT_CONTAINS(errorIn([](json& j) { j["meshes"][0]["shutter_transforms"] = {{{"translate", {1, 0, 0}}}}; }),
+                  "floor.shutter_transforms: expected [transform at open, transform at close]");
+  EXPECT_CONTAINS(errorIn([](json& j) { j["meshes"][0]["shutter_transforms"][1] = {{"scale", 0}}; }),
+                  "floor.shutter_transforms: is singular");
+  EXPECT_CONTAINS(errorIn([](json& j) { j["meshes"][0]["shutter_transforms"][0] = {{"translate", {1e30, 0, 0}}}; }),
+                  "floor.shutter_transforms: ");
+  EXPECT_CONTAINS(errorIn([&](json& j) { grains(j)["proto_indices"] = {0, 2, 0}; }),
+                  "pile.proto_indices: instance 1 has 2, not the index of one of its 2 prototypes");
+  EXPECT_CONTAINS(errorIn([&](json& j) { grains(j)["positions"].erase(2); }),
+                  "pile.positions: has 2 values but protoIndices has 3");
+  EXPECT_CONTAINS(errorIn([&](json& j) { grains(j)["orientations"][2] = {1, 1, 0, 0}; }),
+                  "pile.orientations: instance 2 has (1, 1, 0, 0), not a unit quaternion");
+  EXPECT_CONTAINS(errorIn([&](json& j) { grains(j)["orientations"][0] = {1, 0, 0}; }),
+                  "pile.orientations: expected [w, x, y, z] quaternions");
+  EXPECT_CONTAINS(errorIn([&](json& j) { grains(j)["scales"][1] = -1; }), "pile.scales: instance 1 has scale -1");
+  EXPECT_CONTAINS(errorIn([&](json& j) { grains(j)["velocities"] = {{1, 0, 0}}; }),
+                  "pile.velocities: has 1 values but protoIndices has 3");
+  EXPECT_CONTAINS(errorIn([&](json& j) { grains(j)["angular_velocities"][0] = {0, 1e39, 0}; }),
+                  "pile.angular_velocities: 1e+39 does not fit in a float");
+  EXPECT_CONTAINS(errorIn([&](json& j) { grains(j)["proto_indices"][0] = 0.5; }),
+                  "pile.proto_indices: expected an integer");
+  EXPECT_CONTAINS(errorIn([&](json& j) { grains(j).erase("positions"); }), "pile.positions: is required");
+  EXPECT_CONTAINS(errorIn([&](json& j) { grains(j)["prototypes"] = json::array(); }), "pile.prototypes: is empty");
+  EXPECT_CONTAINS(errorIn([&](json& j) { grains(j)["prototypes"][0]["material"] = "snow"; }),
+                  "pile/rock.material: unknown material \"snow\"");
+  EXPECT_CONTAINS(errorIn([&](json& j) { grains(j)["velocity"] = json::array(); }), "pile.velocity: unknown key");
+  EXPECT_CONTAINS(errorIn([&](json& j) { grains(j)["transform"] = {{"scale", 0}}; }), "pile.transform: is singular");
+  EXPECT_CONTAINS(errorIn([&](json& j) { j["instanced_grains"].push_back(grains(j)); }),
+                  "instanced_grains[1].name: \"pile\" is used by another entry of instanced_grains");
+}

@@ -846,6 +846,11 @@ TEST(HdGranular, ProxiesCarryTheLowOrdersUnderANarrowSunAsInGranularRender) {
   Frame proxies = render(*engine, stage, HdAovTokens->color, 32, 20);
   ASSERT_TRUE(proxies.converged);
   EXPECT_TRUE(stat<bool>(engine->GetRenderStats(), "granular:proxies"));
+  // What carries the low orders, per aggregate, with the measured bias (core/switching.h),
+  // in granular render's words.
+  const std::string switching = stat<std::string>(engine->GetRenderStats(), "granular:switching");
+  EXPECT_NE(switching.find("/World/Snow: proxies for"), std::string::npos) << switching;
+  EXPECT_NE(switching.find("measured: the medium's bias there"), std::string::npos) << switching;
   engine->SetRendererSetting(TfToken("granular:proxies"), VtValue(std::string("off")));
   Frame medium = render(*engine, stage, HdAovTokens->color, 32, 20);
   ASSERT_TRUE(medium.converged);
@@ -1157,4 +1162,81 @@ TEST(HdGranularExplicitGrains, ThePrototypesGrainPrimvarsDecide) {
     }
   }
 )")), 0);
+}
+
+// ---- motion blur: the shutter in seconds, and turned off -------------------------------------
+
+namespace {
+
+// grainInstancerStage(sixBySix()) with every grain moving along +x at `speed` units per
+// second, the camera's shutter open over [-0.5, 0.5] time codes, at `tcps` time codes per
+// second (shutter: false leaves the shutter closed).
+UsdStageRefPtr movingGrainsStage(double speed, double tcps, bool shutter = true) {
+  std::string velocities;
+  for (int i = 0; i < 36; ++i) velocities += TfStringPrintf("%s(%.9g, 0, 0)", i ? ", " : "", speed);
+  std::string text = grainInstancer(sixBySix());
+  const std::string at = "    quath[] orientations";
+  text.insert(text.find(at), "    vector3f[] velocities = [" + velocities + "]\n");
+  UsdStageRefPtr stage = domeLitStage(40, text);
+  stage->SetTimeCodesPerSecond(tcps);
+  if (shutter) {
+    UsdGeomCamera cam(stage->GetPrimAtPath(SdfPath("/World/Camera")));
+    cam.CreateShutterOpenAttr(VtValue(-0.5));
+    cam.CreateShutterCloseAttr(VtValue(0.5));
+  }
+  return stage;
+}
+
+// The color AOV of /World/Camera at w x w, by an engine of its own (one stage each) with
+// `settings` set; the render stat granular:error into *error when given.
+Frame renderColor(UsdStageRefPtr const& stage, int spp, int w, std::map<std::string, VtValue> const& settings = {},
+                  std::string* error = nullptr) {
+  auto engine = makeEngine(spp);
+  for (auto const& [key, value] : settings) engine->SetRendererSetting(TfToken(key), value);
+  Frame f = render(*engine, stage, HdAovTokens->color, w, w);
+  if (error) *error = stat<std::string>(engine->GetRenderStats(), "granular:error");
+  return f;
+}
+
+double sumAbsDifference(Frame const& a, Frame const& b) {
+  double s = 0;
+  for (size_t i = 0; i < a.values.size() && i < b.values.size(); ++i) s += std::fabs(a.values[i] - b.values[i]);
+  return s;
+}
+
+}  // namespace
+
+// A scene delegate hands the shutter in time codes, not the stage's rate: the render setting
+// granular:timeCodesPerSecond makes it seconds for the grains' velocities (units per second).
+// At 48 per second, grains at 24 units/s sweep what grains at 12 units/s sweep on a stage of
+// 24 per second (the same motion but for float rounding), and half of what the same stage
+// sweeps read at the default 24.
+TEST(HdGranularMotionBlur, TheTimeCodesPerSecondSettingMakesTheShutterSeconds) {
+  const int w = 40;
+  std::string error;
+  const Frame reference = renderColor(movingGrainsStage(12, 24), 4, w);
+  const Frame at24 = renderColor(movingGrainsStage(24, 48), 4, w);
+  const Frame at48 =
+      renderColor(movingGrainsStage(24, 48), 4, w, {{"granular:timeCodesPerSecond", VtValue(48.0)}}, &error);
+  ASSERT_TRUE(reference.converged && at24.converged && at48.converged);
+  EXPECT_EQ(error, "");
+  const double same = sumAbsDifference(at48, reference), twice = sumAbsDifference(at24, reference);
+  std::printf("sum |difference| vs 12 units/s at 24 tcps: %.3g read at 48 tcps, %.3g read at 24\n", same, twice);
+  EXPECT_GT(twice, 0.0);
+  EXPECT_LT(same, 0.1 * twice);
+  // Not a rate: refused naming the setting.
+  renderColor(movingGrainsStage(24, 48), 1, w, {{"granular:timeCodesPerSecond", VtValue(0.0)}}, &error);
+  EXPECT_NE(error.find("granular:timeCodesPerSecond"), std::string::npos) << error;
+}
+
+// granular:motionBlur false renders the frame's instant: the image of the same stage with the
+// shutter closed, bit for bit (the same description).
+TEST(HdGranularMotionBlur, TurnedOffTheImageIsTheStillFrame) {
+  const int w = 40;
+  const Frame still = renderColor(movingGrainsStage(24, 24, /*shutter=*/false), 2, w);
+  const Frame blurred = renderColor(movingGrainsStage(24, 24), 2, w);
+  const Frame off = renderColor(movingGrainsStage(24, 24), 2, w, {{"granular:motionBlur", VtValue(false)}});
+  ASSERT_TRUE(still.converged && blurred.converged && off.converged);
+  EXPECT_GT(sumAbsDifference(blurred, still), 0.0);
+  EXPECT_EQ(off.values, still.values);
 }

@@ -68,17 +68,17 @@ def test_info_reports_grains_tiles_and_transport(capsys):
     assert t["cells"] >= t["inside"] + t["partial"] and t["partial"] > 0
     assert 0 < heap["tt"]["beta"] <= 1
     assert heap["mean_free_path"] == pytest.approx([1 / s for s in heap["rte"]["sigma_t"]], rel=1e-5)
-    # The explicit bounces the hybrid keeps for this medium, as the renderer decides them
-    # (its heap is the scene's only aggregate, so the scene's value is this one).
+    # What carries this aggregate's low orders, as the renderer measures it (core/switching.h).
     scene = read_stage(str(EXAMPLES / "mixture.usda"), width=32)
     s = scene.desc.settings
     s.technique = core.Technique.Hybrid
     scene.desc.settings = s
-    assert heap["explicit_bounces"] == core.Scene.build(scene.desc).explicit_bounces > 0
+    built = core.Scene.build(scene.desc).switching[0]
+    assert heap["switching"]["measured"] and heap["switching"]["proxy_visits"] == built["proxy_visits"] > 0
     assert main(["info", str(EXAMPLES / "mixture.usda")]) == 0
     text = capsys.readouterr().out
     for word in ("/World/Heap", "grains", "tiles", "inside", "partial", "TT", "RTE", "mean free path", "sizes",
-                 f"after {heap['explicit_bounces']} explicit bounces"):
+                 f"{built['proxy_visits']} visits among proxies", "measured: the medium's bias"):
         assert word in text
 
 

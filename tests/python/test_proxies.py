@@ -26,10 +26,20 @@ def _low_orders(err):
 
 
 def test_auto_uses_proxies_under_a_narrow_sun_and_on_and_off_override_it(tmp_path, capsys):
+    # Auto: proxies under a narrow sun; under a wide one where the medium right after the
+    # first grain is measured biased (core/switching.h), which this scene's absorbing grains are.
     narrow = small_scene(tmp_path / "narrow.usda", _sun_angle(0.53))
     wide = small_scene(tmp_path / "wide.usda", _sun_angle(20.0))
-    expected = [(narrow, [], "proxies"), (wide, [], "explicit grains"), (wide, ["--proxies", "on"], "proxies"),
-                (narrow, ["--proxies", "off"], "explicit grains")]
+    from granular.usd_reader import read_stage
+    scene = read_stage(str(wide), width=24)
+    s = scene.desc.settings
+    s.technique = core.Technique.EptVpt
+    scene.desc.settings = s
+    sw = core.Scene.build(scene.desc).switching[0]
+    assert sw["measured"] and sw["proxy_visits"] == sw["chosen"] > 0 and sw["uses_proxies"]
+    off = f"explicit grains to bounce {2 * sw['chosen']}"
+    expected = [(narrow, [], "proxies"), (wide, [], f"proxies for {sw['chosen']} visits"),
+                (wide, ["--proxies", "on"], "proxies"), (narrow, ["--proxies", "off"], off)]
     for k, (stage, extra, level) in enumerate(expected):
         rc, _, err = run_cli(["render", stage, "-o", tmp_path / f"{k}.exr", *OPTIONS, *extra], capsys)
         assert rc == 0, err

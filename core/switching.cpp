@@ -1,0 +1,338 @@
+// switching.cpp — the medium's bias after k proxy visits, measured (see switching.h).
+#include "switching.h"
+
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+
+#include <tbb/parallel_for.h>
+
+#include "cache.h"
+#include "error.h"
+#include "rng.h"
+#include "sampling.h"
+
+namespace granular {
+
+namespace {
+
+constexpr int kMaxWalkEvents = 1 << 14;  // a walk longer than this ends (roulette ends them far sooner)
+constexpr int kRouletteAfter = 3;        // grain visits or medium scatterings before roulette
+constexpr int kPathsPerBlock = 256;
+constexpr int64_t kBatch = 1 << 12;  // paths between two looks at the decision
+
+// Per-channel sums in double (millions of samples).
+struct D3 {
+  double v[3] = {0, 0, 0};
+  D3() = default;
+  explicit D3(const Vec3& x) : v{x.x, x.y, x.z} {}
+  D3& operator+=(const D3& o) {
+    for (int c = 0; c < 3; ++c) v[c] += o.v[c];
+    return *this;
+  }
+  D3 squared() const {
+    D3 s;
+    for (int c = 0; c < 3; ++c) s.v[c] = v[c] * v[c];
+    return s;
+  }
+};
+
+struct Sums {
+  D3 a, a2;  // A∞ samples
+  D3 d[kSwitchCandidates], d2[kSwitchCandidates];
+  void add(const Sums& o) {
+    a += o.a;
+    a2 += o.a2;
+    for (int c = 0; c < kSwitchCandidates; ++c) {
+      d[c] += o.d[c];
+      d2[c] += o.d2[c];
+    }
+  }
+};
+
+// Russian roulette on a walk's weight: false ends it; else the weight is divided by the
+// survival chance (unbiased).
+bool survive(Vec3& w, Rng& rng, float most = 1.0f) {
+  const float q = std::min(most, maxComponent(w));
+  if (q >= 1.0f) return true;
+  if (!(q > 0) || rng.next1D() >= q) return false;
+  w /= q;
+  return true;
+}
+
+// A scattering at flight t (vpt.h: weight α σ_t T(t) / p(t), then the phase function).
+bool scatter(const HomogeneousMedium& med, float t, Vec3& o, Vec3& d, Vec3& w, Rng& rng) {
+  w *= med.transmittance(t) * med.sigmaT() * med.albedo() / med.distancePdf(t);
+  o = o + d * t;
+  Vec3 weight;
+  float pdf;
+  const float uc = rng.next1D(), u1 = rng.next1D(), u2 = rng.next1D();
+  d = normalize(med.samplePhase(d, uc, u1, u2, weight, pdf));
+  w *= weight;
+  return isFinite(w);
+}
+
+// The energy a walk in the equivalent medium carries out of the boundary, from o along d
+// (vpt.h's flight and phase sampling; the boundary index-matched, so a ray that leaves
+// may enter again where the boundary is concave).
+Vec3 mediumEscape(const Aggregate& agg, const HomogeneousMedium& med, Vec3 o, Vec3 d, Rng& rng) {
+  const float eps = 1e-4f * agg.grainRadius();
+  bool inside = agg.insideBoundary(o);
+  Vec3 w(1.0f);
+  for (int event = 0; event < kMaxWalkEvents; ++event) {
+    // Deep inside, a flight shorter than half the distance field's depth cannot reach
+    // the boundary: no ray query (most events of a long walk in nearly clear grains).
+    if (inside) {
+      const float t = med.sampleDistance(rng.next1D(), rng.next1D());
+      if (t < -0.5f * agg.boundaryDistance(o)) {
+        if (!scatter(med, t, o, d, w, rng)) return Vec3(0.0f);
+        if (event >= kRouletteAfter && !survive(w, rng)) return Vec3(0.0f);
+        continue;
+      }
+      float tb;
+      Vec3 ng;
+      if (!agg.intersectBoundary(o, d, eps, kInf, tb, ng)) return Vec3(0.0f);  // a leak: the renderer ends it
+      if (t >= tb) {
+        w *= med.transmittance(tb) / med.survivalProbability(tb);
+        o = o + d * tb;
+        inside = false;
+        continue;
+      }
+      if (!scatter(med, t, o, d, w, rng)) return Vec3(0.0f);
+      if (event >= kRouletteAfter && !survive(w, rng)) return Vec3(0.0f);
+      continue;
+    }
+    float tb;
+    Vec3 ng;
+    if (!agg.intersectBoundary(o, d, eps, kInf, tb, ng)) return w;  // out, for good
+    o = o + d * tb;
+    inside = true;
+  }
+  return Vec3(0.0f);
+}
+
+// Boundary triangles by area: a point uniform on the boundary and its outward normal.
+struct BoundarySampler {
+  const TriangleMesh& mesh;
+  std::vector<double> cdf;
+  explicit BoundarySampler(const TriangleMesh& m) : mesh(m) {
+    double sum = 0;
+    cdf.reserve(m.numTriangles());
+    for (size_t i = 0; i < m.numTriangles(); ++i) {
+      const Vec3 &a = m.points[m.indices[3 * i]], &b = m.points[m.indices[3 * i + 1]],
+                 &c = m.points[m.indices[3 * i + 2]];
+      sum += 0.5 * double(length(cross(b - a, c - a)));
+      cdf.push_back(sum);
+    }
+  }
+  void sample(float u, float u1, float u2, Vec3& p, Vec3& n) const {
+    const double x = double(u) * cdf.back();
+    const size_t i = std::min(size_t(std::upper_bound(cdf.begin(), cdf.end(), x) - cdf.begin()), cdf.size() - 1);
+    const Vec3 &a = mesh.points[mesh.indices[3 * i]], &b = mesh.points[mesh.indices[3 * i + 1]],
+               &c = mesh.points[mesh.indices[3 * i + 2]];
+    const float s = std::sqrt(u1);
+    p = a * (1.0f - s) + b * (s * (1.0f - u2)) + c * (s * u2);
+    n = normalize(cross(b - a, c - a));  // outward: build() orients the boundary so
+  }
+};
+
+// One path: A∞'s sample and each candidate's D_k (switching.h).
+void tracePath(const Aggregate& agg, const ProxyTables& tables, const HomogeneousMedium& med,
+               const BoundarySampler& boundary, uint64_t seed, int64_t index, Sums& sums) {
+  Rng rng(hashInts(seed, uint64_t(index), 0x5717c4ULL), 0);
+  Vec3 p, n;
+  const float u = rng.next1D(), u1 = rng.next1D(), u2 = rng.next1D();
+  boundary.sample(u, u1, u2, p, n);
+  const Frame inward(-n);
+  const float R = agg.grainRadius();
+  Vec3 o = p + n * (1e-3f * R);
+  Vec3 d = normalize(inward.toWorld(sampleCosineHemisphere(rng.next1D(), rng.next1D())));
+  Vec3 w(1.0f), escaped(0.0f);
+  Vec3 fork[kSwitchCandidates], escapedAtFork[kSwitchCandidates];
+  int forks = 0, visits = 0;
+  GrainHit from;
+  bool started = false;
+  for (int event = 0; event < kMaxWalkEvents; ++event) {
+    GrainHit h;
+    if (!agg.intersectProxy(o, d, 0.0f, kInf, h, started ? &from : nullptr)) {
+      escaped += w;  // no grain ahead: the light leaves the aggregate
+      break;
+    }
+    const ProxyTable& table = tables.at(h.prototype, h.radius / R);
+    const ProxyFrame frame(d, (o + d * h.t - h.center) / h.radius);
+    const int b = table.bBin(frame.b);
+    from = h;
+    started = true;
+    if (rng.next1D() >= table.hitProbability(b)) {  // the grain missed: on from the far side
+      o = o + d * std::max(sphereFarSide(o - h.center, d, h.radius), h.t);
+      continue;
+    }
+    ProxyDirection s;
+    const float ub = rng.next1D(), v1 = rng.next1D(), v2 = rng.next1D(), us = rng.next1D(), ue = rng.next1D();
+    if (!table.sample(b, ub, v1, v2, us, s)) break;  // nothing leaves this grain
+    w *= s.f / s.pdf;
+    o = h.center + frame.toWorld(table.exitPoint(b, s, ue)) * h.radius;
+    d = normalize(frame.toWorld(s.w));
+    ++visits;
+    // The first visit stands for the renderer's explicit first grain: candidate k forks
+    // after visit k + 1. The fork's random numbers are its own stream (the path's go on).
+    while (forks < kSwitchCandidates && kSwitchVisits[forks] + 1 == visits) {
+      Rng forkRng(hashInts(seed, uint64_t(index), uint64_t(forks), 0xf02cULL), 1);
+      fork[forks] = w * mediumEscape(agg, med, o, d, forkRng);
+      escapedAtFork[forks] = escaped;
+      ++forks;
+    }
+    if (forks == kSwitchCandidates) break;  // the last fork holds the rest of the path
+    if (visits >= kRouletteAfter && !survive(w, rng)) break;
+  }
+  // S_k, the estimate of switching after k visits: what left before fork k and the fork's
+  // escape (a path that ended before fork k: what left in all). The reference is S_last.
+  auto estimate = [&](int c) { return c < forks ? escapedAtFork[c] + fork[c] : escaped; };
+  const Vec3 last = estimate(kSwitchCandidates - 1);
+  const D3 a(last);
+  sums.a += a;
+  sums.a2 += a.squared();
+  for (int c = 0; c < forks; ++c) {  // paths that ended before fork c add 0
+    const D3 dc(estimate(c) - last);
+    sums.d[c] += dc;
+    sums.d2[c] += dc.squared();
+  }
+}
+
+// The means and standard errors of n paths' sums (switching.h: bias_k against S_last).
+void summarise(const Sums& s, int64_t count, SwitchMeasure& m) {
+  const double n = double(count);
+  auto stdError = [n](const D3& sum, const D3& sum2, int ch) {
+    const double mean = sum.v[ch] / n;
+    return std::sqrt(std::max(0.0, sum2.v[ch] / n - mean * mean) / (n - 1));
+  };
+  for (int ch = 0; ch < 3; ++ch) {
+    m.albedo[ch] = float(s.a.v[ch] / n);
+    m.albedoSE[ch] = float(stdError(s.a, s.a2, ch));
+  }
+  m.bias.assign(kSwitchCandidates, Vec3(0.0f));
+  m.biasSE.assign(kSwitchCandidates, Vec3(0.0f));
+  for (int c = 0; c < kSwitchCandidates; ++c)
+    for (int ch = 0; ch < 3; ++ch) {
+      const double a = std::max(s.a.v[ch] / n, 1e-12);
+      m.bias[size_t(c)][ch] = float(s.d[c].v[ch] / n / a);
+      m.biasSE[size_t(c)][ch] = float(stdError(s.d[c], s.d2[c], ch) / a);
+    }
+}
+
+// More paths would not lower the choice: every earlier candidate's estimate is beyond the
+// tolerance by more than its standard error in some channel (the chosen one passes, or is
+// the last).
+bool settled(const SwitchMeasure& m, const SwitchOptions& o) {
+  for (int j = 0; kSwitchVisits[j] < m.visits; ++j) {
+    bool beyond = false;
+    for (int ch = 0; ch < 3; ++ch)
+      beyond = beyond || std::fabs(m.bias[size_t(j)][ch]) - m.biasSE[size_t(j)][ch] > o.tolerance;
+    if (!beyond) return false;
+  }
+  return true;
+}
+
+// Cache record (cache.h: RecordWriter) of a measurement.
+constexpr RecordMagic kMagic = {'G', 'R', 'S', 'W', '\0', '\0', '\0', '\0'};
+constexpr uint32_t kFormatVersion = 2;
+
+uint64_t recordKey(uint64_t key, const SwitchOptions& o) {
+  return hashInts(key, uint64_t(kFormatVersion), uint64_t(o.paths), o.seed, uint64_t(kSwitchCandidates));
+}
+
+std::vector<char> serialise(const SwitchMeasure& m, uint64_t key) {
+  RecordWriter w(kMagic);
+  w.putU32(kFormatVersion);
+  w.putU64(key);
+  w.putArray(std::array<Vec3, 2>{m.albedo, m.albedoSE});
+  w.putArray(m.bias);
+  w.putArray(m.biasSE);
+  w.putI64(m.paths);
+  w.putF64(m.seconds);
+  return w.finish();
+}
+
+bool deserialise(const std::vector<char>& in, uint64_t key, SwitchMeasure& m) {
+  RecordReader r(in, kMagic);
+  uint32_t version = 0;
+  uint64_t storedKey = 0;
+  if (!r.getU32(version) || version != kFormatVersion || !r.getU64(storedKey) || storedKey != key) return false;
+  std::array<Vec3, 2> a;
+  m.bias.resize(kSwitchCandidates);
+  m.biasSE.resize(kSwitchCandidates);
+  if (!r.getArray(a) || !r.getArray(m.bias) || !r.getArray(m.biasSE) || !r.getI64(m.paths) ||
+      !r.getF64(m.seconds) || !r.finish())
+    return false;
+  m.albedo = a[0];
+  m.albedoSE = a[1];
+  for (size_t c = 0; c < m.bias.size(); ++c)
+    if (!isFinite(m.bias[c]) || !isFinite(m.biasSE[c]) || minComponent(m.biasSE[c]) < 0) return false;
+  return isFinite(m.albedo);
+}
+
+}  // namespace
+
+namespace {
+
+// Candidate c's estimate is within the tolerance and measured to the precision asked.
+bool passes(const SwitchMeasure& m, int c, const SwitchOptions& o) {
+  for (int ch = 0; ch < 3; ++ch)
+    if (!(std::fabs(m.bias[size_t(c)][ch]) <= o.tolerance && m.biasSE[size_t(c)][ch] <= o.precision * o.tolerance))
+      return false;
+  return true;
+}
+
+}  // namespace
+
+int chooseSwitchVisits(const SwitchMeasure& m, const SwitchOptions& o) {
+  for (int c = 0; c < int(m.bias.size()); ++c)
+    if (passes(m, c, o)) return kSwitchVisits[c];
+  return kSwitchVisits[kSwitchCandidates - 1];
+}
+
+SwitchMeasure measureSwitch(const Aggregate& agg, const ProxyTables& tables, const HomogeneousMedium& medium,
+                            const SwitchOptions& options, uint64_t cacheKey) {
+  if (options.paths < 2) throw InputError("switching", "paths", str(options.paths, " is < 2"));
+  if (!(options.tolerance > 0)) throw InputError("switching", "tolerance", str(options.tolerance, " is not > 0"));
+  if (!(options.precision > 0)) throw InputError("switching", "precision", str(options.precision, " is not > 0"));
+  const uint64_t key = cacheKey ? recordKey(cacheKey, options) : 0;
+  const std::string name = str("switch-", std::hex, key, ".bin");
+  if (key) {
+    std::vector<char> bytes;
+    SwitchMeasure cached;
+    if (readCacheFile(name, bytes) && deserialise(bytes, key, cached)) {
+      cached.fromCache = true;
+      cached.visits = chooseSwitchVisits(cached, options);
+      return cached;
+    }
+  }
+  const auto t0 = std::chrono::steady_clock::now();
+  agg.prepareProxies();
+  const BoundarySampler boundary(agg.boundary());
+  SwitchMeasure m;
+  Sums s;
+  int64_t done = 0;
+  while (done < options.paths) {
+    // A batch of paths, in blocks summed in order: the same sums whatever the threads.
+    const int64_t end = std::min(options.paths, done + kBatch);
+    const int64_t blocks = (end - done + kPathsPerBlock - 1) / kPathsPerBlock;
+    std::vector<Sums> partial(static_cast<size_t>(blocks));
+    tbb::parallel_for(int64_t(0), blocks, [&](int64_t k) {
+      for (int64_t i = done + k * kPathsPerBlock; i < std::min(end, done + (k + 1) * kPathsPerBlock); ++i)
+        tracePath(agg, tables, medium, boundary, options.seed, i, partial[size_t(k)]);
+    });
+    for (const Sums& p : partial) s.add(p);
+    done = end;
+    summarise(s, done, m);
+    m.visits = chooseSwitchVisits(m, options);
+    if (settled(m, options)) break;
+  }
+  m.paths = done;
+  m.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  if (key) writeCacheFile(name, serialise(m, key));
+  return m;
+}
+
+}  // namespace granular

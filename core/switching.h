@@ -1,0 +1,77 @@
+// switching.h — how long a path's low orders stay among proxies before the medium takes
+// them, measured per aggregate instead of set by a rule.
+//
+// Why: the equivalent medium is memoryless, so it misses the shadowing between
+// neighbouring grains of a dense packing (Müller et al. 2016, §1); light that meets the
+// packing's surface layer in the medium is absorbed in the wrong amount. Proxies keep that
+// shadowing (proxy.h, ppt.h). The bias of handing a path to the medium after k proxy visits
+// falls with k, how fast depends on the grains' absorption and index, their packing, and
+// the object's thickness — so it is measured.
+//
+// Contract: measureSwitch() takes a built aggregate (its proxies prepared) with its proxy
+// tables and its equivalent medium. Paths enter its boundary at points uniform in area,
+// with directions cosine-distributed about the inward normal (the light of a uniform dome),
+// and walk among the proxies (the first grain met is a proxy too, standing for the
+// renderer's explicit first grain), scoring the energy that leaves the aggregate. After
+// visit k + 1 (k in kSwitchVisits) the path forks a walk in the medium (vpt.h: the same
+// flight and phase sampling; the boundary an index-matched interface) from the proxy's
+// exit point and direction: S_k = what left before the fork + what the fork carries out,
+// an estimate of the aggregate's albedo to a dome when the medium takes over after k
+// visits. The reference is S_K of the last candidate K (the proxy walk ends with its fork):
+//     bias_k = mean(S_k − S_K) / mean(S_K)   per channel,
+// with its standard error from the spread of S_k − S_K, which holds the noise of the walks
+// after fork k only (they share every random number before it). Against S_K rather than
+// the proxies to the end: what visits beyond K would change is not the switch's to fix —
+// in nearly clear grains both levels walk for hundreds of visits, and a small difference
+// between the medium's and the tables' albedo then shows at every k alike.
+// The chosen visits: the least k whose |bias_k| ≤ tolerance with s.e._k ≤ precision ·
+// tolerance in every channel (K when none is): an estimate within the tolerance, measured
+// well enough to tell. (A bound |bias_k| + 2 s.e. would be decided by noise in nearly
+// clear grains, whose long walks leave a standard error near the tolerance.) Paths are
+// traced in batches until every candidate before the chosen one is beyond the tolerance
+// by more than its standard error, or options.paths are traced. Walks end by Russian roulette (unbiased; a fork beyond kLongWalk scatterings
+// survives each at most with 0.95) or after a cap of events (leaks).
+// Deterministic for a seed, whatever the number of threads. With a cacheKey (everything
+// the aggregate, its tables and its medium depend on; 0: no cache) the measurement is
+// cached on disk (cache.h) and read back instead; the choice is made from it anew (the
+// tolerance is not part of the key). InputError for options out of range.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "aggregate.h"
+#include "math.h"
+#include "proxy.h"
+#include "vpt.h"
+
+namespace granular {
+
+// The proxy visits a measurement tries, in increasing order.
+constexpr int kSwitchVisits[] = {0, 1, 2, 3, 4, 6, 8, 12, 16, 24, 32};
+constexpr int kSwitchCandidates = int(sizeof(kSwitchVisits) / sizeof(kSwitchVisits[0]));
+
+struct SwitchOptions {
+  int64_t paths = 1 << 16;
+  uint64_t seed = 1;
+  float tolerance = 0.005f;  // relative bias allowed in each channel
+  float precision = 1.0f;    // the standard error a choice needs, in tolerances
+};
+
+struct SwitchMeasure {
+  Vec3 albedo, albedoSE;      // mean(S_K) and its standard error
+  std::vector<Vec3> bias;     // per candidate of kSwitchVisits: mean(S_k − S_K) / mean(S_K)
+  std::vector<Vec3> biasSE;   // its standard error
+  int64_t paths = 0;          // traced (at most SwitchOptions::paths; fewer once settled)
+  int visits = kSwitchVisits[kSwitchCandidates - 1];  // the chosen k
+  double seconds = 0;
+  bool fromCache = false;
+};
+
+// Chooses the visits from bias and biasSE as the contract says.
+int chooseSwitchVisits(const SwitchMeasure& m, const SwitchOptions& o);
+
+SwitchMeasure measureSwitch(const Aggregate& aggregate, const ProxyTables& tables, const HomogeneousMedium& medium,
+                            const SwitchOptions& options = SwitchOptions(), uint64_t cacheKey = 0);
+
+}  // namespace granular
