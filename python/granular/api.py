@@ -37,7 +37,6 @@ def _media(scene, built):
 
 
 def _report(scene, built, media):
-    import granular_core as core
     out = []
     descs = scene.desc.aggregates
     for k, (src, info) in enumerate(zip(scene.aggregates, built.aggregates)):
@@ -96,29 +95,33 @@ def report_lines(r):
         f"  diffusion     sigma'_t {_fmt3(rte['sigma_t_reduced'])}, albedo' {_fmt3(rte['albedo_reduced'])}, "
         f"sigma_tr {_fmt3(rte['sigma_tr'])}",
         f"  mean free path {_fmt3(r['mean_free_path'])} (world units, per RGB channel)",
-        "  hybrid        " + (_switching_text(r["switching"]) if r["media_used_by_renderer"] else
+        "  hybrid        " + (low_orders_text(r["switching"]) if r["media_used_by_renderer"] else
                               "does not use media here: the scene's aggregates are thinner than their mean "
                               "free paths, so EPT renders them"),
     ]
 
 
-def _switching_text(sw):
-    """Where the hybrid hands this aggregate's paths to its medium, in words."""
+def low_orders_text(sw, name=None):
+    """What carries an aggregate's low orders after its first grain, from a Scene.switching entry
+    (core/switching.h), in the words of granular render, granular info and the usdview statistics."""
     if sw["uses_proxies"]:
-        what = (f"after the first grain, {sw['proxy_visits']} visits among proxies" if sw["measured"] else
-                f"after the first grain, proxies to bounce {sw['explicit_bounces']}")
+        what = (f"proxies for {sw['proxy_visits']} visits, then the medium" if sw["measured"] else
+                f"proxies to bounce {sw['explicit_bounces']}, then the medium")
     elif sw["explicit_bounces"] > 0:
-        what = f"after {sw['explicit_bounces']} explicit bounces"
+        what = f"explicit grains to bounce {sw['explicit_bounces']}, then the medium"
     else:
-        what = "after the first grain"
-    what = "switches to these media (VPT, DA) " + what
-    if not sw["measured"]:
-        return what + " (the render setting explicit_bounces)"
-    k = sw["candidates"].index(sw["chosen"])
-    worst = lambda b: 100 * max(b, key=abs)  # noqa: E731
-    c = max(range(3), key=lambda i: abs(sw["bias"][k][i]))
-    return (what + f" (measured: the medium's bias there {worst(sw['bias'][k]):+.2f}% ± "
-            f"{100 * sw['bias_se'][k][c]:.2f}%, {worst(sw['bias'][0]):+.1f}% right after the first grain)")
+        what = "the medium"
+    notes = [name] if name else []
+    if sw["measured"]:
+        k = sw["candidates"].index(sw["chosen"])
+        c = max(range(3), key=lambda i: abs(sw["bias"][k][i]))
+        b0 = 100 * max(sw["bias"][0], key=abs)
+        notes.append(f"measured: the medium's bias after {sw['chosen']} visits {100 * sw['bias'][k][c]:+.2f}% ± "
+                     f"{100 * sw['bias_se'][k][c]:.2f}%, after none {b0:+.1f}%"
+                     + (", from the cache" if sw["from_cache"] else ""))
+    elif not name:
+        notes.append("the render setting explicit_bounces")
+    return "after the first grain: " + what + (f" ({'; '.join(notes)})" if notes else "")
 
 
 def export_summary(prim, output, r):

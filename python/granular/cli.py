@@ -407,38 +407,13 @@ def _render_image(args, built):
     return renderer, image
 
 
-def _worst(bias, se):
-    """The channel of largest |bias|: (bias, its standard error), in percent."""
-    c = max(range(3), key=lambda i: abs(bias[i]))
-    return 100 * bias[c], 100 * se[c]
-
-
 def _low_orders(built):
     """What carries the paths' low orders after their first grain: one line per aggregate
     (switching.h: measured per aggregate when explicit bounces are automatic)."""
     if not built.has_media:
         level = "proxies" if built.use_proxies else "explicit grains"
         return [f"after the first grain: {level}"]
-    lines = []
-    for info, sw in zip(built.aggregates, built.switching):
-        name = info["name"]
-        if sw["uses_proxies"]:
-            what = (f"proxies for {sw['proxy_visits']} visits, then the medium" if sw["measured"] else
-                    f"proxies to bounce {sw['explicit_bounces']}, then the medium")
-        elif sw["explicit_bounces"] > 0:
-            what = f"explicit grains to bounce {sw['explicit_bounces']}, then the medium"
-        else:
-            what = "the medium"
-        if sw["measured"]:
-            k = sw["candidates"].index(sw["chosen"])
-            b, se = _worst(sw["bias"][k], sw["bias_se"][k])
-            b0, _ = _worst(sw["bias"][0], sw["bias_se"][0])
-            what += (f" ({name}; measured: the medium's bias after {sw['chosen']} visits {b:+.2f}% ± {se:.2f}%, "
-                     f"after none {b0:+.1f}%{', from the cache' if sw['from_cache'] else ''})")
-        else:
-            what += f" ({name})"
-        lines.append("after the first grain: " + what)
-    return lines
+    return [api.low_orders_text(sw, info["name"]) for info, sw in zip(built.aggregates, built.switching)]
 
 
 def _log_transports(args, built, renderer, image):

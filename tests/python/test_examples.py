@@ -78,7 +78,7 @@ def test_info_reports_grains_tiles_and_transport(capsys):
     assert main(["info", str(EXAMPLES / "mixture.usda")]) == 0
     text = capsys.readouterr().out
     for word in ("/World/Heap", "grains", "tiles", "inside", "partial", "TT", "RTE", "mean free path", "sizes",
-                 f"{built['proxy_visits']} visits among proxies", "measured: the medium's bias"):
+                 f"proxies for {built['proxy_visits']} visits", "measured: the medium's bias"):
         assert word in text
 
 
