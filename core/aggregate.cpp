@@ -205,6 +205,21 @@ void Aggregate::buildCells(const AggregateDesc& desc, float voxel, float margin,
   // other values than mesh-to-level-set's, so another cache entry.
   Bounds3 box;
   const bool exactBox = DistanceField::isAxisAlignedBox(boundary_, box);
+  // Any other mesh's field is anchored at the transform's translation: the boundary
+  // before it (its linear part applied, triangles as boundary_ winds them) is voxelised on
+  // a lattice that moves with it, so that boundaries instanced by translation (a castle's
+  // towers) share one grid (DistanceField::buildShared).
+  TriangleMesh local;
+  Vec3d anchor;
+  if (!exactBox) {
+    Transform linear = desc.xf;
+    anchor = Vec3d{linear.m[0][3], linear.m[1][3], linear.m[2][3]};
+    linear.m[0][3] = linear.m[1][3] = linear.m[2][3] = 0;
+    local.points.reserve(desc.boundary.points.size());
+    for (const Vec3& p : desc.boundary.points) local.points.push_back(linear.point(p));
+    local.indices = boundary_.indices;
+  }
+  products.anchor = anchor;
   const uint64_t key = exactBox ? hashInts(buildKey(desc, boundary_, tile_), 0x424f58u /* "BOX" */)
                                 : buildKey(desc, boundary_, tile_);
   if (loadBuild(key, spheres_.size(), products) && longestSubList(products.subStart) <= kMaxSubList) {
@@ -215,7 +230,7 @@ void Aggregate::buildCells(const AggregateDesc& desc, float voxel, float margin,
     if (log)
       log(str(name_, ": building its distance field and ", stats_.cells, " cells (not cached yet)"));
     if (exactBox) sdf_.buildBox(box, voxel, margin + voxel);
-    else sdf_.build(boundary_, voxel, margin + voxel);
+    else sdf_.buildShared(local, anchor, voxel, margin + voxel);
     stats_.sdfSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - ts).count();
     classifyCells(margin);
     listSubCells(meanSize);
@@ -334,6 +349,7 @@ void Aggregate::classifyCells(float margin) {
   // are measured): every keepStride-th cell, so that at most ~65536 are held. Holding them
   // all took 560 MiB at 10^11 grains (half of 9.4·10^7 cells, 12 bytes each).
   const int64_t keepStride = std::max<int64_t>(1, int64_t(cells) / 65536);
+  const float deep = 0.99f * sdf_.bandWidth();  // a centre this deep reads the clamped band
   std::vector<Slice> slices(static_cast<size_t>(n_[2]));
   tbb::parallel_for(int64_t(0), n_[2], [&](int64_t k) {
     Slice& sl = slices[size_t(k)];
@@ -345,15 +361,16 @@ void Aggregate::classifyCells(float margin) {
       for (int64_t i = 0; i < n_[0]; ++i)
         centres[size_t(i)] = origin_ + Vec3(float(i) + 0.5f, float(j) + 0.5f, float(k) + 0.5f) * L_;
       sdf_.distances(centres.data(), centres.size(), dists.data());
-      for (int64_t i = 0; i < n_[0]; ++i) {
+      const int64_t row = (k * n_[1] + j) * n_[0];
+      int64_t phase = row % keepStride;  // the cell's index modulo keepStride
+      for (int64_t i = 0; i < n_[0]; ++i, phase = phase + 1 == keepStride ? 0 : phase + 1) {
         const Vec3& c = centres[size_t(i)];
         const float dist = dists[size_t(i)];
         CellClass cls = dist > margin ? CellClass::Outside : (dist < -margin ? CellClass::Inside : CellClass::Partial);
-        classes_[size_t((k * n_[1] + j) * n_[0] + i)] = cls;
+        classes_[size_t(row + i)] = cls;
         if (cls == CellClass::Inside) ++sl.inside;
         if (-dist > sl.deepest) sl.deepest = -dist;
-        if (-dist >= 0.99f * sdf_.bandWidth() && ((k * n_[1] + j) * n_[0] + i) % keepStride == 0)
-          sl.clamped.push_back(c);
+        if (-dist >= deep && phase == 0) sl.clamped.push_back(c);
         if (cls == CellClass::Partial) {
           ++sl.partial;
           sl.insideFraction += std::min(1.0, std::max(0.0, 0.5 - double(dist) / L_));

@@ -6,8 +6,10 @@
 // distance field with a margin of half a cell diagonal plus R (so no sphere whose
 // centre is inside the boundary can reach an "outside" cell); the field, the classes and
 // the sub-cell lists come from the build cache (build_cache.h) when a build of the same
-// inputs stored them, bit for bit what this build would compute. intersect() walks the
-// cells' sub-cells (an M^3 grid per cell, M ≈ L / 2R, each listing the tile spheres that
+// inputs stored them, bit for bit what this build would compute; boundaries that differ
+// by their transform's translation alone share one field (DistanceField::buildShared,
+// anchored at the translation). intersect() walks the cells' sub-cells (an M^3 grid per
+// cell, M ≈ L / 2R, each listing the tile spheres that
 // overlap it) along the ray by 3-D DDA, front to back; in a non-outside cell it tests the
 // listed spheres the ray enters there, keeps a sphere only if its centre is inside the
 // boundary (exactly, by a ray cast against the boundary mesh, in partial cells),

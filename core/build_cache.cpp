@@ -179,15 +179,18 @@ bool parsePayload(const char* data, size_t size, size_t sphereCount, BuildProduc
   Cursor c{data, size};
   int64_t n[3] = {0, 0, 0};
   float origin[3] = {0, 0, 0}, cellSize = 0, voxelSize = 0, bandWidth = 0;
+  double anchor[3] = {0, 0, 0};
   bool ok = c.get(n[0]) && c.get(n[1]) && c.get(n[2]);
   for (float& o : origin) ok = ok && c.get(o);
   ok = ok && c.get(cellSize) && c.get(voxelSize) && c.get(bandWidth);
+  for (double& a : anchor) ok = ok && c.get(a);
   if (!ok) return (why = "short payload"), false;
   // Bit for bit: a build of these inputs computes exactly these.
-  const auto same = [](float a, float b) { return std::memcmp(&a, &b, sizeof a) == 0; };
+  const auto same = [](auto a, auto b) { return std::memcmp(&a, &b, sizeof a) == 0; };
   if (n[0] != out.cells[0] || n[1] != out.cells[1] || n[2] != out.cells[2] || !same(origin[0], out.origin.x) ||
       !same(origin[1], out.origin.y) || !same(origin[2], out.origin.z) || !same(cellSize, out.cellSize) ||
-      !same(voxelSize, out.voxelSize) || !same(bandWidth, out.bandWidth))
+      !same(voxelSize, out.voxelSize) || !same(bandWidth, out.bandWidth) || !same(anchor[0], out.anchor.x) ||
+      !same(anchor[1], out.anchor.y) || !same(anchor[2], out.anchor.z))
     return (why = "made for another grid"), false;
   const size_t cells = size_t(n[0] * n[1] * n[2]);
   if (!(c.get(out.insideCells) && c.get(out.partialCells) && c.get(out.approxGrains) && c.get(out.maxInteriorDepth)))
@@ -208,7 +211,7 @@ bool parsePayload(const char* data, size_t size, size_t sphereCount, BuildProduc
       std::any_of(out.subList.begin(), out.subList.end(), [&](uint32_t s) { return s >= sphereCount; }))
     return (why = "bad sub-cell lists"), false;
   // The rest is the distance field.
-  if (!out.sdf.read(c.p, c.left, out.voxelSize, out.bandWidth)) return (why = "bad distance field"), false;
+  if (!out.sdf.read(c.p, c.left, out.voxelSize, out.bandWidth, out.anchor)) return (why = "bad distance field"), false;
   return true;
 }
 
@@ -315,6 +318,12 @@ uint64_t buildKey(const AggregateDesc& desc, const TriangleMesh& worldBoundary, 
     h = hashBytes(h, xyz, sizeof xyz);
   }
   h = hashBytes(h, worldBoundary.indices.data(), worldBoundary.indices.size() * sizeof(uint32_t));
+  h = hashValue(h, uint64_t(desc.boundary.points.size()));
+  for (const Vec3& p : desc.boundary.points) {
+    const float xyz[3] = {p.x, p.y, p.z};
+    h = hashBytes(h, xyz, sizeof xyz);
+  }
+  for (int r = 0; r < 3; ++r) h = hashBytes(h, desc.xf.m[r], 4 * sizeof(double));
   h = hashValue(h, desc.grainRadius);
   h = hashValue(h, desc.packingRate);
   h = hashValue(h, desc.seed);
@@ -391,6 +400,7 @@ bool storeBuild(uint64_t key, const BuildProducts& p) {
       std::ostream out(&sink);
       for (int64_t n : p.cells) put(out, n);
       for (float v : {p.origin.x, p.origin.y, p.origin.z, p.cellSize, p.voxelSize, p.bandWidth}) put(out, v);
+      for (double v : {p.anchor.x, p.anchor.y, p.anchor.z}) put(out, v);
       put(out, p.insideCells);
       put(out, p.partialCells);
       put(out, p.approxGrains);

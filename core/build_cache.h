@@ -28,7 +28,7 @@
 
 namespace granular {
 
-constexpr uint32_t kBuildFormatVersion = 1;
+constexpr uint32_t kBuildFormatVersion = 2;  // 2: the distance field's anchor
 
 struct BuildProducts {
   // The grid the products belong to: the loading build computes these itself and takes
@@ -36,6 +36,7 @@ struct BuildProducts {
   int64_t cells[3] = {0, 0, 0};
   Vec3 origin;
   float cellSize = 0, voxelSize = 0, bandWidth = 0;
+  Vec3d anchor;  // the distance field's (DistanceField::anchor())
 
   std::vector<CellClass> classes;  // cells[0] * cells[1] * cells[2], x fastest
   int64_t insideCells = 0, partialCells = 0;
@@ -49,9 +50,11 @@ struct BuildProducts {
 
 // Everything build() reads that the products depend on: the world-space boundary as
 // build() voxelises it (points and triangles after the transform and any flip), the
-// aggregate's grain radius, sizes, spread, weights, packing rate, seed and tile size, the
-// tile itself, the format version and the OpenVDB and Embree versions. Not the name, the
-// prototypes' meshes or materials: build() derives nothing cached from them.
+// boundary's own points and its transform (an anchored field is voxelised before the
+// translation), the aggregate's grain radius, sizes, spread, weights, packing rate, seed
+// and tile size, the tile itself, the format version and the OpenVDB and Embree versions.
+// Not the name, the prototypes' meshes or materials: build() derives nothing cached from
+// them.
 uint64_t buildKey(const AggregateDesc& desc, const TriangleMesh& worldBoundary, const Tile& tile);
 std::string buildCacheName(uint64_t key);
 

@@ -3,8 +3,11 @@
 #include <algorithm>
 #include <array>
 #include <atomic>
+#include <cstring>
+#include <future>
 #include <istream>
 #include <limits>
+#include <list>
 #include <mutex>
 #include <optional>
 #include <ostream>
@@ -17,6 +20,9 @@
 #include <openvdb/tools/MeshToVolume.h>
 #include <openvdb/tools/SignedFloodFill.h>
 #include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
+#include "cache.h"
 
 namespace granular {
 
@@ -48,7 +54,12 @@ struct ByteSource : std::streambuf {
 
 struct DistanceField::Impl {
   openvdb::FloatGrid::Ptr grid;
-  uint64_t id = 0;  // unique per build: tells a thread's cached accessor which tree it reads
+  uint64_t id = 0;  // unique per grid: tells a thread's cached accessor which tree it reads
+
+  // The level set of a mesh in index space (points already divided by the voxel size).
+  static std::shared_ptr<const Impl> meshToLevelSet(const TriangleMesh& local, float voxelSize, float halfWidth);
+  // meshToLevelSet() once per local mesh, voxel size and band among the fields alive.
+  static std::shared_ptr<const Impl> shared(const TriangleMesh& local, float voxelSize, float halfWidth);
 };
 
 DistanceField::DistanceField() = default;
@@ -56,7 +67,8 @@ DistanceField::~DistanceField() = default;
 DistanceField::DistanceField(DistanceField&&) noexcept = default;
 DistanceField& DistanceField::operator=(DistanceField&&) noexcept = default;
 
-void DistanceField::build(const TriangleMesh& mesh, float voxelSize, float minBand) {
+std::shared_ptr<const DistanceField::Impl> DistanceField::Impl::meshToLevelSet(const TriangleMesh& local,
+                                                                               float voxelSize, float halfWidth) {
   initialiseOpenVdb();
   // The grid lives in index space (voxel size 1) and the mesh is handed over divided by
   // the voxel size: OpenVDB refuses linear transforms whose determinant is ~0 (voxels
@@ -64,20 +76,114 @@ void DistanceField::build(const TriangleMesh& mesh, float voxelSize, float minBa
   openvdb::math::Transform::Ptr xform = openvdb::math::Transform::createLinearTransform(1.0);
   const double inv = 1.0 / double(voxelSize);
   std::vector<openvdb::Vec3s> pts;
-  pts.reserve(mesh.points.size());
-  for (const Vec3& p : mesh.points) pts.emplace_back(float(p.x * inv), float(p.y * inv), float(p.z * inv));
+  pts.reserve(local.points.size());
+  for (const Vec3& p : local.points) pts.emplace_back(float(p.x * inv), float(p.y * inv), float(p.z * inv));
   std::vector<openvdb::Vec3I> tris;
-  tris.reserve(mesh.numTriangles());
-  for (size_t i = 0; i < mesh.numTriangles(); ++i)
-    tris.emplace_back(mesh.indices[3 * i], mesh.indices[3 * i + 1], mesh.indices[3 * i + 2]);
-  const float halfWidthVoxels = bandVoxels(voxelSize, minBand);
-  impl_ = std::make_unique<Impl>();
-  impl_->grid = openvdb::tools::meshToLevelSet<openvdb::FloatGrid>(*xform, pts, tris, halfWidthVoxels);
-  impl_->grid->setName("boundary_sdf");
-  impl_->id = nextFieldId++;
+  tris.reserve(local.numTriangles());
+  for (size_t i = 0; i < local.numTriangles(); ++i)
+    tris.emplace_back(local.indices[3 * i], local.indices[3 * i + 1], local.indices[3 * i + 2]);
+  auto impl = std::make_shared<Impl>();
+  // Isolated: a thread waiting in its parallel loops takes no other task of the arena (a
+  // build that would wait for this very grid, shared()).
+  tbb::this_task_arena::isolate(
+      [&] { impl->grid = openvdb::tools::meshToLevelSet<openvdb::FloatGrid>(*xform, pts, tris, halfWidth); });
+  impl->grid->setName("boundary_sdf");
+  impl->id = nextFieldId++;
+  return impl;
+}
+
+namespace {
+
+// The grids of anchored fields by local mesh, voxel size and band (a process's builds,
+// side by side or one after another): held weakly, so a grid lives as long as a field
+// that reads it; an entry being built carries the future its waiters take it from.
+struct SharedGrid {
+  uint64_t hash;
+  std::vector<Vec3> points;
+  std::vector<uint32_t> indices;
+  float voxelSize, halfWidth;
+  std::weak_ptr<const void> built;
+  std::shared_future<std::shared_ptr<const void>> building;  // valid while under way
+  bool same(const TriangleMesh& m, float v, float h) const {
+    return std::memcmp(&voxelSize, &v, sizeof v) == 0 && std::memcmp(&halfWidth, &h, sizeof h) == 0 &&
+           points.size() == m.points.size() && indices == m.indices &&
+           std::memcmp(points.data(), m.points.data(), points.size() * sizeof(Vec3)) == 0;
+  }
+};
+std::mutex sharedMutex;
+std::list<SharedGrid> sharedGrids;
+
+}  // namespace
+
+std::shared_ptr<const DistanceField::Impl> DistanceField::Impl::shared(const TriangleMesh& local, float voxelSize,
+                                                                       float halfWidth) {
+  uint64_t h = hashValue(hashInts(0x5344465348ULL /* "SDFSH" */, local.points.size(), local.indices.size()), voxelSize);
+  h = hashValue(h, halfWidth);
+  for (const Vec3& p : local.points) {
+    const float xyz[3] = {p.x, p.y, p.z};
+    h = hashBytes(h, xyz, sizeof xyz);
+  }
+  h = hashBytes(h, local.indices.data(), local.indices.size() * sizeof(uint32_t));
+  std::promise<std::shared_ptr<const void>> promise;
+  std::list<SharedGrid>::iterator mine;
+  {
+    std::unique_lock<std::mutex> lock(sharedMutex);
+    for (auto it = sharedGrids.begin(); it != sharedGrids.end();) {
+      if (!it->building.valid() && it->built.expired()) {  // no field reads it any more
+        it = sharedGrids.erase(it);
+        continue;
+      }
+      if (it->hash == h && it->same(local, voxelSize, halfWidth)) {
+        if (auto grid = it->built.lock()) return std::static_pointer_cast<const Impl>(grid);
+        std::shared_future<std::shared_ptr<const void>> wait = it->building;
+        lock.unlock();
+        return std::static_pointer_cast<const Impl>(wait.get());  // another build's error is ours too
+      }
+      ++it;
+    }
+    mine = sharedGrids.insert(sharedGrids.end(), SharedGrid{h, local.points, local.indices, voxelSize, halfWidth, {},
+                                                            promise.get_future().share()});
+  }
+  std::shared_ptr<const Impl> impl;
+  try {
+    impl = meshToLevelSet(local, voxelSize, halfWidth);
+  } catch (...) {
+    {
+      std::lock_guard<std::mutex> lock(sharedMutex);
+      sharedGrids.erase(mine);
+    }
+    promise.set_exception(std::current_exception());
+    throw;
+  }
+  {
+    std::lock_guard<std::mutex> lock(sharedMutex);
+    mine->built = impl;
+    mine->building = {};
+  }
+  promise.set_value(impl);
+  return impl;
+}
+
+void DistanceField::adopt(std::shared_ptr<const Impl> impl, float voxelSize, float bandWidth, const Vec3d& anchor) {
+  impl_ = std::move(impl);
   voxel_ = voxelSize;
   invVoxel_ = 1.0 / double(voxel_);
-  band_ = halfWidthVoxels * voxelSize;
+  band_ = bandWidth;
+  anchor_ = anchor;
+}
+
+void DistanceField::build(const TriangleMesh& mesh, float voxelSize, float minBand) {
+  buildAnchored(mesh, Vec3d{}, voxelSize, minBand);
+}
+
+void DistanceField::buildAnchored(const TriangleMesh& local, const Vec3d& anchor, float voxelSize, float minBand) {
+  const float halfWidth = bandVoxels(voxelSize, minBand);
+  adopt(Impl::meshToLevelSet(local, voxelSize, halfWidth), voxelSize, halfWidth * voxelSize, anchor);
+}
+
+void DistanceField::buildShared(const TriangleMesh& local, const Vec3d& anchor, float voxelSize, float minBand) {
+  const float halfWidth = bandVoxels(voxelSize, minBand);
+  adopt(Impl::shared(local, voxelSize, halfWidth), voxelSize, halfWidth * voxelSize, anchor);
 }
 
 void DistanceField::buildBox(const Bounds3& box, float voxelSize, float minBand) {
@@ -124,31 +230,43 @@ void DistanceField::buildBox(const Bounds3& box, float voxelSize, float minBand)
   tbb::parallel_for(size_t(0), leaves.size(), [&](size_t n) {
     Leaf& leaf = *leaves[n];
     const openvdb::Coord o = leaf.origin();
-    for (openvdb::Index i = 0; i < Leaf::SIZE; ++i) {
-      const openvdb::Coord c = o + Leaf::offsetToLocalCoord(i);
-      const double p[3] = {double(c.x()), double(c.y()), double(c.z())};
-      // Outside: the distance to the nearest point of the box; inside: to the nearest face.
-      double outside2 = 0, depth = std::numeric_limits<double>::infinity();
-      for (int a = 0; a < 3; ++a) {
-        const double e = std::max({lo[a] - p[a], 0.0, p[a] - hi[a]});
-        outside2 += e * e;
-        depth = std::min({depth, p[a] - lo[a], hi[a] - p[a]});
+    // Outside: the distance to the nearest point of the box; inside: to the nearest face.
+    // Each axis's part depends on the voxel's coordinate on that axis alone: the squared
+    // distance beyond the box's slab and the depth within it, for the leaf's 8 positions.
+    double beyond2[3][Leaf::DIM], within[3][Leaf::DIM];
+    for (int a = 0; a < 3; ++a)
+      for (openvdb::Index t = 0; t < Leaf::DIM; ++t) {
+        const double p = double(o[a] + int(t));
+        const double e = std::max({lo[a] - p, 0.0, p - hi[a]});
+        beyond2[a][t] = e * e;
+        within[a][t] = std::min(p - lo[a], hi[a] - p);
       }
-      const double d = outside2 > 0 ? std::sqrt(outside2) : -depth;
-      if (d >= band) leaf.setValueOff(i, halfWidth);
-      else if (d <= -band) leaf.setValueOff(i, -halfWidth);
-      else leaf.setValueOn(i, float(d));
+    // Written straight into the new leaf (all its voxels inactive at the background).
+    float* values = leaf.buffer().data();
+    auto& active = leaf.getValueMask();
+    for (openvdb::Index i = 0; i < Leaf::SIZE; ++i) {
+      const openvdb::Index x = i >> (2 * Leaf::LOG2DIM), y = (i >> Leaf::LOG2DIM) & (Leaf::DIM - 1),
+                           z = i & (Leaf::DIM - 1);  // Leaf::offsetToLocalCoord
+      double outside2 = 0;
+      outside2 += beyond2[0][x];
+      outside2 += beyond2[1][y];
+      outside2 += beyond2[2][z];
+      const double d = outside2 > 0 ? std::sqrt(outside2) : -std::min({within[0][x], within[1][y], within[2][z]});
+      if (d >= band) values[i] = halfWidth;
+      else if (d <= -band) values[i] = -halfWidth;
+      else {
+        values[i] = float(d);
+        active.setOn(i);
+      }
     }
   });
   // The tiles between the leaves take the inside's or the outside's value.
   openvdb::tools::signedFloodFill(tree);
   grid->setName("boundary_sdf");
-  impl_ = std::make_unique<Impl>();
-  impl_->grid = grid;
-  impl_->id = nextFieldId++;
-  voxel_ = voxelSize;
-  invVoxel_ = 1.0 / double(voxel_);
-  band_ = halfWidth * voxelSize;
+  auto impl = std::make_shared<Impl>();
+  impl->grid = grid;
+  impl->id = nextFieldId++;
+  adopt(std::move(impl), voxelSize, halfWidth * voxelSize, Vec3d{});
 }
 
 bool DistanceField::isAxisAlignedBox(const TriangleMesh& mesh, Bounds3& box) {
@@ -203,9 +321,10 @@ void DistanceField::write(std::ostream& out) const {
   stream.write(grids);
 }
 
-bool DistanceField::read(const char* data, size_t size, float voxelSize, float bandWidth) {
+bool DistanceField::read(const char* data, size_t size, float voxelSize, float bandWidth, const Vec3d& anchor) {
   initialiseOpenVdb();
   impl_.reset();
+  std::shared_ptr<Impl> impl;
   try {
     ByteSource source(data, size);
     std::istream is(&source);
@@ -214,15 +333,13 @@ bool DistanceField::read(const char* data, size_t size, float voxelSize, float b
     if (!grids || grids->size() != 1) return false;
     openvdb::FloatGrid::Ptr grid = openvdb::gridPtrCast<openvdb::FloatGrid>((*grids)[0]);
     if (!grid || grid->getName() != "boundary_sdf" || !grid->transform().isIdentity()) return false;
-    impl_ = std::make_unique<Impl>();
-    impl_->grid = grid;
-    impl_->id = nextFieldId++;
+    impl = std::make_shared<Impl>();
+    impl->grid = grid;
+    impl->id = nextFieldId++;
   } catch (const std::exception&) {
     return false;
   }
-  voxel_ = voxelSize;
-  invVoxel_ = 1.0 / double(voxel_);
-  band_ = bandWidth;
+  adopt(std::move(impl), voxelSize, bandWidth, anchor);
   return true;
 }
 
@@ -246,9 +363,10 @@ const openvdb::FloatGrid::ConstUnsafeAccessor& threadAccessor(const openvdb::Flo
 }  // namespace
 
 float DistanceField::distance(const Vec3& p) const {
-  // The grid is in index space (build()): index = world / voxel, distance = value * voxel.
+  // The grid is in index space (build()): index = (world − anchor) / voxel, distance =
+  // value * voxel.
   const double inv = 1.0 / double(voxel_);
-  openvdb::Vec3d ijk(p.x * inv, p.y * inv, p.z * inv);
+  openvdb::Vec3d ijk((p.x - anchor_.x) * inv, (p.y - anchor_.y) * inv, (p.z - anchor_.z) * inv);
   float value = 0;
   openvdb::tools::BoxSampler::sample(threadAccessor(*impl_->grid, impl_->id), ijk, value);  // trilinear
   return value * voxel_;
@@ -267,12 +385,12 @@ void DistanceField::distances(const Vec3* p, size_t n, float* out) const {
   const double inv = 1.0 / double(voxel_);
   // The stencils' corners and weights as BoxSampler::sample (distance()) computes them;
   // along a row only x moves, so the four voxel lines the stencils read (y and y + 1,
-  // z and z + 1) are copied once, a leaf at a time, and BoxSampler interpolates.
-  const double y = p[0].y * inv, z = p[0].z * inv;
+  // z and z + 1) are copied once, a leaf at a time, and interpolated as BoxSampler does.
+  const double y = (p[0].y - anchor_.y) * inv, z = (p[0].z - anchor_.z) * inv;
   const int iy = int(std::floor(y)), iz = int(std::floor(z));
   int lo = std::numeric_limits<int>::max(), hi = std::numeric_limits<int>::min();
   for (size_t m = 0; m < n; ++m) {
-    const int ix = int(std::floor(p[m].x * inv));
+    const int ix = int(std::floor((p[m].x - anchor_.x) * inv));
     lo = std::min(lo, ix);
     hi = std::max(hi, ix);
   }
@@ -299,23 +417,23 @@ void DistanceField::distances(const Vec3* p, size_t n, float* out) const {
         x = end + 1;
       }
     }
+  // BoxSampler's trilinear interpolation lerps in z, then y, then x (a + (b − a) w, the
+  // difference in float, its product in double). Along a row the y and z weights are the
+  // same for every point, so each voxel column's first six lerps are made once, in that
+  // order and arithmetic (the loop vectorises), and a point lerps its two columns in x:
+  // BoxSampler's value bit for bit.
+  const auto lerp = [](float a, float b, double w) { return a + float(double(b - a) * w); };
+  const double wy = y - double(iy), wz = z - double(iz);
+  thread_local std::vector<float> columns;
+  columns.resize(len);
+  const float *l00 = lines.data(), *l01 = l00 + len, *l10 = l01 + len, *l11 = l10 + len;
+  float* col = columns.data();
+  for (size_t x = 0; x < len; ++x) col[x] = lerp(lerp(l00[x], l01[x], wz), lerp(l10[x], l11[x], wz), wy);
   for (size_t m = 0; m < n; ++m) {
-    const openvdb::Vec3d xyz(p[m].x * inv, y, z);
-    const openvdb::Vec3i idx(int(std::floor(xyz[0])), iy, iz);
-    const openvdb::Vec3d uvw = xyz - idx;
-    const size_t i = size_t(idx[0] - lo);
-    float data[2][2][2];
-    bool uniform = true;
-    for (int a = 0; a < 2; ++a)
-      for (int b = 0; b < 2; ++b)
-        for (int c = 0; c < 2; ++c) {
-          data[a][b][c] = lines[(b * 2 + c) * len + i + a];
-          uniform &= data[a][b][c] == data[0][0][0];
-        }
-    // Eight equal values (deep inside, far outside): each lerp a + (a − a) w returns a
-    // exactly (but for a = −0, which it turns into +0).
-    if (uniform && data[0][0][0] != 0) out[m] = data[0][0][0] * voxel_;
-    else out[m] = openvdb::tools::BoxSampler::trilinearInterpolation(data, uvw) * voxel_;
+    const double xi = (p[m].x - anchor_.x) * inv;
+    const int ix = int(std::floor(xi));
+    const size_t i = size_t(ix - lo);
+    out[m] = lerp(col[i], col[i + 1], xi - double(ix)) * voxel_;
   }
 }
 

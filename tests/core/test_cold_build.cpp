@@ -1,13 +1,17 @@
 // The cold build's cell classification reads its distances a row at a time
 // (DistanceField::distances): the values must be distance()'s bit for bit, so that the
-// classes, counts and interior depth are the per-cell classification's.
+// classes, counts and interior depth are the per-cell classification's. Boundaries equal
+// but for a translation share one anchored field (DistanceField::buildShared): it must be
+// the field each would build alone, so that their cells are the same.
 #include <gtest/gtest.h>
 
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
+#include <memory>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "core/aggregate.h"
@@ -285,4 +289,160 @@ TEST(DistanceFieldBox, ClassesAreMeshToLevelSetsButAtAFewCellsOnTheMargin) {
     EXPECT_GT(partial, cells / 10) << b.name;
     EXPECT_LT(differ * 1000, cells) << b.name << ": " << differ << " of " << cells;
   }
+}
+
+// ---- congruent boundaries share one field (DistanceField::buildShared) ------------------
+
+TEST(DistanceFieldShared, TranslatedCopiesShareTheGridTheyWouldBuildAlone) {
+  const TriangleMesh local = makeLPrism(0.6f);
+  const float voxel = 0.013f, minBand = 3.3f * voxel;
+  // Translations in whole units: q + t is exact in float for the points q below, so that
+  // the copies are read at the same local points.
+  const Vec3d ta{2, -1, 0.5}, tb{-3, 0.25, 4};
+  DistanceField alone;
+  alone.buildAnchored(local, tb, voxel, minBand);
+  auto a = std::make_unique<DistanceField>();
+  DistanceField b;
+  a->buildShared(local, ta, voxel, minBand);
+  b.buildShared(local, tb, voxel, minBand);
+  ASSERT_NE(a->grid(), nullptr);
+  EXPECT_EQ(a->grid(), b.grid());
+  EXPECT_NE(alone.grid(), b.grid());
+  EXPECT_EQ(a->anchor(), ta);
+  EXPECT_EQ(b.anchor(), tb);
+  EXPECT_EQ(b.bandWidth(), alone.bandWidth());
+  // Values on a lattice of local points finer than the voxels (x a row at a time, as the
+  // classification reads them), across the band and beyond it: the shared field's are
+  // those of the field built alone, and the copies' agree at the translated points.
+  const auto at = [](float q, double t) { return float(double(q) + t); };
+  int64_t checked = 0, inBand = 0;
+  std::vector<Vec3> row;
+  std::vector<float> da, db, dalone;
+  for (float z = -0.25f; z < 0.85f; z += 1.0f / 32)
+    for (float y = -0.25f; y < 2.25f; y += 1.0f / 16) {
+      row.clear();
+      for (float x = -0.25f; x < 2.25f; x += 1.0f / 128) row.push_back(Vec3(x, y, z));
+      std::vector<Vec3> pa(row.size()), pb(row.size());
+      for (size_t i = 0; i < row.size(); ++i) {
+        pa[i] = Vec3(at(row[i].x, ta.x), at(row[i].y, ta.y), at(row[i].z, ta.z));
+        pb[i] = Vec3(at(row[i].x, tb.x), at(row[i].y, tb.y), at(row[i].z, tb.z));
+      }
+      da.resize(row.size());
+      db.resize(row.size());
+      dalone.resize(row.size());
+      a->distances(pa.data(), pa.size(), da.data());
+      b.distances(pb.data(), pb.size(), db.data());
+      alone.distances(pb.data(), pb.size(), dalone.data());
+      DistanceField::NearestProbe na(*a), nb(b), nalone(alone);
+      for (size_t i = 0; i < row.size(); ++i) {
+        ASSERT_TRUE(sameBits(db[i], dalone[i])) << row[i].x << "," << row[i].y << "," << row[i].z;
+        ASSERT_TRUE(sameBits(da[i], db[i])) << row[i].x << "," << row[i].y << "," << row[i].z;
+        ASSERT_TRUE(sameBits(db[i], b.distance(pb[i])));
+        ASSERT_TRUE(sameBits(nb(pb[i]), nalone(pb[i])));
+        ASSERT_TRUE(sameBits(na(pa[i]), nb(pb[i])));
+        inBand += std::fabs(db[i]) < b.bandWidth();
+        ++checked;
+      }
+    }
+  EXPECT_GT(inBand, checked / 10);
+  EXPECT_LT(inBand, checked);
+  // The grid outlives the field that built it.
+  const float before = b.distance(Vec3(at(1.0f, tb.x), at(0.5f, tb.y), at(0.3f, tb.z)));
+  a.reset();
+  EXPECT_TRUE(sameBits(b.distance(Vec3(at(1.0f, tb.x), at(0.5f, tb.y), at(0.3f, tb.z))), before));
+  DistanceField c;
+  c.buildShared(local, Vec3d{}, voxel, minBand);
+  EXPECT_EQ(c.grid(), b.grid());
+}
+
+TEST(DistanceFieldShared, OnlyTheSameMeshVoxelAndBandShare) {
+  const TriangleMesh local = makeLPrism(0.6f);
+  const float voxel = 0.017f, minBand = 3.3f * voxel;
+  DistanceField f;
+  f.buildShared(local, Vec3d{1, 2, 3}, voxel, minBand);
+  TriangleMesh moved = local;  // one point off by an ulp
+  moved.points[4].x = std::nextafter(moved.points[4].x, 2.0f);
+  TriangleMesh rewound = local;  // one triangle wound the other way
+  std::swap(rewound.indices[1], rewound.indices[2]);
+  DistanceField g, h, i, j;
+  g.buildShared(moved, Vec3d{1, 2, 3}, voxel, minBand);
+  h.buildShared(rewound, Vec3d{1, 2, 3}, voxel, minBand);
+  i.buildShared(local, Vec3d{1, 2, 3}, std::nextafter(voxel, 1.0f), minBand);
+  j.buildShared(local, Vec3d{1, 2, 3}, voxel, 5.3f * voxel);  // a wider band
+  for (const DistanceField* o : {&g, &h, &i, &j}) EXPECT_NE(o->grid(), f.grid());
+}
+
+TEST(DistanceFieldShared, BuildsSideBySideWaitForOneGrid) {
+  const TriangleMesh local = makeIcosphere(3);
+  const float voxel = 0.011f, minBand = 3.3f * voxel;
+  std::vector<DistanceField> fields(4);
+  std::vector<std::thread> threads;
+  for (size_t k = 0; k < fields.size(); ++k)
+    threads.emplace_back([&, k] { fields[k].buildShared(local, Vec3d{double(k), 0, 0}, voxel, minBand); });
+  for (auto& t : threads) t.join();
+  for (const DistanceField& f : fields) {
+    EXPECT_EQ(f.grid(), fields[0].grid());
+    EXPECT_FALSE(f.empty());
+  }
+  EXPECT_TRUE(sameBits(fields[3].distance(Vec3(3.0f, 0.0f, 0.0f)), fields[0].distance(Vec3(0.0f))));
+  EXPECT_LT(fields[0].distance(Vec3(0.0f)), 0.0f);
+}
+
+TEST(AggregateColdBuild, TranslatedCopiesShareTheFieldAndGetTheSameCells) {
+  NoBuildCache off;
+  const EmbreeDevice device = makeEmbreeDevice();
+  // Both copies within [64, 128) on every axis, moved by whole units: every coordinate the
+  // build computes (bounds, cell centres, closest points) rounds alike in both, so the
+  // copies' cells are the same bit for bit.
+  AggregateDesc da = aggregateOf({"L-shape", makeLPrism(0.6f), 0.008f}), db = da;
+  da.xf = Transform::translate(70.0, 80.0, 90.0);
+  db.xf = Transform::translate(100.0, 72.0, 96.0);
+  db.name = "L-shape copy";
+  const auto cellsOf = [](const Aggregate& a) {
+    std::vector<CellClass> c;
+    int64_t n[3];
+    for (int ax = 0; ax < 3; ++ax) n[ax] = int64_t(std::llround((a.bounds().hi[ax] - a.bounds().lo[ax]) / a.cellSize()));
+    for (int64_t k = 0; k < n[2]; ++k)
+      for (int64_t j = 0; j < n[1]; ++j)
+        for (int64_t i = 0; i < n[0]; ++i) c.push_back(a.cellClass(i, j, k));
+    return c;
+  };
+  const auto expectSame = [](const Aggregate& x, const Aggregate& y, const std::vector<CellClass>& cx,
+                             const std::vector<CellClass>& cy) {
+    EXPECT_EQ(x.stats().cells, y.stats().cells);
+    EXPECT_EQ(x.stats().insideCells, y.stats().insideCells);
+    EXPECT_EQ(x.stats().partialCells, y.stats().partialCells);
+    EXPECT_TRUE(sameBits(float(x.stats().approxGrains), float(y.stats().approxGrains)));
+    EXPECT_EQ(x.stats().approxGrains, y.stats().approxGrains);
+    EXPECT_TRUE(sameBits(x.stats().maxInteriorDepth, y.stats().maxInteriorDepth))
+        << x.stats().maxInteriorDepth << " vs " << y.stats().maxInteriorDepth;
+    EXPECT_TRUE(cx == cy);
+  };
+  // The copy built alone (its own grid: no field of that mesh is alive).
+  std::vector<CellClass> aloneCells;
+  AggregateStats aloneStats;
+  {
+    Aggregate alone;
+    alone.build(db, device, {0});
+    aloneCells = cellsOf(alone);
+    aloneStats = alone.stats();
+  }
+  Aggregate a, b;
+  a.build(da, device, {0});
+  b.build(db, device, {0});
+  ASSERT_FALSE(b.stats().fromCache);
+  EXPECT_EQ(a.distanceField().grid(), b.distanceField().grid());
+  const std::vector<CellClass> ca = cellsOf(a), cb = cellsOf(b);
+  expectSame(a, b, ca, cb);
+  EXPECT_EQ(b.stats().insideCells, aloneStats.insideCells);
+  EXPECT_EQ(b.stats().partialCells, aloneStats.partialCells);
+  EXPECT_EQ(b.stats().approxGrains, aloneStats.approxGrains);
+  EXPECT_TRUE(sameBits(b.stats().maxInteriorDepth, aloneStats.maxInteriorDepth));
+  EXPECT_TRUE(cb == aloneCells);
+  EXPECT_GT(b.stats().insideCells, 0);
+  EXPECT_GT(b.stats().partialCells, 0);
+  // The field reads the copy where it stands: the L's notch (local (1.5, 1.5)) is outside,
+  // its arm (local (0.5, 1.5)) inside, at mid-height.
+  EXPECT_GT(b.boundaryDistance(Vec3(101.5f, 73.5f, 96.3f)), 0.0f);
+  EXPECT_LT(b.boundaryDistance(Vec3(100.5f, 73.5f, 96.3f)), 0.0f);
 }
