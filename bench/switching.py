@@ -16,7 +16,7 @@ import tempfile
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
-EXAMPLES = ["sandcastle", "mixture", "macro", "frosted", "snowslab", "sugarcube"]
+EXAMPLES = ["sandcastle", "sandcastle_paper", "mixture", "macro", "frosted", "snowslab", "sugarcube"]
 
 
 def worst(v):
@@ -34,7 +34,7 @@ def rows_of(core, desc, label):
             continue
         k = sw["candidates"].index(sw["chosen"])
         out.append((label, info["name"], sw["chosen"], sw["uses_proxies"], worst(sw["bias"][0]),
-                    worst(sw["bias"][k]), 100 * max(sw["bias_se"][k]), sw["seconds"]))
+                    worst(sw["bias"][k]), 100 * max(sw["bias_se"][k]), sw["seconds"], sw["paths"], sw["events"]))
     return out
 
 
@@ -61,11 +61,11 @@ def main():
                 json.dump(desc, open(path, "w"))
                 rows += rows_of(core, core.load_scene_json(path), name)
     print("| scene | aggregate | visits chosen | proxies | medium after the first grain, bias % | "
-          "after the chosen visits, bias % ± s.e. | measured in s |")
-    print("|---|---|---|---|---|---|---|")
-    for label, agg, k, proxies, b0, bk, se, secs in rows:
+          "after the chosen visits, bias % ± s.e. | paths | walk steps | measured in s |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for label, agg, k, proxies, b0, bk, se, secs, paths, events in rows:
         print(f"| {label} | {agg} | {k} | {'yes' if proxies else 'no'} | {b0:+.1f} | {bk:+.2f} ± {se:.2f} | "
-              f"{secs:.2f} |")
+              f"{paths} | {events:.3g} | {secs:.2f} |")
 
 
 if __name__ == "__main__":

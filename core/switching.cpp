@@ -41,7 +41,9 @@ struct D3 {
 struct Sums {
   D3 a, a2;  // A∞ samples
   D3 d[kSwitchCandidates], d2[kSwitchCandidates];
+  int64_t events = 0;  // walk steps taken (the measurement's cost)
   void add(const Sums& o) {
+    events += o.events;
     a += o.a;
     a2 += o.a2;
     for (int c = 0; c < kSwitchCandidates; ++c) {
@@ -76,11 +78,12 @@ bool scatter(const HomogeneousMedium& med, float t, Vec3& o, Vec3& d, Vec3& w, R
 // The energy a walk in the equivalent medium carries out of the boundary, from o along d
 // (vpt.h's flight and phase sampling; the boundary index-matched, so a ray that leaves
 // may enter again where the boundary is concave).
-Vec3 mediumEscape(const Aggregate& agg, const HomogeneousMedium& med, Vec3 o, Vec3 d, Rng& rng) {
+Vec3 mediumEscape(const Aggregate& agg, const HomogeneousMedium& med, Vec3 o, Vec3 d, Rng& rng, int64_t& events) {
   const float eps = 1e-4f * agg.grainRadius();
   bool inside = agg.insideBoundary(o);
   Vec3 w(1.0f);
   for (int event = 0; event < kMaxWalkEvents; ++event) {
+    ++events;
     // Deep inside, a flight shorter than half the distance field's depth cannot reach
     // the boundary: no ray query (most events of a long walk in nearly clear grains).
     if (inside) {
@@ -154,6 +157,7 @@ void tracePath(const Aggregate& agg, const ProxyTables& tables, const Homogeneou
   GrainHit from;
   bool started = false;
   for (int event = 0; event < kMaxWalkEvents; ++event) {
+    ++sums.events;
     GrainHit h;
     if (!agg.intersectProxy(o, d, 0.0f, kInf, h, started ? &from : nullptr)) {
       escaped += w;  // no grain ahead: the light leaves the aggregate
@@ -179,7 +183,7 @@ void tracePath(const Aggregate& agg, const ProxyTables& tables, const Homogeneou
     // after visit k + 1. The fork's random numbers are its own stream (the path's go on).
     while (forks < kSwitchCandidates && kSwitchVisits[forks] + 1 == visits) {
       Rng forkRng(hashInts(seed, uint64_t(index), uint64_t(forks), 0xf02cULL), 1);
-      fork[forks] = w * mediumEscape(agg, med, o, d, forkRng);
+      fork[forks] = w * mediumEscape(agg, med, o, d, forkRng, sums.events);
       escapedAtFork[forks] = escaped;
       ++forks;
     }
@@ -236,10 +240,11 @@ bool settled(const SwitchMeasure& m, const SwitchOptions& o) {
 
 // Cache record (cache.h: RecordWriter) of a measurement.
 constexpr RecordMagic kMagic = {'G', 'R', 'S', 'W', '\0', '\0', '\0', '\0'};
-constexpr uint32_t kFormatVersion = 2;
+constexpr uint32_t kFormatVersion = 4;
 
 uint64_t recordKey(uint64_t key, const SwitchOptions& o) {
-  return hashInts(key, uint64_t(kFormatVersion), uint64_t(o.paths), o.seed, uint64_t(kSwitchCandidates));
+  return hashInts(key, uint64_t(kFormatVersion), uint64_t(o.paths), o.seed, uint64_t(kSwitchCandidates),
+                  uint64_t(o.eventBudget));
 }
 
 std::vector<char> serialise(const SwitchMeasure& m, uint64_t key) {
@@ -250,6 +255,7 @@ std::vector<char> serialise(const SwitchMeasure& m, uint64_t key) {
   w.putArray(m.bias);
   w.putArray(m.biasSE);
   w.putI64(m.paths);
+  w.putI64(m.events);
   w.putF64(m.seconds);
   return w.finish();
 }
@@ -262,7 +268,7 @@ bool deserialise(const std::vector<char>& in, uint64_t key, SwitchMeasure& m) {
   std::array<Vec3, 2> a;
   m.bias.resize(kSwitchCandidates);
   m.biasSE.resize(kSwitchCandidates);
-  if (!r.getArray(a) || !r.getArray(m.bias) || !r.getArray(m.biasSE) || !r.getI64(m.paths) ||
+  if (!r.getArray(a) || !r.getArray(m.bias) || !r.getArray(m.biasSE) || !r.getI64(m.paths) || !r.getI64(m.events) ||
       !r.getF64(m.seconds) || !r.finish())
     return false;
   m.albedo = a[0];
@@ -289,6 +295,11 @@ bool passes(const SwitchMeasure& m, int c, const SwitchOptions& o) {
 int chooseSwitchVisits(const SwitchMeasure& m, const SwitchOptions& o) {
   for (int c = 0; c < int(m.bias.size()); ++c)
     if (passes(m, c, o)) return kSwitchVisits[c];
+  // None measured well enough (the budget spent on long walks): the first estimate within.
+  SwitchOptions loose = o;
+  loose.precision = kInf;
+  for (int c = 0; c < int(m.bias.size()); ++c)
+    if (passes(m, c, loose)) return kSwitchVisits[c];
   return kSwitchVisits[kSwitchCandidates - 1];
 }
 
@@ -327,9 +338,10 @@ SwitchMeasure measureSwitch(const Aggregate& agg, const ProxyTables& tables, con
     done = end;
     summarise(s, done, m);
     m.visits = chooseSwitchVisits(m, options);
-    if (settled(m, options)) break;
+    if (settled(m, options) || s.events >= options.eventBudget) break;
   }
   m.paths = done;
+  m.events = s.events;
   m.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   if (key) writeCacheFile(name, serialise(m, key));
   return m;

@@ -29,7 +29,9 @@
 // well enough to tell. (A bound |bias_k| + 2 s.e. would be decided by noise in nearly
 // clear grains, whose long walks leave a standard error near the tolerance.) Paths are
 // traced in batches until every candidate before the chosen one is beyond the tolerance
-// by more than its standard error, or options.paths are traced. Walks end by Russian roulette (unbiased; a fork beyond kLongWalk scatterings
+// by more than its standard error, options.paths are traced, or the walks have taken
+// options.eventBudget steps; then, if no candidate is measured to the precision asked,
+// the least whose estimate is within the tolerance is chosen (K when none). Walks end by Russian roulette (unbiased; a fork beyond kLongWalk scatterings
 // survives each at most with 0.95) or after a cap of events (leaks).
 // Deterministic for a seed, whatever the number of threads. With a cacheKey (everything
 // the aggregate, its tables and its medium depend on; 0: no cache) the measurement is
@@ -48,7 +50,8 @@
 namespace granular {
 
 // The proxy visits a measurement tries, in increasing order.
-constexpr int kSwitchVisits[] = {0, 1, 2, 3, 4, 6, 8, 12, 16, 24, 32};
+// Each is a fork of a walk in the medium per path: their number is most of the cost.
+constexpr int kSwitchVisits[] = {0, 1, 2, 4, 8, 16, 32};
 constexpr int kSwitchCandidates = int(sizeof(kSwitchVisits) / sizeof(kSwitchVisits[0]));
 
 struct SwitchOptions {
@@ -56,6 +59,9 @@ struct SwitchOptions {
   uint64_t seed = 1;
   float tolerance = 0.005f;  // relative bias allowed in each channel
   float precision = 1.0f;    // the standard error a choice needs, in tolerances
+  // Walk steps (proxy spheres entered, medium events) after which no batch starts: nearly
+  // clear grains walk hundreds of steps per path.
+  int64_t eventBudget = int64_t(1) << 23;
 };
 
 struct SwitchMeasure {
@@ -63,6 +69,7 @@ struct SwitchMeasure {
   std::vector<Vec3> bias;     // per candidate of kSwitchVisits: mean(S_k − S_K) / mean(S_K)
   std::vector<Vec3> biasSE;   // its standard error
   int64_t paths = 0;          // traced (at most SwitchOptions::paths; fewer once settled)
+  int64_t events = 0;         // walk steps taken
   int visits = kSwitchVisits[kSwitchCandidates - 1];  // the chosen k
   double seconds = 0;
   bool fromCache = false;

@@ -939,6 +939,8 @@ PYBIND11_MODULE(granular_core, m) {
                 d["albedo_se"] = m->albedoSE;
                 d["chosen"] = m->visits;
                 d["seconds"] = m->seconds;
+                d["paths"] = m->paths;
+                d["events"] = m->events;
                 d["from_cache"] = m->fromCache;
               }
               out.append(d);
@@ -948,7 +950,7 @@ PYBIND11_MODULE(granular_core, m) {
           "per aggregate: whether paths go on among proxies after their first grain, the proxy visits (or "
           "explicit bounces without proxies) before the medium, and the measurement they come from (switching.h): "
           "candidates (visits tried), bias and bias_se per candidate (relative, RGB), albedo, chosen, seconds, "
-          "from_cache")
+          "paths, events (walk steps), from_cache")
       .def_static(
           "explicit_bounces_for",
           [](const Vec3& albedo, const Vec3& g, float depthMfp) { return Scene::explicitBouncesFor(albedo, g, depthMfp); },
