@@ -20,7 +20,7 @@ namespace {
 constexpr int kMaxWalkEvents = 1 << 14;  // a walk longer than this ends (roulette ends them far sooner)
 constexpr int kRouletteAfter = 3;        // grain visits or medium scatterings before roulette
 constexpr int kPathsPerBlock = 256;
-constexpr int64_t kBatch = 1 << 12;  // paths between two looks at the decision
+constexpr int64_t kBatch = 1 << 11;  // paths between two looks at the decision
 
 // Per-channel sums in double (millions of samples).
 struct D3 {

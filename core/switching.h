@@ -61,7 +61,7 @@ struct SwitchOptions {
   float precision = 1.0f;    // the standard error a choice needs, in tolerances
   // Walk steps (proxy spheres entered, medium events) after which no batch starts: nearly
   // clear grains walk hundreds of steps per path.
-  int64_t eventBudget = int64_t(1) << 23;
+  int64_t eventBudget = int64_t(1) << 22;
 };
 
 struct SwitchMeasure {
