@@ -77,6 +77,11 @@ class RecordWriter {
   void putU64(uint64_t v) { appendBytes(bytes_, v); }
   void putF32(float v) { appendBytes(bytes_, v); }
   void putF64(double v) { appendBytes(bytes_, v); }
+  // The format version and the entry's key: the first fields of a keyed record.
+  void putHeader(uint32_t version, uint64_t key) {
+    putU32(version);
+    putU64(key);
+  }
   // The elements of a vector or std::array, as their bytes (no count: the reader knows it).
   template <typename Container>
   void putArray(const Container& c) {
@@ -105,6 +110,12 @@ class RecordReader {
   bool getU64(uint64_t& v) { return get(v); }
   bool getF32(float& v) { return get(v); }
   bool getF64(double& v) { return get(v); }
+  // Reads putHeader's fields: true when they are the version and key expected.
+  bool getHeader(uint32_t version, uint64_t key) {
+    uint32_t v = 0;
+    uint64_t k = 0;
+    return getU32(v) && v == version && getU64(k) && k == key;
+  }
   // Fills the vector's or std::array's present elements.
   template <typename Container>
   bool getArray(Container& c) {

@@ -196,8 +196,7 @@ float ProxyTable::meanHitProbability() const {
 
 std::vector<char> serialiseProxyTable(const ProxyTable& t, uint64_t key) {
   RecordWriter w(kMagic);
-  w.putU32(kFormatVersion);
-  w.putU64(key);
+  w.putHeader(kFormatVersion, key);
   for (int v : {t.nb_, t.nmu_, t.nphi_}) w.putI32(int32_t(v));
   w.putI64(t.rays_);
   w.putU64(uint64_t(t.offsets_.size()));
@@ -212,10 +211,9 @@ std::vector<char> serialiseProxyTable(const ProxyTable& t, uint64_t key) {
 
 bool deserialiseProxyTable(const std::vector<char>& in, uint64_t key, ProxyTable& t) {
   RecordReader r(in, kMagic);
-  uint32_t version = 0;
-  uint64_t storedKey = 0, offsets = 0;
+  uint64_t offsets = 0;
   int32_t nb = 0, nmu = 0, nphi = 0;
-  if (!r.getU32(version) || version != kFormatVersion || !r.getU64(storedKey) || storedKey != key) return false;
+  if (!r.getHeader(kFormatVersion, key)) return false;
   if (!r.getI32(nb) || !r.getI32(nmu) || !r.getI32(nphi) || !r.getI64(t.rays_) || !r.getU64(offsets)) return false;
   const size_t nd = size_t(nmu) * size_t(nphi), cells = size_t(nb) * nd;
   // The lengths the counts imply, checked before anything is allocated for them.

@@ -249,8 +249,7 @@ uint64_t recordKey(uint64_t key, const SwitchOptions& o) {
 
 std::vector<char> serialise(const SwitchMeasure& m, uint64_t key) {
   RecordWriter w(kMagic);
-  w.putU32(kFormatVersion);
-  w.putU64(key);
+  w.putHeader(kFormatVersion, key);
   w.putArray(std::array<Vec3, 2>{m.albedo, m.albedoSE});
   w.putArray(m.bias);
   w.putArray(m.biasSE);
@@ -262,9 +261,7 @@ std::vector<char> serialise(const SwitchMeasure& m, uint64_t key) {
 
 bool deserialise(const std::vector<char>& in, uint64_t key, SwitchMeasure& m) {
   RecordReader r(in, kMagic);
-  uint32_t version = 0;
-  uint64_t storedKey = 0;
-  if (!r.getU32(version) || version != kFormatVersion || !r.getU64(storedKey) || storedKey != key) return false;
+  if (!r.getHeader(kFormatVersion, key)) return false;
   std::array<Vec3, 2> a;
   m.bias.resize(kSwitchCandidates);
   m.biasSE.resize(kSwitchCandidates);

@@ -126,8 +126,7 @@ uint64_t cacheKey(const TriangleMesh& mesh, const Material& m, const TTOptions& 
 
 std::vector<char> serialise(const GrainTransport& g, uint64_t key) {
   RecordWriter w(kMagic);
-  w.putU32(kTTFormatVersion);
-  w.putU64(key);
+  w.putHeader(kTTFormatVersion, key);
   for (double v : {g.beta, g.betaSE, g.lambdaDelta, g.lambdaDeltaSE}) w.putF64(v);
   for (const auto* a : {&g.lambdaS, &g.lambdaSSE, &g.albedo, &g.albedoSE, &g.g, &g.gSE}) w.putArray(*a);
   w.putI64(g.rays);
@@ -144,10 +143,8 @@ std::vector<char> serialise(const GrainTransport& g, uint64_t key) {
 bool deserialise(const std::vector<char>& in, uint64_t key, const TTOptions& opt, GrainTransport& g) {
   const int bins = opt.phaseBins;
   RecordReader r(in, kMagic);
-  uint32_t version = 0;
-  uint64_t storedKey = 0;
   int32_t storedBins = 0;
-  if (!r.getU32(version) || !r.getU64(storedKey) || version != kTTFormatVersion || storedKey != key) return false;
+  if (!r.getHeader(kTTFormatVersion, key)) return false;
   for (double* v : {&g.beta, &g.betaSE, &g.lambdaDelta, &g.lambdaDeltaSE})
     if (!r.getF64(*v)) return false;
   for (auto* a : {&g.lambdaS, &g.lambdaSSE, &g.albedo, &g.albedoSE, &g.g, &g.gSE})
