@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cstdio>
 #include <cstring>
 #include <set>
 
@@ -948,7 +949,6 @@ void Scene::setView(const CameraDesc& camera, const RenderSettings& settings) {
 }
 
 void Scene::updateProxyTables() {
-  proxyTables_.clear();
   for (BuiltAggregate& entry : built_) {
     entry.aggregate->prepareProxies();
     if (!entry.proxies) {
@@ -1033,6 +1033,30 @@ void Scene::updateSwitching() {
       explicitBounces_ = std::max(explicitBounces_,
                                   explicitBouncesFor(m.albedo, m.g, depth / std::max(1e-30f, maxComponent(m.lambdaT))));
     }
+}
+
+std::string Scene::lowOrdersText(int a) const {
+  std::string text = useProxies(a) ? (switching_[size_t(a)] ? str("proxies for ", proxyVisits(a), " visits")
+                                                            : str("proxies to bounce ", explicitBounces(a)))
+                     : explicitBounces(a) > 0 ? str("explicit grains to bounce ", explicitBounces(a))
+                                              : std::string();
+  text += text.empty() ? "the medium" : ", then the medium";
+  if (const SwitchMeasure* m = switching_[size_t(a)].get()) {
+    int c = 0;
+    while (kSwitchVisits[c] != m->visits) ++c;
+    auto worst = [](const Vec3& v) {
+      int w = 0;
+      for (int ch = 1; ch < 3; ++ch) w = std::fabs(v[ch]) > std::fabs(v[w]) ? ch : w;
+      return w;
+    };
+    const int w = worst(m->bias[size_t(c)]);
+    char buf[160];
+    // Not whether it came from the disk cache: the words are the same whatever the cache holds.
+    std::snprintf(buf, sizeof buf, " (measured: the medium's bias there %+.2f%% ± %.2f%%, right after the first grain %+.1f%%)",
+                  100.0 * m->bias[size_t(c)][w], 100.0 * m->biasSE[size_t(c)][w], 100.0 * m->bias[0][worst(m->bias[0])]);
+    text += buf;
+  }
+  return text;
 }
 
 int Scene::explicitBouncesFor(const Vec3& albedo, const Vec3& g, float depthMfp) {

@@ -130,6 +130,11 @@ class Scene {
   }
   // Null when not measured (see above).
   const SwitchMeasure* switchMeasure(int aggregate) const { return switching_[size_t(aggregate)].get(); }
+  // What carries the aggregate's low orders after its first grain, in words both front ends
+  // print: "proxies for 8 visits, then the medium (measured: the medium's bias there −0.11%
+  // ± 0.14%, right after the first grain −6.8%)", "explicit grains to bounce 16, then the
+  // medium", "the medium".
+  std::string lowOrdersText(int aggregate) const;
   // Whether proxies make next-event estimation (ppt.h): for every light but domes.
   bool proxyLightSampling() const { return proxyLightSampling_; }
   // size: the grain's bounding radius in units of the aggregate's grain radius.

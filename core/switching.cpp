@@ -55,8 +55,8 @@ struct Sums {
 
 // Russian roulette on a walk's weight: false ends it; else the weight is divided by the
 // survival chance (unbiased).
-bool survive(Vec3& w, Rng& rng, float most = 1.0f) {
-  const float q = std::min(most, maxComponent(w));
+bool survive(Vec3& w, Rng& rng) {
+  const float q = std::min(1.0f, maxComponent(w));
   if (q >= 1.0f) return true;
   if (!(q > 0) || rng.next1D() >= q) return false;
   w /= q;
@@ -84,17 +84,18 @@ Vec3 mediumEscape(const Aggregate& agg, const HomogeneousMedium& med, Vec3 o, Ve
   Vec3 w(1.0f);
   for (int event = 0; event < kMaxWalkEvents; ++event) {
     ++events;
+    float tb;
+    Vec3 ng;
+    if (!inside) {
+      if (!agg.intersectBoundary(o, d, eps, kInf, tb, ng)) return w;  // out, for good
+      o = o + d * tb;
+      inside = true;
+      continue;
+    }
     // Deep inside, a flight shorter than half the distance field's depth cannot reach
     // the boundary: no ray query (most events of a long walk in nearly clear grains).
-    if (inside) {
-      const float t = med.sampleDistance(rng.next1D(), rng.next1D());
-      if (t < -0.5f * agg.boundaryDistance(o)) {
-        if (!scatter(med, t, o, d, w, rng)) return Vec3(0.0f);
-        if (event >= kRouletteAfter && !survive(w, rng)) return Vec3(0.0f);
-        continue;
-      }
-      float tb;
-      Vec3 ng;
+    const float t = med.sampleDistance(rng.next1D(), rng.next1D());
+    if (!(t < -0.5f * agg.boundaryDistance(o))) {
       if (!agg.intersectBoundary(o, d, eps, kInf, tb, ng)) return Vec3(0.0f);  // a leak: the renderer ends it
       if (t >= tb) {
         w *= med.transmittance(tb) / med.survivalProbability(tb);
@@ -102,39 +103,31 @@ Vec3 mediumEscape(const Aggregate& agg, const HomogeneousMedium& med, Vec3 o, Ve
         inside = false;
         continue;
       }
-      if (!scatter(med, t, o, d, w, rng)) return Vec3(0.0f);
-      if (event >= kRouletteAfter && !survive(w, rng)) return Vec3(0.0f);
-      continue;
     }
-    float tb;
-    Vec3 ng;
-    if (!agg.intersectBoundary(o, d, eps, kInf, tb, ng)) return w;  // out, for good
-    o = o + d * tb;
-    inside = true;
+    if (!scatter(med, t, o, d, w, rng)) return Vec3(0.0f);
+    if (event >= kRouletteAfter && !survive(w, rng)) return Vec3(0.0f);
   }
   return Vec3(0.0f);
 }
 
-// Boundary triangles by area: a point uniform on the boundary and its outward normal.
+// Boundary triangles by area (Distribution1D): a point uniform on the boundary and its
+// outward normal.
 struct BoundarySampler {
   const TriangleMesh& mesh;
-  std::vector<double> cdf;
-  explicit BoundarySampler(const TriangleMesh& m) : mesh(m) {
-    double sum = 0;
-    cdf.reserve(m.numTriangles());
-    for (size_t i = 0; i < m.numTriangles(); ++i) {
-      const Vec3 &a = m.points[m.indices[3 * i]], &b = m.points[m.indices[3 * i + 1]],
-                 &c = m.points[m.indices[3 * i + 2]];
-      sum += 0.5 * double(length(cross(b - a, c - a)));
-      cdf.push_back(sum);
-    }
+  Distribution1D byArea;
+  static std::vector<float> areas(const TriangleMesh& m) {
+    std::vector<float> a(m.numTriangles());
+    for (size_t i = 0; i < a.size(); ++i)
+      a[i] = 0.5f * length(cross(m.points[m.indices[3 * i + 1]] - m.points[m.indices[3 * i]],
+                                 m.points[m.indices[3 * i + 2]] - m.points[m.indices[3 * i]]));
+    return a;
   }
+  explicit BoundarySampler(const TriangleMesh& m) : mesh(m), byArea(areas(m)) {}
   void sample(float u, float u1, float u2, Vec3& p, Vec3& n) const {
-    const double x = double(u) * cdf.back();
-    const size_t i = std::min(size_t(std::upper_bound(cdf.begin(), cdf.end(), x) - cdf.begin()), cdf.size() - 1);
+    const size_t i = size_t(byArea.sampleDiscrete(u));
     const Vec3 &a = mesh.points[mesh.indices[3 * i]], &b = mesh.points[mesh.indices[3 * i + 1]],
                &c = mesh.points[mesh.indices[3 * i + 2]];
-    const float s = std::sqrt(u1);
+    const float s = std::sqrt(u1);  // uniform in the triangle
     p = a * (1.0f - s) + b * (s * (1.0f - u2)) + c * (s * u2);
     n = normalize(cross(b - a, c - a));  // outward: build() orients the boundary so
   }
@@ -240,7 +233,7 @@ bool settled(const SwitchMeasure& m, const SwitchOptions& o) {
 
 // Cache record (cache.h: RecordWriter) of a measurement.
 constexpr RecordMagic kMagic = {'G', 'R', 'S', 'W', '\0', '\0', '\0', '\0'};
-constexpr uint32_t kFormatVersion = 4;
+constexpr uint32_t kFormatVersion = 5;
 
 uint64_t recordKey(uint64_t key, const SwitchOptions& o) {
   return hashInts(key, uint64_t(kFormatVersion), uint64_t(o.paths), o.seed, uint64_t(kSwitchCandidates),
@@ -289,6 +282,10 @@ bool passes(const SwitchMeasure& m, int c, const SwitchOptions& o) {
 
 }  // namespace
 
+std::string switchCacheName(uint64_t cacheKey, const SwitchOptions& options) {
+  return str("switch-", std::hex, recordKey(cacheKey, options), ".bin");
+}
+
 int chooseSwitchVisits(const SwitchMeasure& m, const SwitchOptions& o) {
   for (int c = 0; c < int(m.bias.size()); ++c)
     if (passes(m, c, o)) return kSwitchVisits[c];
@@ -306,7 +303,7 @@ SwitchMeasure measureSwitch(const Aggregate& agg, const ProxyTables& tables, con
   if (!(options.tolerance > 0)) throw InputError("switching", "tolerance", str(options.tolerance, " is not > 0"));
   if (!(options.precision > 0)) throw InputError("switching", "precision", str(options.precision, " is not > 0"));
   const uint64_t key = cacheKey ? recordKey(cacheKey, options) : 0;
-  const std::string name = str("switch-", std::hex, key, ".bin");
+  const std::string name = switchCacheName(cacheKey, options);
   if (key) {
     std::vector<char> bytes;
     SwitchMeasure cached;

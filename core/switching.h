@@ -40,6 +40,7 @@
 #pragma once
 
 #include <cstdint>
+#include <string>
 #include <vector>
 
 #include "aggregate.h"
@@ -74,6 +75,9 @@ struct SwitchMeasure {
   double seconds = 0;
   bool fromCache = false;
 };
+
+// The name of a measurement's entry in cacheDirectory().
+std::string switchCacheName(uint64_t cacheKey, const SwitchOptions& options);
 
 // Chooses the visits from bias and biasSE as the contract says.
 int chooseSwitchVisits(const SwitchMeasure& m, const SwitchOptions& o);

@@ -3,15 +3,11 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <iomanip>
-#include <sstream>
 #include <thread>
 #include <vector>
 
 #include "core/denoise.h"
 #include "core/image_io.h"
-#include "core/switching.h"
-#include "pxr/base/gf/vec3f.h"
 #include "pxr/imaging/hd/aov.h"
 #include "pxr/imaging/hd/tokens.h"
 #include "renderBuffer.h"
@@ -285,29 +281,14 @@ VtDictionary HdGranularRenderer::GetStats() const {
     // the medium.
     stats["granular:proxies"] = VtValue(_scene->useProxies());
     stats["granular:explicitBounces"] = VtValue(_scene->explicitBounces());
-    // Per aggregate, as granular render says it (core/switching.h): what carries the low
+    // Per aggregate, in granular render's words (core/switching.h): what carries the low
     // orders after the first grain and the measured bias of the medium there.
     std::string switching;
     int proxyVisits = 0;
     for (size_t a = 0; a < _scene->aggregates().size(); ++a) {
       const int ai = int(a);
-      const granular::SwitchMeasure* m = _scene->switchMeasure(ai);
       if (_scene->useProxies(ai)) proxyVisits = std::max(proxyVisits, _scene->proxyVisits(ai));
-      std::ostringstream line;
-      line << _scene->aggregates()[a]->name() << ": ";
-      if (_scene->useProxies(ai)) line << "proxies for " << _scene->proxyVisits(ai) << " visits, then the medium";
-      else if (_scene->explicitBounces(ai) > 0) line << "explicit grains to bounce " << _scene->explicitBounces(ai);
-      else line << "the medium after the first grain";
-      if (m) {
-        int c = 0;
-        while (granular::kSwitchVisits[c] != m->visits) ++c;
-        const GfVec3f b(m->bias[size_t(c)].x, m->bias[size_t(c)].y, m->bias[size_t(c)].z);
-        int worst = 0;
-        for (int ch = 1; ch < 3; ++ch) worst = std::fabs(b[ch]) > std::fabs(b[worst]) ? ch : worst;
-        line << std::showpos << std::fixed << std::setprecision(2) << " (measured: the medium's bias there "
-             << 100.0f * b[worst] << "%" << std::noshowpos << " ± " << 100.0f * m->biasSE[size_t(c)][worst] << "%)";
-      }
-      switching += (switching.empty() ? "" : "\n") + line.str();
+      switching += (switching.empty() ? "" : "\n") + _scene->aggregates()[a]->name() + ": " + _scene->lowOrdersText(ai);
     }
     stats["granular:proxyVisits"] = VtValue(proxyVisits);
     stats["granular:switching"] = VtValue(switching);

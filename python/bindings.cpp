@@ -951,6 +951,13 @@ PYBIND11_MODULE(granular_core, m) {
           "explicit bounces without proxies) before the medium, and the measurement they come from (switching.h): "
           "candidates (visits tried), bias and bias_se per candidate (relative, RGB), albedo, chosen, seconds, "
           "paths, events (walk steps), from_cache")
+      .def(
+          "low_orders_text", [](const PyScene& s, int a) {
+            if (a < 0 || size_t(a) >= s.scene->aggregates().size()) throw py::index_error("no such aggregate");
+            return s.scene->lowOrdersText(a);
+          },
+          py::arg("aggregate"),
+          "what carries the aggregate's low orders after its first grain, in the words both front ends print")
       .def_static(
           "explicit_bounces_for",
           [](const Vec3& albedo, const Vec3& g, float depthMfp) { return Scene::explicitBouncesFor(albedo, g, depthMfp); },

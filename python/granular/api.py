@@ -68,6 +68,7 @@ def _report(scene, built, media):
         r["mean_free_path"] = [_f32(x) for x in m["mean_free_path"]]
         # What carries this aggregate's low orders before the medium (switching.h).
         r["switching"] = built.switching[k]
+        r["low_orders"] = built.low_orders_text(k)
         out.append(r)
     return out
 
@@ -95,33 +96,10 @@ def report_lines(r):
         f"  diffusion     sigma'_t {_fmt3(rte['sigma_t_reduced'])}, albedo' {_fmt3(rte['albedo_reduced'])}, "
         f"sigma_tr {_fmt3(rte['sigma_tr'])}",
         f"  mean free path {_fmt3(r['mean_free_path'])} (world units, per RGB channel)",
-        "  hybrid        " + (low_orders_text(r["switching"]) if r["media_used_by_renderer"] else
+        "  hybrid        " + ("after the first grain: " + r["low_orders"] if r["media_used_by_renderer"] else
                               "does not use media here: the scene's aggregates are thinner than their mean "
                               "free paths, so EPT renders them"),
     ]
-
-
-def low_orders_text(sw, name=None):
-    """What carries an aggregate's low orders after its first grain, from a Scene.switching entry
-    (core/switching.h), in the words of granular render, granular info and the usdview statistics."""
-    if sw["uses_proxies"]:
-        what = (f"proxies for {sw['proxy_visits']} visits, then the medium" if sw["measured"] else
-                f"proxies to bounce {sw['explicit_bounces']}, then the medium")
-    elif sw["explicit_bounces"] > 0:
-        what = f"explicit grains to bounce {sw['explicit_bounces']}, then the medium"
-    else:
-        what = "the medium"
-    notes = [name] if name else []
-    if sw["measured"]:
-        k = sw["candidates"].index(sw["chosen"])
-        c = max(range(3), key=lambda i: abs(sw["bias"][k][i]))
-        b0 = 100 * max(sw["bias"][0], key=abs)
-        notes.append(f"measured: the medium's bias after {sw['chosen']} visits {100 * sw['bias'][k][c]:+.2f}% ± "
-                     f"{100 * sw['bias_se'][k][c]:.2f}%, after none {b0:+.1f}%"
-                     + (", from the cache" if sw["from_cache"] else ""))
-    elif not name:
-        notes.append("the render setting explicit_bounces")
-    return "after the first grain: " + what + (f" ({'; '.join(notes)})" if notes else "")
 
 
 def export_summary(prim, output, r):

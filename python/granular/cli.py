@@ -413,7 +413,8 @@ def _low_orders(built):
     if not built.has_media:
         level = "proxies" if built.use_proxies else "explicit grains"
         return [f"after the first grain: {level}"]
-    return [api.low_orders_text(sw, info["name"]) for info, sw in zip(built.aggregates, built.switching)]
+    return [f"after the first grain: {built.low_orders_text(a)} — {info['name']}"
+            for a, info in enumerate(built.aggregates)]
 
 
 def _log_transports(args, built, renderer, image):

@@ -113,21 +113,20 @@ TEST(Switching, IsDeterministicCachedAndRecomputesADamagedEntry) {
   EXPECT_EQ(read.visits, stored.visits);
   EXPECT_EQ(read.albedo.y, first.albedo.y);
   for (int k = 0; k < kSwitchCandidates; ++k) EXPECT_EQ(read.bias[size_t(k)].y, first.bias[size_t(k)].y);
-  // A damaged entry is never trusted: every switch-*.bin in the cache (this one's name
-  // holds the key salted by the options) gets a byte flipped.
+  // A damaged entry is never trusted: one byte of this measurement's entry flipped.
   const std::string dir = cacheDirectory();
   ASSERT_FALSE(dir.empty());
-  int damaged = 0;
-  for (const auto& entry : std::filesystem::directory_iterator(dir)) {
-    if (entry.path().filename().string().rfind("switch-", 0) != 0) continue;
-    std::fstream f(entry.path(), std::ios::in | std::ios::out | std::ios::binary);
+  SwitchOptions o;
+  o.paths = paths;
+  const std::filesystem::path entry = std::filesystem::path(dir) / switchCacheName(key, o);
+  ASSERT_TRUE(std::filesystem::exists(entry)) << entry;
+  {
+    std::fstream f(entry, std::ios::in | std::ios::out | std::ios::binary);
     f.seekg(20);
     const char c = char(f.get());
     f.seekp(20);
     f.put(char(c ^ 0x5a));
-    ++damaged;
   }
-  ASSERT_GT(damaged, 0);
   const SwitchMeasure recomputed = measure(*scene, paths, key);
   EXPECT_FALSE(recomputed.fromCache);
   EXPECT_EQ(recomputed.bias[3].x, first.bias[3].x);
