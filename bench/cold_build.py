@@ -6,7 +6,9 @@ run is a process of its own (a fresh cache, the named build's granular_core); th
 the builds are interleaved, so that other jobs on the machine weigh on them alike.
 
 Prints a markdown table of the runs (read, build, their CPU time, peak memory) and one of
-each aggregate's tile packing and distance-field seconds (the median over the runs).
+each aggregate's tile packing, distance-field, set-up and switching-measurement seconds
+(the median over the runs), with the measurement's paths and chosen visits (core/
+switching.h; they are deterministic, so the first run's stand for all).
 
 Usage: .venv/bin/python bench/cold_build.py [--example sandcastle_paper] [--runs 3]
            [--build before=/path/to/old/build --build after=build-cold] [--width 64]
@@ -51,6 +53,11 @@ def child(example, width):
     c2, t2 = time.process_time(), time.monotonic()
     aggregates = [{k: a[k] for k in ("name", "tile_seconds", "sdf_seconds", "setup_seconds", "cells")}
                   for a in built.aggregates]
+    for a, sw in zip(aggregates, built.switching):
+        measured = sw["measured"]
+        a["switch_seconds"] = sw["seconds"] if measured else 0.0
+        a["switch_paths"] = sw["paths"] if measured else 0
+        a["switch_chosen"] = sw["chosen"] if measured else None
     print(json.dumps({"read": t1 - t0, "build": t2 - t1, "read_cpu": c1 - c0, "build_cpu": c2 - c1,
                       "peak_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
                       "module": core.__file__, "aggregates": aggregates}))
@@ -107,22 +114,28 @@ def main():
         print(f"| {label} | {statistics.median(tot):.1f} ({min(tot):.1f}–{max(tot):.1f}) | "
               f"{statistics.median(cpu):.1f} | {max(x['peak_mib'] for x in rs):.0f} |")
 
-    print("\nPer aggregate, medians (s): tile packing / distance field / whole aggregate set-up")
+    print("\nPer aggregate, medians (s): tile packing / distance field / whole aggregate set-up / switching "
+          "measurement, and the measurement's paths and chosen visits")
     names = [x["name"] for x in results[builds[0][0]][0]["aggregates"]]
-    print("| aggregate | cells | " + " | ".join(f"{label}: tile / field / set-up" for label, _ in builds) + " |")
-    print("|---|---|" + "---|" * len(builds))
-    totals = {label: [0.0, 0.0, 0.0] for label, _ in builds}
+    keys = ("tile_seconds", "sdf_seconds", "setup_seconds", "switch_seconds")
+    print("| aggregate | cells | " + " | ".join(f"{label}: tile / field / set-up / switching | paths, visits"
+                                               for label, _ in builds) + " |")
+    print("|---|---|" + "---|---|" * len(builds))
+    totals = {label: [0.0] * len(keys) for label, _ in builds}
     for n in names:
         row = [n, None]
         for label, _ in builds:
             per = [next(g for g in x["aggregates"] if g["name"] == n) for x in results[label]]
             row[1] = per[0]["cells"]
-            vals = [statistics.median(g[k] for g in per) for k in ("tile_seconds", "sdf_seconds", "setup_seconds")]
+            vals = [statistics.median(g.get(k, 0.0) for g in per) for k in keys]
             for i, v in enumerate(vals):
                 totals[label][i] += v
             row.append(" / ".join(f"{v:.2f}" for v in vals))
+            chosen = per[0].get("switch_chosen")
+            row.append("–" if chosen is None else f"{per[0]['switch_paths']}, {chosen}")
         print(f"| {row[0]} | {row[1]:.3g} | " + " | ".join(row[2:]) + " |")
-    print("| sum | | " + " | ".join(" / ".join(f"{v:.2f}" for v in totals[label]) for label, _ in builds) + " |")
+    print("| sum | | " + " | ".join(" / ".join(f"{v:.2f}" for v in totals[label]) + " |"
+                                     for label, _ in builds) + " |")
 
 
 if __name__ == "__main__":

@@ -34,10 +34,11 @@ constexpr double kInfD = std::numeric_limits<double>::infinity();
 constexpr double kMaxPackingRate = 0.64;
 constexpr int kMaxSpheres = 100000;
 
-// Growth rate of the diameter in units of (final diameter) x (thermal speed sqrt(kT/m) = 1):
-// Skoge's dimensionless compression rate gamma with the final diameter as unit length. Faster
-// growth jams at lower densities; this one reaches 0.63 reliably (see the tests).
-constexpr double kGrowthRate = 0.1;
+// Growth rates (TileGrowth) are of the diameter in units of (final diameter) x (thermal speed
+// sqrt(kT/m) = 1): Skoge's dimensionless compression rate gamma with the final diameter as
+// unit length. Faster growth jams at lower densities; the default final rate, 0.1, reaches
+// 0.63 reliably (see the tests). Its fast stage (1.0) stops at f <= 0.5, far below where
+// fast growth jams (growth at 1.0 throughout still reaches 0.6).
 // On jamming, retry from the same initial state with slower growth (denser jammed states).
 constexpr double kSlowdown = 4.0;
 constexpr int kAttempts = 3;
@@ -115,7 +116,6 @@ class LsSystem {
   LsSystem(int n, double dStop, double gamma, uint64_t seed, const std::vector<double>& a = {})
       : n_(n), dStop_(dStop), equal_(a.empty()) {
     g_ = gamma * dStop;
-    tStop_ = dStop_ / g_;
     // Cells at least one final diameter wide (with a margin for rounding), and not many more
     // cells than spheres (tiny targets would otherwise ask for huge grids).
     int nc = int(std::floor(1.0 / (dStop * (1.0 + 1e-9))));
@@ -155,8 +155,10 @@ class LsSystem {
     normaliseKineticEnergy();
   }
 
-  // Runs until the diameter reaches dStop (true) or the packing jams first (false).
-  bool run() {
+  // Runs until the diameter reaches dUntil (<= dStop; true) or the packing jams first (false).
+  bool run(double dUntil) {
+    dUntil_ = dUntil;
+    tStop_ = (dUntil_ - d0_) / g_;
     scheduleAll();
     const uint64_t budget = kEventsPerSphere * uint64_t(n_) + 10000000ull;
     uint64_t events = 0;
@@ -184,7 +186,21 @@ class LsSystem {
       if (++epochCollisions_ >= epochLength && !endEpoch()) return false;
     }
     advanceAll(tStop_);
+    now_ = tStop_;
     return true;
+  }
+
+  // Growth at another rate from now on (between two run()s): the clock restarts at 0 as at
+  // an epoch's end, and a new epoch begins, its pressure from collisions at the new rate.
+  void setRate(double gamma) {
+    advanceAll(now_);
+    d0_ = diameter();
+    now_ = 0;
+    forEachBody([](Body& a) { a.t = 0; });
+    g_ = gamma * dStop_;
+    virial_ = 0;
+    epochCollisions_ = 0;
+    normaliseKineticEnergy();
   }
 
   double diameter() const { return d0_ + g_ * now_; }
@@ -464,7 +480,7 @@ class LsSystem {
     normaliseKineticEnergy();
     d0_ = diameter();
     now_ = 0;
-    tStop_ = (dStop_ - d0_) / g_;
+    tStop_ = (dUntil_ - d0_) / g_;
     forEachBody([](Body& a) { a.t = 0; });
     shrinkToFit();
     scheduleAll();
@@ -488,7 +504,8 @@ class LsSystem {
   static constexpr int kFastSlots = 4;
 
   int n_;
-  double dStop_;
+  double dStop_;        // the final diameter: the rate's unit
+  double dUntil_ = 0;   // the diameter this run() stops at
   bool equal_;         // every sphere of one size
   double g_ = 0;       // diameter growth per unit time
   double d0_ = 0;      // diameter at time 0 of the current epoch
@@ -549,7 +566,8 @@ double minPeriodicGapFast(const Tile& t) {
 
 // Cache record (cache.h: RecordWriter) of a tile.
 constexpr RecordMagic kMagic = {'G', 'R', 'T', 'I', 'L', 'E', '\0', '\0'};
-constexpr uint32_t kTileFormatVersion = 3;  // 2: sizes and classes of polydisperse tiles; 3: stratified sizes
+// 2: sizes and classes of polydisperse tiles; 3: stratified sizes; 4: a fast growth stage.
+constexpr uint32_t kTileFormatVersion = 4;
 static_assert(sizeof(Vec3) == 3 * sizeof(float), "a centre is stored as three floats");
 
 // The tile record's own checksum (byte by byte), older than recordChecksum: kept so that
@@ -681,6 +699,18 @@ double Tile::sauterSize() const {
   return s2 > 0 ? s3 / s2 : 1.0;
 }
 
+TileGrowth TileGrowth::uniform(double rate) {
+  TileGrowth g;
+  g.rate = g.fastRate = rate;
+  return g;
+}
+
+double TileGrowth::fastUntil(double targetF) const {
+  if (!(fastRate > rate)) return 0;
+  const double f = std::min(fastLimit, targetF - fastMargin);
+  return f > 0 ? f : 0;
+}
+
 bool TileSizes::monodisperse() const {
   return classSize.empty() || (classSize.size() == 1 && classSize[0] == 1.0 && spread == 0);
 }
@@ -712,8 +742,11 @@ void checkTileInputs(int n, double targetF, const TileSizes& z) {
 
 }  // namespace
 
-Tile generateTile(int n, double targetF, uint64_t seed, const TileSizes& sizes) {
+Tile generateTile(int n, double targetF, uint64_t seed, const TileSizes& sizes, const TileGrowth& growth) {
   checkTileInputs(n, targetF, sizes);
+  if (!(growth.rate > 0 && growth.fastRate > 0 && std::isfinite(growth.rate) && std::isfinite(growth.fastRate) &&
+        std::isfinite(growth.fastMargin) && std::isfinite(growth.fastLimit)))
+    throw InputError("tile", "growth", str("rates ", growth.rate, " and ", growth.fastRate, " must be finite and > 0"));
   Tile shape;  // sizes and classes, before any position
   if (!sizes.monodisperse()) assignSizes(n, sizes, seed, shape);
   double sumCubes = 0;
@@ -733,10 +766,18 @@ Tile generateTile(int n, double targetF, uint64_t seed, const TileSizes& sizes) 
                      str(n, " sphere(s) cannot reach packing rate ", targetF, ": a sphere would not fit in the tile"));
   auto rateOf = [&](double r) { return (4.0 / 3.0) * kPiD * r * r * r * sumCubes; };
 
-  double gamma = kGrowthRate, jammedAt = 0;
-  for (int attempt = 0; attempt < kAttempts; ++attempt, gamma /= kSlowdown) {
-    LsSystem sys(n, dStop, gamma, seed, rel);
-    if (!sys.run()) {
+  // The fast stage ends at the diameter of its packing rate (f grows as D³).
+  const double fFast = growth.fastUntil(targetF);
+  const double dFast = fFast > 0 ? D * std::cbrt(fFast / targetF) : 0;
+  double rate = growth.rate, fastRate = growth.fastRate, jammedAt = 0;
+  for (int attempt = 0; attempt < kAttempts; ++attempt, rate /= kSlowdown, fastRate /= kSlowdown) {
+    LsSystem sys(n, dStop, dFast > 0 ? fastRate : rate, seed, rel);
+    bool grown = true;
+    if (dFast > 0) {
+      grown = sys.run(dFast);
+      if (grown) sys.setRate(rate);
+    }
+    if (!grown || !sys.run(dStop)) {
       jammedAt = std::max(jammedAt, rateOf(0.5 * sys.diameter() / sMax));
       continue;
     }

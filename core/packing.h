@@ -49,14 +49,33 @@ struct TileSizes {
   static constexpr int kMaxClasses = 255;
 };
 
+// The growth schedule, in Skoge et al. 2006's dimensionless compression rate γ (the diameter
+// grows by γ final diameters per unit time at thermal speed 1): fastRate while the packing
+// rate is below min(fastLimit, target − fastMargin), then rate up to the target. The slow
+// final stage sets the structure; the fast one only brings a fluid of f ≤ 0.5 (below the
+// hard-sphere freezing density, 0.494) up to it, and the slow stage's hundreds of
+// collisions per sphere rearrange what it left (contact numbers and g(r) at contact as
+// those of growth at `rate` throughout, within their scatter over seeds; bench/README.md).
+struct TileGrowth {
+  double rate = 0.1;
+  double fastRate = 1.0;
+  double fastMargin = 0.1;
+  double fastLimit = 0.5;
+  static TileGrowth uniform(double rate);  // no fast stage
+  // The packing rate the fast stage stops at (0: none).
+  double fastUntil(double targetF) const;
+};
+
 // Grows n spheres by LS dynamics until the packing rate reaches targetF; deterministic given
-// seed. Throws InputError("tile", "packingRate", ...) if targetF is outside (0, 0.64] or the
-// spheres jam before reaching it (also after slower retries), InputError("tile", "numSpheres",
+// seed (and growth: tiles are made with the default, tests pin others). Throws InputError("tile", "packingRate", ...) if targetF is outside (0, 0.64] or the
+// spheres jam before reaching it (also after retries with every rate slower),
+// InputError("tile", "growth", ...) for rates <= 0, InputError("tile", "numSpheres",
 // ...) if n < 1 or n > 100000 or n is too small for targetF (a sphere wider than the tile),
 // and std::runtime_error if the event budget runs out (a bug guard, never expected).
 // A class with a weight > 0 gets at least one sphere; InputError("tile", "sizes", ...) for
 // sizes or weights out of range, more classes than spheres or than kMaxClasses.
-Tile generateTile(int n, double targetF, uint64_t seed, const TileSizes& sizes = TileSizes());
+Tile generateTile(int n, double targetF, uint64_t seed, const TileSizes& sizes = TileSizes(),
+                  const TileGrowth& growth = TileGrowth());
 
 // Same, cached on disk (cache.h) under a name keyed by (n, targetF, seed, sizes, format
 // version); an absent, corrupted or short cache entry is ignored and regenerated.

@@ -19,8 +19,20 @@ namespace {
 
 constexpr int kMaxWalkEvents = 1 << 14;  // a walk longer than this ends (roulette ends them far sooner)
 constexpr int kRouletteAfter = 3;        // grain visits or medium scatterings before roulette
-constexpr int kPathsPerBlock = 256;
-constexpr int64_t kBatch = 1 << 11;  // paths between two looks at the decision
+constexpr int kPathsPerBlock = 64;
+// Paths between two looks at the decision: kFirstBatch, kFirstBatch, 2 kFirstBatch, then
+// kBatch. The first looks come early so that a measurement that cannot settle within its
+// budget (long walks in nearly clear grains) learns it after a few hundred paths.
+constexpr int64_t kFirstBatch = 1 << 9, kBatch = 1 << 11;
+int64_t batchAfter(int64_t done) { return done < kBatch ? std::max(kFirstBatch, done) : kBatch; }
+// A candidate beyond the tolerance by this many standard errors stops forking (switching.h):
+// a true bias within the tolerance shows beyond it by 3 s.e. in a channel with a chance of
+// 0.13%.
+constexpr double kDecided = 3.0;
+// A candidate whose standard error, scaled to the most paths left, still exceeds the
+// precision asked by this factor is out of reach (switching.h); the margin covers the
+// noise of a standard error estimated from a few thousand paths.
+constexpr double kOutOfReach = 1.25;
 
 // Per-channel sums in double (millions of samples).
 struct D3 {
@@ -42,8 +54,10 @@ struct Sums {
   D3 a, a2;  // A∞ samples
   D3 d[kSwitchCandidates], d2[kSwitchCandidates];
   int64_t events = 0;  // walk steps taken (the measurement's cost)
+  int64_t forkEvents[kSwitchCandidates] = {};  // those of each candidate's forks
   void add(const Sums& o) {
     events += o.events;
+    for (int c = 0; c < kSwitchCandidates; ++c) forkEvents[c] += o.forkEvents[c];
     a += o.a;
     a2 += o.a2;
     for (int c = 0; c < kSwitchCandidates; ++c) {
@@ -134,8 +148,9 @@ struct BoundarySampler {
 };
 
 // One path: A∞'s sample and each candidate's D_k (switching.h).
+// Candidates not in `forking` (a bit per candidate) are decided: no fork, nothing summed.
 void tracePath(const Aggregate& agg, const ProxyTables& tables, const HomogeneousMedium& med,
-               const BoundarySampler& boundary, uint64_t seed, int64_t index, Sums& sums) {
+               const BoundarySampler& boundary, uint64_t seed, int64_t index, uint32_t forking, Sums& sums) {
   Rng rng(hashInts(seed, uint64_t(index), 0x5717c4ULL), 0);
   Vec3 p, n;
   const float u = rng.next1D(), u1 = rng.next1D(), u2 = rng.next1D();
@@ -175,8 +190,12 @@ void tracePath(const Aggregate& agg, const ProxyTables& tables, const Homogeneou
     // The first visit stands for the renderer's explicit first grain: candidate k forks
     // after visit k + 1. The fork's random numbers are its own stream (the path's go on).
     while (forks < kSwitchCandidates && kSwitchVisits[forks] + 1 == visits) {
-      Rng forkRng(hashInts(seed, uint64_t(index), uint64_t(forks), 0xf02cULL), 1);
-      fork[forks] = w * mediumEscape(agg, med, o, d, forkRng, sums.events);
+      if (forking & (1u << forks)) {
+        Rng forkRng(hashInts(seed, uint64_t(index), uint64_t(forks), 0xf02cULL), 1);
+        const int64_t before = sums.events;
+        fork[forks] = w * mediumEscape(agg, med, o, d, forkRng, sums.events);
+        sums.forkEvents[forks] += sums.events - before;
+      }
       escapedAtFork[forks] = escaped;
       ++forks;
     }
@@ -191,49 +210,67 @@ void tracePath(const Aggregate& agg, const ProxyTables& tables, const Homogeneou
   sums.a += a;
   sums.a2 += a.squared();
   for (int c = 0; c < forks; ++c) {  // paths that ended before fork c add 0
+    if (!(forking & (1u << c))) continue;
     const D3 dc(estimate(c) - last);
     sums.d[c] += dc;
     sums.d2[c] += dc.squared();
   }
 }
 
-// The means and standard errors of n paths' sums (switching.h: bias_k against S_last).
-void summarise(const Sums& s, int64_t count, SwitchMeasure& m) {
-  const double n = double(count);
-  auto stdError = [n](const D3& sum, const D3& sum2, int ch) {
+// The means and standard errors of the sums (switching.h: bias_k against S_last): S_last's
+// over all m.paths, each D_k's over the m.candidatePaths[k] paths that forked it.
+void summarise(const Sums& s, SwitchMeasure& m) {
+  auto stdError = [](const D3& sum, const D3& sum2, int ch, double n) {
     const double mean = sum.v[ch] / n;
     return std::sqrt(std::max(0.0, sum2.v[ch] / n - mean * mean) / (n - 1));
   };
+  const double n = double(m.paths);
   for (int ch = 0; ch < 3; ++ch) {
     m.albedo[ch] = float(s.a.v[ch] / n);
-    m.albedoSE[ch] = float(stdError(s.a, s.a2, ch));
+    m.albedoSE[ch] = float(stdError(s.a, s.a2, ch, n));
   }
   m.bias.assign(kSwitchCandidates, Vec3(0.0f));
   m.biasSE.assign(kSwitchCandidates, Vec3(0.0f));
   for (int c = 0; c < kSwitchCandidates; ++c)
     for (int ch = 0; ch < 3; ++ch) {
-      const double a = std::max(s.a.v[ch] / n, 1e-12);
-      m.bias[size_t(c)][ch] = float(s.d[c].v[ch] / n / a);
-      m.biasSE[size_t(c)][ch] = float(stdError(s.d[c], s.d2[c], ch) / a);
+      const double a = std::max(s.a.v[ch] / n, 1e-12), nc = double(m.candidatePaths[size_t(c)]);
+      m.bias[size_t(c)][ch] = float(s.d[c].v[ch] / nc / a);
+      m.biasSE[size_t(c)][ch] = float(stdError(s.d[c], s.d2[c], ch, nc) / a);
     }
 }
 
+// Candidate c's estimate is beyond the tolerance by more than `errors` standard errors in
+// some channel.
+bool beyond(const SwitchMeasure& m, int c, const SwitchOptions& o, double errors) {
+  for (int ch = 0; ch < 3; ++ch)
+    if (std::fabs(m.bias[size_t(c)][ch]) - errors * m.biasSE[size_t(c)][ch] > o.tolerance) return true;
+  return false;
+}
+
+// Candidate c cannot be measured to the precision asked in `more` paths (its standard
+// error falls as 1/√n).
+bool outOfReach(const SwitchMeasure& m, int c, const SwitchOptions& o, int64_t more) {
+  const double n = double(m.candidatePaths[size_t(c)]), scale = std::sqrt(n / (n + double(more)));
+  for (int ch = 0; ch < 3; ++ch)
+    if (m.biasSE[size_t(c)][ch] * scale > kOutOfReach * o.precision * o.tolerance) return true;
+  return false;
+}
+
 // More paths would not lower the choice: every earlier candidate's estimate is beyond the
-// tolerance by more than its standard error in some channel (the chosen one passes, or is
-// the last).
-bool settled(const SwitchMeasure& m, const SwitchOptions& o) {
-  for (int j = 0; kSwitchVisits[j] < m.visits; ++j) {
-    bool beyond = false;
-    for (int ch = 0; ch < 3; ++ch)
-      beyond = beyond || std::fabs(m.bias[size_t(j)][ch]) - m.biasSE[size_t(j)][ch] > o.tolerance;
-    if (!beyond) return false;
-  }
+// tolerance by more than its standard error in some channel (by kDecided of them before
+// kBatch paths: a look after a few hundred paths would often see one standard error by
+// chance), or out of reach in the `more` paths the measurement may still trace (the chosen
+// one passes, or is the last).
+bool settled(const SwitchMeasure& m, const SwitchOptions& o, int64_t more) {
+  const double errors = m.paths < kBatch ? kDecided : 1.0;
+  for (int j = 0; kSwitchVisits[j] < m.visits; ++j)
+    if (!beyond(m, j, o, errors) && !outOfReach(m, j, o, more)) return false;
   return true;
 }
 
 // Cache record (cache.h: RecordWriter) of a measurement.
 constexpr RecordMagic kMagic = {'G', 'R', 'S', 'W', '\0', '\0', '\0', '\0'};
-constexpr uint32_t kFormatVersion = 5;
+constexpr uint32_t kFormatVersion = 6;  // 6: per-candidate path counts
 
 uint64_t recordKey(uint64_t key, const SwitchOptions& o) {
   return hashInts(key, uint64_t(kFormatVersion), uint64_t(o.paths), o.seed, uint64_t(kSwitchCandidates),
@@ -247,6 +284,7 @@ std::vector<char> serialise(const SwitchMeasure& m, uint64_t key) {
   w.putArray(m.bias);
   w.putArray(m.biasSE);
   w.putI64(m.paths);
+  w.putArray(m.candidatePaths);
   w.putI64(m.events);
   w.putF64(m.seconds);
   return w.finish();
@@ -258,9 +296,12 @@ bool deserialise(const std::vector<char>& in, uint64_t key, SwitchMeasure& m) {
   std::array<Vec3, 2> a;
   m.bias.resize(kSwitchCandidates);
   m.biasSE.resize(kSwitchCandidates);
-  if (!r.getArray(a) || !r.getArray(m.bias) || !r.getArray(m.biasSE) || !r.getI64(m.paths) || !r.getI64(m.events) ||
-      !r.getF64(m.seconds) || !r.finish())
+  m.candidatePaths.resize(kSwitchCandidates);
+  if (!r.getArray(a) || !r.getArray(m.bias) || !r.getArray(m.biasSE) || !r.getI64(m.paths) ||
+      !r.getArray(m.candidatePaths) || !r.getI64(m.events) || !r.getF64(m.seconds) || !r.finish())
     return false;
+  for (int64_t n : m.candidatePaths)
+    if (n < 2 || n > m.paths) return false;
   m.albedo = a[0];
   m.albedoSE = a[1];
   for (size_t c = 0; c < m.bias.size(); ++c)
@@ -317,24 +358,38 @@ SwitchMeasure measureSwitch(const Aggregate& agg, const ProxyTables& tables, con
   agg.prepareProxies();
   const BoundarySampler boundary(agg.boundary());
   SwitchMeasure m;
+  m.candidatePaths.assign(kSwitchCandidates, 0);
   Sums s;
-  int64_t done = 0;
-  while (done < options.paths) {
+  uint32_t forking = (1u << kSwitchCandidates) - 1;
+  while (m.paths < options.paths) {
     // A batch of paths, in blocks summed in order: the same sums whatever the threads.
-    const int64_t end = std::min(options.paths, done + kBatch);
+    const int64_t done = m.paths, end = std::min(options.paths, done + batchAfter(done));
+    const Sums before = s;
     const int64_t blocks = (end - done + kPathsPerBlock - 1) / kPathsPerBlock;
     std::vector<Sums> partial(static_cast<size_t>(blocks));
     tbb::parallel_for(int64_t(0), blocks, [&](int64_t k) {
       for (int64_t i = done + k * kPathsPerBlock; i < std::min(end, done + (k + 1) * kPathsPerBlock); ++i)
-        tracePath(agg, tables, medium, boundary, options.seed, i, partial[size_t(k)]);
+        tracePath(agg, tables, medium, boundary, options.seed, i, forking, partial[size_t(k)]);
     });
     for (const Sums& p : partial) s.add(p);
-    done = end;
-    summarise(s, done, m);
+    m.paths = end;
+    for (int c = 0; c < kSwitchCandidates; ++c)
+      if (forking & (1u << c)) m.candidatePaths[size_t(c)] += end - done;
+    summarise(s, m);
     m.visits = chooseSwitchVisits(m, options);
-    if (settled(m, options) || s.events >= options.eventBudget) break;
+    if (s.events >= options.eventBudget) break;
+    for (int c = 0; c + 1 < kSwitchCandidates; ++c)  // the last one is the reference
+      if (beyond(m, c, options, kDecided)) forking &= ~(1u << c);
+    // The most paths still to come: batches start until the budget is spent (at this
+    // batch's steps per path, less those of the forks just stopped; the last batch may
+    // overrun it) or options.paths are traced.
+    int64_t steps = s.events - before.events;
+    for (int c = 0; c < kSwitchCandidates; ++c)
+      if (!(forking & (1u << c))) steps -= s.forkEvents[c] - before.forkEvents[c];
+    const double perPath = std::max(1.0, double(steps)) / double(end - done);
+    const int64_t more = int64_t(std::ceil(double(options.eventBudget - s.events) / perPath)) + kBatch;
+    if (settled(m, options, std::min(options.paths - m.paths, more))) break;
   }
-  m.paths = done;
   m.events = s.events;
   m.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   if (key) writeCacheFile(name, serialise(m, key));

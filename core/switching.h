@@ -28,11 +28,20 @@
 // tolerance in every channel (K when none is): an estimate within the tolerance, measured
 // well enough to tell. (A bound |bias_k| + 2 s.e. would be decided by noise in nearly
 // clear grains, whose long walks leave a standard error near the tolerance.) Paths are
-// traced in batches until every candidate before the chosen one is beyond the tolerance
-// by more than its standard error, options.paths are traced, or the walks have taken
-// options.eventBudget steps; then, if no candidate is measured to the precision asked,
-// the least whose estimate is within the tolerance is chosen (K when none). Walks end by Russian roulette (unbiased; a fork beyond kLongWalk scatterings
-// survives each at most with 0.95) or after a cap of events (leaks).
+// traced in batches (512, 512, 1024, then 2048 paths). After each, a candidate beyond the
+// tolerance by more than 3 standard errors in some channel is decided (it fails the choice
+// whatever more paths say): it forks no more and keeps the estimate of the paths that
+// forked it (candidatePaths; the reference K forks in every path). Batches go on until
+// every candidate before the chosen one is beyond the tolerance by more than its standard
+// error (3 of them before 2048 paths) or out of reach — its standard error, scaled as 1/√n
+// to the most paths the measurement may still trace (the budget left at the last batch's
+// steps per path, and one batch more; options.paths), above 1.25 · precision · tolerance
+// in some channel, so that it could not pass —, options.paths are traced, or the walks
+// have taken options.eventBudget steps; then, if no candidate is measured to the
+// precision asked, the least whose estimate is within the tolerance is chosen (K when
+// none). A candidate taken for decided or out of reach by chance is passed over: the
+// error is towards more visits (less bias, a slower render).
+// Walks end by Russian roulette (unbiased) or after a cap of events (leaks).
 // Deterministic for a seed, whatever the number of threads. With a cacheKey (everything
 // the aggregate, its tables and its medium depend on; 0: no cache) the measurement is
 // cached on disk (cache.h) and read back instead; the choice is made from it anew (the
@@ -70,6 +79,7 @@ struct SwitchMeasure {
   std::vector<Vec3> bias;     // per candidate of kSwitchVisits: mean(S_k − S_K) / mean(S_K)
   std::vector<Vec3> biasSE;   // its standard error
   int64_t paths = 0;          // traced (at most SwitchOptions::paths; fewer once settled)
+  std::vector<int64_t> candidatePaths;  // per candidate: the paths that forked it (≤ paths)
   int64_t events = 0;         // walk steps taken
   int visits = kSwitchVisits[kSwitchCandidates - 1];  // the chosen k
   double seconds = 0;

@@ -7,6 +7,8 @@
 #include <filesystem>
 #include <fstream>
 
+#include <tbb/task_arena.h>
+
 #include "core/cache.h"
 #include "core/error.h"
 #include "core/scene.h"
@@ -34,6 +36,17 @@ SwitchMeasure measure(const Scene& s, int64_t paths, uint64_t key = 0) {
   SwitchOptions o;
   o.paths = paths;
   return measureSwitch(*s.aggregates()[0], s.proxyTables(0), s.medium(0), o, key);
+}
+
+SwitchMeasure measure(const Scene& s, const SwitchOptions& o) {
+  return measureSwitch(*s.aggregates()[0], s.proxyTables(0), s.medium(0), o);
+}
+
+// Candidate c's estimate is beyond the tolerance by more than `errors` standard errors.
+bool beyondBy(const SwitchMeasure& m, int c, float tolerance, float errors) {
+  for (int ch = 0; ch < 3; ++ch)
+    if (std::fabs(m.bias[size_t(c)][ch]) - errors * m.biasSE[size_t(c)][ch] > tolerance) return true;
+  return false;
 }
 
 void print(const SwitchMeasure& m) {
@@ -111,6 +124,7 @@ TEST(Switching, IsDeterministicCachedAndRecomputesADamagedEntry) {
   const SwitchMeasure read = measure(*scene, paths, key);
   EXPECT_TRUE(read.fromCache);
   EXPECT_EQ(read.visits, stored.visits);
+  EXPECT_EQ(read.candidatePaths, stored.candidatePaths);
   EXPECT_EQ(read.albedo.y, first.albedo.y);
   for (int k = 0; k < kSwitchCandidates; ++k) EXPECT_EQ(read.bias[size_t(k)].y, first.bias[size_t(k)].y);
   // A damaged entry is never trusted: one byte of this measurement's entry flipped.
@@ -130,6 +144,75 @@ TEST(Switching, IsDeterministicCachedAndRecomputesADamagedEntry) {
   const SwitchMeasure recomputed = measure(*scene, paths, key);
   EXPECT_FALSE(recomputed.fromCache);
   EXPECT_EQ(recomputed.bias[3].x, first.bias[3].x);
+}
+
+TEST(Switching, DecidedCandidatesStopForkingAndKeepTheirEstimate) {
+  // The IOR 2.4 ball with a tolerance of 3% and a precision of a tenth of it: the medium
+  // right after the first grain is about 6% off, decided once its standard error is below
+  // 1%, while the candidates after one or two visits (2–3% off) are still measured; it
+  // stops forking, they and the reference fork in every path. A candidate that stopped was
+  // beyond by 3 standard errors of its own paths (it can never be chosen), and is before
+  // the chosen one.
+  auto scene = ballScene(2.4f, Vec3(0.05f));
+  SwitchOptions o;
+  o.paths = 1 << 16;
+  o.tolerance = 0.03f;
+  o.precision = 0.1f;
+  const SwitchMeasure m = measure(*scene, o);
+  print(m);
+  ASSERT_EQ(m.candidatePaths.size(), size_t(kSwitchCandidates));
+  EXPECT_EQ(m.candidatePaths.back(), m.paths);
+  int stopped = 0;
+  for (int c = 0; c < kSwitchCandidates; ++c) {
+    EXPECT_LE(m.candidatePaths[size_t(c)], m.paths);
+    if (m.candidatePaths[size_t(c)] == m.paths) continue;
+    ++stopped;
+    EXPECT_TRUE(beyondBy(m, c, o.tolerance, 3.0f)) << c;
+    EXPECT_LT(kSwitchVisits[c], m.visits) << c;
+  }
+  EXPECT_GT(stopped, 0);
+  std::printf("%lld paths; per candidate:", (long long)m.paths);
+  for (int64_t n : m.candidatePaths) std::printf(" %lld", (long long)n);
+  std::printf("\n");
+}
+
+TEST(Switching, IsTheSameWhateverTheThreads) {
+  auto scene = ballScene(2.4f, Vec3(0.05f));
+  SwitchOptions o;
+  o.paths = 1 << 13;
+  o.precision = 0.25f;  // several batches, some candidates stopped
+  const SwitchMeasure many = measure(*scene, o);
+  tbb::task_arena one(1);
+  const SwitchMeasure single = one.execute([&] { return measure(*scene, o); });
+  EXPECT_EQ(single.paths, many.paths);
+  EXPECT_EQ(single.events, many.events);
+  EXPECT_EQ(single.candidatePaths, many.candidatePaths);
+  for (int c = 0; c < kSwitchCandidates; ++c) {
+    EXPECT_EQ(single.bias[size_t(c)].x, many.bias[size_t(c)].x);
+    EXPECT_EQ(single.biasSE[size_t(c)].z, many.biasSE[size_t(c)].z);
+  }
+}
+
+TEST(Switching, EndsEarlyWhenNoCandidateCanReachThePrecision) {
+  // A precision no candidate but the reference can reach in options.paths: the measurement
+  // ends after its first batch with the reference chosen, instead of tracing every path.
+  auto scene = ballScene(1.55f, Vec3(0.1f));
+  SwitchOptions o;
+  o.paths = 1 << 14;
+  o.precision = 0.02f;
+  const SwitchMeasure m = measure(*scene, o);
+  print(m);
+  EXPECT_LT(m.paths, o.paths);
+  EXPECT_EQ(m.visits, kSwitchVisits[kSwitchCandidates - 1]);
+  // Each candidate before it: decided, or its standard error, scaled as 1/√n to all of
+  // options.paths, above the precision asked.
+  for (int c = 0; c + 1 < kSwitchCandidates; ++c) {
+    bool outOfReach = false;
+    const float scale = std::sqrt(float(m.candidatePaths[size_t(c)]) / float(o.paths));
+    for (int ch = 0; ch < 3; ++ch)
+      outOfReach = outOfReach || m.biasSE[size_t(c)][ch] * scale > o.precision * o.tolerance;
+    EXPECT_TRUE(outOfReach || beyondBy(m, c, o.tolerance, 3.0f)) << c;
+  }
 }
 
 TEST(Switching, OptionsOutOfRangeAreRefused) {
