@@ -112,7 +112,8 @@ bool physicalSunSetting(HdRenderDelegate* d) {
 // The shutter the image is blurred over, in time codes about the frame (HdCamera's, as
 // USD's shutter:open and shutter:close): the camera's, or the instant (0, 0) when motion blur
 // is off (render setting granular:motionBlur false, or the active UsdRenderSettings'
-// disableMotionBlur, as granular render --no-motion-blur and its reading of the prim).
+// disableMotionBlur or instantaneousShutter as far as Hydra shows them: renderSettings.h;
+// as granular render --no-motion-blur and its reading of the prim).
 GfVec2d shutterOf(HdCamera const* camera, HdRenderDelegate* d, HdRenderIndex* index) {
   if (!camera || !setting<bool>(d, HdGranularSettingsTokens->motionBlur, true) || HdGranularMotionBlurDisabled(index))
     return GfVec2d(0.0);

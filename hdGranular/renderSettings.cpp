@@ -3,9 +3,12 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <optional>
 
 #include "pxr/base/tf/diagnostic.h"
 #include "pxr/base/tf/getenv.h"
+#include "pxr/imaging/hd/dataSource.h"
+#include "pxr/imaging/hd/dataSourceTypeDefs.h"
 #include "pxr/imaging/hd/renderIndex.h"
 #include "pxr/imaging/hd/sceneDelegate.h"
 #include "pxr/imaging/hd/sceneIndex.h"
@@ -80,11 +83,46 @@ granular::PixelWindow HdGranularDataWindow(HdRenderIndex* index, int width, int 
   return all.value_or(whole);
 }
 
+namespace {
+
+// The scene-index UsdImaging keeps, beside what it flattens for Hydra, each settings prim's
+// and product's own UsdRender attributes (a product's only where authored; UsdImaging's
+// dataSourceRenderPrims.cpp): disableMotionBlur and instantaneousShutter, which
+// HdRenderSettings drops, resolved there as granular render resolves them
+// (usd_reader._motion_blur_disabled, after UsdRenderComputeSpec). Nothing (the legacy
+// UsdImagingDelegate, another host): no such data.
+std::optional<bool> usdImagingMotionBlurDisabled(HdSceneIndexBaseRefPtr const& si, SdfPath const& settings) {
+  static const TfToken settingsKey("__usdRenderSettings"), productKey("__usdRenderProduct"),
+      products("products"), disableMotionBlur("disableMotionBlur"), instantaneousShutter("instantaneousShutter");
+  auto attributes = [&](SdfPath const& path, TfToken const& key) -> HdContainerDataSourceHandle {
+    HdSceneIndexPrim prim = si->GetPrim(path);
+    return prim.dataSource ? HdContainerDataSource::Cast(prim.dataSource->Get(key)) : nullptr;
+  };
+  auto flag = [](HdContainerDataSourceHandle const& c, TfToken const& name) -> std::optional<bool> {
+    if (HdBoolDataSourceHandle b = HdBoolDataSource::Cast(c->Get(name))) return b->GetTypedValue(0);
+    return std::nullopt;
+  };
+  HdContainerDataSourceHandle own = attributes(settings, settingsKey);
+  if (!own) return std::nullopt;
+  bool disabled = flag(own, disableMotionBlur).value_or(false) || flag(own, instantaneousShutter).value_or(false);
+  if (HdPathArrayDataSourceHandle targets = HdPathArrayDataSource::Cast(own->Get(products)))
+    for (SdfPath const& target : targets->GetTypedValue(0))
+      if (HdContainerDataSourceHandle product = attributes(target, productKey)) {  // the first product
+        disabled = flag(product, disableMotionBlur).value_or(disabled) ||
+                   flag(product, instantaneousShutter).value_or(false);
+        break;
+      }
+  return disabled;
+}
+
+}  // namespace
+
 bool HdGranularMotionBlurDisabled(HdRenderIndex* index) {
   SdfPath active;
   if (!index->IsBprimTypeSupported(HdPrimTypeTokens->renderSettings) ||
       !HdUtils::HasActiveRenderSettingsPrim(index->GetTerminalSceneIndex(), &active) || active.IsEmpty())
     return false;
+  if (std::optional<bool> d = usdImagingMotionBlurDisabled(index->GetTerminalSceneIndex(), active)) return *d;
   auto* rs = dynamic_cast<HdRenderSettings*>(index->GetBprim(HdPrimTypeTokens->renderSettings, active));
   return rs && !rs->GetRenderProducts().empty() && rs->GetRenderProducts().front().disableMotionBlur;
 }

@@ -53,7 +53,10 @@ granular::PixelWindow HdGranularDataWindow(HdRenderIndex* index, int width, int 
 
 // UsdRenderSettings' disableMotionBlur of the active render settings prim, as granular
 // render reads it: its first render product's (Hydra flattens the settings prim's value
-// into each product); false when there is no active prim or it has no product.
+// into each product); false when there is no active prim or it has no product. OpenUSD
+// 24.08's HdRenderSettings shows nothing else: the settings prim's value without a product
+// and instantaneousShutter are read only where the scene-index UsdImaging leaves its copies
+// of the prims' attributes in the terminal scene index (README.md).
 bool HdGranularMotionBlurDisabled(HdRenderIndex* index);
 
 PXR_NAMESPACE_CLOSE_SCOPE

@@ -3,6 +3,11 @@
 //   granular-render SCENE.json -o OUT.exr [--png OUT.png] [--spp N] [--width W]
 //                   [--height H] [--seed S] [--threads T] [--exposure E] [--quiet]
 //                   [--technique ept|ept+vpt|hybrid] [--roulette P_a] [--lod L] [--stats-json FILE]
+//                   [--no-motion-blur]
+//
+// --no-motion-blur renders the frame's instant, as the render setting "motion_blur": false
+// (and `granular render --no-motion-blur`): the camera's shutter closed, moving grains and
+// meshes still.
 //
 // --stats-json writes one JSON object: build_s, render_s, spp, technique, pa,
 // lod_fraction, has_media, nonfinite_samples (samples dropped as NaN/Inf), nonfinite_values
@@ -32,7 +37,9 @@ void usage() {
                "usage: granular-render SCENE.json -o OUT.exr [--png OUT.png] [--spp N] [--width W] [--height H]\n"
                "                       [--seed S] [--threads T] [--exposure E] [--quiet]\n"
                "                       [--technique ept|ept+vpt|hybrid] [--roulette P_a (negative: tuned)]\n"
-               "                       [--lod L (default 0.5; 0: off)] [--stats-json FILE]\n");
+               "                       [--lod L (default 0.5; 0: off)] [--stats-json FILE]\n"
+               "                       [--no-motion-blur (the frame's instant: the camera's shutter closed, moving\n"
+               "                        grains and meshes still, as the render setting \"motion_blur\": false)]\n");
 }
 
 long parseInt(const char* flag, const char* v, long lo, long hi) {
@@ -49,7 +56,7 @@ int main(int argc, char** argv) {
   long spp = -1, width = -1, height = -1, threads = -1;
   long long seed = -1;
   float exposure = 0;
-  bool quiet = false;
+  bool quiet = false, motionBlur = true;
   std::string technique, statsPath;
   float roulette = 0, lod = -1;
   return runTool([&] {
@@ -68,6 +75,7 @@ int main(int argc, char** argv) {
       else if (a == "--threads") threads = parseInt("--threads", next(), 0, 1024);
       else if (a == "--exposure") exposure = std::strtof(next(), nullptr);
       else if (a == "--quiet") quiet = true;
+      else if (a == "--no-motion-blur") motionBlur = false;
       else if (a == "--technique") technique = next();
       else if (a == "--lod") lod = std::strtof(next(), nullptr);
       else if (a == "--stats-json") statsPath = next();
@@ -88,6 +96,10 @@ int main(int argc, char** argv) {
     if (!technique.empty()) desc.settings.technique = techniqueFromName(technique, "command line --technique");
     if (roulette != 0) desc.settings.roulette = roulette;
     if (lod >= 0) desc.settings.lod = lod;
+    if (!motionBlur) {  // as loadSceneJson reads "motion_blur": false
+      desc.camera.shutterOpen = desc.camera.shutterClose = 0;
+      for (MeshDesc& m : desc.meshes) m.shutterXf.reset();
+    }
 
     auto scene = Scene::build(desc);
     if (!quiet) {

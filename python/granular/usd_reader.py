@@ -661,8 +661,8 @@ def _mesh_motion(scene, time):
 
 
 def still_frame(desc):
-    """No motion blur (--no-motion-blur, UsdRender's disableMotionBlur): the camera's shutter
-    closed at the frame's instant, every mesh still at its transform."""
+    """No motion blur (--no-motion-blur, UsdRender's disableMotionBlur or instantaneousShutter):
+    the camera's shutter closed at the frame's instant, every mesh still at its transform."""
     desc.camera.shutter_open = desc.camera.shutter_close = 0.0
     meshes = list(desc.meshes)
     if any(m.shutter_xf is not None for m in meshes):
@@ -672,16 +672,25 @@ def still_frame(desc):
 
 
 def _motion_blur_disabled(settings):
-    """UsdRender's disableMotionBlur as Hydra flattens it: the settings prim's first render
-    product's where authored there, else the settings prim's."""
-    targets = UsdRender.Settings(settings).GetProductsRel().GetForwardedTargets()
-    product = settings.GetStage().GetPrimAtPath(targets[0]) if targets else None
-    for prim in (product, settings):
-        if prim and prim.IsA(UsdRender.SettingsBase):
-            attr = UsdRender.SettingsBase(prim).GetDisableMotionBlurAttr()
-            if attr.HasAuthoredValue():
-                return bool(attr.Get())
-    return False
+    """UsdRender's disableMotionBlur as UsdRenderComputeSpec flattens it for Hydra: the
+    settings prim's first render product's where authored there, else the settings prim's.
+    The deprecated instantaneousShutter, true on either, turns blur off as well, as
+    UsdRenderComputeSpec means it to ("for backwards-compatibility"; the schema's text closes
+    the shutter at its open instead: the same image when the shutter opens at the frame).
+    OpenUSD 24.08's HdRenderSettings shows neither the settings prim's value without a product
+    nor instantaneousShutter (what hdGranular does then: hdGranular/README.md)."""
+    def authored(attr):
+        return bool(attr.Get()) if attr.HasAuthoredValue() else None
+    products = [p for p in (settings.GetStage().GetPrimAtPath(t)
+                            for t in UsdRender.Settings(settings).GetProductsRel().GetForwardedTargets())
+                if p and p.IsA(UsdRender.Product)]
+    own = UsdRender.SettingsBase(settings)
+    disabled = bool(authored(own.GetDisableMotionBlurAttr()) or authored(own.GetInstantaneousShutterAttr()))
+    if products:
+        product = UsdRender.SettingsBase(products[0])
+        override = authored(product.GetDisableMotionBlurAttr())
+        disabled = (disabled if override is None else override) or bool(authored(product.GetInstantaneousShutterAttr()))
+    return disabled
 
 
 def _is_light(prim):

@@ -7,6 +7,15 @@ show (the blurred image differs from the still frame far beyond that noise); and
 render settings' disableMotionBlur must give the still frame in both. The stage runs at 48
 time codes per second: transform blur is in time codes, so the rate must not matter.
 
+Two more switches: the deprecated instantaneousShutter (here on the product) and
+disableMotionBlur on a settings prim without products. granular render gives the still
+frame for both. OpenUSD 24.08's HdRenderSettings shows neither to a render delegate, so
+under usdrecord's default UsdImagingDelegate the image stays blurred (checked, so that an
+OpenUSD that lets them through is noticed and the READMEs updated); under the scene-index
+UsdImaging (USDIMAGINGGL_ENGINE_ENABLE_SCENE_INDEX=1) hdGranular reads them from UsdImaging's
+own copies of the attributes and gives the still frame (hdGranular/README.md). Noise is
+judged by noise_check.py (tests/python) from granular render's variance AOV.
+
 Usage: usdrecord_motion_blur.py USDRECORD GRANULAR COMPARE OUTDIR
 (USDRECORD runs with the OpenUSD build's Python, $GRANULAR_USD_PYTHONPATH and
 $GRANULAR_HD_PLUGINPATH; GRANULAR is the venv's command; COMPARE is
@@ -20,68 +29,27 @@ import sys
 import numpy as np
 
 import granular_core as core
-from pxr import Gf, Usd, UsdGeom, UsdLux, UsdRender
 
 from usdrecord_run import run_usdrecord
 from usdrecord_vs_granular import mean_tolerance
 
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
+import motion_blur_stage  # noqa: E402
+from noise_check import block_chi2, noise_limit, rgb_and_variance  # noqa: E402
+
 WIDTH, HEIGHT, SPP = 48, 32, 16  # 36 x 24 aperture; 16: the delegate's default samples per pixel
 
 
-def write_stage(path, disable=False, outdir=None):
-    """Floor, a box sliding 1.2 units and turning 45 degrees per frame about frame 1, a dome;
-    the camera's shutter open over [-0.5, 0.5] frames. With `disable`, an active render
-    settings prim (with one product, through which Hydra hands the value on) says
-    disableMotionBlur."""
-    stage = Usd.Stage.CreateNew(path)
-    stage.SetTimeCodesPerSecond(48)
-    stage.SetStartTimeCode(1)
-    stage.SetEndTimeCode(1)
-    UsdGeom.Xform.Define(stage, "/World")
-    cam = UsdGeom.Camera.Define(stage, "/World/Camera")
-    cam.CreateFocalLengthAttr(35.0)
-    cam.CreateHorizontalApertureAttr(36.0)
-    cam.CreateVerticalApertureAttr(24.0)
-    cam.CreateClippingRangeAttr(Gf.Vec2f(0.01, 100))
-    cam.CreateShutterOpenAttr(-0.5)
-    cam.CreateShutterCloseAttr(0.5)
-    cam.AddTranslateOp().Set(Gf.Vec3d(0, 1.2, 3.2))
-    cam.AddRotateXOp().Set(-20.0)
-    UsdLux.DomeLight.Define(stage, "/World/Sky").CreateIntensityAttr(1.0)
-    UsdLux.DistantLight.Define(stage, "/World/Sun").CreateIntensityAttr(2.0)
+def write_stage(path, settings=None, product=None, outdir=None):
+    """motion_blur_stage.write_stage's box at 48 time codes per second, its product (if any)
+    written to OUTDIR/product_<stage>.exr."""
+    return motion_blur_stage.write_stage(path, 48, (-0.5, 0.5), settings, product,
+                                         product_path(path, outdir) if product is not None else None,
+                                         resolution=(WIDTH, HEIGHT))
 
-    def box(name, lo, hi, color):
-        m = UsdGeom.Mesh.Define(stage, name)
-        pts = [Gf.Vec3f(hi[0] if i & 1 else lo[0], hi[1] if i & 2 else lo[1], hi[2] if i & 4 else lo[2])
-               for i in range(8)]
-        faces = [(0, 4, 6, 2), (1, 3, 7, 5), (0, 1, 5, 4), (2, 6, 7, 3), (0, 2, 3, 1), (4, 5, 7, 6)]
-        m.CreatePointsAttr(pts)
-        m.CreateFaceVertexCountsAttr([4] * 6)
-        m.CreateFaceVertexIndicesAttr([i for f in faces for i in f])
-        m.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-        m.CreateDisplayColorAttr([Gf.Vec3f(*color)])
-        return m
-    box("/World/Floor", (-3, -0.1, -3), (3, 0, 3), (0.5, 0.5, 0.5))
-    mover = box("/World/Box", (-0.35, 0, -0.35), (0.35, 0.7, 0.35), (0.9, 0.3, 0.1))
-    translate, rotate = mover.AddTranslateOp(), mover.AddRotateYOp()
-    for t, x, angle in ((0, -1.2, 0.0), (2, 1.2, 90.0)):
-        translate.Set(Gf.Vec3d(x, 0, 0), t)
-        rotate.Set(angle, t)
-    if disable:
-        settings = UsdRender.Settings.Define(stage, "/Render/Settings")
-        settings.CreateResolutionAttr(Gf.Vec2i(WIDTH, HEIGHT))
-        settings.CreateCameraRel().SetTargets(["/World/Camera"])
-        settings.CreateDisableMotionBlurAttr(True)
-        product = UsdRender.Product.Define(stage, "/Render/Main")
-        product.CreateProductNameAttr(os.path.join(outdir, "product_disabled.exr"))
-        var = UsdRender.Var.Define(stage, "/Render/Vars/color")
-        var.CreateSourceNameAttr("color")
-        var.CreateDataTypeAttr("color4f")
-        product.CreateOrderedVarsRel().SetTargets([var.GetPath()])
-        settings.CreateProductsRel().SetTargets([product.GetPath()])
-        stage.SetMetadata("renderSettingsPrimPath", "/Render/Settings")
-    stage.GetRootLayer().Save()
-    return path
+
+def product_path(stage_path, outdir):
+    return os.path.join(outdir, "product_" + os.path.splitext(os.path.basename(stage_path))[0] + ".exr")
 
 
 def block_difference(a, b):
@@ -100,34 +68,44 @@ def main():
     env["PYTHONPATH"] = os.environ.get("GRANULAR_USD_PYTHONPATH", "")
     env["PXR_PLUGINPATH_NAME"] = os.environ.get("GRANULAR_HD_PLUGINPATH", "")
     moving = write_stage(os.path.join(outdir, "moving.usda"))
-    disabled = write_stage(os.path.join(outdir, "disabled.usda"), disable=True, outdir=outdir)
-    # Frame 1 of each (usdrecord and --frames name files by a run of '#').
+    disabled = write_stage(os.path.join(outdir, "disabled.usda"), {"disableMotionBlur": True}, {}, outdir)
+    instantaneous = write_stage(os.path.join(outdir, "instantaneous.usda"), {}, {"instantaneousShutter": True}, outdir)
+    no_product = write_stage(os.path.join(outdir, "no_product.usda"), {"disableMotionBlur": True})
+    # Frame 1 of each (usdrecord and --frames name files by a run of '#'). hydra_*: usdrecord's
+    # default UsdImagingDelegate; si_*: the scene-index UsdImaging.
     out = {k: os.path.join(outdir, k + ".1.exr") for k in
-           ("hydra", "hydra_disabled", "ours", "ours_seed1", "ours_still", "ours_still_seed1", "ours_disabled")}
+           ("hydra", "hydra_disabled", "hydra_instantaneous", "hydra_no_product", "si", "si_disabled",
+            "si_instantaneous", "si_no_product", "ours", "ours_seed1", "ours_still", "ours_still_seed1",
+            "ours_disabled", "ours_instantaneous", "ours_no_product")}
 
-    def record(stage, image, *extra):
+    def record(stage, image, scene_index=False):
+        # With a render product usdrecord leaves the image to it (the delegate writes it
+        # when the render converges); without one it writes its own.
+        with_product = stage in (disabled, instantaneous)
+        written = product_path(stage, outdir) if with_product else os.path.join(outdir, "hydra_image.1.exr")
+        settings = ["--renderSettingsPrimPath", "/Render/Settings"] if stage != moving else []
         run_usdrecord([usdrecord, "--disableGpu", "--renderer", "Granular", "--enableDomeLightVisibility",
-                       "--imageWidth", str(WIDTH), "--camera", "/World/Camera", "--frames", "1", *extra, stage,
-                       os.path.join(outdir, "hydra_image.#.exr")], [image], env=env)
-        if image != out["hydra"]:
-            return
-        os.replace(os.path.join(outdir, "hydra_image.1.exr"), image)
+                       "--imageWidth", str(WIDTH), "--camera", "/World/Camera", "--frames", "1", *settings, stage,
+                       os.path.join(outdir, "hydra_image.#.exr")], [written],
+                      env=dict(env, USDIMAGINGGL_ENGINE_ENABLE_SCENE_INDEX="1" if scene_index else "0"))
+        os.replace(written, image)
 
     def render(stage, image, seed=0, *extra):
         subprocess.run([granular, "render", stage, "-o", image.replace(".1.exr", ".#.exr"), "--width", str(WIDTH), "--height", str(HEIGHT),
                         "--spp", str(SPP), "--seed", str(seed), "--camera", "/World/Camera", "--frames", "1",
                         "--quiet", *extra], check=True)
 
-    record(moving, out["hydra"])
-    # With a render settings prim, usdrecord leaves the image to its product (the delegate
-    # writes it when the render converges).
-    out["hydra_disabled"] = os.path.join(outdir, "product_disabled.exr")
-    record(disabled, out["hydra_disabled"], "--renderSettingsPrimPath", "/Render/Settings")
+    for prefix, scene_index in (("hydra", False), ("si", True)):
+        record(moving, out[prefix], scene_index)
+        for stage, name in ((disabled, "_disabled"), (instantaneous, "_instantaneous"), (no_product, "_no_product")):
+            record(stage, out[prefix + name], scene_index)
     render(moving, out["ours"])
     render(moving, out["ours_seed1"], 1)
     render(moving, out["ours_still"], 0, "--no-motion-blur")
     render(moving, out["ours_still_seed1"], 1, "--no-motion-blur")
     render(disabled, out["ours_disabled"])
+    render(instantaneous, out["ours_instantaneous"])
+    render(no_product, out["ours_no_product"])
 
     def cmp(a, b):
         return json.loads(subprocess.run([compare, out[a], out[b]], check=True, capture_output=True,
@@ -142,16 +120,40 @@ def main():
         tol = mean_tolerance(out[ref], out[other])
         print(f"| {test} vs {ref} | {r['bias']:+.5f} | {tol:.5f} | {r['relmse']:.3g} | {noise['relmse']:.3g} |")
         failed |= abs(r["bias"]) > tol or r["relmse"] > noise["relmse"]
-    # disableMotionBlur read by granular render: the still frame's description, bit for bit.
-    r = cmp("ours_disabled", "ours_still")
-    print(f"| ours_disabled vs ours_still | {r['bias']:+.5f} | 0 | {r['relmse']:.3g} | |")
-    failed |= r["relmse"] != 0
+    # The switches read by granular render: the still frame's description, bit for bit.
+    for test in ("ours_disabled", "ours_instantaneous", "ours_no_product"):
+        r = cmp(test, "ours_still")
+        print(f"| {test} vs ours_still | {r['bias']:+.5f} | 0 | {r['relmse']:.3g} | |")
+        failed |= r["relmse"] != 0
     # The blur shows: over 4 x 4 pixel blocks (where the noise averages down and the smear
     # does not), the still frame differs from the blurred one far more than two seeds do
     # (without blur the two differences would have the same expectation; measured 12x).
     blur, noise = block_difference(out["ours_still"], out["ours"]), block_difference(out["ours_seed1"], out["ours"])
     print(f"| ours_still vs ours, 4x4 blocks | | | {blur:.3g} | {noise:.3g} |")
     failed |= not blur > 4 * noise
+
+    # The same by standard errors (noise_check.py): each Hydra image against granular render's
+    # still frame and blurred one at another seed, both sides given the variance AOV of
+    # granular render's image (the same estimator at the same samples). Switched off, Hydra's
+    # image is the still one within noise and the blurred one beyond it; instantaneousShutter
+    # and a settings prim without products do not reach the delegate through the
+    # UsdImagingDelegate: blurred there (hdGranular/README.md).
+    still, blurred = rgb_and_variance(out["ours_still_seed1"]), rgb_and_variance(out["ours_seed1"])
+    print("\n| Hydra image | switched off in Hydra | chi2 vs still | chi2 vs blurred | terms | noise limit |")
+    print("|---|---|---|---|---|---|")
+    for name, off in (("hydra_disabled", True), ("hydra", False), ("hydra_instantaneous", False),
+                      ("hydra_no_product", False), ("si_disabled", True), ("si", False), ("si_instantaneous", True),
+                      ("si_no_product", True)):
+        rgb = np.asarray(core.read_image_rgb(out[name]).pixels, dtype=np.float64)[..., :3]
+        vs_still, m = block_chi2(rgb, still[1], *still)
+        vs_blurred, m_blurred = block_chi2(rgb, blurred[1], *blurred)
+        limit = noise_limit(min(m, m_blurred))
+        print(f"| {name} | {off} | {vs_still:.1f} | {vs_blurred:.1f} | {m} | {limit:.1f} |")
+        near, far = (vs_still, vs_blurred) if off else (vs_blurred, vs_still)
+        if not (near < noise_limit(m if off else m_blurred) and far > noise_limit(m_blurred if off else m)):
+            failed = True
+            if name in ("hydra_instantaneous", "hydra_no_product") and near > far:
+                print(f"{name}: Hydra now turns motion blur off here: update README.md and hdGranular/README.md")
     return 1 if failed else 0
 
 

@@ -24,20 +24,10 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdRender, Vt  # noqa: E402
 
 from granular import schema  # noqa: E402
 from granular.cli import main as cli_main  # noqa: E402
+from motion_blur_stage import add_mesh  # noqa: E402,F401  (the tests' mesh from core's)
 
 EXAMPLES = ROOT / "examples"
 GRANULAR = Path(sys.executable).parent / "granular"
-
-
-def add_mesh(stage, path, tri, translate=None):
-    m = UsdGeom.Mesh.Define(stage, path)
-    m.CreatePointsAttr(Vt.Vec3fArray([Gf.Vec3f(*map(float, p)) for p in tri.points]))
-    idx = [int(i) for i in tri.indices]
-    m.CreateFaceVertexIndicesAttr(Vt.IntArray(idx))
-    m.CreateFaceVertexCountsAttr(Vt.IntArray([3] * (len(idx) // 3)))
-    if translate is not None:
-        UsdGeom.Xformable(m).AddTranslateOp().Set(Gf.Vec3d(*translate))
-    return m
 
 
 def dome_world(path):
