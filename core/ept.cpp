@@ -177,6 +177,8 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
   // Inside a grain after this bounce when the new direction heads into it.
   path.inGrain = hit.kind == Hit::Grain && dot(wi, hit.ng) < 0;
   path.from.aggregate = hit.kind == Hit::Grain ? hit.aggregate : -1;
+  path.from.instancer = hit.kind == Hit::Grain ? hit.instancer : -1;
+  path.from.instance = hit.kind == Hit::Grain ? hit.instance : -1;
   if (hit.kind == Hit::Grain) {
     path.from.grain = hit.grain;
     path.from.inside = path.inGrain;
@@ -224,7 +226,8 @@ void eptStep(const Scene& scene, PathState& path) {
       // ray goes on from there): only the medium can sample the sun (Scene::narrowSun).
       // A grain of the surface layer may stick out of the boundary: the path then enters
       // the medium where its ray crosses the boundary.
-      if (scene.narrowSun() && hit.aggregate >= 0 && scene.useProxies(hit.aggregate)) {
+      if (scene.narrowSun() && ((hit.aggregate >= 0 && scene.useProxies(hit.aggregate)) ||
+                                (hit.instancer >= 0 && scene.instancedProxies(hit.instancer)))) {
         // Proxies reach any sun: the path goes on among them from here, where the first
         // sphere it enters is met as a proxy — the first grain, so not a visit after it.
         path.mode = path.credit = kPpt;

@@ -405,15 +405,15 @@ bool InstancedGrains::traceGrain(int64_t i, const Vec3& o, const Vec3& d, float 
   return true;
 }
 
-bool InstancedGrains::walk(const Vec3& o, const Vec3& d, float tmin, float tmax, float time, bool anyHit,
-                           InstancedGrainHit& hit) const {
-  if (list_.empty() || !(tmin <= tmax)) return false;
+template <class Visit>
+void InstancedGrains::forCellsAlong(const Vec3& o, const Vec3& d, float tmin, float tmax, Visit&& visit) const {
+  if (list_.empty() || !(tmin <= tmax)) return;
   Bounds3 grid;
   grid.lo = origin_;
   grid.hi = origin_ + Vec3(float(n_[0]), float(n_[1]), float(n_[2])) * cell_;
   const Vec3 invD(1.0f / d.x, 1.0f / d.y, 1.0f / d.z);
   float t0, t1;
-  if (!grid.intersect(o, invD, tmin, tmax, t0, t1)) return false;
+  if (!grid.intersect(o, invD, tmin, tmax, t0, t1)) return;
   const Vec3 p = o + d * t0;
   int64_t c[3], step[3];
   float tNext[3], tDelta[3];
@@ -433,16 +433,12 @@ bool InstancedGrains::walk(const Vec3& o, const Vec3& d, float tmin, float tmax,
       tDelta[a] = kInf;
     }
   }
-  float best = tmax;
-  bool found = false;
-  // Grains already traced on this ray (a grain is listed by every cell it overlaps; best
-  // only shrinks, so a second trace cannot find anything new).
-  uint32_t recent[8];
-  int nRecent = 0, cursor = 0;
   uint64_t lastKey = kEmptyKey;
   int64_t block = -1;
+  float tEnter = -kInf;  // the first cell holds whatever lies before the grid's entry
   for (;;) {
     const float tExit = std::min(tNext[0], std::min(tNext[1], tNext[2]));
+    const bool last = tExit >= t1;
     const uint64_t key = blockKey(c[0], c[1], c[2]);
     if (key != lastKey) {
       block = findBlock(key);
@@ -450,26 +446,119 @@ bool InstancedGrains::walk(const Vec3& o, const Vec3& d, float tmin, float tmax,
     }
     if (block >= 0) {
       const size_t cell = size_t(block) * kBlockCells + size_t(localCell(c[0], c[1], c[2]));
-      for (uint32_t k = starts_[cell]; k < starts_[cell + 1]; ++k) {
-        const uint32_t g = list_[k];
-        if (std::find(recent, recent + nRecent, g) != recent + nRecent) continue;
-        recent[cursor] = g;
-        cursor = (cursor + 1) & 7;
-        nRecent = std::min(nRecent + 1, 8);
-        if (traceGrain(g, o, d, tmin, best, time, hit)) {
-          best = hit.t;
-          found = true;
-          if (anyHit) return true;
-        }
-      }
+      if (!visit(starts_[cell], starts_[cell + 1], tEnter, last ? kInf : tExit)) return;
+    } else if (!visit(0u, 0u, tEnter, last ? kInf : tExit)) {
+      return;
     }
-    if ((found && best <= tExit) || tExit >= t1) break;
+    if (last) return;
     const int a = tNext[0] < tNext[1] ? (tNext[0] < tNext[2] ? 0 : 2) : (tNext[1] < tNext[2] ? 1 : 2);
     c[a] += step[a];
-    if (c[a] < 0 || c[a] >= n_[a]) break;
+    if (c[a] < 0 || c[a] >= n_[a]) return;
+    tEnter = tExit;
     tNext[a] += tDelta[a];
   }
+}
+
+bool InstancedGrains::walk(const Vec3& o, const Vec3& d, float tmin, float tmax, float time, bool anyHit,
+                           InstancedGrainHit& hit) const {
+  float best = tmax;
+  bool found = false;
+  // Grains already traced on this ray (a grain is listed by every cell it overlaps; best
+  // only shrinks, so a second trace cannot find anything new).
+  uint32_t recent[8];
+  int nRecent = 0, cursor = 0;
+  forCellsAlong(o, d, tmin, tmax, [&](uint32_t k0, uint32_t k1, float, float tExit) {
+    for (uint32_t k = k0; k < k1; ++k) {
+      const uint32_t g = list_[k];
+      if (std::find(recent, recent + nRecent, g) != recent + nRecent) continue;
+      recent[cursor] = g;
+      cursor = (cursor + 1) & 7;
+      nRecent = std::min(nRecent + 1, 8);
+      if (traceGrain(g, o, d, tmin, best, time, hit)) {
+        best = hit.t;
+        found = true;
+        if (anyHit) return false;
+      }
+    }
+    return !(found && best <= tExit);
+  });
   return found;
+}
+
+namespace {
+
+// Where an object-space ray enters grain g's bounding sphere: its t (tmin when it starts
+// inside), or false when it misses the sphere or leaves it before tmin; b2: the squared
+// impact parameter over the squared radius.
+bool enterSphere(const InstancedGrain& g, const Vec3& o, const Vec3& d, float a, float tmin, float& t, float& b2) {
+  const Vec3 oc = o - g.center;
+  const float b = dot(oc, d), c = dot(oc, oc) - g.radius * g.radius;
+  const float w2 = std::max(0.0f, dot(oc, oc) - b * b / a);  // squared distance of the line from the centre
+  const float disc = b * b - a * c;
+  if (!(disc >= 0)) return false;
+  const float sq = std::sqrt(disc);
+  if ((-b + sq) / a <= tmin) return false;
+  t = std::max((-b - sq) / a, tmin);
+  b2 = std::min(1.0f, w2 / (g.radius * g.radius));
+  return true;
+}
+
+}  // namespace
+
+bool InstancedGrains::intersectProxy(const Vec3& o, const Vec3& d, float tmin, float tmax, int64_t skip,
+                                     InstancedGrain& grain, float& t, float time) const {
+  if (!traceable(o, d, tmin, tmax)) return false;
+  const Vec3 ol = identity_ ? o : inv_.point(o), dl = identity_ ? d : inv_.vector(d);
+  const float a = dot(dl, dl);
+  const float when = motionSpan_ > 0 ? time : 0.0f;
+  float best = tmax;
+  bool found = false;
+  forCellsAlong(ol, dl, tmin, tmax, [&](uint32_t k0, uint32_t k1, float, float tExit) {
+    for (uint32_t k = k0; k < k1; ++k) {
+      if (int64_t(list_[k]) == skip) continue;
+      const InstancedGrain g = this->grain(list_[k], when);
+      float te, b2;
+      if (enterSphere(g, ol, dl, a, tmin, te, b2) && te < best) {
+        best = te;
+        grain = g;
+        found = true;
+      }
+    }
+    return !(found && best <= tExit);
+  });
+  if (found) t = best;
+  return found;
+}
+
+float InstancedGrains::proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax, int64_t skip,
+                                          const std::function<float(const InstancedGrain&, float)>& hitChance,
+                                          uint64_t seed, float time) const {
+  if (!traceable(o, d, tmin, tmax)) return 1.0f;
+  const Vec3 ol = identity_ ? o : inv_.point(o), dl = identity_ ? d : inv_.vector(d);
+  const float a = dot(dl, dl);
+  const float when = motionSpan_ > 0 ? time : 0.0f;
+  float tr = 1.0f;
+  uint64_t draws = 0;
+  // Each sphere counts once: in the cell where the ray enters it (every cell a sphere
+  // touches lists it; the cells' ranges of t do not overlap).
+  forCellsAlong(ol, dl, tmin, tmax, [&](uint32_t k0, uint32_t k1, float tEnter, float tExit) {
+    for (uint32_t k = k0; k < k1; ++k) {
+      if (int64_t(list_[k]) == skip) continue;
+      const InstancedGrain g = this->grain(list_[k], when);
+      float te, b2;
+      if (!enterSphere(g, ol, dl, a, tmin, te, b2) || te >= tmax || te < tEnter || te >= tExit) continue;
+      tr *= 1.0f - hitChance(g, std::sqrt(b2));
+      if (tr < kProxyRoulette) {  // Russian roulette: deep rays end early, unbiased
+        if (!(tr > 0) || toUnitFloat(hashInts(seed, draws++)) * kProxyRoulette >= tr) {
+          tr = 0;
+          return false;
+        }
+        tr = kProxyRoulette;
+      }
+    }
+    return true;
+  });
+  return std::max(0.0f, tr);
 }
 
 bool InstancedGrains::intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, InstancedGrainHit& hit,

@@ -105,6 +105,19 @@ class InstancedGrains {
   bool occluded(const Vec3& o, const Vec3& d, float tmin, float tmax, float time = 0) const;
   void forEachGrain(const Bounds3& box, const std::function<void(const InstancedGrain&)>& fn) const;
 
+  // Proxies (proxy.h, ppt.h): the grains' bounding spheres at their positions. intersectProxy()
+  // finds the nearest sphere the world-space ray enters (t: where, tmin when it starts inside
+  // one) other than grain `skip` (the one it leaves; -1: none); grain in object space.
+  // proxyTransmittance() is the chance that the ray meets no grain of the spheres it enters
+  // before tmax: the product of 1 − hitChance(grain, b) over them (b: the impact parameter
+  // over the radius), each counted once; below kProxyRoulette by Russian roulette from seed.
+  bool intersectProxy(const Vec3& o, const Vec3& d, float tmin, float tmax, int64_t skip, InstancedGrain& grain,
+                      float& t, float time = 0) const;
+  float proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax, int64_t skip,
+                           const std::function<float(const InstancedGrain&, float)>& hitChance, uint64_t seed,
+                           float time = 0) const;
+  static constexpr float kProxyRoulette = 0.05f;
+
   InstancedGrain grain(int64_t i, float time = 0) const;
   // A brute-force reference over every grain (tests, benchmarks): intersect()'s answer.
   bool intersectAll(const Vec3& o, const Vec3& d, float tmin, float tmax, InstancedGrainHit& hit,
@@ -122,6 +135,11 @@ class InstancedGrains {
   bool traceGrain(int64_t i, const Vec3& o, const Vec3& d, float tmin, float tmax, float time,
                   InstancedGrainHit& hit) const;
   bool walk(const Vec3& o, const Vec3& d, float tmin, float tmax, float time, bool anyHit, InstancedGrainHit& hit) const;
+  // Visits the cells along an object-space ray front to back (3-D DDA): visit(k0, k1,
+  // tEnter, tExit) with the cell's list list_[k0, k1) and its range of t (the first from
+  // −∞, the last to +∞); returns false to stop.
+  template <class Visit>
+  void forCellsAlong(const Vec3& o, const Vec3& d, float tmin, float tmax, Visit&& visit) const;
   // How far grain i's bounding sphere can move within motionSpan_ (0 when still).
   // The index of a block in starts_ (times the cells per block), or -1 when unoccupied.
   int64_t findBlock(uint64_t key) const;

@@ -29,16 +29,22 @@ void scatter(const Scene& scene, PathState& path, const Hit& hit, const ProxyTab
   own.aggregate = hit.aggregate;
   own.grain = g;
   own.inside = false;
+  own.instancer = hit.instancer;
+  own.instance = hit.instance;
   const auto& lights = scene.lights();
   // Next-event estimation where light can still arrive: a shadow ray from deep inside
   // crosses about depth / λ grains, so it is made with probability q = exp(−depth / 4R),
   // at least kMinNeeChance, and weighted 1/q (unbiased; depth from the distance field).
   // Domes alone are found as well by sampling the table (their light arrives from every
   // side): no shadow rays (q = 0; MIS then gives sampling the whole weight).
+  // An instancer's grains have no distance field: always (q = 1).
   float q = 0;
   if (scene.proxyLightSampling()) {
-    const float depth = std::max(0.0f, -scene.aggregates()[size_t(hit.aggregate)]->boundaryDistance(g.center));
-    q = std::max(kMinNeeChance, std::exp(-depth / (4.0f * g.radius)));
+    q = 1.0f;
+    if (hit.aggregate >= 0) {
+      const float depth = std::max(0.0f, -scene.aggregates()[size_t(hit.aggregate)]->boundaryDistance(g.center));
+      q = std::max(kMinNeeChance, std::exp(-depth / (4.0f * g.radius)));
+    }
   }
   if (!lights.empty() && q > 0 && (q >= 1.0f || path.rng.next1D() < q)) {
     const float lightPick = lightPickProb(scene) * q;
@@ -91,15 +97,18 @@ void scatter(const Scene& scene, PathState& path, const Hit& hit, const ProxyTab
 }  // namespace
 
 bool entersProxies(const Scene& scene, const PathState& path) {
-  return path.mode == kEpt && path.alive && !path.inGrain && path.from.aggregate >= 0 &&
-         scene.useProxies(path.from.aggregate);
+  return path.mode == kEpt && path.alive && !path.inGrain &&
+         ((path.from.aggregate >= 0 && scene.useProxies(path.from.aggregate)) ||
+          (path.from.instancer >= 0 && scene.instancedProxies(path.from.instancer)));
 }
 
 bool lowOrdersDone(const Scene& scene, const PathState& path) {
   const int set = scene.settings().explicitBounces;
   if (set >= 0) return path.depth >= set;
-  const int a = path.from.aggregate;
-  if (path.mode == kPpt) return path.proxyVisits >= scene.proxyVisits(a);
+  const int a = path.from.aggregate, i = path.from.instancer;
+  const bool instanced = a < 0 && i >= 0 && scene.instancedProxies(i);
+  if (path.mode == kPpt) return path.proxyVisits >= (instanced ? scene.instancedProxyVisits(i) : scene.proxyVisits(a));
+  if (instanced) return scene.instancedProxyVisits(i) == 0;
   if (a >= 0 && scene.useProxies(a)) return scene.proxyVisits(a) == 0;
   return path.depth >= scene.explicitBounces(a);
 }
@@ -111,17 +120,22 @@ void pptStep(const Scene& scene, PathState& path) {
   }
   for (int crossing = 0; crossing < kMaxCrossings; ++crossing) {
     Hit hit;
-    const bool found = scene.intersectProxies(path.ray, hit, path.from.aggregate >= 0 ? &path.from : nullptr);
+    const bool starts = path.from.aggregate >= 0 || path.from.instancer >= 0;
+    const bool found = scene.intersectProxies(path.ray, hit, starts ? &path.from : nullptr);
     path.cost[0] += 1;
     if (endsAtLight(scene, path, found, hit)) return;
-    if (hit.kind == Hit::Surface) {
+    if (hit.kind != Hit::Proxy) {  // a surface, or an explicit grain of an instancer without proxies
       shadeSurface(scene, path, hit, false);
       break;
     }
     const GrainHit& g = hit.grain;
     const ProxyFrame frame(path.ray.d, (hit.p - g.center) / g.radius);
     const ProxyTable& table =
-        scene.proxyTable(hit.aggregate, g.prototype, g.radius / scene.aggregates()[size_t(hit.aggregate)]->grainRadius());
+        hit.aggregate >= 0
+            ? scene.proxyTable(hit.aggregate, g.prototype,
+                               g.radius / scene.aggregates()[size_t(hit.aggregate)]->grainRadius())
+            : scene.instancedProxyTable(hit.instancer, g.prototype,
+                                        scene.instancedGrains()[size_t(hit.instancer)]->grain(hit.instance).scale);
     const int b = table.bBin(frame.b);
     if (path.rng.next1D() < table.hitProbability(b)) {
       scatter(scene, path, hit, table, frame, b);
@@ -133,6 +147,8 @@ void pptStep(const Scene& scene, PathState& path) {
     path.from.aggregate = hit.aggregate;
     path.from.grain = g;
     path.from.inside = false;
+    path.from.instancer = hit.instancer;
+    path.from.instance = hit.instance;
   }
   // The level-of-detail shortcut leaves for the medium after the low orders (ept.h).
   if (path.shortcut && path.alive && scene.hasMedia() && lowOrdersDone(scene, path)) {

@@ -19,6 +19,9 @@
 // leaves PPT for the media at the hybrid's switch (hybrid.h) or, when it took the
 // level-of-detail shortcut, at once, both once lowOrdersDone() (below).
 // Radiance goes to PathState::L[kPpt] (the AOV ppt.*), a low-order part as EPT's is.
+// The same for an instancer's grains (Scene::instancedProxies): spheres at the simulation's
+// positions (InstancedGrains::intersectProxy, proxyTransmittance), NEE at every visit (no
+// distance field to say how deep a grain lies).
 #pragma once
 
 #include "path_state.h"

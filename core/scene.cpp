@@ -107,12 +107,17 @@ bool hasEmissiveSurface(const SceneDesc& desc) {
 // Any grain a smooth dielectric (prototypes without a material are the default glass);
 // rough ones connect to delta lights like any non-delta surface.
 bool hasSmoothDielectricGrains(const SceneDesc& desc) {
+  auto smooth = [&](int material) {
+    if (material < 0) return true;
+    const MaterialDesc& m = desc.materials[size_t(material)];
+    return m.type == MaterialType::Dielectric && alphaFromRoughness(m.roughness) == 0;
+  };
   for (const auto& a : desc.aggregates)
-    for (const auto& p : a.prototypes) {
-      if (p.material < 0) return true;
-      const MaterialDesc& m = desc.materials[p.material];
-      if (m.type == MaterialType::Dielectric && alphaFromRoughness(m.roughness) == 0) return true;
-    }
+    for (const auto& p : a.prototypes)
+      if (smooth(p.material)) return true;
+  for (const auto& g : desc.instancedGrains)
+    for (const auto& p : g.prototypes)
+      if (smooth(p.material)) return true;
   return false;
 }
 
@@ -495,6 +500,7 @@ void Scene::buildInstancedGrains(const SceneDesc& desc, int defaultGrain, const 
         entry.worldScale = b.worldScale;
         entry.bounds = b.bounds;
         entry.medium = b.medium;  // null when built for EPT: made below if needed
+        entry.proxies = b.proxies;  // they depend on the prototypes, materials and scales alone
         break;
       }
     if (!entry.grains) {
@@ -704,39 +710,29 @@ std::string Scene::widenedSunsWarning() const {
              "delta light (set its angle to choose another size)");
 }
 
-bool Scene::intersectSurfaces(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax, bool mediaMode) const {
+bool Scene::intersectSurfaces(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax, bool mediaMode,
+                              bool proxyMode) const {
   bool found = intersectMeshes(ray, invD, hit, tmax);
-  if (!instanced_.empty()) found |= intersectInstancedGrains(ray, invD, hit, tmax, mediaMode);
+  if (!instanced_.empty()) found |= intersectInstancedGrains(ray, invD, hit, tmax, mediaMode, proxyMode);
   return found;
 }
 
-bool Scene::intersectInstancedGrains(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax, bool mediaMode) const {
+bool Scene::intersectInstancedGrains(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax, bool mediaMode,
+                                     bool proxyMode) const {
   float t0, t1;
   if (!instancedBounds_.intersect(ray.o, invD, ray.tmin, tmax, t0, t1)) return false;
   bool found = false;
   for (size_t i = 0; i < instanced_.size(); ++i) {
     const BuiltInstanced& b = builtInstanced_[i];
     if (mediaMode && b.medium) continue;  // the media see its medium instead
+    if (proxyMode && instancedProxies_[i]) continue;  // its proxies instead
     if (!b.bounds.intersect(ray.o, invD, ray.tmin, tmax, t0, t1)) continue;
     InstancedGrainHit g;
     if (!b.grains->intersect(ray.o, ray.d, ray.tmin, tmax, g, ray.time) || !(g.t < tmax)) continue;
     found = true;
     tmax = g.t;
-    hit.kind = Hit::Grain;
-    hit.t = g.t;
-    hit.ng = g.ng;
-    hit.aggregate = -1;
-    hit.instancer = int(i);
-    hit.instance = g.grain;
-    hit.material = b.materials[size_t(g.prototype)];
-    hit.lengthScale = b.lengthScale[size_t(g.prototype)];
-    hit.primId = b.id;
-    hit.eps = kGrainEps * g.radius * b.worldScale;
-    hit.grain = GrainHit();
-    hit.grain.t = g.t;
-    hit.grain.ng = g.ng;
-    hit.grain.prototype = g.prototype;
-    hit.grain.radius = g.radius * b.worldScale;
+    instancedHit(Hit::Grain, int(i), g.grain, g.prototype, g.t, g.radius * b.worldScale, hit);
+    hit.ng = hit.grain.ng = g.ng;
     hit.grain.prim = g.prim;
   }
   return found;
@@ -862,16 +858,14 @@ Scene::HitIdentity Scene::identify(const Hit& hit) const {
   switch (hit.kind) {
     case Hit::Surface: return meshIdentity_[size_t(hit.geom)];
     case Hit::Grain:
-      if (hit.instancer >= 0) {
-        HitIdentity id = instancedIdentity_[size_t(hit.instancer)];
-        id.instanceId = hit.instance <= std::numeric_limits<int>::max() ? int(hit.instance) : -1;
-        if (hit.material >= 0 && size_t(hit.material) < materialCryptomatte_.size())
-          id.cryptomatte[1] = materialCryptomatte_[size_t(hit.material)];
-        return id;
-      }
-      [[fallthrough]];
     case Hit::Proxy: {
-      HitIdentity id = aggregateIdentity_[size_t(hit.aggregate)];
+      HitIdentity id;
+      if (hit.instancer >= 0) {
+        id = instancedIdentity_[size_t(hit.instancer)];
+        id.instanceId = hit.instance <= std::numeric_limits<int>::max() ? int(hit.instance) : -1;
+      } else {
+        id = aggregateIdentity_[size_t(hit.aggregate)];
+      }
       if (hit.material >= 0 && size_t(hit.material) < materialCryptomatte_.size())
         id.cryptomatte[1] = materialCryptomatte_[size_t(hit.material)];
       return id;
@@ -893,12 +887,31 @@ void Scene::finishHit(const Ray& ray, Hit& hit) const {
   if (hit.kind == Hit::Surface) hit.eps = std::max(hit.eps, 1e-5f * coordScale);
 }
 
+void Scene::instancedHit(Hit::Kind kind, int i, int64_t instance, int prototype, float t, float radius,
+                         Hit& hit) const {
+  const BuiltInstanced& b = builtInstanced_[size_t(i)];
+  hit.kind = kind;
+  hit.t = t;
+  hit.aggregate = -1;
+  hit.instancer = i;
+  hit.instance = instance;
+  hit.material = b.materials[size_t(prototype)];
+  hit.lengthScale = b.lengthScale[size_t(prototype)];
+  hit.primId = b.id;
+  hit.eps = kGrainEps * radius;
+  hit.grain = GrainHit();
+  hit.grain.t = t;
+  hit.grain.prototype = prototype;
+  hit.grain.radius = radius;
+}
+
 void Scene::grainHit(Hit::Kind kind, int aggregate, const GrainHit& g, Hit& hit) const {
   const Aggregate& agg = *aggregates_[size_t(aggregate)];
   hit.kind = kind;
   hit.t = g.t;
   hit.ng = g.ng;
   hit.aggregate = aggregate;
+  hit.instancer = -1;
   hit.material = agg.prototypes()[g.prototype].material;
   hit.lengthScale = agg.grainRadius();  // absorption is per R, whatever the grain's size
   hit.primId = aggregateId_[size_t(aggregate)];
@@ -1024,15 +1037,92 @@ void Scene::updateSwitching() {
     explicitBounces_ = std::max(explicitBounces_, aggregateBounces_[a]);
     maxProxyVisits_ = std::max(maxProxyVisits_, proxyVisits_[a]);
   }
-  if (settings_.explicitBounces >= 0) return;
-  for (const BuiltInstanced& b : builtInstanced_)
-    if (b.medium) {
+  // Instancers: the rule on their media (explicitBouncesFor; no switching measurement:
+  // measured as an aggregate's, through the faces of their bounds, it chose no visits on
+  // bench/README.md's heap of quartz grains, whose renders are 1.7% bright without them),
+  // carried by proxies where they use them (kProxyOrders bounces a visit), else by
+  // explicit bounces; the setting's bounces when it sets them.
+  const size_t ni = builtInstanced_.size();
+  instancedProxies_.assign(ni, 0);
+  instancedProxyVisits_.assign(ni, 0);
+  instancedBounces_.assign(ni, 0);
+  bool instancedTables = false;
+  for (size_t i = 0; i < ni; ++i) {
+    const BuiltInstanced& b = builtInstanced_[i];
+    if (!b.medium || settings_.technique == Technique::Ept || standIns_) continue;
+    int bounces = std::max(0, settings_.explicitBounces);
+    if (settings_.explicitBounces < 0) {
       // Half its narrowest extent stands for its interior depth.
       const MediumParams& m = b.medium->params;
       const float depth = 0.5f * minComponent(b.bounds.extent());
-      explicitBounces_ = std::max(explicitBounces_,
-                                  explicitBouncesFor(m.albedo, m.g, depth / std::max(1e-30f, maxComponent(m.lambdaT))));
+      bounces = explicitBouncesFor(m.albedo, m.g, depth / std::max(1e-30f, maxComponent(m.lambdaT)));
     }
+    const bool proxies = use == ProxyUse::On || (use == ProxyUse::Auto && (narrowSun_ || bounces > 0));
+    instancedBounces_[i] = bounces;
+    if (proxies) {
+      instancedProxies_[i] = 1;
+      instancedProxyVisits_[i] = (bounces + kProxyOrders - 1) / kProxyOrders;
+      maxProxyVisits_ = std::max(maxProxyVisits_, instancedProxyVisits_[i]);
+      useProxies_ = instancedTables = true;
+    } else {
+      explicitBounces_ = std::max(explicitBounces_, bounces);
+    }
+  }
+  if (instancedTables) {
+    updateInstancedProxyTables();
+    // A path among proxies meets every aggregate's as proxies (intersectProxies).
+    if (proxyTables_.empty() && n > 0 && !standIns_) updateProxyTables();
+  }
+}
+
+void Scene::updateInstancedProxyTables() {
+  for (size_t i = 0; i < builtInstanced_.size(); ++i)
+    if (instancedProxies_[i]) makeInstancedProxyTables(builtInstanced_[i]);
+}
+
+void Scene::makeInstancedProxyTables(BuiltInstanced& b) const {
+  if (b.proxies) return;
+  // Per prototype, at three scales spanning its grains' (absorption is per the
+  // prototype's radius at scale 1: a grain twice as large absorbs twice as much across).
+  const InstancedGrainsDesc& desc = b.grains->desc();
+  const size_t np = desc.prototypes.size();
+  std::vector<float> lo(np, kInf), hi(np, 0.0f);
+  for (size_t k = 0; k < desc.size(); ++k) {
+    const size_t p = size_t(desc.protoIndices[k]);
+    const float s = desc.scales.empty() ? 1.0f : desc.scales[k];
+    lo[p] = std::min(lo[p], s);
+    hi[p] = std::max(hi[p], s);
+  }
+  auto tables = std::make_shared<ProxyTables>();
+  for (size_t p = 0; p < np; ++p) {
+    if (!(lo[p] <= hi[p])) lo[p] = hi[p] = 1.0f;  // a prototype no grain uses
+    const std::vector<float> scales = hi[p] > lo[p] * 1.02f
+                                          ? std::vector<float>{lo[p], 0.5f * (lo[p] + hi[p]), hi[p]}
+                                          : std::vector<float>{0.5f * (lo[p] + hi[p])};
+    for (float scale : scales) {
+      // The table's sphere is the prototype's bounding sphere: absorption per its radius.
+      Material m = materials_[size_t(b.materials[p])];
+      m.absorption = m.absorption * scale;
+      tables->add(int(p), scale, estimateProxyTable(b.grains->prototypes()[p].mesh, m));
+    }
+  }
+  b.proxies = std::move(tables);
+}
+
+std::string Scene::measuredText(const SwitchMeasure& m) {
+  int c = 0;
+  while (kSwitchVisits[c] != m.visits) ++c;
+  auto worst = [](const Vec3& v) {
+    int w = 0;
+    for (int ch = 1; ch < 3; ++ch) w = std::fabs(v[ch]) > std::fabs(v[w]) ? ch : w;
+    return w;
+  };
+  const int w = worst(m.bias[size_t(c)]);
+  char buf[160];
+  // Not whether it came from the disk cache: the words are the same whatever the cache holds.
+  std::snprintf(buf, sizeof buf, " (measured: the medium's bias there %+.2f%% ± %.2f%%, right after the first grain %+.1f%%)",
+                100.0 * m.bias[size_t(c)][w], 100.0 * m.biasSE[size_t(c)][w], 100.0 * m.bias[0][worst(m.bias[0])]);
+  return buf;
 }
 
 std::string Scene::lowOrdersText(int a) const {
@@ -1041,22 +1131,17 @@ std::string Scene::lowOrdersText(int a) const {
                      : explicitBounces(a) > 0 ? str("explicit grains to bounce ", explicitBounces(a))
                                               : std::string();
   text += text.empty() ? "the medium" : ", then the medium";
-  if (const SwitchMeasure* m = switching_[size_t(a)].get()) {
-    int c = 0;
-    while (kSwitchVisits[c] != m->visits) ++c;
-    auto worst = [](const Vec3& v) {
-      int w = 0;
-      for (int ch = 1; ch < 3; ++ch) w = std::fabs(v[ch]) > std::fabs(v[w]) ? ch : w;
-      return w;
-    };
-    const int w = worst(m->bias[size_t(c)]);
-    char buf[160];
-    // Not whether it came from the disk cache: the words are the same whatever the cache holds.
-    std::snprintf(buf, sizeof buf, " (measured: the medium's bias there %+.2f%% ± %.2f%%, right after the first grain %+.1f%%)",
-                  100.0 * m->bias[size_t(c)][w], 100.0 * m->biasSE[size_t(c)][w], 100.0 * m->bias[0][worst(m->bias[0])]);
-    text += buf;
-  }
+  if (const SwitchMeasure* m = switching_[size_t(a)].get()) text += measuredText(*m);
   return text;
+}
+
+std::string Scene::instancedLowOrdersText(int i) const {
+  if (!instancedMedium(i)) return "grain by grain (no medium: thinner than its mean free path, or technique ept)";
+  const int k = instancedBounces_[size_t(i)];
+  const std::string medium = "its heterogeneous medium";
+  if (instancedProxies(i))
+    return str("proxies for ", instancedProxyVisits(i), " visits, then ", medium, " (the rule for ", k, " bounces)");
+  return k > 0 ? str("explicit grains to bounce ", k, ", then ", medium) : medium;
 }
 
 int Scene::explicitBouncesFor(const Vec3& albedo, const Vec3& g, float depthMfp) {
@@ -1116,12 +1201,35 @@ bool Scene::intersectMedium(const Ray& ray, Hit& hit) const {
   return true;
 }
 
+bool Scene::intersectInstancedProxies(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax,
+                                      const GrainStart* from) const {
+  float t0, t1;
+  if (!instancedBounds_.intersect(ray.o, invD, ray.tmin, tmax, t0, t1)) return false;
+  bool found = false;
+  for (size_t i = 0; i < builtInstanced_.size(); ++i) {
+    const BuiltInstanced& b = builtInstanced_[i];
+    const bool own = from && from->instancer == int(i);
+    if (!instancedProxies_[i] || (!own && !b.bounds.intersect(ray.o, invD, ray.tmin, tmax, t0, t1))) continue;
+    InstancedGrain g;
+    float t;
+    if (!b.grains->intersectProxy(ray.o, ray.d, ray.tmin, tmax, own ? from->instance : -1, g, t, ray.time) ||
+        !(t < tmax))
+      continue;
+    found = true;
+    tmax = t;
+    instancedHit(Hit::Proxy, int(i), g.index, g.prototype, t, g.radius * b.worldScale, hit);
+    hit.grain.center = b.grains->desc().xf.point(g.center);
+    hit.ng = hit.grain.ng = normalize(ray.o + ray.d * t - hit.grain.center);
+  }
+  return found;
+}
+
 bool Scene::intersectProxies(const Ray& ray, Hit& hit, const GrainStart* from) const {
   float tmax = ray.tmax;
   const Vec3 invD(1.0f / ray.d.x, 1.0f / ray.d.y, 1.0f / ray.d.z);
   // Spheres first (a path among proxies mostly meets one next): the surfaces are then asked
   // only up to it, and not at all when their bounds end before it.
-  bool found = false;
+  bool found = !instanced_.empty() && intersectInstancedProxies(ray, invD, hit, tmax, from);
   for (size_t a = 0; a < aggregates_.size(); ++a) {
     const Aggregate& agg = *aggregates_[a];
     const bool own = from && from->aggregate == int(a);
@@ -1134,7 +1242,7 @@ bool Scene::intersectProxies(const Ray& ray, Hit& hit, const GrainStart* from) c
       grainHit(Hit::Proxy, int(a), g, hit);
     }
   }
-  found |= intersectSurfaces(ray, invD, hit, tmax);
+  found |= intersectSurfaces(ray, invD, hit, tmax, false, true);
   found |= intersectAreaLights(ray, hit, tmax);
   if (!found) return false;
   finishHit(ray, hit);
@@ -1143,8 +1251,21 @@ bool Scene::intersectProxies(const Ray& ray, Hit& hit, const GrainStart* from) c
 
 float Scene::proxyTransmittance(const Vec3& p, const Vec3& dir, float dist, const GrainStart* from,
                                 uint64_t seed, float time) const {
-  if (surfacesOccluded(p, dir, dist, time)) return 0.0f;
+  if (surfacesOccluded(p, dir, dist, time, false, true)) return 0.0f;
   float tr = 1.0f;
+  for (size_t i = 0; i < builtInstanced_.size() && tr > 0; ++i) {
+    if (!instancedProxies_[i]) continue;
+    const BuiltInstanced& b = builtInstanced_[i];
+    const ProxyTables& tables = *b.proxies;
+    const bool own = from && from->instancer == int(i);
+    tr *= b.grains->proxyTransmittance(
+        p, dir, 0.0f, dist, own ? from->instance : -1,
+        [&](const InstancedGrain& g, float bRel) {
+          const ProxyTable& t = tables.at(g.prototype, g.scale);
+          return t.hitProbability(t.bBin(bRel));
+        },
+        hashInts(seed, 0x1257ULL, i), time);
+  }
   for (size_t a = 0; a < aggregates_.size() && tr > 0; ++a) {
     const bool own = from && from->aggregate == int(a);
     tr *= aggregates_[a]->proxyTransmittance(p, dir, 0.0f, dist, *proxyTables_[a], own ? &from->grain : nullptr,
@@ -1153,16 +1274,19 @@ float Scene::proxyTransmittance(const Vec3& p, const Vec3& dir, float dist, cons
   return tr;
 }
 
-bool Scene::surfacesOccluded(const Vec3& p, const Vec3& dir, float dist, float time, bool mediaMode) const {
+bool Scene::surfacesOccluded(const Vec3& p, const Vec3& dir, float dist, float time, bool mediaMode,
+                             bool proxyMode) const {
   if (!traceable(p, dir, 0.0f, dist)) return false;
   if (!instanced_.empty()) {
     const Vec3 invD(1.0f / dir.x, 1.0f / dir.y, 1.0f / dir.z);
     float t0, t1;
     if (instancedBounds_.intersect(p, invD, 0.0f, dist, t0, t1))
-      for (const BuiltInstanced& b : builtInstanced_)
-        if (!(mediaMode && b.medium) && b.bounds.intersect(p, invD, 0.0f, dist, t0, t1) &&
-            b.grains->occluded(p, dir, 0.0f, dist, time))
+      for (size_t i = 0; i < builtInstanced_.size(); ++i) {
+        const BuiltInstanced& b = builtInstanced_[i];
+        if (!(mediaMode && b.medium) && !(proxyMode && instancedProxies_[i]) &&
+            b.bounds.intersect(p, invD, 0.0f, dist, t0, t1) && b.grains->occluded(p, dir, 0.0f, dist, time))
           return true;
+      }
   }
   if (surfaceBounds_.empty()) return false;
   RTCIntersectContext ctx;

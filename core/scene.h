@@ -62,9 +62,11 @@ struct Hit {
 // The grain a path's next ray starts at (its last hit), inside it or leaving it: a hint
 // that lets intersect() trace that grain alone or skip it (Aggregate::intersect).
 struct GrainStart {
-  int aggregate = -1;       // -1: the ray does not start at a grain
+  int aggregate = -1;       // -1: the ray does not start at an aggregate's grain
   GrainHit grain;
   bool inside = false;
+  int instancer = -1;       // or at instancer's grain `instance` (-1: none)
+  int64_t instance = -1;
 };
 
 // How much of each aggregate a build makes. StandIns: aggregates the previous scene
@@ -152,11 +154,11 @@ class Scene {
   float maxGrainRadius() const { return maxGrainRadius_; }
   // Bounces a path not in an aggregate keeps explicit before it may enter a medium: the
   // settings' value, or with -1 the largest over the aggregates (explicitBounces(a)) and
-  // over the instancers' media of explicitBouncesFor(their albedo, g, depth).
+  // over the instancers' media that keep them explicit (no proxies) of explicitBouncesFor.
   int explicitBounces() const { return explicitBounces_; }
-  // Automatic explicit bounces of an instancer's medium (no proxies, so no measured
-  // switching there yet): a rule of albedo α_s and mean cosine g in an object
-  // whose half thickness is depthMfp of its longest mean free path. The medium's
+  // Automatic low orders of an instancer's medium (no measured switching there yet; carried
+  // by its proxies or explicit grains, instancedProxies()): a rule of albedo α_s and mean
+  // cosine g in an object whose half thickness is depthMfp of its longest mean free path. The medium's
   // low-order error is an error in how much is absorbed near the surface (a Poisson
   // medium misses the packing's shadow hiding; bench/accuracy_matrix.py), largest where
   // grains absorb and scatter light back within few bounces:
@@ -226,8 +228,7 @@ class Scene {
   // Explicit grains from simulations (SceneDesc::instancedGrains), in render space. A
   // grain's absorption is per its prototype's bounding radius at scale 1 (the instancer's
   // units times its transform's scale): grains of one material scaled up absorb more across.
-  // EPT traces them grain by grain (intersect, occluded); so do proxies (no proxy tables for
-  // them yet). With a technique that uses media, an instancer thicker than its mean free
+  // EPT traces them grain by grain (intersect, occluded). With a technique that uses media, an instancer thicker than its mean free
   // path also has its equivalent heterogeneous medium (heterogeneous_medium.h: σ_t follows
   // the grains' packing rate, grain_density.h; α_s and phase by TT for its prototypes at
   // the bulk's packing rate and the grains' sizes). In the media (VPT: intersectMedium,
@@ -236,6 +237,12 @@ class Scene {
   // first grain by the level-of-detail shortcut. No DA in it (its density is not uniform).
   // Media of instancers are assumed not to overlap: a segment is tracked through the
   // first medium whose bounds it enters, up to their exit.
+  // Proxies (ppt.h) carry the low orders after an instancer's first grain as an aggregate's
+  // (instancedProxies): the grains' bounding spheres at their positions and times, each
+  // prototype's tables at the grains' scales (absorption grows with the scale). Used where
+  // the instancer has a medium and RenderSettings::proxies is On, or Auto where its medium
+  // asks for low orders (explicitBouncesFor: the rule on its albedo and depth; no switching
+  // measurement for them) or the sun is narrow. Visits: those bounces over kProxyOrders.
   const std::vector<std::shared_ptr<const InstancedGrains>>& instancedGrains() const { return instanced_; }
   // Instancer i's medium, or null (technique ept, or thinner than its mean free path).
   const HeterogeneousMedium* instancedMedium(int i) const {
@@ -249,6 +256,15 @@ class Scene {
   float instancedGrainRadius(int i) const { return builtInstanced_[size_t(i)].medium->meanRadius; }
   Vec3 instancedDiffuseReflectance(int i) const { return builtInstanced_[size_t(i)].medium->diffuseReflectance; }
   int instancedGrainsBuilt() const { return instancedBuilt_; }  // built anew, not lent by the previous scene
+  bool instancedProxies(int i) const { return instancedProxies_[size_t(i)] != 0; }
+  // In lowOrdersText()'s words: "proxies for 8 visits, then its heterogeneous medium (the
+  // rule for 16 bounces)", "explicit grains to bounce 16, then …", "grain by grain (…)".
+  std::string instancedLowOrdersText(int i) const;
+  int instancedProxyVisits(int i) const { return instancedProxyVisits_[size_t(i)]; }
+  // Instancer i's table of a prototype, for a grain of that scale (InstancedGrainsDesc::scales).
+  const ProxyTable& instancedProxyTable(int i, int prototype, float scale) const {
+    return builtInstanced_[size_t(i)].proxies->at(prototype, scale);
+  }
   double buildSeconds() const { return buildSeconds_; }
   // Of this build's aggregates: how many were voxelised anew, how many were taken from the
   // previous scene unchanged; and how many media were derived from TT parameters anew.
@@ -283,16 +299,25 @@ class Scene {
 
  private:
   // Parts of intersect()/intersectMedium(): nearest hit below tmax (which they lower).
+  // proxyMode: instancers that use proxies are not seen as grains (intersectProxies).
   bool intersectSurfaces(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax,
-                         bool mediaMode = false) const;  // invD: 1 / ray.d
+                         bool mediaMode = false, bool proxyMode = false) const;  // invD: 1 / ray.d
   bool intersectAreaLights(const Ray& ray, Hit& hit, float& tmax) const;
   void finishHit(const Ray& ray, Hit& hit) const;  // position and ray-offset scale
   void grainHit(Hit::Kind kind, int aggregate, const GrainHit& g, Hit& hit) const;  // Grain or Proxy
+  // An instancer's grain (Grain) or its sphere (Proxy): all but the normal and centre.
+  void instancedHit(Hit::Kind kind, int instancer, int64_t instance, int prototype, float t, float radius,
+                    Hit& hit) const;
   // Meshes and explicit grains from instancers (which every transport sees as surfaces).
   // mediaMode: instancers with a medium are that medium (transmittance), not grains.
-  bool surfacesOccluded(const Vec3& p, const Vec3& dir, float dist, float time, bool mediaMode = false) const;
+  bool surfacesOccluded(const Vec3& p, const Vec3& dir, float dist, float time, bool mediaMode = false,
+                        bool proxyMode = false) const;
   bool intersectMeshes(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax) const;
-  bool intersectInstancedGrains(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax, bool mediaMode) const;
+  bool intersectInstancedGrains(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax, bool mediaMode,
+                                bool proxyMode = false) const;
+  // Nearest proxy sphere of the instancers that use proxies (Hit::Proxy, aggregate −1).
+  bool intersectInstancedProxies(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax,
+                                 const GrainStart* from) const;
   void updateDiffusionDepths();  // from the media, the emitters inside and the camera
 
   Camera camera_;
@@ -353,6 +378,7 @@ class Scene {
     std::vector<MaterialDesc> materialDescs;  // compared when lending
     std::vector<float> lengthScale;           // per prototype: its world radius at scale 1
     float worldScale = 1;                     // world length of one unit of the instancer's space
+    std::shared_ptr<const ProxyTables> proxies;  // per prototype and scale (null: none made yet)
     Bounds3 bounds;                           // world (render space)
     int id = -1;
   };
@@ -378,12 +404,16 @@ class Scene {
   float maxGrainRadius_ = 0;
   int explicitBounces_ = 0, maxProxyVisits_ = 0;
   std::vector<int> proxyVisits_, aggregateBounces_;
-  std::vector<char> aggregateProxies_;
+  std::vector<char> aggregateProxies_, instancedProxies_;
+  std::vector<int> instancedProxyVisits_, instancedBounces_;
   std::vector<std::shared_ptr<const SwitchMeasure>> switching_;
   // Proxies and switching per aggregate, from the settings and the media: the tables and
   // measurements they need (lent by an unchanged aggregate, else cached on disk or made).
   void updateSwitching();
   void updateProxyTables();
+  void updateInstancedProxyTables();
+  void makeInstancedProxyTables(BuiltInstanced& b) const;
+  static std::string measuredText(const SwitchMeasure& m);  // lowOrdersText's "(measured: …)"
   void measureSwitching(size_t aggregate);
   bool useProxies_ = false, proxyLightSampling_ = false;
   std::vector<TriangleMesh> worldMeshes_;   // per Embree geometry id (moving: at the shutter's open)

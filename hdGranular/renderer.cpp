@@ -290,6 +290,12 @@ VtDictionary HdGranularRenderer::GetStats() const {
       if (_scene->useProxies(ai)) proxyVisits = std::max(proxyVisits, _scene->proxyVisits(ai));
       switching += (switching.empty() ? "" : "\n") + _scene->aggregates()[a]->name() + ": " + _scene->lowOrdersText(ai);
     }
+    for (size_t i = 0; i < _scene->instancedGrains().size(); ++i) {
+      const int ii = int(i);
+      if (_scene->instancedProxies(ii)) proxyVisits = std::max(proxyVisits, _scene->instancedProxyVisits(ii));
+      switching += (switching.empty() ? "" : "\n") + _scene->instancedGrains()[i]->desc().name + ": " +
+                   _scene->instancedLowOrdersText(ii);
+    }
     stats["granular:proxyVisits"] = VtValue(proxyVisits);
     stats["granular:switching"] = VtValue(switching);
     // The image is of stand-ins (the media alone) while the full build runs.

@@ -980,10 +980,14 @@ PYBIND11_MODULE(granular_core, m) {
           d["grains"] = all[i]->stats().grains;
           d["grid_bytes"] = all[i]->stats().gridBytes;
           d["has_medium"] = s.scene->instancedMedium(int(i)) != nullptr;
+          d["proxies"] = s.scene->instancedProxies(int(i));
+          d["proxy_visits"] = s.scene->instancedProxyVisits(int(i));
+          d["low_orders"] = s.scene->instancedLowOrdersText(int(i));
           out.append(d);
         }
         return out;
-      }, "per instancer of explicit grains: name, grains, grid_bytes, has_medium");
+      }, "per instancer of explicit grains: name, grains, grid_bytes, has_medium, proxies, proxy_visits, "
+         "low_orders (what carries the paths after their first grain, in words)");
 
   py::class_<Image>(m, "Image")
       .def(py::init([](const FloatArray& pixels, const std::vector<std::string>& channels, int x, int y, int fullWidth,

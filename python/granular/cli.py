@@ -438,9 +438,7 @@ def _log_transports(args, built, renderer, image):
                    f"so explicit grains (EPT) render it all")
     for g in built.instanced_grains:
         if args.technique != "ept":
-            how = "with its heterogeneous medium after the explicit bounces" if g["has_medium"] else \
-                "grain by grain (thinner than its mean free path: no medium)"
-            _log(args, f"  {g['name']}: {g['grains']} explicit grains, {how}")
+            _log(args, f"  {g['name']}: {g['grains']} explicit grains; after the first grain: {g['low_orders']}")
 
 
 def cmd_render(args):

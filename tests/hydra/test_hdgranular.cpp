@@ -1038,6 +1038,37 @@ std::pair<int, int> pixelOf(GfVec3f const& p, int w) {
 
 }  // namespace
 
+// A thick block of absorbing simulated grains gets its heterogeneous medium; what carries the
+// low orders after the first grain is said in granular render's words (core:
+// Scene::instancedLowOrdersText): proxies, or explicit grains with granular:proxies off.
+TEST(HdGranularExplicitGrains, AThickInstancerUsesProxiesAsGranularRenderSays) {
+  GrainLayout block;
+  for (int z = 0; z < 16; ++z)
+    for (int y = 0; y < 16; ++y)
+      for (int x = 0; x < 16; ++x) {
+        block.positions.emplace_back(-6.0f + 0.8f * float(x), -6.0f + 0.8f * float(y), -0.8f * float(z));
+        block.protoIndices.push_back(0);
+      }
+  UsdStageRefPtr stage = grainInstancerStage(block);
+  auto engine = makeEngine(1);
+  engine->SetRendererSetting(TfToken("granular:proxies"), VtValue(std::string("on")));
+  Frame f = render(*engine, stage, HdAovTokens->color, 16, 16);
+  ASSERT_TRUE(f.converged);
+  VtDictionary stats = engine->GetRenderStats();
+  EXPECT_EQ(stat<std::string>(stats, "granular:error"), "");
+  EXPECT_TRUE(stat<bool>(stats, "granular:proxies"));
+  const std::string on = stat<std::string>(stats, "granular:switching");
+  EXPECT_NE(on.find("/World/Sim: proxies for "), std::string::npos) << on;
+  EXPECT_NE(on.find("visits, then its heterogeneous medium (the rule for "), std::string::npos) << on;
+  for (float v : f.values) ASSERT_TRUE(std::isfinite(v));
+  engine->SetRendererSetting(TfToken("granular:proxies"), VtValue(std::string("off")));
+  f = render(*engine, stage, HdAovTokens->color, 16, 16);
+  ASSERT_TRUE(f.converged);
+  const std::string off = stat<std::string>(engine->GetRenderStats(), "granular:switching");
+  EXPECT_NE(off.find("/World/Sim: explicit grains to bounce "), std::string::npos) << off;
+  for (float v : f.values) ASSERT_TRUE(std::isfinite(v));
+}
+
 // An instancer of 36 simulated grains reaches core as one InstancedGrainsDesc: 36 grains (render
 // stat granular:instancedGrains), grain i where its position projects (instanceId AOV i there),
 // of its prototype (the CryptoMaterial layer names the prototype's grain material), not as

@@ -143,6 +143,26 @@ def _instancer(path, positions=((0, 0, 0), (3, 0, 0)), indices=(0, 0), scales=No
     return str(path)
 
 
+def test_render_says_what_carries_the_heap_after_its_first_grain(heap, tmp_path, capsys):
+    """Absorbing quartz: the rule on the heap's medium keeps low orders (core:
+    Scene::explicitBouncesFor), carried by proxies at the grains' positions (kProxyOrders
+    bounces a visit), then the heap's heterogeneous medium, said in core's words
+    (Scene::instancedLowOrdersText); with proxies off, explicit grains carry the bounces."""
+    path, _ = heap
+    built = core.Scene.build(usd_reader.read_stage(path).desc)
+    info = built.instanced_grains[0]
+    k = info["proxy_visits"]
+    assert info["proxies"] and k > 0, info
+    assert info["low_orders"] == f"proxies for {k} visits, then its heterogeneous medium (the rule for {2 * k} bounces)"
+    args = ["render", path, "-o", tmp_path / "h.exr", "--width", 16, "--height", 12, "--spp", 1]
+    for proxies, words in (("auto", info["low_orders"]),
+                           ("off", f"explicit grains to bounce {2 * k}, then its heterogeneous medium")):
+        rc, out, err = run_cli(args + ["--proxies", proxies], capsys)
+        assert rc == 0, err
+        line = next(l for l in (out + err).splitlines() if HEAP in l and "after the first grain" in l)
+        assert line.endswith(f"after the first grain: {words}"), (proxies, line)
+
+
 def test_a_valid_instancer_reports(tmp_path, capsys):
     rc, out, err = run_cli(["info", _instancer(tmp_path / "ok.usda")], capsys)
     assert rc == 0, err
