@@ -774,22 +774,12 @@ float Aggregate::proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, fl
           tables.at(selector_.prototype(home[0], home[1], home[2], j, tile_.sizeClass(j)), tile_.size(j));
       r.transmittance *= 1.0f - t.hitProbability(t.bBin(std::sqrt(w2 / nbR2_[k])));
     }
-    if (!rouletteTransmittance(r)) return 0.0f;
+    if (!proxyRoulette(r.transmittance, r.seed, r.draws)) return 0.0f;
     if (tDone >= tmax) return r.transmittance;
     r.tEnterMin = tDone;
   }
   walk(r, t0, t1);
   return r.transmittance;
-}
-
-bool Aggregate::rouletteTransmittance(RayWalk& r) const {
-  if (r.transmittance >= kProxyRoulette) return true;
-  if (toUnitFloat(hashInts(r.seed, uint64_t(r.draws++))) * kProxyRoulette >= r.transmittance) {
-    r.transmittance = 0;
-    return false;
-  }
-  r.transmittance = kProxyRoulette;
-  return true;
 }
 
 bool Aggregate::visitProxy(RayWalk& r, const TileSphere& s, const int64_t cell[3], const Vec3& oc, float tEntry,
@@ -827,7 +817,7 @@ bool Aggregate::visitProxy(RayWalk& r, const TileSphere& s, const int64_t cell[3
   r.nRecent = std::min(r.nRecent + 1, 8);
   const ProxyTable& t = r.tables->at(prototype, tile_.size(s.id));
   r.transmittance *= 1.0f - t.hitProbability(t.bBin(std::sqrt(w2) / s.radius));
-  return !rouletteTransmittance(r);  // true ends the walk
+  return !proxyRoulette(r.transmittance, r.seed, r.draws);  // true ends the walk
 }
 
 bool Aggregate::walk(RayWalk& r, float t0, float t1) const {

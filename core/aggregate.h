@@ -121,15 +121,12 @@ class Aggregate {
                       const GrainHit* skip = nullptr) const;
   // The chance that a ray along [tmin, tmax] meets none of the proxies' grains: the product
   // over the spheres it crosses (but `skip`) of 1 − hit(b), from each grain's prototype's
-  // table at its size. Deep in an aggregate the product soon vanishes: once
-  // under kProxyRoulette it goes on with probability T / kProxyRoulette at kProxyRoulette
-  // (Russian roulette, unbiased; random numbers from `seed`), else the answer is 0.
+  // table at its size, with proxyRoulette() (proxy.h) from `seed` below kProxyRoulette.
   float proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax, const ProxyTables& tables,
                            const GrainHit* skip, uint64_t seed) const;
   // Builds the neighbour lists the proxy queries use (once; thread-safe). Only scenes that
   // use proxies pay for them: about a second and 45 MiB for a tile of 32768 spheres.
   void prepareProxies() const;
-  static constexpr float kProxyRoulette = 0.05f;
   static constexpr float kNeighbourReach = 2.5f;
   static constexpr uint32_t kMaxNeighbours = 1024;
   // Exact inside test of a world point against the boundary mesh (ray parity by the
@@ -188,7 +185,7 @@ class Aggregate {
     const ProxyTables* tables = nullptr;  // ProxyTransmittance
     float transmittance = 1;
     uint64_t seed = 0;   // roulette's random numbers (ProxyTransmittance)
-    int draws = 0;
+    uint64_t draws = 0;
     float tEnterMin = -kInf;  // ProxyTransmittance: spheres entered before are counted already
     // The spheres counted last (a sphere may be listed by two sub-cells the ray enters it
     // between): (home cell hash, sphere id).
@@ -212,9 +209,6 @@ class Aggregate {
   // ends the walk's search (NearestProxy: the sphere is the new nearest).
   bool visitProxy(RayWalk& r, const TileSphere& s, const int64_t cell[3], const Vec3& oc, float tEntry,
                   bool knownInside) const;
-  // Russian roulette on a proxy shadow ray's transmittance below kProxyRoulette; false:
-  // the ray is blocked (transmittance 0).
-  bool rouletteTransmittance(RayWalk& r) const;
   // The neighbour test of intersectProxy(): true when it answers (hit or a sure miss of
   // every sphere before tmax is not claimed: false means "walk").
   bool nearestNeighbour(const Vec3& o, const Vec3& d, float tmin, float tmax, GrainHit& hit, const GrainHit& from) const;

@@ -16,6 +16,7 @@
 #include <tbb/parallel_reduce.h>
 
 #include "error.h"
+#include "proxy.h"
 #include "rng.h"
 
 namespace granular {
@@ -548,13 +549,7 @@ float InstancedGrains::proxyTransmittance(const Vec3& o, const Vec3& d, float tm
       float te, b2;
       if (!enterSphere(g, ol, dl, a, tmin, te, b2) || te >= tmax || te < tEnter || te >= tExit) continue;
       tr *= 1.0f - hitChance(g, std::sqrt(b2));
-      if (tr < kProxyRoulette) {  // Russian roulette: deep rays end early, unbiased
-        if (!(tr > 0) || toUnitFloat(hashInts(seed, draws++)) * kProxyRoulette >= tr) {
-          tr = 0;
-          return false;
-        }
-        tr = kProxyRoulette;
-      }
+      if (!proxyRoulette(tr, seed, draws)) return false;
     }
     return true;
   });

@@ -110,13 +110,12 @@ class InstancedGrains {
   // one) other than grain `skip` (the one it leaves; -1: none); grain in object space.
   // proxyTransmittance() is the chance that the ray meets no grain of the spheres it enters
   // before tmax: the product of 1 − hitChance(grain, b) over them (b: the impact parameter
-  // over the radius), each counted once; below kProxyRoulette by Russian roulette from seed.
+  // over the radius), each counted once; proxyRoulette() (proxy.h) from seed.
   bool intersectProxy(const Vec3& o, const Vec3& d, float tmin, float tmax, int64_t skip, InstancedGrain& grain,
                       float& t, float time = 0) const;
   float proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax, int64_t skip,
                            const std::function<float(const InstancedGrain&, float)>& hitChance, uint64_t seed,
                            float time = 0) const;
-  static constexpr float kProxyRoulette = 0.05f;
 
   InstancedGrain grain(int64_t i, float time = 0) const;
   // A brute-force reference over every grain (tests, benchmarks): intersect()'s answer.

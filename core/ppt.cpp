@@ -130,12 +130,13 @@ void pptStep(const Scene& scene, PathState& path) {
     }
     const GrainHit& g = hit.grain;
     const ProxyFrame frame(path.ray.d, (hit.p - g.center) / g.radius);
+    // The grain's size in its tables' unit: the aggregate's grain radius, or an instancer's
+    // prototype's radius at scale 1 (Hit::lengthScale), i.e. the instance's scale.
     const ProxyTable& table =
         hit.aggregate >= 0
             ? scene.proxyTable(hit.aggregate, g.prototype,
                                g.radius / scene.aggregates()[size_t(hit.aggregate)]->grainRadius())
-            : scene.instancedProxyTable(hit.instancer, g.prototype,
-                                        scene.instancedGrains()[size_t(hit.instancer)]->grain(hit.instance).scale);
+            : scene.instancedProxyTable(hit.instancer, g.prototype, g.radius / hit.lengthScale);
     const int b = table.bBin(frame.b);
     if (path.rng.next1D() < table.hitProbability(b)) {
       scatter(scene, path, hit, table, frame, b);

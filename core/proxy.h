@@ -41,6 +41,7 @@
 #include "material.h"
 #include "math.h"
 #include "mesh.h"
+#include "rng.h"
 
 namespace granular {
 
@@ -68,6 +69,21 @@ struct ProxyFrame {
 inline float sphereFarSide(const Vec3& oc, const Vec3& d, float r) {
   const float along = dot(oc, d);
   return std::max(0.0f, -along + std::sqrt(std::max(0.0f, r * r - length2(oc - d * along))));
+}
+
+// Russian roulette on a proxy shadow ray's transmittance (the product of 1 − hit(b) over
+// the spheres it crosses): deep inside, that product soon vanishes, so once under
+// kProxyRoulette it goes on with probability T / kProxyRoulette at kProxyRoulette, else
+// it is 0 (unbiased). The `draws`-th random number of `seed`; false when it ends.
+constexpr float kProxyRoulette = 0.05f;
+inline bool proxyRoulette(float& transmittance, uint64_t seed, uint64_t& draws) {
+  if (transmittance >= kProxyRoulette) return true;
+  if (!(transmittance > 0) || toUnitFloat(hashInts(seed, draws++)) * kProxyRoulette >= transmittance) {
+    transmittance = 0;
+    return false;
+  }
+  transmittance = kProxyRoulette;
+  return true;
 }
 
 // An exit direction drawn or evaluated in the entry's frame.

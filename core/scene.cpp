@@ -1037,9 +1037,8 @@ void Scene::updateSwitching() {
     explicitBounces_ = std::max(explicitBounces_, aggregateBounces_[a]);
     maxProxyVisits_ = std::max(maxProxyVisits_, proxyVisits_[a]);
   }
-  // Instancers: the rule on their media (explicitBouncesFor; no switching measurement:
-  // measured as an aggregate's, through the faces of their bounds, it chose no visits on
-  // bench/README.md's heap of quartz grains, whose renders are 1.7% bright without them),
+  // Instancers: the rule on their media (explicitBouncesFor; a dome-albedo measurement
+  // like the aggregates' missed what the view sees on a simulated heap: bench/README.md),
   // carried by proxies where they use them (kProxyOrders bounces a visit), else by
   // explicit bounces; the setting's bounces when it sets them.
   const size_t ni = builtInstanced_.size();
@@ -1076,53 +1075,35 @@ void Scene::updateSwitching() {
 }
 
 void Scene::updateInstancedProxyTables() {
-  for (size_t i = 0; i < builtInstanced_.size(); ++i)
-    if (instancedProxies_[i]) makeInstancedProxyTables(builtInstanced_[i]);
-}
-
-void Scene::makeInstancedProxyTables(BuiltInstanced& b) const {
-  if (b.proxies) return;
-  // Per prototype, at three scales spanning its grains' (absorption is per the
-  // prototype's radius at scale 1: a grain twice as large absorbs twice as much across).
-  const InstancedGrainsDesc& desc = b.grains->desc();
-  const size_t np = desc.prototypes.size();
-  std::vector<float> lo(np, kInf), hi(np, 0.0f);
-  for (size_t k = 0; k < desc.size(); ++k) {
-    const size_t p = size_t(desc.protoIndices[k]);
-    const float s = desc.scales.empty() ? 1.0f : desc.scales[k];
-    lo[p] = std::min(lo[p], s);
-    hi[p] = std::max(hi[p], s);
-  }
-  auto tables = std::make_shared<ProxyTables>();
-  for (size_t p = 0; p < np; ++p) {
-    if (!(lo[p] <= hi[p])) lo[p] = hi[p] = 1.0f;  // a prototype no grain uses
-    const std::vector<float> scales = hi[p] > lo[p] * 1.02f
-                                          ? std::vector<float>{lo[p], 0.5f * (lo[p] + hi[p]), hi[p]}
-                                          : std::vector<float>{0.5f * (lo[p] + hi[p])};
-    for (float scale : scales) {
-      // The table's sphere is the prototype's bounding sphere: absorption per its radius.
-      Material m = materials_[size_t(b.materials[p])];
-      m.absorption = m.absorption * scale;
-      tables->add(int(p), scale, estimateProxyTable(b.grains->prototypes()[p].mesh, m));
+  for (size_t i = 0; i < builtInstanced_.size(); ++i) {
+    BuiltInstanced& b = builtInstanced_[i];
+    if (!instancedProxies_[i] || b.proxies) continue;
+    // Per prototype, at three scales spanning its grains' (absorption is per the
+    // prototype's radius at scale 1: a grain twice as large absorbs twice as much across).
+    const InstancedGrainsDesc& desc = b.grains->desc();
+    const size_t np = desc.prototypes.size();
+    std::vector<float> lo(np, kInf), hi(np, 0.0f);
+    for (size_t k = 0; k < desc.size(); ++k) {
+      const size_t p = size_t(desc.protoIndices[k]);
+      const float s = desc.scales.empty() ? 1.0f : desc.scales[k];
+      lo[p] = std::min(lo[p], s);
+      hi[p] = std::max(hi[p], s);
     }
+    auto tables = std::make_shared<ProxyTables>();
+    for (size_t p = 0; p < np; ++p) {
+      if (!(lo[p] <= hi[p])) lo[p] = hi[p] = 1.0f;  // a prototype no grain uses
+      const std::vector<float> scales = hi[p] > lo[p] * 1.02f
+                                            ? std::vector<float>{lo[p], 0.5f * (lo[p] + hi[p]), hi[p]}
+                                            : std::vector<float>{0.5f * (lo[p] + hi[p])};
+      for (float scale : scales) {
+        // The table's sphere is the prototype's bounding sphere: absorption per its radius.
+        Material m = materials_[size_t(b.materials[p])];
+        m.absorption = m.absorption * scale;
+        tables->add(int(p), scale, estimateProxyTable(b.grains->prototypes()[p].mesh, m));
+      }
+    }
+    b.proxies = std::move(tables);
   }
-  b.proxies = std::move(tables);
-}
-
-std::string Scene::measuredText(const SwitchMeasure& m) {
-  int c = 0;
-  while (kSwitchVisits[c] != m.visits) ++c;
-  auto worst = [](const Vec3& v) {
-    int w = 0;
-    for (int ch = 1; ch < 3; ++ch) w = std::fabs(v[ch]) > std::fabs(v[w]) ? ch : w;
-    return w;
-  };
-  const int w = worst(m.bias[size_t(c)]);
-  char buf[160];
-  // Not whether it came from the disk cache: the words are the same whatever the cache holds.
-  std::snprintf(buf, sizeof buf, " (measured: the medium's bias there %+.2f%% ± %.2f%%, right after the first grain %+.1f%%)",
-                100.0 * m.bias[size_t(c)][w], 100.0 * m.biasSE[size_t(c)][w], 100.0 * m.bias[0][worst(m.bias[0])]);
-  return buf;
 }
 
 std::string Scene::lowOrdersText(int a) const {
@@ -1131,7 +1112,21 @@ std::string Scene::lowOrdersText(int a) const {
                      : explicitBounces(a) > 0 ? str("explicit grains to bounce ", explicitBounces(a))
                                               : std::string();
   text += text.empty() ? "the medium" : ", then the medium";
-  if (const SwitchMeasure* m = switching_[size_t(a)].get()) text += measuredText(*m);
+  if (const SwitchMeasure* m = switching_[size_t(a)].get()) {
+    int c = 0;
+    while (kSwitchVisits[c] != m->visits) ++c;
+    auto worst = [](const Vec3& v) {
+      int w = 0;
+      for (int ch = 1; ch < 3; ++ch) w = std::fabs(v[ch]) > std::fabs(v[w]) ? ch : w;
+      return w;
+    };
+    const int w = worst(m->bias[size_t(c)]);
+    char buf[160];
+    // Not whether it came from the disk cache: the words are the same whatever the cache holds.
+    std::snprintf(buf, sizeof buf, " (measured: the medium's bias there %+.2f%% ± %.2f%%, right after the first grain %+.1f%%)",
+                  100.0 * m->bias[size_t(c)][w], 100.0 * m->biasSE[size_t(c)][w], 100.0 * m->bias[0][worst(m->bias[0])]);
+    text += buf;
+  }
   return text;
 }
 

@@ -335,7 +335,7 @@ class Scene {
     bool hasMedium = false;                     // TT-derived (before any setMedium)
     MediumParams medium;
     double mediumSauterSize = 0;                // the Sauter size it was derived with
-    std::shared_ptr<const ProxyTables> proxies;  // made when first needed (updateProxies)
+    std::shared_ptr<const ProxyTables> proxies;  // made when first needed (updateProxyTables)
     std::shared_ptr<const SwitchMeasure> switching;  // likewise (updateSwitching)
     bool mediumReplaced = false;                     // setMedium: switching is not lent
   };
@@ -412,8 +412,6 @@ class Scene {
   void updateSwitching();
   void updateProxyTables();
   void updateInstancedProxyTables();
-  void makeInstancedProxyTables(BuiltInstanced& b) const;
-  static std::string measuredText(const SwitchMeasure& m);  // lowOrdersText's "(measured: …)"
   void measureSwitching(size_t aggregate);
   bool useProxies_ = false, proxyLightSampling_ = false;
   std::vector<TriangleMesh> worldMeshes_;   // per Embree geometry id (moving: at the shutter's open)

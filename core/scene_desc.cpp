@@ -773,4 +773,9 @@ std::string describeChanges(const SceneChanges& c) {
   return join(parts) + " changed";
 }
 
+void stillFrame(SceneDesc& desc) {
+  desc.camera.shutterOpen = desc.camera.shutterClose = 0;
+  for (MeshDesc& m : desc.meshes) m.shutterXf.reset();
+}
+
 }  // namespace granular

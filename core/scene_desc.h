@@ -391,6 +391,11 @@ std::string describeChanges(const SceneChanges& changes);
 // Checks every value a user can get wrong; throws InputError naming object and attribute.
 void validateSceneDesc(const SceneDesc& desc);
 
+// No motion blur (JSON "motion_blur": false, --no-motion-blur, UsdRender's
+// disableMotionBlur): the frame's instant, the camera's shutter closed at 0 and every mesh
+// still at its transform (MeshDesc::shutterXf dropped); moving grains then stand still too.
+void stillFrame(SceneDesc& desc);
+
 // Parts of validateSceneDesc, for front ends that check what they add as they go: one
 // material; an aggregate's transform, grain radius, packing rate, tile spheres, prototype
 // count and weights (not its meshes: validateClosed, nor its material indices); one light.

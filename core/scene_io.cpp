@@ -886,12 +886,7 @@ SceneDesc parseSceneJson(const std::string& text, const std::string& sourceName)
     if (const json* l = top.find("lights")) parseLights(*l, desc, ctx);
     if (const json* a = top.find("aggregates")) parseAggregates(*a, desc, mats, ctx);
     if (const json* g = top.find("instanced_grains")) parseInstancedGrains(*g, desc, mats, ctx);
-    // "motion_blur": false renders the frame's instant (as UsdRender's disableMotionBlur
-    // and --no-motion-blur): the shutter closed, every mesh still at its transform.
-    if (!motionBlur) {
-      desc.camera.shutterOpen = desc.camera.shutterClose = 0;
-      for (MeshDesc& m : desc.meshes) m.shutterXf.reset();
-    }
+    if (!motionBlur) stillFrame(desc);
   } catch (const json::exception& e) {
     // Converters check types before every get<>(), so this is a safety net only.
     throw InputError(sourceName, "", str("unexpected JSON error: ", e.what()));

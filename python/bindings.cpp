@@ -518,6 +518,8 @@ PYBIND11_MODULE(granular_core, m) {
       });
 
   m.def("validate_scene_desc", &validateSceneDesc, py::arg("desc"));
+  m.def("still_frame", &stillFrame, py::arg("desc"),
+        "no motion blur: the camera's shutter closed at the frame, every mesh still (in place)");
 
   // ---- change detection (scene_desc.h: compareScenes) ---------------------------------
   // Unchanged, not None: None is a Python keyword.
@@ -958,12 +960,6 @@ PYBIND11_MODULE(granular_core, m) {
           },
           py::arg("aggregate"),
           "what carries the aggregate's low orders after its first grain, in the words both front ends print")
-      .def_static(
-          "explicit_bounces_for",
-          [](const Vec3& albedo, const Vec3& g, float depthMfp) { return Scene::explicitBouncesFor(albedo, g, depthMfp); },
-          py::arg("albedo"), py::arg("g"), py::arg("depth_mfp"),
-          "the rule for the explicit bounces of an instancer's medium (albedo, mean cosine, depth in mean "
-          "free paths); aggregates' are measured (Scene.switching)")
       .def_property_readonly("aggregates", [](const PyScene& s) {
         py::list out;
         const auto& aggs = s.scene->aggregates();

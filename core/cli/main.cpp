@@ -96,10 +96,7 @@ int main(int argc, char** argv) {
     if (!technique.empty()) desc.settings.technique = techniqueFromName(technique, "command line --technique");
     if (roulette != 0) desc.settings.roulette = roulette;
     if (lod >= 0) desc.settings.lod = lod;
-    if (!motionBlur) {  // as loadSceneJson reads "motion_blur": false
-      desc.camera.shutterOpen = desc.camera.shutterClose = 0;
-      for (MeshDesc& m : desc.meshes) m.shutterXf.reset();
-    }
+    if (!motionBlur) stillFrame(desc);  // as loadSceneJson reads "motion_blur": false
 
     auto scene = Scene::build(desc);
     if (!quiet) {

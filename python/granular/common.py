@@ -133,8 +133,7 @@ def apply_options(args, scene):
     s.default_light = not args.no_default_light
     s.physical_sun = not args.no_physical_sun
     if getattr(args, "no_motion_blur", False):
-        from .usd_reader import still_frame
-        still_frame(scene.desc)
+        core.still_frame(scene.desc)
     if getattr(args, "crop", None):
         x0, x1, y0, y1 = args.crop
         if x1 > s.width or y1 > s.height:

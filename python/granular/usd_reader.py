@@ -660,17 +660,6 @@ def _mesh_motion(scene, time):
         scene.desc.meshes = meshes
 
 
-def still_frame(desc):
-    """No motion blur (--no-motion-blur, UsdRender's disableMotionBlur or instantaneousShutter):
-    the camera's shutter closed at the frame's instant, every mesh still at its transform."""
-    desc.camera.shutter_open = desc.camera.shutter_close = 0.0
-    meshes = list(desc.meshes)
-    if any(m.shutter_xf is not None for m in meshes):
-        for m in meshes:
-            m.shutter_xf = None
-        desc.meshes = meshes
-
-
 def _motion_blur_disabled(settings):
     """UsdRender's disableMotionBlur as UsdRenderComputeSpec flattens it for Hydra: the
     settings prim's first render product's where authored there, else the settings prim's.
@@ -789,7 +778,7 @@ def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_c
     if cam_prim is not None:
         read_camera(scene, cam_prim, xf_cache)
         if settings is not None and _motion_blur_disabled(settings):
-            still_frame(scene.desc)
+            core.still_frame(scene.desc)
         _mesh_motion(scene, time)
     elif need_camera:
         raise UserError(path, "", "the stage has no UsdGeomCamera (add one, or pass --camera)")

@@ -443,10 +443,10 @@ TEST(Aggregate, ProxyQueriesAgreeWithEveryGrainChecked) {
       }
     }
     const float tr = a.proxyTransmittance(o, d, 0.0f, tmax, tables, &from, uint64_t(r));
-    if (T >= Aggregate::kProxyRoulette * 1.001)
+    if (T >= kProxyRoulette * 1.001)
       ASSERT_NEAR(tr, T, 1e-4 * T + 1e-6) << "ray " << r;
     else
-      ASSERT_TRUE(tr == 0.0f || tr == Aggregate::kProxyRoulette) << "ray " << r << ": " << tr;
+      ASSERT_TRUE(tr == 0.0f || tr == kProxyRoulette) << "ray " << r << ": " << tr;
   }
   EXPECT_GT(hits, 1500);
   EXPECT_GE(exact, hits - 3) << "only ties may name another sphere";

@@ -881,15 +881,14 @@ TEST(InstancedGrainsInScene, AThickInstancerHasAMediumThatFollowsItsDensity) {
 }
 
 TEST(InstancedGrainsInScene, TheHybridMatchesExplicitGrainsOnASlab) {
-  // Per 8x8 block and channel against EPT on the same grains: with the automatic explicit
-  // bounces (32 for grains this absorbing, Scene::explicitBouncesFor) within noise; with
+  // Per 8x8 block and channel against EPT on the same grains: with the automatic low orders
+  // (the rule's 32 bounces for grains this absorbing, Scene::explicitBouncesFor, carried by
+  // proxies as 16 visits) within noise; with
   // none, the medium alone carries everything after the first grain, within the equivalent
   // medium's known low-order error (a few percent dark: bench/README.md) plus noise.
   for (bool gradient : {false, true}) {
     const auto windows = blocks(16, 2);
     const auto ept = renderEstimates(slabScene(Technique::Ept, 5, gradient), windows);
-    std::printf("%s: %s\n", gradient ? "gradient" : "uniform",
-                Scene::build(slabScene(Technique::EptVpt, 6, gradient))->instancedLowOrdersText(0).c_str());
     for (int bounces : {-1, 0}) {
       const auto hyb = renderEstimates(slabScene(Technique::EptVpt, 6, gradient, bounces), windows);
       for (size_t b = 0; b < windows.size(); ++b)

@@ -188,8 +188,8 @@ TEST(Switching, IsTheSameWhateverTheThreads) {
   EXPECT_EQ(single.events, many.events);
   EXPECT_EQ(single.candidatePaths, many.candidatePaths);
   for (int c = 0; c < kSwitchCandidates; ++c) {
-    EXPECT_EQ(single.bias[size_t(c)].x, many.bias[size_t(c)].x);
-    EXPECT_EQ(single.biasSE[size_t(c)].z, many.biasSE[size_t(c)].z);
+    EXPECT_EQ(single.bias[size_t(c)], many.bias[size_t(c)]) << c;
+    EXPECT_EQ(single.biasSE[size_t(c)], many.biasSE[size_t(c)]) << c;
   }
 }
 
