@@ -18,12 +18,15 @@
 //     at each interface) or as a proxy (intersectProxy, hit(b), a table sample and its exit
 //     point), the proxy also with one shadow ray (proxyTransmittance) per visit, as
 //     next-event estimation casts near the surface. One JSON line.
-//   granular-bench instanced --grains N
+//   granular-bench instanced --grains N [--density 1]
 //     Explicit grains from a simulation (instanced_grains.h): N grains on a jittered cubic
 //     lattice (icosphere and rock prototypes, random rotations and scales, bounding spheres
 //     never touching), generated here so that 10^8 fit; the grid's build time and the
 //     overlap check's, its bytes, and the process's peak RSS with the input arrays alone
-//     and after the build. One JSON line.
+//     and after the build. With --density 1 also the packing-rate grid the hybrid's medium
+//     samples (grain_density.h: kernel 3 mean radii, voxels as wide, no fractions, as
+//     Scene builds it): its time, bytes and working bytes, and the peak after it. CPU
+//     seconds (all threads) beside each wall clock. One JSON line.
 //   granular-bench tt [--rays N]
 //     Teleportation-transport parameters (tt.h) of a few prototypes and materials, the
 //     medium they give at R = 0.01, f = 0.6, and the (uncached) estimation time. One
@@ -34,11 +37,13 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <ctime>
 #include <string>
 
 #include <random>
 
 #include "core/aggregate.h"
+#include "core/grain_density.h"
 #include "core/instanced_grains.h"
 #include "core/material.h"
 #include "core/medium.h"
@@ -52,6 +57,13 @@ using Clock = std::chrono::steady_clock;
 namespace {
 
 double seconds(Clock::time_point a) { return std::chrono::duration<double>(Clock::now() - a).count(); }
+// This thread's CPU time: the walk comparisons run one thread, and time the scheduler
+// gives to other processes on a shared machine is not theirs.
+double threadSeconds() {
+  timespec ts;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
+}
 
 long maxRssKiB() {
   struct rusage ru;
@@ -290,8 +302,8 @@ int visits(double budget, float absorption) {
   // Explicit: each visit traces rays until the path is out of the grain it met.
   long explicitVisits = 0, events = 0;
   Rng rng(7);
-  auto t0 = Clock::now();
-  while (seconds(t0) < budget) {
+  const double t0 = threadSeconds();
+  while (threadSeconds() - t0 < budget) {
     Vec3 o, d;
     walkStart(rng, o, d);
     GrainHit from;
@@ -312,7 +324,7 @@ int visits(double budget, float absorption) {
       if (!inside) ++v, ++explicitVisits;
     }
   }
-  const double explicitSeconds = seconds(t0);
+  const double explicitSeconds = threadSeconds() - t0;
 
   // Proxies: a sphere entered holds a grain with the chance hit(b); a grain met scatters
   // by the table. withShadow: one shadow ray per visit towards a fixed sun.
@@ -320,8 +332,8 @@ int visits(double budget, float absorption) {
     Rng r(11);
     visited = crossings = 0;
     const Vec3 sun = normalize(Vec3(0.3f, 1.0f, 0.2f));
-    auto start = Clock::now();
-    while (seconds(start) < budget) {
+    const double start = threadSeconds();
+    while (threadSeconds() - start < budget) {
       Vec3 o, d;
       walkStart(r, o, d);
       GrainHit from;
@@ -351,7 +363,7 @@ int visits(double budget, float absorption) {
         ++v, ++visited;
       }
     }
-    return seconds(start);
+    return threadSeconds() - start;
   };
   long proxyVisits, proxyCrossings, shadowVisits, shadowCrossings;
   const double proxySeconds = proxyWalks(false, proxyVisits, proxyCrossings);
@@ -368,7 +380,14 @@ int visits(double budget, float absorption) {
   return 0;
 }
 
-int instanced(double n) {
+// CPU seconds of this process, all threads.
+double cpuSeconds() {
+  struct rusage ru;
+  getrusage(RUSAGE_SELF, &ru);
+  return double(ru.ru_utime.tv_sec + ru.ru_stime.tv_sec) + 1e-6 * double(ru.ru_utime.tv_usec + ru.ru_stime.tv_usec);
+}
+
+int instanced(double n, bool density) {
   const long long count = (long long)n;
   const long long side = (long long)std::ceil(std::cbrt(double(count)));
   InstancedGrainsDesc d;
@@ -393,14 +412,32 @@ int instanced(double n) {
   const long inputKb = maxRssKiB();
   InstancedGrains grains;
   const auto t0 = Clock::now();
+  const double c0 = cpuSeconds();
   grains.build(std::move(d), makeEmbreeDevice(), true);  // moved: the arrays are not copied
-  const double total = seconds(t0);
+  const double total = seconds(t0), totalCpu = cpuSeconds() - c0;
+  const long builtKb = maxRssKiB();
   const InstancedGrainsStats& s = grains.stats();
   std::printf("{\"grains\": %lld, \"input_mib\": %.1f, \"grid_mib\": %.1f, \"bytes_per_grain\": %.2f, "
-              "\"grid_s\": %.2f, \"overlap_check_s\": %.2f, \"build_s\": %.2f, \"peak_rss_input_mib\": %.0f, "
-              "\"peak_rss_built_mib\": %.0f}\n",
+              "\"grid_s\": %.2f, \"overlap_check_s\": %.2f, \"build_s\": %.2f, \"build_cpu_s\": %.2f, "
+              "\"peak_rss_input_mib\": %.0f, \"peak_rss_built_mib\": %.0f",
               (long long)s.grains, double(s.inputBytes) / 1048576.0, double(s.gridBytes) / 1048576.0, s.bytesPerGrain(),
-              s.buildSeconds, s.overlapSeconds, total, double(inputKb) / 1024.0, double(maxRssKiB()) / 1024.0);
+              s.buildSeconds, s.overlapSeconds, total, totalCpu, double(inputKb) / 1024.0, double(builtKb) / 1024.0);
+  if (density) {
+    // As Scene::buildInstancedMedium: the kernel of 3 mean bounding radii, voxels as wide.
+    double radii = 0;
+    for (int64_t i = 0; i < s.grains; ++i) radii += grains.grain(i).radius;
+    GrainDensityOptions options;
+    options.kernelWidth = float(3.0 * radii / double(std::max<int64_t>(1, s.grains)));
+    options.voxelSize = options.kernelWidth;
+    options.fractions = false;
+    const double c1 = cpuSeconds();
+    const GrainDensity g = buildGrainDensity(grains.desc(), options);
+    std::printf(", \"density_s\": %.2f, \"density_cpu_s\": %.2f, \"density_mib\": %.1f, \"density_build_mib\": %.1f, "
+                "\"leaves\": %lld, \"peak_rss_density_mib\": %.0f",
+                g.stats.seconds, cpuSeconds() - c1, double(g.stats.bytes) / 1048576.0,
+                double(g.stats.buildBytes) / 1048576.0, (long long)g.stats.leaves, double(maxRssKiB()) / 1024.0);
+  }
+  std::printf("}\n");
   return 0;
 }
 
@@ -410,7 +447,7 @@ int main(int argc, char** argv) {
   if (argc < 2) {
     std::fprintf(stderr,
                  "usage: granular-bench throughput [--grain-radius R] [--seconds S] [--raw-seconds S] | setup --grains N "
-                 "[--tile-spheres T] | instanced --grains N | "
+                 "[--tile-spheres T] | instanced --grains N [--density 1] | "
                  "tt [--rays N] | visits [--seconds S] [--absorption A]\n");
     return 2;
   }
@@ -420,6 +457,7 @@ int main(int argc, char** argv) {
   long rays = 1L << 18;
   int tileSpheres = 512;
   float absorption = 0.05f;
+  bool density = false;
   for (int i = 2; i + 1 < argc; i += 2) {
     std::string a = argv[i];
     if (a == "--grain-radius") R = std::strtof(argv[i + 1], nullptr);
@@ -429,12 +467,13 @@ int main(int argc, char** argv) {
     else if (a == "--rays") rays = std::strtol(argv[i + 1], nullptr, 10);
     else if (a == "--tile-spheres") tileSpheres = int(std::strtol(argv[i + 1], nullptr, 10));
     else if (a == "--absorption") absorption = std::strtof(argv[i + 1], nullptr);
+    else if (a == "--density") density = std::strtol(argv[i + 1], nullptr, 10) != 0;
   }
   try {
     if (mode == "throughput") return throughput(R, secs, rawSecs < 0 ? secs : rawSecs);
     if (mode == "setup") return setup(grains, tileSpheres);
     if (mode == "tt") return ttParams(rays);
-    if (mode == "instanced") return instanced(grains);
+    if (mode == "instanced") return instanced(grains, density);
     if (mode == "visits") return visits(secs, absorption);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "error: %s\n", e.what());

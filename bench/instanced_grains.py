@@ -12,7 +12,18 @@ grid's bytes and bytes per grain, the build time with and without the overlap ch
 process's resident memory grown by the first build (freed numpy memory may be reused, so
 the grid's own count is the bound to read), the process's peak, and nearest-hit rays per
 second from outside the block (random origins on a sphere around it, aimed at its inside;
-a Python loop, so a lower bound). Prints a markdown table."""
+a Python loop, so a lower bound). Prints a markdown table.
+
+    .venv/bin/python bench/instanced_grains.py --stage HEAP.usdc [--technique ept|hybrid] [--width W]
+           [--height H] [--spp N] [--threads T] [--exr OUT.exr]
+
+A stage end to end, as `granular render` runs it (read, build, render, in one process): each
+phase's seconds (wall clock, and CPU over all threads: on a shared machine the wall clock
+includes other jobs' time) and the process's peak resident memory during it (the kernel's high-water
+mark, reset at the phase's start), the scene build split as core reports it (grid, overlap
+check, the medium with its packing-rate grid, proxy tables), and the peak beyond the
+per-grain arrays core keeps (the interpreter and its libraries counted in it). One line of
+JSON per phase, then a summary."""
 import argparse
 import os
 import sys
@@ -97,12 +108,90 @@ def run(n, rays, seed):
     return row
 
 
+def _status(*fields):
+    """Fields of /proc/self/status in bytes."""
+    out = {}
+    with open("/proc/self/status") as f:
+        for line in f:
+            key = line.split(":")[0]
+            if key in fields:
+                out[key] = int(line.split()[1]) * 1024
+    return out
+
+
+def _reset_peak():
+    """The kernel's peak resident set (VmHWM) back to the current one."""
+    with open("/proc/self/clear_refs", "w") as f:
+        f.write("5")
+
+
+def stage_run(args):
+    """Reads, builds and renders a stage as `granular render` does, phase by phase."""
+    import json
+
+    from granular import api, cli
+    from granular.usd_reader import read_stage
+    phases = []
+    peak = {"VmHWM": 0}
+
+    def phase(name, fn):
+        _reset_peak()
+        t0, c0 = time.perf_counter(), time.process_time()
+        out = fn()
+        st = _status("VmHWM", "VmRSS", "RssAnon", "RssFile")
+        row = {"phase": name, "seconds": round(time.perf_counter() - t0, 3),
+               "cpu_seconds": round(time.process_time() - c0, 3),
+               "peak_mib": round(st["VmHWM"] / 2**20), "rss_mib": round(st["VmRSS"] / 2**20),
+               "anon_mib": round(st["RssAnon"] / 2**20), "file_mib": round(st["RssFile"] / 2**20)}
+        peak["VmHWM"] = max(peak["VmHWM"], st["VmHWM"])
+        phases.append(row)
+        print(json.dumps(row), flush=True)
+        return out
+
+    base = _status("VmRSS")["VmRSS"]
+    argv = ["render", args.stage, "-o", args.exr or os.devnull, "--technique", args.technique, "--width",
+            str(args.width), "--height", str(args.height), "--spp", str(args.spp), "--threads", str(args.threads)]
+    opts = cli.build_parser().parse_args(argv)
+    scene = phase("read", lambda: read_stage(args.stage, width=args.width, height=args.height))
+    cli._apply_options(opts, scene)
+    built = phase("build", lambda: api.build_scene(scene))
+    info = built.instanced_grains
+    for g in info:
+        print(json.dumps({k: g.get(k) for k in ("name", "grains", "input_bytes", "grid_bytes", "grid_seconds",
+                                                  "overlap_seconds", "medium_seconds", "density_seconds",
+                                                  "density_bytes", "tables_seconds", "has_medium")}), flush=True)
+
+    def render():
+        renderer = core.Renderer(built)
+        renderer.render(args.spp, None, 0.5)
+        return renderer.image()
+    image = phase("render", render)
+    if args.exr:
+        core.write_exr(args.exr, image)
+    inputs = sum(g.get("input_bytes", 36 * g["grains"]) for g in info)  # older builds: positions to indices
+    grains = sum(g["grains"] for g in info)
+    set_up = sum(p["seconds"] for p in phases if p["phase"] in ("read", "build"))
+    print(json.dumps({"grains": grains, "input_mib": round(inputs / 2**20), "baseline_mib": round(base / 2**20),
+                      "set_up_seconds": round(set_up, 2), "peak_mib": round(peak["VmHWM"] / 2**20),
+                      "peak_beyond_input_mib": round((peak["VmHWM"] - inputs) / 2**20),
+                      "bytes_per_grain_beyond_input": round((peak["VmHWM"] - inputs) / max(1, grains), 1)}), flush=True)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--grains", default="1e5,1e6,1e7")
     ap.add_argument("--rays", type=int, default=20000)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--stage", help="a stage to read, build and render end to end (see above)")
+    ap.add_argument("--technique", default="hybrid", choices=("ept", "ept+vpt", "hybrid"))
+    ap.add_argument("--width", type=int, default=320)
+    ap.add_argument("--height", type=int, default=240)
+    ap.add_argument("--spp", type=int, default=1)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--exr", help="with --stage: write the image here")
     args = ap.parse_args()
+    if args.stage:
+        return stage_run(args)
     print("| grains | input (MiB) | grid (MiB) | bytes/grain | build (s) | build + overlap check (s) | "
           "RSS grown by the build (MiB) | peak RSS (MiB) | rays/s (Python loop) |")
     print("|---|---|---|---|---|---|---|---|---|")

@@ -10,8 +10,17 @@ relMSE is the mean over the heap's pixels (primId of the instancer) and channels
 and build, from the caches, left out; the set-up is reported apart).
 
 Usage: .venv/bin/python bench/instanced_hybrid.py [--grains 100000] [--size 80x60]
-       [--ref-spp 1024] [--targets 0.02,0.01] [--out out/bench/instanced_hybrid]
+       [--ref-spp 1024] [--targets 0.02,0.01] [--out out/bench/instanced_hybrid] [--threads T]
+       [--da] [--absorption-scale S]
 Prints a markdown table and the ladders.
+
+--da compares the hybrid with DA in the heap's heterogeneous medium (the default) against
+the hybrid without it (without `--instanced-da`: VPT to the end there) instead of EPT against
+the hybrid; the reference is then the hybrid without DA at --ref-spp, so the table's
+speed-up is DA's at equal error against what it replaces, and each step's "heap mean" is
+DA's bias against VPT to the end (core/heterogeneous_diffusion.h). --absorption-scale S
+multiplies the grains' absorption (the generator's quartz sand) by S: brighter grains
+(S < 1) scatter longer, where DA takes more of the light.
 """
 import argparse
 import math
@@ -27,13 +36,21 @@ ROOT = os.path.dirname(HERE)
 GRANULAR = os.path.join(os.path.dirname(sys.executable), "granular")
 
 
-def render(stage, out, size, spp, technique, seed):
+# The renders compared: their command-line options, EPT's first (the reference's), or with
+# --da the hybrid without DA in the heap's medium first.
+VARIANTS = {"ept": ["--technique", "ept"], "hybrid": ["--technique", "hybrid"]}
+DA_VARIANTS = {"hybrid, no DA": ["--technique", "hybrid"], "hybrid, DA": ["--technique", "hybrid", "--instanced-da"]}
+
+
+def render(stage, out, size, spp, options, seed, threads=0):
     w, h = size
     cmd = [GRANULAR, "render", stage, "-o", out, "--width", str(w), "--height", str(h), "--spp", str(spp),
-           "--technique", technique, "--seed", str(seed)]
+           "--seed", str(seed), "--threads", str(threads)] + list(options)
     r = subprocess.run(cmd, capture_output=True, text=True, check=True)
     m = re.search(r"render ([\d.]+) s", r.stdout + r.stderr)
     built = re.search(r"built in ([\d.]+) s", r.stdout + r.stderr)
+    da = re.search(r"DA [\d.e+-]+ \(([\d.]+)% of paths\)", r.stdout + r.stderr)
+    render.da_paths = float(da.group(1)) if da else float("nan")
     return float(m.group(1)), float(built.group(1)) if built else float("nan")
 
 
@@ -43,6 +60,17 @@ def load(path):
     px = np.asarray(im.pixels, dtype=np.float64)
     ch = list(im.channels)
     return px[..., [ch.index(c) for c in "RGB"]], px[..., ch.index("primId")]
+
+
+def scale_absorption(stage_path, scale):
+    """Multiplies every grain prototype's primvars:granular:absorption in the stage by scale."""
+    from pxr import Gf, Usd
+    stage = Usd.Stage.Open(stage_path)
+    for prim in stage.Traverse():
+        attr = prim.GetAttribute("primvars:granular:absorption")
+        if attr and attr.HasAuthoredValue():
+            attr.Set(Gf.Vec3f(*(scale * a for a in attr.Get())))
+    stage.Save()
 
 
 def crossing(ladder, target):
@@ -62,36 +90,46 @@ def main():
     ap.add_argument("--spp", default="2,4,8,16,32,64,128")
     ap.add_argument("--targets", default="0.05,0.02,0.01")
     ap.add_argument("--out", default=os.path.join(ROOT, "out", "bench", "instanced_hybrid"))
+    ap.add_argument("--threads", type=int, default=0, help="render threads (0: all cores)")
+    ap.add_argument("--da", action="store_true",
+                    help="the hybrid with DA in the heap's medium against the hybrid without it (the reference)")
+    ap.add_argument("--absorption-scale", type=float, default=1.0,
+                    help="multiply the grains' absorption by this (1: the generator's quartz sand)")
     args = ap.parse_args()
+    variants = DA_VARIANTS if args.da else VARIANTS
+    names = list(variants)
     os.makedirs(args.out, exist_ok=True)
     size = tuple(int(x) for x in args.size.split("x"))
     stage = os.path.join(args.out, "heap.usdc")
     subprocess.run([sys.executable, os.path.join(ROOT, "examples", "make_grain_heap.py"), stage, "--grains",
                     str(args.grains), "--frames", "1"], check=True, capture_output=True)
-    ref_path = os.path.join(args.out, "ref.exr")
+    if args.absorption_scale != 1.0:
+        scale_absorption(stage, args.absorption_scale)
+    ref_path = os.path.join(args.out, "ref_da_off.exr" if args.da else "ref.exr")
     if not os.path.exists(ref_path):
-        render(stage, ref_path, size, args.ref_spp, "ept", 1000)
+        render(stage, ref_path, size, args.ref_spp, variants[names[0]], 1000, args.threads)
     ref, prim = load(ref_path)
     heap = prim == 1
     ladders, setup = {}, {}
-    for technique in ("ept", "hybrid"):
-        ladders[technique] = []
+    for name in names:
+        ladders[name] = []
         for spp in [int(s) for s in args.spp.split(",")]:
-            out = os.path.join(args.out, f"{technique}_{spp}.exr")
-            seconds, built = render(stage, out, size, spp, technique, 1)
-            setup[technique] = built
+            out = os.path.join(args.out, f"{name.replace(', ', '_').replace(' ', '_')}_{spp}.exr")
+            seconds, built = render(stage, out, size, spp, variants[name], 1, args.threads)
+            setup[name] = built
             img, _ = load(out)
             err = float((((img - ref) ** 2) / (ref ** 2 + 0.01))[heap].mean())
-            bias = float(img[heap].mean() / ref[heap].mean() - 1)
-            ladders[technique].append((seconds, err))
-            print(f"  {technique} {spp} spp: {seconds:.2f} s, relMSE {err:.4g}, heap mean {100 * bias:+.2f}%",
-                  flush=True)
-    print(f"\n{args.grains} grains, {size[0]}x{size[1]}, EPT reference of {args.ref_spp} spp; "
-          f"scene read and built: EPT {setup['ept']:.2f} s, hybrid {setup['hybrid']:.2f} s\n")
-    print("| relMSE target | EPT (s) | hybrid (s) | speed-up |")
+            bias = img[heap].mean(axis=0) / ref[heap].mean(axis=0) - 1
+            ladders[name].append((seconds, err))
+            da = f", DA on {render.da_paths:.1f}% of paths" if render.da_paths == render.da_paths else ""
+            print(f"  {name} {spp} spp: {seconds:.2f} s, relMSE {err:.4g}, heap mean (R, G, B) "
+                  f"{', '.join(f'{100 * b:+.2f}%' for b in bias)}{da}", flush=True)
+    print(f"\n{args.grains} grains, {size[0]}x{size[1]}, reference: {names[0]} at {args.ref_spp} spp; "
+          f"scene read and built: {names[0]} {setup[names[0]]:.2f} s, {names[1]} {setup[names[1]]:.2f} s\n")
+    print(f"| relMSE target | {names[0]} (s) | {names[1]} (s) | speed-up |")
     print("|---|---|---|---|")
     for target in [float(t) for t in args.targets.split(",")]:
-        a, b = crossing(ladders["ept"], target), crossing(ladders["hybrid"], target)
+        a, b = crossing(ladders[names[0]], target), crossing(ladders[names[1]], target)
         fmt = lambda x: "not reached" if x is None else f"{x:.2f}"
         sp = f"{a / b:.1f}x" if a and b else "-"
         print(f"| {target} | {fmt(a)} | {fmt(b)} | {sp} |")

@@ -2,9 +2,11 @@
 // traces: the judge where EPT and Mitsuba 3 disagree (bench/reference_small_grains.py).
 //
 //   granular-reference render SCENE.json OUT.exr [--spp N] [--seed S] [--width W] [--height H]
-//                      [--threads T] [--stats-json FILE] [--offset-rule E]
+//                      [--threads T] [--stats-json FILE] [--offset-rule E [--offset-scale S]]
 //       --offset-rule E: a diagnosis, not the reference: rays leave surfaces offset by
-//       E (1 + max |p|) as Mitsuba 3's spawn_ray does (E = 8.94e-5), not 1e-9 grain radii.
+//       E (1 + max |p|) as Mitsuba 3's spawn_ray does (E = 8.94e-5), not 1e-9 grain radii;
+//       p in world space (not render space). --offset-scale S: as Mitsuba does it on the
+//       scene made S times larger, E (1 + S max |p|) / S in this scene's units.
 //   granular-reference mean SCENE.json IMAGE.exr...
 //       per image, one JSON line: the mean RGB over the ball mask, the pixels whose centre
 //       and four corners all see the first aggregate's boundary mesh (its silhouette);
@@ -15,8 +17,12 @@
 // What it implements. The grains are Aggregate::forEachGrain's (centre c, radius r,
 // prototype, rotation Q: the grains EPT's walk instantiates), each the point set
 // c + r Q q over its prototype's mesh as GrainPrototype normalised it into the unit
-// bounding sphere (the same float vertices EPT's BVH holds), promoted to double. From there
-// everything is double: rays go into a grain's frame through the exact inverse of r Q
+// bounding sphere (the same float vertices EPT's BVH holds), promoted to double; and every
+// instancer's grains (instanced_grains, InstancedGrains' placement redone in double from
+// the description's arrays: object-space centre x + s R(q) f_c, radius s f_r, mapped by
+// the instancer's transform M, so the point set M (c + s f_r R(q) q); absorption per
+// f_r × M's scale, the prototype's world radius at scale 1, as Scene's Hit::lengthScale).
+// From there everything is double: rays go into a grain's frame through the exact inverse of r Q
 // (t is unchanged by an affine map), triangles are tested by Möller & Trumbore 1997, and
 // the grains are found by a BVH over their bounding spheres' boxes (median splits), each
 // prototype by a BVH over its triangles; the scene's meshes by one BVH in world space.
@@ -24,13 +30,14 @@
 // reflection chosen with probability F and refraction (Snell) otherwise, weight 1 (the
 // 1/η² radiance scale cancels between entry and exit: camera and lights are outside every
 // grain); Beer–Lambert attenuation exp(−a ℓ / R) over every segment of length ℓ travelled
-// inside a grain (a: the material's absorption, per grain radius R of the aggregate, as the
-// Scene scales it); one-sided Lambert surfaces with next-event estimation of every delta
-// distant light (a shadow ray that meets any mesh or grain is blocked: grains are opaque to
-// shadow rays in EPT and in Mitsuba, so light refracted through a grain never reaches a
-// delta light) and cosine-sampled continuation; a constant dome reached by escaping rays
-// only. Russian roulette after rrDepth events with survival min(1, max β) (unbiased); a path
-// ends after maxDepth scattering events, as EPT's. Rays leave a grain offset by 1e-9 of
+// inside a grain (a: the material's absorption, per grain radius R of the aggregate, or
+// per the instancer prototype's world radius at scale 1, as the Scene scales it);
+// one-sided Lambert surfaces with next-event estimation of every delta distant light (a
+// shadow ray that meets any mesh or grain is blocked: grains are opaque to shadow rays in
+// EPT and in Mitsuba, so light refracted through a grain never reaches a delta light) and
+// cosine-sampled continuation; a constant dome reached by escaping rays only. Russian
+// roulette after rrDepth events with survival min(1, max β) (unbiased); a path ends after
+// maxDepth scattering events, as EPT's. Rays leave a grain offset by 1e-9 of
 // its radius along the normal, a mesh by 1e-9 of max(1, |p|).
 //
 // Where it differs from EPT (on purpose where EPT could err; elsewhere only in the noise):
@@ -38,8 +45,8 @@
 // transpose of Q (a 1e-7 difference of shape); offsets 1e-9 instead of 2e-4 grain radii;
 // the dome is not light-sampled (EPT: MIS) and every delta light gets a shadow ray (EPT
 // picks one); its own random numbers. It supports the subset the validation scenes use:
-// pinhole camera, Lambert meshes, smooth dielectric grains, constant domes, delta distant
-// lights; anything else is refused.
+// pinhole camera, Lambert meshes, smooth dielectric grains (aggregates' and still
+// instancers'), constant domes, delta distant lights; anything else is refused.
 //
 // Counters (stats JSON): `inconsistent` counts rays whose hit contradicts the inside/outside
 // state (a leak through a mesh, which would bias the image); it must be 0 (meshes that cut
@@ -395,7 +402,13 @@ class RefScene {
   int maxDepth = 4096, rrDepth = 8;
   // > 0: rays leave every surface offset by this times (1 + max |p|), Mitsuba 3's spawn_ray
   // rule (its RayEpsilon is 8.94e-5), instead of 1e-9 grain radii: what such offsets do.
-  double offsetRule = 0;
+  // p in world space (render space + origin); offsetScale: the rule applied to the scene
+  // enlarged that much (Mitsuba's lengths times S), expressed back in this scene's units.
+  double offsetRule = 0, offsetScale = 1;
+  D3 origin;  // the render origin: world = render space + origin
+  double ruleOffset(const D3& p) const {
+    return offsetRule * (1.0 + offsetScale * maxAbs(p + origin)) / offsetScale;
+  }
   mutable Counters counters;
 
   void finish() {
@@ -473,7 +486,7 @@ class RefScene {
         if (inGrain >= 0) ++counters.meshInsideGrain;
         const RefMaterial& m = materials[size_t(meshes.material[size_t(h.index)])];
         if (dot(d, n) >= 0) break;  // one-sided Lambert seen from behind: black, the path ends
-        const D3 po = p + n * (offsetRule > 0 ? offsetRule * (1 + maxAbs(p)) : 1e-9 * std::max(1.0, maxAbs(p)));
+        const D3 po = p + n * (offsetRule > 0 ? ruleOffset(p) : 1e-9 * std::max(1.0, maxAbs(p)));
         for (const DistantLight& s : suns) {
           const double c = dot(n, s.toLight);
           Hit sh;
@@ -498,7 +511,7 @@ class RefScene {
         const double cosI = -dot(d, nf);
         double cosT = 0;
         const double F = fresnel(cosI, eta, cosT);
-        const double eps = offsetRule > 0 ? offsetRule * (1 + maxAbs(p)) : 1e-9 * g.r;
+        const double eps = offsetRule > 0 ? ruleOffset(p) : 1e-9 * g.r;
         if (rng.next() < F) {
           d = unit(d + nf * (2.0 * cosI));
           o = p + nf * eps;
@@ -576,7 +589,9 @@ std::unique_ptr<RefScene> fromDesc(SceneDesc desc) {
   auto s = std::make_unique<RefScene>();
   desc.settings.technique = Technique::Ept;  // no media: nothing but the grains is needed
   // In render space, where the scene built below holds its grains (scene_desc.h).
-  desc = toRenderSpace(desc, renderOrigin(desc));
+  const Vec3d origin = renderOrigin(desc);
+  desc = toRenderSpace(desc, origin);
+  s->origin = D3(origin.x, origin.y, origin.z);
   for (const MaterialDesc& m : desc.materials) s->materials.push_back(refMaterial(m));
   const int defaultSurface = int(s->materials.size());
   s->materials.push_back(RefMaterial{});  // grey Lambert, albedo 0.5
@@ -604,6 +619,9 @@ std::unique_ptr<RefScene> fromDesc(SceneDesc desc) {
   bool smoothGrains = false;
   for (const auto& a : desc.aggregates)
     for (const auto& p : a.prototypes) smoothGrains = smoothGrains || p.material < 0 || desc.materials[size_t(p.material)].roughness == 0;
+  for (const auto& g : desc.instancedGrains)
+    for (const auto& p : g.prototypes)
+      smoothGrains = smoothGrains || p.material < 0 || desc.materials[size_t(p.material)].roughness == 0;
   std::vector<LightDesc> lights = desc.lights;
   if (lights.empty() && desc.settings.defaultLight) {
     LightDesc dome;  // Scene::build's default: a white dome of radiance 1
@@ -625,7 +643,7 @@ std::unique_ptr<RefScene> fromDesc(SceneDesc desc) {
     }
   }
 
-  if (!desc.aggregates.empty()) {
+  if (!desc.aggregates.empty() || !desc.instancedGrains.empty()) {
     auto scene = Scene::build(desc);
     for (size_t a = 0; a < scene->aggregates().size(); ++a) {
       const Aggregate& agg = *scene->aggregates()[a];
@@ -656,6 +674,68 @@ std::unique_ptr<RefScene> fromDesc(SceneDesc desc) {
         s->grains.push_back(g);
       });
     }
+    // Simulated grains: the prototypes as InstancedGrains normalised them (fitCenter,
+    // fitRadius, the float mesh in the unit sphere); each grain placed anew in double.
+    for (size_t i = 0; i < scene->instancedGrains().size(); ++i) {
+      const InstancedGrains& ig = *scene->instancedGrains()[i];
+      const InstancedGrainsDesc& d = desc.instancedGrains[i];  // render space: its xf moved
+      if (!d.velocities.empty() || !d.angularVelocities.empty())
+        if (desc.camera.shutterOpen != 0 || desc.camera.shutterClose != 0)
+          throw InputError(d.name, "velocities", "the reference renders still grains only (motion_blur false)");
+      const int base = int(s->prototypes.size());
+      std::vector<D3> fitCenter;
+      std::vector<double> fitRadius;
+      for (size_t p = 0; p < ig.prototypes().size(); ++p) {
+        const GrainPrototype& gp = ig.prototypes()[p];
+        Prototype proto;
+        for (size_t t = 0; t < gp.mesh.numTriangles(); ++t)
+          proto.tris.add(D3(gp.mesh.points[gp.mesh.indices[3 * t]]), D3(gp.mesh.points[gp.mesh.indices[3 * t + 1]]),
+                         D3(gp.mesh.points[gp.mesh.indices[3 * t + 2]]), 0);
+        const int mat = d.prototypes[p].material;
+        proto.material = mat >= 0 ? mat : defaultGrain;
+        if (!s->materials[size_t(proto.material)].dielectric)
+          throw InputError(d.name, "prototypes", "the reference supports dielectric grains only");
+        s->prototypes.push_back(std::move(proto));
+        fitCenter.push_back(D3(gp.fitCenter));
+        fitRadius.push_back(double(gp.fitRadius));
+      }
+      M3 xf3;
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c) xf3.m[r][c] = d.xf.m[r][c];
+      const D3 xfT(d.xf.m[0][3], d.xf.m[1][3], d.xf.m[2][3]);
+      const double det = xf3.m[0][0] * (xf3.m[1][1] * xf3.m[2][2] - xf3.m[1][2] * xf3.m[2][1]) -
+                         xf3.m[0][1] * (xf3.m[1][0] * xf3.m[2][2] - xf3.m[1][2] * xf3.m[2][0]) +
+                         xf3.m[0][2] * (xf3.m[1][0] * xf3.m[2][1] - xf3.m[1][1] * xf3.m[2][0]);
+      const double worldScale = std::cbrt(std::fabs(det));
+      for (size_t k = 0; k < d.size(); ++k) {
+        const int p = d.protoIndices[k];
+        // USD's quaternion (w, x, y, z) as a rotation matrix, renormalised in double.
+        double w = 1, x = 0, y = 0, z = 0;
+        if (!d.orientations.empty()) {
+          const Quat& q = d.orientations[k];
+          const double l = std::sqrt(double(q.w) * q.w + double(q.x) * q.x + double(q.y) * q.y + double(q.z) * q.z);
+          w = q.w / l, x = q.x / l, y = q.y / l, z = q.z / l;
+        }
+        M3 rot;
+        rot.m[0][0] = 1 - 2 * (y * y + z * z); rot.m[0][1] = 2 * (x * y - w * z);     rot.m[0][2] = 2 * (x * z + w * y);
+        rot.m[1][0] = 2 * (x * y + w * z);     rot.m[1][1] = 1 - 2 * (x * x + z * z); rot.m[1][2] = 2 * (y * z - w * x);
+        rot.m[2][0] = 2 * (x * z - w * y);     rot.m[2][1] = 2 * (y * z + w * x);     rot.m[2][2] = 1 - 2 * (x * x + y * y);
+        const double scale = d.scales.empty() ? 1.0 : double(d.scales[k]);
+        const D3 cObj = D3(d.positions[k]) + rot * fitCenter[size_t(p)] * scale;
+        const double rObj = scale * fitRadius[size_t(p)];
+        M3 m;  // xf3 · rObj R
+        for (int r = 0; r < 3; ++r)
+          for (int c = 0; c < 3; ++c)
+            m.m[r][c] = rObj * (xf3.m[r][0] * rot.m[0][c] + xf3.m[r][1] * rot.m[1][c] + xf3.m[r][2] * rot.m[2][c]);
+        Grain g;
+        g.c = xf3 * cObj + xfT;
+        g.r = rObj * worldScale;
+        g.toLocal = inverse(m);
+        g.prototype = base + p;
+        g.lengthScale = fitRadius[size_t(p)] * worldScale;
+        s->grains.push_back(g);
+      }
+    }
   }
   s->finish();
   return s;
@@ -670,7 +750,7 @@ std::string num(double v) {
 int render(const std::string& scenePath, const std::string& outPath, int argc, char** argv) {
   SceneDesc desc = loadSceneJson(scenePath);
   int threads = 0;
-  double offsetRule = 0;
+  double offsetRule = 0, offsetScale = 1;
   std::string statsPath;
   for (int i = 0; i + 1 < argc; i += 2) {
     const std::string a = argv[i], v = argv[i + 1];
@@ -681,6 +761,7 @@ int render(const std::string& scenePath, const std::string& outPath, int argc, c
     else if (a == "--threads") threads = std::atoi(v.c_str());
     else if (a == "--stats-json") statsPath = v;
     else if (a == "--offset-rule") offsetRule = std::atof(v.c_str());
+    else if (a == "--offset-scale") offsetScale = std::atof(v.c_str());
     else throw InputError("command line", a, "unknown option");
   }
   std::unique_ptr<tbb::global_control> limit;
@@ -688,6 +769,8 @@ int render(const std::string& scenePath, const std::string& outPath, int argc, c
   const auto t0 = std::chrono::steady_clock::now();
   auto s = fromDesc(desc);
   s->offsetRule = offsetRule;
+  if (!(offsetScale > 0)) throw InputError("command line", "--offset-scale", "must be > 0");
+  s->offsetScale = offsetScale;
   const auto t1 = std::chrono::steady_clock::now();
   const int W = desc.settings.width, H = desc.settings.height, spp = desc.settings.spp;
   const uint64_t seed = desc.settings.seed;
@@ -942,6 +1025,78 @@ int selftest() {
           "white furnace of one clear grain 1000 units from the origin: every path 1, " +
               std::to_string(s->counters.rays.load()) + " rays, no leak");
   }
+  // Simulated grains: the reference's placement (in double, from the description's arrays)
+  // against the Scene's (InstancedGrains, float) for random rays: the same grain first, at
+  // the same surface to float rounding (|Δt cos θ| / t within 16 float ulps), and the same
+  // absorption length (Hit::lengthScale).
+  {
+    SceneDesc desc;
+    MaterialDesc quartz;
+    quartz.name = "quartz";
+    quartz.type = MaterialType::Dielectric;
+    quartz.ior = 1.55f;
+    quartz.absorption = Vec3(0.1f, 0.5f, 2.0f);
+    desc.materials.push_back(quartz);
+    InstancedGrainsDesc g;
+    g.name = "pile";
+    g.xf = Transform::translate(Vec3(0.25f, -0.1f, 0.05f)) * Transform::scale(Vec3(1.7f));
+    GrainPrototypeDesc round, rock;
+    round.name = "round";
+    round.mesh = makeIcosphere(2);
+    round.material = 0;
+    rock.name = "rock";
+    rock.mesh = makeRock(2, 0.3f, 4);
+    rock.material = 0;
+    g.prototypes = {round, rock};
+    Sampler rng(13, 0, 0, 0);
+    for (int i = 0; i < 4; ++i)  // a 4 x 4 x 4 lattice, 2.5 radii apart: no overlaps
+      for (int j = 0; j < 4; ++j)
+        for (int k = 0; k < 4; ++k) {
+          g.positions.push_back(Vec3(float(i), float(j), float(k)) * 0.025f - Vec3(0.0375f));
+          const D3 q = unit(D3(rng.next() - 0.5, rng.next() - 0.5, rng.next() - 0.5));
+          const double half = kPiRef * rng.next();
+          g.orientations.push_back(Quat{float(std::cos(half)), float(q.x * std::sin(half)), float(q.y * std::sin(half)),
+                                        float(q.z * std::sin(half))});
+          g.scales.push_back(float(0.0075 + 0.0025 * rng.next()));
+          g.protoIndices.push_back(rng.next() < 0.6 ? 0 : 1);
+        }
+    desc.instancedGrains.push_back(g);
+    desc.settings.technique = Technique::Ept;
+    auto scene = Scene::build(desc);
+    auto ref = fromDesc(desc);
+    int hits = 0, sameGrain = 0;
+    double worstT = 0, worstScale = 0;
+    for (int i = 0; i < 20000; ++i) {
+      const Vec3d c = g.xf.pointD(g.positions[size_t(rng.next() * 63.999)]);
+      const D3 aim = D3(c.x, c.y, c.z) + D3(rng.next() - 0.5, rng.next() - 0.5, rng.next() - 0.5) * 0.03;
+      const D3 o = aim + unit(D3(rng.next() - 0.5, rng.next() - 0.5, rng.next() - 0.5)) * 0.5;
+      const D3 d = unit(aim - o);
+      Ray ray;
+      ray.o = Vec3(float(o.x), float(o.y), float(o.z));
+      ray.d = Vec3(float(d.x), float(d.y), float(d.z));
+      granular::Hit h;
+      const bool found = scene->intersect(ray, h);
+      Hit rh;
+      const bool rfound = ref->intersect(D3(ray.o), D3(ray.d), 0.0, kInfD, rh);
+      if (found != rfound) {
+        worstT = kInfD;
+        continue;
+      }
+      if (!found) continue;
+      ++hits;
+      sameGrain += h.instance == rh.index;
+      if (h.instance != rh.index) continue;
+      const Grain& rg = ref->grains[size_t(rh.index)];
+      // Along the normal (a grazing ray's t moves by the surface's rounding over cos θ), over
+      // the distance travelled (float rounds o − c and t in the grain's frame to it).
+      worstT = std::max(worstT, std::fabs((double(h.t) - rh.t) * dot(d, ref->normal(rh))) / rh.t);
+      worstScale = std::max(worstScale, std::fabs(double(h.lengthScale) / rg.lengthScale - 1));
+    }
+    check(hits > 5000 && sameGrain >= hits - 2 && worstT < 1e-6 && worstScale < 1e-6,
+          "instanced grains placed as the Scene places them: " + std::to_string(sameGrain) + " of " +
+              std::to_string(hits) + " hits on the same grain, worst |dt cos| / t " + num(worstT) +
+              ", absorption length within " + num(worstScale));
+  }
   std::printf("%s\n", failures ? "selftest FAILED" : "selftest passed");
   return failures ? 1 : 0;
 }
@@ -959,7 +1114,7 @@ int main(int argc, char** argv) {
   if (status >= 0) return status;
   std::fprintf(stderr,
                "usage: granular-reference render SCENE.json OUT.exr [--spp N] [--seed S] [--width W] [--height H]\n"
-               "                                [--threads T] [--stats-json FILE] [--offset-rule E]\n"
+               "                                [--threads T] [--stats-json FILE] [--offset-rule E [--offset-scale S]]\n"
                "       granular-reference mean SCENE.json IMAGE.exr...\n"
                "       granular-reference selftest\n");
   return 2;

@@ -25,13 +25,22 @@ sees (core/granular_prims.h, core/instanced_grains.h, usd_reader.read_instanced_
     it: the same image). Mitsuba offsets every ray leaving a surface by RayEpsilon (1 +
     max |p|) along the normal: 0.9–1.9% of the 10^4 heap's grains (0.75–1 cm) at metre
     scale, which biased its heap by −0.26% (4 standard errors), −2.1% at scale 0.1; at
-    scale 100 they are 0.1–0.7% and it agrees with ours (bench/README.md). Scaling cannot
-    bring them below RayEpsilon |p| / r, up to 3% at the edge of the 10^6 heap.
+    scale 100 they are 0.1–0.7% of a grain. Scaling cannot bring them below
+    RayEpsilon |p| / r, up to 3% at the edge of the 10^6 heap. Every ray that enters a
+    grain starts that far inside it, so absorbing grains absorb less: Mitsuba renders
+    quartz grains brighter than they are, the more the more they absorb and the farther
+    from the origin (bench/README.md; --reference shows it).
 
 Agreement (--check N, default 10^4 grains): K independent renders per side, fixed seeds.
 Over the heap's pixels (our primId of the instancer) the mean per channel, and per 8x8 block
 of pixels, with standard errors from the K renders; z = (ours − Mitsuba) / sqrt(se_o² +
-se_m²).
+se_m²). --reference adds the judge: granular-reference (bench/reference_double.cpp, double
+precision, offsets 1e-9 grain radii) on the same scene (the export's ours.json), and the
+same with Mitsuba's offset rule at Mitsuba's scale (--offset-rule 8.94e-5 --offset-scale
+S); the sun is then off on every side (--no-sun: the reference takes delta suns only, and
+this one gives 2e-4 of the sky's irradiance). --translate X,Y,Z moves the whole scene
+(camera, heap, ground) on every side: ours renders in render space and must not change.
+Both are layers over the heap's stage (variant_stage), which every side reads.
 
 Speed (--grains): each side in fresh processes, one thread each. Mitsuba: one process per
 heap, which builds its scene dictionary from the exported arrays, loads it (`load_dict`,
@@ -46,7 +55,7 @@ Usage (from the repository root; Mitsuba in a separate, git-ignored venv):
     /usr/bin/python3 -m venv .venv-mitsuba && .venv-mitsuba/bin/pip install mitsuba numpy
     .venv/bin/python bench/vs_mitsuba_instanced.py [--check 10000] [--grains 100000,1000000]
         [--size 80x60] [--renders 16] [--check-spp 32] [--ref-spp 1024] [--targets 0.02,0.01]
-        [--out out/bench/vs_mitsuba_instanced]
+        [--reference] [--translate X,Y,Z] [--no-sun] [--out out/bench/vs_mitsuba_instanced]
 Prints markdown tables (progress to stderr).
 """
 import argparse
@@ -88,9 +97,15 @@ def write_ply(path, points, indices):
         f.write(rec.tobytes())
 
 
+def build_dir():
+    return os.environ.get("GRANULAR_BUILD_DIR", os.path.join(ROOT, "build"))
+
+
 def export(stage_path, width, height, out):
-    """Writes out/scene.json, out/grains.npz and the PLYs: the stage as our renderer reads it."""
-    sys.path[:0] = [os.path.join(ROOT, "build", "python"), os.path.join(ROOT, "python")]
+    """Writes out/scene.json, out/grains.npz and the PLYs: the stage as our renderer reads it;
+    and out/ours.json, the same scene as our JSON scene (granular-render; granular-reference
+    when the stage has no sun: it takes delta suns only)."""
+    sys.path[:0] = [os.path.join(build_dir(), "python"), os.path.join(ROOT, "python")]
     import granular_core as core
     from pxr import Gf, Usd, UsdGeom
     from granular import usd_reader
@@ -99,6 +114,13 @@ def export(stage_path, width, height, out):
     desc = scene.desc
     os.makedirs(out, exist_ok=True)
     cam = desc.camera
+    ours = {"render": {"width": width, "height": height, "technique": "ept", "max_depth": desc.settings.max_depth,
+                       "rr_depth": desc.settings.rr_depth, "physical_sun": desc.settings.physical_sun,
+                       "motion_blur": False},
+            "camera": {"transform": np.asarray(cam.camera_to_world).ravel().tolist(),
+                       "focal_length": cam.focal_length, "horizontal_aperture": cam.horizontal_aperture,
+                       "vertical_aperture": cam.vertical_aperture, "clipping_range": [cam.clip_near, cam.clip_far]},
+            "materials": {}, "meshes": [], "lights": []}
     # camera.cpp: the aperture fitted inside the image, extended along the longer axis.
     h_ap, v_ap = cam.horizontal_aperture, cam.vertical_aperture
     if width / height > h_ap / v_ap:
@@ -116,6 +138,8 @@ def export(stage_path, width, height, out):
             if light.texture_file:
                 raise SystemExit(f"{light.name}: a textured dome is not exported")
             exp["lights"].append({"type": "constant", "radiance": radiance})
+            ours["lights"].append({"name": f"dome{len(ours['lights'])}", "type": "dome", "color": radiance,
+                                   "intensity": 1.0})
         elif light.type == core.LightType.Distant:
             xf = np.asarray(light.xf)
             d = xf[:3, 2] / np.linalg.norm(xf[:3, 2])  # towards the sun (light.cpp: +Z of its frame)
@@ -123,6 +147,9 @@ def export(stage_path, width, height, out):
             if light.normalize:  # light.cpp normalizationArea: irradiance = intensity
                 radiance = [c / (math.pi * math.sin(half) ** 2) for c in radiance]
             exp["lights"].append({"type": "sun", "direction": d.tolist(), "half_angle": half, "radiance": radiance})
+            ours["lights"].append({"name": f"sun{len(ours['lights'])}", "type": "distant",
+                                   "transform": xf.ravel().tolist(), "angle": light.angle, "color": list(light.color), "intensity": light.intensity,
+                                   "exposure": light.exposure, "normalize": light.normalize})
         else:
             raise SystemExit(f"{light.name}: light type {light.type} is not exported")
     for i, m in enumerate(desc.meshes):
@@ -135,6 +162,10 @@ def export(stage_path, width, height, out):
         ply = f"mesh{i}.ply"
         write_ply(os.path.join(out, ply), pts, np.asarray(m.mesh.indices))
         exp["meshes"].append({"name": m.name, "ply": ply, "albedo": list(mat.albedo)})
+        ours["materials"][f"mesh{i}"] = {"type": "lambert", "albedo": list(mat.albedo)}
+        ours["meshes"].append({"name": f"mesh{i}", "material": f"mesh{i}",
+                               "shape": {"mesh": {"points": pts.tolist(),
+                                                  "face_vertex_indices": np.asarray(m.mesh.indices).tolist()}}})
 
     # The instancer, read as usd_reader.read_instanced_grains hands it to core.
     stage = Usd.Stage.Open(stage_path)
@@ -147,6 +178,7 @@ def export(stage_path, width, height, out):
     inst_xf = np.array(xfc.GetLocalToWorldTransform(pi.GetPrim()), dtype=np.float64).T  # column vectors
     world_scale = abs(np.linalg.det(inst_xf[:3, :3])) ** (1.0 / 3.0)
     materials = {mt.name: mt for mt in desc.materials}
+    protos = []
     for k, t in enumerate(pi.GetPrototypesRel().GetForwardedTargets()):
         prim = stage.GetPrimAtPath(t)
         if not Gf.IsClose(xfc.GetLocalTransformation(prim)[0], Gf.Matrix4d(1), 1e-12):
@@ -169,6 +201,10 @@ def export(stage_path, width, height, out):
         write_ply(os.path.join(out, ply), np.asarray(tri.points), np.asarray(tri.indices))
         exp["prototypes"].append({"path": str(t), "ply": ply, "ior": mat.ior, "fit_radius": fit_radius,
                                   "sigma_t": [a / (fit_radius * world_scale) for a in mat.absorption]})
+        ours["materials"][f"grain{k}"] = {"type": "dielectric", "ior": mat.ior, "absorption": list(mat.absorption)}
+        protos.append({"name": f"grain{k}", "material": f"grain{k}",
+                       "shape": {"mesh": {"points": np.asarray(tri.points, np.float64).tolist(),
+                                          "face_vertex_indices": np.asarray(tri.indices).tolist()}}})
     pos = np.asarray(pi.GetPositionsAttr().Get(tc), np.float64)
     q = np.asarray(pi.GetOrientationsAttr().Get(tc), np.float64)[:, [3, 0, 1, 2]]  # (w, x, y, z)
     q /= np.linalg.norm(q, axis=1, keepdims=True)
@@ -183,6 +219,12 @@ def export(stage_path, width, height, out):
     exp["grains"] = int(len(pos))
     with open(os.path.join(out, "scene.json"), "w") as f:
         json.dump(exp, f, indent=1)
+    ours["instanced_grains"] = [{"name": "heap", "transform": inst_xf.ravel().tolist(), "prototypes": protos,
+                                 "positions": pos.tolist(), "orientations": q.tolist(),
+                                 "scales": scales.max(1).tolist(),
+                                 "proto_indices": np.asarray(pi.GetProtoIndicesAttr().Get(tc), int).tolist()}]
+    with open(os.path.join(out, "ours.json"), "w") as f:
+        json.dump(ours, f)
     return exp
 
 
@@ -332,7 +374,7 @@ def load_ours(path):
     im = core.read_exr(path)
     px = np.asarray(im.pixels, dtype=np.float64)
     ch = list(im.channels)
-    return px[..., [ch.index(c) for c in "RGB"]], px[..., ch.index("primId")]
+    return px[..., [ch.index(c) for c in "RGB"]], px[..., ch.index("primId")] if "primId" in ch else None
 
 
 def rel_mse(img, ref, heap):
@@ -347,13 +389,64 @@ def heap_stage(args, n):
     return stage
 
 
-def agreement(args, n, size):
-    """K renders per side at --check-spp: heap means per channel and 8x8 blocks, z-scores."""
+def variant_stage(args, n):
+    """The heap, or a layer over it that moves the whole of /World by --translate and turns
+    the sun off (--no-sun, --reference): both renderers read the same variant."""
     stage = heap_stage(args, n)
-    base = os.path.join(args.out, f"mi_{n}")
+    if not args.translate and not args.no_sun:
+        return stage
+    t = [float(v) for v in (args.translate or "0,0,0").split(",")]
+    name = f"heap_{n}_t{'_'.join(f'{v:g}' for v in t)}{'_nosun' if args.no_sun else ''}"
+    path = os.path.join(args.out, name + ".usda")
+    ops = (f"        double3 xformOp:translate = ({t[0]!r}, {t[1]!r}, {t[2]!r})\n"
+           f"        uniform token[] xformOpOrder = [\"xformOp:translate\"]\n") if any(t) else ""
+    sun = '        over "Sun" (active = false)\n        {\n        }\n' if args.no_sun else ""
+    with open(path, "w") as f:
+        f.write(f'#usda 1.0\n(\n    defaultPrim = "World"\n    subLayers = [@./{os.path.basename(stage)}@]\n)\n\n'
+                f'over "World"\n{{\n{ops}{sun}}}\n')
+    return path
+
+
+REFERENCE_EPS = 8.94e-5  # Mitsuba 3's RayEpsilon in single precision (granular-reference --offset-rule)
+
+
+def render_reference(args, base, spp, seed, offsets):
+    """granular-reference on the export's ours.json; offsets: Mitsuba's rule at its scale."""
+    out = os.path.join(base, f"ref_{'mitsuba_offsets' if offsets else 'exact'}_{spp}_{seed}.exr")
+    cmd = [args.reference_bin, "render", os.path.join(base, "ours.json"), out, "--spp", str(spp), "--seed", str(seed),
+           "--threads", str(args.threads), "--stats-json", out + ".stats.json"]
+    if offsets:
+        cmd += ["--offset-rule", str(REFERENCE_EPS), "--offset-scale", str(args.mitsuba_scale)]
+    subprocess.run(cmd, check=True, capture_output=True)
+    stats = json.load(open(out + ".stats.json"))
+    if stats["inconsistent"]:
+        raise SystemExit(f"{out}: {stats['inconsistent']} rays crossed a grain against their inside/outside state")
+    return load_ours(out)[0]
+
+
+def compare(ours, theirs, heap):
+    """Per channel and over RGB: heap means of two sets of K renders, their standard errors,
+    the relative difference ours / theirs − 1 and its z-score."""
+    K = len(ours)
+    rows = []
+    for name, sel in (("R", [0]), ("G", [1]), ("B", [2]), ("RGB", [0, 1, 2])):
+        a = ours[..., sel][:, heap].mean(axis=(1, 2))
+        b = theirs[..., sel][:, heap].mean(axis=(1, 2))
+        A, B = a.mean(), b.mean()
+        sa, sb = a.std(ddof=1) / math.sqrt(K), b.std(ddof=1) / math.sqrt(len(theirs))
+        rows.append((name, A, sa, B, sb, (A - B) / B, math.sqrt(sa ** 2 + (A / B) ** 2 * sb ** 2) / B,
+                     (A - B) / math.hypot(sa, sb)))
+    return rows
+
+
+def agreement(args, n, size):
+    """K renders per side at --check-spp: heap means per channel and 8x8 blocks, z-scores;
+    with --reference also granular-reference's, exact and with Mitsuba's ray offsets."""
+    stage = variant_stage(args, n)
+    base = os.path.join(args.out, "mi_" + os.path.splitext(os.path.basename(stage))[0][len("heap_"):])
     exp = export(stage, size[0], size[1], base)
     K, spp = args.renders, args.check_spp
-    log(f"agreement at {exp['grains']} grains: {K} renders x {spp} spp per side")
+    log(f"agreement at {exp['grains']} grains ({os.path.basename(stage)}): {K} renders x {spp} spp per side")
     ours, prim = [], None
     for k in range(1, K + 1):
         path = os.path.join(base, f"ours_check_{k}.exr")
@@ -361,20 +454,30 @@ def agreement(args, n, size):
         img, prim = load_ours(path)
         ours.append(img)
     ours = np.stack(ours)
-    res = run_mitsuba(args, base, {"renders": [[spp, k] for k in range(1, K + 1)],
-                                   "prefix": os.path.join(base, "mi_check")})
-    theirs = np.stack([np.load(os.path.join(base, f"mi_check_{spp}_{k}.npy")) for k in range(1, K + 1)]).astype(np.float64)
     heap = prim == 1
-    rows = []
-    for name, sel in (("R", [0]), ("G", [1]), ("B", [2]), ("RGB", [0, 1, 2])):
-        a = ours[..., sel][:, heap].mean(axis=(1, 2))
-        b = theirs[..., sel][:, heap].mean(axis=(1, 2))
-        A, B = a.mean(), b.mean()
-        sa, sb = a.std(ddof=1) / math.sqrt(K), b.std(ddof=1) / math.sqrt(K)
-        rows.append((name, A, sa, B, sb, (A - B) / B, math.sqrt(sa ** 2 + (A / B) ** 2 * sb ** 2) / B,
-                     (A - B) / math.hypot(sa, sb)))
-    # 8x8 blocks holding at least 32 heap pixels: each channel's heap mean.
+    out = {"grains": exp["grains"], "stage": os.path.basename(stage), "heap_pixels": int(heap.sum()), "pairs": []}
+    theirs = None
+    if not args.reference_only:
+        out["mitsuba"] = run_mitsuba(args, base, {"renders": [[spp, k] for k in range(1, K + 1)],
+                                                  "prefix": os.path.join(base, "mi_check")})
+        theirs = np.stack([np.load(os.path.join(base, f"mi_check_{spp}_{k}.npy"))
+                           for k in range(1, K + 1)]).astype(np.float64)
+        out["pairs"].append(("ours EPT", "Mitsuba", compare(ours, theirs, heap)))
+    if args.reference:
+        log(f"  granular-reference, exact and with Mitsuba's offsets at scale {args.mitsuba_scale:g}")
+        exact = np.stack([render_reference(args, base, spp, k, False) for k in range(1, K + 1)])
+        offs = np.stack([render_reference(args, base, spp, k, True) for k in range(1, K + 1)])
+        out["pairs"].append(("ours EPT", "reference", compare(ours, exact, heap)))
+        if theirs is not None:
+            out["pairs"].append(("Mitsuba", "reference", compare(theirs, exact, heap)))
+        out["pairs"].append(("reference with Mitsuba's offsets", "reference", compare(offs, exact, heap)))
+        if theirs is not None:
+            out["pairs"].append(("Mitsuba", "reference with Mitsuba's offsets", compare(theirs, offs, heap)))
+    # 8x8 blocks holding at least 32 heap pixels: each channel's heap mean, ours against Mitsuba.
     z = []
+    if theirs is None:
+        out["z"] = np.asarray(z)
+        return out
     H, W = heap.shape
     for y in range(0, H - 7, 8):
         for x in range(0, W - 7, 8):
@@ -385,8 +488,8 @@ def agreement(args, n, size):
                 a = ours[:, y:y + 8, x:x + 8, c][:, m].mean(1)
                 b = theirs[:, y:y + 8, x:x + 8, c][:, m].mean(1)
                 z.append((a.mean() - b.mean()) / math.hypot(a.std(ddof=1) / math.sqrt(K), b.std(ddof=1) / math.sqrt(K)))
-    z = np.asarray(z)
-    return {"grains": exp["grains"], "rows": rows, "z": z, "heap_pixels": int(heap.sum()), "mitsuba": res}
+    out["z"] = np.asarray(z)
+    return out
 
 
 def speed(args, n, size, targets):
@@ -450,8 +553,18 @@ def main():
                     help="Mitsuba's Russian roulette start (default: none, as validate_mitsuba.py)")
     ap.add_argument("--mitsuba-scale", type=float, default=100.0,
                     help="render Mitsuba's scene this many times larger (same image; smaller ray offsets)")
+    ap.add_argument("--translate", default="", metavar="X,Y,Z",
+                    help="move the whole scene (a layer over the heap's stage): Mitsuba's offsets grow with |p|")
+    ap.add_argument("--no-sun", action="store_true", help="the sun off on every side (a layer over the stage)")
+    ap.add_argument("--reference-only", action="store_true",
+                    help="the check without Mitsuba: ours against granular-reference (implies --reference)")
+    ap.add_argument("--reference", action="store_true",
+                    help="the check also renders granular-reference, exact and with Mitsuba's ray offsets (implies "
+                         "--no-sun: the reference takes delta suns only)")
     ap.add_argument("--mitsuba-python", default=os.path.join(ROOT, ".venv-mitsuba", "bin", "python"))
     ap.add_argument("--granular", default=os.path.join(os.path.dirname(sys.executable), "granular"))
+    ap.add_argument("--reference-bin", default=os.path.join(build_dir(), "bench", "granular-reference"),
+                    help="granular-reference (default: GRANULAR_BUILD_DIR or build/, bench/)")
     ap.add_argument("--out", default=os.path.join(ROOT, "out", "bench", "vs_mitsuba_instanced"))
     args = ap.parse_args()
     if args.mitsuba_child:
@@ -461,6 +574,12 @@ def main():
     args.spp = [int(s) for s in args.spp.split(",")]
     if not os.path.exists(args.mitsuba_python):
         raise SystemExit(f"no Mitsuba interpreter at {args.mitsuba_python} (see the usage above)")
+    args.reference = args.reference or args.reference_only
+    if args.reference:
+        args.no_sun = True
+        if not os.path.exists(args.reference_bin):
+            raise SystemExit(f"no granular-reference at {args.reference_bin} (cmake --build build --target "
+                             "granular-reference)")
     os.makedirs(args.out, exist_ok=True)
     size = tuple(int(v) for v in args.size.split("x"))
     targets = [float(t) for t in args.targets.split(",")]
@@ -468,16 +587,19 @@ def main():
     if args.check:
         a = agreement(args, args.check, size)
         z = a["z"]
-        print(f"### Agreement at {a['grains']} grains ({size[0]}x{size[1]}, {a['heap_pixels']} heap pixels, "
-              f"{args.renders} renders x {args.check_spp} spp per side)\n")
-        print("| channel | ours EPT (mean ± se) | Mitsuba (mean ± se) | relative difference ± se | difference / se |")
-        print("|---|---|---|---|---|")
-        for name, A, sa, B, sb, rel, se, zz in a["rows"]:
-            print(f"| {name} | {A:.5f} ± {sa:.5f} | {B:.5f} ± {sb:.5f} | {100 * rel:+.2f}% ± {100 * se:.2f}% | "
-                  f"{zz:+.2f} |")
-        print(f"\n8x8 blocks (≥ 32 heap pixels), per channel: {z.size} z-scores, mean {z.mean():+.3f}, "
-              f"std {z.std():.3f}, |z|>2 {100 * (np.abs(z) > 2).mean():.1f}%, |z|>3 "
-              f"{100 * (np.abs(z) > 3).mean():.1f}%, max |z| {np.abs(z).max():.2f}\n")
+        print(f"### Agreement at {a['grains']} grains ({a['stage']}, {size[0]}x{size[1]}, {a['heap_pixels']} heap "
+              f"pixels, {args.renders} renders x {args.check_spp} spp per side, Mitsuba at scale "
+              f"{args.mitsuba_scale:g})\n")
+        print("| A | B | channel | A (mean ± se) | B (mean ± se) | A / B − 1 ± se | difference / se |")
+        print("|---|---|---|---|---|---|---|")
+        for na, nb, rows in a["pairs"]:
+            for name, A, sa, B, sb, rel, se, zz in rows:
+                print(f"| {na} | {nb} | {name} | {A:.5f} ± {sa:.5f} | {B:.5f} ± {sb:.5f} | {100 * rel:+.2f}% ± "
+                      f"{100 * se:.2f}% | {zz:+.2f} |")
+        if z.size:
+            print(f"\n8x8 blocks (≥ 32 heap pixels), ours against Mitsuba, per channel: {z.size} z-scores, mean "
+                  f"{z.mean():+.3f}, std {z.std():.3f}, |z|>2 {100 * (np.abs(z) > 2).mean():.1f}%, |z|>3 "
+                  f"{100 * (np.abs(z) > 3).mean():.1f}%, max |z| {np.abs(z).max():.2f}\n")
     rows = []
     for n in [int(float(g)) for g in args.grains.split(",") if g]:
         rows.append(speed(args, n, size, targets))

@@ -129,6 +129,7 @@ class Aggregate {
   void prepareProxies() const;
   static constexpr float kNeighbourReach = 2.5f;
   static constexpr uint32_t kMaxNeighbours = 1024;
+  static constexpr uint32_t kNeighbourBlock = 4;  // neighbours tested side by side
   // Exact inside test of a world point against the boundary mesh (ray parity by the
   // orientation of the first hit).
   bool insideBoundary(const Vec3& p) const;

@@ -79,6 +79,16 @@ DiffusionProfile::DiffusionProfile(const MediumParams& p) {
   }
 }
 
+DiffusionProfile DiffusionProfile::scaled(float k) const {
+  DiffusionProfile p = *this;
+  p.D = D / k;
+  p.zb = zb / k;
+  p.sigmaTr = sigmaTr * k;
+  p.sigmaSReduced = sigmaSReduced * k;
+  p.sigmaTReduced = sigmaTReduced * k;
+  return p;
+}
+
 Vec3 DiffusionProfile::slabTotal(float z, float d, bool farFace) const {
   Vec3 T;
   const double h = farFace ? double(d) - z : double(z);
@@ -165,9 +175,54 @@ void leaveAt(PathState& path, const Vec3& p, const Vec3& ng, const Vec3& dir) {
 
 }  // namespace
 
-float localCurvatureRadius(const Aggregate& agg, const Vec3& x, float delta) {
+float AggregateBoundary::closestPoint(const Vec3& p, Vec3& closest) const {
+  return agg_.closestBoundaryPoint(p, closest);
+}
+
+bool AggregateBoundary::intersect(const Vec3& o, const Vec3& d, float tmax, float& t, Vec3& ng) const {
+  return agg_.intersectBoundary(o, d, 0.0f, tmax, t, ng);
+}
+
+float SurfaceCutBoundary::closestPoint(const Vec3& p, Vec3& closest) const { return inner_.closestPoint(p, closest); }
+
+float SurfaceCutBoundary::margin(const Vec3& p) const {
+  return 1e-4f * std::max(1e-3f, maxComponent(vabs(p)));
+}
+
+bool SurfaceCutBoundary::intersect(const Vec3& o, const Vec3& d, float tmax, float& t, Vec3& ng) const {
+  if (!inner_.intersect(o, d, tmax, t, ng)) t = tmax;
+  Ray ray;
+  ray.o = o;
+  ray.d = d;
+  ray.tmax = std::isfinite(t) ? t : kInf;
+  ray.time = time_;
+  Hit hit;
+  if (scene_.intersectMedium(ray, hit) && hit.t < ray.tmax) {
+    // A surface first: the light leaves there, just before it, towards it.
+    t = std::max(0.0f, hit.t - margin(hit.p));
+    ng = dot(hit.ng, d) > 0 ? hit.ng : -hit.ng;
+    return true;
+  }
+  return std::isfinite(t) && t < tmax;
+}
+
+Vec3 SurfaceCutBoundary::exitPoint(const Vec3& p, const Vec3& ng) const {
+  const Vec3 e = inner_.exitPoint(p, ng);
+  const float len = length(e - p);
+  if (!(len > 0)) return p;
+  Ray ray;
+  ray.o = p;
+  ray.d = (e - p) / len;
+  ray.tmax = len;
+  ray.time = time_;
+  Hit hit;
+  if (!scene_.intersectMedium(ray, hit) || !(hit.t < len)) return e;
+  return p + ray.d * std::max(0.0f, hit.t - margin(hit.p));
+}
+
+float localCurvatureRadius(const DiffusionBoundary& boundary, const Vec3& x, float delta) {
   Vec3 c;
-  const float z = agg.closestBoundaryPoint(x, c);
+  const float z = boundary.closestPoint(x, c);
   if (!(z > 0)) return 0.0f;
   delta = std::max(delta, z);
   const Vec3 n = (c - x) / z;
@@ -176,7 +231,7 @@ float localCurvatureRadius(const Aggregate& agg, const Vec3& x, float delta) {
   for (const Vec3& tangent : {frame.s, -frame.s, frame.t, -frame.t}) {
     const Vec3 x2 = x + tangent * delta;
     Vec3 c2;
-    const float z2 = agg.closestBoundaryPoint(x2, c2);
+    const float z2 = boundary.closestPoint(x2, c2);
     if (!(z2 > 0)) return 0.0f;
     // Outside (the boundary bends within δ), the normal points back: a ≥ 90°, radius 0.
     const float cosA = std::clamp(dot(n, (c2 - x2) / z2), -1.0f, 1.0f);
@@ -187,19 +242,26 @@ float localCurvatureRadius(const Aggregate& agg, const Vec3& x, float delta) {
   return radius;
 }
 
-bool diffusionHolds(const Aggregate& agg, const Vec3& x, float daDepth) {
-  return localCurvatureRadius(agg, x, 0.0f) >= kCurvatureGuard * daDepth;
+bool diffusionHolds(const DiffusionBoundary& boundary, const Vec3& x, float daDepth) {
+  return localCurvatureRadius(boundary, x, 0.0f) >= kCurvatureGuard * daDepth;
 }
 
 void diffusionStep(const Scene& scene, PathState& path, const Vec3& x) {
-  const Aggregate& agg = *scene.aggregates()[path.medium];
-  const DiffusionProfile& prof = scene.diffusionProfile(path.medium);
+  const AggregateBoundary boundary(scene.aggregateAt(path.medium, path.ray.time));
   const HomogeneousMedium& med = scene.medium(path.medium);
+  diffusionStep(scene, path, x, DiffusionMedium{med, med.sigmaT(), scene.diffusionProfile(path.medium), boundary});
+}
+
+void diffusionStep(const Scene& scene, PathState& path, const Vec3& x, const DiffusionMedium& m) {
+  const DiffusionBoundary& boundary = m.boundary;
+  const DiffusionProfile& prof = m.profile;
+  const HomogeneousMedium& med = m.phase;
   path.cost[1] += 5;
   // Light reaching x straight from the lights (single scattering, exact; the diffusion
-  // below carries the rest): a delta sun can only be reached this way.
+  // below carries the rest): a delta sun can only be reached this way. Its flight to the
+  // boundary is in the reduced medium: σ_t − σ'_t of it given back.
   path.credit = kDa;
-  mediumNee(scene, path, med, x, &prof.sigmaTReduced);
+  mediumNee(scene, path, med, x, &boundary, m.sigmaT - prof.sigmaTReduced);
 
   // 1. The beam: ω from the phase function, the first reduced scattering at t along it.
   Vec3 phaseWeight;
@@ -208,7 +270,7 @@ void diffusionStep(const Scene& scene, PathState& path, const Vec3& x) {
   const Vec3 w = med.samplePhase(path.ray.d, uc, u1, u2, phaseWeight, phasePdf);
   float s;
   Vec3 ngS;
-  if (!(phasePdf > 0) || !agg.intersectBoundary(x, w, 0.0f, kInf, s, ngS)) {
+  if (!(phasePdf > 0) || !boundary.intersect(x, w, kInf, s, ngS)) {
     path.alive = false;  // no boundary along ω: a leak (open by rounding)
     return;
   }
@@ -222,7 +284,7 @@ void diffusionStep(const Scene& scene, PathState& path, const Vec3& x) {
     path.lastPdf = phasePdf;
     path.lastP = x;
     path.lastNeeChance = 1;
-    leaveAt(path, x + w * s, ngS, w);
+    leaveAt(path, boundary.exitPoint(x + w * s, ngS), ngS, w);
     ++path.depth;
     if (!isFinite(path.beta) || isBlack(path.beta)) path.alive = false;
     return;
@@ -233,7 +295,7 @@ void diffusionStep(const Scene& scene, PathState& path, const Vec3& x) {
 
   // 2. The slab through y: near face at the closest boundary point, far face along −n.
   Vec3 closest;
-  float z = agg.closestBoundaryPoint(y, closest);
+  float z = boundary.closestPoint(y, closest);
   if (!(z > 0)) {
     path.alive = false;
     return;
@@ -241,7 +303,7 @@ void diffusionStep(const Scene& scene, PathState& path, const Vec3& x) {
   Vec3 n = (closest - y) / z;  // outward normal of the near face
   float tFar, dFar = kInf;
   Vec3 ngFar;
-  if (agg.intersectBoundary(y, -n, 0.0f, kInf, tFar, ngFar)) dFar = tFar;
+  if (boundary.intersect(y, -n, kInf, tFar, ngFar)) dFar = tFar;
   float d = z + dFar;
   // Face choice: the escape probability of a non-absorbing slab, (d − z + z_b)/(d + 2z_b).
   float zb = average(prof.zb);
@@ -267,7 +329,7 @@ void diffusionStep(const Scene& scene, PathState& path, const Vec3& x) {
   Vec3 dir = normalize(q - y);
   float tOut;
   Vec3 ngOut;
-  if (!agg.intersectBoundary(y, dir, 0.0f, kInf, tOut, ngOut)) {
+  if (!boundary.intersect(y, dir, kInf, tOut, ngOut)) {
     path.alive = false;
     return;
   }
@@ -276,8 +338,8 @@ void diffusionStep(const Scene& scene, PathState& path, const Vec3& x) {
   // 4. At x_o the exit lobe plays the BSDF: NEE, then a direction sampled from it.
   Hit hit;
   hit.kind = Hit::Surface;
-  hit.p = y + dir * tOut;
   hit.ng = dot(ngOut, dir) > 0 ? ngOut : -ngOut;
+  hit.p = boundary.exitPoint(y + dir * tOut, hit.ng);
   hit.t = tOut;
   hit.material = scene.diffusionExitMaterial();
   hit.eps = 1e-5f * std::max(1e-3f, maxComponent(vabs(hit.p)));

@@ -40,7 +40,9 @@
 // 4. The exit: a point x_o of the near or far face is sampled with a stated area pdf
 //    (diffusionStep), the weight J/pdf is applied, and the path continues from x_o with
 //    d'Eon & Irving's P1 lobe of the exiting light as its "BSDF" (MaterialType::
-//    DiffusionExit: NEE, then a direction sampled from the lobe).
+//    DiffusionExit: NEE, then a direction sampled from the lobe). x_o (and the uncollided
+//    beam's exit) is where the light is out of the medium: DiffusionBoundary::exitPoint,
+//    the boundary itself for an aggregate, beyond the kernel's skin for an instancer.
 //
 // Finite thickness. The truncated multipole does not conserve energy as σ_a d → 0: each
 // image's plane integral grows like 1/σ_tr and cancels only against images ~1/σ_tr away.
@@ -52,6 +54,7 @@
 // within 0.3% of 1 and only the capped, nearly non-absorbing thin slabs lean on it.
 #pragma once
 
+#include "aggregate_motion.h"
 #include "math.h"
 #include "medium.h"
 
@@ -60,6 +63,7 @@ namespace granular {
 struct PathState;
 class Scene;
 class Aggregate;
+class HomogeneousMedium;
 
 constexpr double kMultipoleReach = 4.0;
 constexpr int kMaxMultipoleTerms = 32;
@@ -75,6 +79,10 @@ struct DiffusionProfile {
   Vec3 diffuseReflectance;
   DiffusionProfile() = default;
   explicit DiffusionProfile(const MediumParams& p);
+  // The profile of the medium whose coefficients (σ_t, σ_s, σ_a) are k times these, with
+  // the same albedo and phase: every length divides by k (a heterogeneous medium's local
+  // profile, heterogeneous_diffusion.h).
+  DiffusionProfile scaled(float k) const;
   // Multipole (half space: the dipole) scaled to the slab's exact 1-D total; see above.
   Vec3 exitance(float z, float rho, float d, bool farFace) const;
   // The exact 1-D slab's laterally integrated exitance (the dipole's for d = inf).
@@ -88,6 +96,66 @@ struct DiffusionProfile {
 // Image pairs on each side for a slab of thickness d (inf: 0, the dipole).
 int multipoleTerms(double sigmaTr, double zb, double d);
 
+// The boundary DA reads its slab from (step 2) and light leaves through (steps 1 and 4):
+// an aggregate's boundary mesh (AggregateBoundary), or the level set that bounds an
+// instancer's heterogeneous medium (heterogeneous_diffusion.h). Thread-safe (const).
+class DiffusionBoundary {
+ public:
+  virtual ~DiffusionBoundary() = default;
+  // Distance from p to the nearest boundary point, written to closest; not > 0: p is not
+  // (measurably) inside.
+  virtual float closestPoint(const Vec3& p, Vec3& closest) const = 0;
+  // The first boundary crossing along o + t d (d unit) with t in (0, tmax): t and the
+  // outward unit normal there.
+  virtual bool intersect(const Vec3& o, const Vec3& d, float tmax, float& t, Vec3& ng) const = 0;
+  // Where light that crosses the boundary at p (outward normal ng) is out of the medium,
+  // σ_t = 0 beyond: p for a sharp boundary (an aggregate's mesh).
+  virtual Vec3 exitPoint(const Vec3& p, const Vec3& ng) const { return p; }
+};
+
+// An aggregate's boundary mesh, where the aggregate stands at the path's time.
+class AggregateBoundary final : public DiffusionBoundary {
+ public:
+  explicit AggregateBoundary(const PosedAggregate& agg) : agg_(agg) {}
+  float closestPoint(const Vec3& p, Vec3& closest) const override;
+  bool intersect(const Vec3& o, const Vec3& d, float tmax, float& t, Vec3& ng) const override;
+
+ private:
+  PosedAggregate agg_;
+};
+
+// A boundary cut by the scene's surfaces (Scene::intersectMedium: meshes, area lights,
+// aggregates' boundaries): a crossing is the first of inner's and a surface's, light that
+// reaches a surface inside the medium leaving there, just before it, its outward normal
+// facing the surface; an exit point stops just before a surface on its way out. For media
+// whose boundary does not stop at surfaces: a heap's level set reaches a little below the
+// ground it stands on, where VPT's flights end at the ground and DA's exits must too (not
+// below it, under the sky's lower half).
+class SurfaceCutBoundary final : public DiffusionBoundary {
+ public:
+  SurfaceCutBoundary(const DiffusionBoundary& inner, const Scene& scene, float time)
+      : inner_(inner), scene_(scene), time_(time) {}
+  float closestPoint(const Vec3& p, Vec3& closest) const override;
+  bool intersect(const Vec3& o, const Vec3& d, float tmax, float& t, Vec3& ng) const override;
+  Vec3 exitPoint(const Vec3& p, const Vec3& ng) const override;
+
+ private:
+  float margin(const Vec3& p) const;  // how far before a surface a point stops
+  const DiffusionBoundary& inner_;
+  const Scene& scene_;
+  float time_;
+};
+
+// What a DA step reads of the medium at its switch point: the phase function (of
+// `phase`), the local extinction σ_t and the diffusion profile of the local medium, and
+// the boundary.
+struct DiffusionMedium {
+  const HomogeneousMedium& phase;
+  Vec3 sigmaT;
+  const DiffusionProfile& profile;
+  const DiffusionBoundary& boundary;
+};
+
 // The curvature guard. The model's slab is planar; on a ball whose radius is a few DA
 // depths it is not: DA's own bias (hybrid − EPT+VPT, bench/accuracy_matrix.py) measured
 // −1.2% on a ball of 7 DA depths (25 grains in radius), −0.5…−0.7% at 14, nothing
@@ -99,10 +167,19 @@ int multipoleTerms(double sigmaTr, double zb, double d);
 // the source's own scale. Larger offsets (B/2) smoothed a faceted cylinder's facets but
 // refused DA within B/2 of every edge (the snow field's DA share fell from 17% to 10%).
 constexpr float kCurvatureGuard = 20.0f;
-float localCurvatureRadius(const Aggregate& agg, const Vec3& x, float delta);
-bool diffusionHolds(const Aggregate& agg, const Vec3& x, float daDepth);
+float localCurvatureRadius(const DiffusionBoundary& boundary, const Vec3& x, float delta);
+bool diffusionHolds(const DiffusionBoundary& boundary, const Vec3& x, float daDepth);
+inline float localCurvatureRadius(const Aggregate& agg, const Vec3& x, float delta) {
+  return localCurvatureRadius(AggregateBoundary(agg), x, delta);
+}
+inline bool diffusionHolds(const Aggregate& agg, const Vec3& x, float daDepth) {
+  return diffusionHolds(AggregateBoundary(agg), x, daDepth);
+}
 
-// Continues path (scattering at x, deep in aggregate path.medium) by DA; see above.
+// Continues path (scattering at x) by DA in medium; see above. The path leaves the media
+// (path.medium −1) where it leaves the boundary.
+void diffusionStep(const Scene& scene, PathState& path, const Vec3& x, const DiffusionMedium& medium);
+// The same, deep in aggregate path.medium: its medium, profile and boundary.
 void diffusionStep(const Scene& scene, PathState& path, const Vec3& x);
 
 }  // namespace granular

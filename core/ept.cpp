@@ -237,7 +237,8 @@ void eptStep(const Scene& scene, PathState& path) {
       }
       if (scene.narrowSun()) {
         path.mode = path.credit = kVpt;
-        path.medium = hit.aggregate >= 0 && scene.aggregates()[hit.aggregate]->insideBoundary(hit.p) ? hit.aggregate : -1;
+        path.medium =
+            hit.aggregate >= 0 && scene.aggregateAt(hit.aggregate, path.ray.time).insideBoundary(hit.p) ? hit.aggregate : -1;
         path.ray.o = hit.p;
         path.ray.tmin = 0;
         path.ray.tmax = kInf;
@@ -255,7 +256,7 @@ void eptStep(const Scene& scene, PathState& path) {
   // the medium misses the packing's shadow hiding), then leaves for the medium.
   if (path.shortcut && path.alive && !path.inGrain && lowOrdersDone(scene, path)) {
     path.mode = path.credit = kVpt;
-    path.medium = scene.mediumAt(path.ray.o);
+    path.medium = scene.mediumAt(path.ray.o, path.ray.time);
   }
 }
 

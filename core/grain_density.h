@@ -32,13 +32,14 @@
 //    ((i&7) << 6) | ((j&7) << 3) | (k&7)), voxel centres at world index × Δ, sorted by
 //    origin; a voxel is active where some grain's kernel is > 0 there. Memory: 2 KiB per
 //    leaf for f plus 2 KiB per leaf per prototype when there are several (stats.bytes);
-//    while it runs, the build needs 48 bytes per grain (centre, volume, sort key:
-//    stats.buildBytes) and a second copy of the grids. In a bulk of packing rate f,
-//    Δ = 1.5 R̄ holds about (4/3)π R̄³ φ / (f Δ³) ≈ 2 voxels per grain (φ the grains'
+//    while it runs, the build needs 4 bytes per grain (the grains ordered by the x of
+//    their leaf) and, for three slabs of leaves (constant x) at a time, 70 bytes per
+//    grain in them (centre, volume, kernel normalisation, lists): stats.buildBytes. In a
+//    bulk of packing rate f, Δ = 1.5 R̄ holds about (4/3)π R̄³ φ / (f Δ³) ≈ 2 voxels per grain (φ the grains'
 //    fill of their bounding spheres): ≈ 8 bytes per grain per grid, plus the surface leaves.
-//  - Build: linear in the grains (a parallel sort of their leaf keys aside), in parallel
-//    (TBB) over leaves, each leaf summing its grains in index order: the result does not
-//    depend on the thread count. Validates the description (validateInstancedGrains) and
+//  - Build: linear in the grains (counting sorts by slab and by leaf), in parallel (TBB)
+//    over leaves, each leaf summing its grains in index order: the result does not depend
+//    on the thread count. Validates the description (validateInstancedGrains) and
 //    throws InputError on <name>.kernelWidth, .voxelSize or .transform; a grid wider than
 //    2^20 voxels along an axis is refused (InputError on voxelSize).
 #pragma once

@@ -8,7 +8,13 @@
 #include <cctype>
 #include <climits>
 #include <cmath>
+#include <cstring>
 #include <set>
+#include <type_traits>
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
 
 #include "error.h"
 
@@ -587,7 +593,92 @@ void assembleGranularScene(const std::vector<MeshPrim>& prims, SceneDesc& desc, 
   Assembler(prims, desc, lookup).run();
 }
 
+namespace {
+
+// IEEE half to float (exact).
+float halfToFloat(uint16_t h) {
+  const uint32_t sign = uint32_t(h & 0x8000) << 16, exp = (h >> 10) & 0x1f, mant = h & 0x3ff;
+  uint32_t bits;
+  if (exp == 0x1f) {
+    bits = sign | 0x7f800000u | (mant << 13);  // inf, NaN
+  } else if (exp != 0) {
+    bits = sign | ((exp + 112) << 23) | (mant << 13);
+  } else if (mant == 0) {
+    bits = sign;
+  } else {  // subnormal: normalise
+    int e = -1;
+    uint32_t m = mant;
+    do {
+      ++e;
+      m <<= 1;
+    } while (!(m & 0x400));
+    bits = sign | (uint32_t(112 - e) << 23) | ((m & 0x3ff) << 13);
+  }
+  float f;
+  std::memcpy(&f, &bits, sizeof f);
+  return f;
+}
+
+struct HalfNumbers {
+  const uint16_t* p;
+  float operator[](size_t i) const { return halfToFloat(p[i]); }
+};
+template <class T>
+struct Numbers {
+  const T* p;
+  T operator[](size_t i) const { return p[i]; }
+};
+
+// fn(numbers) with the view's numbers typed (operator[]: float for floats, the integer type
+// for integers).
+template <class Fn>
+void withNumbers(const NumberView& v, Fn&& fn) {
+  switch (v.type) {
+    case NumberView::Type::Half: return fn(HalfNumbers{static_cast<const uint16_t*>(v.data)});
+    case NumberView::Type::Float: return fn(Numbers<float>{static_cast<const float*>(v.data)});
+    case NumberView::Type::Double: return fn(Numbers<double>{static_cast<const double*>(v.data)});
+    case NumberView::Type::Int32: return fn(Numbers<int32_t>{static_cast<const int32_t*>(v.data)});
+    case NumberView::Type::Int64: return fn(Numbers<int64_t>{static_cast<const int64_t*>(v.data)});
+  }
+}
+
+template <class T>
+NumberView viewOf(const std::vector<T>& v, NumberView::Type type) {
+  return NumberView{v.data(), v.size(), type};
+}
+
+// The smallest i in [0, n) for which bad(i), or -1 (parallel; the same answer as a loop).
+template <class Bad>
+int64_t firstBadInstance(size_t n, Bad&& bad) {
+  return tbb::parallel_reduce(
+      tbb::blocked_range<size_t>(0, n, 16384), int64_t(-1),
+      [&](const tbb::blocked_range<size_t>& r, int64_t found) {
+        if (found >= 0 && size_t(found) < r.begin()) return found;
+        for (size_t i = r.begin(); i < r.end(); ++i)
+          if (bad(i)) return int64_t(i);
+        return found;
+      },
+      [](int64_t a, int64_t b) { return a < 0 ? b : (b < 0 ? a : std::min(a, b)); });
+}
+
+}  // namespace
+
 InstancedGrainsDesc instancedGrainsFromUsd(const InstancerPrim& prim, SceneDesc& desc, const PrimLookup& lookup) {
+  InstancerArrays a;
+  a.read = [&prim](const std::string& attr) {
+    if (attr == "protoIndices") return viewOf(prim.protoIndices, NumberView::Type::Int64);
+    const std::vector<float>& v = attr == "positions"      ? prim.positions
+                                  : attr == "orientations" ? prim.orientations
+                                  : attr == "scales"       ? prim.scales
+                                  : attr == "velocities"   ? prim.velocities
+                                                           : prim.angularVelocities;
+    return viewOf(v, NumberView::Type::Float);
+  };
+  return instancedGrainsFromUsd(prim, a, desc, lookup);
+}
+
+InstancedGrainsDesc instancedGrainsFromUsd(const InstancerPrim& prim, const InstancerArrays& arrays, SceneDesc& desc,
+                                           const PrimLookup& lookup) {
   const std::string& path = prim.path;
   if (prim.typeName != "PointInstancer")
     throw InputError(path, "", str(kInstancedAggregateApi, " applies to a PointInstancer, not a ",
@@ -596,48 +687,96 @@ InstancedGrainsDesc instancedGrainsFromUsd(const InstancerPrim& prim, SceneDesc&
   g.name = path;
   g.xf = prim.xf;
   g.id = prim.id;
-  auto per = [&](const char* attr, const std::vector<float>& v, size_t k) {
-    if (v.size() % k) throw InputError(path, attr, str("has ", v.size(), " numbers, not ", k, " per instance"));
-    return v.size() / k;
+  auto per = [&](const char* attr, const NumberView& v, size_t k) {
+    if (v.count % k) throw InputError(path, attr, str("has ", v.count, " numbers, not ", k, " per instance"));
+    return v.count / k;
   };
-  auto vectors = [&](const char* attr, const std::vector<float>& v) {
+  auto vectors = [&](const char* attr, const NumberView& v) {
     std::vector<Vec3> out(per(attr, v, 3));
-    for (size_t i = 0; i < out.size(); ++i) out[i] = Vec3(v[3 * i], v[3 * i + 1], v[3 * i + 2]);
+    Vec3* o = out.data();
+    withNumbers(v, [&](auto x) {
+      tbb::parallel_for(tbb::blocked_range<size_t>(0, out.size(), 16384), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t i = r.begin(); i < r.end(); ++i) o[i] = Vec3(float(x[3 * i]), float(x[3 * i + 1]), float(x[3 * i + 2]));
+      });
+    });
     return out;
   };
-  g.positions = vectors("positions", prim.positions);
-  g.velocities = vectors("velocities", prim.velocities);
-  g.angularVelocities = vectors("angularVelocities", prim.angularVelocities);
-  g.orientations.resize(per("orientations", prim.orientations, 4));
-  for (size_t i = 0; i < g.orientations.size(); ++i) {
-    const float* q = &prim.orientations[4 * i];
-    const float n = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
-    if (!(n > 0) || !std::isfinite(n))
-      throw InputError(path, "orientations", str("instance ", i, " has (", q[0], ", ", q[1], ", ", q[2], ", ", q[3],
-                                                 "), not a rotation"));
-    g.orientations[i] = Quat{q[0] / n, q[1] / n, q[2] / n, q[3] / n};
+  g.positions = vectors("positions", arrays.read("positions"));
+  g.velocities = vectors("velocities", arrays.read("velocities"));
+  g.angularVelocities = vectors("angularVelocities", arrays.read("angularVelocities"));
+  {
+    // (w, x, y, z) from the array's order.
+    const int w = arrays.orientationsRealLast ? 3 : 0, v0 = arrays.orientationsRealLast ? 0 : 1;
+    const NumberView view = arrays.read("orientations");
+    std::vector<Quat> q(per("orientations", view, 4));
+    int64_t bad = -1;
+    withNumbers(view, [&](auto x) {
+      bad = firstBadInstance(q.size(), [&](size_t i) {
+        const float c[4] = {float(x[4 * i + w]), float(x[4 * i + v0]), float(x[4 * i + v0 + 1]), float(x[4 * i + v0 + 2])};
+        const float n = std::sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2] + c[3] * c[3]);
+        if (!(n > 0) || !std::isfinite(n)) return true;
+        q[i] = Quat{c[0] / n, c[1] / n, c[2] / n, c[3] / n};
+        return false;
+      });
+      if (bad >= 0) {
+        const size_t i = size_t(bad);
+        throw InputError(path, "orientations",
+                         str("instance ", i, " has (", float(x[4 * i + w]), ", ", float(x[4 * i + v0]), ", ",
+                             float(x[4 * i + v0 + 1]), ", ", float(x[4 * i + v0 + 2]), "), not a rotation"));
+      }
+    });
+    g.orientations = std::move(q);
   }
-  g.scales.resize(per("scales", prim.scales, 3));
-  for (size_t i = 0; i < g.scales.size(); ++i) {
-    const float* s = &prim.scales[3 * i];
-    const float lo = std::min({s[0], s[1], s[2]}), hi = std::max({s[0], s[1], s[2]});
-    const std::string shown = str("(", s[0], ", ", s[1], ", ", s[2], ")");
-    if (!(lo > 0) || !std::isfinite(hi))
-      throw InputError(path, "scales", str("instance ", i, " has scale ", shown, " (each must be > 0 and finite)"));
-    // A grain is one size: an ellipsoidal grain would need its own prototype.
-    if (hi - lo > 1e-3f * hi)
+  {
+    const NumberView view = arrays.read("scales");
+    std::vector<float> scales(per("scales", view, 3));
+    withNumbers(view, [&](auto x) {
+      // 0: fine; 1: not positive or not finite; 2: not uniform.
+      auto check = [&](size_t i, float& kept) {
+        const float s[3] = {float(x[3 * i]), float(x[3 * i + 1]), float(x[3 * i + 2])};
+        const float lo = std::min({s[0], s[1], s[2]}), hi = std::max({s[0], s[1], s[2]});
+        kept = hi;
+        if (!(lo > 0) || !std::isfinite(hi)) return 1;
+        // A grain is one size: an ellipsoidal grain would need its own prototype.
+        return hi - lo > 1e-3f * hi ? 2 : 0;
+      };
+      const int64_t bad = firstBadInstance(scales.size(), [&](size_t i) { return check(i, scales[i]) != 0; });
+      if (bad < 0) return;
+      const size_t i = size_t(bad);
+      float kept;
+      const int why = check(i, kept);
+      const std::string shown = str("(", float(x[3 * i]), ", ", float(x[3 * i + 1]), ", ", float(x[3 * i + 2]), ")");
+      if (why == 1)
+        throw InputError(path, "scales", str("instance ", i, " has scale ", shown, " (each must be > 0 and finite)"));
       throw InputError(path, "scales", str("instance ", i, " has non-uniform scale ", shown,
                                            ": a grain takes one size (scale its prototype instead)"));
-    g.scales[i] = hi;
+    });
+    g.scales = std::move(scales);
   }
-  g.protoIndices.resize(prim.protoIndices.size());
   const int64_t protos = int64_t(prim.prototypes.size());
-  for (size_t i = 0; i < g.protoIndices.size(); ++i) {
-    const int64_t k = prim.protoIndices[i];
-    if (k < 0 || k >= protos)
-      throw InputError(path, "protoIndices",
-                       str("instance ", i, " has ", k, ", not the index of one of its ", protos, " prototypes"));
-    g.protoIndices[i] = int32_t(k);
+  {
+    const NumberView view = arrays.read("protoIndices");
+    std::vector<int32_t> indices(view.count);
+    withNumbers(view, [&](auto x) {
+      // Floats (a front end's choice, not USD's int[]) truncated toward zero; -1 when no integer.
+      auto index = [&](size_t i) {
+        const auto v = x[i];
+        if constexpr (std::is_floating_point_v<decltype(v)>)
+          return std::isfinite(v) && std::fabs(v) < 9.2e18 ? int64_t(v) : int64_t(-1);
+        else
+          return int64_t(v);
+      };
+      const int64_t bad = firstBadInstance(indices.size(), [&](size_t i) {
+        const int64_t k = index(i);
+        if (k < 0 || k >= protos) return true;
+        indices[i] = int32_t(k);
+        return false;
+      });
+      if (bad >= 0)
+        throw InputError(path, "protoIndices", str("instance ", bad, " has ", index(size_t(bad)),
+                                                   ", not the index of one of its ", protos, " prototypes"));
+    });
+    g.protoIndices = std::move(indices);
   }
   if (!prim.prototypeXforms.empty() && prim.prototypeXforms.size() != prim.prototypes.size())
     throw InputError(path, "prototypes", str(prim.prototypeXforms.size(), " transforms for ", protos, " prototypes"));

@@ -139,6 +139,27 @@ struct InstancerPrim {
 // prototypes), or the prototype's own prim. Overlaps are checked when the grid is built.
 InstancedGrainsDesc instancedGrainsFromUsd(const InstancerPrim& prim, SceneDesc& desc, const PrimLookup& lookup);
 
+// The same with the per-instance arrays read in place from a front end's own buffers (a
+// USD array's, through numpy: no flattened copy; prim's own arrays are ignored): `count`
+// numbers of `type` from `data`. arrays.read(attribute) is asked for positions,
+// velocities, angularVelocities, orientations, scales and protoIndices, once each and in
+// that order, its view valid until the next call: a front end may read each array when
+// asked and let go of it at the next, holding one at a time. Orientations in USD's order
+// (i, j, k, real) when orientationsRealLast. Converted in parallel (TBB); the errors are
+// the first instance's, as above.
+struct NumberView {
+  enum class Type { Half, Float, Double, Int32, Int64 };
+  const void* data = nullptr;
+  size_t count = 0;  // 0: unauthored
+  Type type = Type::Float;
+};
+struct InstancerArrays {
+  std::function<NumberView(const char* attribute)> read;
+  bool orientationsRealLast = false;
+};
+InstancedGrainsDesc instancedGrainsFromUsd(const InstancerPrim& prim, const InstancerArrays& arrays, SceneDesc& desc,
+                                           const PrimLookup& lookup);
+
 // ---- explicit grains where the front end sees no protoIndices (Hydra) --------------------
 //
 // Whether a PointInstancer holds a simulation's grains, read by instancedGrainsFromUsd rather

@@ -34,6 +34,7 @@ HeterogeneousMedium::HeterogeneousMedium(VoxelLeaves density, float densityRef, 
   const Vec3& sigma = reference_.sigmaT();
   if (!isFinite(sigma) || minComponent(sigma) < 0) throw InputError(name, "sigmaT", "must be finite and >= 0");
   scale_ = sigma / densityRef;
+  densityRef_ = densityRef;
   maxScale_ = maxComponent(scale_);
   invVoxel_ = 1.0f / density_.voxelSize;
   if (density_.origins.empty()) return;
@@ -94,10 +95,15 @@ int64_t HeterogeneousMedium::blockIndex(int64_t bx, int64_t by, int64_t bz) cons
   return (bz * dims_[1] + by) * dims_[0] + bx;
 }
 
-float HeterogeneousMedium::voxel(int64_t i, int64_t j, int64_t k) const {
+int64_t HeterogeneousMedium::leafOf(int64_t i, int64_t j, int64_t k) const {
   const int64_t b = blockIndex(floorDiv8(i), floorDiv8(j), floorDiv8(k));
-  if (b < 0 || blocks_[size_t(b)].leaf < 0) return 0;
-  return density_.values[size_t(blocks_[size_t(b)].leaf) * VoxelLeaves::kLeafVoxels +
+  return b < 0 ? -1 : blocks_[size_t(b)].leaf;
+}
+
+float HeterogeneousMedium::voxel(int64_t i, int64_t j, int64_t k) const {
+  const int64_t l = leafOf(i, j, k);
+  if (l < 0) return 0;
+  return density_.values[size_t(l) * VoxelLeaves::kLeafVoxels +
                          size_t(VoxelLeaves::offset(int(i & 7), int(j & 7), int(k & 7)))];
 }
 

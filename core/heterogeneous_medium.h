@@ -77,6 +77,10 @@ class HeterogeneousMedium {
 
   Vec3 sigmaT(const Vec3& p) const;
   float density(const Vec3& p) const { return sampleDensity(toIndex(p)); }
+  float densityRef() const { return densityRef_; }  // f_ref: σ_t(x) = reference().sigmaT() f(x) / f_ref
+  const VoxelLeaves& voxels() const { return density_; }
+  // The index in voxels().origins of the leaf holding voxel (i, j, k), or -1 (no leaf): O(1).
+  int64_t leafOf(int64_t i, int64_t j, int64_t k) const;
   float majorant(const Vec3& p) const;  // σ̄ of the block holding p (per world length), 0 outside
   const HomogeneousMedium& reference() const { return reference_; }
   const Vec3& albedo() const { return reference_.albedo(); }
@@ -104,6 +108,7 @@ class HeterogeneousMedium {
 
   VoxelLeaves density_;
   Vec3 scale_;           // σ_t,ref / f_ref
+  float densityRef_ = 0;
   float maxScale_ = 0;   // its largest channel
   float invVoxel_ = 0;
   HomogeneousMedium reference_;

@@ -27,14 +27,14 @@ void switchToMedia(const Scene& scene, PathState& p, float pa) {
   }
   p.mode = kVpt;
   p.credit = kVpt;
-  p.medium = scene.mediumAt(p.ray.o);
+  p.medium = scene.mediumAt(p.ray.o, p.ray.time);
 }
 
 }  // namespace
 
 void startInMedia(const Scene& scene, PathState& path) {
   path.mode = path.credit = kVpt;
-  path.medium = scene.mediumAt(path.ray.o);
+  path.medium = scene.mediumAt(path.ray.o, path.ray.time);
 }
 
 BundleStats traceBundle(const Scene& scene, std::vector<PathState>& paths, float pa) {

@@ -93,7 +93,7 @@ void validateInstancedGrains(const InstancedGrainsDesc& desc) {
          return !(desc.scales[k] > 0 && std::isfinite(desc.scales[k]));
        })) >= 0)
     throw InputError(name, "scales", str("instance ", i, " has scale ", desc.scales[size_t(i)], " (must be > 0 and finite)"));
-  const std::pair<const char*, const std::vector<Vec3>*> motion[] = {{"velocities", &desc.velocities},
+  const std::pair<const char*, const SharedArray<Vec3>*> motion[] = {{"velocities", &desc.velocities},
                                                                       {"angularVelocities", &desc.angularVelocities}};
   for (const auto& [attr, values] : motion)
     if ((i = firstBad(values->size(), [&](size_t k) { return !isFinite((*values)[k]); })) >= 0)
@@ -125,6 +125,14 @@ InstancedGrain InstancedGrains::grain(int64_t i, float time) const {
   g.center = position + rotate(g.orientation, p.fitCenter) * g.scale;
   g.radius = p.fitRadius * g.scale;
   return g;
+}
+
+inline void InstancedGrains::sphere(size_t i, Vec3& center, float& radius) const {
+  const GrainPrototype& p = prototypes_[size_t(desc_.protoIndices[i])];
+  const Quat q = desc_.orientations.empty() ? Quat() : desc_.orientations[i];
+  const float s = desc_.scales.empty() ? 1.0f : desc_.scales[i];
+  center = desc_.positions[i] + rotate(q, p.fitCenter) * s;
+  radius = p.fitRadius * s;
 }
 
 float InstancedGrains::sweep(int64_t i) const {
@@ -211,10 +219,12 @@ void InstancedGrains::buildGrid() {
       tbb::blocked_range<size_t>(0, n, 8192), Extent(),
       [&](const tbb::blocked_range<size_t>& r, Extent e) {
         for (size_t i = r.begin(); i < r.end(); ++i) {
-          InstancedGrain g = grain(int64_t(i));
-          const float r = g.radius + sweep(int64_t(i));  // moving grains: the sphere of their sweep
-          e.box.extend(g.center - Vec3(r));
-          e.box.extend(g.center + Vec3(r));
+          Vec3 c;
+          float radius;
+          sphere(i, c, radius);
+          const float r = radius + sweep(int64_t(i));  // moving grains: the sphere of their sweep
+          e.box.extend(c - Vec3(r));
+          e.box.extend(c + Vec3(r));
           e.rmax = std::max(e.rmax, r);
         }
         return e;
@@ -234,30 +244,70 @@ void InstancedGrains::buildGrid() {
   for (int a = 0; a < 3; ++a) n_[a] = std::max<int64_t>(1, int64_t(std::ceil(size[a] * invCell_)));
   const float pad = 1e-4f * cell_;
 
-  // Occupied blocks: their keys, sorted (deterministic order), hashed.
-  // Mixed: std::hash of an integer is the identity, and a key's low bits are x alone.
-  struct Mix {
-    size_t operator()(uint64_t k) const { return size_t(mix64(k)); }
+  // Occupied blocks: their keys, sorted (deterministic order), hashed. Where the grid's box
+  // holds few blocks for its grains (a heap, a slab: not far-flung grains), marked on a bit
+  // per block of the box and numbered through a dense table while building, which is
+  // faster than the hash; else gathered in a concurrent set.
+  const int64_t nb[3] = {((n_[0] - 1) >> kBlockBits) + 1, ((n_[1] - 1) >> kBlockBits) + 1,
+                         ((n_[2] - 1) >> kBlockBits) + 1};
+  const double boxBlocks = double(nb[0]) * double(nb[1]) * double(nb[2]);
+  const bool compact = boxBlocks <= std::max(double(1 << 22), 0.25 * double(n));
+  auto linearBlock = [&](int64_t x, int64_t y, int64_t z) {  // cell coordinates; key order
+    return size_t(((z >> kBlockBits) * nb[1] + (y >> kBlockBits)) * nb[0] + (x >> kBlockBits));
   };
-  tbb::concurrent_unordered_set<uint64_t, Mix> keys;
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 4096), [&](const tbb::blocked_range<size_t>& r) {
-    uint64_t last = kEmptyKey;
-    for (size_t i = r.begin(); i < r.end(); ++i) {
-      InstancedGrain g = grain(int64_t(i));
-      int64_t lo[3], hi[3];
-      cellRange(g.center, g.radius + sweep(int64_t(i)) + pad, lo, hi);
-      for (int64_t z = lo[2] >> kBlockBits; z <= hi[2] >> kBlockBits; ++z)
-        for (int64_t y = lo[1] >> kBlockBits; y <= hi[1] >> kBlockBits; ++y)
-          for (int64_t x = lo[0] >> kBlockBits; x <= hi[0] >> kBlockBits; ++x) {
-            uint64_t key = blockKey(x << kBlockBits, y << kBlockBits, z << kBlockBits);
-            if (key != last) keys.insert(key);
-            last = key;
-          }
-    }
-  });
-  std::vector<uint64_t> sorted(keys.begin(), keys.end());
-  keys.clear();
-  std::sort(sorted.begin(), sorted.end());
+  auto forBlocks = [&](size_t i, auto&& fn) {
+    Vec3 c;
+    float radius;
+    sphere(i, c, radius);
+    int64_t lo[3], hi[3];
+    cellRange(c, radius + sweep(int64_t(i)) + pad, lo, hi);
+    for (int64_t z = lo[2] >> kBlockBits; z <= hi[2] >> kBlockBits; ++z)
+      for (int64_t y = lo[1] >> kBlockBits; y <= hi[1] >> kBlockBits; ++y)
+        for (int64_t x = lo[0] >> kBlockBits; x <= hi[0] >> kBlockBits; ++x)
+          fn(x << kBlockBits, y << kBlockBits, z << kBlockBits);
+  };
+  std::vector<uint64_t> sorted;
+  std::vector<uint32_t> dense;  // compact: each box block's index, or UINT32_MAX
+  if (compact) {
+    const size_t words = (size_t(boxBlocks) + 63) / 64;
+    std::unique_ptr<std::atomic<uint64_t>[]> bits(new std::atomic<uint64_t>[words]);
+    tbb::parallel_for(size_t(0), words, [&](size_t w) { bits[w].store(0, std::memory_order_relaxed); });
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 4096), [&](const tbb::blocked_range<size_t>& r) {
+      for (size_t i = r.begin(); i < r.end(); ++i)
+        forBlocks(i, [&](int64_t x, int64_t y, int64_t z) {
+          const size_t b = linearBlock(x, y, z);
+          const uint64_t bit = uint64_t(1) << (b & 63);
+          if (!(bits[b >> 6].load(std::memory_order_relaxed) & bit)) bits[b >> 6].fetch_or(bit, std::memory_order_relaxed);
+        });
+    });
+    dense.assign(size_t(boxBlocks), UINT32_MAX);
+    for (size_t w = 0; w < words; ++w)
+      for (uint64_t m = bits[w].load(std::memory_order_relaxed); m; m &= m - 1) {
+        const size_t b = w * 64 + size_t(__builtin_ctzll(m));
+        const int64_t x = int64_t(b % size_t(nb[0])), y = int64_t(b / size_t(nb[0]) % size_t(nb[1])),
+                      z = int64_t(b / size_t(nb[0]) / size_t(nb[1]));
+        dense[b] = uint32_t(sorted.size());
+        sorted.push_back(blockKey(x << kBlockBits, y << kBlockBits, z << kBlockBits));
+      }
+  } else {
+    // Mixed: std::hash of an integer is the identity, and a key's low bits are x alone.
+    struct Mix {
+      size_t operator()(uint64_t k) const { return size_t(mix64(k)); }
+    };
+    tbb::concurrent_unordered_set<uint64_t, Mix> keys;
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 4096), [&](const tbb::blocked_range<size_t>& r) {
+      uint64_t last = kEmptyKey;
+      for (size_t i = r.begin(); i < r.end(); ++i)
+        forBlocks(i, [&](int64_t x, int64_t y, int64_t z) {
+          const uint64_t key = blockKey(x, y, z);
+          if (key != last) keys.insert(key);
+          last = key;
+        });
+    });
+    sorted.assign(keys.begin(), keys.end());
+    keys.clear();
+    std::sort(sorted.begin(), sorted.end());
+  }
   const size_t blocks = sorted.size();
   size_t cap = 16;
   while (cap < 2 * blocks) cap *= 2;
@@ -270,21 +320,26 @@ void InstancedGrains::buildGrid() {
     hashKeys_[s] = sorted[b];
     hashBlock_[s] = uint32_t(b);
   }
+  sorted = std::vector<uint64_t>();
+  auto blockOf = [&](int64_t x, int64_t y, int64_t z) {
+    return compact ? size_t(dense[linearBlock(x, y, z)]) : size_t(findBlock(blockKey(x, y, z)));
+  };
 
   // Count, place and order each cell's entries.
   const size_t cells = blocks * kBlockCells;
   std::unique_ptr<std::atomic<uint32_t>[]> count(new std::atomic<uint32_t>[cells]);
   tbb::parallel_for(size_t(0), cells, [&](size_t c) { count[c].store(0, std::memory_order_relaxed); });
   auto forCells = [&](size_t i, auto&& fn) {
-    InstancedGrain g = grain(int64_t(i));
-    const float r = g.radius + sweep(int64_t(i)) + pad;
+    Vec3 c;
+    float radius;
+    sphere(i, c, radius);
+    const float r = radius + sweep(int64_t(i)) + pad;
     int64_t lo[3], hi[3];
-    cellRange(g.center, r, lo, hi);
+    cellRange(c, r, lo, hi);
     for (int64_t z = lo[2]; z <= hi[2]; ++z)
       for (int64_t y = lo[1]; y <= hi[1]; ++y)
         for (int64_t x = lo[0]; x <= hi[0]; ++x)
-          if (sphereTouchesCell(g.center, r, x, y, z))
-            fn(size_t(findBlock(blockKey(x, y, z))) * kBlockCells + size_t(localCell(x, y, z)));
+          if (sphereTouchesCell(c, r, x, y, z)) fn(blockOf(x, y, z) * kBlockCells + size_t(localCell(x, y, z)));
   };
   tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 4096), [&](const tbb::blocked_range<size_t>& r) {
     for (size_t i = r.begin(); i < r.end(); ++i)
@@ -332,8 +387,9 @@ int64_t InstancedGrains::findBlock(uint64_t key) const {
 }
 
 void InstancedGrains::checkOverlaps() {
-  const size_t n = desc_.size();
-  const float pad = 1e-4f * cell_;
+  // Every pair listed together in a cell, each pair judged once: in the cell that holds the
+  // middle of the lens where the two spheres overlap (inside both by half the depth, so both
+  // are listed there whatever the rounding). Each grain's sphere is placed once per cell.
   // The first offending pair (i, j), smallest i then j.
   struct Pair {
     int64_t i = -1, j = -1;
@@ -343,29 +399,54 @@ void InstancedGrains::checkOverlaps() {
     if (b.i < 0) return a;
     return (b.i < a.i || (b.i == a.i && b.j < a.j)) ? b : a;
   };
+  std::vector<uint64_t> keyOf(hashKeys_.empty() ? 0 : starts_.size() / kBlockCells);
+  for (size_t s = 0; s < hashKeys_.size(); ++s)
+    if (hashKeys_[s] != kEmptyKey) keyOf[hashBlock_[s]] = hashKeys_[s];
   Pair first = tbb::parallel_reduce(
-      tbb::blocked_range<size_t>(0, n, 2048), Pair(),
+      tbb::blocked_range<size_t>(0, keyOf.size(), 64), Pair(),
       [&](const tbb::blocked_range<size_t>& r, Pair found) {
-        for (size_t i = r.begin(); i < r.end(); ++i) {
-          if (found.i >= 0 && size_t(found.i) < i) break;
-          InstancedGrain g = grain(int64_t(i));
-          int64_t lo[3], hi[3];
-          cellRange(g.center, g.radius + pad, lo, hi);
-          for (int64_t z = lo[2]; z <= hi[2]; ++z)
-            for (int64_t y = lo[1]; y <= hi[1]; ++y)
-              for (int64_t x = lo[0]; x <= hi[0]; ++x) {
-                int64_t b = findBlock(blockKey(x, y, z));
-                if (b < 0) continue;
-                size_t c = size_t(b) * kBlockCells + size_t(localCell(x, y, z));
-                for (uint32_t k = starts_[c]; k < starts_[c + 1]; ++k) {
-                  const uint32_t j = list_[k];
-                  if (j <= i) continue;
-                  InstancedGrain h = grain(j);
-                  const float depth = g.radius + h.radius - length(g.center - h.center);
-                  if (depth > kOverlapTolerance * std::min(g.radius, h.radius))
-                    found = better(found, Pair{int64_t(i), int64_t(j)});
-                }
+        struct Placed {
+          int64_t index;
+          Vec3 center;
+          float radius;
+        };
+        std::vector<Placed> here;
+        for (size_t b = r.begin(); b < r.end(); ++b) {
+          const uint64_t key = keyOf[b];
+          const int64_t base[3] = {int64_t(key & 0x1fffff) << kBlockBits, int64_t((key >> 21) & 0x1fffff) << kBlockBits,
+                                   int64_t((key >> 42) & 0x1fffff) << kBlockBits};
+          for (int local = 0; local < kBlockCells; ++local) {
+            const size_t c = b * kBlockCells + size_t(local);
+            if (starts_[c + 1] - starts_[c] < 2) continue;
+            const int64_t cell[3] = {base[0] + (local & ((1 << kBlockBits) - 1)),
+                                     base[1] + ((local >> kBlockBits) & ((1 << kBlockBits) - 1)),
+                                     base[2] + (local >> (2 * kBlockBits))};
+            here.clear();
+            for (uint32_t k = starts_[c]; k < starts_[c + 1]; ++k) {
+              Placed p;
+              p.index = int64_t(list_[k]);
+              sphere(list_[k], p.center, p.radius);
+              here.push_back(p);
+            }
+            for (size_t a = 0; a < here.size(); ++a)
+              for (size_t e = a + 1; e < here.size(); ++e) {
+                const Placed &g = here[a], &h = here[e];  // g.index < h.index: lists are sorted
+                const Vec3 d = h.center - g.center;
+                // Apart (no overlap at all) for certain, in double with a margin far above
+                // float rounding: most pairs; the others are judged exactly as below.
+                const double d2 = double(d.x) * d.x + double(d.y) * d.y + double(d.z) * d.z,
+                             reach = double(g.radius) + double(h.radius);
+                if (d2 > reach * reach * (1.0 + 1e-4)) continue;
+                const float dist = length(d);
+                const float depth = g.radius + h.radius - dist;
+                if (!(depth > kOverlapTolerance * std::min(g.radius, h.radius))) continue;
+                const Vec3 mid = dist > 0 ? g.center + d * ((g.radius - 0.5f * depth) / dist) : g.center;
+                int64_t lo[3], hi[3];
+                cellRange(mid, 0.0f, lo, hi);
+                if (lo[0] == cell[0] && lo[1] == cell[1] && lo[2] == cell[2])
+                  found = better(found, Pair{g.index, h.index});
               }
+          }
         }
         return found;
       },

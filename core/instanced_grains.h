@@ -10,8 +10,9 @@
 //    grain radius at scale 1) under that transform. validateInstancedGrains() names
 //    `<name>.<USD attribute>` (positions, orientations, scales, protoIndices, velocities,
 //    angularVelocities, prototypes) in every InputError.
-//  - InstancedGrains::build() takes the description by value (its arrays are the only
-//    per-grain input kept) and builds a uniform grid over the grains' bounding spheres in
+//  - InstancedGrains::build() takes the description by value (its arrays, shared with the
+//    caller's copies and never copied: shared_array.h, are the only per-grain input kept)
+//    and builds a uniform grid over the grains' bounding spheres in
 //    object space: cell edge kCellRadii × the largest bounding radius, so a sphere overlaps
 //    at most 2 cells per axis (8 in all); each cell lists (CSR, uint32 grain indices, in
 //    increasing order) the grains whose bounding spheres overlap it (a moving grain's: the
@@ -22,10 +23,34 @@
 //    Memory beyond the input arrays: 4 bytes per list entry (at most 8 per grain) plus
 //    4 bytes per cell of an occupied block and 12 bytes per hash slot (at most 4 per
 //    occupied block); stats().gridBytes counts exactly these. Built in parallel (TBB) in
-//    time linear in the grains (the occupied blocks, far fewer, are sorted), deterministic.
+//    time linear in the grains (the occupied blocks, far fewer, are sorted), deterministic:
+//    where the grid's box holds at most max(2^22, grains / 4) blocks (a heap, a slab) they
+//    are marked on one bit per block of the box and numbered through a dense table (4 bytes
+//    a block) while building, else gathered in a concurrent hash set.
 //    With checkOverlaps, build() refuses grains whose bounding spheres interpenetrate by
 //    more than kOverlapTolerance of the smaller radius (InputError on <name>.positions,
-//    naming both instances), checked through the grid.
+//    naming both instances: the first pair, smallest index then the other's), checked
+//    through the grid: each pair listed in a common cell is judged in the one cell that
+//    holds the middle of their overlap (inside both spheres by half its depth, so both are
+//    listed there), each grain's sphere placed once per cell it is listed in.
+//  - Memory at scale, per grain (bench/README.md, "Explicit grains from a simulation"):
+//    the input, 36 bytes (positions 12, orientations 16, scales 4, protoIndices 4; 24 more
+//    with velocities and angular velocities), held once however often the description
+//    is copied. The grid beyond it, 16.7 bytes on a simulated heap (3.6 list entries of 4
+//    bytes at this cell size, 2.0 of cell starts, 0.3 of hash); while building, a count per
+//    cell (2 more) and the dense block table (at most 1). The hybrid adds its
+//    heterogeneous medium's packing-rate grid (grain_density.h: 4 bytes a voxel at voxels of
+//    3 mean radii, 3.4 bytes a grain kept; while building, 4 bytes a grain and three slabs
+//    of leaves' grains at 70 bytes each).
+//    The promise: at 10^8 grains on the 2-core machine, a stage's set-up (read, grid,
+//    overlap check; for the hybrid also the packing-rate grid, TT and proxy tables) under
+//    60 s, and memory under 4 GiB beyond the input arrays. Measured 2026-12-04 on a heap of
+//    10^8 grains (3.4 GiB of arrays; bench/instanced_grains.py --stage, the read and build
+//    of `granular render`): EPT 17 s (read 3.7, grid 8.0, overlap check 5.0), 2.0 GiB
+//    beyond the input at its peak; the hybrid 34 s (its packing-rate grid 15 s, TT 1.4 s,
+//    proxy tables 0.2 s from the cache, about 3 s without), 2.9 GiB. DA's boundary in
+//    that medium (heterogeneous_diffusion.h), built after it, is not counted: that day it
+//    took 2 to 3 minutes more, mostly on one core, and 1.6 GiB more (bench/README.md).
 //  - Queries take world-space rays (t as given: the direction need not be unit) and are
 //    thread-safe. intersect() walks the cells along the ray front to back (3-D DDA), tests
 //    each listed grain's bounding sphere, then the prototype's BVH in the grain's frame,
@@ -79,8 +104,8 @@ struct InstancedGrainsStats {
   size_t inputBytes = 0;         // the description's per-grain arrays
   size_t gridBytes = 0;          // lists, cell starts, hash (see the contract)
   size_t prototypeBytes = 0;     // prototype meshes and normals (BVHs not counted)
-  double buildSeconds = 0;       // grid (and overlap check), prototypes excluded
-  double overlapSeconds = 0;
+  double buildSeconds = 0;       // grid, prototypes and overlap check excluded
+  double overlapSeconds = 0;     // the overlap check
   double bytesPerGrain() const { return grains ? double(gridBytes) / double(grains) : 0.0; }
 };
 
@@ -139,7 +164,9 @@ class InstancedGrains {
   // −∞, the last to +∞); returns false to stop.
   template <class Visit>
   void forCellsAlong(const Vec3& o, const Vec3& d, float tmin, float tmax, Visit&& visit) const;
-  // How far grain i's bounding sphere can move within motionSpan_ (0 when still).
+  // Grain i's bounding sphere at time 0 (grain(i)'s centre and radius, the same numbers),
+  // inline for the build's passes over every grain.
+  inline void sphere(size_t i, Vec3& center, float& radius) const;
   // The index of a block in starts_ (times the cells per block), or -1 when unoccupied.
   int64_t findBlock(uint64_t key) const;
   uint64_t blockKey(int64_t x, int64_t y, int64_t z) const {
@@ -162,6 +189,7 @@ class InstancedGrains {
   bool identity_ = true;
   Bounds3 bounds_;
   Vec3 origin_;
+  // How far grain i's bounding sphere can move within motionSpan_ (0 when still).
   float sweep(int64_t i) const;
   float motionSpan_ = 0;
   float cell_ = 1, invCell_ = 1;

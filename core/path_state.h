@@ -57,6 +57,7 @@ struct PathState {
   bool touchedAggregate = false;  // a grain has been hit (the LOD test is at first contact)
   bool shortcut = false;          // took the LOD shortcut: to the medium after this grain
   bool daRefused = false;         // the curvature guard refused DA once: VPT to the end (vpt.cpp)
+  int daRetryDepth = 0;           // an instancer's varying packing refused DA: not asked before this depth
   // Deterministic cost (ray casts, a grain traversal counted kGrainCastCost) spent in
   // the low-order (EPT) and high-order (VPT, DA) parts: the t_L and t_H of the roulette's P_a (hybrid.h).
   double cost[2] = {0, 0};

@@ -42,7 +42,7 @@ void scatter(const Scene& scene, PathState& path, const Hit& hit, const ProxyTab
   if (scene.proxyLightSampling()) {
     q = 1.0f;
     if (hit.aggregate >= 0) {
-      const float depth = std::max(0.0f, -scene.aggregates()[size_t(hit.aggregate)]->boundaryDistance(g.center));
+      const float depth = std::max(0.0f, -scene.aggregateAt(hit.aggregate, path.ray.time).boundaryDistance(g.center));
       q = std::max(kMinNeeChance, std::exp(-depth / (4.0f * g.radius)));
     }
   }
@@ -154,7 +154,7 @@ void pptStep(const Scene& scene, PathState& path) {
   // The level-of-detail shortcut leaves for the medium after the low orders (ept.h).
   if (path.shortcut && path.alive && scene.hasMedia() && lowOrdersDone(scene, path)) {
     path.mode = path.credit = kVpt;
-    path.medium = scene.mediumAt(path.ray.o);
+    path.medium = scene.mediumAt(path.ray.o, path.ray.time);
   }
 }
 

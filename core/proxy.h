@@ -59,7 +59,18 @@ struct ProxyOptions {
 struct ProxyFrame {
   Vec3 x, y, z;
   float b = 0;
-  ProxyFrame(const Vec3& d, const Vec3& v);
+  ProxyFrame(const Vec3& d, const Vec3& v) : z(d) {
+    const Vec3 perp = v - d * dot(v, d);
+    const float b2 = length2(perp);
+    if (b2 > 1e-12f) {
+      b = std::sqrt(b2);
+      x = perp * (1.0f / b);
+    } else {  // through the centre: every x is alike
+      x = Frame(d).s;
+    }
+    b = std::min(b, 1.0f);
+    y = cross(z, x);
+  }
   Vec3 toLocal(const Vec3& w) const { return Vec3(dot(w, x), dot(w, y), dot(w, z)); }
   Vec3 toWorld(const Vec3& w) const { return x * w.x + y * w.y + z * w.z; }
 };
@@ -97,7 +108,7 @@ struct ProxyDirection {
 
 class ProxyTable {
  public:
-  int bBin(float b) const;
+  int bBin(float b) const { return std::clamp(int(b * b * float(nb_)), 0, nb_ - 1); }
   float hitProbability(int bBin) const { return hit_[size_t(bBin)]; }
   const Vec3& albedo(int bBin) const { return albedo_[size_t(bBin)]; }
   // False when nothing leaves a grain met at this b (black grains): the path ends there.
@@ -132,6 +143,13 @@ class ProxyTable {
   std::vector<float> cdf_;              // per b bin, nd + 1 values over its direction bins
   std::vector<float> offsets_;          // (c1, c2) pairs: the exit offset in exitFrame()
   std::vector<uint32_t> offsetStart_;   // per (b, direction) bin, its first pair (CSR)
+  // Per b bin, kGuides + 1 starting points of sample()'s search (the guide table of
+  // Chen & Asau 1974): guide[j] is the last direction bin whose cdf is at most j/kGuides
+  // of the total. Made from cdf_ (buildGuide), not stored, as is phiStart_.
+  static constexpr int kGuides = 64;
+  std::vector<uint32_t> guide_;
+  std::vector<float> phiStart_;  // (cos, sin) of each φ bin's start, for bins up to 0.2 wide
+  void buildGuide();
   int64_t rays_ = 0;
   bool fromCache_ = false;
 };

@@ -84,9 +84,10 @@ void Renderer::tracePixel(int x, int y, long first, int count, Film& film, int f
       paths.push_back(p);
     }
     traceBundle(scene_, paths, roulette_.pa);
-    long shortcuts = 0, nonFinite = 0;
+    long shortcuts = 0, nonFinite = 0, diffused = 0;
     for (const PathState& p : paths) {
       shortcuts += p.shortcut;
+      diffused += p.credit == kDa;
       PixelSample ps;
       nonFinite += !toPixelSample(p, ps);
       film.add(fx, fy, ps);
@@ -94,6 +95,7 @@ void Renderer::tracePixel(int x, int y, long first, int count, Film& film, int f
     if (!counted) continue;
     if (nonFinite) nonFinite_.fetch_add(nonFinite, std::memory_order_relaxed);
     shortcuts_ += shortcuts;
+    diffused_ += diffused;
     paths_ += long(paths.size());
   }
 }

@@ -129,6 +129,8 @@ class Renderer {
   long nonFiniteSamples() const { return nonFinite_.load(); }
   // Fraction of the paths so far that took the level-of-detail shortcut.
   double shortcutFraction() const { return paths_ ? double(shortcuts_) / double(paths_) : 0.0; }
+  // Fraction of the paths so far that went on by DA (diffusion.h; aggregates' and instancers' media).
+  double diffusionFraction() const { return paths_ ? double(diffused_) / double(paths_) : 0.0; }
 
  private:
   void prepare();
@@ -155,7 +157,7 @@ class Renderer {
   std::atomic<long> passPixels_{0};
   RouletteTuning roulette_;
   std::atomic<long> nonFinite_{0};
-  std::atomic<long> shortcuts_{0}, paths_{0};
+  std::atomic<long> shortcuts_{0}, paths_{0}, diffused_{0};
 };
 
 }  // namespace granular

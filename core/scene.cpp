@@ -355,7 +355,14 @@ void Scene::buildAggregates(const SceneDesc& desc, int defaultGrain, const Scene
     const Aggregate& agg = *entry.aggregate;
     standIns_ = standIns_ || agg.standIn();
     aggregateId_.push_back(a.id);
-    all.extend(agg.bounds());
+    // Built at its xf; a moving one is posed at each ray's time (aggregate_motion.h).
+    const CameraDesc& cam = desc.camera;
+    aggregateMotion_.push_back(a.shutterXf && cam.shutterClose > cam.shutterOpen
+                                   ? AggregateMotion(a.xf, a.shutterXf->first, a.shutterXf->second, cam.shutterOpen,
+                                                     cam.shutterClose)
+                                   : AggregateMotion());
+    aggregateBounds_.push_back(aggregateMotion_.back().sweep(agg.bounds()));
+    all.extend(aggregateBounds_.back());
     maxGrainRadius_ = std::max(maxGrainRadius_, agg.maxGrainRadius());
     if (desc.settings.technique != Technique::Ept) addMedium(a, entry);
     aggregates_.push_back(entry.aggregate);
@@ -501,6 +508,7 @@ void Scene::buildInstancedGrains(const SceneDesc& desc, int defaultGrain, const 
         entry.bounds = b.bounds;
         entry.medium = b.medium;  // null when built for EPT: made below if needed
         entry.proxies = b.proxies;  // they depend on the prototypes, materials and scales alone
+        entry.diffusion = b.diffusion;  // made from the medium alone
         break;
       }
     if (!entry.grains) {
@@ -526,8 +534,11 @@ void Scene::buildInstancedGrains(const SceneDesc& desc, int defaultGrain, const 
     if (desc.settings.technique == Technique::Ept) {
       entry.medium.reset();
     } else if (!entry.medium && entry.grains->stats().grains > 0) {
+      const auto m0 = std::chrono::steady_clock::now();
       entry.medium = buildInstancedMedium(*entry.grains, entry.materials, entry.worldScale);
+      entry.mediumSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - m0).count();
     }
+    if (!entry.medium) entry.diffusion.reset();
     if (entry.medium) {
       ++instancedMedia_;
       // The hybrid's switch measures the spread of a bundle against the largest grain.
@@ -566,6 +577,7 @@ std::shared_ptr<const Scene::InstancedMedium> Scene::buildInstancedMedium(const 
   GrainDensityOptions options;
   options.kernelWidth = float(kKernelRadii) * meanR;
   options.voxelSize = options.kernelWidth;
+  options.fractions = false;  // the medium reads the packing rate alone
   m->density = buildGrainDensity(d, options);
   const VoxelLeaves& f = m->density.packing;
   // The bulk's packing rate: f averaged over the grains' volume (Σ f² / Σ f over voxels),
@@ -605,7 +617,8 @@ std::shared_ptr<const Scene::InstancedMedium> Scene::buildInstancedMedium(const 
   // σ_t(x) follows the grains' volume fraction, equal to f_ref φ in the bulk.
   MediumParams scaled = m->params;
   scaled.packingRate = float(fGrains);
-  m->medium = HeterogeneousMedium(m->density, scaled, d.name);
+  // The packing rate moves into the medium (m->density keeps its stats).
+  m->medium = HeterogeneousMedium(std::move(m->density.packing), scaled.packingRate, HomogeneousMedium(scaled), d.name);
   m->diffuseReflectance = DiffusionProfile(m->params).diffuseReflectance;
   return m;
 }
@@ -688,6 +701,25 @@ std::vector<LightDesc> Scene::buildLights(const SceneDesc& desc) {
 // see nothing but DA's planar-boundary model of the deep interior (60% too dark), both
 // measured by bench/stress.py against EPT.
 void Scene::findEmittersInside(const SceneDesc& desc, const std::vector<LightDesc>& lights) {
+  // An instancer's medium likewise: a sphere light's centre, a rect light's corner or an
+  // emissive mesh's vertex where its packing rate is > 0 (within the grains' reach).
+  instancedEmitterInside_.assign(builtInstanced_.size(), 0);
+  for (size_t i = 0; i < builtInstanced_.size(); ++i) {
+    if (!builtInstanced_[i].medium) continue;
+    const HeterogeneousMedium& med = builtInstanced_[i].medium->medium;
+    auto inside = [&](const Vec3& p) { return med.density(p) > 0; };
+    bool found = false;
+    for (const auto& l : lights) {
+      if (l.type == LightType::Sphere) found = found || inside(l.xf.point(Vec3(0.0f)));
+      if (l.type == LightType::Rect)
+        for (float sx : {-0.5f, 0.5f})
+          for (float sy : {-0.5f, 0.5f}) found = found || inside(l.xf.point(Vec3(sx * l.width, sy * l.height, 0)));
+    }
+    for (const auto& m : desc.meshes)
+      if (isEmitter(desc, m))
+        for (const Vec3& v : m.mesh.points) found = found || inside(m.xf.point(v));
+    instancedEmitterInside_[i] = found;
+  }
   if (media_.empty()) return;
   emitterInside_.assign(aggregates_.size(), false);
   for (size_t a = 0; a < aggregates_.size(); ++a) {
@@ -931,8 +963,9 @@ bool Scene::intersect(const Ray& ray, Hit& hit, const GrainStart* from) const {
     GrainHit g;
     const bool own = from && from->aggregate == int(a);
     float t0, t1;  // scenes of many aggregates: most are missed by their bounds
-    if (!own && !aggregates_[a]->bounds().intersect(ray.o, invD, ray.tmin, tmax, t0, t1)) continue;
-    if (aggregates_[a]->intersect(ray.o, ray.d, ray.tmin, tmax, g, own ? &from->grain : nullptr, own && from->inside) &&
+    if (!own && !aggregateBounds_[a].intersect(ray.o, invD, ray.tmin, tmax, t0, t1)) continue;
+    if (aggregateAt(int(a), ray.time)
+            .intersect(ray.o, ray.d, ray.tmin, tmax, g, own ? &from->grain : nullptr, own && from->inside) &&
         g.t < tmax) {
       found = true;
       tmax = g.t;
@@ -1078,6 +1111,7 @@ void Scene::updateInstancedProxyTables() {
   for (size_t i = 0; i < builtInstanced_.size(); ++i) {
     BuiltInstanced& b = builtInstanced_[i];
     if (!instancedProxies_[i] || b.proxies) continue;
+    const auto t0 = std::chrono::steady_clock::now();
     // Per prototype, at three scales spanning its grains' (absorption is per the
     // prototype's radius at scale 1: a grain twice as large absorbs twice as much across).
     const InstancedGrainsDesc& desc = b.grains->desc();
@@ -1103,6 +1137,7 @@ void Scene::updateInstancedProxyTables() {
       }
     }
     b.proxies = std::move(tables);
+    b.tablesSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   }
 }
 
@@ -1139,6 +1174,14 @@ std::string Scene::instancedLowOrdersText(int i) const {
   return k > 0 ? str("explicit grains to bounce ", k, ", then ", medium) : medium;
 }
 
+std::string Scene::instancedDiffusionText(int i) const {
+  if (instancedDiffusion(i))
+    return str("DA where the medium is deep and its packing uniform within ±",
+               int(std::lround(100 * HeterogeneousDiffusion::kTolerance)), "% over the diffusion's reach");
+  if (!instancedMedium(i) || settings_.technique != Technique::Hybrid) return "no DA (technique not hybrid, or no medium)";
+  return settings_.daInstanced ? "no DA (the camera or an emitter is inside the medium)" : "no DA (da_instanced off)";
+}
+
 int Scene::explicitBouncesFor(const Vec3& albedo, const Vec3& g, float depthMfp) {
   float x = 0;  // the absorption of back-scattered light, (1 − α_s)(1 − g), worst channel
   for (int c = 0; c < 3; ++c) x = std::max(x, (1.0f - albedo[c]) * (1.0f - g[c]));
@@ -1151,6 +1194,18 @@ int Scene::explicitBouncesFor(const Vec3& albedo, const Vec3& g, float depthMfp)
 }
 
 void Scene::updateDiffusionDepths() {
+  // Instancers' media: DA where heterogeneous_diffusion.h's rule holds, unless an emitter or
+  // the camera is inside (as below).
+  instancedDa_.assign(builtInstanced_.size(), 0);
+  for (size_t i = 0; i < builtInstanced_.size(); ++i) {
+    BuiltInstanced& b = builtInstanced_[i];
+    if (!b.medium || settings_.technique != Technique::Hybrid || !settings_.daInstanced || instancedEmitterInside_[i])
+      continue;
+    if (!b.diffusion)
+      b.diffusion = std::make_shared<const HeterogeneousDiffusion>(b.medium->medium, b.medium->params,
+                                                                   b.medium->density.kernelWidth);
+    instancedDa_[i] = !(b.diffusion->boundary().distance(camera_.position()) < 0);
+  }
   diffusionDepth_.assign(media_.size(), kInf);
   for (size_t a = 0; a < media_.size(); ++a) {
     // No DA where the object is too thin for it (its depth criterion is never met), nor
@@ -1178,7 +1233,8 @@ bool Scene::intersectMedium(const Ray& ray, Hit& hit) const {
   for (size_t a = 0; a < aggregates_.size(); ++a) {
     float t;
     Vec3 ng;
-    if (aggregates_[a]->intersectBoundary(ray.o, ray.d, ray.tmin, tmax, t, ng) && t < tmax) {
+    if (missesMoving(a, ray.o, ray.d, ray.tmin, tmax)) continue;
+    if (aggregateAt(int(a), ray.time).intersectBoundary(ray.o, ray.d, ray.tmin, tmax, t, ng) && t < tmax) {
       found = true;
       tmax = t;
       hit.kind = Hit::Boundary;
@@ -1226,10 +1282,10 @@ bool Scene::intersectProxies(const Ray& ray, Hit& hit, const GrainStart* from) c
   // only up to it, and not at all when their bounds end before it.
   bool found = !instanced_.empty() && intersectInstancedProxies(ray, invD, hit, tmax, from);
   for (size_t a = 0; a < aggregates_.size(); ++a) {
-    const Aggregate& agg = *aggregates_[a];
     const bool own = from && from->aggregate == int(a);
     float t0, t1;
-    if (!own && !agg.bounds().intersect(ray.o, invD, ray.tmin, tmax, t0, t1)) continue;
+    if (!own && !aggregateBounds_[a].intersect(ray.o, invD, ray.tmin, tmax, t0, t1)) continue;
+    const PosedAggregate agg = aggregateAt(int(a), ray.time);
     GrainHit g;
     if (agg.intersectProxy(ray.o, ray.d, ray.tmin, tmax, g, own ? &from->grain : nullptr) && g.t < tmax) {
       found = true;
@@ -1263,8 +1319,9 @@ float Scene::proxyTransmittance(const Vec3& p, const Vec3& dir, float dist, cons
   }
   for (size_t a = 0; a < aggregates_.size() && tr > 0; ++a) {
     const bool own = from && from->aggregate == int(a);
-    tr *= aggregates_[a]->proxyTransmittance(p, dir, 0.0f, dist, *proxyTables_[a], own ? &from->grain : nullptr,
-                                             hashInts(seed, a));
+    if (missesMoving(a, p, dir, 0.0f, dist)) continue;
+    tr *= aggregateAt(int(a), time).proxyTransmittance(p, dir, 0.0f, dist, *proxyTables_[a],
+                                                       own ? &from->grain : nullptr, hashInts(seed, a));
   }
   return tr;
 }
@@ -1314,14 +1371,15 @@ Vec3 Scene::transmittance(const Vec3& p, const Vec3& dir, float dist, float time
   for (size_t a = 0; a < aggregates_.size(); ++a) {
     // Walk the boundary crossings; a crossing whose normal faces along the ray leaves
     // the medium, so the segment before it was inside.
-    const Aggregate& agg = *aggregates_[a];
+    if (missesMoving(a, p, dir, 0.0f, dist)) continue;  // neither crosses nor holds p
+    const PosedAggregate agg = aggregateAt(int(a), time);
     float t0 = 0, t;
     Vec3 ng;
     float inside = 0;
     float eps = 1e-5f * std::max(1.0f, maxComponent(vabs(p)));
     for (int crossings = 0; crossings < 1024; ++crossings) {
       if (!agg.intersectBoundary(p, dir, t0, dist, t, ng)) {
-        if (crossings == 0 && agg.bounds().contains(p) && agg.insideBoundary(p)) inside += dist;  // never leaves
+        if (crossings == 0 && agg.boundsContain(p) && agg.insideBoundary(p)) inside += dist;  // never leaves
         else if (crossings > 0 && dot(ng, dir) < 0) inside += dist - t0;                          // entered, never left
         break;
       }
@@ -1333,16 +1391,19 @@ Vec3 Scene::transmittance(const Vec3& p, const Vec3& dir, float dist, float time
   return tr * vexp(-opticalDepth);
 }
 
-int Scene::mediumAt(const Vec3& p) const {
-  for (size_t a = 0; a < aggregates_.size(); ++a)
-    if (aggregates_[a]->bounds().contains(p) && aggregates_[a]->insideBoundary(p)) return int(a);
+int Scene::mediumAt(const Vec3& p, float time) const {
+  for (size_t a = 0; a < aggregates_.size(); ++a) {
+    if (!aggregateBounds_[a].contains(p)) continue;
+    const PosedAggregate agg = aggregateAt(int(a), time);
+    if (agg.boundsContain(p) && agg.insideBoundary(p)) return int(a);
+  }
   return -1;
 }
 
 bool Scene::occluded(const Vec3& p, const Vec3& dir, float dist, float time) const {
   if (surfacesOccluded(p, dir, dist, time)) return true;
-  for (const auto& a : aggregates_)
-    if (a->occluded(p, dir, 0.0f, dist)) return true;
+  for (size_t a = 0; a < aggregates_.size(); ++a)
+    if (!missesMoving(a, p, dir, 0.0f, dist) && aggregateAt(int(a), time).occluded(p, dir, 0.0f, dist)) return true;
   // Area lights do not block each other's light: they are emitters, not occluders.
   return false;
 }

@@ -18,11 +18,13 @@
 #include <vector>
 
 #include "aggregate.h"
+#include "aggregate_motion.h"
 #include "camera.h"
 #include "cryptomatte.h"
 #include "diffusion.h"
 #include "embree_util.h"
 #include "grain_density.h"
+#include "heterogeneous_diffusion.h"
 #include "heterogeneous_medium.h"
 #include "instanced_grains.h"
 #include "light.h"
@@ -144,8 +146,15 @@ class Scene {
     return proxyTables_[size_t(aggregate)]->at(prototype, size);
   }
   const ProxyTables& proxyTables(int aggregate) const { return *proxyTables_[size_t(aggregate)]; }
-  // Index of the aggregate whose boundary contains p, or -1.
-  int mediumAt(const Vec3& p) const;
+  // Index of the aggregate whose boundary contains p at time (Ray::time), or -1.
+  int mediumAt(const Vec3& p, float time = 0) const;
+  // Aggregate a as it stands at a ray's time (aggregate_motion.h: AggregateDesc::shutterXf):
+  // its queries on world (render-space) rays and points. What depends on where it is asks
+  // this, not aggregates().
+  PosedAggregate aggregateAt(int a, float time) const {
+    const AggregateMotion& m = aggregateMotion_[size_t(a)];
+    return m.moving() ? PosedAggregate(*aggregates_[size_t(a)], m.at(time)) : PosedAggregate(*aggregates_[size_t(a)]);
+  }
   // Media exist (one per aggregate) when the technique uses them and some aggregate is
   // thicker than its mean free path (else EPT alone renders it: nothing to gain).
   bool hasMedia() const { return !media_.empty() || instancedMedia_ > 0; }
@@ -234,7 +243,8 @@ class Scene {
   // the bulk's packing rate and the grains' sizes). In the media (VPT: intersectMedium,
   // transmittance) such an instancer is that medium and no longer grains: a path enters it
   // where the hybrid switches it (after the explicit bounces, as for aggregates), or at its
-  // first grain by the level-of-detail shortcut. No DA in it (its density is not uniform).
+  // first grain by the level-of-detail shortcut. DA in it where it is close enough to
+  // homogeneous (instancedDiffusion).
   // Media of instancers are assumed not to overlap: a segment is tracked through the
   // first medium whose bounds it enters, up to their exit.
   // Proxies (ppt.h) carry the low orders after an instancer's first grain as an aggregate's
@@ -253,13 +263,33 @@ class Scene {
   bool firstInstancedMedium(const Ray& ray, float tmax, int& index, float& t0, float& t1) const;
   // Of instancer i (which has a medium): the grains' mean bounding radius (world), and the
   // total diffuse reflectance of its bulk's medium (the albedo AOV, as an aggregate's).
+  // DA in instancer i's medium (heterogeneous_diffusion.h: its level-set boundary and the
+  // rule for where DA holds), or null: no medium, technique not hybrid,
+  // RenderSettings::daInstanced off, or the camera or an emitter inside it (as for
+  // aggregates). Made when first asked for (build or setView), then lent to later builds.
+  const HeterogeneousDiffusion* instancedDiffusion(int i) const {
+    return instancedDa_.empty() || !instancedDa_[size_t(i)] ? nullptr : builtInstanced_[size_t(i)].diffusion.get();
+  }
   float instancedGrainRadius(int i) const { return builtInstanced_[size_t(i)].medium->meanRadius; }
   Vec3 instancedDiffuseReflectance(int i) const { return builtInstanced_[size_t(i)].medium->diffuseReflectance; }
   int instancedGrainsBuilt() const { return instancedBuilt_; }  // built anew, not lent by the previous scene
+  // Instancer i's set-up beyond its grid (InstancedGrains::stats): its packing-rate grid's
+  // stats (null: no medium), and the seconds its medium and its proxy tables took this
+  // build (0: none, or lent by the previous scene).
+  const GrainDensityStats* instancedDensityStats(int i) const {
+    const auto& m = builtInstanced_[size_t(i)].medium;
+    return m ? &m->density.stats : nullptr;
+  }
+  double instancedMediumSeconds(int i) const { return builtInstanced_[size_t(i)].mediumSeconds; }
+  double instancedTablesSeconds(int i) const { return builtInstanced_[size_t(i)].tablesSeconds; }
   bool instancedProxies(int i) const { return instancedProxies_[size_t(i)] != 0; }
   // In lowOrdersText()'s words: "proxies for 8 visits, then its heterogeneous medium (the
   // rule for 16 bounces)", "explicit grains to bounce 16, then …", "grain by grain (…)".
   std::string instancedLowOrdersText(int i) const;
+  // Whether DA takes the deep paths of instancer i's medium, in words both front ends print:
+  // "DA where the medium is deep and its packing uniform within ±10% over the diffusion's
+  // reach", "no DA (…why)".
+  std::string instancedDiffusionText(int i) const;
   int instancedProxyVisits(int i) const { return instancedProxyVisits_[size_t(i)]; }
   // Instancer i's table of a prototype, for a grain of that scale (InstancedGrainsDesc::scales).
   const ProxyTable& instancedProxyTable(int i, int prototype, float scale) const {
@@ -326,6 +356,16 @@ class Scene {
   std::vector<Light> lights_;
   std::vector<int> infiniteLights_, areaLights_;
   std::vector<std::shared_ptr<const Aggregate>> aggregates_;
+  // Per aggregate: its motion over the shutter, and its world bounds over it (culling).
+  std::vector<AggregateMotion> aggregateMotion_;
+  std::vector<Bounds3> aggregateBounds_;
+  // A moving aggregate that the segment meets at no time of the shutter (its bounds over
+  // it): not worth posing. Still ones are left to their own queries' bounds tests.
+  bool missesMoving(size_t a, const Vec3& o, const Vec3& d, float tmin, float tmax) const {
+    float t0, t1;
+    return aggregateMotion_[a].moving() &&
+           !aggregateBounds_[a].intersect(o, Vec3(1.0f / d.x, 1.0f / d.y, 1.0f / d.z), tmin, tmax, t0, t1);
+  }
   // Per aggregate, what a later build(desc, this) compares and reuses.
   struct BuiltAggregate {
     AggregateDesc desc;                         // compared without its id (the primId AOV's)
@@ -379,8 +419,12 @@ class Scene {
     std::vector<float> lengthScale;           // per prototype: its world radius at scale 1
     float worldScale = 1;                     // world length of one unit of the instancer's space
     std::shared_ptr<const ProxyTables> proxies;  // per prototype and scale (null: none made yet)
+    // DA's boundary and rule in medium (null: none made yet; made when the settings ask for
+    // DA there, lent with an unchanged medium).
+    std::shared_ptr<const HeterogeneousDiffusion> diffusion;
     Bounds3 bounds;                           // world (render space)
     int id = -1;
+    double mediumSeconds = 0, tablesSeconds = 0;  // this build's (instancedMediumSeconds)
   };
   std::vector<BuiltInstanced> builtInstanced_;
   std::vector<std::shared_ptr<const InstancedGrains>> instanced_;
@@ -388,6 +432,8 @@ class Scene {
   Bounds3 instancedBounds_;
   int instancedBuilt_ = 0;
   int instancedMedia_ = 0;  // instancers with a medium
+  std::vector<char> instancedDa_;  // per instancer: DA in its medium (instancedDiffusion)
+  std::vector<char> instancedEmitterInside_;  // an emitter inside its medium: no DA there
   // The medium of an instancer's grains (see instancedGrains()), or null when it is thinner
   // than its mean free path.
   std::shared_ptr<const InstancedMedium> buildInstancedMedium(const InstancedGrains& grains,

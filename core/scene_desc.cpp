@@ -253,6 +253,7 @@ void validateSceneDesc(const SceneDesc& desc) {
     validateClosed(a.boundary, obj + ".boundary");
     validateAggregateParameters(a, obj);
     checkInt(a.instanceId, -1, INT32_MAX, obj, "instanceId");
+    if (a.shutterXf) validateAggregateMotion(a, obj);
     for (size_t k = 0; k < a.prototypes.size(); ++k) {
       const GrainPrototypeDesc& p = a.prototypes[k];
       std::string pobj = p.name.empty() ? str(obj, ".prototypes[", k, "]") : p.name;
@@ -333,6 +334,51 @@ void validateAggregateParameters(const AggregateDesc& a, const std::string& obj)
   }
   if (!std::isfinite(a.sizeSpread) || a.sizeSpread < 0 || a.sizeSpread > 0.5f)
     throw InputError(obj, "sizeSpread", str(a.sizeSpread, " is outside [0, 0.5]"));
+}
+
+void validateAggregateMotion(const AggregateDesc& a, const std::string& obj) {
+  for (const Transform* xf : {&a.shutterXf->first, &a.shutterXf->second}) {
+    checkTransform(*xf, obj, "transform");
+    checkWorldPoints(a.boundary, *xf, obj);
+  }
+  // Rays are mapped into the build by the blend's inverse (aggregate_motion.h): it must stay
+  // invertible over the shutter, and not pinch the grains. det of the linear blend is a cubic
+  // in s; a turn by θ pinches it to cos²(θ/2) across the turn's plane.
+  const double ratio = minBlendDeterminantRatio(a.shutterXf->first, a.shutterXf->second);
+  if (!(ratio >= kMinBlendDeterminantRatio))
+    throw InputError(obj, "transform",
+                     str("turns or flips too far over the shutter to blend its transforms at the open and close "
+                         "linearly (the blend keeps ", ratio, " of the volume, under ", kMinBlendDeterminantRatio,
+                         ": a turn of more than 120 degrees)"));
+}
+
+double minBlendDeterminantRatio(const Transform& a, const Transform& b) {
+  auto det = [&](double s) {
+    Transform m;
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) m.m[i][j] = (1 - s) * a.m[i][j] + s * b.m[i][j];
+    return m.determinant3();
+  };
+  const double d0 = det(0), d1 = det(1);
+  if (!(d0 * d1 > 0)) return 0;  // a flip, or singular at an end
+  // The cubic p(s) = c0 + c1 s + c2 s² + c3 s³ through its values at 0, 1/3, 2/3 and 1;
+  // its least |p| on [0, 1] is at an end or where p' = c1 + 2 c2 s + 3 c3 s² vanishes.
+  const double p1 = det(1.0 / 3), p2 = det(2.0 / 3);
+  const double c0 = d0, c1 = (-11 * d0 + 18 * p1 - 9 * p2 + 2 * d1) / 2, c2 = (18 * d0 - 45 * p1 + 36 * p2 - 9 * d1) / 2,
+               c3 = (-9 * d0 + 27 * p1 - 27 * p2 + 9 * d1) / 2;
+  auto p = [&](double s) { return ((c3 * s + c2) * s + c1) * s + c0; };
+  double least = std::min(std::fabs(d0), std::fabs(d1)), lowest = least;
+  std::vector<double> roots;
+  if (std::fabs(c3) > 1e-300) {
+    const double disc = 4 * c2 * c2 - 12 * c3 * c1;
+    if (disc >= 0) roots = {(-2 * c2 - std::sqrt(disc)) / (6 * c3), (-2 * c2 + std::sqrt(disc)) / (6 * c3)};
+  } else if (std::fabs(c2) > 1e-300) {
+    roots = {-c1 / (2 * c2)};
+  }
+  for (double s : roots)
+    if (s > 0 && s < 1) lowest = std::min(lowest, p(s) * (d0 > 0 ? 1 : -1));
+  // A sign change inside is caught as a negative lowest (relative to the ends' sign).
+  return lowest / least;
 }
 
 TextureWrap textureWrapFromName(const std::string& name, const std::string& obj, const std::string& attr) {
@@ -425,7 +471,10 @@ SceneDesc toRenderSpace(const SceneDesc& desc, const Vec3d& origin) {
     if (m.shutterXf) m.shutterXf = std::make_pair(toRenderSpace(m.shutterXf->first, origin), toRenderSpace(m.shutterXf->second, origin));
   }
   for (LightDesc& l : r.lights) l.xf = toRenderSpace(l.xf, origin);
-  for (AggregateDesc& a : r.aggregates) a.xf = toRenderSpace(a.xf, origin);
+  for (AggregateDesc& a : r.aggregates) {
+    a.xf = toRenderSpace(a.xf, origin);
+    if (a.shutterXf) a.shutterXf = std::make_pair(toRenderSpace(a.shutterXf->first, origin), toRenderSpace(a.shutterXf->second, origin));
+  }
   for (InstancedGrainsDesc& g : r.instancedGrains) g.xf = toRenderSpace(g.xf, origin);
   return r;
 }
@@ -537,8 +586,8 @@ static_assert(fieldCount<MaterialDesc>() == 13, "compare the new field in sameMa
 static_assert(fieldCount<LightDesc>() == 12, "compare the new field in sameLight");
 static_assert(fieldCount<MeshDesc>() == 8, "compare the new field in sameMeshDesc");
 static_assert(fieldCount<GrainPrototypeDesc>() == 3, "compare the new field in sameAggregateInputs");
-static_assert(fieldCount<AggregateDesc>() == 13, "compare the new field in sameAggregateInputs (or the id check)");
-static_assert(fieldCount<RenderSettings>() == 24, "compare the new field in sameViewSettings or settingsNeedBuild");
+static_assert(fieldCount<AggregateDesc>() == 14, "compare the new field in sameAggregateInputs (or the id check)");
+static_assert(fieldCount<RenderSettings>() == 25, "compare the new field in sameViewSettings or settingsNeedBuild");
 static_assert(fieldCount<SceneDesc>() == 7, "compare the new part in compareScenes");
 static_assert(fieldCount<InstancedGrainsDesc>() == 10, "compare the new field in sameInstancedGrains (or the id check)");
 
@@ -602,7 +651,8 @@ bool sameViewSettings(const RenderSettings& a, const RenderSettings& b) {
   return a.width == b.width && a.height == b.height && a.spp == b.spp && a.seed == b.seed &&
          a.maxDepth == b.maxDepth && a.rrDepth == b.rrDepth && a.threads == b.threads && a.technique == b.technique &&
          a.bundleSize == b.bundleSize && a.tau == b.tau && a.explicitBounces == b.explicitBounces &&
-         a.daDepthFactor == b.daDepthFactor && a.daMinOrder == b.daMinOrder && a.roulette == b.roulette &&
+         a.daDepthFactor == b.daDepthFactor && a.daMinOrder == b.daMinOrder && a.daInstanced == b.daInstanced &&
+         a.roulette == b.roulette &&
          a.lod == b.lod && a.proxies == b.proxies && a.domeCameraVisible == b.domeCameraVisible &&
          a.cropX0 == b.cropX0 && a.cropX1 == b.cropX1 && a.cropY0 == b.cropY0 && a.cropY1 == b.cropY1 &&
          a.cryptomatte == b.cryptomatte;
@@ -667,7 +717,7 @@ bool sameInstancedGrains(const InstancedGrainsDesc& a, const InstancedGrainsDesc
 
 SceneChange SceneChanges::level() const {
   if (meshes || materials || media || renderSpace) return SceneChange::Everything;
-  if (!aggregates.empty() || aggregateList || instancedGrains) return SceneChange::Aggregates;
+  if (!aggregates.empty() || aggregateList || aggregateMotion || instancedGrains) return SceneChange::Aggregates;
   if (lights) return SceneChange::Lights;
   if (camera || settings) return SceneChange::View;
   return SceneChange::Unchanged;
@@ -698,6 +748,17 @@ SceneChanges compareScenes(const SceneDesc& before, const SceneDesc& after) {
   for (size_t i = 0; i < after.instancedGrains.size() && !c.instancedGrains; ++i)
     c.instancedGrains = !sameInstancedGrains(before.instancedGrains[i], after.instancedGrains[i]) ||
                         before.instancedGrains[i].id != after.instancedGrains[i].id;
+  // A moving aggregate is lent by its build and moves as the new description says: its
+  // shutter transforms, and the shutter they span.
+  auto sameMotion = [](const AggregateDesc& x, const AggregateDesc& y) {
+    return x.shutterXf.has_value() == y.shutterXf.has_value() &&
+           (!x.shutterXf || (sameTransform(x.shutterXf->first, y.shutterXf->first) &&
+                             sameTransform(x.shutterXf->second, y.shutterXf->second)));
+  };
+  if (before.camera.shutterOpen != after.camera.shutterOpen || before.camera.shutterClose != after.camera.shutterClose)
+    for (const AggregateDesc& a : after.aggregates) c.aggregateMotion = c.aggregateMotion || a.shutterXf.has_value();
+  for (size_t i = 0; i < std::min(before.aggregates.size(), after.aggregates.size()); ++i)
+    c.aggregateMotion = c.aggregateMotion || !sameMotion(before.aggregates[i], after.aggregates[i]);
   const Vec3d originBefore = renderOrigin(before), originAfter = renderOrigin(after);
   c.renderSpace = !(originBefore == originAfter);
 
@@ -770,12 +831,15 @@ std::string describeChanges(const SceneChanges& c) {
   if (c.instancedGrains) parts.push_back("explicit grains");
   else if (c.aggregateList && c.level() == SceneChange::Aggregates)
     parts.push_back("the list of aggregates");
+  else if (c.aggregateMotion && c.aggregates.empty() && c.level() == SceneChange::Aggregates)
+    parts.push_back("the aggregates' motion");
   return join(parts) + " changed";
 }
 
 void stillFrame(SceneDesc& desc) {
   desc.camera.shutterOpen = desc.camera.shutterClose = 0;
   for (MeshDesc& m : desc.meshes) m.shutterXf.reset();
+  for (AggregateDesc& a : desc.aggregates) a.shutterXf.reset();
 }
 
 }  // namespace granular

@@ -17,6 +17,7 @@
 
 #include "math.h"
 #include "mesh.h"
+#include "shared_array.h"
 
 namespace granular {
 
@@ -173,6 +174,10 @@ struct AggregateDesc {
   int tileSpheres = 512;       // spheres per periodic tile
   int id = -1;                 // the front end's id, reported by the primId AOV
   int instanceId = -1;         // as MeshDesc::instanceId
+  // Transform motion blur, as MeshDesc::shutterXf: the object-to-world transforms at the
+  // shutter's open and close, blended linearly between them (aggregate_motion.h). The
+  // aggregate is built at xf whatever its motion (no rebuild for it, no other grains).
+  std::optional<std::pair<Transform, Transform>> shutterXf;
 };
 
 // A unit quaternion (w, x, y, z): the rotation of a grain.
@@ -187,21 +192,23 @@ inline Vec3 rotate(const Quat& q, const Vec3& v) {
 }
 
 // A PointInstancer's grains as a simulation placed them (instanced_grains.h: the contract).
+// The per-grain arrays are shared by copies of the description (shared_array.h: copying a
+// scene description costs nothing per grain; writing to a copy copies that array).
 struct InstancedGrainsDesc {
   std::string name;                          // the instancer's prim path
   Transform xf;                              // object-to-world
   std::vector<GrainPrototypeDesc> prototypes;
-  std::vector<Vec3> positions;               // object space (USD point3f)
-  std::vector<Quat> orientations;            // unit; empty: identity
-  std::vector<float> scales;                 // uniform, > 0; empty: 1
-  std::vector<int32_t> protoIndices;         // one per grain: the number of grains
+  SharedArray<Vec3> positions;               // object space (USD point3f)
+  SharedArray<Quat> orientations;            // unit; empty: identity
+  SharedArray<float> scales;                 // uniform, > 0; empty: 1
+  SharedArray<int32_t> protoIndices;         // one per grain: the number of grains
   // Motion blur (CameraDesc's shutter); empty or one per grain. Object units per second,
   // and degrees per second about an axis through the instance's position, as USD authors
   // them: at time τ grain i is at positions[i] + τ velocities[i], turned by
   // R(angularVelocities[i], τ |angularVelocities[i]|) after its orientation
   // (UsdGeomPointInstancer::ComputeInstanceTransformsAtTime's convention).
-  std::vector<Vec3> velocities;
-  std::vector<Vec3> angularVelocities;
+  SharedArray<Vec3> velocities;
+  SharedArray<Vec3> angularVelocities;
   int id = -1;                               // the front end's id (primId AOV)
   size_t size() const { return protoIndices.size(); }
 };
@@ -246,6 +253,11 @@ struct RenderSettings {
   // (bench/README.md, "Diffusion").
   float daDepthFactor = 1.0f;
   int daMinOrder = 16;
+  // DA also in the heterogeneous media of instancers' grains, where the packing is close
+  // enough to homogeneous over what the diffusion depends on (heterogeneous_diffusion.h);
+  // false: VPT to the end there. Off by default: on the generated heaps it saved no
+  // render time at equal error (bench/README.md) and its distance field costs set-up.
+  bool daInstanced = false;
   // Russian roulette at the switch to the medium: a path survives with probability P_a in
   // (0, 1]. Negative: tuned by a pre-render to P_a = sqrt(V_H t_L / (V_L t_H)), which
   // minimises the cost of a given variance, (V_L + V_H/P_a)(t_L + P_a t_H), clamped into (0, 1].
@@ -359,10 +371,13 @@ struct SceneChanges {
   bool settings = false;      // render settings that Scene::setView applies
   bool lights = false;        // the lights, or the settings that decide them (defaultLight, physicalSun)
   // Indices into the new description's aggregates that no aggregate of the old one can lend
-  // its grains to: new ones, and those whose inputs (their AggregateDesc but the id, their
-  // prototypes' materials) changed. Scene::build voxelises these.
+  // its grains to: new ones, and those whose inputs (their AggregateDesc but the id and the
+  // motion, their prototypes' materials) changed. Scene::build voxelises these.
   std::vector<int> aggregates;
   bool aggregateList = false;  // aggregates removed, reordered or given other ids (none made anew for it)
+  // An aggregate's motion over the shutter (its shutterXf, or the shutter while it has one):
+  // a build that lends it unchanged and moves it anew.
+  bool aggregateMotion = false;
   bool meshes = false;         // any MeshDesc, or their count
   bool materials = false;      // a material that is not a grain's alone (a surface's, an unused one), or their count
   bool media = false;          // the technique to or from ept: every aggregate's medium derived or dropped
@@ -393,7 +408,8 @@ void validateSceneDesc(const SceneDesc& desc);
 
 // No motion blur (JSON "motion_blur": false, --no-motion-blur, UsdRender's
 // disableMotionBlur): the frame's instant, the camera's shutter closed at 0 and every mesh
-// still at its transform (MeshDesc::shutterXf dropped); moving grains then stand still too.
+// and aggregate still at its transform (MeshDesc::shutterXf, AggregateDesc::shutterXf
+// dropped); moving grains then stand still too.
 void stillFrame(SceneDesc& desc);
 
 // Parts of validateSceneDesc, for front ends that check what they add as they go: one
@@ -404,5 +420,12 @@ void validateLightDesc(const LightDesc& l, const std::string& object);
 // One camera on its own (not its field of view, which depends on the image's aspect).
 void validateCameraDesc(const CameraDesc& c, const std::string& object);
 void validateAggregateParameters(const AggregateDesc& a, const std::string& object);
+// An aggregate's shutterXf (set): each transform as its xf, and their linear blend invertible
+// over the shutter, its determinant at least kMinBlendDeterminantRatio of the ends' least.
+void validateAggregateMotion(const AggregateDesc& a, const std::string& object);
+// The least over s in [0, 1] of det((1 − s) A + s B) (linear parts) over the least of
+// det A and det B, of their sign; <= 0: the blend flips or is singular somewhere.
+double minBlendDeterminantRatio(const Transform& a, const Transform& b);
+constexpr double kMinBlendDeterminantRatio = 0.25;  // cos²(60°): a turn of 120° over the shutter
 
 }  // namespace granular

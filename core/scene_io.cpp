@@ -406,6 +406,7 @@ void parseRender(const Obj& o, RenderSettings& s) {
   s.explicitBounces = o.integer("explicit_bounces", s.explicitBounces);
   s.daDepthFactor = o.num("da_depth_factor", s.daDepthFactor);
   s.daMinOrder = o.integer("da_min_order", s.daMinOrder);
+  s.daInstanced = o.flag("da_instanced", s.daInstanced);
   s.roulette = o.num("roulette", s.roulette);
   s.lod = o.num("lod", s.lod);
   s.defaultLight = o.flag("default_light", s.defaultLight);
@@ -664,7 +665,7 @@ void parseAggregates(const json& v, SceneDesc& desc, const MaterialIndex& mats, 
     std::string label = itemLabel(a[i], "aggregates", i);
     Obj o(a[i], "aggregates", str("[", i, "]"), label,
           {"name", "boundary", "transform", "grain_radius", "packing_rate", "seed", "tile_spheres", "prototypes",
-           "weights", "sizes", "size_spread"});
+           "weights", "sizes", "size_spread", "shutter_transforms"});
     checkUnique(seen, label, "aggregates", i);
     AggregateDesc ag;
     ag.name = label;
@@ -682,6 +683,25 @@ void parseAggregates(const json& v, SceneDesc& desc, const MaterialIndex& mats, 
     // Polydisperse grains: each prototype's radius relative to grain_radius, and a spread.
     if (const json* z = o.find("sizes")) ag.sizes = toFloats(*z, label, "sizes");
     ag.sizeSpread = o.num("size_spread", ag.sizeSpread);
+    // Transform motion blur, as a mesh's (AggregateDesc::shutterXf), checked under this key.
+    if (const json* st = o.find("shutter_transforms")) {
+      if (!st->is_array() || st->size() != 2)
+        throw InputError(label, "shutter_transforms", "expected [transform at open, transform at close], got " + describe(*st));
+      ag.shutterXf = std::make_pair(parseTransform((*st)[0], label, "shutter_transforms"),
+                                    parseTransform((*st)[1], label, "shutter_transforms"));
+      // An aggregate bad in itself is left to validateSceneDesc, which names what is wrong.
+      bool valid = true;
+      try {
+        validateAggregateParameters(ag, label);
+      } catch (const InputError&) {
+        valid = false;
+      }
+      try {
+        if (valid) validateAggregateMotion(ag, label);
+      } catch (const InputError& e) {
+        throw InputError(label, "shutter_transforms", bareMessage(e));
+      }
+    }
     desc.aggregates.push_back(std::move(ag));
   }
 }
@@ -870,7 +890,7 @@ SceneDesc parseSceneJson(const std::string& text, const std::string& sourceName)
             {"render", "camera", "materials", "meshes", "lights", "aggregates", "instanced_grains"});
     bool motionBlur = true;
     if (const json* r = top.find("render")) {
-      Obj ro(*r, "scene", "render", "render", {"width", "height", "spp", "seed", "max_depth", "rr_depth", "threads", "technique", "bundle_size", "tau", "explicit_bounces", "da_depth_factor", "da_min_order", "roulette", "lod", "proxies", "default_light", "physical_sun", "crop", "motion_blur"});
+      Obj ro(*r, "scene", "render", "render", {"width", "height", "spp", "seed", "max_depth", "rr_depth", "threads", "technique", "bundle_size", "tau", "explicit_bounces", "da_depth_factor", "da_min_order", "da_instanced", "roulette", "lod", "proxies", "default_light", "physical_sun", "crop", "motion_blur"});
       parseRender(ro, desc.settings);
       motionBlur = ro.flag("motion_blur", true);
     }

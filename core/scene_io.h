@@ -29,7 +29,8 @@
 //  "aggregates": [{"name":"castle", "boundary"*: S, "transform": T, "grain_radius":0.01,
 //                  "packing_rate":0.6, "seed":1, "tile_spheres":512,
 //                  "prototypes"*: [{"name":"rock", "shape"*: S, "material":"sand"}],
-//                  "weights":[1]}],  // default: all 1
+//                  "weights":[1],  // default: all 1
+//                  "shutter_transforms": [T_open, T_close]}],  // moves over the shutter, as a mesh
 //  "instanced_grains": [{"name":"pile", "transform": T,     // a simulation's grains (PointInstancer)
 //                  "prototypes"*: [{"name":"rock", "shape"*: S, "material":"sand"}],
 //                  "positions"*: [[x,y,z], ...], "proto_indices"*: [0, ...],  // one per grain

@@ -96,7 +96,7 @@ bool deeperThan(const Aggregate& agg, const Vec3& p, float depth) {
 }  // namespace
 
 void mediumNee(const Scene& scene, PathState& path, const HomogeneousMedium& med, const Vec3& p,
-               const Vec3* reducedSigmaT) {
+               const DiffusionBoundary* boundary, const Vec3& reducedBy) {
   const auto& lights = scene.lights();
   const Vec3 wi = path.ray.d;
   if (!lights.empty()) {
@@ -109,12 +109,11 @@ void mediumNee(const Scene& scene, PathState& path, const HomogeneousMedium& med
       float dist = std::isfinite(ls.dist) ? ls.dist * (1.0f - 1e-4f) : kInf;
       Vec3 Tr = scene.transmittance(p, ls.wi, dist, path.ray.time, &path.rng);
       path.cost[1] += 1;
-      if (reducedSigmaT && !isBlack(Tr)) {
+      if (boundary && !isBlack(Tr)) {
         // The flight to the own medium's boundary in the reduced medium (diffusion.h).
         float s;
         Vec3 ng;
-        if (scene.aggregates()[path.medium]->intersectBoundary(p, ls.wi, 0.0f, dist, s, ng))
-          Tr *= vexp((med.sigmaT() - *reducedSigmaT) * s);
+        if (boundary->intersect(p, ls.wi, dist, s, ng)) Tr *= vexp(reducedBy * s);
       }
       if (!isBlack(Tr) && !isBlack(f)) {
         if (ls.delta) {
@@ -140,11 +139,37 @@ bool takesDiffusion(const Scene& scene, PathState& path, const Vec3& p) {
       path.depth < scene.settings().daMinOrder || path.daRefused)
     return false;
   const Aggregate& agg = *scene.aggregates()[path.medium];
-  if (!deeperThan(agg, p, daDepth)) return false;
+  // Depths and curvature do not change as the aggregate moves: asked where p stands in its build.
+  const Vec3 pb = scene.aggregateAt(path.medium, path.ray.time).toBuild(p);
+  if (!deeperThan(agg, pb, daDepth)) return false;
   path.cost[1] += 5;
-  if (diffusionHolds(agg, p, daDepth)) return true;
+  if (diffusionHolds(agg, pb, daDepth)) return true;
   path.daRefused = true;
   return false;
+}
+
+// DA at a scattering at p in instancer m's heterogeneous medium, where
+// heterogeneous_diffusion.h's rule holds; true: the path went on by DA. A refusal for
+// varying packing is asked again kDaRetryOrders scatterings later (the path may have
+// diffused into a uniform part); one for curvature, never (as above).
+constexpr int kDaRetryOrders = 8;
+
+bool instancedDiffusion(const Scene& scene, PathState& path, int m, const Vec3& p) {
+  const HeterogeneousDiffusion* da = scene.instancedDiffusion(m);
+  if (!da || path.depth < scene.settings().daMinOrder || path.daRefused || path.depth < path.daRetryDepth)
+    return false;
+  path.cost[1] += 1;
+  const HeterogeneousDecision d = da->decide(p, scene.settings().daDepthFactor);
+  if (d.outcome == DiffusionOutcome::Varies) path.daRetryDepth = path.depth + kDaRetryOrders;
+  if (d.outcome == DiffusionOutcome::Curved) path.daRefused = true;
+  if (d.outcome != DiffusionOutcome::Takes) return false;
+  // The local homogeneous medium: the reference's σ_t scaled to the region's packing f̄.
+  const HomogeneousMedium& ref = scene.instancedMedium(m)->reference();
+  const float k = d.packing / da->densityRef();
+  const DiffusionProfile profile = da->referenceProfile().scaled(k);
+  const SurfaceCutBoundary boundary(da->boundary(), scene, path.ray.time);
+  diffusionStep(scene, path, p, DiffusionMedium{ref, ref.sigmaT() * k, profile, boundary});
+  return true;
 }
 
 // Scattering at p inside medium med: NEE through the media, then a phase-sampled direction.
@@ -204,7 +229,7 @@ void vptStep(const Scene& scene, PathState& path) {
     } else if (scene.hasMedia()) {
       // An instancer's heterogeneous medium (Scene::instancedGrains): spectral tracking
       // through it up to the hit or the end of its bounds, whose weight carries α_s at a
-      // scattering (heterogeneous_medium.h).
+      // scattering (heterogeneous_medium.h); deep scatterings may go on by DA (above).
       int m;
       float t0, t1;
       const float tHit = found ? hit.t : kInf;
@@ -215,7 +240,8 @@ void vptStep(const Scene& scene, PathState& path) {
         path.cost[1] += 0.1 * double(flight.lookups);
         path.beta *= flight.weight;
         if (flight.scattered) {
-          scatterInMedium(scene, path, med.reference(), path.ray.o + path.ray.d * flight.t);
+          const Vec3 p = path.ray.o + path.ray.d * flight.t;
+          if (!instancedDiffusion(scene, path, m, p)) scatterInMedium(scene, path, med.reference(), p);
           return;
         }
         if (isBlack(path.beta)) {

@@ -56,22 +56,24 @@ class HomogeneousMedium {
 
 struct PathState;
 class Scene;
+class DiffusionBoundary;
 
 // One event of a path in the media (VPT): flights through boundaries (null crossings),
 // then a scattering in a medium (next-event estimation with transmittance, phase
 // sampling, MIS), a surface bounce, an emitter or an escape. Sets alive = false when
 // the path ends. With technique Hybrid, a scattering deeper than diffusionDepth() below
 // the boundary, of a path that has scattered RenderSettings::daMinOrder times, hands the
-// path to diffusion.h.
+// path to diffusion.h; in an instancer's medium, where heterogeneous_diffusion.h's rule
+// holds (RenderSettings::daInstanced).
 void vptStep(const Scene& scene, PathState& path);
 
 // Next-event estimation at a scattering at p in med for a path arriving along path.ray.d:
 // one light, its transmittance through the media, the phase function, MIS against phase
 // sampling (power heuristic; delta lights unweighted). Adds to path.L[path.credit].
-// reducedSigmaT: the flight through the path's own medium, up to its first boundary
-// crossing, uses this extinction (σ'_t: DA's uncollided beam, diffusion.h) instead.
+// boundary: the flight up to its first crossing of it is in a medium of extinction
+// reducedBy less than the media's (DA's reduced medium, σ_t − σ'_t given back: diffusion.h).
 void mediumNee(const Scene& scene, PathState& path, const HomogeneousMedium& med, const Vec3& p,
-               const Vec3* reducedSigmaT = nullptr);
+               const DiffusionBoundary* boundary = nullptr, const Vec3& reducedBy = Vec3(0.0f));
 
 // Depth below the boundary beyond which DA replaces VPT: factor × Meng et al. 2015's
 // min(1/σ'_t, 0.5/σ_tr), taken for the channel with the longest such depth (DA must be

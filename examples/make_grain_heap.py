@@ -4,6 +4,7 @@ GranularInstancedAggregateAPI, as a grain solver exports one (positions, orienta
 scales, protoIndices, velocities, angularVelocities), over a few frames:
 
     .venv/bin/python examples/make_grain_heap.py OUT.usdc [--grains N] [--frames K] [--seed S] [--shutter OPEN CLOSE]
+                                                 [--no-motion] [--slabs]
 
 The heap is a cone at the angle of repose of dry sand (about 31 degrees) on a ground card,
 with a camera and a sun. Grains are placed one per cell of a cubic grid (cells whose centre
@@ -14,6 +15,12 @@ are chosen 70/30. Frames 1..K move every grain by a small settling drift (at mos
 largest radius per frame, toward the heap's foot) and spin it slowly; velocities and
 angular velocities are the matching rates. Deterministic given the arguments. The default
 (~100k grains, 3 frames) is about 11 MB of .usdc: write it, do not commit it.
+
+For very large heaps (10^8 grains: bench/README.md, "Explicit grains from a simulation"):
+--no-motion writes one frame without velocities and angular velocities (36 bytes a grain:
+positions, half-float orientations, scales, protoIndices), and --slabs generates the grains
+layer by layer of the grid, each layer from its own random stream, in memory proportional
+to the grains' arrays alone (a different heap from the default's, as deterministic).
 """
 import argparse
 import math
@@ -76,10 +83,60 @@ def heap(grains, seed):
     return centres, sizes, q, protos, height
 
 
-def write(path, grains=100000, frames=3, seed=1, shutter=None):
-    centres, sizes, quats, protos, height = heap(grains, seed)
+def heap_slabs(grains, seed):
+    """heap()'s cone, generated one layer of the grid (constant y) at a time into float32
+    arrays: centres, sizes, rotations as (i, j, k, real) half floats (USD's quath), prototype
+    indices, height. Layer k draws from its own stream (seed, k)."""
+    a = SPACING * RADIUS
+    base = (3.0 * grains * a ** 3 / (math.pi * TAN_REPOSE)) ** (1.0 / 3.0)
+    height = base * TAN_REPOSE
+    n = int(math.ceil(base / a)) + 1
+    axis = np.arange(-n, n + 1, dtype=np.float64) * a
+    r2 = axis[:, None] ** 2 + axis[None, :] ** 2
+    layers = []
+    for iy in range(0, int(height / a) + 2):
+        y = (iy + 0.5) * a
+        inside = np.sqrt(r2) <= (height - y) / TAN_REPOSE
+        layers.append((y, np.nonzero(inside.ravel())[0]))
+    count = sum(len(cells) for _, cells in layers)
+    centres = np.empty((count, 3), np.float32)
+    sizes = np.empty(count, np.float32)
+    quats = np.empty((count, 4), np.float16)
+    protos = np.empty(count, np.int32)
+    at = 0
+    for iy, (y, cells) in enumerate(layers):
+        m = len(cells)
+        if m == 0:
+            continue
+        rng = np.random.default_rng([seed, iy])
+        c = np.stack([axis[cells // len(axis)], np.full(m, y), axis[cells % len(axis)]], axis=1)
+        centres[at:at + m] = c + rng.uniform(-JITTER * RADIUS, JITTER * RADIUS, size=(m, 3))
+        sizes[at:at + m] = RADIUS * rng.uniform(0.75, 1.0, size=m)
+        q = rng.normal(size=(m, 4))
+        q /= np.linalg.norm(q, axis=1, keepdims=True)
+        quats[at:at + m] = q[:, [1, 2, 3, 0]]  # (i, j, k, real)
+        protos[at:at + m] = rng.uniform(size=m) >= 0.7
+        at += m
+    return centres, sizes, quats, protos, height
+
+
+def _write_static(stage, pi, centres, sizes, quats, protos):
+    """One frame, no motion, each array handed to USD and dropped before the next."""
+    pi.CreateProtoIndicesAttr(Vt.IntArray.FromNumpy(protos))
+    pi.CreateScalesAttr(Vt.Vec3fArray.FromNumpy(np.repeat(sizes[:, None], 3, axis=1)))
+    pi.CreatePositionsAttr(Vt.Vec3fArray.FromNumpy(centres))
+    pi.CreateOrientationsAttr(Vt.QuathArray.FromNumpy(quats))
+
+
+def write(path, grains=100000, frames=3, seed=1, shutter=None, motion=True, slabs=False):
+    if slabs:
+        centres, sizes, quats, protos, height = heap_slabs(grains, seed)
+    else:
+        centres, sizes, quats, protos, height = heap(grains, seed)
+        if not motion:  # as the motion path writes frame 1: float32, (i, j, k, real) halves
+            centres, sizes = centres.astype(np.float32), sizes.astype(np.float32)
+            quats = quats[:, [1, 2, 3, 0]].astype(np.float16)
     count = len(centres)
-    rng = np.random.default_rng(seed + 1)
     stage = Usd.Stage.CreateNew(path)
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
     UsdGeom.SetStageMetersPerUnit(stage, 1.0)
@@ -101,6 +158,19 @@ def write(path, grains=100000, frames=3, seed=1, shutter=None):
     for m in (round_, rock):  # visible: a prototype's visibility is its instances'
         schema.apply_grain(m, ior=QUARTZ_SAND.ior, absorption=absorption, invisible=False)
     pi.CreatePrototypesRel().SetTargets([round_.GetPath(), rock.GetPath()])
+    if not motion:
+        _write_static(stage, pi, centres, sizes, quats, protos)
+        del centres, sizes, quats, protos
+    else:
+        _write_motion(stage, pi, centres, sizes, quats, protos, frames, seed)
+    _write_rest(stage, height, shutter)
+    stage.GetRootLayer().Save()
+    return count
+
+
+def _write_motion(stage, pi, centres, sizes, quats, protos, frames, seed):
+    count = len(centres)
+    rng = np.random.default_rng(seed + 1)
     pi.CreateProtoIndicesAttr(Vt.IntArray.FromNumpy(protos))
     pi.CreateScalesAttr(Vt.Vec3fArray.FromNumpy(np.repeat(sizes[:, None], 3, axis=1).astype(np.float32)))
 
@@ -128,6 +198,8 @@ def write(path, grains=100000, frames=3, seed=1, shutter=None):
         # Vt takes (i, j, k, real).
         orient_attr.Set(Vt.QuathArray.FromNumpy(q[:, [1, 2, 3, 0]].astype(np.float16)), Usd.TimeCode(1 + f))
 
+
+def _write_rest(stage, height, shutter):
     ground = UsdGeom.Mesh.Define(stage, "/World/Ground")
     g = 4.0 * height + 0.2
     ground.CreatePointsAttr([(-g, 0, -g), (g, 0, -g), (g, 0, g), (-g, 0, g)])
@@ -147,22 +219,29 @@ def write(path, grains=100000, frames=3, seed=1, shutter=None):
     sun.CreateIntensityAttr(3.0)
     UsdGeom.Xformable(sun).AddRotateXYZOp().Set(Gf.Vec3f(-50, 30, 0))
     UsdLux.DomeLight.Define(stage, "/World/Sky").CreateIntensityAttr(0.3)
-    stage.GetRootLayer().Save()
-    return count
 
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("output", help="a .usdc (or .usda) path")
     p.add_argument("--grains", type=int, default=100000, help="about this many grains (default 100000)")
-    p.add_argument("--frames", type=int, default=3, help="time samples 1..K (default 3)")
+    p.add_argument("--frames", type=int, help="time samples 1..K (default 3)")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--shutter", type=float, nargs=2, metavar=("OPEN", "CLOSE"),
                    help="the camera's shutter:open and shutter:close in frames (e.g. -0.25 0.25): motion blur")
+    p.add_argument("--no-motion", action="store_true",
+                   help="one frame, no velocities or angular velocities (36 bytes a grain)")
+    p.add_argument("--slabs", action="store_true",
+                   help="generate the grid layer by layer in bounded memory (for 10^8 grains; another heap)")
     a = p.parse_args(argv)
+    if a.no_motion and a.frames not in (None, 1) or a.shutter and a.no_motion:
+        p.error("--no-motion writes one frame without motion: no --frames or --shutter")
+    a.frames = (1 if a.no_motion else 3) if a.frames is None else a.frames
     if a.grains < 1 or a.frames < 1:
         p.error("--grains and --frames must be >= 1")
-    n = write(a.output, a.grains, a.frames, a.seed, a.shutter)
+    if a.slabs and not a.no_motion:
+        p.error("--slabs writes a still heap: with --no-motion")
+    n = write(a.output, a.grains, a.frames, a.seed, a.shutter, motion=not a.no_motion, slabs=a.slabs)
     print(f"wrote {a.output}: {n} grains, {a.frames} frames")
     return 0
 

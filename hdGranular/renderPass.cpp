@@ -132,24 +132,28 @@ double timeCodesPerSecond(HdRenderDelegate* d) {
 }
 
 // Transform motion blur, as granular render's reading (usd_reader._mesh_motion): each mesh
-// drawn once (not an instance) whose world transform differs between the shutter's ends gets
-// its transforms there (MeshDesc::shutterXf), sampled from its scene delegate over the
-// shutter (times relative to the frame; the samples hold the interval's ends, exact, and
-// resampling gives them whatever the delegate hands back).
+// and each aggregate drawn once (not an instance) whose world transform differs between the
+// shutter's ends gets its transforms there (MeshDesc::shutterXf, AggregateDesc::shutterXf),
+// sampled from its scene delegate over the shutter (times relative to the frame; the samples
+// hold the interval's ends, exact, and resampling gives them whatever the delegate hands
+// back). An aggregate is still built where it stands at the frame (core/aggregate_motion.h).
 void sampleMeshMotion(HdRenderIndex& index, GfVec2d const& shutter, granular::SceneDesc& desc) {
   if (!(shutter[1] > shutter[0])) return;
   const float open = float(shutter[0]), close = float(shutter[1]);
-  for (granular::MeshDesc& m : desc.meshes) {
-    if (m.instanceId >= 0 || !SdfPath::IsValidPathString(m.name)) continue;
-    const SdfPath id(m.name);
+  auto sample = [&](std::string const& name, int instanceId,
+                    std::optional<std::pair<granular::Transform, granular::Transform>>& shutterXf) {
+    if (instanceId >= 0 || !SdfPath::IsValidPathString(name)) return;
+    const SdfPath id(name);
     HdSceneDelegate* const delegate = index.GetRprim(id) ? index.GetSceneDelegateForRprim(id) : nullptr;
-    if (!delegate) continue;
+    if (!delegate) return;
     HdTimeSampleArray<GfMatrix4d, 4> xf;
     delegate->SampleTransform(id, open, close, &xf);
-    if (xf.count < 2) continue;  // one sample: still
+    if (xf.count < 2) return;  // one sample: still
     const GfMatrix4d a = xf.Resample(open), b = xf.Resample(close);
-    if (a != b) m.shutterXf = std::make_pair(HdGranularToCore(a), HdGranularToCore(b));
-  }
+    if (a != b) shutterXf = std::make_pair(HdGranularToCore(a), HdGranularToCore(b));
+  };
+  for (granular::MeshDesc& m : desc.meshes) sample(m.name, m.instanceId, m.shutterXf);
+  for (granular::AggregateDesc& a : desc.aggregates) sample(a.name, a.instanceId, a.shutterXf);
 }
 
 granular::RenderSettings renderSettings(HdRenderDelegate* d, int width, int height) {
@@ -287,9 +291,10 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
         for (auto const& m : desc.meshes)
           fprintf(stderr, "hdGranular: mesh %s%s\n", m.name.c_str(), m.shutterXf ? " (moving over the shutter)" : "");
         for (auto const& a : desc.aggregates) {
-          fprintf(stderr, "hdGranular: aggregate %s radius %g packing %g seed %llu tile %d points %zu t (%g %g %g)",
+          fprintf(stderr, "hdGranular: aggregate %s radius %g packing %g seed %llu tile %d points %zu t (%g %g %g)%s",
                   a.name.c_str(), a.grainRadius, a.packingRate, (unsigned long long)a.seed, a.tileSpheres,
-                  a.boundary.points.size(), a.xf.m[0][3], a.xf.m[1][3], a.xf.m[2][3]);
+                  a.boundary.points.size(), a.xf.m[0][3], a.xf.m[1][3], a.xf.m[2][3],
+                  a.shutterXf ? " (moving over the shutter)" : "");
           for (size_t i = 0; i < a.prototypes.size(); ++i)
             fprintf(stderr, " [%s w %g mat %d]", a.prototypes[i].name.c_str(), a.weights[i], a.prototypes[i].material);
           fprintf(stderr, "\n");

@@ -132,6 +132,57 @@ std::vector<int> toInt32(const std::vector<int64_t>& v) {
   return r;
 }
 
+// A numpy array's numbers as core reads them in place (granular_prims.h: NumberView): float
+// (16, 32, 64 bits) or, with integers, int32/int64 arrays in C order as they are; any other
+// array converted (to float32, or to int64 with integers), the copy held with the view.
+struct HeldNumbers {
+  py::array array;
+  NumberView view;
+};
+HeldNumbers numbersOf(const py::object& obj, bool integers) {
+  HeldNumbers h;
+  py::array a = py::array::ensure(obj);
+  if (!a) throw py::value_error("expected an array of numbers");
+  const char kind = a.dtype().kind();
+  const auto size = a.dtype().itemsize();
+  const bool inOrder = (a.flags() & py::array::c_style) != 0;
+  using T = NumberView::Type;
+  if (inOrder && kind == 'f' && !integers && (size == 2 || size == 4 || size == 8))
+    h.view.type = size == 2 ? T::Half : size == 4 ? T::Float : T::Double;
+  else if (inOrder && kind == 'i' && integers && (size == 4 || size == 8))
+    h.view.type = size == 4 ? T::Int32 : T::Int64;
+  else if (integers) {
+    a = py::array_t<int64_t, py::array::c_style | py::array::forcecast>::ensure(obj);
+    h.view.type = T::Int64;
+  } else {
+    a = py::array_t<float, py::array::c_style | py::array::forcecast>::ensure(obj);
+    h.view.type = T::Float;
+  }
+  if (!a) throw py::value_error("expected an array of numbers");
+  h.view.data = a.data();
+  h.view.count = size_t(a.size());
+  h.array = std::move(a);
+  return h;
+}
+
+// The instances whose keep[i] is nonzero, in order (every per-instance array that is authored).
+void keepInstances(InstancedGrainsDesc& g, const std::vector<uint8_t>& keep) {
+  auto compact = [&](auto& values) {
+    if (values.size() != keep.size()) return;
+    auto& v = values.vec();
+    size_t out = 0;
+    for (size_t i = 0; i < keep.size(); ++i)
+      if (keep[i]) v[out++] = v[i];
+    v.resize(out);
+  };
+  compact(g.positions);
+  compact(g.orientations);
+  compact(g.scales);
+  compact(g.protoIndices);
+  compact(g.velocities);
+  compact(g.angularVelocities);
+}
+
 py::array_t<float> pointsToArray(const std::vector<Vec3>& pts) {
   py::array_t<float> a({py::ssize_t(pts.size()), py::ssize_t(3)});
   auto w = a.mutable_unchecked<2>();
@@ -447,7 +498,9 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("sizes", &AggregateDesc::sizes)
       .def_readwrite("size_spread", &AggregateDesc::sizeSpread)
       .def_readwrite("id", &AggregateDesc::id)
-      .def_readwrite("instance_id", &AggregateDesc::instanceId);
+      .def_readwrite("instance_id", &AggregateDesc::instanceId)
+      .def_readwrite("shutter_xf", &AggregateDesc::shutterXf,
+                     "(transform at the shutter's open, at its close) for motion blur, or None: still");
 
   py::enum_<ProxyUse>(m, "ProxyUse")
       .value("Off", ProxyUse::Off)
@@ -483,6 +536,7 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("explicit_bounces", &RenderSettings::explicitBounces)
       .def_readwrite("da_depth_factor", &RenderSettings::daDepthFactor)
       .def_readwrite("da_min_order", &RenderSettings::daMinOrder)
+      .def_readwrite("da_instanced", &RenderSettings::daInstanced)
       .def_readwrite("roulette", &RenderSettings::roulette)
       .def_readwrite("lod", &RenderSettings::lod)
       .def_readwrite("proxies", &RenderSettings::proxies)
@@ -539,6 +593,8 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readonly("aggregates", &SceneChanges::aggregates,
                     "indices of the new description's aggregates that a build makes anew")
       .def_readonly("aggregate_list", &SceneChanges::aggregateList)
+      .def_readonly("aggregate_motion", &SceneChanges::aggregateMotion,
+                    "an aggregate's motion over the shutter (lent by its build, moved anew)")
       .def_readonly("meshes", &SceneChanges::meshes)
       .def_readonly("materials", &SceneChanges::materials)
       .def_readonly("media", &SceneChanges::media)
@@ -643,9 +699,9 @@ PYBIND11_MODULE(granular_core, m) {
       "instanced_grains_from_usd",
       [](const std::string& path, const std::string& typeName, const Transform& xf,
          const std::vector<std::string>& prototypes, const std::vector<Transform>& prototypeXforms,
-         const FloatArray& positions, const FloatArray& orientations, const FloatArray& scales,
-         const IntArray& protoIndices, const FloatArray& velocities, const FloatArray& angularVelocities,
-         SceneDesc& desc, const py::function& lookup, int id) {
+         const py::object& positions, const py::object& orientations, const py::object& scales,
+         const py::object& protoIndices, const py::object& velocities, const py::object& angularVelocities,
+         SceneDesc& desc, const py::function& lookup, int id, bool orientationsRealLast, const py::object& mask) {
         InstancerPrim p;
         p.path = path;
         p.typeName = typeName;
@@ -653,27 +709,62 @@ PYBIND11_MODULE(granular_core, m) {
         p.prototypes = prototypes;
         p.prototypeXforms = prototypeXforms;
         p.id = id;
-        auto flat = [](const FloatArray& a) { return std::vector<float>(a.data(), a.data() + a.size()); };
-        p.positions = flat(positions);
-        p.orientations = flat(orientations);
-        p.scales = flat(scales);
-        p.velocities = flat(velocities);
-        p.angularVelocities = flat(angularVelocities);
-        p.protoIndices.assign(protoIndices.data(), protoIndices.data() + protoIndices.size());
+        // Read in place (no copy of a float or int array in C order), each when core asks for
+        // it and let go of at the next: 10^8 instances are gigabytes an array.
+        HeldNumbers current;  // destroyed after the GIL is taken back
+        InstancerArrays a;
+        a.read = [&](const char* attr) {
+          py::gil_scoped_acquire acquire;
+          current = HeldNumbers();
+          const std::string name = attr;
+          const py::object& source = name == "positions"           ? positions
+                                     : name == "orientations"      ? orientations
+                                     : name == "scales"            ? scales
+                                     : name == "protoIndices"      ? protoIndices
+                                     : name == "velocities"        ? velocities
+                                                                   : angularVelocities;
+          current = numbersOf(PyCallable_Check(source.ptr()) ? source() : source, name == "protoIndices");
+          return current.view;
+        };
+        a.orientationsRealLast = orientationsRealLast;
+        std::vector<uint8_t> keep;
+        if (!mask.is_none()) {
+          auto m = py::array_t<uint8_t, py::array::c_style | py::array::forcecast>::ensure(mask);
+          if (!m) throw py::value_error("mask must be an array of booleans");
+          keep.assign(m.data(), m.data() + m.size());
+        }
         PrimLookup find = [&lookup](const std::string& target, MeshPrim& out) {
+          py::gil_scoped_acquire acquire;
           py::object r = lookup(target);
           if (r.is_none()) return false;
           out = r.cast<MeshPrim>();
           return true;
         };
-        return instancedGrainsFromUsd(p, desc, find);
+        InstancedGrainsDesc g;
+        {
+          py::gil_scoped_release release;
+          g = instancedGrainsFromUsd(p, a, desc, find);
+        }
+        current = HeldNumbers();
+        if (!keep.empty()) {
+          if (keep.size() != g.size())
+            throw py::value_error(str("mask has ", keep.size(), " values for ", g.size(), " instances"));
+          py::gil_scoped_release release;
+          keepInstances(g, keep);
+        }
+        return g;
       },
       py::arg("path"), py::arg("type_name"), py::arg("xf"), py::arg("prototypes"), py::arg("prototype_xforms"),
       py::arg("positions"), py::arg("orientations"), py::arg("scales"), py::arg("proto_indices"),
       py::arg("velocities"), py::arg("angular_velocities"), py::arg("desc"), py::arg("lookup"), py::arg("id") = -1,
-      "A PointInstancer with GranularInstancedAggregateAPI as core's InstancedGrainsDesc (arrays flattened: "
-      "3 numbers per instance, orientations 4 as (w, x, y, z), empty when unauthored); lookup(path) returns "
-      "a prototype's MeshPrim or None; its grain materials are appended to desc.");
+      py::arg("orientations_real_last") = false, py::arg("mask") = py::none(),
+      "A PointInstancer with GranularInstancedAggregateAPI as core's InstancedGrainsDesc (arrays of numbers, "
+      "read in order: 3 per instance, orientations 4 as (w, x, y, z), or as USD's (i, j, k, real) with "
+      "orientations_real_last; empty when unauthored; float and int arrays in C order are read in place, "
+      "others converted; each array may be given as a function returning it, called when core reads it and "
+      "let go of before the next); lookup(path) returns a prototype's MeshPrim or None; its grain materials are "
+      "appended to desc. mask (one boolean per instance, or None): the instances left out (False) after "
+      "every check, so that errors name the authored index. The GIL is released while converting.");
   py::class_<InstancedGrains>(m, "InstancedGrains")
       .def(py::init<>())
       .def(
@@ -979,11 +1070,25 @@ PYBIND11_MODULE(granular_core, m) {
           d["proxies"] = s.scene->instancedProxies(int(i));
           d["proxy_visits"] = s.scene->instancedProxyVisits(int(i));
           d["low_orders"] = s.scene->instancedLowOrdersText(int(i));
+          d["diffusion"] = s.scene->instancedDiffusionText(int(i));  // whether DA takes its medium's deep paths
+          const InstancedGrainsStats& st = all[i]->stats();
+          d["input_bytes"] = st.inputBytes;
+          d["grid_seconds"] = st.buildSeconds;
+          d["overlap_seconds"] = st.overlapSeconds;
+          const GrainDensityStats* density = s.scene->instancedDensityStats(int(i));
+          d["density_seconds"] = density ? density->seconds : 0.0;
+          d["density_bytes"] = density ? density->bytes : size_t(0);
+          d["medium_seconds"] = s.scene->instancedMediumSeconds(int(i));
+          d["tables_seconds"] = s.scene->instancedTablesSeconds(int(i));
           out.append(d);
         }
         return out;
       }, "per instancer of explicit grains: name, grains, grid_bytes, has_medium, proxies, proxy_visits, "
-         "low_orders (what carries the paths after their first grain, in words)");
+         "low_orders (what carries the paths after their first grain, in words), input_bytes (the per-grain "
+         "arrays); this build's seconds: "
+         "grid_seconds, overlap_seconds (its grid, 0 when lent), medium_seconds (its medium: the packing-rate "
+         "grid, density_seconds of it, TT and DA's boundary), tables_seconds (proxy tables); density_bytes (the "
+         "packing-rate grid)");
 
   py::class_<Image>(m, "Image")
       .def(py::init([](const FloatArray& pixels, const std::vector<std::string>& channels, int x, int y, int fullWidth,
@@ -1147,6 +1252,8 @@ PYBIND11_MODULE(granular_core, m) {
       .def_property_readonly("bundle_size", [](const PyRenderer& r) { return r.renderer->bundleSize(); })
       .def_property_readonly("shortcut_fraction", [](const PyRenderer& r) { return r.renderer->shortcutFraction(); },
                              "fraction of the paths that entered a medium directly by level of detail")
+      .def_property_readonly("diffusion_fraction", [](const PyRenderer& r) { return r.renderer->diffusionFraction(); },
+                             "fraction of the paths that went on by the diffusion approximation (DA)")
       .def_property_readonly(
           "roulette",
           [](const PyRenderer& r) {

@@ -3,7 +3,7 @@
     granular render SCENE.usda -o OUT.exr [--png OUT.png] [--width W --height H] [--spp N]
                     [--camera /path] [--seed S] [--threads T] [--exposure E] [--quiet]
                     [--technique ept|ept+vpt|hybrid] [--roulette P_a] [--lod L] [--no-default-light]
-                    [--no-physical-sun] [--no-motion-blur]
+                    [--no-physical-sun] [--no-motion-blur] [--instanced-da]
                     [--frames A:B[xSTEP]]   (then -o and --png name a run of '#': OUT.####.exr)
                     [--crop X0:X1,Y0:Y1]    (only those pixels; the EXR keeps their place)
     granular render SCENE.usda [--settings /Render/Settings] [--frames A:B] [render options]
@@ -193,6 +193,9 @@ def _render_options(r):
     r.add_argument("--no-motion-blur", action="store_true",
                    help="render the frame's instant: the camera's shutter closed, moving grains and meshes "
                         "still (as the render settings' disableMotionBlur)")
+    r.add_argument("--instanced-da", action="store_true",
+                   help="the diffusion approximation also in the media of simulated grains (PointInstancers), "
+                        "where the medium is uniform enough (hybrid; by default VPT to the end there)")
 
 
 def build_parser():
@@ -427,9 +430,10 @@ def _log_transports(args, built, renderer, image):
             means.append(float((image.pixels[..., c:c + 3] @ [0.2126, 0.7152, 0.0722]).mean()))
         lod = f"; level of detail: {100 * renderer.shortcut_fraction:.1f}% of paths entered a medium directly" \
             if args.lod > 0 else ""
+        da = f" ({100 * renderer.diffusion_fraction:.1f}% of paths)" if args.technique == "hybrid" else ""
         _log(args, f"  technique {args.technique}, bundles of {renderer.bundle_size}, P_a {rt['pa']:.3f}{tuned}; "
                    f"mean luminance by transport: EPT {means[0]:.4g}, PPT {means[1]:.4g}, VPT {means[2]:.4g}, "
-                   f"DA {means[3]:.4g}{lod}")
+                   f"DA {means[3]:.4g}{da}{lod}")
     if args.technique != "ept":
         for line in _low_orders(built):
             _log(args, "  " + line)
@@ -439,6 +443,8 @@ def _log_transports(args, built, renderer, image):
     for g in built.instanced_grains:
         if args.technique != "ept":
             _log(args, f"  {g['name']}: {g['grains']} explicit grains; after the first grain: {g['low_orders']}")
+            if g["has_medium"]:
+                _log(args, f"  {g['name']}: {g['diffusion']}")
 
 
 def cmd_render(args):

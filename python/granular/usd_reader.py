@@ -32,7 +32,14 @@ import os
 import re
 
 import numpy as np
-from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdRender, UsdShade
+
+# Crates are read with pread rather than mapped (unless the environment says otherwise):
+# USD maps a .usdc and hands out arrays that point into the mapping, whose pages then count
+# as this process's resident memory for as long as the stage is open (a simulated heap's
+# arrays: 32 bytes a grain, 3 GB at 10^8 grains); an array read is ours only until core has
+# converted it. Read by USD when it opens its first crate.
+os.environ.setdefault("USDC_USE_PREAD", "1")
+from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdRender, UsdShade  # noqa: E402
 
 import granular_core as core
 
@@ -176,8 +183,10 @@ def get_token(attr, time, default=None):
     return v
 
 
-def get_array(attr, time, columns, dtype, expected):
-    """An array attribute as a numpy array of shape (N, columns) or (N,); None if unset."""
+def get_array(attr, time, columns, dtype, expected, convert=True):
+    """An array attribute as a numpy array of shape (N, columns) or (N,); None if unset.
+    convert=False: the numbers keep their type (checked as for dtype; no copy: a view of
+    USD's own array)."""
     v = attr.Get(time) if attr else None
     if v is None:
         return None
@@ -187,7 +196,8 @@ def get_array(attr, time, columns, dtype, expected):
         a = np.asarray(v)
         if a.dtype.kind not in ("f", "i", "u") or (dtype == np.int64 and a.dtype.kind == "f"):
             raise TypeError
-        a = a.astype(dtype)
+        if convert:
+            a = a.astype(dtype)
         if columns:
             if a.size == 0:
                 return a.reshape(0, columns)
@@ -522,41 +532,34 @@ def read_instanced_grains(scene, prim, xf_cache=None, material_cache=None, id=-1
         local = xf_cache.GetLocalTransformation(root)[0] if root and root.IsA(UsdGeom.Xformable) else Gf.Matrix4d(1)
         proto_xforms.append(to_core_matrix(local))
 
-    def flat(attr, columns, expected):
-        a = get_array(attr, time, columns, np.float32, expected)
-        return np.zeros(0, np.float32) if a is None else a.reshape(-1)
-
-    orientations = get_array(pi.GetOrientationsAttr(), time, 4, np.float32, "quath[]")
-    # numpy sees a quaternion as (i, j, k, real); core takes (w, x, y, z).
-    orientations = np.zeros(0, np.float32) if orientations is None else orientations[:, [3, 0, 1, 2]].reshape(-1)
-    indices = get_array(pi.GetProtoIndicesAttr(), time, 0, np.int64, "int[]")
+    def numbers(attr, columns, dtype, expected):
+        # USD's own array, read when core asks for it and in place (10^8 instances are
+        # gigabytes an array: one is held at a time).
+        def read():
+            a = get_array(attr, time, columns, dtype, expected, convert=False)
+            return np.zeros(0, dtype) if a is None else a
+        return read
 
     def lookup(path):
         p = scene.stage.GetPrimAtPath(path)
         return _mesh_prim(scene, p, xf_cache, material_cache, drawn=False) if p else None
 
-    arrays = [flat(pi.GetPositionsAttr(), 3, "point3f[]"), orientations, flat(pi.GetScalesAttr(), 3, "float3[]"),
-              np.zeros(0, np.int64) if indices is None else indices, flat(pi.GetVelocitiesAttr(), 3, "vector3f[]"),
-              flat(pi.GetAngularVelocitiesAttr(), 3, "vector3f[]")]
-    widths = [3, 4, 3, 1, 3, 3]
-
-    def read(arrays, into):
-        try:
-            return core.instanced_grains_from_usd(
-                str(prim.GetPath()), prim.GetTypeName(), world_matrix(xf_cache, prim), targets, proto_xforms,
-                *arrays, into, lookup, id)
-        except core.InputError as e:
-            raise translate_core_error(e) from None
-
-    # invisibleIds and inactiveIds hide instances, as in every USD host: checked as authored
-    # (errors name the authored index), then read without them.
+    # invisibleIds and inactiveIds hide instances, as in every USD host: core checks every
+    # instance as authored (errors name the authored index), then leaves them out.
     mask = pi.ComputeMaskAtTime(time)
-    if not mask or all(mask):
-        return read(arrays, scene.desc)
-    read(arrays, core.SceneDesc())
-    keep = np.asarray(mask, dtype=bool)
-    kept = [a.reshape(-1, w)[keep].reshape(-1) if a.size else a for a, w in zip(arrays, widths)]
-    return read(kept, scene.desc)
+    keep = None if not mask or all(mask) else np.asarray(mask, dtype=bool)
+    try:
+        return core.instanced_grains_from_usd(
+            str(prim.GetPath()), prim.GetTypeName(), world_matrix(xf_cache, prim), targets, proto_xforms,
+            numbers(pi.GetPositionsAttr(), 3, np.float32, "point3f[]"),
+            numbers(pi.GetOrientationsAttr(), 4, np.float32, "quath[]"),  # (i, j, k, real), as USD holds it
+            numbers(pi.GetScalesAttr(), 3, np.float32, "float3[]"),
+            numbers(pi.GetProtoIndicesAttr(), 0, np.int64, "int[]"),
+            numbers(pi.GetVelocitiesAttr(), 3, np.float32, "vector3f[]"),
+            numbers(pi.GetAngularVelocitiesAttr(), 3, np.float32, "vector3f[]"),
+            scene.desc, lookup, id, orientations_real_last=True, mask=keep)
+    except core.InputError as e:
+        raise translate_core_error(e) from None
 
 
 def _assemble(scene, prims, xf_cache, material_cache):
@@ -637,27 +640,35 @@ def _transform_varies(prim):
 
 
 def _mesh_motion(scene, time):
-    """Transform motion blur: with the camera's shutter open, each mesh whose world transform
-    changes over it gets its transforms at the shutter's open and close (core's
-    MeshDesc.shutterXf; it moves linearly between them). A PointInstancer's flattened
-    instances stay still."""
+    """Transform motion blur: with the camera's shutter open, each mesh and each aggregate
+    whose world transform changes over it gets its transforms at the shutter's open and close
+    (core's MeshDesc.shutterXf, AggregateDesc.shutterXf; it moves linearly between them; an
+    aggregate is built where it stands at the frame and moved, aggregate_motion.h). A
+    PointInstancer's flattened instances stay still."""
     c = scene.desc.camera
     if not c.shutter_close > c.shutter_open or time.IsDefault():
         return
     fps = scene.stage.GetTimeCodesPerSecond()
     at_open = UsdGeom.XformCache(Usd.TimeCode(time.GetValue() + c.shutter_open * fps))
     at_close = UsdGeom.XformCache(Usd.TimeCode(time.GetValue() + c.shutter_close * fps))
-    meshes, moved = list(scene.desc.meshes), False
-    for m in meshes:
-        prim = scene.stage.GetPrimAtPath(m.name) if m.instance_id < 0 and Sdf.Path.IsValidPathString(m.name)[0] else None
-        if not prim or not _transform_varies(prim):
-            continue
-        a, b = world_matrix(at_open, prim), world_matrix(at_close, prim)
-        if a != b:
-            m.shutter_xf = (a, b)
-            moved = True
-    if moved:
+
+    def sample(items):
+        moved = False
+        for m in items:
+            ok = m.instance_id < 0 and Sdf.Path.IsValidPathString(m.name)[0]
+            prim = scene.stage.GetPrimAtPath(m.name) if ok else None
+            if not prim or not _transform_varies(prim):
+                continue
+            a, b = world_matrix(at_open, prim), world_matrix(at_close, prim)
+            if a != b:
+                m.shutter_xf = (a, b)
+                moved = True
+        return moved
+    meshes, aggregates = list(scene.desc.meshes), list(scene.desc.aggregates)
+    if sample(meshes):
         scene.desc.meshes = meshes
+    if sample(aggregates):
+        scene.desc.aggregates = aggregates
 
 
 def _motion_blur_disabled(settings):

@@ -7,6 +7,7 @@
 #include <array>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <random>
 #include <string>
 
@@ -414,6 +415,110 @@ TEST(InstancedGrains, OverlapCheckFindsEveryPairThroughTheGrid) {
   EXPECT_EQ(e.rfind(str("/Sim.positions: instances ", last - 1, " and ", last, " overlap"), 0), 0u) << e;
 }
 
+TEST(InstancedGrains, OverlapCheckNamesTheFirstPairAsEveryPairWouldBeCompared) {
+  // Overlaps of every kind, planted at random: deep and shallow, across cell and block
+  // faces, a grain on top of another (coincident centres). The pair named is the first
+  // (smallest i, then j) of a comparison of every pair.
+  EmbreeDevice device = makeEmbreeDevice();
+  for (uint32_t seed = 1; seed <= 6; ++seed) {
+    InstancedGrainsDesc d = nonOverlapping(device, 12, 0.9f, seed);
+    std::mt19937 rng(seed);
+    std::uniform_int_distribution<size_t> pick(0, d.size() - 1);
+    std::uniform_real_distribution<float> u(0.0f, 1.0f);
+    for (int k = 0; k < 4; ++k) {
+      const size_t a = pick(rng), b = pick(rng);
+      if (a == b) continue;
+      const float sep = k == 0 ? 0.0f : 2.0f * u(rng);  // 0: the same centre
+      d.positions[b] = d.positions[a] + randomDirection(rng) * sep;
+    }
+    InstancedGrains probe;  // the spheres as the grid sees them (no overlap check)
+    probe.build(d, device, false);
+    int64_t fi = -1, fj = -1;
+    for (int64_t i = 0; i < int64_t(d.size()) && fi < 0; ++i)
+      for (int64_t j = i + 1; j < int64_t(d.size()); ++j) {
+        const InstancedGrain g = probe.grain(i), h = probe.grain(j);
+        const float depth = g.radius + h.radius - length(g.center - h.center);
+        if (depth > InstancedGrains::kOverlapTolerance * std::min(g.radius, h.radius)) {
+          fi = i, fj = j;
+          break;
+        }
+      }
+    const std::string e = errorOf([&] {
+      InstancedGrains g;
+      g.build(d, device);
+    });
+    if (fi < 0) {
+      EXPECT_EQ(e, "") << "seed " << seed;
+      continue;
+    }
+    EXPECT_EQ(e.rfind(str("/Sim.positions: instances ", fi, " and ", fj, " overlap"), 0), 0u) << "seed " << seed << ": " << e;
+  }
+}
+
+TEST(InstancedGrains, FarFlungGrainsAreFoundAsPackedOnes) {
+  // Three clusters far apart along every axis: the grid's box holds far more blocks than
+  // grains (its occupied blocks are then gathered in a hash set instead of marked on the
+  // box), and each cluster's rays still meet what brute force meets.
+  EmbreeDevice device = makeEmbreeDevice();
+  InstancedGrainsDesc d = nonOverlapping(device, 6, 0.8f, 9);
+  const size_t n = d.size();
+  for (int c = 1; c < 3; ++c)
+    for (size_t i = 0; i < n; ++i) {
+      d.positions.push_back(d.positions[i] + Vec3(float(c) * 4.0e4f, float(c) * -3.0e4f, float(c) * 5.0e4f));
+      d.orientations.push_back(d.orientations[i]);
+      d.scales.push_back(d.scales[i]);
+      d.protoIndices.push_back(d.protoIndices[i]);
+    }
+  InstancedGrains g;
+  g.build(d, device);
+  EXPECT_EQ(g.stats().grains, int64_t(3 * n));
+  Bounds3 cluster;
+  for (size_t i = 0; i < n; ++i) cluster.extend(d.positions[i]);
+  for (int c = 0; c < 3; ++c) {
+    const Vec3 move(float(c) * 4.0e4f, float(c) * -3.0e4f, float(c) * 5.0e4f);
+    Bounds3 b;
+    b.lo = cluster.lo + move;
+    b.hi = cluster.hi + move;
+    expectSameHits(g, b, 30 + uint32_t(c), 400, 60);
+  }
+  // The grid's memory follows the grains, not the space between them (10^11 blocks).
+  EXPECT_LT(g.stats().gridBytes, size_t(1) << 20);
+}
+
+TEST(InstancedGrains, DescriptionCopiesShareTheArraysUntilOneIsWritten) {
+  // 10^8 grains are gigabytes: the scene build, its move into render space and the grid
+  // keep the description's arrays, not copies of them.
+  EmbreeDevice device = makeEmbreeDevice();
+  SceneDesc s;
+  s.camera.cameraToWorld = Transform::lookAt(Vec3(1.0e5f, 5.0f, 20.0f), Vec3(1.0e5f, 5.0f, 0.0f), Vec3(0, 1, 0));
+  InstancedGrainsDesc g = nonOverlapping(device, 5, 1.0f, 4);
+  g.xf = Transform::translate(Vec3(1.0e5f, 0.0f, 0.0f));  // far from the origin: render space moves it
+  s.instancedGrains.push_back(g);
+  EXPECT_TRUE(s.instancedGrains[0].positions.sharesWith(g.positions));
+  auto scene = Scene::build(s);
+  ASSERT_FALSE(renderOrigin(s) == Vec3d{});
+  const InstancedGrainsDesc& kept = scene->instancedGrains()[0]->desc();
+  const InstancedGrainsDesc& original = g;  // read through const: a read does not copy
+  EXPECT_TRUE(kept.positions.sharesWith(g.positions));
+  EXPECT_TRUE(kept.orientations.sharesWith(g.orientations));
+  EXPECT_TRUE(kept.scales.sharesWith(g.scales));
+  EXPECT_TRUE(kept.protoIndices.sharesWith(g.protoIndices));
+  EXPECT_NE(kept.xf.m[0][3], g.xf.m[0][3]);  // the transform is render space's
+  // A write copies the array written, and only for the copy written to.
+  const Vec3 first = original.positions[0];
+  InstancedGrainsDesc edited = g;
+  edited.positions[0] = first + Vec3(0.5f);
+  EXPECT_FALSE(edited.positions.sharesWith(original.positions));
+  EXPECT_TRUE(edited.scales.sharesWith(original.scales));
+  EXPECT_TRUE(kept.positions.sharesWith(original.positions));
+  EXPECT_EQ(original.positions[0].x, first.x);
+  EXPECT_EQ(kept.positions[0].x, first.x);
+  EXPECT_EQ(edited.positions[0].x, first.x + 0.5f);
+  EXPECT_FALSE(sameInstancedGrains(edited, original));
+  edited.positions[0] = first;
+  EXPECT_TRUE(sameInstancedGrains(edited, original));
+}
+
 // ---- USD meaning (granular_prims.h) -----------------------------------------------------------
 
 namespace {
@@ -507,6 +612,56 @@ TEST(InstancedGrains, FromUsdErrorsNamePrimAndAttribute) {
   EXPECT_EQ(read(instancer(), xform),
             "/World/Sand.prototypes: target /World/Sand/Protos/Round is a Xform, not a Mesh (a grain prototype is one "
             "closed mesh)");
+}
+
+TEST(InstancedGrains, FromUsdReadsArraysInPlaceAsTheirCopies) {
+  // A front end's own arrays (USD's quath: half floats, real last; int indices; double
+  // positions), each asked for once and in order: the same grains as the flattened floats,
+  // and the same errors.
+  auto half = [](float f) {  // exact for the values below
+    uint32_t b;
+    std::memcpy(&b, &f, 4);
+    if (f == 0) return uint16_t((b >> 16) & 0x8000);
+    return uint16_t(((b >> 16) & 0x8000) | ((((b >> 23) & 0xff) - 112) << 10) | ((b >> 13) & 0x3ff));
+  };
+  InstancerPrim p = instancer();
+  const std::vector<double> positions(p.positions.begin(), p.positions.end());
+  std::vector<uint16_t> quath;
+  for (size_t i = 0; i < p.orientations.size(); i += 4)
+    for (int k : {1, 2, 3, 0}) quath.push_back(half(p.orientations[i + size_t(k)]));
+  const std::vector<uint16_t> scalesh = {half(1), half(1), half(1), half(0.5f), half(0.5f), half(0.5f)};
+  std::vector<int32_t> indices(p.protoIndices.begin(), p.protoIndices.end());
+  std::vector<std::string> asked;
+  InstancerArrays a;
+  a.orientationsRealLast = true;
+  a.read = [&](const char* attr) {
+    asked.push_back(attr);
+    const std::string name = attr;
+    using T = NumberView::Type;
+    if (name == "positions") return NumberView{positions.data(), positions.size(), T::Double};
+    if (name == "orientations") return NumberView{quath.data(), quath.size(), T::Half};
+    if (name == "scales") return NumberView{scalesh.data(), scalesh.size(), T::Half};
+    if (name == "protoIndices") return NumberView{indices.data(), indices.size(), T::Int32};
+    return NumberView{};
+  };
+  SceneDesc s1, s2;
+  const InstancedGrainsDesc flat = instancedGrainsFromUsd(p, s1, roundGrain(true));
+  const InstancedGrainsDesc viewed = instancedGrainsFromUsd(p, a, s2, roundGrain(true));
+  EXPECT_EQ(asked, (std::vector<std::string>{"positions", "velocities", "angularVelocities", "orientations", "scales",
+                                             "protoIndices"}));
+  EXPECT_TRUE(sameInstancedGrains(flat, viewed));
+  EXPECT_EQ(s1.materials.size(), s2.materials.size());
+  auto error = [&](const InstancerArrays& arrays) {
+    return errorOf([&] {
+      SceneDesc s;
+      instancedGrainsFromUsd(p, arrays, s, roundGrain(true));
+    });
+  };
+  quath[4] = quath[5] = quath[6] = quath[7] = half(0.0f);
+  EXPECT_EQ(error(a), "/World/Sand.orientations: instance 1 has (0, 0, 0, 0), not a rotation");
+  quath[7] = half(1.0f);
+  indices[1] = -2;
+  EXPECT_EQ(error(a), "/World/Sand.protoIndices: instance 1 has -2, not the index of one of its 1 prototypes");
 }
 
 // ---- in the scene: explicit grains traced as the same grains given as meshes -------------

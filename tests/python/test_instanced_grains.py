@@ -3,6 +3,7 @@ read through usd-core into core's description, `granular info` reporting it, `gr
 render` rendering its grains, and bad instancer data named prim.attribute with exit
 status 2."""
 import json
+import re
 import sys
 
 import numpy as np
@@ -47,6 +48,22 @@ def test_generator_is_deterministic_and_non_overlapping(heap, tmp_path):
     # The grid's overlap check passes (build() raises otherwise) at both frames.
     for t in (1, 2):
         core.InstancedGrains().build(_read(path, t)[1])
+
+
+def test_a_still_heap_generated_in_slabs_is_valid(tmp_path):
+    """make_grain_heap.py --no-motion --slabs (the 10^8-grain stage of bench/README.md): one
+    frame without motion, deterministic, its grains apart (the grid's overlap check)."""
+    paths = [tmp_path / "a.usdc", tmp_path / "b.usdc"]
+    counts = [make_grain_heap.write(str(p), grains=3000, frames=1, seed=5, motion=False, slabs=True) for p in paths]
+    assert counts[0] == counts[1] and 2000 < counts[0] < 4000
+    stages = [Usd.Stage.Open(str(p)) for p in paths]
+    a, b = (s.GetPrimAtPath(HEAP) for s in stages)
+    for name in ("positions", "scales", "protoIndices", "orientations"):
+        assert np.array_equal(np.asarray(a.GetAttribute(name).Get()), np.asarray(b.GetAttribute(name).Get())), name
+    assert not a.GetAttribute("velocities").HasAuthoredValue()
+    _, desc = _read(str(paths[0]))
+    assert desc.num_grains == counts[0] and not desc.has_motion
+    core.InstancedGrains().build(desc)  # raises on overlapping grains
 
 
 def test_heap_reads_into_core(heap):
@@ -149,7 +166,11 @@ def test_render_says_what_carries_the_heap_after_its_first_grain(heap, tmp_path,
     bounces a visit), then the heap's heterogeneous medium, said in core's words
     (Scene::instancedLowOrdersText); with proxies off, explicit grains carry the bounces."""
     path, _ = heap
-    built = core.Scene.build(usd_reader.read_stage(path).desc)
+    desc = usd_reader.read_stage(path).desc
+    settings = desc.settings
+    settings.da_instanced = True
+    desc.settings = settings
+    built = core.Scene.build(desc)
     info = built.instanced_grains[0]
     k = info["proxy_visits"]
     assert info["proxies"] and k > 0, info
@@ -161,6 +182,31 @@ def test_render_says_what_carries_the_heap_after_its_first_grain(heap, tmp_path,
         assert rc == 0, err
         line = next(l for l in (out + err).splitlines() if HEAP in l and "after the first grain" in l)
         assert line.endswith(f"after the first grain: {words}"), (proxies, line)
+
+
+def test_render_says_whether_da_takes_the_heaps_deep_paths(heap, tmp_path, capsys):
+    """The heap's medium gets DA where it is homogeneous (core: Scene::instancedDiffusionText),
+    the transport line says the share of paths DA took; without --instanced-da (RenderSettings::
+    daInstanced, off by default) VPT goes to the end there and the line says so; EPT has no
+    medium to say it of."""
+    path, _ = heap
+    desc = usd_reader.read_stage(path).desc
+    settings = desc.settings
+    settings.da_instanced = True  # off by default
+    desc.settings = settings
+    words = core.Scene.build(desc).instanced_grains[0]["diffusion"]
+    assert words == "DA where the medium is deep and its packing uniform within ±10% over the diffusion's reach"
+    args = ["render", path, "-o", tmp_path / "h.exr", "--width", 16, "--height", 12, "--spp", 1]
+    for extra, expected in ((["--instanced-da"], words), ([], "no DA (da_instanced off)")):
+        rc, out, err = run_cli(args + extra, capsys)
+        assert rc == 0, err
+        lines = (out + err).splitlines()
+        assert f"  {HEAP}: {expected}" in lines, lines
+        transports = next(l for l in lines if "mean luminance by transport" in l)
+        assert re.search(r"DA [\d.e+-]+ \([\d.]+% of paths\)", transports), transports
+    rc, out, err = run_cli(args + ["--technique", "ept"], capsys)
+    assert rc == 0, err
+    assert not any(l.startswith(f"  {HEAP}: DA") or "no DA" in l for l in (out + err).splitlines())
 
 
 def test_a_valid_instancer_reports(tmp_path, capsys):
@@ -269,6 +315,66 @@ def test_invisible_ids_hide_grains(tmp_path):
     scene, desc = _read_at(path, SAND)
     assert desc.num_grains == 2
     assert np.array_equal(desc.positions, np.array([[-3, 0, 0], [3, 0, 0]], np.float32))
+
+
+def test_the_instancer_arrays_are_read_in_place_one_at_a_time(heap):
+    """core reads USD's own arrays (half-float quaternions, real last; int indices) where they
+    lie, asking for each when it converts it and letting go of it before the next: 10^8
+    instances are gigabytes an array. The grains are those of float copies in core's order."""
+    import weakref
+    path, count = heap
+    stage = Usd.Stage.Open(path)
+    prim = stage.GetPrimAtPath(HEAP)
+    usd = {name: np.asarray(prim.GetAttribute(name).Get(1))
+           for name in ("positions", "orientations", "scales", "protoIndices", "velocities", "angularVelocities")}
+    assert usd["orientations"].dtype == np.float16 and usd["protoIndices"].dtype == np.int32
+    asked, alive = [], []
+
+    def source(name):
+        def read():
+            # The array handed over before this one is no longer held by core.
+            assert all(ref() is None for ref in alive), (name, asked)
+            asked.append(name)
+            a = usd[name].copy()
+            alive.append(weakref.ref(a))
+            return a
+        return read
+
+    def lookup(p):
+        mp = core.MeshPrim()
+        mp.path = p
+        mp.mesh = core.make_icosphere(1)
+        return mp
+
+    args = (HEAP, "PointInstancer", np.eye(4).tolist(), [HEAP + "/Prototypes/Round", HEAP + "/Prototypes/Rock"], [])
+    names = ("positions", "orientations", "scales", "protoIndices", "velocities", "angularVelocities")
+    viewed = core.instanced_grains_from_usd(*args, *(source(n) for n in names), core.SceneDesc(), lookup,
+                                            orientations_real_last=True)
+    assert asked == ["positions", "velocities", "angularVelocities", "orientations", "scales", "protoIndices"]
+    flat = [usd[n].astype(np.float32).reshape(-1) for n in names]
+    flat[1] = usd["orientations"][:, [3, 0, 1, 2]].astype(np.float32).reshape(-1)
+    flat[3] = usd["protoIndices"].astype(np.int64)
+    copied = core.instanced_grains_from_usd(*args, *flat, core.SceneDesc(), lookup)
+    assert viewed.num_grains == copied.num_grains == count
+    assert np.array_equal(viewed.positions, copied.positions) and np.array_equal(viewed.scales, copied.scales)
+    # Orientations and indices: the grids built from both place every grain alike.
+    a, b = core.InstancedGrains(), core.InstancedGrains()
+    a.build(viewed)
+    b.build(copied)
+    rng = np.random.default_rng(5)
+    hits = 0
+    for _ in range(64):
+        o = rng.normal(size=3)
+        o = 3 * o / np.linalg.norm(o)
+        d = rng.uniform([-0.2, 0.0, -0.2], [0.2, 0.1, 0.2]) - o  # at the heap's lower part
+        h = a.intersect(tuple(o), tuple(d))
+        assert h == b.intersect(tuple(o), tuple(d))
+        hits += h is not None
+    assert hits >= 16
+    # A mask leaves instances out after the checks, in order.
+    keep = np.arange(count) % 3 != 1
+    masked = core.instanced_grains_from_usd(*args, *flat, core.SceneDesc(), lookup, mask=keep)
+    assert np.array_equal(masked.positions, copied.positions[keep])
 
 
 def _read_at(path, prim_path):
