@@ -48,9 +48,10 @@
 //    10^8 grains (3.4 GiB of arrays; bench/instanced_grains.py --stage, the read and build
 //    of `granular render`): EPT 17 s (read 3.7, grid 8.0, overlap check 5.0), 2.0 GiB
 //    beyond the input at its peak; the hybrid 34 s (its packing-rate grid 15 s, TT 1.4 s,
-//    proxy tables 0.2 s from the cache, about 3 s without), 2.9 GiB. DA's boundary in
-//    that medium (heterogeneous_diffusion.h), built after it, is not counted: that day it
-//    took 2 to 3 minutes more, mostly on one core, and 1.6 GiB more (bench/README.md).
+//    proxy tables 0.2 s from the cache, about 3 s without), 2.9 GiB; 55 CPU seconds, so
+//    with one core left by other jobs 67 s. DA in that medium (heterogeneous_diffusion.h,
+//    off unless RenderSettings::daInstanced) is not counted: on, its boundary took 2 to 3
+//    minutes more, mostly on one core, and 1.6 GiB more (bench/README.md).
 //  - Queries take world-space rays (t as given: the direction need not be unit) and are
 //    thread-safe. intersect() walks the cells along the ray front to back (3-D DDA), tests
 //    each listed grain's bounding sphere, then the prototype's BVH in the grain's frame,
