@@ -168,7 +168,7 @@ def stage_run(args):
     image = phase("render", render)
     if args.exr:
         core.write_exr(args.exr, image)
-    inputs = sum(g.get("input_bytes", 36 * g["grains"]) for g in info)  # older builds: positions to indices
+    inputs = sum(g["input_bytes"] for g in info)
     grains = sum(g["grains"] for g in info)
     set_up = sum(p["seconds"] for p in phases if p["phase"] in ("read", "build"))
     print(json.dumps({"grains": grains, "input_mib": round(inputs / 2**20), "baseline_mib": round(base / 2**20),

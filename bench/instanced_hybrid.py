@@ -14,7 +14,7 @@ Usage: .venv/bin/python bench/instanced_hybrid.py [--grains 100000] [--size 80x6
        [--da] [--absorption-scale S]
 Prints a markdown table and the ladders.
 
---da compares the hybrid with DA in the heap's heterogeneous medium (the default) against
+--da compares the hybrid with DA in the heap's heterogeneous medium against
 the hybrid without it (without `--instanced-da`: VPT to the end there) instead of EPT against
 the hybrid; the reference is then the hybrid without DA at --ref-spp, so the table's
 speed-up is DA's at equal error against what it replaces, and each step's "heap mean" is
@@ -43,6 +43,8 @@ DA_VARIANTS = {"hybrid, no DA": ["--technique", "hybrid"], "hybrid, DA": ["--tec
 
 
 def render(stage, out, size, spp, options, seed, threads=0):
+    """Renders; returns the render's seconds, the scene's read and build seconds (NaN if not
+    printed) and DA's share of the paths in percent (None if not printed)."""
     w, h = size
     cmd = [GRANULAR, "render", stage, "-o", out, "--width", str(w), "--height", str(h), "--spp", str(spp),
            "--seed", str(seed), "--threads", str(threads)] + list(options)
@@ -50,8 +52,8 @@ def render(stage, out, size, spp, options, seed, threads=0):
     m = re.search(r"render ([\d.]+) s", r.stdout + r.stderr)
     built = re.search(r"built in ([\d.]+) s", r.stdout + r.stderr)
     da = re.search(r"DA [\d.e+-]+ \(([\d.]+)% of paths\)", r.stdout + r.stderr)
-    render.da_paths = float(da.group(1)) if da else float("nan")
-    return float(m.group(1)), float(built.group(1)) if built else float("nan")
+    return (float(m.group(1)), float(built.group(1)) if built else float("nan"),
+            float(da.group(1)) if da else None)
 
 
 def load(path):
@@ -105,7 +107,7 @@ def main():
                     str(args.grains), "--frames", "1"], check=True, capture_output=True)
     if args.absorption_scale != 1.0:
         scale_absorption(stage, args.absorption_scale)
-    ref_path = os.path.join(args.out, "ref_da_off.exr" if args.da else "ref.exr")
+    ref_path = os.path.join(args.out, f"ref_da_off_abs{args.absorption_scale:g}.exr" if args.da else "ref.exr")
     if not os.path.exists(ref_path):
         render(stage, ref_path, size, args.ref_spp, variants[names[0]], 1000, args.threads)
     ref, prim = load(ref_path)
@@ -115,13 +117,13 @@ def main():
         ladders[name] = []
         for spp in [int(s) for s in args.spp.split(",")]:
             out = os.path.join(args.out, f"{name.replace(', ', '_').replace(' ', '_')}_{spp}.exr")
-            seconds, built = render(stage, out, size, spp, variants[name], 1, args.threads)
+            seconds, built, da_paths = render(stage, out, size, spp, variants[name], 1, args.threads)
             setup[name] = built
             img, _ = load(out)
             err = float((((img - ref) ** 2) / (ref ** 2 + 0.01))[heap].mean())
             bias = img[heap].mean(axis=0) / ref[heap].mean(axis=0) - 1
             ladders[name].append((seconds, err))
-            da = f", DA on {render.da_paths:.1f}% of paths" if render.da_paths == render.da_paths else ""
+            da = f", DA on {da_paths:.1f}% of paths" if da_paths is not None else ""
             print(f"  {name} {spp} spp: {seconds:.2f} s, relMSE {err:.4g}, heap mean (R, G, B) "
                   f"{', '.join(f'{100 * b:+.2f}%' for b in bias)}{da}", flush=True)
     print(f"\n{args.grains} grains, {size[0]}x{size[1]}, reference: {names[0]} at {args.ref_spp} spp; "

@@ -114,12 +114,18 @@ struct M3 {
   }
 };
 
+double determinant(const M3& a) {
+  const auto& m = a.m;
+  return m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) + m[0][1] * (m[1][2] * m[2][0] - m[1][0] * m[2][2]) +
+         m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
+}
+
 // Inverse by the adjugate (exact enough in double for a scaled rotation).
 M3 inverse(const M3& a) {
   const auto& m = a.m;
   double c00 = m[1][1] * m[2][2] - m[1][2] * m[2][1], c01 = m[1][2] * m[2][0] - m[1][0] * m[2][2],
          c02 = m[1][0] * m[2][1] - m[1][1] * m[2][0];
-  double det = m[0][0] * c00 + m[0][1] * c01 + m[0][2] * c02;
+  double det = determinant(a);
   if (!(std::fabs(det) > 0)) throw std::runtime_error("singular grain matrix");
   double id = 1.0 / det;
   M3 r;
@@ -703,10 +709,7 @@ std::unique_ptr<RefScene> fromDesc(SceneDesc desc) {
       for (int r = 0; r < 3; ++r)
         for (int c = 0; c < 3; ++c) xf3.m[r][c] = d.xf.m[r][c];
       const D3 xfT(d.xf.m[0][3], d.xf.m[1][3], d.xf.m[2][3]);
-      const double det = xf3.m[0][0] * (xf3.m[1][1] * xf3.m[2][2] - xf3.m[1][2] * xf3.m[2][1]) -
-                         xf3.m[0][1] * (xf3.m[1][0] * xf3.m[2][2] - xf3.m[1][2] * xf3.m[2][0]) +
-                         xf3.m[0][2] * (xf3.m[1][0] * xf3.m[2][1] - xf3.m[1][1] * xf3.m[2][0]);
-      const double worldScale = std::cbrt(std::fabs(det));
+      const double worldScale = std::cbrt(std::fabs(determinant(xf3)));
       for (size_t k = 0; k < d.size(); ++k) {
         const int p = d.protoIndices[k];
         // USD's quaternion (w, x, y, z) as a rotation matrix, renormalised in double.

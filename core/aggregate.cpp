@@ -682,30 +682,51 @@ void Aggregate::buildNeighbours() const {
 
 }
 
-#if defined(__SSE2__)
 namespace {
 // Listed spheres k … k + 3 (centres X, Y, Z; squared radii R2) against a ray at offset oc
-// from the list's sphere with direction d, per lane: b = (oc − q)·d, the squared distance
-// w2 of the line from the centre, disc = r² − w2 and its root (0 where disc < 0).
-struct NeighbourLanes {
-  __m128 b, w2, disc, sq;
-};
-inline NeighbourLanes neighbourLanes(const float* X, const float* Y, const float* Z, const float* R2, uint32_t k,
-                                     const Vec3& oc, const Vec3& d) {
-  NeighbourLanes n;
+// from the list's sphere, direction d, from tmin: the lanes whose sphere the ray enters
+// before `below` (bit l: sphere k + l), side by side and without branches (a ray's meeting
+// a neighbour is a coin toss to the branch predictor). When some are, entry[l] holds where
+// the ray enters sphere k + l (kInf: it does not) and w2[l] the squared distance of the line
+// from its centre. Lanes past the list read the next list or padding: the caller masks them.
+static_assert(Aggregate::kNeighbourBlock == 4, "a block: one SSE register");
+int neighbourBlock(const float* X, const float* Y, const float* Z, const float* R2, uint32_t k, const Vec3& oc,
+                   const Vec3& d, float tmin, float below, float entry[4], float w2[4]) {
+#if defined(__SSE2__)
+  const __m128 zero = _mm_setzero_ps(), vtmin = _mm_set1_ps(tmin);
   const __m128 ox = _mm_sub_ps(_mm_set1_ps(oc.x), _mm_loadu_ps(X + k));
   const __m128 oy = _mm_sub_ps(_mm_set1_ps(oc.y), _mm_loadu_ps(Y + k));
   const __m128 oz = _mm_sub_ps(_mm_set1_ps(oc.z), _mm_loadu_ps(Z + k));
-  n.b = _mm_add_ps(_mm_add_ps(_mm_mul_ps(ox, _mm_set1_ps(d.x)), _mm_mul_ps(oy, _mm_set1_ps(d.y))),
-                   _mm_mul_ps(oz, _mm_set1_ps(d.z)));
+  const __m128 b = _mm_add_ps(_mm_add_ps(_mm_mul_ps(ox, _mm_set1_ps(d.x)), _mm_mul_ps(oy, _mm_set1_ps(d.y))),
+                              _mm_mul_ps(oz, _mm_set1_ps(d.z)));
   const __m128 o2 = _mm_add_ps(_mm_add_ps(_mm_mul_ps(ox, ox), _mm_mul_ps(oy, oy)), _mm_mul_ps(oz, oz));
-  n.w2 = _mm_max_ps(_mm_sub_ps(o2, _mm_mul_ps(n.b, n.b)), _mm_setzero_ps());
-  n.disc = _mm_sub_ps(_mm_loadu_ps(R2 + k), n.w2);
-  n.sq = _mm_sqrt_ps(_mm_max_ps(n.disc, _mm_setzero_ps()));
-  return n;
+  const __m128 lw2 = _mm_max_ps(_mm_sub_ps(o2, _mm_mul_ps(b, b)), zero);
+  const __m128 disc = _mm_sub_ps(_mm_loadu_ps(R2 + k), lw2);
+  const __m128 sq = _mm_sqrt_ps(_mm_max_ps(disc, zero));
+  const __m128 met = _mm_and_ps(_mm_cmpge_ps(disc, zero), _mm_cmpge_ps(_mm_sub_ps(sq, b), vtmin));
+  const __m128 te = _mm_or_ps(_mm_and_ps(met, _mm_max_ps(_mm_sub_ps(_mm_sub_ps(zero, b), sq), vtmin)),
+                              _mm_andnot_ps(met, _mm_set1_ps(kInf)));
+  const int lanes = _mm_movemask_ps(_mm_cmplt_ps(te, _mm_set1_ps(below)));
+  if (lanes != 0) {
+    _mm_storeu_ps(entry, te);
+    _mm_storeu_ps(w2, lw2);
+  }
+  return lanes;
+#else
+  int lanes = 0;
+  for (uint32_t l = 0; l < 4; ++l) {
+    const float ox = oc.x - X[k + l], oy = oc.y - Y[k + l], oz = oc.z - Z[k + l];
+    const float b = ox * d.x + oy * d.y + oz * d.z;
+    w2[l] = std::max(ox * ox + oy * oy + oz * oz - b * b, 0.0f);
+    const float disc = R2[k + l] - w2[l];
+    const float sq = std::sqrt(std::max(disc, 0.0f));
+    entry[l] = disc >= 0 && sq - b >= tmin ? std::max(-b - sq, tmin) : kInf;
+    if (entry[l] < below) lanes |= 1 << l;
+  }
+  return lanes;
+#endif
 }
 }  // namespace
-#endif
 
 bool Aggregate::nearestNeighbour(const Vec3& o, const Vec3& d, float tmin, float tmax, GrainHit& hit,
                                  const GrainHit& from) const {
@@ -726,36 +747,15 @@ bool Aggregate::nearestNeighbour(const Vec3& o, const Vec3& d, float tmin, float
     float best = bound;
     uint32_t bestK = k1;
     // Nearest first: sphere k cannot be entered before nbKey_[k] − r0, so the scan ends
-    // once that passes the best entry so far. It is tested a block at a time, the spheres
-    // of a block without branches (a miss enters at infinity) and side by side: whether a
-    // ray meets a neighbour is a coin toss to the branch predictor, and one sphere too many
-    // costs less.
+    // once that passes the best entry so far; a block of kNeighbourBlock at a time, one
+    // test for the block (most hold no sphere nearer than the best so far).
     const float *X = nbX_.data(), *Y = nbY_.data(), *Z = nbZ_.data(), *R2 = nbR2_.data();
-    static_assert(kNeighbourBlock == 4, "a block: one SSE register, four lanes below");
     for (uint32_t kb = k0; kb < k1 && nbKey_[kb] - r0 < best; kb += kNeighbourBlock) {
-      float te[kNeighbourBlock];  // where the ray enters each sphere of the block; kInf: it does not
-#if defined(__SSE2__)
-      const NeighbourLanes n = neighbourLanes(X, Y, Z, R2, kb, oc, d);
-      const __m128 b = n.b, disc = n.disc, sq = n.sq;
-      const __m128 vtmin = _mm_set1_ps(tmin);
-      const __m128 met = _mm_and_ps(_mm_cmpge_ps(disc, _mm_setzero_ps()), _mm_cmpge_ps(_mm_sub_ps(sq, b), vtmin));
-      const __m128 entry = _mm_max_ps(_mm_sub_ps(_mm_sub_ps(_mm_setzero_ps(), b), sq), vtmin);
-      const __m128 tev = _mm_or_ps(_mm_and_ps(met, entry), _mm_andnot_ps(met, _mm_set1_ps(kInf)));
-      // Most blocks hold no sphere nearer than the best so far: one test for the four.
-      if (_mm_movemask_ps(_mm_cmplt_ps(tev, _mm_set1_ps(best))) == 0) continue;
-      _mm_storeu_ps(te, tev);
-#else
-      for (uint32_t l = 0; l < kNeighbourBlock; ++l) {
-        const uint32_t k = kb + l;
-        const float ox = oc.x - X[k], oy = oc.y - Y[k], oz = oc.z - Z[k];
-        const float b = ox * d.x + oy * d.y + oz * d.z;
-        const float disc = R2[k] - std::max(ox * ox + oy * oy + oz * oz - b * b, 0.0f);
-        const float sq = std::sqrt(std::max(disc, 0.0f));
-        te[l] = disc >= 0 && sq - b >= tmin ? std::max(-b - sq, tmin) : kInf;
-      }
-#endif
-      const uint32_t lanes = std::min(kNeighbourBlock, k1 - kb);  // past k1: the next list, or padding
-      for (uint32_t l = 0; l < lanes; ++l) {
+      float te[kNeighbourBlock], w2[kNeighbourBlock];
+      int lanes = neighbourBlock(X, Y, Z, R2, kb, oc, d, tmin, best, te, w2);
+      lanes &= (1 << std::min(kNeighbourBlock, k1 - kb)) - 1;  // past k1: the next list, or padding
+      for (; lanes != 0; lanes &= lanes - 1) {
+        const uint32_t l = uint32_t(__builtin_ctz(unsigned(lanes)));
         // Spheres found outside the boundary before are passed over (rare: near the boundary).
         if (te[l] < best && (nOutside == 0 || std::find(outside, outside + nOutside, kb + l) == outside + nOutside)) {
           best = te[l];
@@ -820,33 +820,12 @@ float Aggregate::proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, fl
     // nearestNeighbour(); then each crossed one's chance of missing its grain, in order.
     const float *X = nbX_.data(), *Y = nbY_.data(), *Z = nbZ_.data(), *R2 = nbR2_.data(), *K = nbKey_.data();
     for (uint32_t kb = k0; kb < k1 && K[kb] - r0 < tDone; kb += kNeighbourBlock) {
-      float w2[kNeighbourBlock];
-      int crossed = 0;  // bit l: sphere kb + l
-#if defined(__SSE2__)
-      const NeighbourLanes n = neighbourLanes(X, Y, Z, R2, kb, oc, d);
-      const __m128 b = n.b, w2v = n.w2, disc = n.disc, sq = n.sq;
-      const __m128 vtmin = _mm_set1_ps(tmin), vdone = _mm_set1_ps(tDone);
-      const __m128 entry = _mm_max_ps(_mm_sub_ps(_mm_sub_ps(_mm_setzero_ps(), b), sq), vtmin);
-      const __m128 met = _mm_and_ps(_mm_and_ps(_mm_cmpge_ps(disc, _mm_setzero_ps()), _mm_cmpge_ps(_mm_sub_ps(sq, b), vtmin)),
-                                    _mm_and_ps(_mm_cmplt_ps(entry, vdone),
-                                               _mm_cmplt_ps(_mm_sub_ps(_mm_loadu_ps(K + kb), _mm_set1_ps(r0)), vdone)));
-      crossed = _mm_movemask_ps(met);
-      if (crossed == 0) continue;
-      _mm_storeu_ps(w2, w2v);
-#else
-      for (uint32_t l = 0; l < kNeighbourBlock; ++l) {
-        const uint32_t k = kb + l;
-        const float ox = oc.x - X[k], oy = oc.y - Y[k], oz = oc.z - Z[k];
-        const float b = ox * d.x + oy * d.y + oz * d.z;
-        w2[l] = std::max(ox * ox + oy * oy + oz * oz - b * b, 0.0f);
-        const float disc = R2[k] - w2[l];
-        const float sq = std::sqrt(std::max(disc, 0.0f));
-        if (disc >= 0 && sq - b >= tmin && std::max(-b - sq, tmin) < tDone && K[k] - r0 < tDone) crossed |= 1 << l;
-      }
-#endif
+      float te[kNeighbourBlock], w2[kNeighbourBlock];
+      int crossed = neighbourBlock(X, Y, Z, R2, kb, oc, d, tmin, tDone, te, w2);
       crossed &= (1 << std::min(kNeighbourBlock, k1 - kb)) - 1;  // past k1: the next list, or padding
       for (; crossed != 0; crossed &= crossed - 1) {
         const uint32_t l = uint32_t(__builtin_ctz(unsigned(crossed))), k = kb + l;
+        if (K[k] - r0 >= tDone) break;  // sorted: the rest of the list is beyond tDone too
         const int j = nbId_[k];
         int64_t home[3];
         neighbourHome(skip->cell, k, home);

@@ -11,10 +11,10 @@ namespace {
 // Linear parts this close to the identity are rounding (D = M xf⁻¹ of a translated M).
 constexpr double kIdentityTolerance = 1e-9;
 
-bool linearIsIdentity(const double d[3][4]) {
+bool linearIsIdentity(const Transform& d) {
   for (int i = 0; i < 3; ++i)
     for (int j = 0; j < 3; ++j)
-      if (std::fabs(d[i][j] - (i == j ? 1.0 : 0.0)) > kIdentityTolerance) return false;
+      if (std::fabs(d.m[i][j] - (i == j ? 1.0 : 0.0)) > kIdentityTolerance) return false;
   return true;
 }
 
@@ -25,18 +25,14 @@ AggregateMotion::AggregateMotion(const Transform& xf, const Transform& atOpen, c
     : open_(shutterOpen), close_(shutterClose) {
   Transform inv;
   if (!(shutterClose > shutterOpen) || !xf.inverse(inv)) return;  // validateSceneDesc refuses a singular xf
-  const Transform d0 = atOpen * inv, d1 = atClose * inv;
-  for (int i = 0; i < 3; ++i)
-    for (int j = 0; j < 4; ++j) {
-      d0_[i][j] = d0.m[i][j];
-      d1_[i][j] = d1.m[i][j];
-    }
+  d0_ = atOpen * inv;
+  d1_ = atClose * inv;
   translation_ = linearIsIdentity(d0_) && linearIsIdentity(d1_);
   if (translation_)
     for (int i = 0; i < 3; ++i)
-      for (int j = 0; j < 3; ++j) d0_[i][j] = d1_[i][j] = i == j ? 1.0 : 0.0;
+      for (int j = 0; j < 3; ++j) d0_.m[i][j] = d1_.m[i][j] = i == j ? 1.0 : 0.0;
   bool still = translation_;
-  for (int i = 0; i < 3 && still; ++i) still = d0_[i][3] == 0 && d1_[i][3] == 0;
+  for (int i = 0; i < 3 && still; ++i) still = d0_.m[i][3] == 0 && d1_.m[i][3] == 0;
   moving_ = !still;
 }
 
@@ -46,9 +42,8 @@ AggregatePose AggregateMotion::at(float time) const {
   pose.still = false;
   pose.translation = translation_;
   const double s = std::clamp((double(time) - open_) / (double(close_) - open_), 0.0, 1.0);
-  double d[3][4];
-  for (int i = 0; i < 3; ++i)
-    for (int j = 0; j < 4; ++j) d[i][j] = (1 - s) * d0_[i][j] + s * d1_[i][j];
+  const Transform blended = Transform::blend(d0_, d1_, s);
+  const auto& d = blended.m;
   pose.offset = Vec3(float(d[0][3]), float(d[1][3]), float(d[2][3]));
   if (translation_) return pose;
   // The inverse of the linear part by cofactors (its determinant is bounded away from 0
@@ -76,13 +71,9 @@ Bounds3 AggregateMotion::sweep(const Bounds3& built) const {
   if (!moving_ || built.empty()) return built;
   Bounds3 b;
   for (const auto* d : {&d0_, &d1_})
-    for (int c = 0; c < 8; ++c) {
-      const double p[3] = {(c & 1) ? built.hi.x : built.lo.x, (c & 2) ? built.hi.y : built.lo.y,
-                           (c & 4) ? built.hi.z : built.lo.z};
-      Vec3 w;
-      for (int i = 0; i < 3; ++i) w[i] = float((*d)[i][0] * p[0] + (*d)[i][1] * p[1] + (*d)[i][2] * p[2] + (*d)[i][3]);
-      b.extend(w);
-    }
+    for (int c = 0; c < 8; ++c)
+      b.extend(d->point(Vec3((c & 1) ? built.hi.x : built.lo.x, (c & 2) ? built.hi.y : built.lo.y,
+                             (c & 4) ? built.hi.z : built.lo.z)));
   // Padded by more than the rounding of the mapped rays (the aggregate's own test is exact
   // in the build): a cull must never drop what the build's bounds would keep.
   const Vec3 pad = b.extent() * 1e-5f + Vec3(1e-6f * std::max(maxComponent(vabs(b.lo)), maxComponent(vabs(b.hi))));

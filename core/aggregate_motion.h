@@ -53,7 +53,7 @@ class AggregateMotion {
 
  private:
   bool moving_ = false, translation_ = false;
-  double d0_[3][4] = {}, d1_[3][4] = {};  // D at the shutter's open and close
+  Transform d0_, d1_;  // D at the shutter's open and close (rows 0-2 used)
   float open_ = 0, close_ = 0;
 };
 
@@ -64,7 +64,6 @@ class PosedAggregate {
   PosedAggregate(const Aggregate& agg) : agg_(&agg) {}  // NOLINT: a still aggregate is posed as itself
   PosedAggregate(const Aggregate& agg, const AggregatePose& pose) : agg_(&agg), pose_(pose) {}
 
-  const Aggregate& aggregate() const { return *agg_; }
   const AggregatePose& pose() const { return pose_; }
   // Where a world point stands in the build (for what depends on distances alone).
   Vec3 toBuild(const Vec3& p) const { return pose_.still ? p : pose_.pointToBuild(p); }
@@ -76,11 +75,7 @@ class PosedAggregate {
                       const GrainHit* skip = nullptr) const;
   float proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax, const ProxyTables& tables,
                            const GrainHit* skip, uint64_t seed) const;
-  bool insideBoundary(const Vec3& p) const {
-    return pose_.still ? agg_->insideBoundary(p) : agg_->insideBoundary(pose_.pointToBuild(p));
-  }
-  // Within the aggregate's bounds (where its grains and boundary lie) at this time.
-  bool boundsContain(const Vec3& p) const { return agg_->bounds().contains(toBuild(p)); }
+  bool insideBoundary(const Vec3& p) const { return agg_->insideBoundary(toBuild(p)); }
   bool intersectBoundary(const Vec3& o, const Vec3& d, float tmin, float tmax, float& t, Vec3& ng) const;
   float closestBoundaryPoint(const Vec3& p, Vec3& closest) const;
   float boundaryDistance(const Vec3& p) const { return agg_->boundaryDistance(toBuild(p)); }

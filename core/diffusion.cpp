@@ -220,9 +220,9 @@ Vec3 SurfaceCutBoundary::exitPoint(const Vec3& p, const Vec3& ng) const {
   return p + ray.d * std::max(0.0f, hit.t - margin(hit.p));
 }
 
-float localCurvatureRadius(const DiffusionBoundary& boundary, const Vec3& x, float delta) {
+float localCurvatureRadius(const Aggregate& agg, const Vec3& x, float delta) {
   Vec3 c;
-  const float z = boundary.closestPoint(x, c);
+  const float z = agg.closestBoundaryPoint(x, c);
   if (!(z > 0)) return 0.0f;
   delta = std::max(delta, z);
   const Vec3 n = (c - x) / z;
@@ -231,7 +231,7 @@ float localCurvatureRadius(const DiffusionBoundary& boundary, const Vec3& x, flo
   for (const Vec3& tangent : {frame.s, -frame.s, frame.t, -frame.t}) {
     const Vec3 x2 = x + tangent * delta;
     Vec3 c2;
-    const float z2 = boundary.closestPoint(x2, c2);
+    const float z2 = agg.closestBoundaryPoint(x2, c2);
     if (!(z2 > 0)) return 0.0f;
     // Outside (the boundary bends within δ), the normal points back: a ≥ 90°, radius 0.
     const float cosA = std::clamp(dot(n, (c2 - x2) / z2), -1.0f, 1.0f);
@@ -242,8 +242,8 @@ float localCurvatureRadius(const DiffusionBoundary& boundary, const Vec3& x, flo
   return radius;
 }
 
-bool diffusionHolds(const DiffusionBoundary& boundary, const Vec3& x, float daDepth) {
-  return localCurvatureRadius(boundary, x, 0.0f) >= kCurvatureGuard * daDepth;
+bool diffusionHolds(const Aggregate& agg, const Vec3& x, float daDepth) {
+  return localCurvatureRadius(agg, x, 0.0f) >= kCurvatureGuard * daDepth;
 }
 
 void diffusionStep(const Scene& scene, PathState& path, const Vec3& x) {

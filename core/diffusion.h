@@ -167,14 +167,8 @@ struct DiffusionMedium {
 // the source's own scale. Larger offsets (B/2) smoothed a faceted cylinder's facets but
 // refused DA within B/2 of every edge (the snow field's DA share fell from 17% to 10%).
 constexpr float kCurvatureGuard = 20.0f;
-float localCurvatureRadius(const DiffusionBoundary& boundary, const Vec3& x, float delta);
-bool diffusionHolds(const DiffusionBoundary& boundary, const Vec3& x, float daDepth);
-inline float localCurvatureRadius(const Aggregate& agg, const Vec3& x, float delta) {
-  return localCurvatureRadius(AggregateBoundary(agg), x, delta);
-}
-inline bool diffusionHolds(const Aggregate& agg, const Vec3& x, float daDepth) {
-  return diffusionHolds(AggregateBoundary(agg), x, daDepth);
-}
+float localCurvatureRadius(const Aggregate& agg, const Vec3& x, float delta);
+bool diffusionHolds(const Aggregate& agg, const Vec3& x, float daDepth);
 
 // Continues path (scattering at x) by DA in medium; see above. The path leaves the media
 // (path.medium −1) where it leaves the boundary.

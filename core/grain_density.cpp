@@ -502,13 +502,12 @@ GrainDensity buildGrainDensity(const InstancedGrainsDesc& desc, const GrainDensi
           if (!(f >= std::numeric_limits<float>::min())) f = 0.0f;
           values[o] = f;
           nonzero |= f > 0;
-          if (!mix) continue;
+          if (!mix || f == 0.0f) continue;  // the fractions were made 0
           double total = 0;
-          if (f != 0.0f)
-            for (size_t p = 0; p < P; ++p) total += num[p * VoxelLeaves::kLeafVoxels + size_t(o)];
+          for (size_t p = 0; p < P; ++p) total += num[p * VoxelLeaves::kLeafVoxels + size_t(o)];
           for (size_t p = 0; p < P; ++p)
             out.fractions[p].values[t * VoxelLeaves::kLeafVoxels + size_t(o)] =
-                f != 0.0f && total > 0 ? float(num[p * VoxelLeaves::kLeafVoxels + size_t(o)] / total) : 0.0f;
+                total > 0 ? float(num[p * VoxelLeaves::kLeafVoxels + size_t(o)] / total) : 0.0f;
         }
         touched[t] = nonzero;
       }

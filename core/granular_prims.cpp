@@ -8,13 +8,16 @@
 #include <cctype>
 #include <climits>
 #include <cmath>
-#include <cstring>
 #include <set>
 #include <type_traits>
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_reduce.h>
+
+// Half-float USD arrays read in place: Imath's conversion, header-only (core links no libImath).
+#define IMATH_HALF_NO_LOOKUP_TABLE
+#include <Imath/half.h>
 
 #include "error.h"
 
@@ -595,33 +598,9 @@ void assembleGranularScene(const std::vector<MeshPrim>& prims, SceneDesc& desc, 
 
 namespace {
 
-// IEEE half to float (exact).
-float halfToFloat(uint16_t h) {
-  const uint32_t sign = uint32_t(h & 0x8000) << 16, exp = (h >> 10) & 0x1f, mant = h & 0x3ff;
-  uint32_t bits;
-  if (exp == 0x1f) {
-    bits = sign | 0x7f800000u | (mant << 13);  // inf, NaN
-  } else if (exp != 0) {
-    bits = sign | ((exp + 112) << 23) | (mant << 13);
-  } else if (mant == 0) {
-    bits = sign;
-  } else {  // subnormal: normalise
-    int e = -1;
-    uint32_t m = mant;
-    do {
-      ++e;
-      m <<= 1;
-    } while (!(m & 0x400));
-    bits = sign | (uint32_t(112 - e) << 23) | ((m & 0x3ff) << 13);
-  }
-  float f;
-  std::memcpy(&f, &bits, sizeof f);
-  return f;
-}
-
 struct HalfNumbers {
   const uint16_t* p;
-  float operator[](size_t i) const { return halfToFloat(p[i]); }
+  float operator[](size_t i) const { return imath_half_to_float(p[i]); }
 };
 template <class T>
 struct Numbers {
@@ -647,19 +626,6 @@ NumberView viewOf(const std::vector<T>& v, NumberView::Type type) {
   return NumberView{v.data(), v.size(), type};
 }
 
-// The smallest i in [0, n) for which bad(i), or -1 (parallel; the same answer as a loop).
-template <class Bad>
-int64_t firstBadInstance(size_t n, Bad&& bad) {
-  return tbb::parallel_reduce(
-      tbb::blocked_range<size_t>(0, n, 16384), int64_t(-1),
-      [&](const tbb::blocked_range<size_t>& r, int64_t found) {
-        if (found >= 0 && size_t(found) < r.begin()) return found;
-        for (size_t i = r.begin(); i < r.end(); ++i)
-          if (bad(i)) return int64_t(i);
-        return found;
-      },
-      [](int64_t a, int64_t b) { return a < 0 ? b : (b < 0 ? a : std::min(a, b)); });
-}
 
 }  // namespace
 
@@ -839,7 +805,7 @@ InstancedGrainsDesc instancedGrainsFromPrototypeInstances(InstancerPrim prim,
       owner[size_t(i)] = int64_t(k);
     }
   const int64_t protos = int64_t(prim.prototypes.size());
-  std::vector<char> drawn(n, 1);
+  std::vector<uint8_t> drawn(n, 1);
   prim.protoIndices.assign(n, 0);
   for (size_t i = 0; i < n; ++i) {
     if (owner[i] >= 0) {
@@ -854,21 +820,25 @@ InstancedGrainsDesc instancedGrainsFromPrototypeInstances(InstancerPrim prim,
     drawn[i] = 0;  // masked: checked as the first prototype's, then left out
   }
   InstancedGrainsDesc g = instancedGrainsFromUsd(prim, desc, lookup);
-  if (std::find(drawn.begin(), drawn.end(), 0) == drawn.end()) return g;
-  auto keep = [&](auto& values) {
-    if (values.size() != n) return;  // unauthored
-    size_t out = 0;
-    for (size_t i = 0; i < n; ++i)
-      if (drawn[i]) values[out++] = values[i];
-    values.resize(out);
-  };
-  keep(g.positions);
-  keep(g.orientations);
-  keep(g.scales);
-  keep(g.protoIndices);
-  keep(g.velocities);
-  keep(g.angularVelocities);
+  if (std::find(drawn.begin(), drawn.end(), 0) != drawn.end()) keepInstances(g, drawn);
   return g;
+}
+
+void keepInstances(InstancedGrainsDesc& g, const std::vector<uint8_t>& keep) {
+  auto compact = [&](auto& values) {
+    if (values.size() != keep.size()) return;  // unauthored
+    auto& v = values.vec();
+    size_t out = 0;
+    for (size_t i = 0; i < keep.size(); ++i)
+      if (keep[i]) v[out++] = v[i];
+    v.resize(out);
+  };
+  compact(g.positions);
+  compact(g.orientations);
+  compact(g.scales);
+  compact(g.protoIndices);
+  compact(g.velocities);
+  compact(g.angularVelocities);
 }
 
 }  // namespace granular

@@ -171,6 +171,10 @@ InstancedGrainsDesc instancedGrainsFromUsd(const InstancerPrim& prim, const Inst
 bool isExplicitGrainInstancer(const std::optional<std::vector<std::string>>& instancerApiSchemas,
                               const std::vector<MeshPrim>& prototypes);
 
+// The instances whose keep[i] is nonzero, in order, in every per-instance array that is
+// authored (one of keep.size() values).
+void keepInstances(InstancedGrainsDesc& g, const std::vector<uint8_t>& keep);
+
 // instancedGrainsFromUsd for a front end that sees, instead of protoIndices, the instances
 // drawn with each prototype (a Hydra scene delegate's GetInstanceIndices): instancesOf[k]
 // lists indices into prim's per-instance arrays drawn with prim.prototypes[k]; prim's arrays

@@ -64,23 +64,8 @@ LevelSetBoundary::LevelSetBoundary(const HeterogeneousMedium& medium, float iso,
   sdf_ = levelSetDistances(medium.voxels(), iso, outside_ + reach);
 }
 
-float LevelSetBoundary::voxel(int64_t i, int64_t j, int64_t k) const {
-  const int64_t l = medium_->leafOf(i, j, k);
-  if (l < 0) return outside_;
-  return sdf_[size_t(l) * VoxelLeaves::kLeafVoxels + size_t(VoxelLeaves::offset(int(i & 7), int(j & 7), int(k & 7)))];
-}
-
 float LevelSetBoundary::distance(const Vec3& p) const {
-  const Vec3 u = p * invVoxel_;
-  if (!medium_ || !isFinite(u) || !(maxComponent(vabs(u)) < 1e9f)) return outside_;
-  const float fx = std::floor(u.x), fy = std::floor(u.y), fz = std::floor(u.z);
-  const int64_t i = int64_t(fx), j = int64_t(fy), k = int64_t(fz);
-  const float tx = u.x - fx, ty = u.y - fy, tz = u.z - fz;
-  const float c00 = voxel(i, j, k) * (1 - tx) + voxel(i + 1, j, k) * tx;
-  const float c10 = voxel(i, j + 1, k) * (1 - tx) + voxel(i + 1, j + 1, k) * tx;
-  const float c01 = voxel(i, j, k + 1) * (1 - tx) + voxel(i + 1, j, k + 1) * tx;
-  const float c11 = voxel(i, j + 1, k + 1) * (1 - tx) + voxel(i + 1, j + 1, k + 1) * tx;
-  return (c00 * (1 - ty) + c10 * ty) * (1 - tz) + (c01 * (1 - ty) + c11 * ty) * tz;
+  return medium_ ? medium_->sampleLeaves(sdf_.data(), p * invVoxel_, outside_) : outside_;
 }
 
 Vec3 LevelSetBoundary::normal(const Vec3& p) const {
@@ -180,18 +165,25 @@ HeterogeneousDiffusion::HeterogeneousDiffusion(const HeterogeneousMedium& medium
   // the boundary is the level set at half of it.
   const float reach = skin_ + 2.0f * voxelSize_;
   boundary_ = LevelSetBoundary(medium, 0.5f * densityRef_, reach);
+  // Calls fn(origin, i, j, k, f) for each voxel deeper than the skin below boundary_: the
+  // leaf's origin, the voxel's index in it and its f.
+  auto forDeepVoxels = [&](auto&& fn) {
+    for (size_t l = 0; l < f.leafCount(); ++l) {
+      const auto& o = f.origins[l];
+      for (int i = 0; i < 8; ++i)
+        for (int j = 0; j < 8; ++j)
+          for (int k = 0; k < 8; ++k) {
+            const size_t v = l * VoxelLeaves::kLeafVoxels + size_t(VoxelLeaves::offset(i, j, k));
+            if (!(boundary_.voxelDistance(v) <= -skin_)) continue;
+            fn(o, i, j, k, f.values[v]);
+          }
+    }
+  };
   double deepSum = 0, deepCount = 0;
-  for (size_t l = 0; l < f.leafCount(); ++l) {
-    const auto& o = f.origins[l];
-    for (int i = 0; i < 8; ++i)
-      for (int j = 0; j < 8; ++j)
-        for (int k = 0; k < 8; ++k) {
-          const Vec3 centre(float(o[0] + i) * voxelSize_, float(o[1] + j) * voxelSize_, float(o[2] + k) * voxelSize_);
-          if (!(boundary_.distance(centre) <= -skin_)) continue;
-          deepSum += f.values[l * VoxelLeaves::kLeafVoxels + size_t(VoxelLeaves::offset(i, j, k))];
-          deepCount += 1;
-        }
-  }
+  forDeepVoxels([&](const auto&, int, int, int, float value) {
+    deepSum += value;
+    deepCount += 1;
+  });
   bulk_ = deepCount > 0 ? float(deepSum / deepCount) : densityRef_;
   if (std::fabs(bulk_ - densityRef_) > 1e-3f * densityRef_) boundary_ = LevelSetBoundary(medium, 0.5f * bulk_, reach);
 
@@ -209,23 +201,14 @@ HeterogeneousDiffusion::HeterogeneousDiffusion(const HeterogeneousMedium& medium
     }
   for (int a = 0; a < 3; ++a) base.dims[a] = hi[a] - base.lo[a] + 1;
   base.cells.assign(size_t(base.dims[0] * base.dims[1] * base.dims[2]), Cell());
-  const float deep = -skin_;
-  for (size_t l = 0; l < f.leafCount(); ++l) {
-    const auto& o = f.origins[l];
-    for (int i = 0; i < 8; ++i)
-      for (int j = 0; j < 8; ++j)
-        for (int k = 0; k < 8; ++k) {
-          const size_t v = l * VoxelLeaves::kLeafVoxels + size_t(VoxelLeaves::offset(i, j, k));
-          const Vec3 centre(float(o[0] + i) * voxelSize_, float(o[1] + j) * voxelSize_, float(o[2] + k) * voxelSize_);
-          if (!(boundary_.distance(centre) <= deep)) continue;
-          Cell& c = base.cells[size_t(((floorDiv(o[2] + k, kCellVoxels) - base.lo[2]) * base.dims[1] +
-                                       (floorDiv(o[1] + j, kCellVoxels) - base.lo[1])) *
-                                          base.dims[0] +
-                                      (floorDiv(o[0] + i, kCellVoxels) - base.lo[0]))];
-          c.sum += f.values[v];
-          c.count += 1;
-        }
-  }
+  forDeepVoxels([&](const auto& o, int i, int j, int k, float value) {
+    Cell& c = base.cells[size_t(((floorDiv(o[2] + k, kCellVoxels) - base.lo[2]) * base.dims[1] +
+                                 (floorDiv(o[1] + j, kCellVoxels) - base.lo[1])) *
+                                    base.dims[0] +
+                                (floorDiv(o[0] + i, kCellVoxels) - base.lo[0]))];
+    c.sum += value;
+    c.count += 1;
+  });
   levels_.push_back(std::move(base));
   // Coarser levels until at most 2 cells per axis cover everything (cells split at index 0
   // at every level: a range about it never shrinks to one).
@@ -292,30 +275,24 @@ HeterogeneousDiffusion::Region HeterogeneousDiffusion::region(const Vec3& x, flo
   return out;
 }
 
-HeterogeneousDecision HeterogeneousDiffusion::decide(const Vec3& x, float daDepthFactor, float tolerance) const {
+HeterogeneousDecision HeterogeneousDiffusion::decide(const Vec3& x, float daDepthFactor) const {
   HeterogeneousDecision d;
   d.depth = -boundary_.distance(x);
   if (!(d.depth >= skin_)) return d;
   const Region r = region(x, kRegionDepths * d.depth);
   if (!(r.count > 0) || !(r.mean > 0)) return d;
   d.packing = r.mean;
-  d.daDepth = diffusionDepth(reference_, daDepthFactor) * (densityRef_ / r.mean);
-  if (!(d.depth >= d.daDepth)) return d;
+  const float daDepth = diffusionDepth(reference_, daDepthFactor) * (densityRef_ / r.mean);
+  if (!(d.depth >= daDepth)) return d;
   // No cell with a mean (every one mostly skin): nothing says the region is homogeneous.
   d.spread = r.max >= r.min ? r.max / r.min : kInf;
-  if (!(d.spread <= (1.0f + tolerance) / (1.0f - tolerance))) {
+  if (!(d.spread <= (1.0f + kTolerance) / (1.0f - kTolerance))) {
     d.outcome = DiffusionOutcome::Varies;
     return d;
   }
-  d.curvatureRadius = boundary_.curvatureRadius(x, d.depth);
-  d.outcome = d.curvatureRadius >= kCurvatureGuard * d.daDepth ? DiffusionOutcome::Takes : DiffusionOutcome::Curved;
+  const float radius = boundary_.curvatureRadius(x, d.depth);
+  d.outcome = radius >= kCurvatureGuard * daDepth ? DiffusionOutcome::Takes : DiffusionOutcome::Curved;
   return d;
-}
-
-size_t HeterogeneousDiffusion::bytes() const {
-  size_t b = boundary_.bytes();
-  for (const Level& l : levels_) b += l.cells.size() * sizeof(Cell);
-  return b;
 }
 
 }  // namespace granular

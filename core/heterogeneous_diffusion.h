@@ -100,16 +100,17 @@ class LevelSetBoundary final : public DiffusionBoundary {
   LevelSetBoundary(const HeterogeneousMedium& medium, float iso, float reach);
 
   float distance(const Vec3& p) const;  // signed, negative inside (f > iso); trilinear
+  // The distance at a voxel centre: index l * 512 + v into the density's leaves (l the
+  // leaf, v VoxelLeaves::offset).
+  float voxelDistance(size_t index) const { return sdf_[index]; }
   Vec3 normal(const Vec3& p) const;     // the field's normalised gradient (outward)
   float closestPoint(const Vec3& p, Vec3& closest) const override;
   bool intersect(const Vec3& o, const Vec3& d, float tmax, float& t, Vec3& ng) const override;
   Vec3 exitPoint(const Vec3& p, const Vec3& ng) const override;
   // The boundary's radius of curvature seen from x at lateral offsets ±δ (rule 3).
   float curvatureRadius(const Vec3& x, float delta) const;
-  size_t bytes() const { return sdf_.size() * sizeof(float); }
 
  private:
-  float voxel(int64_t i, int64_t j, int64_t k) const;
   const HeterogeneousMedium* medium_ = nullptr;
   std::vector<float> sdf_;  // 512 per leaf of medium_->voxels(), in its order
   float voxelSize_ = 0, invVoxel_ = 0, reach_ = 0, outside_ = 0;
@@ -123,8 +124,6 @@ struct HeterogeneousDecision {
   float depth = 0;     // z below the level set (world)
   float packing = 0;   // f̄ over the region (0: not read)
   float spread = 0;    // max / min of the region's cell means (0: not read)
-  float daDepth = 0;   // the local medium's DA depth (0: not read)
-  float curvatureRadius = 0;  // LevelSetBoundary::curvatureRadius at δ = depth (0: not read)
 };
 
 class HeterogeneousDiffusion {
@@ -139,8 +138,7 @@ class HeterogeneousDiffusion {
   // with packingRate f_ref); kernelWidth: h of its density. The medium must outlive this.
   HeterogeneousDiffusion(const HeterogeneousMedium& medium, const MediumParams& reference, float kernelWidth);
 
-  // tolerance: ε (kTolerance unless a measurement asks for another).
-  HeterogeneousDecision decide(const Vec3& x, float daDepthFactor, float tolerance = kTolerance) const;
+  HeterogeneousDecision decide(const Vec3& x, float daDepthFactor) const;
   // The local medium of a decision that took DA, for diffusionStep (boundary: this one's).
   const LevelSetBoundary& boundary() const { return boundary_; }
   const DiffusionProfile& referenceProfile() const { return profile_; }
@@ -154,7 +152,6 @@ class HeterogeneousDiffusion {
     double count = 0;
   };
   Region region(const Vec3& x, float r) const;
-  size_t bytes() const;
 
  private:
   struct Cell {

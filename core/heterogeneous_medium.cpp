@@ -100,15 +100,13 @@ int64_t HeterogeneousMedium::leafOf(int64_t i, int64_t j, int64_t k) const {
   return b < 0 ? -1 : blocks_[size_t(b)].leaf;
 }
 
-float HeterogeneousMedium::voxel(int64_t i, int64_t j, int64_t k) const {
-  const int64_t l = leafOf(i, j, k);
-  if (l < 0) return 0;
-  return density_.values[size_t(l) * VoxelLeaves::kLeafVoxels +
-                         size_t(VoxelLeaves::offset(int(i & 7), int(j & 7), int(k & 7)))];
-}
-
-float HeterogeneousMedium::sampleDensity(const Vec3& u) const {
-  if (blocks_.empty() || !isFinite(u)) return 0;
+float HeterogeneousMedium::sampleLeaves(const float* values, const Vec3& u, float outside) const {
+  if (blocks_.empty() || !isFinite(u) || !(maxComponent(vabs(u)) < 1e9f)) return outside;
+  auto voxel = [&](int64_t i, int64_t j, int64_t k) {
+    const int64_t l = leafOf(i, j, k);
+    if (l < 0) return outside;
+    return values[size_t(l) * VoxelLeaves::kLeafVoxels + size_t(VoxelLeaves::offset(int(i & 7), int(j & 7), int(k & 7)))];
+  };
   const float fx = std::floor(u.x), fy = std::floor(u.y), fz = std::floor(u.z);
   const int64_t i = int64_t(fx), j = int64_t(fy), k = int64_t(fz);
   const float tx = u.x - fx, ty = u.y - fy, tz = u.z - fz;

@@ -81,6 +81,10 @@ class HeterogeneousMedium {
   const VoxelLeaves& voxels() const { return density_; }
   // The index in voxels().origins of the leaf holding voxel (i, j, k), or -1 (no leaf): O(1).
   int64_t leafOf(int64_t i, int64_t j, int64_t k) const;
+  // A field on the density's voxels (values: 512 per leaf of voxels(), in its order) at u
+  // in voxel index coordinates: trilinear between voxel centres, `outside` for a voxel of
+  // no leaf, and everywhere when u is not finite or beyond 1e9 voxels.
+  float sampleLeaves(const float* values, const Vec3& u, float outside) const;
   float majorant(const Vec3& p) const;  // σ̄ of the block holding p (per world length), 0 outside
   const HomogeneousMedium& reference() const { return reference_; }
   const Vec3& albedo() const { return reference_.albedo(); }
@@ -98,8 +102,8 @@ class HeterogeneousMedium {
     float majorant = 0;  // scalar σ̄, per world length
   };
   Vec3 toIndex(const Vec3& p) const { return p * invVoxel_; }
-  float voxel(int64_t i, int64_t j, int64_t k) const;
-  float sampleDensity(const Vec3& u) const;  // f at continuous index coordinates
+  // f at continuous index coordinates.
+  float sampleDensity(const Vec3& u) const { return sampleLeaves(density_.values.data(), u, 0.0f); }
   int64_t blockIndex(int64_t bx, int64_t by, int64_t bz) const;
   // Calls seg(t0, t1, σ̄ per unit t) for each block the ray crosses in [tmin, tmax], front
   // to back, until it returns false.

@@ -28,19 +28,6 @@ constexpr int kBlockCells = 1 << (3 * InstancedGrains::kBlockBits);
 // Grid resolution per axis: block coordinates take 21 bits of a key.
 constexpr int64_t kMaxCellsPerAxis = (int64_t(1) << (21 + InstancedGrains::kBlockBits)) - 1;
 
-// The smallest index in [0, n) for which bad(i) holds, or -1 (parallel, deterministic).
-template <typename Pred>
-int64_t firstBad(size_t n, Pred&& bad) {
-  return tbb::parallel_reduce(
-      tbb::blocked_range<size_t>(0, n, 4096), int64_t(-1),
-      [&](const tbb::blocked_range<size_t>& r, int64_t found) {
-        if (found >= 0 && size_t(found) < r.begin()) return found;
-        for (size_t i = r.begin(); i < r.end(); ++i)
-          if (bad(i)) return int64_t(i);
-        return found;
-      },
-      [](int64_t a, int64_t b) { return a < 0 ? b : (b < 0 ? a : std::min(a, b)); });
-}
 
 std::string text(const Vec3& v) { return str("(", v.x, ", ", v.y, ", ", v.z, ")"); }
 
@@ -74,13 +61,13 @@ void validateInstancedGrains(const InstancedGrainsDesc& desc) {
   sameLength("angularVelocities", desc.angularVelocities.size(), true);
 
   const int64_t protos = int64_t(desc.prototypes.size());
-  int64_t i = firstBad(n, [&](size_t k) { return desc.protoIndices[k] < 0 || desc.protoIndices[k] >= protos; });
+  int64_t i = firstBadInstance(n, [&](size_t k) { return desc.protoIndices[k] < 0 || desc.protoIndices[k] >= protos; });
   if (i >= 0)
     throw InputError(name, "protoIndices", str("instance ", i, " has ", desc.protoIndices[size_t(i)],
                                                ", not the index of one of its ", protos, " prototypes"));
-  if ((i = firstBad(n, [&](size_t k) { return !isFinite(desc.positions[k]); })) >= 0)
+  if ((i = firstBadInstance(n, [&](size_t k) { return !isFinite(desc.positions[k]); })) >= 0)
     throw InputError(name, "positions", str("instance ", i, " is at ", text(desc.positions[size_t(i)]), " (not finite)"));
-  if ((i = firstBad(desc.orientations.size(), [&](size_t k) {
+  if ((i = firstBadInstance(desc.orientations.size(), [&](size_t k) {
          const Quat& q = desc.orientations[k];
          float n2 = q.w * q.w + q.x * q.x + q.y * q.y + q.z * q.z;
          return !(std::fabs(n2 - 1.0f) <= 1e-3f);  // NaN fails too
@@ -89,14 +76,14 @@ void validateInstancedGrains(const InstancedGrainsDesc& desc) {
     throw InputError(name, "orientations",
                      str("instance ", i, " has (", q.w, ", ", q.x, ", ", q.y, ", ", q.z, "), not a unit quaternion"));
   }
-  if ((i = firstBad(desc.scales.size(), [&](size_t k) {
+  if ((i = firstBadInstance(desc.scales.size(), [&](size_t k) {
          return !(desc.scales[k] > 0 && std::isfinite(desc.scales[k]));
        })) >= 0)
     throw InputError(name, "scales", str("instance ", i, " has scale ", desc.scales[size_t(i)], " (must be > 0 and finite)"));
   const std::pair<const char*, const SharedArray<Vec3>*> motion[] = {{"velocities", &desc.velocities},
                                                                       {"angularVelocities", &desc.angularVelocities}};
   for (const auto& [attr, values] : motion)
-    if ((i = firstBad(values->size(), [&](size_t k) { return !isFinite((*values)[k]); })) >= 0)
+    if ((i = firstBadInstance(values->size(), [&](size_t k) { return !isFinite((*values)[k]); })) >= 0)
       throw InputError(name, attr, str("instance ", i, " has ", text((*values)[size_t(i)]), " (not finite)"));
 }
 

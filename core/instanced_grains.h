@@ -61,6 +61,10 @@
 //    corners: exact under translation and scale).
 #pragma once
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_reduce.h>
+
+#include <algorithm>
 #include <cstdint>
 #include <functional>
 #include <string>
@@ -76,6 +80,21 @@ namespace granular {
 // Lengths, finite values, unit orientations, positive scales, prototype indices in range,
 // a prototype at least: InputError naming <name>.<attribute> and the first bad instance.
 void validateInstancedGrains(const InstancedGrainsDesc& desc);
+
+// The smallest index in [0, n) for which bad(i) holds, or -1: in parallel, the answer a loop
+// gives (errors name the first bad instance).
+template <typename Pred>
+int64_t firstBadInstance(size_t n, Pred&& bad) {
+  return tbb::parallel_reduce(
+      tbb::blocked_range<size_t>(0, n, 4096), int64_t(-1),
+      [&](const tbb::blocked_range<size_t>& r, int64_t found) {
+        if (found >= 0 && size_t(found) < r.begin()) return found;
+        for (size_t i = r.begin(); i < r.end(); ++i)
+          if (bad(i)) return int64_t(i);
+        return found;
+      },
+      [](int64_t a, int64_t b) { return a < 0 ? b : (b < 0 ? a : std::min(a, b)); });
+}
 
 struct InstancedGrainHit {
   float t = kInf;

@@ -162,6 +162,14 @@ struct Transform {
             float(inv.m[0][1] * n.x + inv.m[1][1] * n.y + inv.m[2][1] * n.z),
             float(inv.m[0][2] * n.x + inv.m[1][2] * n.y + inv.m[2][2] * n.z)};
   }
+  // Entry by entry (1 − s) a + s b: a moving object's transform at fraction s of the
+  // shutter (the blend Embree gives a moving mesh's vertices).
+  static Transform blend(const Transform& a, const Transform& b, double s) {
+    Transform r;
+    for (int i = 0; i < 4; ++i)
+      for (int j = 0; j < 4; ++j) r.m[i][j] = (1 - s) * a.m[i][j] + s * b.m[i][j];
+    return r;
+  }
   double determinant3() const {
     return m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0]) +
            m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);

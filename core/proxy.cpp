@@ -130,7 +130,7 @@ bool ProxyTable::sample(int b, float uBin, float u1, float u2, float uSide, Prox
   return out.pdf > 0;
 }
 
-void ProxyTable::buildGuide() {
+void ProxyTable::buildSamplingTables() {
   const int nd = nmu_ * nphi_;
   phiStart_.clear();
   if (kPi / float(nphi_) <= 0.2f)
@@ -262,7 +262,7 @@ bool deserialiseProxyTable(const std::vector<char>& in, uint64_t key, ProxyTable
       const float c = t.cdf_[size_t(b) * (nd + 1) + i];
       if (!std::isfinite(c) || (i == 0 ? c != 0.0f : c < t.cdf_[size_t(b) * (nd + 1) + i - 1])) return false;
     }
-  t.buildGuide();
+  t.buildSamplingTables();
   return true;
 }
 
@@ -369,7 +369,7 @@ ProxyTable estimateProxyTable(const TriangleMesh& mesh, const Material& material
     t.offsets_.insert(t.offsets_.end(), k.begin(), k.end());
     t.offsetStart_.push_back(uint32_t(t.offsets_.size() / 2));
   }
-  t.buildGuide();
+  t.buildSamplingTables();
   if (opt.useCache) writeCacheFile(name, serialiseProxyTable(t, key));
   return t;
 }

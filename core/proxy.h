@@ -145,11 +145,11 @@ class ProxyTable {
   std::vector<uint32_t> offsetStart_;   // per (b, direction) bin, its first pair (CSR)
   // Per b bin, kGuides + 1 starting points of sample()'s search (the guide table of
   // Chen & Asau 1974): guide[j] is the last direction bin whose cdf is at most j/kGuides
-  // of the total. Made from cdf_ (buildGuide), not stored, as is phiStart_.
+  // of the total. Made from cdf_ (buildSamplingTables), not stored, as is phiStart_.
   static constexpr int kGuides = 64;
   std::vector<uint32_t> guide_;
   std::vector<float> phiStart_;  // (cos, sin) of each φ bin's start, for bins up to 0.2 wide
-  void buildGuide();
+  void buildSamplingTables();
   int64_t rays_ = 0;
   bool fromCache_ = false;
 };

@@ -34,46 +34,68 @@ uint64_t floatBits(float f) {
   return u;
 }
 
-// Does the segment a→b cross the aggregate's boundary, or does a lie inside it?
-bool segmentReachesInto(const Aggregate& agg, const Vec3& a, const Vec3& b) {
-  if (agg.bounds().contains(a) && agg.insideBoundary(a)) return true;
+// Where an emitter must not reach for an aggregate to get DA (Scene::findEmittersInside):
+// inside its boundary, within its bounds. A moving aggregate (aggregate_motion.h) may pass
+// over an emitter or the camera at any time of the shutter: the box it sweeps stands in for
+// it, boundary and all. Conservative (no DA if it holds them for part of the shutter only,
+// or merely passes near), and the simplest test that misses no time: testing a few times
+// of the shutter could step over a fast aggregate's pass.
+struct DaRegion {
+  const Aggregate* still;  // the aggregate, or null: the box alone
+  Bounds3 box;             // its bounds, or its sweep (Scene::aggregateBounds_)
+
+  bool contains(const Vec3& p) const { return box.contains(p) && (!still || still->insideBoundary(p)); }
+  // Does the segment from a along unit d, of length len, cross the region's surface?
+  bool crosses(const Vec3& a, const Vec3& d, float len) const {
+    float t, t1;
+    Vec3 ng;
+    if (still) return still->intersectBoundary(a, d, 0.0f, len, t, ng);
+    return box.intersect(a, Vec3(1.0f / d.x, 1.0f / d.y, 1.0f / d.z), 0.0f, len, t, t1);
+  }
+  // The distance from a point outside to the region's surface.
+  float distance(const Vec3& p) const {
+    Vec3 closest;
+    if (still) return still->closestBoundaryPoint(p, closest);
+    return length(p - vmin(vmax(p, box.lo), box.hi));
+  }
+};
+
+// Does the segment a→b cross the region's surface, or does a lie inside it?
+bool segmentReachesInto(const DaRegion& region, const Vec3& a, const Vec3& b) {
+  if (region.contains(a)) return true;
   Vec3 d = b - a;
   float len = length(d);
-  float t;
-  Vec3 ng;
-  return len > 0 && agg.intersectBoundary(a, d / len, 0.0f, len, t, ng);
+  return len > 0 && region.crosses(a, d / len, len);
 }
 
-// Does a mesh (world space) reach into the aggregate: a vertex inside, or an edge
-// crossing the boundary?
-bool meshReachesInto(const Aggregate& agg, const TriangleMesh& m) {
-  Bounds3 b = m.bounds(), ab = agg.bounds();
+// Does a mesh (world space) reach into the region: a vertex inside, or an edge crossing
+// its surface?
+bool meshReachesInto(const DaRegion& region, const TriangleMesh& m) {
+  Bounds3 b = m.bounds(), ab = region.box;
   for (int k = 0; k < 3; ++k)
     if (b.hi[k] < ab.lo[k] || b.lo[k] > ab.hi[k]) return false;
   for (size_t t = 0; t < m.numTriangles(); ++t)
     for (int e = 0; e < 3; ++e)
-      if (segmentReachesInto(agg, m.points[m.indices[3 * t + e]], m.points[m.indices[3 * t + (e + 1) % 3]]))
+      if (segmentReachesInto(region, m.points[m.indices[3 * t + e]], m.points[m.indices[3 * t + (e + 1) % 3]]))
         return true;
   return false;
 }
 
-// Does an area light reach into the aggregate (sphere: centre inside or the boundary
-// closer than its radius; rect: a corner inside or an edge or diagonal crossing)?
-bool emitterReachesInto(const Aggregate& agg, const LightDesc& l) {
+// Does an area light reach into the region (sphere: centre inside or the surface closer
+// than its radius; rect: a corner inside or an edge or diagonal crossing)?
+bool emitterReachesInto(const DaRegion& region, const LightDesc& l) {
   if (l.type == LightType::Sphere) {
     Vec3 c = l.xf.point(Vec3(0.0f));
     float r = l.radius * length(l.xf.vector(Vec3(1, 0, 0)));
-    if (agg.bounds().contains(c) && agg.insideBoundary(c)) return true;
-    Vec3 closest;
-    return agg.closestBoundaryPoint(c, closest) < r;
+    return region.contains(c) || region.distance(c) < r;
   }
   if (l.type == LightType::Rect) {
     float w = 0.5f * l.width, h = 0.5f * l.height;
     Vec3 p[4] = {l.xf.point(Vec3(-w, -h, 0)), l.xf.point(Vec3(w, -h, 0)), l.xf.point(Vec3(w, h, 0)),
                  l.xf.point(Vec3(-w, h, 0))};
     for (int i = 0; i < 4; ++i)
-      if (segmentReachesInto(agg, p[i], p[(i + 1) % 4])) return true;
-    return segmentReachesInto(agg, p[0], p[2]) || segmentReachesInto(agg, p[1], p[3]);
+      if (segmentReachesInto(region, p[i], p[(i + 1) % 4])) return true;
+    return segmentReachesInto(region, p[0], p[2]) || segmentReachesInto(region, p[1], p[3]);
   }
   return false;  // distant and dome lights are outside everything
 }
@@ -723,11 +745,11 @@ void Scene::findEmittersInside(const SceneDesc& desc, const std::vector<LightDes
   if (media_.empty()) return;
   emitterInside_.assign(aggregates_.size(), false);
   for (size_t a = 0; a < aggregates_.size(); ++a) {
-    const Aggregate& agg = *aggregates_[a];
+    const DaRegion region{aggregateMotion_[a].moving() ? nullptr : aggregates_[a].get(), aggregateBounds_[a]};
     bool inside = false;
-    for (const auto& l : lights) inside = inside || emitterReachesInto(agg, l);
+    for (const auto& l : lights) inside = inside || emitterReachesInto(region, l);
     for (const auto& m : desc.meshes)
-      if (isEmitter(desc, m)) inside = inside || meshReachesInto(agg, m.mesh.transformed(m.xf));
+      if (isEmitter(desc, m)) inside = inside || meshReachesInto(region, m.mesh.transformed(m.xf));
     emitterInside_[a] = inside;
   }
 }
@@ -1211,7 +1233,11 @@ void Scene::updateDiffusionDepths() {
     // No DA where the object is too thin for it (its depth criterion is never met), nor
     // where an emitter or the camera is inside (above).
     float depth = granular::diffusionDepth(mediumParams_[a], settings_.daDepthFactor);
-    bool blocked = emitterInside_[a] || mediumAt(camera_.position()) == int(a);
+    // A moving aggregate: the camera within its sweep (DaRegion, as for emitters).
+    const Vec3 eye = camera_.position();
+    const bool cameraInside =
+        aggregateMotion_[a].moving() ? aggregateBounds_[a].contains(eye) : mediumAt(eye) == int(a);
+    bool blocked = emitterInside_[a] || cameraInside;
     if (!blocked && aggregates_[a]->stats().maxInteriorDepth > depth) diffusionDepth_[a] = depth;
   }
 }
@@ -1379,8 +1405,8 @@ Vec3 Scene::transmittance(const Vec3& p, const Vec3& dir, float dist, float time
     float eps = 1e-5f * std::max(1.0f, maxComponent(vabs(p)));
     for (int crossings = 0; crossings < 1024; ++crossings) {
       if (!agg.intersectBoundary(p, dir, t0, dist, t, ng)) {
-        if (crossings == 0 && agg.boundsContain(p) && agg.insideBoundary(p)) inside += dist;  // never leaves
-        else if (crossings > 0 && dot(ng, dir) < 0) inside += dist - t0;                          // entered, never left
+        if (crossings == 0 && aggregateBounds_[a].contains(p) && agg.insideBoundary(p)) inside += dist;  // never leaves
+        else if (crossings > 0 && dot(ng, dir) < 0) inside += dist - t0;  // entered, never left
         break;
       }
       if (dot(ng, dir) > 0) inside += t - t0;
@@ -1392,11 +1418,8 @@ Vec3 Scene::transmittance(const Vec3& p, const Vec3& dir, float dist, float time
 }
 
 int Scene::mediumAt(const Vec3& p, float time) const {
-  for (size_t a = 0; a < aggregates_.size(); ++a) {
-    if (!aggregateBounds_[a].contains(p)) continue;
-    const PosedAggregate agg = aggregateAt(int(a), time);
-    if (agg.boundsContain(p) && agg.insideBoundary(p)) return int(a);
-  }
+  for (size_t a = 0; a < aggregates_.size(); ++a)
+    if (aggregateBounds_[a].contains(p) && aggregateAt(int(a), time).insideBoundary(p)) return int(a);
   return -1;
 }
 

@@ -191,9 +191,9 @@ class Scene {
   // (validation against other renderers, closed-form tests). Not thread-safe.
   void setMedium(int aggregate, const MediumParams& params);
   // DA: the depth below the boundary where it takes over (inf: the object is too thin
-  // for DA, or it holds an emitter or the camera: DA models light entering from outside
-  // and leaving towards the outside), its profile, and the exit
-  // lobe (MaterialType::DiffusionExit) of the points where diffused light leaves.
+  // for DA, or it holds an emitter or the camera, a moving one anywhere in its sweep: DA
+  // models light entering from outside and leaving towards the outside), its profile, and
+  // the exit lobe (MaterialType::DiffusionExit) of the points where diffused light leaves.
   float diffusionDepth(int aggregate) const { return diffusionDepth_[aggregate]; }
   const DiffusionProfile& diffusionProfile(int aggregate) const { return diffusionProfiles_[aggregate]; }
   int diffusionExitMaterial() const { return diffusionExitMaterial_; }
@@ -263,6 +263,8 @@ class Scene {
   bool firstInstancedMedium(const Ray& ray, float tmax, int& index, float& t0, float& t1) const;
   // Of instancer i (which has a medium): the grains' mean bounding radius (world), and the
   // total diffuse reflectance of its bulk's medium (the albedo AOV, as an aggregate's).
+  float instancedGrainRadius(int i) const { return builtInstanced_[size_t(i)].medium->meanRadius; }
+  Vec3 instancedDiffuseReflectance(int i) const { return builtInstanced_[size_t(i)].medium->diffuseReflectance; }
   // DA in instancer i's medium (heterogeneous_diffusion.h: its level-set boundary and the
   // rule for where DA holds), or null: no medium, technique not hybrid,
   // RenderSettings::daInstanced off, or the camera or an emitter inside it (as for
@@ -270,8 +272,6 @@ class Scene {
   const HeterogeneousDiffusion* instancedDiffusion(int i) const {
     return instancedDa_.empty() || !instancedDa_[size_t(i)] ? nullptr : builtInstanced_[size_t(i)].diffusion.get();
   }
-  float instancedGrainRadius(int i) const { return builtInstanced_[size_t(i)].medium->meanRadius; }
-  Vec3 instancedDiffuseReflectance(int i) const { return builtInstanced_[size_t(i)].medium->diffuseReflectance; }
   int instancedGrainsBuilt() const { return instancedBuilt_; }  // built anew, not lent by the previous scene
   // Instancer i's set-up beyond its grid (InstancedGrains::stats): its packing-rate grid's
   // stats (null: no medium), and the seconds its medium and its proxy tables took this

@@ -353,12 +353,7 @@ void validateAggregateMotion(const AggregateDesc& a, const std::string& obj) {
 }
 
 double minBlendDeterminantRatio(const Transform& a, const Transform& b) {
-  auto det = [&](double s) {
-    Transform m;
-    for (int i = 0; i < 3; ++i)
-      for (int j = 0; j < 3; ++j) m.m[i][j] = (1 - s) * a.m[i][j] + s * b.m[i][j];
-    return m.determinant3();
-  };
+  auto det = [&](double s) { return Transform::blend(a, b, s).determinant3(); };
   const double d0 = det(0), d1 = det(1);
   if (!(d0 * d1 > 0)) return 0;  // a flip, or singular at an end
   // The cubic p(s) = c0 + c1 s + c2 s² + c3 s³ through its values at 0, 1/3, 2/3 and 1;
@@ -466,14 +461,17 @@ SceneDesc toRenderSpace(const SceneDesc& desc, const Vec3d& origin) {
   SceneDesc r = desc;
   if (origin == Vec3d{}) return r;
   r.camera = toRenderSpace(desc.camera, origin);
+  auto shutterToRenderSpace = [&](std::optional<std::pair<Transform, Transform>>& xf) {
+    if (xf) xf = std::make_pair(toRenderSpace(xf->first, origin), toRenderSpace(xf->second, origin));
+  };
   for (MeshDesc& m : r.meshes) {
     m.xf = toRenderSpace(m.xf, origin);
-    if (m.shutterXf) m.shutterXf = std::make_pair(toRenderSpace(m.shutterXf->first, origin), toRenderSpace(m.shutterXf->second, origin));
+    shutterToRenderSpace(m.shutterXf);
   }
   for (LightDesc& l : r.lights) l.xf = toRenderSpace(l.xf, origin);
   for (AggregateDesc& a : r.aggregates) {
     a.xf = toRenderSpace(a.xf, origin);
-    if (a.shutterXf) a.shutterXf = std::make_pair(toRenderSpace(a.shutterXf->first, origin), toRenderSpace(a.shutterXf->second, origin));
+    shutterToRenderSpace(a.shutterXf);
   }
   for (InstancedGrainsDesc& g : r.instancedGrains) g.xf = toRenderSpace(g.xf, origin);
   return r;
@@ -638,12 +636,17 @@ bool sameLight(const LightDesc& a, const LightDesc& b) {
          a.radius == b.radius && a.width == b.width && a.height == b.height && a.textureFile == b.textureFile;
 }
 
+// Transforms at the shutter's open and close (MeshDesc::shutterXf, AggregateDesc::shutterXf).
+bool sameShutterXf(const std::optional<std::pair<Transform, Transform>>& a,
+                   const std::optional<std::pair<Transform, Transform>>& b) {
+  return a.has_value() == b.has_value() &&
+         (!a || (sameTransform(a->first, b->first) && sameTransform(a->second, b->second)));
+}
+
 bool sameMeshDesc(const MeshDesc& a, const MeshDesc& b) {
   return a.name == b.name && sameMesh(a.mesh, b.mesh) && sameTransform(a.xf, b.xf) && a.material == b.material &&
          a.visible == b.visible && a.id == b.id && a.instanceId == b.instanceId &&
-         a.shutterXf.has_value() == b.shutterXf.has_value() &&
-         (!a.shutterXf || (sameTransform(a.shutterXf->first, b.shutterXf->first) &&
-                           sameTransform(a.shutterXf->second, b.shutterXf->second)));
+         sameShutterXf(a.shutterXf, b.shutterXf);
 }
 
 // Settings Scene::setView applies (all but those of settingsNeedBuild).
@@ -698,16 +701,15 @@ bool validMaterialIndices(const SceneDesc& d) {
 }  // namespace
 
 bool sameInstancedGrains(const InstancedGrainsDesc& a, const InstancedGrainsDesc& b) {
-  auto sameQuats = [](const std::vector<Quat>& x, const std::vector<Quat>& y) {
-    return x.size() == y.size() && (x.empty() || std::memcmp(x.data(), y.data(), x.size() * sizeof(Quat)) == 0);
-  };
-  auto sameVecs = [](const std::vector<Vec3>& x, const std::vector<Vec3>& y) {
-    return x.size() == y.size() && (x.empty() || std::memcmp(x.data(), y.data(), x.size() * sizeof(Vec3)) == 0);
+  // Shared values are equal without a look; others byte for byte (a NaN equals itself).
+  auto same = [](const auto& x, const auto& y) {
+    return x.sharesWith(y) ||
+           (x.size() == y.size() && (x.empty() || std::memcmp(x.data(), y.data(), x.size() * sizeof(x[0])) == 0));
   };
   if (a.name != b.name || !sameTransform(a.xf, b.xf) || a.prototypes.size() != b.prototypes.size() ||
-      a.protoIndices != b.protoIndices || a.scales != b.scales || !sameVecs(a.positions, b.positions) ||
-      !sameQuats(a.orientations, b.orientations) || !sameVecs(a.velocities, b.velocities) ||
-      !sameVecs(a.angularVelocities, b.angularVelocities))
+      !same(a.protoIndices, b.protoIndices) || !same(a.scales, b.scales) || !same(a.positions, b.positions) ||
+      !same(a.orientations, b.orientations) || !same(a.velocities, b.velocities) ||
+      !same(a.angularVelocities, b.angularVelocities))
     return false;
   for (size_t k = 0; k < a.prototypes.size(); ++k)
     if (a.prototypes[k].material != b.prototypes[k].material || !sameMesh(a.prototypes[k].mesh, b.prototypes[k].mesh))
@@ -750,15 +752,11 @@ SceneChanges compareScenes(const SceneDesc& before, const SceneDesc& after) {
                         before.instancedGrains[i].id != after.instancedGrains[i].id;
   // A moving aggregate is lent by its build and moves as the new description says: its
   // shutter transforms, and the shutter they span.
-  auto sameMotion = [](const AggregateDesc& x, const AggregateDesc& y) {
-    return x.shutterXf.has_value() == y.shutterXf.has_value() &&
-           (!x.shutterXf || (sameTransform(x.shutterXf->first, y.shutterXf->first) &&
-                             sameTransform(x.shutterXf->second, y.shutterXf->second)));
-  };
   if (before.camera.shutterOpen != after.camera.shutterOpen || before.camera.shutterClose != after.camera.shutterClose)
     for (const AggregateDesc& a : after.aggregates) c.aggregateMotion = c.aggregateMotion || a.shutterXf.has_value();
   for (size_t i = 0; i < std::min(before.aggregates.size(), after.aggregates.size()); ++i)
-    c.aggregateMotion = c.aggregateMotion || !sameMotion(before.aggregates[i], after.aggregates[i]);
+    c.aggregateMotion =
+        c.aggregateMotion || !sameShutterXf(before.aggregates[i].shutterXf, after.aggregates[i].shutterXf);
   const Vec3d originBefore = renderOrigin(before), originAfter = renderOrigin(after);
   c.renderSpace = !(originBefore == originAfter);
 

@@ -549,6 +549,16 @@ std::vector<GrainPrototypeDesc> parsePrototypes(const json& v, const std::string
   return out;
 }
 
+// "shutter_transforms": [T at the shutter's open, T at its close] (MeshDesc::shutterXf,
+// AggregateDesc::shutterXf).
+std::pair<Transform, Transform> parseShutterTransforms(const json& st, const std::string& label) {
+  if (!st.is_array() || st.size() != 2)
+    throw InputError(label, "shutter_transforms",
+                     "expected [transform at open, transform at close], got " + describe(st));
+  return std::make_pair(parseTransform(st[0], label, "shutter_transforms"),
+                        parseTransform(st[1], label, "shutter_transforms"));
+}
+
 // A mesh's transforms at the shutter's open and close, checked as validateSceneDesc checks
 // its transform (affine, invertible, world points within range), named by the JSON key.
 // A mesh that is bad in itself is left to validateSceneDesc, which names what is wrong.
@@ -586,12 +596,9 @@ void parseMeshes(const json& v, SceneDesc& desc, const MaterialIndex& mats, cons
     m.material = lookupMaterial(o, mats, -1);
     if (const json* t = o.find("transform")) m.xf = parseTransform(*t, label, "transform");
     m.visible = o.flag("visible", true);
-    // Transform motion blur: [T at the shutter's open, T at its close] (MeshDesc::shutterXf).
+    // Transform motion blur (MeshDesc::shutterXf).
     if (const json* st = o.find("shutter_transforms")) {
-      if (!st->is_array() || st->size() != 2)
-        throw InputError(label, "shutter_transforms", "expected [transform at open, transform at close], got " + describe(*st));
-      m.shutterXf = std::make_pair(parseTransform((*st)[0], label, "shutter_transforms"),
-                                   parseTransform((*st)[1], label, "shutter_transforms"));
+      m.shutterXf = parseShutterTransforms(*st, label);
       checkShutterTransforms(m);
     }
     desc.meshes.push_back(std::move(m));
@@ -685,10 +692,7 @@ void parseAggregates(const json& v, SceneDesc& desc, const MaterialIndex& mats, 
     ag.sizeSpread = o.num("size_spread", ag.sizeSpread);
     // Transform motion blur, as a mesh's (AggregateDesc::shutterXf), checked under this key.
     if (const json* st = o.find("shutter_transforms")) {
-      if (!st->is_array() || st->size() != 2)
-        throw InputError(label, "shutter_transforms", "expected [transform at open, transform at close], got " + describe(*st));
-      ag.shutterXf = std::make_pair(parseTransform((*st)[0], label, "shutter_transforms"),
-                                    parseTransform((*st)[1], label, "shutter_transforms"));
+      ag.shutterXf = parseShutterTransforms(*st, label);
       // An aggregate bad in itself is left to validateSceneDesc, which names what is wrong.
       bool valid = true;
       try {

@@ -81,17 +81,6 @@ class SharedArray {
     std::vector<T>& v = vec();
     return v.insert(v.begin() + k, std::forward<A>(a)...);
   }
-  iterator erase(const_iterator first, const_iterator last) {
-    const auto a = first - get().begin(), b = last - get().begin();
-    std::vector<T>& v = vec();
-    return v.erase(v.begin() + a, v.begin() + b);
-  }
-  // The values, this array left empty (no copy when it held them alone).
-  std::vector<T> release() {
-    std::vector<T> out = p_ && p_.use_count() == 1 ? std::move(*p_) : get();
-    p_.reset();
-    return out;
-  }
 
  private:
   static const std::vector<T>& empty_() {

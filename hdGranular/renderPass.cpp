@@ -131,13 +131,13 @@ double timeCodesPerSecond(HdRenderDelegate* d) {
   return tcps;
 }
 
-// Transform motion blur, as granular render's reading (usd_reader._mesh_motion): each mesh
-// and each aggregate drawn once (not an instance) whose world transform differs between the
+// Transform motion blur, as granular render's reading (usd_reader._transform_motion): each
+// mesh and each aggregate drawn once (not an instance) whose world transform differs between the
 // shutter's ends gets its transforms there (MeshDesc::shutterXf, AggregateDesc::shutterXf),
 // sampled from its scene delegate over the shutter (times relative to the frame; the samples
 // hold the interval's ends, exact, and resampling gives them whatever the delegate hands
 // back). An aggregate is still built where it stands at the frame (core/aggregate_motion.h).
-void sampleMeshMotion(HdRenderIndex& index, GfVec2d const& shutter, granular::SceneDesc& desc) {
+void sampleTransformMotion(HdRenderIndex& index, GfVec2d const& shutter, granular::SceneDesc& desc) {
   if (!(shutter[1] > shutter[0])) return;
   const float open = float(shutter[0]), close = float(shutter[1]);
   auto sample = [&](std::string const& name, int instanceId,
@@ -284,7 +284,7 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
     granular::Scene* const scene = _renderer->GetScene();  // none: the last attempt failed (e.g. a bad camera)
     if (edited || !scene || !_built) {
       granular::SceneDesc desc = _param->Assemble();
-      sampleMeshMotion(*GetRenderIndex(), shutter, desc);
+      sampleTransformMotion(*GetRenderIndex(), shutter, desc);
       if (TfGetenvBool("GRANULAR_HD_DEBUG", false)) {  // what the core is given, for users' bug reports
         for (auto const& l : desc.lights)
           fprintf(stderr, "hdGranular: light %s type %d intensity %g\n", l.name.c_str(), int(l.type), l.intensity);

@@ -145,7 +145,8 @@ HeldNumbers numbersOf(const py::object& obj, bool integers) {
   if (!a) throw py::value_error("expected an array of numbers");
   const char kind = a.dtype().kind();
   const auto size = a.dtype().itemsize();
-  const bool inOrder = (a.flags() & py::array::c_style) != 0;
+  // Taken in place only when C-ordered and in the machine's byte order; else converted.
+  const bool inOrder = (a.flags() & py::array::c_style) != 0 && a.dtype().byteorder() != '>';
   using T = NumberView::Type;
   if (inOrder && kind == 'f' && !integers && (size == 2 || size == 4 || size == 8))
     h.view.type = size == 2 ? T::Half : size == 4 ? T::Float : T::Double;
@@ -163,24 +164,6 @@ HeldNumbers numbersOf(const py::object& obj, bool integers) {
   h.view.count = size_t(a.size());
   h.array = std::move(a);
   return h;
-}
-
-// The instances whose keep[i] is nonzero, in order (every per-instance array that is authored).
-void keepInstances(InstancedGrainsDesc& g, const std::vector<uint8_t>& keep) {
-  auto compact = [&](auto& values) {
-    if (values.size() != keep.size()) return;
-    auto& v = values.vec();
-    size_t out = 0;
-    for (size_t i = 0; i < keep.size(); ++i)
-      if (keep[i]) v[out++] = v[i];
-    v.resize(out);
-  };
-  compact(g.positions);
-  compact(g.orientations);
-  compact(g.scales);
-  compact(g.protoIndices);
-  compact(g.velocities);
-  compact(g.angularVelocities);
 }
 
 py::array_t<float> pointsToArray(const std::vector<Vec3>& pts) {
@@ -1070,7 +1053,7 @@ PYBIND11_MODULE(granular_core, m) {
           d["proxies"] = s.scene->instancedProxies(int(i));
           d["proxy_visits"] = s.scene->instancedProxyVisits(int(i));
           d["low_orders"] = s.scene->instancedLowOrdersText(int(i));
-          d["diffusion"] = s.scene->instancedDiffusionText(int(i));  // whether DA takes its medium's deep paths
+          d["diffusion"] = s.scene->instancedDiffusionText(int(i));
           const InstancedGrainsStats& st = all[i]->stats();
           d["input_bytes"] = st.inputBytes;
           d["grid_seconds"] = st.buildSeconds;
@@ -1084,10 +1067,11 @@ PYBIND11_MODULE(granular_core, m) {
         }
         return out;
       }, "per instancer of explicit grains: name, grains, grid_bytes, has_medium, proxies, proxy_visits, "
-         "low_orders (what carries the paths after their first grain, in words), input_bytes (the per-grain "
+         "low_orders (what carries the paths after their first grain, in words), diffusion (whether DA takes "
+         "its medium's deep paths, in words), input_bytes (the per-grain "
          "arrays); this build's seconds: "
          "grid_seconds, overlap_seconds (its grid, 0 when lent), medium_seconds (its medium: the packing-rate "
-         "grid, density_seconds of it, TT and DA's boundary), tables_seconds (proxy tables); density_bytes (the "
+         "grid, density_seconds of it, and TT), tables_seconds (proxy tables); density_bytes (the "
          "packing-rate grid)");
 
   py::class_<Image>(m, "Image")

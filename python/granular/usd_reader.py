@@ -639,7 +639,7 @@ def _transform_varies(prim):
     return False
 
 
-def _mesh_motion(scene, time):
+def _transform_motion(scene, time):
     """Transform motion blur: with the camera's shutter open, each mesh and each aggregate
     whose world transform changes over it gets its transforms at the shutter's open and close
     (core's MeshDesc.shutterXf, AggregateDesc.shutterXf; it moves linearly between them; an
@@ -790,7 +790,7 @@ def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_c
         read_camera(scene, cam_prim, xf_cache)
         if settings is not None and _motion_blur_disabled(settings):
             core.still_frame(scene.desc)
-        _mesh_motion(scene, time)
+        _transform_motion(scene, time)
     elif need_camera:
         raise UserError(path, "", "the stage has no UsdGeomCamera (add one, or pass --camera)")
 

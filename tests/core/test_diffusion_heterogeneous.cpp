@@ -14,15 +14,9 @@
 #include "test_helpers.h"
 
 using namespace granular;
+using granular::testing::randomRotation;
 
 namespace {
-
-Quat randomRotation(std::mt19937& rng) {
-  std::normal_distribution<float> n(0.0f, 1.0f);
-  Quat q{n(rng), n(rng), n(rng), n(rng)};
-  const float l = std::sqrt(q.w * q.w + q.x * q.x + q.y * q.y + q.z * q.z);
-  return Quat{q.w / l, q.x / l, q.y / l, q.z / l};
-}
 
 // Bright sand (little absorption: paths scatter long enough for DA) under a sun and a sky.
 SceneDesc baseScene(uint64_t seed) {
@@ -45,17 +39,23 @@ SceneDesc baseScene(uint64_t seed) {
   return s;
 }
 
-// A block of N³ grains on a cubic lattice of spacing a (unit spheres, scale 1), centred on
-// the origin: each grain fills its lattice cell's share, so the block's faces are at ±N a/2.
-InstancedGrainsDesc latticeBlock(int n, float a) {
+// An instancer of no grains yet with one prototype: a unit icosphere of the sand.
+InstancedGrainsDesc roundGrains(const char* name, const char* proto, int id) {
   InstancedGrainsDesc g;
-  g.name = "/World/Block";
-  g.id = 1;
+  g.name = name;
+  g.id = id;
   GrainPrototypeDesc round;
-  round.name = "/World/Block/Round";
+  round.name = proto;
   round.mesh = makeIcosphere(2);
   round.material = 0;
   g.prototypes = {round};
+  return g;
+}
+
+// A block of N³ grains on a cubic lattice of spacing a (unit spheres, scale 1), centred on
+// the origin: each grain fills its lattice cell's share, so the block's faces are at ±N a/2.
+InstancedGrainsDesc latticeBlock(int n, float a) {
+  InstancedGrainsDesc g = roundGrains("/World/Block", "/World/Block/Round", 1);
   for (int z = 0; z < n; ++z)
     for (int y = 0; y < n; ++y)
       for (int x = 0; x < n; ++x) {
@@ -67,9 +67,7 @@ InstancedGrainsDesc latticeBlock(int n, float a) {
 
 // Unit spheres on the lattice of spacing a whose centres lie within radius R of the origin.
 InstancedGrainsDesc latticeBall(float R, float a) {
-  InstancedGrainsDesc g = latticeBlock(1, a);
-  g.positions.clear();
-  g.protoIndices.clear();
+  InstancedGrainsDesc g = roundGrains("/World/Block", "/World/Block/Round", 1);
   const int n = int(R / a) + 1;
   for (int z = -n; z <= n; ++z)
     for (int y = -n; y <= n; ++y)
@@ -90,14 +88,7 @@ InstancedGrainsDesc latticeBall(float R, float a) {
 InstancedGrainsDesc rsaSlab(bool graded, float X, float H, int attempts) {
   std::mt19937 rng(31);
   std::uniform_real_distribution<float> u(0.0f, 1.0f);
-  InstancedGrainsDesc g;
-  g.name = "/World/Grains";
-  g.id = 3;
-  GrainPrototypeDesc round;
-  round.name = "/World/Grains/Round";
-  round.mesh = makeIcosphere(2);
-  round.material = 0;
-  g.prototypes = {round};
+  InstancedGrainsDesc g = roundGrains("/World/Grains", "/World/Grains/Round", 3);
   const float cell = 2.0f;
   const int nc[3] = {int(2 * X / cell) + 1, int(H / cell) + 1, int(2 * X / cell) + 1};
   std::vector<std::vector<int>> grid(size_t(nc[0]) * nc[1] * nc[2]);
@@ -160,9 +151,10 @@ Vec3 renderSpace(const Scene& scene, const Vec3& world) {
 // Renders scene (settings daInstanced on) with DA and then, by a new view of the same
 // scene, without it (VPT to the end in the instancer's medium), the same seed: paired
 // per-pixel differences, DA − VPT, per channel: their mean, its standard error (pixels
-// independent), the mean of the VPT image, DA's share of the light and of the paths.
+// independent), the mean of the VPT image, the mean of the light DA carried (the da AOV),
+// DA's share of the light and of the paths.
 struct Paired {
-  double diff[3] = {0, 0, 0}, se[3] = {0, 0, 0}, base[3] = {0, 0, 0};
+  double diff[3] = {0, 0, 0}, se[3] = {0, 0, 0}, base[3] = {0, 0, 0}, daLight[3] = {0, 0, 0};
   double daShare = 0, daPaths = 0;
 };
 
@@ -189,6 +181,7 @@ Paired compareWithoutDa(Scene& scene, const SceneDesc& desc) {
         p.diff[c] += d / n;
         s2[c] += d * d / n;
         p.base[c] += b.at(x, y)[c] / n;
+        p.daLight[c] += a.at(x, y)[da + c] / n;
         total += a.at(x, y)[c];
         daSum += a.at(x, y)[da + c];
       }
@@ -286,8 +279,8 @@ TEST(HeterogeneousDiffusion, TheLevelSetOfAUniformBlockLiesOnItsFaces) {
 // beyond the tolerance; on the graded one it does wherever the region reaches into the
 // graded half, by at least the thinning's own ratio over the region, and not where the
 // region stays in the uniform half. Then the hybrid with DA against the hybrid without it
-// (VPT to the end), pixel-paired, same seed: within 1% (DA's own accuracy on homogeneous
-// half spaces, tests/core/test_diffusion.cpp) plus three standard errors per channel, with
+// (VPT to the end), pixel-paired, same seed: within 3% of the light DA carries (DA's own
+// error on homogeneous media) plus three standard errors per channel, with
 // DA carrying a good part of the uniform slab's paths and fewer of the graded slab's (its
 // graded half refuses DA; the camera looks at the step between its halves).
 TEST(HeterogeneousDiffusion, TheRuleTakesAUniformSlabAndRefusesWherePackingVaries) {
@@ -342,7 +335,8 @@ TEST(HeterogeneousDiffusion, TheRuleTakesAUniformSlabAndRefusesWherePackingVarie
     for (int c = 0; c < 3; ++c) {
       std::printf("  channel %d: VPT to the end %.5f, with DA %+.2f%% ± %.2f%%\n", c, p.base[c],
                   100 * p.diff[c] / p.base[c], 100 * p.se[c] / p.base[c]);
-      EXPECT_LE(std::fabs(p.diff[c]), 0.01 * p.base[c] + 3 * p.se[c]) << (graded ? "graded" : "uniform") << " " << c;
+      // DA's own error: 1–2% of its light on homogeneous media (bench/README.md, "Diffusion").
+      EXPECT_LE(std::fabs(p.diff[c]), 0.03 * p.daLight[c] + 3 * p.se[c]) << (graded ? "graded" : "uniform") << " " << c;
     }
     if (!graded) {
       uniformPaths = p.daPaths;

@@ -23,18 +23,12 @@
 using namespace granular;
 using granular::testing::ChannelEstimate;
 using granular::testing::errorOf;
+using granular::testing::randomRotation;
 using granular::testing::blocks;
 using granular::testing::renderEstimate;
 using granular::testing::renderEstimates;
 
 namespace {
-
-Quat randomRotation(std::mt19937& rng) {
-  std::normal_distribution<float> n(0.0f, 1.0f);
-  Quat q{n(rng), n(rng), n(rng), n(rng)};
-  float l = std::sqrt(q.w * q.w + q.x * q.x + q.y * q.y + q.z * q.z);
-  return Quat{q.w / l, q.x / l, q.y / l, q.z / l};
-}
 
 // Two prototypes: a unit icosphere and a box off its origin (a non-zero fitCenter).
 std::vector<GrainPrototypeDesc> twoPrototypes() {

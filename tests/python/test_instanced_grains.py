@@ -375,6 +375,11 @@ def test_the_instancer_arrays_are_read_in_place_one_at_a_time(heap):
     keep = np.arange(count) % 3 != 1
     masked = core.instanced_grains_from_usd(*args, *flat, core.SceneDesc(), lookup, mask=keep)
     assert np.array_equal(masked.positions, copied.positions[keep])
+    # Arrays in the other byte order are converted, not read as if native.
+    swapped = [f.astype(f.dtype.newbyteorder(">")) for f in flat]
+    converted = core.instanced_grains_from_usd(*args, *swapped, core.SceneDesc(), lookup)
+    assert np.array_equal(converted.positions, copied.positions)
+    assert np.array_equal(converted.scales, copied.scales)
 
 
 def _read_at(path, prim_path):
