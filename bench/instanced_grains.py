@@ -15,7 +15,7 @@ second from outside the block (random origins on a sphere around it, aimed at it
 a Python loop, so a lower bound). Prints a markdown table.
 
     .venv/bin/python bench/instanced_grains.py --stage HEAP.usdc [--technique ept|hybrid] [--width W]
-           [--height H] [--spp N] [--threads T] [--exr OUT.exr]
+           [--height H] [--spp N] [--threads T] [--exr OUT.exr] [--instanced-da]
 
 A stage end to end, as `granular render` runs it (read, build, render, in one process): each
 phase's seconds (wall clock, and CPU over all threads: on a shared machine the wall clock
@@ -151,6 +151,8 @@ def stage_run(args):
     base = _status("VmRSS")["VmRSS"]
     argv = ["render", args.stage, "-o", args.exr or os.devnull, "--technique", args.technique, "--width",
             str(args.width), "--height", str(args.height), "--spp", str(args.spp), "--threads", str(args.threads)]
+    if args.instanced_da:
+        argv.append("--instanced-da")
     opts = cli.build_parser().parse_args(argv)
     scene = phase("read", lambda: read_stage(args.stage, width=args.width, height=args.height))
     cli._apply_options(opts, scene)
@@ -189,6 +191,7 @@ def main():
     ap.add_argument("--spp", type=int, default=1)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--exr", help="with --stage: write the image here")
+    ap.add_argument("--instanced-da", action="store_true", help="with --stage: DA in the instancers' media too")
     args = ap.parse_args()
     if args.stage:
         return stage_run(args)

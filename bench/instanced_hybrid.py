@@ -11,7 +11,7 @@ and build, from the caches, left out; the set-up is reported apart).
 
 Usage: .venv/bin/python bench/instanced_hybrid.py [--grains 100000] [--size 80x60]
        [--ref-spp 1024] [--targets 0.02,0.01] [--out out/bench/instanced_hybrid] [--threads T]
-       [--da] [--absorption-scale S]
+       [--da] [--absorption-scale S] [--material ice] [--slab-depth D]
 Prints a markdown table and the ladders.
 
 --da compares the hybrid with DA in the heap's heterogeneous medium against
@@ -20,7 +20,8 @@ the hybrid; the reference is then the hybrid without DA at --ref-spp, so the tab
 speed-up is DA's at equal error against what it replaces, and each step's "heap mean" is
 DA's bias against VPT to the end (core/heterogeneous_diffusion.h). --absorption-scale S
 multiplies the grains' absorption (the generator's quartz sand) by S: brighter grains
-(S < 1) scatter longer, where DA takes more of the light.
+(S < 1) scatter longer, where DA takes more of the light. --material and --slab-depth go to the
+generator: ice grains (nearly clear), a flat slab D grid cells deep instead of the cone.
 """
 import argparse
 import math
@@ -56,12 +57,17 @@ def render(stage, out, size, spp, options, seed, threads=0):
             float(da.group(1)) if da else None)
 
 
-def load(path):
+def load(path, da=False):
+    """The image's RGB and primId; with da also the da.R/G/B AOV (DA's light), zero if absent."""
     import granular_core as core
     im = core.read_exr(path)
     px = np.asarray(im.pixels, dtype=np.float64)
     ch = list(im.channels)
-    return px[..., [ch.index(c) for c in "RGB"]], px[..., ch.index("primId")]
+    rgb = px[..., [ch.index(c) for c in "RGB"]]
+    if not da:
+        return rgb, px[..., ch.index("primId")]
+    dal = px[..., [ch.index("da." + c) for c in "RGB"]] if "da.R" in ch else np.zeros_like(rgb)
+    return rgb, px[..., ch.index("primId")], dal
 
 
 def scale_absorption(stage_path, scale):
@@ -97,14 +103,18 @@ def main():
                     help="the hybrid with DA in the heap's medium against the hybrid without it (the reference)")
     ap.add_argument("--absorption-scale", type=float, default=1.0,
                     help="multiply the grains' absorption by this (1: the generator's quartz sand)")
+    ap.add_argument("--material", choices=["quartz_sand", "ice"], default="quartz_sand",
+                    help="the grains' material (make_grain_heap.py)")
+    ap.add_argument("--slab-depth", type=int, help="a slab this many grid cells deep (make_grain_heap.py)")
     args = ap.parse_args()
     variants = DA_VARIANTS if args.da else VARIANTS
     names = list(variants)
     os.makedirs(args.out, exist_ok=True)
     size = tuple(int(x) for x in args.size.split("x"))
     stage = os.path.join(args.out, "heap.usdc")
+    shape = ["--material", args.material] + (["--slab-depth", str(args.slab_depth)] if args.slab_depth else [])
     subprocess.run([sys.executable, os.path.join(ROOT, "examples", "make_grain_heap.py"), stage, "--grains",
-                    str(args.grains), "--frames", "1"], check=True, capture_output=True)
+                    str(args.grains), "--frames", "1"] + shape, check=True, capture_output=True)
     if args.absorption_scale != 1.0:
         scale_absorption(stage, args.absorption_scale)
     ref_path = os.path.join(args.out, f"ref_da_off_abs{args.absorption_scale:g}.exr" if args.da else "ref.exr")
@@ -119,11 +129,14 @@ def main():
             out = os.path.join(args.out, f"{name.replace(', ', '_').replace(' ', '_')}_{spp}.exr")
             seconds, built, da_paths = render(stage, out, size, spp, variants[name], 1, args.threads)
             setup[name] = built
-            img, _ = load(out)
+            img, _, dal = load(out, da=True)
             err = float((((img - ref) ** 2) / (ref ** 2 + 0.01))[heap].mean())
             bias = img[heap].mean(axis=0) / ref[heap].mean(axis=0) - 1
             ladders[name].append((seconds, err))
             da = f", DA on {da_paths:.1f}% of paths" if da_paths is not None else ""
+            if dal.any():  # DA's share of the heap's light, per channel
+                share = dal[heap].mean(axis=0) / img[heap].mean(axis=0)
+                da += f", DA's light {', '.join(f'{100 * x:.1f}%' for x in share)}"
             print(f"  {name} {spp} spp: {seconds:.2f} s, relMSE {err:.4g}, heap mean (R, G, B) "
                   f"{', '.join(f'{100 * b:+.2f}%' for b in bias)}{da}", flush=True)
     print(f"\n{args.grains} grains, {size[0]}x{size[1]}, reference: {names[0]} at {args.ref_spp} spp; "

@@ -93,8 +93,9 @@ bool endsAtLight(const Scene& scene, PathState& path, bool found, const Hit& hit
 
 bool russianRoulette(const Scene& scene, PathState& path) {
   if (path.depth < scene.settings().rrDepth) return true;
-  // Survive with probability min(1, max throughput): bright paths are never cut.
-  float q = 1.0f - maxComponent(path.beta);
+  // Survive with probability min(1, max throughput): bright paths are never cut. The
+  // throughput before the switch's roulette or splitting (PathState::rrScale).
+  float q = 1.0f - maxComponent(path.beta) * path.rrScale;
   if (q > 0) {
     if (path.rng.next1D() < q) return false;
     path.beta /= (1.0f - q);
@@ -222,19 +223,22 @@ void eptStep(const Scene& scene, PathState& path) {
                                             : scene.instancedGrainRadius(hit.instancer);
     if (lod > 0 && scene.hasMedia() && radius < lod * footprint) {
       path.shortcut = true;
-      // Under a narrow sun the medium takes the path at the first grain's surface (the
-      // ray goes on from there): only the medium can sample the sun (Scene::narrowSun).
-      // A grain of the surface layer may stick out of the boundary: the path then enters
-      // the medium where its ray crosses the boundary.
-      if (scene.narrowSun() && ((hit.aggregate >= 0 && scene.useProxies(hit.aggregate)) ||
-                                (hit.instancer >= 0 && scene.instancedProxies(hit.instancer)))) {
-        // Proxies reach any sun: the path goes on among them from here, where the first
-        // sphere it enters is met as a proxy — the first grain, so not a visit after it.
+      // Where the grains have proxies (Scene::lodProxies) the first grain is one too: a
+      // grain narrower than the footprint shows the pixel its average over orientations
+      // and entry points, which its proxy table holds, and a proxy samples every light
+      // (narrow suns included), at a fraction of an explicit grain's cost. The path goes on
+      // among them from here, where the first sphere it enters is met as a proxy — the
+      // first grain, so not a visit after it.
+      if (hit.aggregate >= 0 ? scene.lodProxies(hit.aggregate) : scene.instancedProxies(hit.instancer)) {
         path.mode = path.credit = kPpt;
         path.from = GrainStart();
         path.proxyVisits = -1;
         return;
       }
+      // Else under a narrow sun the medium takes the path at the first grain's surface (the
+      // ray goes on from there): only the medium can sample the sun (Scene::narrowSun). A
+      // grain of the surface layer may stick out of the boundary: the path then enters the
+      // medium where its ray crosses the boundary.
       if (scene.narrowSun()) {
         path.mode = path.credit = kVpt;
         path.medium =

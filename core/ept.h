@@ -29,10 +29,13 @@ constexpr float kDiffuseConeSpread = 0.35f;
 
 // One bounce with explicit grains. Sets alive = false when the path ends.
 // Level of detail (RenderSettings::lod): at a path's first grain, if the grain radius is
-// under lod × the cone footprint there, that grain is still traced explicitly (its
-// Fresnel reflection and refraction, which the medium's boundary does not model), and the
-// path switches to the medium as soon as it is out of it, without roulette. Entering at
-// the boundary instead measured 3.5% brighter on sub-pixel sand (tests/core/test_lod).
+// under lod × the cone footprint there, that grain is met as a proxy where the aggregate
+// has proxy tables (Scene::lodProxies; ppt.h: its scattering averaged over orientations
+// and entry points, with next-event estimation), else traced explicitly (its Fresnel
+// reflection and refraction, which the medium's boundary does not model); the path goes on
+// to the medium after its low orders (ppt.h: lowOrdersDone), with the hybrid's roulette
+// (hybrid.h). Entering at the boundary instead measured 3.5% brighter on sub-pixel sand
+// (tests/core/test_lod).
 void eptStep(const Scene& scene, PathState& path);
 
 // Shared by EPT, PPT and VPT: emission, next-event estimation and BSDF sampling at a

@@ -152,9 +152,14 @@ GrainDensity buildGrainDensity(const InstancedGrainsDesc& desc, const GrainDensi
   }
 
   const size_t n = desc.size();
-  double radiusSum = 0;
-  for (size_t i = 0; i < n; ++i)
-    radiusSum += double(protoRadius[size_t(desc.protoIndices[i])]) * (desc.scales.empty() ? 1.0 : desc.scales[i]);
+  // One pass for both sums, each in index order.
+  double radiusSum = 0, volumeSum = 0;
+  for (size_t i = 0; i < n; ++i) {
+    const size_t p = size_t(desc.protoIndices[i]);
+    const float s = desc.scales.empty() ? 1.0f : desc.scales[i];
+    radiusSum += double(protoRadius[p]) * double(s);
+    volumeSum += float(protoVolume[p] * double(s) * s * s * det);
+  }
   GrainDensity out;
   out.stats.grains = int64_t(n);
   out.stats.meanRadius = n ? float(radiusSum / double(n) * linear) : 0.0f;
@@ -193,11 +198,6 @@ GrainDensity buildGrainDensity(const InstancedGrainsDesc& desc, const GrainDensi
     sp.proto = p;
     return sp;
   };
-  double volumeSum = 0;  // in index order
-  for (size_t i = 0; i < n; ++i) {
-    const float s = desc.scales.empty() ? 1.0f : desc.scales[i];
-    volumeSum += float(protoVolume[size_t(desc.protoIndices[i])] * double(s) * s * s * det);
-  }
   out.stats.totalVolume = volumeSum;
 
   // The range check (keys hold leaf coordinates in [−2^20, 2^20)).

@@ -8,6 +8,8 @@
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/FastSweeping.h>
 #include <openvdb/tools/Filter.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 
 #include "vpt.h"
 
@@ -17,51 +19,126 @@ namespace {
 
 inline int64_t floorDiv(int64_t i, int64_t n) { return i >= 0 ? i / n : -((-i + n - 1) / n); }
 
-// The distance field of the level set f = iso of f filtered (see the header) on every
-// voxel of the density's leaves. Peak memory: two grids of the leaves.
-std::vector<float> levelSetDistances(const VoxelLeaves& f, float iso, float outside) {
-  openvdb::initialize();
-  auto grid = openvdb::FloatGrid::create(0.0f);
-  grid->setTransform(openvdb::math::Transform::createLinearTransform(double(f.voxelSize)));
-  {
-    openvdb::FloatGrid::Accessor acc = grid->getAccessor();
-    for (size_t l = 0; l < f.leafCount(); ++l) {
-      const auto& o = f.origins[l];
-      auto* leaf = acc.touchLeaf(openvdb::Coord(o[0], o[1], o[2]));
-      // OpenVDB's leaf layout is VoxelLeaves::offset's: (i << 6) | (j << 3) | k.
-      for (int v = 0; v < VoxelLeaves::kLeafVoxels; ++v)
-        leaf->setValueOn(openvdb::Index(v), f.values[l * VoxelLeaves::kLeafVoxels + size_t(v)]);
-    }
-  }
-  openvdb::tools::Filter<openvdb::FloatGrid>(*grid).mean(1, 2);  // [1 2 3 2 1]/9 per axis
-  openvdb::FloatGrid::Ptr sdf = openvdb::tools::fogToSdf(*grid, iso);
-  grid.reset();
+// The distance field of the level set f = iso of the filtered density on every voxel of
+// the density's leaves. Peak memory: two grids of the leaves.
+std::vector<float> levelSetDistances(const openvdb::FloatGrid& filtered, const VoxelLeaves& f, float iso,
+                                     float outside) {
+  openvdb::FloatGrid::Ptr sdf = openvdb::tools::fogToSdf(filtered, iso);
   std::vector<float> out(f.values.size(), outside);
   if (!sdf) return out;
-  openvdb::FloatGrid::ConstAccessor read = sdf->getConstAccessor();
-  for (size_t l = 0; l < f.leafCount(); ++l) {
-    const auto& o = f.origins[l];
-    const auto* leaf = read.probeConstLeaf(openvdb::Coord(o[0], o[1], o[2]));
-    if (!leaf) continue;
-    for (int v = 0; v < VoxelLeaves::kLeafVoxels; ++v) {
-      const float d = leaf->getValue(openvdb::Index(v));
-      // Voxels no sweep reached (a component without a crossing) keep their side's bound.
-      float& to = out[l * VoxelLeaves::kLeafVoxels + size_t(v)];
-      to = std::isfinite(d) ? std::clamp(d, -1e30f, outside) : (d < 0 ? -1e30f : outside);
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, f.leafCount(), 64), [&](const tbb::blocked_range<size_t>& r) {
+    openvdb::FloatGrid::ConstAccessor read = sdf->getConstAccessor();
+    for (size_t l = r.begin(); l != r.end(); ++l) {
+      const auto& o = f.origins[l];
+      const auto* leaf = read.probeConstLeaf(openvdb::Coord(o[0], o[1], o[2]));
+      if (!leaf) continue;
+      for (int v = 0; v < VoxelLeaves::kLeafVoxels; ++v) {
+        const float d = leaf->getValue(openvdb::Index(v));
+        // Voxels no sweep reached (a component without a crossing) keep their side's bound.
+        float& to = out[l * VoxelLeaves::kLeafVoxels + size_t(v)];
+        to = std::isfinite(d) ? std::clamp(d, -1e30f, outside) : (d < 0 ? -1e30f : outside);
+      }
     }
-  }
+  });
   return out;
+}
+
+// f_b, the mean f of the voxels deeper than `depth` (world) inside the level set of the
+// filtered density at iso: those whose every voxel centre within that distance has filtered
+// f > iso (the inside eroded by a ball; along a line, between voxel centres, the same test
+// as a distance field's d <= −depth). fallback without such voxels. Per leaf in parallel,
+// then the leaves' sums in order: the same whatever the threads.
+float deepMean(const openvdb::FloatGrid& filtered, const VoxelLeaves& f, float iso, float depth, float fallback) {
+  const float radius = depth / f.voxelSize;  // voxels
+  const int pad = int(std::floor(radius + 1e-4f)), width = 8 + 2 * pad;
+  std::vector<int> ball;  // offsets in the padded block within the radius
+  for (int a = -pad; a <= pad; ++a)
+    for (int b = -pad; b <= pad; ++b)
+      for (int c = -pad; c <= pad; ++c)
+        if (float(a * a + b * b + c * c) <= radius * radius * (1 + 1e-4f)) ball.push_back((a * width + b) * width + c);
+  const int reachLeaves = (pad + 7) / 8;
+  std::vector<double> leafSum(f.leafCount()), leafCount(f.leafCount());
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, f.leafCount(), 16), [&](const tbb::blocked_range<size_t>& r) {
+    openvdb::FloatGrid::ConstAccessor read = filtered.getConstAccessor();
+    std::vector<uint8_t> inside(size_t(width) * width * width);
+    for (size_t l = r.begin(); l != r.end(); ++l) {
+      const auto& o = f.origins[l];
+      std::fill(inside.begin(), inside.end(), uint8_t(0));  // no leaf: f = 0, outside
+      for (int dx = -reachLeaves; dx <= reachLeaves; ++dx)
+        for (int dy = -reachLeaves; dy <= reachLeaves; ++dy)
+          for (int dz = -reachLeaves; dz <= reachLeaves; ++dz) {
+            const auto* leaf = read.probeConstLeaf(openvdb::Coord(o[0] + 8 * dx, o[1] + 8 * dy, o[2] + 8 * dz));
+            if (!leaf) continue;
+            for (int i = 0; i < 8; ++i) {
+              const int x = 8 * dx + i + pad;
+              if (x < 0 || x >= width) continue;
+              for (int j = 0; j < 8; ++j) {
+                const int y = 8 * dy + j + pad;
+                if (y < 0 || y >= width) continue;
+                for (int k = 0; k < 8; ++k) {
+                  const int z = 8 * dz + k + pad;
+                  if (z < 0 || z >= width) continue;
+                  inside[size_t((x * width + y) * width + z)] =
+                      leaf->getValue(openvdb::Index(VoxelLeaves::offset(i, j, k))) > iso;
+                }
+              }
+            }
+          }
+      double sum = 0, count = 0;
+      for (int i = 0; i < 8; ++i)
+        for (int j = 0; j < 8; ++j)
+          for (int k = 0; k < 8; ++k) {
+            const int at = ((i + pad) * width + j + pad) * width + k + pad;
+            if (!std::all_of(ball.begin(), ball.end(), [&](int d) { return inside[size_t(at + d)] != 0; })) continue;
+            sum += f.values[l * VoxelLeaves::kLeafVoxels + size_t(VoxelLeaves::offset(i, j, k))];
+            count += 1;
+          }
+      leafSum[l] = sum;
+      leafCount[l] = count;
+    }
+  });
+  double sum = 0, count = 0;
+  for (size_t l = 0; l < f.leafCount(); ++l) {
+    sum += leafSum[l];
+    count += leafCount[l];
+  }
+  return count > 0 ? float(sum / count) : fallback;
 }
 
 }  // namespace
 
+FilteredDensity::FilteredDensity(const VoxelLeaves& f) {
+  openvdb::initialize();
+  auto grid = openvdb::FloatGrid::create(0.0f);
+  grid->setTransform(openvdb::math::Transform::createLinearTransform(double(f.voxelSize)));
+  // Every voxel of every leaf active with its value: leaves made in parallel, then linked.
+  // OpenVDB's leaf layout is VoxelLeaves::offset's: (i << 6) | (j << 3) | k.
+  using Leaf = openvdb::FloatGrid::TreeType::LeafNodeType;
+  std::vector<Leaf*> leaves(f.leafCount());
+  tbb::parallel_for(size_t(0), f.leafCount(), [&](size_t l) {
+    const auto& o = f.origins[l];
+    auto* leaf = new Leaf(openvdb::Coord(o[0], o[1], o[2]), 0.0f, true);
+    for (int v = 0; v < VoxelLeaves::kLeafVoxels; ++v)
+      leaf->setValueOnly(openvdb::Index(v), f.values[l * VoxelLeaves::kLeafVoxels + size_t(v)]);
+    leaves[l] = leaf;
+  });
+  for (Leaf* leaf : leaves) grid->tree().addLeaf(leaf);  // the tree owns it
+  openvdb::tools::Filter<openvdb::FloatGrid>(*grid).mean(1, 2);  // [1 2 3 2 1]/9 per axis
+  grid_ = std::shared_ptr<const void>(grid, grid.get());
+}
+
 LevelSetBoundary::LevelSetBoundary(const HeterogeneousMedium& medium, float iso, float reach)
+    : LevelSetBoundary(medium, FilteredDensity(medium.voxels()), iso, reach) {}
+
+LevelSetBoundary::LevelSetBoundary(const HeterogeneousMedium& medium, const FilteredDensity& filtered, float iso,
+                                   float reach)
     : medium_(&medium), voxelSize_(medium.voxels().voxelSize), reach_(reach) {
   invVoxel_ = 1.0f / voxelSize_;
   // Beyond the leaves f is 0: outside. The value stands in for the distance there (a bound
   // is all sphere tracing from inside needs; it never starts outside).
   outside_ = 2.0f * voxelSize_;
-  sdf_ = levelSetDistances(medium.voxels(), iso, outside_ + reach);
+  sdf_ = levelSetDistances(*static_cast<const openvdb::FloatGrid*>(filtered.grid_.get()), medium.voxels(), iso,
+                           outside_ + reach);
 }
 
 float LevelSetBoundary::distance(const Vec3& p) const {
@@ -164,28 +241,23 @@ HeterogeneousDiffusion::HeterogeneousDiffusion(const HeterogeneousMedium& medium
   // share; the voxels deeper than the skin below the level set at f_ref / 2 give it, and
   // the boundary is the level set at half of it.
   const float reach = skin_ + 2.0f * voxelSize_;
-  boundary_ = LevelSetBoundary(medium, 0.5f * densityRef_, reach);
-  // Calls fn(origin, i, j, k, f) for each voxel deeper than the skin below boundary_: the
-  // leaf's origin, the voxel's index in it and its f.
-  auto forDeepVoxels = [&](auto&& fn) {
-    for (size_t l = 0; l < f.leafCount(); ++l) {
-      const auto& o = f.origins[l];
-      for (int i = 0; i < 8; ++i)
-        for (int j = 0; j < 8; ++j)
-          for (int k = 0; k < 8; ++k) {
-            const size_t v = l * VoxelLeaves::kLeafVoxels + size_t(VoxelLeaves::offset(i, j, k));
-            if (!(boundary_.voxelDistance(v) <= -skin_)) continue;
-            fn(o, i, j, k, f.values[v]);
-          }
-    }
+  const FilteredDensity filtered(f);
+  bulk_ = deepMean(*static_cast<const openvdb::FloatGrid*>(filtered.grid_.get()), f, 0.5f * densityRef_, skin_,
+                   densityRef_);
+  const bool atRef = !(std::fabs(bulk_ - densityRef_) > 1e-3f * densityRef_);
+  boundary_ = LevelSetBoundary(medium, filtered, 0.5f * (atRef ? densityRef_ : bulk_), reach);
+  // Calls fn(origin, i, j, k, f) for each voxel of leaf l deeper than the skin below
+  // boundary_: the leaf's origin, the voxel's index in it and its f.
+  auto forDeepVoxels = [&](size_t l, auto&& fn) {
+    const auto& o = f.origins[l];
+    for (int i = 0; i < 8; ++i)
+      for (int j = 0; j < 8; ++j)
+        for (int k = 0; k < 8; ++k) {
+          const size_t v = l * VoxelLeaves::kLeafVoxels + size_t(VoxelLeaves::offset(i, j, k));
+          if (!(boundary_.voxelDistance(v) <= -skin_)) continue;
+          fn(o, i, j, k, f.values[v]);
+        }
   };
-  double deepSum = 0, deepCount = 0;
-  forDeepVoxels([&](const auto&, int, int, int, float value) {
-    deepSum += value;
-    deepCount += 1;
-  });
-  bulk_ = deepCount > 0 ? float(deepSum / deepCount) : densityRef_;
-  if (std::fabs(bulk_ - densityRef_) > 1e-3f * densityRef_) boundary_ = LevelSetBoundary(medium, 0.5f * bulk_, reach);
 
   // Level 0: cells of 4³ voxels, over the leaves' bounds (a leaf is 2³ cells).
   Level base;
@@ -201,13 +273,16 @@ HeterogeneousDiffusion::HeterogeneousDiffusion(const HeterogeneousMedium& medium
     }
   for (int a = 0; a < 3; ++a) base.dims[a] = hi[a] - base.lo[a] + 1;
   base.cells.assign(size_t(base.dims[0] * base.dims[1] * base.dims[2]), Cell());
-  forDeepVoxels([&](const auto& o, int i, int j, int k, float value) {
-    Cell& c = base.cells[size_t(((floorDiv(o[2] + k, kCellVoxels) - base.lo[2]) * base.dims[1] +
-                                 (floorDiv(o[1] + j, kCellVoxels) - base.lo[1])) *
-                                    base.dims[0] +
-                                (floorDiv(o[0] + i, kCellVoxels) - base.lo[0]))];
-    c.sum += value;
-    c.count += 1;
+  // A cell of 4³ voxels lies in one leaf of 8³: leaves in parallel write disjoint cells.
+  tbb::parallel_for(size_t(0), f.leafCount(), [&](size_t l) {
+    forDeepVoxels(l, [&](const auto& o, int i, int j, int k, float value) {
+      Cell& c = base.cells[size_t(((floorDiv(o[2] + k, kCellVoxels) - base.lo[2]) * base.dims[1] +
+                                   (floorDiv(o[1] + j, kCellVoxels) - base.lo[1])) *
+                                      base.dims[0] +
+                                  (floorDiv(o[0] + i, kCellVoxels) - base.lo[0]))];
+      c.sum += value;
+      c.count += 1;
+    });
   });
   levels_.push_back(std::move(base));
   // Coarser levels until at most 2 cells per axis cover everything (cells split at index 0

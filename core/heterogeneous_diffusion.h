@@ -9,7 +9,10 @@
 //    skin (below) under a first level set at half the medium's f_ref (Σf²/Σf over all
 //    voxels, HeterogeneousMedium::densityRef, which the skin lowers: the block of the
 //    tests, f_ref 0.30 for a bulk of 0.33, put that first level set half a grain radius
-//    out). A signed distance field on the density's own voxels: OpenVDB's fast sweeping
+//    out). Deeper than the skin there: every voxel centre within the skin has filtered f
+//    above f_ref / 2 (the inside eroded by a ball of the skin's radius; along a line, with
+//    the crossing between voxel centres, the test d <= −skin of that level set's distance
+//    field, so that no distance field is made for it). A signed distance field on the density's own voxels: OpenVDB's fast sweeping
 //    (tools::fogToSdf) of f filtered by OpenVDB's mean filter of 3 voxels, twice
 //    ([1 2 3 2 1]/9 along each axis), negative inside, world units, trilinear between
 //    voxel centres. The filter (symmetric: a planar surface's half level stays put) takes
@@ -76,13 +79,18 @@
 //    spans at most 4 cells per axis: at most 64 reads. Dense over the leaves' bounds:
 //    8 bytes a cell, 1/8 byte a voxel. The distance field: 4 bytes a voxel on the
 //    density's leaves.
-//  - Build: the density's leaves as an OpenVDB grid, every voxel active, filtered in place,
-//    then the distance grid: two grids of the leaves at the peak (4 bytes a voxel each,
-//    with OpenVDB's masks), twice (the second level set); TBB inside OpenVDB. Made only
-//    where the settings ask for DA (Scene::instancedDiffusion). Thread-safe to query.
+//  - Build: the density's leaves as an OpenVDB grid, every voxel active (leaves filled in
+//    parallel), filtered in place (FilteredDensity), f_b from it (the erosion above, in
+//    parallel over leaves, their sums added in leaf order), then one distance grid
+//    (OpenVDB's sweeps, TBB inside): two grids of the leaves at the peak (4 bytes a voxel
+//    each, with OpenVDB's masks). The distances read back and the pyramid's finest level
+//    in parallel over leaves (a level-0 cell lies in one leaf: its sum in the same order).
+//    Made only where the settings ask for DA (Scene::instancedDiffusion). Thread-safe to
+//    query.
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "diffusion.h"
@@ -92,12 +100,25 @@
 
 namespace granular {
 
+// The packing rate filtered as the boundary reads it (the contract's mean filter), as an
+// OpenVDB grid (opaque here): made once, in parallel, for every level set of one density.
+class FilteredDensity {
+ public:
+  explicit FilteredDensity(const VoxelLeaves& f);
+
+ private:
+  friend class LevelSetBoundary;
+  friend class HeterogeneousDiffusion;
+  std::shared_ptr<const void> grid_;  // openvdb::FloatGrid
+};
+
 class LevelSetBoundary final : public DiffusionBoundary {
  public:
   LevelSetBoundary() = default;
   // The level set f = iso of medium's density; reach: how far beyond it f is > 0 at most.
-  // The medium must outlive this.
+  // The medium must outlive this. filtered: medium.voxels() filtered (made here if not given).
   LevelSetBoundary(const HeterogeneousMedium& medium, float iso, float reach);
+  LevelSetBoundary(const HeterogeneousMedium& medium, const FilteredDensity& filtered, float iso, float reach);
 
   float distance(const Vec3& p) const;  // signed, negative inside (f > iso); trilinear
   // The distance at a voxel centre: index l * 512 + v into the density's leaves (l the

@@ -15,50 +15,93 @@ namespace granular {
 
 namespace {
 
-// The switch of one path to the media, with Russian roulette P_a (Meng et al. 2015).
-void switchToMedia(const Scene& scene, PathState& p, float pa) {
-  p.switchPending = false;
-  if (pa < 1.0f) {
-    if (p.rng.next1D() >= pa) {
-      p.alive = false;
-      return;
-    }
-    p.beta /= pa;
+constexpr double kSplitGain = 1.1;  // the least predicted gain for which a path splits
+
+// Russian roulette (pa < 1) or splitting (pa > 1) of path i where it enters the media:
+// ⌊pa⌋ or ⌈pa⌉ continuations, pa on average, each weighted 1/pa; the path is the first,
+// the others go to `split` with empty radiance and costs.
+void continueIntoMedia(std::vector<PathState>& paths, size_t i, float pa, std::vector<PathState>& split) {
+  PathState& p = paths[i];
+  p.enteredMedia = true;
+  if (pa == 1.0f) return;
+  const float whole = std::floor(pa);
+  const int n = int(whole) + (p.rng.next1D() < pa - whole);
+  if (n == 0) {
+    p.alive = false;
+    return;
   }
+  p.beta /= pa;
+  p.rrScale = pa;
+  for (int j = 1; j < n; ++j) {
+    PathState c = p;
+    const uint64_t a = p.rng.nextU32(), b = p.rng.nextU32();
+    c.rng = Rng(hashInts(a, b, uint64_t(j)), 0);
+    for (Vec3& l : c.L) l = Vec3(0.0f);
+    c.cost[0] = c.cost[1] = 0;
+    c.splitFrom = int(i);
+    split.push_back(c);
+  }
+}
+
+// The bundle's switch of path i to the media (Meng et al. 2015).
+void switchToMedia(const Scene& scene, std::vector<PathState>& paths, size_t i, float pa,
+                   std::vector<PathState>& split) {
+  PathState& p = paths[i];
+  p.switchPending = false;
   p.mode = kVpt;
   p.credit = kVpt;
   p.medium = scene.mediumAt(p.ray.o, p.ray.time);
+  continueIntoMedia(paths, i, pa, split);
+}
+
+// Adds the continuations after the first n paths into their paths and removes them.
+void foldSplits(std::vector<PathState>& paths, size_t n) {
+  for (size_t i = n; i < paths.size(); ++i) {
+    PathState& p = paths[size_t(paths[i].splitFrom)];
+    for (int t = 0; t < kTransports; ++t) p.L[t] += paths[i].L[t];
+    p.cost[1] += paths[i].cost[1];
+    if (paths[i].credit == kDa) p.credit = kDa;
+  }
+  paths.resize(n);
 }
 
 }  // namespace
 
 void startInMedia(const Scene& scene, PathState& path) {
   path.mode = path.credit = kVpt;
+  path.enteredMedia = true;  // from the camera: no roulette, nothing to share a split
   path.medium = scene.mediumAt(path.ray.o, path.ray.time);
 }
 
-BundleStats traceBundle(const Scene& scene, std::vector<PathState>& paths, float pa) {
+BundleStats traceBundle(const Scene& scene, std::vector<PathState>& paths, float pa, bool fold) {
   const RenderSettings& rs = scene.settings();
-  const int N = int(paths.size());
+  const size_t n = paths.size();
+  const int N = int(n);
   const double tau = double(rs.tau) * scene.maxGrainRadius();
   bool decided = rs.technique == Technique::Ept || !scene.hasMedia() || N < 2;
   BundleStats stats;
+  std::vector<PathState> split;
   for (int k = 0;; ++k) {
     int alive = 0;
     bool lowOrders = true;  // every live path out of the media has done its low orders
     Vec3 centroid(0.0f);
-    for (PathState& p : paths) {
+    for (size_t i = 0; i < paths.size(); ++i) {
+      PathState& p = paths[i];
       if (!p.alive) continue;
       if (p.mode == kEpt) eptStep(scene, p);
       else if (p.mode == kPpt) pptStep(scene, p);
       else vptStep(scene, p);
-      if (p.alive && p.switchPending && !p.inGrain) switchToMedia(scene, p, pa);
+      if (p.alive && p.switchPending && !p.inGrain) switchToMedia(scene, paths, i, pa, split);
+      // In the media by the level-of-detail shortcut (ept.h, ppt.h): the same roulette.
+      else if (p.alive && p.mode == kVpt && !p.enteredMedia) continueIntoMedia(paths, i, pa, split);
       if (p.alive) {
         ++alive;
         centroid += p.ray.o;
         if (p.mode != kVpt && lowOrders && !decided) lowOrders = lowOrdersDone(scene, p);
       }
     }
+    paths.insert(paths.end(), split.begin(), split.end());
+    split.clear();
     if (alive == 0) break;
     // Not before every live path still out of the media has done its low orders (ppt.h).
     if (decided || alive < 2 || !lowOrders) continue;
@@ -71,14 +114,24 @@ BundleStats traceBundle(const Scene& scene, std::vector<PathState>& paths, float
     if (sigma > tau * alive / N) {
       decided = true;
       stats.switchedAtBounce = k;
-      for (PathState& p : paths) {
+      for (size_t i = 0; i < n; ++i) {
+        PathState& p = paths[i];
         if (!p.alive || p.mode == kVpt) continue;
         if (p.inGrain) p.switchPending = true;
-        else switchToMedia(scene, p, pa);
+        else switchToMedia(scene, paths, i, pa, split);
       }
+      paths.insert(paths.end(), split.begin(), split.end());
+      split.clear();
     }
   }
+  if (fold) foldSplits(paths, n);
   return stats;
+}
+
+double RouletteTuning::variance(double p) const {
+  if (p <= 1.0) return V0 + V1 + H2 * (1.0 / p - 1.0);
+  const double f = p - std::floor(p);
+  return V0 + V1 / p + H12 * f * (1.0 - f) / (p * p);
 }
 
 RouletteTuning tuneRoulette(const Scene& scene) {
@@ -87,11 +140,12 @@ RouletteTuning tuneRoulette(const Scene& scene) {
   const int64_t total = int64_t(rs.width) * rs.height;
   const int64_t count = std::min<int64_t>(total, std::max<int64_t>(64, total / 100));
   const int N = std::max(2, std::min(rs.bundleSize, rs.spp));
-  struct PixelResult { double VL = 0, VH = 0, tL = 0, tH = 0; };
+  struct PixelResult { double V01 = 0, V1 = 0, H2 = 0, H12 = 0, tL = 0, tH = 0; };
   std::vector<PixelResult> res(static_cast<size_t>(count), PixelResult());
   const Camera& cam = scene.camera();
   auto body = [&](const tbb::blocked_range<int64_t>& r) {
     std::vector<PathState> paths;
+    std::vector<double> lo, h1, h2;
     for (int64_t i = r.begin(); i < r.end(); ++i) {
       // Pixels spread evenly over the image (a stride through the raster order).
       int64_t idx = (i * total) / count + (total / count) / 2;
@@ -104,20 +158,51 @@ RouletteTuning tuneRoulette(const Scene& scene) {
         p.rng = rng;
         paths.push_back(p);
       }
-      traceBundle(scene, paths, 1.0f);
-      double sl = 0, sl2 = 0, sh2 = 0, cl = 0, ch = 0;
-      for (const PathState& p : paths) {
-        double lo = luminance(p.L[kEpt] + p.L[kPpt]), hi = luminance(p.L[kVpt] + p.L[kDa]);
-        if (!std::isfinite(lo) || !std::isfinite(hi)) continue;
-        sl += lo; sl2 += lo * lo; sh2 += hi * hi;
-        cl += p.cost[0]; ch += p.cost[1];
-      }
+      // Two continuations of weight 1/2 per path entering the media: H_1 and H_2 are
+      // twice their radiance. A path with none (it never entered them) is all low order:
+      // no P_a changes it.
+      traceBundle(scene, paths, 2.0f, false);
+      lo.assign(size_t(N), 0.0);
+      h1.assign(size_t(N), 0.0);
+      h2.assign(size_t(N), 0.0);
+      std::vector<char> switched(size_t(N), 0);
       PixelResult& pr = res[size_t(i)];
-      double m = sl / N;
-      pr.VL = std::max(0.0, sl2 / N - m * m) * N / (N - 1);
-      pr.VH = sh2 / N;
-      pr.tL = cl / N;
-      pr.tH = ch / N;
+      for (size_t j = size_t(N); j < paths.size(); ++j) {
+        const PathState& c = paths[j];
+        const size_t k = size_t(c.splitFrom);
+        switched[k] = 1;
+        h2[k] = 2.0 * luminance(c.L[kVpt] + c.L[kDa]);
+        pr.tH += 0.5 * c.cost[1];
+      }
+      for (size_t k = 0; k < size_t(N); ++k) {
+        const PathState& p = paths[k];
+        if (switched[k]) {
+          lo[k] = luminance(p.L[kEpt] + p.L[kPpt]);
+          h1[k] = 2.0 * luminance(p.L[kVpt] + p.L[kDa]);
+          pr.tL += p.cost[0];
+          pr.tH += 0.5 * p.cost[1];
+        } else {
+          lo[k] = luminance(p.radiance());
+          pr.tL += p.cost[0] + p.cost[1];
+        }
+        if (!std::isfinite(lo[k]) || !std::isfinite(h1[k]) || !std::isfinite(h2[k])) lo[k] = h1[k] = h2[k] = 0;
+      }
+      double s = 0, s2 = 0;
+      for (size_t k = 0; k < size_t(N); ++k) {
+        const double v = lo[k] + h1[k];
+        s += v;
+        s2 += v * v;
+        pr.V1 += 0.5 * (h1[k] - h2[k]) * (h1[k] - h2[k]);
+        pr.H2 += 0.5 * (h1[k] * h1[k] + h2[k] * h2[k]);
+        pr.H12 += h1[k] * h2[k];
+      }
+      const double m = s / N;
+      pr.V01 = std::max(0.0, s2 / N - m * m) * N / (N - 1);
+      pr.V1 /= N;
+      pr.H2 /= N;
+      pr.H12 /= N;
+      pr.tL /= N;
+      pr.tH /= N;
     }
   };
   tbb::blocked_range<int64_t> range(0, count, 4);
@@ -127,16 +212,36 @@ RouletteTuning tuneRoulette(const Scene& scene) {
   } else {
     tbb::parallel_for(range, body);
   }
+  double V01 = 0;
   for (const PixelResult& pr : res) {  // in order: deterministic sums
-    out.VL += pr.VL; out.VH += pr.VH; out.tL += pr.tL; out.tH += pr.tH;
+    V01 += pr.V01; out.V1 += pr.V1; out.H2 += pr.H2; out.H12 += pr.H12; out.tL += pr.tL; out.tH += pr.tH;
   }
   out.pixels = int(count);
-  out.VL /= double(count); out.VH /= double(count); out.tL /= double(count); out.tH /= double(count);
-  // P_a = sqrt(V_H t_L / (V_L t_H)), the least cost (V_L + V_H/P_a)(t_L + P_a t_H); no high-order work or no low-order
-  // noise: nothing to gain from roulette.
-  if (out.tH <= 0 || out.VL <= 0) out.pa = 1.0f;
-  else out.pa = float(std::clamp(std::sqrt(out.VH * out.tL / (out.VL * out.tH)), 0.05, 1.0));
+  const double c = double(count);
+  V01 /= c; out.V1 /= c; out.H2 /= c; out.H12 /= c; out.tL /= c; out.tH /= c;
+  out.V0 = std::max(0.0, V01 - out.V1);
+  out.pa = bestContinuations(out);
   return out;
+}
+
+float bestContinuations(const RouletteTuning& t) {
+  // No high-order work or no noise: nothing to gain from roulette or splitting.
+  if (!(t.tH > 0) || !(t.variance(1.0) > 0)) return 1.0f;
+  // The least variance × cost on a grid of P_a (the variance has kinks at whole P_a).
+  // Splitting only for a predicted gain of kSplitGain, and not on a state variance read as
+  // none: it multiplies the high orders' cost, and a pre-render of small bundles (whose
+  // paths share their switch) reads V_0 low, down to zero at 4 or 8 paths a pixel.
+  float pa = 1.0f;
+  const double one = t.variance(1.0) * t.cost(1.0);
+  double best = one;
+  for (int k = 5; k <= int(RenderSettings::kMaxSplit * 100.0f); ++k) {
+    const double p = 0.01 * k, v = t.variance(p) * t.cost(p);
+    if (v < best * (1.0 - 1e-9) && (p < 1.0 || (t.V0 > 0 && v * kSplitGain < one))) {
+      best = v;
+      pa = float(p);
+    }
+  }
+  return pa;
 }
 
 }  // namespace granular

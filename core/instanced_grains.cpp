@@ -3,11 +3,13 @@
 #include "instanced_grains.h"
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <chrono>
 #include <climits>
 #include <cmath>
 #include <memory>
+#include <mutex>
 
 #include <tbb/blocked_range.h>
 #include <tbb/combinable.h>
@@ -40,6 +42,29 @@ bool isIdentity(const Transform& xf) {
 
 Mat3 toMat3(const Quat& q) { return quatToMat3(q.w, q.x, q.y, q.z); }
 
+// Arrays validateInstancedGrains found valid: their stamps (shared_array.h: unique, dropped
+// by a write) and the prototype count the indices were checked against. The last few kept.
+struct Checked {
+  std::array<uint64_t, 6> stamps;
+  size_t prototypes;
+  bool operator==(const Checked& b) const { return stamps == b.stamps && prototypes == b.prototypes; }
+};
+std::mutex checkedMutex;
+std::vector<Checked> checkedArrays;
+constexpr size_t kCheckedKept = 32;
+
+bool checkedBefore(const Checked& key) {
+  std::lock_guard<std::mutex> lock(checkedMutex);
+  return std::find(checkedArrays.begin(), checkedArrays.end(), key) != checkedArrays.end();
+}
+
+void rememberChecked(const Checked& key) {
+  std::lock_guard<std::mutex> lock(checkedMutex);
+  if (std::find(checkedArrays.begin(), checkedArrays.end(), key) != checkedArrays.end()) return;
+  if (checkedArrays.size() >= kCheckedKept) checkedArrays.erase(checkedArrays.begin());
+  checkedArrays.push_back(key);
+}
+
 }  // namespace
 
 void validateInstancedGrains(const InstancedGrainsDesc& desc) {
@@ -60,6 +85,12 @@ void validateInstancedGrains(const InstancedGrainsDesc& desc) {
   sameLength("velocities", desc.velocities.size(), true);
   sameLength("angularVelocities", desc.angularVelocities.size(), true);
 
+  // The per-instance checks once per set of arrays: at 10^8 grains each pass reads 3.4 GB,
+  // and the reader, the scene's validation, the grid and the packing-rate grid all ask.
+  const Checked key{{desc.positions.stamp(), desc.orientations.stamp(), desc.scales.stamp(), desc.protoIndices.stamp(),
+                     desc.velocities.stamp(), desc.angularVelocities.stamp()},
+                    desc.prototypes.size()};
+  if (n > 0 && checkedBefore(key)) return;
   const int64_t protos = int64_t(desc.prototypes.size());
   int64_t i = firstBadInstance(n, [&](size_t k) { return desc.protoIndices[k] < 0 || desc.protoIndices[k] >= protos; });
   if (i >= 0)
@@ -85,6 +116,7 @@ void validateInstancedGrains(const InstancedGrainsDesc& desc) {
   for (const auto& [attr, values] : motion)
     if ((i = firstBadInstance(values->size(), [&](size_t k) { return !isFinite((*values)[k]); })) >= 0)
       throw InputError(name, attr, str("instance ", i, " has ", text((*values)[size_t(i)]), " (not finite)"));
+  if (n > 0) rememberChecked(key);
 }
 
 InstancedGrain InstancedGrains::grain(int64_t i, float time) const {
@@ -122,7 +154,7 @@ inline void InstancedGrains::sphere(size_t i, Vec3& center, float& radius) const
   radius = p.fitRadius * s;
 }
 
-float InstancedGrains::sweep(int64_t i) const {
+inline float InstancedGrains::sweep(int64_t i) const {
   if (motionSpan_ <= 0) return 0.0f;
   const size_t k = size_t(i);
   float s = desc_.velocities.empty() ? 0.0f : length(desc_.velocities[k]) * motionSpan_;
@@ -170,14 +202,15 @@ void InstancedGrains::build(InstancedGrainsDesc desc, const EmbreeDevice& device
   }
 }
 
-void InstancedGrains::cellRange(const Vec3& c, float r, int64_t lo[3], int64_t hi[3]) const {
+// Inline: the grid's build calls these for every grain in each of its passes.
+inline void InstancedGrains::cellRange(const Vec3& c, float r, int64_t lo[3], int64_t hi[3]) const {
   for (int a = 0; a < 3; ++a) {
     lo[a] = std::clamp<int64_t>(int64_t(std::floor((c[a] - r - origin_[a]) * invCell_)), 0, n_[a] - 1);
     hi[a] = std::clamp<int64_t>(int64_t(std::floor((c[a] + r - origin_[a]) * invCell_)), 0, n_[a] - 1);
   }
 }
 
-bool InstancedGrains::sphereTouchesCell(const Vec3& c, float r, int64_t x, int64_t y, int64_t z) const {
+inline bool InstancedGrains::sphereTouchesCell(const Vec3& c, float r, int64_t x, int64_t y, int64_t z) const {
   const int64_t cell[3] = {x, y, z};
   float d2 = 0;
   for (int a = 0; a < 3; ++a) {

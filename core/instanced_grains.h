@@ -49,9 +49,11 @@
 //    of `granular render`): EPT 17 s (read 3.7, grid 8.0, overlap check 5.0), 2.0 GiB
 //    beyond the input at its peak; the hybrid 34 s (its packing-rate grid 15 s, TT 1.4 s,
 //    proxy tables 0.2 s from the cache, about 3 s without), 2.9 GiB; 55 CPU seconds, so
-//    with one core left by other jobs 67 s. DA in that medium (heterogeneous_diffusion.h,
-//    off unless RenderSettings::daInstanced) is not counted: on, its boundary took 2 to 3
-//    minutes more, mostly on one core, and 1.6 GiB more (bench/README.md).
+//    with one core left by other jobs 67 s; pinned to one core, 57–66 s (52–59 CPU
+//    seconds of build, half of them the packing-rate grid's): at the promise, not under it.
+//    DA in that medium (heterogeneous_diffusion.h, off unless RenderSettings::daInstanced)
+//    is not counted: on, its boundary (one distance field) takes about 70 CPU seconds more
+//    and 1.3 GiB more (bench/README.md).
 //  - Queries take world-space rays (t as given: the direction need not be unit) and are
 //    thread-safe. intersect() walks the cells along the ray front to back (3-D DDA), tests
 //    each listed grain's bounding sphere, then the prototype's BVH in the grain's frame,
@@ -79,6 +81,11 @@ namespace granular {
 
 // Lengths, finite values, unit orientations, positive scales, prototype indices in range,
 // a prototype at least: InputError naming <name>.<attribute> and the first bad instance.
+// Every builder of a description calls it (instancedGrainsFromUsd, validateSceneDesc,
+// InstancedGrains::build, buildGrainDensity, the Python binding), yet the per-instance
+// checks run once per set of arrays: it remembers the arrays it found valid by their
+// stamps (shared_array.h: the same values, unwritten since; copies of a description share
+// them) with the prototype count, and for those checks only lengths and prototypes again.
 void validateInstancedGrains(const InstancedGrainsDesc& desc);
 
 // The smallest index in [0, n) for which bad(i) holds, or -1: in parallel, the answer a loop

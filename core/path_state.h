@@ -50,6 +50,12 @@ struct PathState {
   Transport credit = kEpt; // which AOV the path's radiance goes to (kDa after a DA step)
   int medium = -1;         // aggregate whose medium holds the path (kVpt), or -1
   bool switchPending = false;  // switch to kVpt once out of the current grain
+  bool enteredMedia = false;   // the roulette or split of its entry into the media is done (hybrid.h)
+  int splitFrom = -1;          // a continuation of a split at the switch: its path's index (hybrid.h)
+  // Russian roulette on the throughput (ept.h) sees beta × rrScale: P_a after the switch,
+  // so that a split's continuations are cut as the path would be, not P_a times as often
+  // (which would spend the noise that splitting saved), nor a roulette's survivors spared.
+  float rrScale = 1;
   PrimaryInfo primary;
   // Ray cone (Akenine-Möller et al. 2019): footprint width at the ray origin and its
   // spread angle; for the level-of-detail shortcut (RenderSettings::lod).

@@ -581,11 +581,13 @@ std::shared_ptr<const Scene::InstancedMedium> Scene::buildInstancedMedium(const 
   const size_t np = grains.prototypes().size();
   std::vector<double> count(np, 0.0), sum(np, 0.0);
   double r1 = 0, r2 = 0, r3 = 0;
+  const std::vector<GrainPrototype>& protos = grains.prototypes();
   for (size_t i = 0; i < d.size(); ++i) {
-    const InstancedGrain g = grains.grain(int64_t(i));
-    const double r = double(g.radius) * worldScale;
-    count[size_t(g.prototype)] += 1;
-    sum[size_t(g.prototype)] += r;
+    // grain(i)'s radius, without placing the grain.
+    const size_t p = size_t(d.protoIndices[i]);
+    const double r = double(protos[p].fitRadius * (d.scales.empty() ? 1.0f : d.scales[i])) * worldScale;
+    count[p] += 1;
+    sum[p] += r;
     r1 += r;
     r2 += r * r;
     r3 += r * r * r;

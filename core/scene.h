@@ -126,6 +126,12 @@ class Scene {
   bool useProxies(int aggregate) const {
     return aggregate >= 0 ? aggregateProxies_[size_t(aggregate)] != 0 : useProxies_;
   }
+  // The level-of-detail shortcut's first grain is a proxy (ept.h): the aggregate uses
+  // proxies, or their tables are made anyway (for the switching measurement) and
+  // RenderSettings::proxies is not Off.
+  bool lodProxies(int aggregate) const {
+    return useProxies(aggregate) || (settings_.proxies != ProxyUse::Off && !proxyTables_.empty());
+  }
   int proxyVisits(int aggregate) const {
     return aggregate >= 0 ? proxyVisits_[size_t(aggregate)] : maxProxyVisits_;
   }

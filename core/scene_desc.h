@@ -258,14 +258,18 @@ struct RenderSettings {
   // false: VPT to the end there. Off by default: on the generated heaps it saved no
   // render time at equal error (bench/README.md) and its distance field costs set-up.
   bool daInstanced = false;
-  // Russian roulette at the switch to the medium: a path survives with probability P_a in
-  // (0, 1]. Negative: tuned by a pre-render to P_a = sqrt(V_H t_L / (V_L t_H)), which
-  // minimises the cost of a given variance, (V_L + V_H/P_a)(t_L + P_a t_H), clamped into (0, 1].
+  // The most continuations a path splits into at the switch (memory and time per pixel).
+  static constexpr float kMaxSplit = 8.0f;
+  // Russian roulette and splitting at the switch to the medium: a path goes on as P_a
+  // continuations on average, each weighted 1/P_a (hybrid.h): it survives with probability
+  // P_a in (0, 1), splits above 1, up to kMaxSplit. Negative: P_a tuned by a pre-render to
+  // the least cost of a given variance (hybrid.h: tuneRoulette).
   float roulette = -1.0f;
   // Level of detail: where a path first meets an aggregate and the grain radius is under
-  // lod × the ray cone's footprint width there, only that first grain is traced
-  // explicitly and the path then enters the medium (ept.h). 0: off, today's images
-  // exactly; the default shortcuts grains narrower than the footprint.
+  // lod × the ray cone's footprint width there, only that first grain is met — as a proxy
+  // where proxies are not off, else explicitly — and the path then enters the medium after
+  // its low orders (ept.h). 0: off, today's images exactly; the default shortcuts grains
+  // narrower than the footprint.
   float lod = 0.5f;
   // Proxies (ProxyUse): after a path's first grain, its low orders (the explicit bounces
   // above) scatter off the grains' bounding spheres at their true positions by tabulated

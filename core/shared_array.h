@@ -11,12 +11,20 @@
 //    array shares them (a copy: copy-on-write), so writing through it changes it alone. Read
 //    through a const reference (or const_cast-free std::as_const) to avoid that copy.
 //  - sharesWith(b): the same values object (equal without looking at them).
+//  - stamp(): a number naming these values while they stay unwritten (0 for none), unique in
+//    the process: copies share it, any non-const access (a possible write) drops it and the
+//    next stamp() draws a new one. Equal non-zero stamps, equal values: what was checked
+//    once on an array can be trusted while its stamp holds (validateInstancedGrains). A
+//    write through a reference or pointer taken before that stamp() is not seen: take
+//    them anew after a check.
 //  - Thread safety as a std::vector's: concurrent const reads; a write to one array while
 //    another thread reads or copies the same array object is a race (copies of it are other
 //    objects: writing one while another is read is safe).
 #pragma once
 
+#include <atomic>
 #include <cstddef>
+#include <cstdint>
 #include <initializer_list>
 #include <memory>
 #include <utility>
@@ -33,6 +41,22 @@ class SharedArray {
   using const_iterator = typename std::vector<T>::const_iterator;
 
   SharedArray() = default;
+  SharedArray(const SharedArray& o) : p_(o.p_), stamp_(o.p_ ? o.stamp() : 0) {}
+  SharedArray(SharedArray&& o) noexcept : p_(std::move(o.p_)), stamp_(o.stamp_.exchange(0)) {}
+  SharedArray& operator=(const SharedArray& o) {
+    if (this != &o) {
+      p_ = o.p_;
+      stamp_.store(o.p_ ? o.stamp() : 0, std::memory_order_relaxed);
+    }
+    return *this;
+  }
+  SharedArray& operator=(SharedArray&& o) noexcept {
+    if (this != &o) {
+      p_ = std::move(o.p_);
+      stamp_.store(o.stamp_.exchange(0), std::memory_order_relaxed);
+    }
+    return *this;
+  }
   SharedArray(std::vector<T> v) : p_(v.empty() ? nullptr : std::make_shared<std::vector<T>>(std::move(v))) {}
   SharedArray(std::initializer_list<T> v) : SharedArray(std::vector<T>(v)) {}
   SharedArray& operator=(std::vector<T> v) { return *this = SharedArray(std::move(v)); }
@@ -50,11 +74,19 @@ class SharedArray {
   const T& front() const { return p_->front(); }
   const T& back() const { return p_->back(); }
   bool sharesWith(const SharedArray& b) const { return p_ == b.p_; }
+  uint64_t stamp() const {
+    if (!p_) return 0;
+    uint64_t s = stamp_.load(std::memory_order_relaxed);
+    if (s) return s;
+    const uint64_t fresh = nextStamp().fetch_add(1, std::memory_order_relaxed);
+    return stamp_.compare_exchange_strong(s, fresh, std::memory_order_relaxed) ? fresh : s;
+  }
   friend bool operator==(const SharedArray& a, const SharedArray& b) { return a.p_ == b.p_ || a.get() == b.get(); }
   friend bool operator!=(const SharedArray& a, const SharedArray& b) { return !(a == b); }
 
   // Writing: this array's own values first (copy-on-write).
   std::vector<T>& vec() {
+    if (stamp_.load(std::memory_order_relaxed)) stamp_.store(0, std::memory_order_relaxed);
     if (!p_) p_ = std::make_shared<std::vector<T>>();
     else if (p_.use_count() > 1) p_ = std::make_shared<std::vector<T>>(*p_);
     return *p_;
@@ -68,7 +100,10 @@ class SharedArray {
   void resize(size_t n) { vec().resize(n); }
   void resize(size_t n, const T& v) { vec().resize(n, v); }
   void reserve(size_t n) { vec().reserve(n); }
-  void clear() { p_.reset(); }
+  void clear() {
+    p_.reset();
+    stamp_.store(0, std::memory_order_relaxed);
+  }
   void push_back(const T& v) { vec().push_back(v); }
   template <class... A>
   T& emplace_back(A&&... a) { return vec().emplace_back(std::forward<A>(a)...); }
@@ -87,7 +122,12 @@ class SharedArray {
     static const std::vector<T> none;
     return none;
   }
+  static std::atomic<uint64_t>& nextStamp() {
+    static std::atomic<uint64_t> next{1};
+    return next;
+  }
   std::shared_ptr<std::vector<T>> p_;
+  mutable std::atomic<uint64_t> stamp_{0};
 };
 
 }  // namespace granular

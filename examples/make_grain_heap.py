@@ -4,7 +4,7 @@ GranularInstancedAggregateAPI, as a grain solver exports one (positions, orienta
 scales, protoIndices, velocities, angularVelocities), over a few frames:
 
     .venv/bin/python examples/make_grain_heap.py OUT.usdc [--grains N] [--frames K] [--seed S] [--shutter OPEN CLOSE]
-                                                 [--no-motion] [--slabs]
+                                                 [--no-motion] [--slabs] [--material NAME] [--slab-depth D]
 
 The heap is a cone at the angle of repose of dry sand (about 31 degrees) on a ground card,
 with a camera and a sun. Grains are placed one per cell of a cubic grid (cells whose centre
@@ -21,6 +21,11 @@ For very large heaps (10^8 grains: bench/README.md, "Explicit grains from a simu
 positions, half-float orientations, scales, protoIndices), and --slabs generates the grains
 layer by layer of the grid, each layer from its own random stream, in memory proportional
 to the grains' arrays alone (a different heap from the default's, as deterministic).
+
+--material ice makes the grains ice (granular.materials: IOR 1.31, nearly clear) instead of
+quartz sand. --slab-depth D writes a flat square slab D grid cells deep (D * 2.3 largest radii)
+instead of the cone, as wide as the grains allow, seen from above at 45 degrees: a deep,
+wide medium for the diffusion approximation (bench/README.md, "DA in simulated grains' media").
 """
 import argparse
 import math
@@ -73,14 +78,19 @@ def heap(grains, seed):
     centres[:, 1] += 0.5 * a
     r = np.hypot(centres[:, 0], centres[:, 2])
     inside = r <= (height - centres[:, 1]) / TAN_REPOSE
-    centres = centres[inside]
+    return _grains_at(rng, centres[inside]) + (height,)
+
+
+def _grains_at(rng, centres):
+    """Grains at the grid's cell centres: jittered centres, sizes, unit quaternions (real
+    first), prototype indices (30% rock)."""
     count = len(centres)
-    centres += rng.uniform(-JITTER * RADIUS, JITTER * RADIUS, size=(count, 3))
+    centres = centres + rng.uniform(-JITTER * RADIUS, JITTER * RADIUS, size=(count, 3))
     sizes = RADIUS * rng.uniform(0.75, 1.0, size=count)
     q = rng.normal(size=(count, 4))
     q /= np.linalg.norm(q, axis=1, keepdims=True)
     protos = (rng.uniform(size=count) >= 0.7).astype(np.int32)
-    return centres, sizes, q, protos, height
+    return centres, sizes, q, protos
 
 
 def heap_slabs(grains, seed):
@@ -120,6 +130,18 @@ def heap_slabs(grains, seed):
     return centres, sizes, quats, protos, height
 
 
+def slab(grains, seed, depth_cells):
+    """heap()'s grains in a square slab depth_cells cells deep on y = 0 instead of the cone
+    (as many columns as `grains` fill); the same arrays as heap(), height the slab's top."""
+    rng = np.random.default_rng(seed)
+    a = SPACING * RADIUS
+    n = max(1, int(round(math.sqrt(grains / depth_cells))))
+    ix, iy, iz = np.meshgrid(np.arange(n) - (n - 1) / 2.0, np.arange(depth_cells), np.arange(n) - (n - 1) / 2.0,
+                             indexing="ij")
+    centres = np.stack([ix.ravel(), iy.ravel() + 0.5, iz.ravel()], axis=1) * a
+    return _grains_at(rng, centres) + (depth_cells * a,)
+
+
 def _write_static(stage, pi, centres, sizes, quats, protos):
     """One frame, no motion, each array handed to USD and dropped before the next."""
     pi.CreateProtoIndicesAttr(Vt.IntArray.FromNumpy(protos))
@@ -128,8 +150,14 @@ def _write_static(stage, pi, centres, sizes, quats, protos):
     pi.CreateOrientationsAttr(Vt.QuathArray.FromNumpy(quats))
 
 
-def write(path, grains=100000, frames=3, seed=1, shutter=None, motion=True, slabs=False):
-    if slabs:
+def write(path, grains=100000, frames=3, seed=1, shutter=None, motion=True, slabs=False, material=QUARTZ_SAND,
+          slab_depth=None):
+    if slab_depth:
+        centres, sizes, quats, protos, height = slab(grains, seed, slab_depth)
+        if not motion:
+            centres, sizes = centres.astype(np.float32), sizes.astype(np.float32)
+            quats = quats[:, [1, 2, 3, 0]].astype(np.float16)
+    elif slabs:
         centres, sizes, quats, protos, height = heap_slabs(grains, seed)
     else:
         centres, sizes, quats, protos, height = heap(grains, seed)
@@ -152,18 +180,18 @@ def write(path, grains=100000, frames=3, seed=1, shutter=None, motion=True, slab
     round_ = _mesh(stage, "/World/Heap/Prototypes/Round", core.make_icosphere(2))
     rock = _mesh(stage, "/World/Heap/Prototypes/Rock", core.make_rock(2, 0.3, seed))
     # Absorption is per the prototype's bounding radius at scale 1 (schemas/README.md), the
-    # unit ball here: quartz's absorption per grain radius over RADIUS, so that grains scaled
-    # to RADIUS absorb as quartz grains of that size.
-    absorption = tuple(a / RADIUS for a in QUARTZ_SAND.absorption_per_radius(RADIUS))
+    # unit ball here: the material's absorption per grain radius over RADIUS, so that grains
+    # scaled to RADIUS absorb as grains of that size.
+    absorption = tuple(a / RADIUS for a in material.absorption_per_radius(RADIUS))
     for m in (round_, rock):  # visible: a prototype's visibility is its instances'
-        schema.apply_grain(m, ior=QUARTZ_SAND.ior, absorption=absorption, invisible=False)
+        schema.apply_grain(m, ior=material.ior, absorption=absorption, invisible=False)
     pi.CreatePrototypesRel().SetTargets([round_.GetPath(), rock.GetPath()])
     if not motion:
         _write_static(stage, pi, centres, sizes, quats, protos)
         del centres, sizes, quats, protos
     else:
         _write_motion(stage, pi, centres, sizes, quats, protos, frames, seed)
-    _write_rest(stage, height, shutter)
+    _write_rest(stage, height, shutter, slab_width=math.sqrt(count / slab_depth) * SPACING * RADIUS if slab_depth else 0)
     stage.GetRootLayer().Save()
     return count
 
@@ -199,16 +227,19 @@ def _write_motion(stage, pi, centres, sizes, quats, protos, frames, seed):
         orient_attr.Set(Vt.QuathArray.FromNumpy(q[:, [1, 2, 3, 0]].astype(np.float16)), Usd.TimeCode(1 + f))
 
 
-def _write_rest(stage, height, shutter):
+def _write_rest(stage, height, shutter, slab_width=0):
     ground = UsdGeom.Mesh.Define(stage, "/World/Ground")
-    g = 4.0 * height + 0.2
+    g = 4.0 * max(height, slab_width) + 0.2
     ground.CreatePointsAttr([(-g, 0, -g), (g, 0, -g), (g, 0, g), (-g, 0, g)])
     ground.CreateFaceVertexCountsAttr([4])
     ground.CreateFaceVertexIndicesAttr([0, 3, 2, 1])  # facing +y
     ground.CreateDisplayColorAttr([(0.45, 0.4, 0.35)])
     cam = UsdGeom.Camera.Define(stage, "/World/Camera")
     eye = Gf.Vec3d(0.0, 1.6 * height + 0.05, 3.5 * height + 0.1)
-    look = Gf.Matrix4d().SetLookAt(eye, Gf.Vec3d(0, 0.35 * height, 0), Gf.Vec3d(0, 1, 0)).GetInverse()
+    target = Gf.Vec3d(0, 0.35 * height, 0)
+    if slab_width:  # the slab's top from above at 45 degrees, its width filling the frame
+        eye, target = Gf.Vec3d(0.0, height + 0.9 * slab_width, 0.9 * slab_width), Gf.Vec3d(0, height, 0)
+    look = Gf.Matrix4d().SetLookAt(eye, target, Gf.Vec3d(0, 1, 0)).GetInverse()
     UsdGeom.Xformable(cam).AddTransformOp().Set(look)
     cam.CreateFocalLengthAttr(35.0)
     cam.CreateClippingRangeAttr(Gf.Vec2f(0.001, 100.0))
@@ -233,6 +264,10 @@ def main(argv=None):
                    help="one frame, no velocities or angular velocities (36 bytes a grain)")
     p.add_argument("--slabs", action="store_true",
                    help="generate the grid layer by layer in bounded memory (for 10^8 grains; another heap)")
+    p.add_argument("--material", choices=["quartz_sand", "ice"], default="quartz_sand",
+                   help="the grains' material (granular.materials; default quartz_sand)")
+    p.add_argument("--slab-depth", type=int, metavar="D",
+                   help="a flat square slab D grid cells deep instead of the cone")
     a = p.parse_args(argv)
     if a.no_motion and a.frames not in (None, 1) or a.shutter and a.no_motion:
         p.error("--no-motion writes one frame without motion: no --frames or --shutter")
@@ -241,7 +276,11 @@ def main(argv=None):
         p.error("--grains and --frames must be >= 1")
     if a.slabs and not a.no_motion:
         p.error("--slabs writes a still heap: with --no-motion")
-    n = write(a.output, a.grains, a.frames, a.seed, a.shutter, motion=not a.no_motion, slabs=a.slabs)
+    if a.slab_depth is not None and (a.slab_depth < 1 or a.slabs):
+        p.error("--slab-depth must be >= 1, and not with --slabs")
+    from granular.materials import MATERIALS
+    n = write(a.output, a.grains, a.frames, a.seed, a.shutter, motion=not a.no_motion, slabs=a.slabs,
+              material=MATERIALS[a.material], slab_depth=a.slab_depth)
     print(f"wrote {a.output}: {n} grains, {a.frames} frames")
     return 0
 

@@ -57,7 +57,7 @@ void HdGranularRenderDelegate::_Initialize() {
       {"Level of detail (0: off)", HdGranularSettingsTokens->lod, VtValue(0.5f)},
       {"Proxies after the first grain (auto: under a narrow sun; on; off)", HdGranularSettingsTokens->proxies,
        VtValue(std::string(granular::proxyUseName(granular::RenderSettings().proxies)))},
-      {"Roulette P_a (negative: tuned)", HdGranularSettingsTokens->roulette, VtValue(-1.0f)},
+      {"Roulette or splitting P_a (negative: tuned)", HdGranularSettingsTokens->roulette, VtValue(-1.0f)},
       {"Bundle size", HdGranularSettingsTokens->bundleSize, VtValue(16)},
       {"Default dome light when the stage has none", HdGranularSettingsTokens->defaultLight, VtValue(true)},
       {"Delta suns as the physical sun (0.53 degrees) over smooth grains", HdGranularSettingsTokens->physicalSun,

@@ -140,8 +140,8 @@ def _roulette(text):
         raise argparse.ArgumentTypeError(f"{text} is not finite")
     if v < 0:
         return v
-    if not 0 < v <= 1:
-        raise argparse.ArgumentTypeError(f"{text} must be in (0, 1], or negative for automatic")
+    if not 0 < v <= 8:
+        raise argparse.ArgumentTypeError(f"{text} must be in (0, 8] (above 1: splitting), or negative for automatic")
     return _single(v, text)
 
 
@@ -172,8 +172,9 @@ def _render_options(r):
                    help="transports of the multi-scale integrator: explicit grains only (the reference), "
                         "plus volumetric path tracing in the equivalent media, plus diffusion (default)")
     r.add_argument("--roulette", type=_roulette, default=-1.0, metavar="P_a",
-                   help="survival probability of a path at the switch from EPT to the media, in (0, 1]; "
-                        "negative (default): tuned by a pre-render")
+                   help="continuations of a path at the switch from EPT to the media, in (0, 8]: below 1 "
+                        "the chance it survives (Russian roulette), above 1 splitting; negative (default): "
+                        "tuned by a pre-render")
     r.add_argument("--lod", type=_non_negative_float(), default=0.5, metavar="L",
                    help="level of detail: after the first grain, enter an aggregate's medium where the grain "
                         "radius is under L times the ray footprint (default 0.5: grains narrower than a "

@@ -54,6 +54,21 @@ PixelStats renderStats(const SceneDesc& d) {
   return ps;
 }
 
+// Two renders' pixel means summed over the image, and their variances of the mean summed.
+struct Totals {
+  double a = 0, b = 0, va = 0, vb = 0;
+};
+Totals totals(const PixelStats& a, const PixelStats& b) {
+  Totals t;
+  for (size_t i = 0; i < a.mean.size(); ++i) {
+    t.a += a.mean[i];
+    t.b += b.mean[i];
+    t.va += a.se[i] * a.se[i];
+    t.vb += b.se[i] * b.se[i];
+  }
+  return t;
+}
+
 }  // namespace
 
 TEST(Hybrid, AovsAddUpToTheBeauty) {
@@ -148,14 +163,9 @@ TEST(Hybrid, MixtureWithGlassGrainsMatchesTheEptReference) {
   };
   PixelStats ref = renderStats(withGlass(Technique::Ept));
   PixelStats hyb = renderStats(withGlass(Technique::Hybrid));
-  double sr = 0, sh = 0, v = 0;
-  for (size_t i = 0; i < ref.mean.size(); ++i) {
-    sr += ref.mean[i];
-    sh += hyb.mean[i];
-    v += ref.se[i] * ref.se[i] + hyb.se[i] * hyb.se[i];
-  }
-  double rel = (sh - sr) / sr;
-  std::printf("mixture: hybrid vs EPT mean relative difference %.4f (noise %.4f)\n", rel, std::sqrt(v) / sr);
+  const Totals t = totals(ref, hyb);
+  const double rel = (t.b - t.a) / t.a;
+  std::printf("mixture: hybrid vs EPT mean relative difference %.4f (noise %.4f)\n", rel, std::sqrt(t.va + t.vb) / t.a);
   EXPECT_LE(std::fabs(rel), 0.03);
 }
 
@@ -167,25 +177,78 @@ TEST(Hybrid, RouletteKeepsTheImageUnbiased) {
   d.settings.roulette = 0.3f;
   d.settings.seed = 12;
   PixelStats cut = renderStats(d);
-  double sf = 0, sc = 0, vf = 0, vc = 0;
-  for (size_t i = 0; i < full.mean.size(); ++i) {
-    sf += full.mean[i]; sc += cut.mean[i];
-    vf += full.se[i] * full.se[i]; vc += cut.se[i] * cut.se[i];
+  const Totals t = totals(full, cut);
+  EXPECT_NEAR(t.b, t.a, 4 * std::sqrt(t.va + t.vb));
+}
+
+TEST(Hybrid, SplittingKeepsTheImageUnbiasedAndLowersItsNoiseAsThePreRenderPredicts) {
+  SceneDesc d = ballScene(Technique::Hybrid, 64);
+  // The medium right after the first grain, under the sky alone: the continuations' own
+  // noise is most of the image's (the sun's glints on first grains would not be split).
+  d.lights.erase(d.lights.begin());
+  d.settings.explicitBounces = 0;
+  d.settings.proxies = ProxyUse::Off;
+  d.settings.tau = 0.5f;
+  double predicted = 0;
+  {
+    auto scene = Scene::build(d);
+    const RouletteTuning t = tuneRoulette(*scene);
+    predicted = t.variance(3.5) / t.variance(1.0);
   }
-  double se = std::sqrt(vf + vc);
-  EXPECT_NEAR(sc, sf, 4 * se);
+  d.settings.roulette = 1.0f;
+  PixelStats one = renderStats(d);
+  d.settings.roulette = 3.5f;  // three or four continuations, each weighted 1/3.5
+  d.settings.seed = 12;
+  PixelStats split = renderStats(d);
+  const Totals t = totals(one, split);
+  const double s1 = t.a, ss = t.b, v1 = t.va, vs = t.vb;
+  std::printf("splitting 3.5: sum %.4f against %.4f (s.e. %.4f); variance %.3g against %.3g (ratio %.3f, the "
+              "pre-render's model %.3f)\n", ss, s1, std::sqrt(v1 + vs), vs, v1, vs / v1, predicted);
+  EXPECT_NEAR(ss, s1, 4 * std::sqrt(v1 + vs));
+  // The same samples per pixel, less noise: as much less as the model says, within what
+  // its 64-pixel pre-render can tell (its moments carry some 10% of noise each).
+  EXPECT_LT(vs, 0.8 * v1);
+  EXPECT_NEAR(vs / v1, predicted, 0.15);
+}
+
+TEST(Hybrid, ContinuationsMinimiseVarianceTimesCost) {
+  // The roulette branch is Meng et al.'s closed form, sqrt(V_H t_L / (V_L t_H)) with
+  // V_L = V_0 + V_1 − H_2 = 0.04 and V_H = H_2 = 0.01: 0.25.
+  RouletteTuning r;
+  r.V0 = 0.04; r.V1 = 0.01; r.H2 = 0.01; r.H12 = 0; r.tL = 5; r.tH = 20;
+  EXPECT_NEAR(bestContinuations(r), 0.25f, 0.011f);
+  // Splitting: (V_0 + V_1/P)(t_L + P t_H) is least at sqrt(V_1 t_L / (V_0 t_H)) = 6, a
+  // whole number, where stochastic rounding adds nothing.
+  RouletteTuning s;
+  s.V0 = 0.05; s.V1 = 0.09; s.H2 = 0.1; s.H12 = 0.01; s.tL = 20; s.tH = 1;
+  EXPECT_NEAR(bestContinuations(s), 6.0f, 0.005f);
+  // Beyond the cap: the cap.
+  s.V0 = 0.001;
+  EXPECT_EQ(bestContinuations(s), RenderSettings::kMaxSplit);
+  // Nothing after the switch: one continuation.
+  RouletteTuning none;
+  none.V0 = 0.1; none.tL = 10;
+  EXPECT_EQ(bestContinuations(none), 1.0f);
 }
 
 TEST(Hybrid, TunedRouletteIsInRangeAndDeterministic) {
   SceneDesc d = ballScene(Technique::Hybrid, 16);
   auto scene = Scene::build(d);
   RouletteTuning a = tuneRoulette(*scene), b = tuneRoulette(*scene);
+  std::printf("tuned P_a %.2f: V0 %.4g V1 %.4g H2 %.4g H12 %.4g tL %.3g tH %.3g\n", a.pa, a.V0, a.V1, a.H2, a.H12,
+              a.tL, a.tH);
   EXPECT_GT(a.pa, 0.0f);
-  EXPECT_LE(a.pa, 1.0f);
+  EXPECT_LE(a.pa, RenderSettings::kMaxSplit);
   EXPECT_EQ(a.pa, b.pa);
-  EXPECT_EQ(a.VL, b.VL);
+  EXPECT_EQ(a.V0, b.V0);
+  EXPECT_EQ(a.V1, b.V1);
   EXPECT_GE(a.pixels, 64);
   EXPECT_GT(a.tL, 0);
+  // The moments hold together: E[H²] ≥ E[E[H|s]²] ≥ 0 and the continuations' own variance
+  // is what is left, E[Var(H|s)] = E[H²] − E[E[H|s]²] (up to the noise of two samples).
+  EXPECT_GE(a.H2, a.H12);
+  EXPECT_GE(a.H12, 0.0);
+  EXPECT_NEAR(a.V1, a.H2 - a.H12, 0.25 * a.H2);
 }
 
 TEST(Hybrid, SameSeedSameImageForOneAndTwoThreads) {

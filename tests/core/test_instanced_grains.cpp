@@ -10,6 +10,7 @@
 #include <cstring>
 #include <random>
 #include <string>
+#include <utility>
 
 #include "core/ept.h"
 #include "core/error.h"
@@ -394,6 +395,36 @@ TEST(InstancedGrains, ValidationNamesPrimAndAttribute) {
   d.protoIndices.push_back(0);
   EXPECT_EQ(build(d).rfind("/Sim.positions: instances 0 and 2 overlap: their bounding spheres (radii 1", 0), 0u)
       << build(d);
+}
+
+TEST(InstancedGrains, ValidationTrustsOnlyUnwrittenArrays) {
+  // validateInstancedGrains remembers the arrays it found valid; any write, in place or to a
+  // copy, and a change of prototypes are checked again.
+  InstancedGrainsDesc d = twoApart();
+  EXPECT_EQ(errorOf([&] { validateInstancedGrains(d); }), "(no error)");
+  const uint64_t stamp = std::as_const(d).positions.stamp();
+  EXPECT_NE(stamp, 0u);
+  InstancedGrainsDesc copy = d;
+  EXPECT_EQ(std::as_const(copy).positions.stamp(), stamp);  // copies share what was checked
+  d.positions[1].y = NAN;                                   // the only owner: written in place
+  EXPECT_NE(std::as_const(d).positions.stamp(), stamp);
+  EXPECT_EQ(errorOf([&] { validateInstancedGrains(d); }).rfind("/Sim.positions: instance 1 is at (3, nan", 0), 0u);
+  EXPECT_EQ(errorOf([&] { validateInstancedGrains(copy); }), "(no error)");
+  InstancedGrainsDesc other = copy;
+  other.scales = {1.0f, -1.0f};
+  EXPECT_EQ(errorOf([&] { validateInstancedGrains(other); }), "/Sim.scales: instance 1 has scale -1 (must be > 0 and finite)");
+  other = copy;
+  other.protoIndices[1] = 0;  // written (the same value): checked again, still valid
+  EXPECT_EQ(errorOf([&] { validateInstancedGrains(other); }), "(no error)");
+  other.prototypes.push_back(other.prototypes[0]);
+  other.protoIndices[1] = 1;
+  EXPECT_EQ(errorOf([&] { validateInstancedGrains(other); }), "(no error)");
+  other.prototypes.pop_back();  // the same arrays, fewer prototypes: index 1 is out of range again
+  EXPECT_EQ(errorOf([&] { validateInstancedGrains(other); }),
+            "/Sim.protoIndices: instance 1 has 1, not the index of one of its 1 prototypes");
+  InstancedGrainsDesc moved = std::move(copy);
+  EXPECT_EQ(std::as_const(moved).positions.stamp(), stamp);
+  EXPECT_EQ(std::as_const(copy).positions.stamp(), 0u);  // emptied by the move
 }
 
 TEST(InstancedGrains, OverlapCheckFindsEveryPairThroughTheGrid) {

@@ -66,6 +66,29 @@ def test_a_still_heap_generated_in_slabs_is_valid(tmp_path):
     core.InstancedGrains().build(desc)  # raises on overlapping grains
 
 
+def test_an_ice_slab_is_flat_wide_and_clear(tmp_path):
+    """make_grain_heap.py --material ice --slab-depth D (bench/README.md, DA in simulated
+    grains' media): a square slab D grid cells deep, its grains apart, of ice's IOR and
+    absorption per radius (granular.materials.ICE at the generator's grain size)."""
+    from granular.materials import ICE
+    path = tmp_path / "slab.usdc"
+    count = make_grain_heap.write(str(path), grains=3000, frames=1, seed=2, motion=False, material=ICE,
+                                  slab_depth=5)
+    side = round((3000 / 5) ** 0.5)
+    assert count == side * side * 5
+    stage = Usd.Stage.Open(str(path))
+    pos = np.asarray(stage.GetPrimAtPath(HEAP).GetAttribute("positions").Get())
+    a, jitter = make_grain_heap.SPACING * make_grain_heap.RADIUS, make_grain_heap.JITTER * make_grain_heap.RADIUS
+    assert pos[:, 1].min() >= 0.5 * a - jitter - 1e-6 and pos[:, 1].max() <= 4.5 * a + jitter + 1e-6
+    assert np.ptp(pos[:, 0]) == pytest.approx((side - 1) * a, abs=2 * jitter + 1e-6)
+    round_ = stage.GetPrimAtPath(HEAP + "/Prototypes/Round")
+    assert round_.GetAttribute("primvars:granular:ior").Get() == pytest.approx(ICE.ior)
+    expected = [x / make_grain_heap.RADIUS for x in ICE.absorption_per_radius(make_grain_heap.RADIUS)]
+    assert list(round_.GetAttribute("primvars:granular:absorption").Get()) == pytest.approx(expected, rel=1e-6)
+    _, desc = _read(str(path))
+    core.InstancedGrains().build(desc)  # raises on overlapping grains
+
+
 def test_heap_reads_into_core(heap):
     path, count = heap
     scene, desc = _read(path)
