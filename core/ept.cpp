@@ -233,6 +233,13 @@ void eptStep(const Scene& scene, PathState& path) {
         path.mode = path.credit = kPpt;
         path.from = GrainStart();
         path.proxyVisits = -1;
+        // The ray is known to meet this grain (and to miss those before it): the walk
+        // meets its proxy for sure, not by the chance hit(b) (ppt.h).
+        path.firstGrain.aggregate = hit.aggregate;
+        path.firstGrain.grain = hit.grain;
+        path.firstGrain.instancer = hit.instancer;
+        path.firstGrain.instance = hit.instance;
+        path.firstGrainAt = hit.t;
         return;
       }
       // Else under a narrow sun the medium takes the path at the first grain's surface (the

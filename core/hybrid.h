@@ -12,10 +12,10 @@
 // At the switch — and wherever a path enters the media on its own, by the level-of-detail
 // shortcut (ept.h) — a path goes on as on average P_a continuations of weight 1/P_a each:
 // Russian roulette when P_a < 1 (Meng et al. 2015: it survives with probability P_a),
-// splitting when P_a > 1 (⌊P_a⌋ or ⌈P_a⌉ of them, the expected count P_a) — where the
-// high orders are cheap and noisy beside an expensive explicit first grain, several
-// continuations share one. The continuations of a split are traced with the bundle, each
-// on its own random stream, and folded into their path's radiance at the end.
+// splitting when P_a > 1 (⌊P_a⌋ or ⌈P_a⌉ of them, the expected count P_a; set by hand,
+// RenderSettings::roulette) — several continuations share one costly first grain. The
+// continuations of a split are traced with the bundle, each on its own random stream, and
+// folded into their path's radiance at the end.
 //
 // tuneRoulette() is the pre-render: on about 1% of the pixels (at least 64) it traces
 // bundles with two continuations per path entering the media, and from them, averaged over the
@@ -27,10 +27,12 @@
 // A sample's variance at P_a is
 //   P_a ≤ 1:  V_0 + V_1 + H_2 (1/P_a − 1)                       (roulette)
 //   P_a ≥ 1:  V_0 + V_1/P_a + H_12 f(1 − f)/P_a²,  f = P_a − ⌊P_a⌋  (splitting)
-// and its cost t_L + P_a t_H; P_a minimises their product over [0.05, RenderSettings::kMaxSplit]
-// (scene_desc.h). The roulette branch is Meng et al.'s (V_L + V_H/P_a)(t_L + P_a t_H)
-// with V_L = V_0 + V_1 − H_2 and V_H = H_2, whose minimiser is sqrt(V_H t_L / (V_L t_H));
-// splitting lowers V_1 alone. Deterministic given the seed.
+// and its cost t_L + P_a t_H; the tuned P_a minimises their product over [0.05, 1]. That
+// is Meng et al.'s (V_L + V_H/P_a)(t_L + P_a t_H) with V_L = V_0 + V_1 − H_2 and
+// V_H = H_2, whose minimiser is sqrt(V_H t_L / (V_L t_H)). The splitting branch predicts a
+// split's variance well (tests/core/test_hybrid.cpp), but the gains it promised on the
+// bench's scenes did not show in their error × time (bench/README.md), so the tuning does
+// not split. Deterministic given the seed.
 #pragma once
 
 #include <vector>
@@ -66,8 +68,8 @@ struct RouletteTuning {
 
 RouletteTuning tuneRoulette(const Scene& scene);
 
-// The P_a of least variance × cost by t's model (on a grid of 0.01; 1 without high-order
-// work or noise), splitting (P_a > 1) only where that is 10% below P_a = 1's and V_0 > 0.
+// The P_a in [0.05, 1] of least variance × cost by t's model (on a grid of 0.01; 1
+// without high-order work or noise).
 float bestContinuations(const RouletteTuning& t);
 
 }  // namespace granular

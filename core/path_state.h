@@ -50,6 +50,10 @@ struct PathState {
   Transport credit = kEpt; // which AOV the path's radiance goes to (kDa after a DA step)
   int medium = -1;         // aggregate whose medium holds the path (kVpt), or -1
   bool switchPending = false;  // switch to kVpt once out of the current grain
+  // The level-of-detail shortcut's first grain (ppt.h): the grain the explicit ray met,
+  // which the proxy walk then meets for sure, `firstGrainAt` along the ray (-1: none).
+  GrainStart firstGrain;
+  float firstGrainAt = -1;
   bool enteredMedia = false;   // the roulette or split of its entry into the media is done (hybrid.h)
   int splitFrom = -1;          // a continuation of a split at the switch: its path's index (hybrid.h)
   // Russian roulette on the throughput (ept.h) sees beta × rrScale: P_a after the switch,

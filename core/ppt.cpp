@@ -16,6 +16,15 @@ namespace {
 constexpr int kMaxCrossings = 1 << 16;
 constexpr float kMinNeeChance = 0.125f;
 
+// Whether a proxy hit is the grain g (the same sphere of the same aggregate's cell, or the
+// same instance).
+bool sameGrain(const Hit& h, const GrainStart& g) {
+  if (h.aggregate >= 0)
+    return h.aggregate == g.aggregate && h.grain.sphere == g.grain.sphere && h.grain.cell[0] == g.grain.cell[0] &&
+           h.grain.cell[1] == g.grain.cell[1] && h.grain.cell[2] == g.grain.cell[2];
+  return h.instancer >= 0 && h.instancer == g.instancer && h.instance == g.instance;
+}
+
 // The world point of a local point on the unit sphere of a proxy.
 Vec3 onSphere(const GrainHit& g, const ProxyFrame& frame, const Vec3& local) {
   return g.center + frame.toWorld(local) * g.radius;
@@ -125,6 +134,7 @@ void pptStep(const Scene& scene, PathState& path) {
     path.cost[0] += 1;
     if (endsAtLight(scene, path, found, hit)) return;
     if (hit.kind != Hit::Proxy) {  // a surface, or an explicit grain of an instancer without proxies
+      path.firstGrainAt = -1;
       shadeSurface(scene, path, hit, false);
       break;
     }
@@ -138,12 +148,21 @@ void pptStep(const Scene& scene, PathState& path) {
                                g.radius / scene.aggregates()[size_t(hit.aggregate)]->grainRadius())
             : scene.instancedProxyTable(hit.instancer, g.prototype, g.radius / hit.lengthScale);
     const int b = table.bBin(frame.b);
-    if (path.rng.next1D() < table.hitProbability(b)) {
+    // The shortcut's first grain (ept.h): met for sure; the spheres before it crossed.
+    bool first = false;
+    if (path.firstGrainAt >= 0) {
+      first = sameGrain(hit, path.firstGrain);
+      if (!first && hit.t > path.firstGrainAt) path.firstGrainAt = -1;  // passed it: chance again
+    }
+    if (first || (path.firstGrainAt < 0 && path.rng.next1D() < table.hitProbability(b))) {
+      path.firstGrainAt = -1;
       scatter(scene, path, hit, table, frame, b);
       break;
     }
     // The grain is missed: the ray crosses the sphere and goes on from its far side.
-    path.ray.o = path.ray.o + path.ray.d * std::max(sphereFarSide(path.ray.o - g.center, path.ray.d, g.radius), hit.t);
+    const float advance = std::max(sphereFarSide(path.ray.o - g.center, path.ray.d, g.radius), hit.t);
+    path.ray.o = path.ray.o + path.ray.d * advance;
+    if (path.firstGrainAt >= 0) path.firstGrainAt = std::max(0.0f, path.firstGrainAt - advance);
     path.ray.tmin = 0;
     path.from.aggregate = hit.aggregate;
     path.from.grain = g;

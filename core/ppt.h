@@ -8,7 +8,10 @@
 // Contract: pptStep() advances a path (PathState::mode kPpt) by one event. It walks to the
 // nearest surface, area light or proxy sphere the ray enters (not the sphere it leaves,
 // PathState::from). At a sphere, the ray meets its grain with the table's chance hit(b),
-// else it crosses the sphere unchanged and the walk goes on. A grain met scatters:
+// else it crosses the sphere unchanged and the walk goes on. A path the level-of-detail
+// shortcut sent here (ept.h; PathState::firstGrain) meets the grain its explicit ray met for
+// sure and crosses the spheres before it: the ray is known to meet that grain.
+// A grain met scatters:
 //  - next-event estimation: one light, sampled from the sphere's centre; the table's f_c
 //    toward it, the shadow ray leaving from that direction's exit point and crossing other
 //    proxies with their chance of missing their grains (Scene::proxyTransmittance); MIS by

@@ -212,19 +212,19 @@ TEST(Hybrid, SplittingKeepsTheImageUnbiasedAndLowersItsNoiseAsThePreRenderPredic
 }
 
 TEST(Hybrid, ContinuationsMinimiseVarianceTimesCost) {
-  // The roulette branch is Meng et al.'s closed form, sqrt(V_H t_L / (V_L t_H)) with
+  // The roulette is Meng et al.'s closed form, sqrt(V_H t_L / (V_L t_H)) with
   // V_L = V_0 + V_1 − H_2 = 0.04 and V_H = H_2 = 0.01: 0.25.
   RouletteTuning r;
   r.V0 = 0.04; r.V1 = 0.01; r.H2 = 0.01; r.H12 = 0; r.tL = 5; r.tH = 20;
   EXPECT_NEAR(bestContinuations(r), 0.25f, 0.011f);
-  // Splitting: (V_0 + V_1/P)(t_L + P t_H) is least at sqrt(V_1 t_L / (V_0 t_H)) = 6, a
-  // whole number, where stochastic rounding adds nothing.
+  // Splitting's variance: V_0 + V_1/P at whole P, plus the stochastic rounding's
+  // H_12 f(1 − f)/P² between them; the tuning does not split (hybrid.h).
   RouletteTuning s;
   s.V0 = 0.05; s.V1 = 0.09; s.H2 = 0.1; s.H12 = 0.01; s.tL = 20; s.tH = 1;
-  EXPECT_NEAR(bestContinuations(s), 6.0f, 0.005f);
-  // Beyond the cap: the cap.
-  s.V0 = 0.001;
-  EXPECT_EQ(bestContinuations(s), RenderSettings::kMaxSplit);
+  EXPECT_NEAR(s.variance(6.0), 0.05 + 0.09 / 6.0, 1e-12);
+  EXPECT_NEAR(s.variance(3.5), 0.05 + 0.09 / 3.5 + 0.01 * 0.25 / (3.5 * 3.5), 1e-12);
+  EXPECT_NEAR(s.variance(1.0), 0.05 + 0.09, 1e-12);
+  EXPECT_EQ(bestContinuations(s), 1.0f);
   // Nothing after the switch: one continuation.
   RouletteTuning none;
   none.V0 = 0.1; none.tL = 10;
@@ -238,7 +238,7 @@ TEST(Hybrid, TunedRouletteIsInRangeAndDeterministic) {
   std::printf("tuned P_a %.2f: V0 %.4g V1 %.4g H2 %.4g H12 %.4g tL %.3g tH %.3g\n", a.pa, a.V0, a.V1, a.H2, a.H12,
               a.tL, a.tH);
   EXPECT_GT(a.pa, 0.0f);
-  EXPECT_LE(a.pa, RenderSettings::kMaxSplit);
+  EXPECT_LE(a.pa, 1.0f);
   EXPECT_EQ(a.pa, b.pa);
   EXPECT_EQ(a.V0, b.V0);
   EXPECT_EQ(a.V1, b.V1);
