@@ -127,9 +127,6 @@ FilteredDensity::FilteredDensity(const VoxelLeaves& f) {
   grid_ = std::shared_ptr<const void>(grid, grid.get());
 }
 
-LevelSetBoundary::LevelSetBoundary(const HeterogeneousMedium& medium, float iso, float reach)
-    : LevelSetBoundary(medium, FilteredDensity(medium.voxels()), iso, reach) {}
-
 LevelSetBoundary::LevelSetBoundary(const HeterogeneousMedium& medium, const FilteredDensity& filtered, float iso,
                                    float reach)
     : medium_(&medium), voxelSize_(medium.voxels().voxelSize), reach_(reach) {

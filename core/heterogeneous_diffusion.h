@@ -115,9 +115,8 @@ class FilteredDensity {
 class LevelSetBoundary final : public DiffusionBoundary {
  public:
   LevelSetBoundary() = default;
-  // The level set f = iso of medium's density; reach: how far beyond it f is > 0 at most.
-  // The medium must outlive this. filtered: medium.voxels() filtered (made here if not given).
-  LevelSetBoundary(const HeterogeneousMedium& medium, float iso, float reach);
+  // The level set f = iso of medium's density (filtered: medium.voxels() filtered); reach:
+  // how far beyond it f is > 0 at most. The medium must outlive this.
   LevelSetBoundary(const HeterogeneousMedium& medium, const FilteredDensity& filtered, float iso, float reach);
 
   float distance(const Vec3& p) const;  // signed, negative inside (f > iso); trilinear

@@ -72,7 +72,7 @@ void startInMedia(const Scene& scene, PathState& path) {
   path.medium = scene.mediumAt(path.ray.o, path.ray.time);
 }
 
-BundleStats traceBundle(const Scene& scene, std::vector<PathState>& paths, float pa, bool fold) {
+BundleStats traceBundle(const Scene& scene, std::vector<PathState>& paths, float pa) {
   const RenderSettings& rs = scene.settings();
   const size_t n = paths.size();
   const int N = int(n);
@@ -123,14 +123,8 @@ BundleStats traceBundle(const Scene& scene, std::vector<PathState>& paths, float
       split.clear();
     }
   }
-  if (fold) foldSplits(paths, n);
+  foldSplits(paths, n);
   return stats;
-}
-
-double RouletteTuning::variance(double p) const {
-  if (p <= 1.0) return V0 + V1 + H2 * (1.0 / p - 1.0);
-  const double f = p - std::floor(p);
-  return V0 + V1 / p + H12 * f * (1.0 - f) / (p * p);
 }
 
 RouletteTuning tuneRoulette(const Scene& scene) {
@@ -139,12 +133,11 @@ RouletteTuning tuneRoulette(const Scene& scene) {
   const int64_t total = int64_t(rs.width) * rs.height;
   const int64_t count = std::min<int64_t>(total, std::max<int64_t>(64, total / 100));
   const int N = std::max(2, std::min(rs.bundleSize, rs.spp));
-  struct PixelResult { double V01 = 0, V1 = 0, H2 = 0, H12 = 0, tL = 0, tH = 0; };
+  struct PixelResult { double VL = 0, VH = 0, tL = 0, tH = 0; };
   std::vector<PixelResult> res(static_cast<size_t>(count), PixelResult());
   const Camera& cam = scene.camera();
   auto body = [&](const tbb::blocked_range<int64_t>& r) {
     std::vector<PathState> paths;
-    std::vector<double> lo, h1, h2;
     for (int64_t i = r.begin(); i < r.end(); ++i) {
       // Pixels spread evenly over the image (a stride through the raster order).
       int64_t idx = (i * total) / count + (total / count) / 2;
@@ -157,49 +150,22 @@ RouletteTuning tuneRoulette(const Scene& scene) {
         p.rng = rng;
         paths.push_back(p);
       }
-      // Two continuations of weight 1/2 per path entering the media: H_1 and H_2 are
-      // twice their radiance. A path with none (it never entered them) is all low order:
-      // no P_a changes it.
-      traceBundle(scene, paths, 2.0f, false);
-      lo.assign(size_t(N), 0.0);
-      h1.assign(size_t(N), 0.0);
-      h2.assign(size_t(N), 0.0);
-      std::vector<char> switched(size_t(N), 0);
+      traceBundle(scene, paths, 1.0f);
+      // L + H and H per path (H: what it carried after entering the media, 0 if it never did).
+      double s = 0, s2 = 0, h2 = 0;
       PixelResult& pr = res[size_t(i)];
-      for (size_t j = size_t(N); j < paths.size(); ++j) {
-        const PathState& c = paths[j];
-        const size_t k = size_t(c.splitFrom);
-        switched[k] = 1;
-        h2[k] = 2.0 * luminance(c.L[kVpt] + c.L[kDa]);
-        pr.tH += 0.5 * c.cost[1];
-      }
-      for (size_t k = 0; k < size_t(N); ++k) {
-        const PathState& p = paths[k];
-        if (switched[k]) {
-          lo[k] = luminance(p.L[kEpt] + p.L[kPpt]);
-          h1[k] = 2.0 * luminance(p.L[kVpt] + p.L[kDa]);
-          pr.tL += p.cost[0];
-          pr.tH += 0.5 * p.cost[1];
-        } else {
-          lo[k] = luminance(p.radiance());
-          pr.tL += p.cost[0] + p.cost[1];
-        }
-        if (!std::isfinite(lo[k]) || !std::isfinite(h1[k]) || !std::isfinite(h2[k])) lo[k] = h1[k] = h2[k] = 0;
-      }
-      double s = 0, s2 = 0;
-      for (size_t k = 0; k < size_t(N); ++k) {
-        const double v = lo[k] + h1[k];
-        s += v;
-        s2 += v * v;
-        pr.V1 += 0.5 * (h1[k] - h2[k]) * (h1[k] - h2[k]);
-        pr.H2 += 0.5 * (h1[k] * h1[k] + h2[k] * h2[k]);
-        pr.H12 += h1[k] * h2[k];
+      for (const PathState& p : paths) {
+        double all = luminance(p.radiance()), hi = p.enteredMedia ? luminance(p.L[kVpt] + p.L[kDa]) : 0.0;
+        if (!std::isfinite(all) || !std::isfinite(hi)) all = hi = 0;
+        s += all;
+        s2 += all * all;
+        h2 += hi * hi;
+        pr.tL += p.enteredMedia ? p.cost[0] : p.cost[0] + p.cost[1];
+        pr.tH += p.enteredMedia ? p.cost[1] : 0.0;
       }
       const double m = s / N;
-      pr.V01 = std::max(0.0, s2 / N - m * m) * N / (N - 1);
-      pr.V1 /= N;
-      pr.H2 /= N;
-      pr.H12 /= N;
+      pr.VH = h2 / N;
+      pr.VL = std::max(0.0, s2 / N - m * m) * N / (N - 1) - pr.VH;
       pr.tL /= N;
       pr.tH /= N;
     }
@@ -211,33 +177,19 @@ RouletteTuning tuneRoulette(const Scene& scene) {
   } else {
     tbb::parallel_for(range, body);
   }
-  double V01 = 0;
   for (const PixelResult& pr : res) {  // in order: deterministic sums
-    V01 += pr.V01; out.V1 += pr.V1; out.H2 += pr.H2; out.H12 += pr.H12; out.tL += pr.tL; out.tH += pr.tH;
+    out.VL += pr.VL; out.VH += pr.VH; out.tL += pr.tL; out.tH += pr.tH;
   }
   out.pixels = int(count);
-  const double c = double(count);
-  V01 /= c; out.V1 /= c; out.H2 /= c; out.H12 /= c; out.tL /= c; out.tH /= c;
-  out.V0 = std::max(0.0, V01 - out.V1);
+  out.VL /= double(count); out.VH /= double(count); out.tL /= double(count); out.tH /= double(count);
   out.pa = bestContinuations(out);
   return out;
 }
 
 float bestContinuations(const RouletteTuning& t) {
-  // No high-order work or no noise: nothing to gain from roulette.
-  if (!(t.tH > 0) || !(t.variance(1.0) > 0)) return 1.0f;
-  // The least variance × cost on a grid of P_a in [0.05, 1]. Not above: splitting's
-  // predicted gains did not carry over to the images' error × time (hybrid.h).
-  float pa = 1.0f;
-  double best = t.variance(1.0) * t.cost(1.0);
-  for (int k = 5; k < 100; ++k) {
-    const double p = 0.01 * k, v = t.variance(p) * t.cost(p);
-    if (v < best * (1.0 - 1e-9)) {
-      best = v;
-      pa = float(p);
-    }
-  }
-  return pa;
+  // No high-order work, or no low-order noise to weigh it against: nothing to gain.
+  if (!(t.tH > 0) || !(t.VL > 0)) return 1.0f;
+  return float(std::clamp(std::sqrt(t.VH * t.tL / (t.VL * t.tH)), 0.05, 1.0));
 }
 
 }  // namespace granular

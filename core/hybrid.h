@@ -15,24 +15,19 @@
 // splitting when P_a > 1 (⌊P_a⌋ or ⌈P_a⌉ of them, the expected count P_a; set by hand,
 // RenderSettings::roulette) — several continuations share one costly first grain. The
 // continuations of a split are traced with the bundle, each on its own random stream, and
-// folded into their path's radiance at the end.
+// added into their path's radiance at the end. Roulette inside the media sees the
+// throughput before the 1/P_a (PathState::rrScale).
 //
 // tuneRoulette() is the pre-render: on about 1% of the pixels (at least 64) it traces
-// bundles with two continuations per path entering the media, and from them, averaged over the
-// pixels: V_0, the variance of a sample that no P_a changes (the low-order part and the
-// continuations' mean given the state at the switch, Var(L + E[H|s])); V_1 = E[Var(H|s)],
-// the continuations' own variance (half the mean squared difference of the two);
-// H_2 = E[H²] and H_12 = E[E[H|s]²] (the mean product of the two); and the
-// deterministic costs t_L, t_H (ray casts) of the parts before and after the switch.
-// A sample's variance at P_a is
-//   P_a ≤ 1:  V_0 + V_1 + H_2 (1/P_a − 1)                       (roulette)
-//   P_a ≥ 1:  V_0 + V_1/P_a + H_12 f(1 − f)/P_a²,  f = P_a − ⌊P_a⌋  (splitting)
-// and its cost t_L + P_a t_H; the tuned P_a minimises their product over [0.05, 1]. That
-// is Meng et al.'s (V_L + V_H/P_a)(t_L + P_a t_H) with V_L = V_0 + V_1 − H_2 and
-// V_H = H_2, whose minimiser is sqrt(V_H t_L / (V_L t_H)). The splitting branch predicts a
-// split's variance well (tests/core/test_hybrid.cpp), but the gains it promised on the
-// bench's scenes did not show in their error × time (bench/README.md), so the tuning does
-// not split. Deterministic given the seed.
+// bundles with P_a = 1 and averages over the pixels V_L = Var(L + H) − E[H²] and
+// V_H = E[H²], where L is a path's low-order (EPT, PPT) radiance and H what it carries
+// after it enters the media (VPT, DA; 0 for a path that never does), and the
+// deterministic costs t_L, t_H (ray casts) of the two parts. A sample's variance at P_a
+// is then exactly V_L + V_H/P_a (roulette adds E[H²](1/P_a − 1)) and its cost
+// t_L + P_a t_H: Meng et al.'s product, least at P_a = sqrt(V_H t_L / (V_L t_H)), clamped
+// into [0.05, 1] (1 when V_L ≤ 0 or nothing follows the switch). The tuning does not
+// split: splitting's predicted gains did not show in the bench's error × time
+// (bench/README.md). Deterministic given the seed.
 #pragma once
 
 #include <vector>
@@ -52,24 +47,19 @@ struct BundleStats {
 void startInMedia(const Scene& scene, PathState& path);
 
 // Traces paths (already started, same pixel) to the end. pa: the expected continuations
-// at the switch to VPT (above). fold: a split's continuations are added into their path
-// (PathState::L, cost) and removed, leaving paths as it came; else they stay after the N
-// paths, each naming its path (PathState::splitFrom).
-BundleStats traceBundle(const Scene& scene, std::vector<PathState>& paths, float pa, bool fold = true);
+// at the switch to VPT (above); a split's continuations are added into their path
+// (PathState::L, cost) at the end, leaving paths as many as it came.
+BundleStats traceBundle(const Scene& scene, std::vector<PathState>& paths, float pa);
 
 struct RouletteTuning {
   float pa = 1;
-  double V0 = 0, V1 = 0, H2 = 0, H12 = 0, tL = 0, tH = 0;  // the pre-render's averages (above)
+  double VL = 0, VH = 0, tL = 0, tH = 0;  // the pre-render's averages (above)
   int pixels = 0;
-  // A sample's variance and cost at pa by the model above.
-  double variance(double pa) const;
-  double cost(double pa) const { return tL + pa * tH; }
 };
 
 RouletteTuning tuneRoulette(const Scene& scene);
 
-// The P_a in [0.05, 1] of least variance × cost by t's model (on a grid of 0.01; 1
-// without high-order work or noise).
+// Meng et al.'s P_a of least (V_L + V_H/P_a)(t_L + P_a t_H), in [0.05, 1] (above).
 float bestContinuations(const RouletteTuning& t);
 
 }  // namespace granular

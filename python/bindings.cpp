@@ -1245,10 +1245,8 @@ PYBIND11_MODULE(granular_core, m) {
             py::dict d;
             d["pa"] = t.pa;
             d["pixels"] = t.pixels;
-            d["V0"] = t.V0;
-            d["V1"] = t.V1;
-            d["H2"] = t.H2;
-            d["H12"] = t.H12;
+            d["VL"] = t.VL;
+            d["VH"] = t.VH;
             d["tL"] = t.tL;
             d["tH"] = t.tH;
             return d;

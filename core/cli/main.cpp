@@ -124,8 +124,8 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "  technique %s, bundles of %d, P_a %.3f", techniqueName(scene->settings().technique),
                    renderer.bundleSize(), rt.pa);
       if (rt.pixels)
-        std::fprintf(stderr, " (pre-render of %d pixels: V_0 %.3g, V_1 %.3g, H_2 %.3g, H_12 %.3g, t_L %.3g, t_H %.3g)",
-                     rt.pixels, rt.V0, rt.V1, rt.H2, rt.H12, rt.tL, rt.tH);
+        std::fprintf(stderr, " (pre-render of %d pixels: V_L %.3g, V_H %.3g, t_L %.3g, t_H %.3g)", rt.pixels, rt.VL,
+                     rt.VH, rt.tL, rt.tH);
       // Mean of each transport's AOV over the image: what each part contributes.
       const char* names[4] = {"ept.R", "vpt.R", "da.R", "ppt.R"};
       double part[4] = {0, 0, 0, 0};

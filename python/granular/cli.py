@@ -134,14 +134,18 @@ def _crop(text):
     return x0, x1, y0, y1
 
 
+MAX_SPLIT = 8  # core's RenderSettings::kMaxSplit: the most continuations a path splits into
+
+
 def _roulette(text):
     v = _number(text)
     if not math.isfinite(v):
         raise argparse.ArgumentTypeError(f"{text} is not finite")
     if v < 0:
         return v
-    if not 0 < v <= 8:
-        raise argparse.ArgumentTypeError(f"{text} must be in (0, 8] (above 1: splitting), or negative for automatic")
+    if not 0 < v <= MAX_SPLIT:
+        raise argparse.ArgumentTypeError(f"{text} must be in (0, {MAX_SPLIT}] (above 1: splitting), or negative for "
+                                         "automatic")
     return _single(v, text)
 
 

@@ -85,7 +85,7 @@ TEST(Crop, TheRoulettePreRenderCoversTheWholeImage) {
   Renderer crop(*cropScene);
   ASSERT_TRUE(crop.renderPass(4));
   EXPECT_EQ(crop.roulette().pixels, full.roulette().pixels);
-  EXPECT_EQ(crop.roulette().V0, full.roulette().V0);
+  EXPECT_EQ(crop.roulette().VL, full.roulette().VL);
   EXPECT_EQ(crop.roulette().tH, full.roulette().tH);
   EXPECT_EQ(crop.roulette().pa, full.roulette().pa);
 }
