@@ -1,13 +1,14 @@
 // grain_density.cpp — the grains' packing rate on 8³-voxel leaves (contract in the header).
 //
-// Gather, not scatter: grains are grouped by the leaf holding their centre (their home
-// leaf); every leaf a kernel can reach is then filled by one task that sums, in a fixed
-// order, the grains of the 27 home leaves around it. No two tasks write the same voxel,
-// so the sums do not depend on the threads, and each grain is weighed once per leaf it
-// reaches (at most 8 when Δ >= h/2).
+// A scatter in a fixed order: grains are grouped by the leaf holding their centre (their
+// home leaf); each home leaf sums its grains' kernels, each grain read and weighed once,
+// into a block of voxels covering the leaf and the reach of its kernels, then adds the
+// block into the (up to 27) leaves it covers. Home leaves whose blocks could share a leaf
+// are never summed at once, and every voxel receives its home leaves in one order, so the
+// sums do not depend on the threads.
 // Memory: the grains are ordered by the x of their home leaf (4 bytes a grain), and the
-// leaves are filled one slab of leaves (constant x) at a time from the three slabs around
-// it, whose grains' centres and volumes (32 bytes a grain) exist only then.
+// home leaves are summed one slab of leaves (constant x) at a time, whose grains' centres
+// and volumes (36 bytes a grain) exist only then.
 #include "grain_density.h"
 
 #include <algorithm>
@@ -17,6 +18,7 @@
 #include <limits>
 
 #include <tbb/blocked_range.h>
+#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_reduce.h>
 #include <tbb/parallel_sort.h>
@@ -280,117 +282,13 @@ GrainDensity buildGrainDensity(const InstancedGrainsDesc& desc, const GrainDensi
   });
   chunkCount = std::vector<uint32_t>();
 
-  // A slab's grains grouped by home leaf in key order, each leaf's in index order, with the
-  // normalisation of their kernel per axis (the same for every leaf a grain reaches); and
-  // per home leaf and direction d (target = home − d, dir = 9 (dx + 1) + 3 (dy + 1) + dz + 1)
-  // the grains whose support reaches that target, in index order: a target visits only
-  // grains that add to it (the others would add nothing), not all 27 leaves' grains.
-  struct WindowSplat {
-    Splat sp;
-    double norm[3];
-  };
-  struct Slab {
-    std::vector<WindowSplat> splats;
-    std::vector<uint64_t> homeKeys;
-    std::vector<size_t> homeStart;      // one more than homeKeys
-    std::vector<uint32_t> reaching;     // places in splats
-    std::vector<size_t> reachingStart;  // per home leaf and dir, one more in all
-  };
-  // Per axis a grain's support s0..s1 may reach the leaf below its home leaf (bit 2a: then
-  // directions with d_a = +1 reach the target) and the leaf above (bit 2a + 1: d_a = −1);
-  // the voxels s0..s1 against the home leaf's first and last, as the gather clips them.
-  auto forDirs = [&](const Splat& sp, const int64_t home[3], auto&& fn) {
-    int opts[3][3], count[3];
-    for (int a = 0; a < 3; ++a) {
-      const int64_t s0 = int64_t(std::ceil(sp.u[a] - reach)), s1 = int64_t(std::floor(sp.u[a] + reach));
-      count[a] = 0;
-      opts[a][count[a]++] = 0;
-      if (s0 <= home[a] * 8 - 1) opts[a][count[a]++] = 1;
-      if (s1 >= home[a] * 8 + 8) opts[a][count[a]++] = -1;
-    }
-    for (int i = 0; i < count[0]; ++i)
-      for (int j = 0; j < count[1]; ++j)
-        for (int k = 0; k < count[2]; ++k) fn(9 * (opts[0][i] + 1) + 3 * (opts[1][j] + 1) + opts[2][k] + 1);
-  };
+  // Target leaves (every leaf a kernel can reach: the home leaves and their 26 neighbours),
+  // in key order (= origin order, x-major: slab by slab).
   std::vector<uint64_t> homeKeys;  // every home leaf, in key order
   for (const auto& hk : chunkHomes) homeKeys.insert(homeKeys.end(), hk.begin(), hk.end());
   chunkHomes = std::vector<std::vector<uint64_t>>();
   tbb::parallel_sort(homeKeys.begin(), homeKeys.end());
   homeKeys.erase(std::unique(homeKeys.begin(), homeKeys.end()), homeKeys.end());
-  auto makeSlab = [&](size_t x) {
-    Slab slab;
-    const size_t m = slabStart[x + 1] - slabStart[x];
-    const uint32_t* grains = order.data() + slabStart[x];
-    const int64_t lx = x0 + int64_t(x);
-    const auto first = std::lower_bound(homeKeys.begin(), homeKeys.end(), leafKey(lx, -kKeyBias, -kKeyBias));
-    const auto last = std::lower_bound(first, homeKeys.end(), leafKey(lx + 1, -kKeyBias, -kKeyBias));
-    slab.homeKeys.assign(first, last);
-    const size_t H = slab.homeKeys.size();
-    // A stable counting sort by home leaf, in fixed chunks.
-    const size_t parts = std::min<size_t>(16, m / 16384 + 1);
-    auto partBegin = [&](size_t c) { return m * c / parts; };
-    std::vector<Splat> splats(m);
-    std::vector<uint32_t> home(m), count(parts * H, 0);
-    tbb::parallel_for(size_t(0), parts, [&](size_t c) {
-      for (size_t k = partBegin(c); k < partBegin(c + 1); ++k) {
-        splats[k] = splatOf(grains[k]);
-        int64_t l[3];
-        homeOf(splats[k], l);
-        home[k] = uint32_t(std::lower_bound(slab.homeKeys.begin(), slab.homeKeys.end(), leafKey(l[0], l[1], l[2])) -
-                           slab.homeKeys.begin());
-        ++count[c * H + home[k]];
-      }
-    });
-    slab.homeStart.resize(H + 1);
-    size_t at = 0;
-    for (size_t hb = 0; hb < H; ++hb) {
-      slab.homeStart[hb] = at;
-      for (size_t c = 0; c < parts; ++c) {
-        const uint32_t k = count[c * H + hb];
-        count[c * H + hb] = uint32_t(at);
-        at += k;
-      }
-    }
-    slab.homeStart[H] = at;
-    slab.splats.resize(m);
-    tbb::parallel_for(size_t(0), parts, [&](size_t c) {
-      for (size_t k = partBegin(c); k < partBegin(c + 1); ++k) {
-        WindowSplat& w = slab.splats[count[c * H + home[k]]++];
-        w.sp = splats[k];
-        for (int a = 0; a < 3; ++a) {
-          // As the gather normalised it: over the whole support.
-          const int64_t s0 = int64_t(std::ceil(w.sp.u[a] - reach)), s1 = int64_t(std::floor(w.sp.u[a] + reach));
-          double norm = 0;
-          for (int64_t j = s0; j <= s1; ++j) norm += bspline3((double(j) - w.sp.u[a]) * delta / h);
-          w.norm[a] = norm;
-        }
-      }
-    });
-    splats = {};
-    home = {};
-    count = {};
-    slab.reachingStart.assign(H * 27 + 1, 0);
-    tbb::parallel_for(size_t(0), H, [&](size_t hb) {
-      int64_t l[3];
-      keyLeaf(slab.homeKeys[hb], l);
-      for (size_t g = slab.homeStart[hb]; g != slab.homeStart[hb + 1]; ++g)
-        forDirs(slab.splats[g].sp, l, [&](int dir) { ++slab.reachingStart[hb * 27 + size_t(dir) + 1]; });
-    });
-    for (size_t k = 1; k < slab.reachingStart.size(); ++k) slab.reachingStart[k] += slab.reachingStart[k - 1];
-    slab.reaching.resize(slab.reachingStart.back());
-    tbb::parallel_for(size_t(0), H, [&](size_t hb) {
-      int64_t l[3];
-      keyLeaf(slab.homeKeys[hb], l);
-      size_t cursor[27];
-      for (int dir = 0; dir < 27; ++dir) cursor[dir] = slab.reachingStart[hb * 27 + size_t(dir)];
-      for (size_t g = slab.homeStart[hb]; g != slab.homeStart[hb + 1]; ++g)
-        forDirs(slab.splats[g].sp, l, [&](int dir) { slab.reaching[cursor[dir]++] = uint32_t(g); });
-    });
-    return slab;
-  };
-
-  // Target leaves (every leaf a kernel can reach: the home leaves and their 26 neighbours),
-  // in key order (= origin order, x-major: slab by slab).
   const size_t homeLeaves = homeKeys.size();
   std::vector<uint64_t> targets;
   targets.reserve(homeLeaves * 27);
@@ -404,119 +302,221 @@ GrainDensity buildGrainDensity(const InstancedGrainsDesc& desc, const GrainDensi
   tbb::parallel_sort(targets.begin(), targets.end());
   targets.erase(std::unique(targets.begin(), targets.end()), targets.end());
   targets.shrink_to_fit();
+  auto targetOf = [&](int64_t lx, int64_t ly, int64_t lz) {
+    return size_t(std::lower_bound(targets.begin(), targets.end(), leafKey(lx, ly, lz)) - targets.begin());
+  };
 
   const bool mix = options.fractions && P > 1;
   const size_t T = targets.size();
   // Written in place at each target's index, the leaves no kernel reached squeezed out below.
-  out.packing.values.resize(T * VoxelLeaves::kLeafVoxels);
+  // With several prototypes the fractions' arrays first sum each prototype's weights.
+  out.packing.values.assign(T * VoxelLeaves::kLeafVoxels, 0.0f);
   if (mix) out.fractions.assign(P, VoxelLeaves());
   for (size_t p = 0; mix && p < P; ++p) {
     out.fractions[p].voxelSize = out.packing.voxelSize;
-    out.fractions[p].values.resize(T * VoxelLeaves::kLeafVoxels);
+    out.fractions[p].values.assign(T * VoxelLeaves::kLeafVoxels, 0.0f);
   }
   std::vector<uint8_t> touched(T, 0);
   const double invVoxel3 = 1.0 / (delta * delta * delta);
-  // The window of slabs x − 1, x, x + 1 around the targets' slab x.
-  std::vector<Slab> window(3);
-  int64_t windowX = INT64_MIN;  // slab index (x0-relative) of window[1]
-  size_t splatPeak = 0;  // bytes of the window at its largest
-  for (size_t t0 = 0; t0 < T;) {
-    int64_t L0[3];
-    keyLeaf(targets[t0], L0);
-    size_t t1 = t0;
-    while (t1 < T && (targets[t1] >> 42) == (targets[t0] >> 42)) ++t1;
-    const int64_t X = L0[0] - x0;  // this run of targets' slab
-    auto slabAt = [&](int64_t x) { return x >= 0 && x < int64_t(slabs) ? makeSlab(size_t(x)) : Slab(); };
-    if (X == windowX + 1) {
-      window[0] = std::move(window[1]);
-      window[1] = std::move(window[2]);
-      window[2] = slabAt(X + 1);
-    } else {
-      for (int k = 0; k < 3; ++k) window[size_t(k)] = slabAt(X - 1 + k);
+
+  // A home leaf's grains reach the voxels [8 l − R, 8 l + 7 + R] per axis, R = ⌈2h/Δ⌉ (at
+  // most 8: no further than the next leaf): a block of B³ voxels summed in double, then
+  // added into the (up to 27) targets it covers.
+  const int R = std::min(8, int(std::ceil(reach))), B = 8 + 2 * R;
+  const size_t blockVoxels = size_t(B) * B * B;
+  struct Block {
+    std::vector<double> f, num;  // B³; P × B³ with several prototypes
+  };
+  tbb::enumerable_thread_specific<Block> blocks([&] {
+    Block b;
+    b.f.resize(blockVoxels);
+    b.num.resize(mix ? P * blockVoxels : 0);
+    return b;
+  });
+  auto scatterHome = [&](const Splat* sp, size_t count, const int64_t l[3]) {
+    Block& b = blocks.local();
+    std::fill(b.f.begin(), b.f.end(), 0.0);
+    std::fill(b.num.begin(), b.num.end(), 0.0);
+    for (size_t g = 0; g < count; ++g) {
+      const Splat& s = sp[g];
+      // Per axis the weights over the support, normalised to sum to 1 (exactly 1/Δ · Δ
+      // at Δ = h/2 already), and where they start in the block.
+      double w[3][17];
+      int first[3], len[3];
+      for (int a = 0; a < 3; ++a) {
+        const int64_t s0 = int64_t(std::ceil(s.u[a] - reach)), s1 = int64_t(std::floor(s.u[a] + reach));
+        double norm = 0;
+        for (int64_t j = s0; j <= s1; ++j) norm += w[a][j - s0] = bspline3((double(j) - s.u[a]) * delta / h);
+        const double inv = norm > 0 ? 1.0 / norm : 0.0;
+        for (int64_t j = s0; j <= s1; ++j) w[a][j - s0] *= inv;
+        first[a] = int(s0 - (l[a] * 8 - R));
+        len[a] = int(s1 - s0 + 1);
+        // Where Δ rounds just below h/4 a weight of about 0 (at ±2h) lies past the next leaf.
+        if (first[a] < 0) {
+          std::copy(w[a] - first[a], w[a] + len[a], w[a]);
+          len[a] += first[a];
+          first[a] = 0;
+        }
+        len[a] = std::min(len[a], B - first[a]);
+      }
+      const double v = double(s.volume) * invVoxel3;
+      double* num = mix ? b.num.data() + size_t(s.proto) * blockVoxels : nullptr;
+      for (int i = 0; i < len[0]; ++i) {
+        const double wi = w[0][i];
+        for (int j = 0; j < len[1]; ++j) {
+          const double wij = wi * w[1][j];
+          const size_t row = (size_t(first[0] + i) * size_t(B) + size_t(first[1] + j)) * size_t(B) + size_t(first[2]);
+          double* f = b.f.data() + row;
+          for (int k = 0; k < len[2]; ++k) f[k] += v * (wij * w[2][k]);
+          if (num)
+            for (int k = 0; k < len[2]; ++k) num[row + size_t(k)] += wij * w[2][k];
+        }
+      }
     }
-    windowX = X;
-    size_t windowBytes = 0;
-    for (const Slab& w : window)
-      windowBytes += w.splats.size() * sizeof(WindowSplat) + w.reaching.size() * sizeof(uint32_t) +
-                     (w.reachingStart.size() + w.homeStart.size() + w.homeKeys.size()) * sizeof(size_t);
-    splatPeak = std::max(splatPeak, windowBytes);
-    tbb::parallel_for(tbb::blocked_range<size_t>(t0, t1, 4), [&](const tbb::blocked_range<size_t>& r) {
-      std::vector<double> acc(VoxelLeaves::kLeafVoxels), num(mix ? P * VoxelLeaves::kLeafVoxels : 0);
-      double w[3][VoxelLeaves::kLeafDim];
-      for (size_t t = r.begin(); t != r.end(); ++t) {
-        int64_t L[3];
-        keyLeaf(targets[t], L);
-        std::fill(acc.begin(), acc.end(), 0.0);
-        std::fill(num.begin(), num.end(), 0.0);
-        bool any = false;
-        for (int dx = -1; dx <= 1; ++dx) {
-          const Slab& slab = window[size_t(dx + 1)];
-          for (int dy = -1; dy <= 1; ++dy)
-            for (int dz = -1; dz <= 1; ++dz) {
-              const uint64_t hk = leafKey(L[0] + dx, L[1] + dy, L[2] + dz);
-              auto it = std::lower_bound(slab.homeKeys.begin(), slab.homeKeys.end(), hk);
-              if (it == slab.homeKeys.end() || *it != hk) continue;
-              const size_t hb = size_t(it - slab.homeKeys.begin());
-              const size_t dir = size_t(9 * (dx + 1) + 3 * (dy + 1) + dz + 1);
-              for (size_t r = slab.reachingStart[hb * 27 + dir]; r != slab.reachingStart[hb * 27 + dir + 1]; ++r) {
-                const WindowSplat& ws = slab.splats[slab.reaching[r]];
-                const Splat& sp = ws.sp;
-                int64_t a0[3], a1[3];
-                bool inside = true;
-                for (int a = 0; a < 3 && inside; ++a) {
-                  // Voxels within the support, then those of this leaf.
-                  const int64_t s0 = int64_t(std::ceil(sp.u[a] - reach)), s1 = int64_t(std::floor(sp.u[a] + reach));
-                  a0[a] = std::max(s0, L[a] * 8);
-                  a1[a] = std::min(s1, L[a] * 8 + 7);
-                  if (a0[a] > a1[a]) { inside = false; break; }
-                  // Normalised per axis over the whole support (exactly 1/Δ at Δ = h/2 already).
-                  const double norm = ws.norm[a];
-                  for (int64_t j = a0[a]; j <= a1[a]; ++j)
-                    w[a][j - L[a] * 8] = norm > 0 ? bspline3((double(j) - sp.u[a]) * delta / h) / norm : 0.0;
-                }
-                if (!inside) continue;
-                any = true;
-                const double v = double(sp.volume) * invVoxel3;
-                for (int64_t i = a0[0]; i <= a1[0]; ++i) {
-                  const double wi = w[0][i - L[0] * 8];
-                  for (int64_t j = a0[1]; j <= a1[1]; ++j) {
-                    const double wij = wi * w[1][j - L[1] * 8];
-                    const int base = VoxelLeaves::offset(int(i & 7), int(j & 7), 0);
-                    for (int64_t k = a0[2]; k <= a1[2]; ++k) {
-                      const double wk = wij * w[2][k - L[2] * 8];
-                      acc[size_t(base + int(k & 7))] += v * wk;
-                      if (mix) num[size_t(sp.proto) * VoxelLeaves::kLeafVoxels + size_t(base + int(k & 7))] += wk;
-                    }
-                  }
+    // Into the targets: per axis the block's voxels [0, R) lie in the leaf below, [R, R + 8)
+    // in the home leaf, [R + 8, B) in the leaf above.
+    for (int dx = -1; dx <= 1; ++dx)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dz = -1; dz <= 1; ++dz) {
+          const int d[3] = {dx, dy, dz};
+          int lo[3], hi[3];
+          for (int a = 0; a < 3; ++a) {
+            lo[a] = d[a] < 0 ? 0 : d[a] == 0 ? R : R + 8;
+            hi[a] = d[a] < 0 ? R : d[a] == 0 ? R + 8 : B;
+          }
+          if (lo[0] == hi[0] || lo[1] == hi[1] || lo[2] == hi[2]) continue;
+          const size_t t = targetOf(l[0] + dx, l[1] + dy, l[2] + dz);
+          touched[t] = 1;
+          float* dst = out.packing.values.data() + t * VoxelLeaves::kLeafVoxels;
+          for (int i = lo[0]; i < hi[0]; ++i)
+            for (int j = lo[1]; j < hi[1]; ++j)
+              for (int k = lo[2]; k < hi[2]; ++k) {
+                // Block voxel b lies at 8 l − R + b, in the target at (8 l − R + b) & 7.
+                const int o = VoxelLeaves::offset(i - R, j - R, k - R);
+                const size_t src = (size_t(i) * size_t(B) + size_t(j)) * size_t(B) + size_t(k);
+                dst[o] = float(double(dst[o]) + b.f[src]);
+                for (size_t p = 0; mix && p < P; ++p) {
+                  float* nd = out.fractions[p].values.data() + t * VoxelLeaves::kLeafVoxels;
+                  nd[o] = float(double(nd[o]) + b.num[p * blockVoxels + src]);
                 }
               }
-            }
         }
-        if (!any) continue;
-        bool nonzero = false;
-        float* values = out.packing.values.data() + t * VoxelLeaves::kLeafVoxels;
-        for (int o = 0; o < VoxelLeaves::kLeafVoxels; ++o) {
-          // Below float's smallest normal a value is 0: a denormal reads as 0 wherever the
-          // floating-point mode flushes them (the fractions follow the value kept).
-          float f = float(acc[size_t(o)]);
-          if (!(f >= std::numeric_limits<float>::min())) f = 0.0f;
-          values[o] = f;
-          nonzero |= f > 0;
-          if (!mix || f == 0.0f) continue;  // the fractions were made 0
-          double total = 0;
-          for (size_t p = 0; p < P; ++p) total += num[p * VoxelLeaves::kLeafVoxels + size_t(o)];
-          for (size_t p = 0; p < P; ++p)
-            out.fractions[p].values[t * VoxelLeaves::kLeafVoxels + size_t(o)] =
-                total > 0 ? float(num[p * VoxelLeaves::kLeafVoxels + size_t(o)] / total) : 0.0f;
-        }
-        touched[t] = nonzero;
+  };
+
+  // Slab by slab (constant x of the home leaf): its grains grouped by home leaf in key
+  // order, each leaf's in index order (a stable counting sort in fixed chunks), then its
+  // home leaves scattered in nine passes by (y mod 3, z mod 3) of the leaf: home leaves of
+  // one pass are 3 leaves apart or more, so their blocks (±1 leaf) never share a target,
+  // and every target voxel sums its home leaves in a fixed order (slab, pass, grain)
+  // whatever the threads.
+  size_t slabPeak = 0;  // bytes of a slab's working arrays at their largest
+  for (size_t x = 0; x < slabs; ++x) {
+    const size_t m = slabStart[x + 1] - slabStart[x];
+    if (m == 0) continue;
+    const uint32_t* grains = order.data() + slabStart[x];
+    const int64_t lx = x0 + int64_t(x);
+    const auto firstHome = std::lower_bound(homeKeys.begin(), homeKeys.end(), leafKey(lx, -kKeyBias, -kKeyBias));
+    const auto lastHome = std::lower_bound(firstHome, homeKeys.end(), leafKey(lx + 1, -kKeyBias, -kKeyBias));
+    const std::vector<uint64_t> slabHomes(firstHome, lastHome);
+    const size_t H = slabHomes.size();
+    const size_t parts = std::min<size_t>(16, m / 16384 + 1);
+    auto partBegin = [&](size_t c) { return m * c / parts; };
+    // Each home leaf's place in the slab: through a table over the slab's (y, z) box of
+    // leaves where that box is not much larger than the leaves it holds, else searched.
+    int64_t ylo = INT64_MAX, yhi = INT64_MIN, zlo = INT64_MAX, zhi = INT64_MIN;
+    for (uint64_t k : slabHomes) {
+      int64_t l[3];
+      keyLeaf(k, l);
+      ylo = std::min(ylo, l[1]), yhi = std::max(yhi, l[1]), zlo = std::min(zlo, l[2]), zhi = std::max(zhi, l[2]);
+    }
+    const size_t ny = size_t(yhi - ylo + 1), nz = size_t(zhi - zlo + 1);
+    std::vector<uint32_t> table;
+    if (double(ny) * double(nz) <= 16.0 * double(H) + 4096) {
+      table.resize(ny * nz);
+      for (size_t hb = 0; hb < H; ++hb) {
+        int64_t l[3];
+        keyLeaf(slabHomes[hb], l);
+        table[size_t(l[1] - ylo) * nz + size_t(l[2] - zlo)] = uint32_t(hb);
+      }
+    }
+    auto placeOf = [&](const int64_t l[3]) {
+      return table.empty() ? uint32_t(std::lower_bound(slabHomes.begin(), slabHomes.end(), leafKey(l[0], l[1], l[2])) -
+                                      slabHomes.begin())
+                           : table[size_t(l[1] - ylo) * nz + size_t(l[2] - zlo)];
+    };
+    std::vector<Splat> unsorted(m);
+    std::vector<uint32_t> home(m), count(parts * H, 0);
+    tbb::parallel_for(size_t(0), parts, [&](size_t c) {
+      for (size_t k = partBegin(c); k < partBegin(c + 1); ++k) {
+        int64_t l[3];
+        unsorted[k] = splatOf(grains[k]);
+        homeOf(unsorted[k], l);
+        home[k] = placeOf(l);
+        ++count[c * H + home[k]];
       }
     });
-    t0 = t1;
+    std::vector<size_t> homeStart(H + 1);
+    size_t at = 0;
+    for (size_t hb = 0; hb < H; ++hb) {
+      homeStart[hb] = at;
+      for (size_t c = 0; c < parts; ++c) {
+        const uint32_t k = count[c * H + hb];
+        count[c * H + hb] = uint32_t(at);
+        at += k;
+      }
+    }
+    homeStart[H] = at;
+    std::vector<Splat> splats(m);
+    tbb::parallel_for(size_t(0), parts, [&](size_t c) {
+      for (size_t k = partBegin(c); k < partBegin(c + 1); ++k) splats[count[c * H + home[k]]++] = unsorted[k];
+    });
+    slabPeak = std::max(slabPeak, m * (2 * sizeof(Splat) + sizeof(uint32_t)) + (parts * H + table.size()) * sizeof(uint32_t) +
+                                      H * (sizeof(uint64_t) + sizeof(size_t)));
+    unsorted = {};
+    home = {};
+    count = {};
+    for (int pass = 0; pass < 9; ++pass) {
+      std::vector<size_t> these;
+      for (size_t hb = 0; hb < H; ++hb) {
+        int64_t l[3];
+        keyLeaf(slabHomes[hb], l);
+        if (int(((l[1] % 3) + 3) % 3) * 3 + int(((l[2] % 3) + 3) % 3) == pass) these.push_back(hb);
+      }
+      tbb::parallel_for(size_t(0), these.size(), [&](size_t e) {
+        const size_t hb = these[e];
+        int64_t l[3];
+        keyLeaf(slabHomes[hb], l);
+        scatterHome(splats.data() + homeStart[hb], homeStart[hb + 1] - homeStart[hb], l);
+      });
+    }
   }
-  window.clear();
   order = std::vector<uint32_t>();
-  out.stats.buildBytes = n * sizeof(uint32_t) + splatPeak + homeLeaves * 27 * sizeof(uint64_t);
+  size_t blockBytes = 0;
+  for (const Block& b : blocks) blockBytes += (b.f.size() + b.num.size()) * sizeof(double);
+  out.stats.buildBytes = n * sizeof(uint32_t) + slabPeak + T * sizeof(uint64_t) + blockBytes;
+
+  // Below float's smallest normal a value is 0: a denormal reads as 0 wherever the
+  // floating-point mode flushes them; the fractions divide the prototypes' weights by
+  // their sum where a value is kept, else are 0.
+  tbb::parallel_for(size_t(0), T, [&](size_t t) {
+    if (!touched[t]) return;
+    bool nonzero = false;
+    float* values = out.packing.values.data() + t * VoxelLeaves::kLeafVoxels;
+    for (int o = 0; o < VoxelLeaves::kLeafVoxels; ++o) {
+      float& f = values[o];
+      if (!(f >= std::numeric_limits<float>::min())) f = 0.0f;
+      nonzero |= f > 0;
+      if (!mix) continue;
+      const size_t at = t * VoxelLeaves::kLeafVoxels + size_t(o);
+      double total = 0;
+      for (size_t p = 0; p < P; ++p) total += out.fractions[p].values[at];
+      for (size_t p = 0; p < P; ++p) {
+        float& q = out.fractions[p].values[at];
+        q = f > 0 && total > 0 ? float(double(q) / total) : 0.0f;
+      }
+    }
+    touched[t] = nonzero;
+  });
 
   // Keep the leaves some kernel reached, in key order (= origin order), moved down in place.
   size_t kept = 0;

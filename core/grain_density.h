@@ -33,13 +33,14 @@
 //    origin; a voxel is active where some grain's kernel is > 0 there. Memory: 2 KiB per
 //    leaf for f plus 2 KiB per leaf per prototype when there are several (stats.bytes);
 //    while it runs, the build needs 4 bytes per grain (the grains ordered by the x of
-//    their leaf) and, for three slabs of leaves (constant x) at a time, 70 bytes per
-//    grain in them (centre, volume, kernel normalisation, lists): stats.buildBytes. In a
+//    their leaf), for one slab of leaves (constant x) at a time 40 bytes per grain in it
+//    (centre, volume, place), and per thread a block of (8 + 2⌈2h/Δ⌉)³ doubles (per
+//    prototype too with fractions): stats.buildBytes. In a
 //    bulk of packing rate f, Δ = 1.5 R̄ holds about (4/3)π R̄³ φ / (f Δ³) ≈ 2 voxels per grain (φ the grains'
 //    fill of their bounding spheres): ≈ 8 bytes per grain per grid, plus the surface leaves.
 //  - Build: linear in the grains (counting sorts by slab and by leaf), in parallel (TBB)
-//    over leaves, each leaf summing its grains in index order: the result does not depend
-//    on the thread count. Validates the description (validateInstancedGrains) and
+//    over leaves, each grain weighed once, each voxel summing its grains in one fixed
+//    order: the result does not depend on the thread count. Validates the description (validateInstancedGrains) and
 //    throws InputError on <name>.kernelWidth, .voxelSize or .transform; a grid wider than
 //    2^20 voxels along an axis is refused (InputError on voxelSize).
 #pragma once

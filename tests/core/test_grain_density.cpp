@@ -205,7 +205,9 @@ TEST(GrainDensity, EveryVoxelIsTheSumOverItsGrainsAcrossSlabsAndGaps) {
     L.desc.positions[i] += Vec3(toUnitFloat(hsh) - 0.5f, toUnitFloat(hsh << 20) - 0.5f, toUnitFloat(hsh << 40) - 0.5f) * 0.3f;
   }
   const double h = 0.9;
-  for (const double voxelOverH : {0.25, 0.5, 1.0}) {
+  // Voxels whose kernel reach 2h/Δ is a whole number and not (7.997, 2.86): a home leaf's
+  // grains then reach ⌈2h/Δ⌉ voxels past it on one side.
+  for (const double voxelOverH : {0.25, 0.2501, 0.5, 0.7, 1.0}) {
     GrainDensityOptions opt;
     opt.kernelWidth = float(h);
     opt.voxelSize = float(voxelOverH * h);
