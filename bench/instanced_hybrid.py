@@ -11,8 +11,9 @@ and build, from the caches, left out; the set-up is reported apart).
 
 Usage: .venv/bin/python bench/instanced_hybrid.py [--grains 100000] [--size 80x60]
        [--ref-spp 1024] [--targets 0.02,0.01] [--out out/bench/instanced_hybrid] [--threads T]
-       [--da] [--absorption-scale S] [--material ice] [--slab-depth D]
-Prints a markdown table and the ladders.
+       [--da] [--absorption-scale S] [--material ice] [--slab-depth D] [--gradient G]
+Prints a markdown table and the ladders; each step's heap mean against the reference's with
+its standard error (both images' variance AOVs).
 
 --da compares the hybrid with DA in the heap's heterogeneous medium against
 the hybrid without it (without `--instanced-da`: VPT to the end there) instead of EPT against
@@ -21,7 +22,8 @@ speed-up is DA's at equal error against what it replaces, and each step's "heap 
 DA's bias against VPT to the end (core/heterogeneous_diffusion.h). --absorption-scale S
 multiplies the grains' absorption (the generator's quartz sand) by S: brighter grains
 (S < 1) scatter longer, where DA takes more of the light. --material and --slab-depth go to the
-generator: ice grains (nearly clear), a flat slab D grid cells deep instead of the cone.
+generator: ice grains (nearly clear), a flat slab D grid cells deep instead of the cone,
+its packing rate rising G times from bottom to top (a medium of varying density).
 """
 import argparse
 import math
@@ -58,7 +60,8 @@ def render(stage, out, size, spp, options, seed, threads=0):
 
 
 def load(path, da=False):
-    """The image's RGB and primId; with da also the da.R/G/B AOV (DA's light), zero if absent."""
+    """The image's RGB and primId; with da also the da.R/G/B AOV (DA's light), zero if absent,
+    and the variance.R/G/B AOV (each pixel's squared standard error)."""
     import granular_core as core
     im = core.read_exr(path)
     px = np.asarray(im.pixels, dtype=np.float64)
@@ -67,7 +70,17 @@ def load(path, da=False):
     if not da:
         return rgb, px[..., ch.index("primId")]
     dal = px[..., [ch.index("da." + c) for c in "RGB"]] if "da.R" in ch else np.zeros_like(rgb)
-    return rgb, px[..., ch.index("primId")], dal
+    var = px[..., [ch.index("variance." + c) for c in "RGB"]]
+    return rgb, px[..., ch.index("primId")], dal, var
+
+
+def mean_bias(img, var, ref, ref_var, mask):
+    """The masked mean's relative difference from the reference's, per channel, and its
+    standard error (pixels independent: the mean's variance is Σ var / N²)."""
+    n = np.count_nonzero(mask)
+    a, b = img[mask].mean(axis=0), ref[mask].mean(axis=0)
+    se = np.sqrt(var[mask].sum(axis=0) + ref_var[mask].sum(axis=0)) / n
+    return a / b - 1, se / b
 
 
 def scale_absorption(stage_path, scale):
@@ -106,13 +119,16 @@ def main():
     ap.add_argument("--material", choices=["quartz_sand", "ice"], default="quartz_sand",
                     help="the grains' material (make_grain_heap.py)")
     ap.add_argument("--slab-depth", type=int, help="a slab this many grid cells deep (make_grain_heap.py)")
+    ap.add_argument("--gradient", type=float, default=1.0,
+                    help="with --slab-depth: the slab's packing rate rises this many times to its top")
     args = ap.parse_args()
     variants = DA_VARIANTS if args.da else VARIANTS
     names = list(variants)
     os.makedirs(args.out, exist_ok=True)
     size = tuple(int(x) for x in args.size.split("x"))
     stage = os.path.join(args.out, "heap.usdc")
-    shape = ["--material", args.material] + (["--slab-depth", str(args.slab_depth)] if args.slab_depth else [])
+    shape = ["--material", args.material] + (["--slab-depth", str(args.slab_depth)] if args.slab_depth else []) + \
+        (["--gradient", str(args.gradient)] if args.gradient != 1.0 else [])
     subprocess.run([sys.executable, os.path.join(ROOT, "examples", "make_grain_heap.py"), stage, "--grains",
                     str(args.grains), "--frames", "1"] + shape, check=True, capture_output=True)
     if args.absorption_scale != 1.0:
@@ -120,7 +136,7 @@ def main():
     ref_path = os.path.join(args.out, f"ref_da_off_abs{args.absorption_scale:g}.exr" if args.da else "ref.exr")
     if not os.path.exists(ref_path):
         render(stage, ref_path, size, args.ref_spp, variants[names[0]], 1000, args.threads)
-    ref, prim = load(ref_path)
+    ref, prim, _, ref_var = load(ref_path, da=True)
     heap = prim == 1
     ladders, setup = {}, {}
     for name in names:
@@ -129,16 +145,17 @@ def main():
             out = os.path.join(args.out, f"{name.replace(', ', '_').replace(' ', '_')}_{spp}.exr")
             seconds, built, da_paths = render(stage, out, size, spp, variants[name], 1, args.threads)
             setup[name] = built
-            img, _, dal = load(out, da=True)
+            img, _, dal, var = load(out, da=True)
             err = float((((img - ref) ** 2) / (ref ** 2 + 0.01))[heap].mean())
-            bias = img[heap].mean(axis=0) / ref[heap].mean(axis=0) - 1
+            bias, bias_se = mean_bias(img, var, ref, ref_var, heap)
             ladders[name].append((seconds, err))
             da = f", DA on {da_paths:.1f}% of paths" if da_paths is not None else ""
             if dal.any():  # DA's share of the heap's light, per channel
                 share = dal[heap].mean(axis=0) / img[heap].mean(axis=0)
                 da += f", DA's light {', '.join(f'{100 * x:.1f}%' for x in share)}"
             print(f"  {name} {spp} spp: {seconds:.2f} s, relMSE {err:.4g}, heap mean (R, G, B) "
-                  f"{', '.join(f'{100 * b:+.2f}%' for b in bias)}{da}", flush=True)
+                  f"{', '.join(f'{100 * b:+.2f}%' for b in bias)} ± {', '.join(f'{100 * e:.2f}' for e in bias_se)}"
+                  f"{da}", flush=True)
     print(f"\n{args.grains} grains, {size[0]}x{size[1]}, reference: {names[0]} at {args.ref_spp} spp; "
           f"scene read and built: {names[0]} {setup[names[0]]:.2f} s, {names[1]} {setup[names[1]]:.2f} s\n")
     print(f"| relMSE target | {names[0]} (s) | {names[1]} (s) | speed-up |")

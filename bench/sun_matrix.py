@@ -17,7 +17,8 @@ that grows towards phase 0) from a free-path error (flat).
 
 Usage: python3 bench/sun_matrix.py [--build build] [--materials quartz_sand,ice,sucrose,glass_mixture]
          [--shapes ball,slab] [--suns 20,5] [--elevations 15,45,80] [--phases 0,30,60,90,120,150]
-         [--spp 64] [--seeds 2] [--width 32] [--height 24] [--json out/bench/sun_matrix.json]
+         [--spp 64] [--seeds 2] [--width 32] [--height 24] [--techniques proxies,medium,medium-only]
+         [--json out/bench/sun_matrix.json]
          [--plot out/bench/sun_matrix.png]
 Prints a markdown table; --plot draws the medium-only and proxy biases against phase angle.
 """
@@ -33,9 +34,10 @@ ROOT = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
 import accuracy_matrix  # noqa: E402  (its measure(): the object's mean per seed; save_figure)
 
-# name -> (technique, proxies, explicit_bounces or None for the automatic count)
-TECHNIQUES = {"proxies": ("EptVpt", "On", None), "medium": ("EptVpt", "Off", None),
-              "medium-only": ("EptVpt", "Off", 0)}
+# name -> (technique, proxies, explicit_bounces or None for the automatic count); `default`
+# is the hybrid as a user gets it (proxies Auto).
+TECHNIQUES = {"default": ("EptVpt", "Auto", None), "proxies": ("EptVpt", "On", None),
+              "medium": ("EptVpt", "Off", None), "medium-only": ("EptVpt", "Off", 0)}
 VIEW_ELEVATION = 30.0
 
 
@@ -107,7 +109,7 @@ def run_case(core, material, shape, sun, elevation, phase, args, tmp):
     out = {"material": material, "shape": shape, "sun": sun, "elevation": elevation, "phase": phase,
            "azimuth": azimuth, "techniques": {}}
     ref = None
-    for name, (technique, proxies, bounces) in [("ept", ("Ept", "Off", None))] + list(TECHNIQUES.items()):
+    for name, (technique, proxies, bounces) in [("ept", ("Ept", "Off", None))] + [(n, TECHNIQUES[n]) for n in args.techniques]:
         case = scene(material, shape, sun, elevation, azimuth)
         case["render"].update(width=args.width, height=args.height)
         if bounces is not None:
@@ -127,8 +129,7 @@ def run_case(core, material, shape, sun, elevation, phase, args, tmp):
     return out
 
 
-def table(results):
-    names = list(TECHNIQUES)
+def table(results, names):
     lines = ["| material | shape | sun | elev | phase | EPT mean (lum.) | "
              + " | ".join(f"{n} bias % (R/G/B) ± SE" for n in names) + " |",
              "|" + "---|" * (6 + len(names))]
@@ -153,7 +154,7 @@ def plot(results, path):
         print("matplotlib not available: no plot", file=sys.stderr)
         return
     fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
-    for ax, name in zip(axes, ("medium-only", "proxies")):
+    for ax, name in zip(axes, [n for n in ("medium-only", "proxies", "default") if n in results[0]["techniques"]][:2]):
         groups = {}
         for r in results:
             key = (r["material"], r["shape"], r["sun"], r["elevation"])
@@ -184,9 +185,15 @@ def main():
     ap.add_argument("--width", type=int, default=32)
     ap.add_argument("--height", type=int, default=24)
     ap.add_argument("--threads", type=int, default=0)
+    ap.add_argument("--techniques", default="proxies,medium,medium-only",
+                    help="compared with EPT, of " + ", ".join(TECHNIQUES))
     ap.add_argument("--json")
     ap.add_argument("--plot")
     args = ap.parse_args()
+    args.techniques = [t for t in args.techniques.split(",") if t]
+    unknown = [t for t in args.techniques if t not in TECHNIQUES]
+    if unknown or not args.techniques:
+        ap.error(f"--techniques: {', '.join(unknown) or 'none given'}; choose from {', '.join(TECHNIQUES)}")
     if args.seeds < 2:
         ap.error("--seeds must be at least 2 (the standard error comes from their spread)")
     sys.path[:0] = [os.path.join(args.build, "python"), os.path.join(ROOT, "python")]
@@ -205,12 +212,12 @@ def main():
                                 results.append(r)
     print(f"spp {args.spp} x {args.seeds} seeds, {args.width}x{args.height}; bias = (technique − EPT) / EPT over "
           f"the object's pixels\n")
-    print(table(results))
+    print(table(results, args.techniques))
     if args.json:
         os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
         with open(args.json, "w") as f:
             json.dump({"spp": args.spp, "seeds": args.seeds, "results": results}, f, indent=1)
-    if args.plot:
+    if args.plot and results:
         plot(results, args.plot)
 
 

@@ -5,6 +5,7 @@ scales, protoIndices, velocities, angularVelocities), over a few frames:
 
     .venv/bin/python examples/make_grain_heap.py OUT.usdc [--grains N] [--frames K] [--seed S] [--shutter OPEN CLOSE]
                                                  [--no-motion] [--slabs] [--material NAME] [--slab-depth D]
+                                                 [--gradient G]
 
 The heap is a cone at the angle of repose of dry sand (about 31 degrees) on a ground card,
 with a camera and a sun. Grains are placed one per cell of a cubic grid (cells whose centre
@@ -26,6 +27,8 @@ to the grains' arrays alone (a different heap from the default's, as determinist
 quartz sand. --slab-depth D writes a flat square slab D grid cells deep (D * 2.3 largest radii)
 instead of the cone, as wide as the grains allow, seen from above at 45 degrees: a deep,
 wide medium for the diffusion approximation (bench/README.md, "DA in simulated grains' media").
+--gradient G thins the slab's grains with depth so that its packing rate rises G times from
+bottom to top: a medium of varying density.
 """
 import argparse
 import math
@@ -130,16 +133,24 @@ def heap_slabs(grains, seed):
     return centres, sizes, quats, protos, height
 
 
-def slab(grains, seed, depth_cells):
+def slab(grains, seed, depth_cells, gradient=1.0):
     """heap()'s grains in a square slab depth_cells cells deep on y = 0 instead of the cone
-    (as many columns as `grains` fill); the same arrays as heap(), height the slab's top."""
+    (as many columns as `grains` fill); the same arrays as heap(), height the slab's top.
+    gradient G > 1 keeps a grain at height y with probability 1/G + (1 − 1/G) y / top, so
+    that the packing rate rises G times from the bottom to the top (fewer grains than asked)."""
     rng = np.random.default_rng(seed)
     a = SPACING * RADIUS
     n = max(1, int(round(math.sqrt(grains / depth_cells))))
     ix, iy, iz = np.meshgrid(np.arange(n) - (n - 1) / 2.0, np.arange(depth_cells), np.arange(n) - (n - 1) / 2.0,
                              indexing="ij")
     centres = np.stack([ix.ravel(), iy.ravel() + 0.5, iz.ravel()], axis=1) * a
-    return _grains_at(rng, centres) + (depth_cells * a,)
+    grains_at = _grains_at(rng, centres)
+    if gradient > 1.0:
+        top = depth_cells * a
+        keep = np.random.default_rng([seed, 1]).uniform(size=len(centres)) < \
+            1.0 / gradient + (1.0 - 1.0 / gradient) * np.clip(grains_at[0][:, 1] / top, 0.0, 1.0)
+        grains_at = tuple(x[keep] for x in grains_at)
+    return grains_at + (depth_cells * a,)
 
 
 def _write_static(stage, pi, centres, sizes, quats, protos):
@@ -151,9 +162,9 @@ def _write_static(stage, pi, centres, sizes, quats, protos):
 
 
 def write(path, grains=100000, frames=3, seed=1, shutter=None, motion=True, slabs=False, material=QUARTZ_SAND,
-          slab_depth=None):
+          slab_depth=None, gradient=1.0):
     if slab_depth:
-        centres, sizes, quats, protos, height = slab(grains, seed, slab_depth)
+        centres, sizes, quats, protos, height = slab(grains, seed, slab_depth, gradient)
         if not motion:
             centres, sizes = centres.astype(np.float32), sizes.astype(np.float32)
             quats = quats[:, [1, 2, 3, 0]].astype(np.float16)
@@ -165,6 +176,8 @@ def write(path, grains=100000, frames=3, seed=1, shutter=None, motion=True, slab
             centres, sizes = centres.astype(np.float32), sizes.astype(np.float32)
             quats = quats[:, [1, 2, 3, 0]].astype(np.float16)
     count = len(centres)
+    # The slab's width: as many columns as `grains` fill (slab()), thinned or not.
+    slab_width = max(1, round(math.sqrt(grains / slab_depth))) * SPACING * RADIUS if slab_depth else 0
     stage = Usd.Stage.CreateNew(path)
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
     UsdGeom.SetStageMetersPerUnit(stage, 1.0)
@@ -191,7 +204,7 @@ def write(path, grains=100000, frames=3, seed=1, shutter=None, motion=True, slab
         del centres, sizes, quats, protos
     else:
         _write_motion(stage, pi, centres, sizes, quats, protos, frames, seed)
-    _write_rest(stage, height, shutter, slab_width=math.sqrt(count / slab_depth) * SPACING * RADIUS if slab_depth else 0)
+    _write_rest(stage, height, shutter, slab_width=slab_width)
     stage.GetRootLayer().Save()
     return count
 
@@ -268,6 +281,8 @@ def main(argv=None):
                    help="the grains' material (granular.materials; default quartz_sand)")
     p.add_argument("--slab-depth", type=int, metavar="D",
                    help="a flat square slab D grid cells deep instead of the cone")
+    p.add_argument("--gradient", type=float, default=1.0, metavar="G",
+                   help="with --slab-depth: the packing rate rises G times from the slab's bottom to its top")
     a = p.parse_args(argv)
     if a.no_motion and a.frames not in (None, 1) or a.shutter and a.no_motion:
         p.error("--no-motion writes one frame without motion: no --frames or --shutter")
@@ -278,9 +293,11 @@ def main(argv=None):
         p.error("--slabs writes a still heap: with --no-motion")
     if a.slab_depth is not None and (a.slab_depth < 1 or a.slabs):
         p.error("--slab-depth must be >= 1, and not with --slabs")
+    if not a.gradient >= 1.0 or a.gradient != 1.0 and a.slab_depth is None:
+        p.error("--gradient must be >= 1, and with --slab-depth")
     from granular.materials import MATERIALS
     n = write(a.output, a.grains, a.frames, a.seed, a.shutter, motion=not a.no_motion, slabs=a.slabs,
-              material=MATERIALS[a.material], slab_depth=a.slab_depth)
+              material=MATERIALS[a.material], slab_depth=a.slab_depth, gradient=a.gradient)
     print(f"wrote {a.output}: {n} grains, {a.frames} frames")
     return 0
 

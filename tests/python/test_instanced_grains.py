@@ -89,6 +89,37 @@ def test_an_ice_slab_is_flat_wide_and_clear(tmp_path):
     core.InstancedGrains().build(desc)  # raises on overlapping grains
 
 
+def test_a_graded_slab_is_four_times_denser_at_its_top(tmp_path):
+    """make_grain_heap.py --slab-depth D --gradient 4: the slab's grains thinned with depth,
+    each layer keeping 1/4 + 3/4 y/top of its cells (binomial counts, within 4 s.e.), the
+    same slab's columns and camera as without the gradient, and deterministic."""
+    side, depth = 40, 8
+    path = tmp_path / "graded.usdc"
+    count = make_grain_heap.write(str(path), grains=side * side * depth, frames=1, seed=3, motion=False,
+                                  slab_depth=depth, gradient=4.0)
+    again = make_grain_heap.write(str(tmp_path / "again.usdc"), grains=side * side * depth, frames=1, seed=3,
+                                  motion=False, slab_depth=depth, gradient=4.0)
+    assert count == again
+    stage = Usd.Stage.Open(str(path))
+    pos = np.asarray(stage.GetPrimAtPath(HEAP).GetAttribute("positions").Get())
+    assert len(pos) == count
+    a = make_grain_heap.SPACING * make_grain_heap.RADIUS
+    layer = np.clip(np.floor(pos[:, 1] / a).astype(int), 0, depth - 1)
+    for k in range(depth):
+        # A layer's centres lie at (k + ½) a ± the jitter, and the keep chance is linear in
+        # y: the layer keeps on average its centre's chance.
+        p = 0.25 + 0.75 * (k + 0.5) / depth
+        n = side * side
+        assert abs(np.count_nonzero(layer == k) - n * p) <= 4 * np.sqrt(n * p * (1 - p)), k
+    plain = tmp_path / "plain.usdc"
+    make_grain_heap.write(str(plain), grains=side * side * depth, frames=1, seed=3, motion=False, slab_depth=depth)
+    stages = [Usd.Stage.Open(str(x)) for x in (path, plain)]
+    views = [s.GetPrimAtPath("/World/Camera").GetAttribute("xformOp:transform").Get() for s in stages]
+    assert views[0] == views[1]
+    _, desc = _read(str(path))
+    core.InstancedGrains().build(desc)  # raises on overlapping grains
+
+
 def test_heap_reads_into_core(heap):
     path, count = heap
     scene, desc = _read(path)
