@@ -59,16 +59,14 @@ def render(stage, out, size, spp, options, seed, threads=0):
             float(da.group(1)) if da else None)
 
 
-def load(path, da=False):
-    """The image's RGB and primId; with da also the da.R/G/B AOV (DA's light), zero if absent,
-    and the variance.R/G/B AOV (each pixel's squared standard error)."""
+def load(path):
+    """The image's RGB, primId, da.R/G/B AOV (DA's light; zero if absent) and variance.R/G/B
+    AOV (each pixel's squared standard error)."""
     import granular_core as core
     im = core.read_exr(path)
     px = np.asarray(im.pixels, dtype=np.float64)
     ch = list(im.channels)
     rgb = px[..., [ch.index(c) for c in "RGB"]]
-    if not da:
-        return rgb, px[..., ch.index("primId")]
     dal = px[..., [ch.index("da." + c) for c in "RGB"]] if "da.R" in ch else np.zeros_like(rgb)
     var = px[..., [ch.index("variance." + c) for c in "RGB"]]
     return rgb, px[..., ch.index("primId")], dal, var
@@ -136,7 +134,7 @@ def main():
     ref_path = os.path.join(args.out, f"ref_da_off_abs{args.absorption_scale:g}.exr" if args.da else "ref.exr")
     if not os.path.exists(ref_path):
         render(stage, ref_path, size, args.ref_spp, variants[names[0]], 1000, args.threads)
-    ref, prim, _, ref_var = load(ref_path, da=True)
+    ref, prim, _, ref_var = load(ref_path)
     heap = prim == 1
     ladders, setup = {}, {}
     for name in names:
@@ -145,7 +143,7 @@ def main():
             out = os.path.join(args.out, f"{name.replace(', ', '_').replace(' ', '_')}_{spp}.exr")
             seconds, built, da_paths = render(stage, out, size, spp, variants[name], 1, args.threads)
             setup[name] = built
-            img, _, dal, var = load(out, da=True)
+            img, _, dal, var = load(out)
             err = float((((img - ref) ** 2) / (ref ** 2 + 0.01))[heap].mean())
             bias, bias_se = mean_bias(img, var, ref, ref_var, heap)
             ladders[name].append((seconds, err))

@@ -351,12 +351,8 @@ GrainDensity buildGrainDensity(const InstancedGrainsDesc& desc, const GrainDensi
         for (int64_t j = s0; j <= s1; ++j) w[a][j - s0] *= inv;
         first[a] = int(s0 - (l[a] * 8 - R));
         len[a] = int(s1 - s0 + 1);
-        // Where Δ rounds just below h/4 a weight of about 0 (at ±2h) lies past the next leaf.
-        if (first[a] < 0) {
-          std::copy(w[a] - first[a], w[a] + len[a], w[a]);
-          len[a] += first[a];
-          first[a] = 0;
-        }
+        // s0 ≥ 8 l − ⌊reach⌋ ≥ 8 l − R always; s1 ≤ 8 l + 7 + R but where Δ rounds just
+        // below h/4 (R capped at 8), whose weight there, at ±2h, is about 0.
         len[a] = std::min(len[a], B - first[a]);
       }
       const double v = double(s.volume) * invVoxel3;

@@ -133,6 +133,11 @@ def heap_slabs(grains, seed):
     return centres, sizes, quats, protos, height
 
 
+def slab_columns(grains, depth_cells):
+    """The slab's columns along each side: as many as `grains` fill at depth_cells deep."""
+    return max(1, int(round(math.sqrt(grains / depth_cells))))
+
+
 def slab(grains, seed, depth_cells, gradient=1.0):
     """heap()'s grains in a square slab depth_cells cells deep on y = 0 instead of the cone
     (as many columns as `grains` fill); the same arrays as heap(), height the slab's top.
@@ -140,7 +145,7 @@ def slab(grains, seed, depth_cells, gradient=1.0):
     that the packing rate rises G times from the bottom to the top (fewer grains than asked)."""
     rng = np.random.default_rng(seed)
     a = SPACING * RADIUS
-    n = max(1, int(round(math.sqrt(grains / depth_cells))))
+    n = slab_columns(grains, depth_cells)
     ix, iy, iz = np.meshgrid(np.arange(n) - (n - 1) / 2.0, np.arange(depth_cells), np.arange(n) - (n - 1) / 2.0,
                              indexing="ij")
     centres = np.stack([ix.ravel(), iy.ravel() + 0.5, iz.ravel()], axis=1) * a
@@ -176,8 +181,8 @@ def write(path, grains=100000, frames=3, seed=1, shutter=None, motion=True, slab
             centres, sizes = centres.astype(np.float32), sizes.astype(np.float32)
             quats = quats[:, [1, 2, 3, 0]].astype(np.float16)
     count = len(centres)
-    # The slab's width: as many columns as `grains` fill (slab()), thinned or not.
-    slab_width = max(1, round(math.sqrt(grains / slab_depth))) * SPACING * RADIUS if slab_depth else 0
+    # The slab's width, thinned or not.
+    slab_width = slab_columns(grains, slab_depth) * SPACING * RADIUS if slab_depth else 0
     stage = Usd.Stage.CreateNew(path)
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
     UsdGeom.SetStageMetersPerUnit(stage, 1.0)

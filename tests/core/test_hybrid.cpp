@@ -228,6 +228,7 @@ TEST(Hybrid, TunedRouletteIsInRangeAndDeterministic) {
   EXPECT_LE(a.pa, 1.0f);
   EXPECT_EQ(a.pa, b.pa);
   EXPECT_EQ(a.VL, b.VL);
+  EXPECT_EQ(a.VH, b.VH);
   EXPECT_GE(a.pixels, 64);
   EXPECT_GT(a.tL, 0);
 }
