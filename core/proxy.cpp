@@ -53,7 +53,7 @@ struct ChunkSums {
 
 // Cache record (cache.h: RecordWriter) of a table.
 constexpr RecordMagic kMagic = {'G', 'R', 'P', 'X', '\0', '\0', '\0', '\0'};
-constexpr uint32_t kFormatVersion = 1;
+constexpr uint32_t kFormatVersion = 2;  // 2: bins equal in θ
 static_assert(sizeof(Vec3) == 3 * sizeof(float), "a Vec3 is stored as three floats");
 
 uint64_t cacheKey(const TriangleMesh& mesh, const Material& m, const ProxyOptions& o) {
@@ -79,12 +79,14 @@ void validate(const TriangleMesh& mesh, const ProxyOptions& o) {
 
 }  // namespace
 
-float ProxyTable::binSolidAngle() const {
-  return 2.0f * (2.0f / float(nmu_)) * (kPi / float(nphi_));  // both mirror sides
+float ProxyTable::binSolidAngle(int mu) const {
+  return 2.0f * (muEdge_[size_t(mu) + 1] - muEdge_[size_t(mu)]) * (kPi / float(nphi_));
 }
 
 int ProxyTable::directionBin(const Vec3& w) const {
-  const int mu = std::clamp(int((w.z + 1.0f) * 0.5f * float(nmu_)), 0, nmu_ - 1);
+  const int cell = std::clamp(int((w.z + 1.0f) * 0.5f * float(kMuCells)), 0, kMuCells - 1);
+  int mu = int(muCell_[size_t(cell)]);
+  while (mu + 1 < nmu_ && w.z >= muEdge_[size_t(mu) + 1]) ++mu;
   const float phi = std::atan2(std::max(w.y, 0.0f), w.x);  // in [0, π]
   const int ph = std::clamp(int(phi / kPi * float(nphi_)), 0, nphi_ - 1);
   return mu * nphi_ + ph;
@@ -104,7 +106,8 @@ bool ProxyTable::sample(int b, float uBin, float u1, float u2, float uSide, Prox
   i = std::clamp(i, 0, nd - 1);
   while (i > 0 && !(cdf[i + 1] > cdf[i])) --i;
   const int mu = i / nphi_, ph = i % nphi_;
-  const float z = -1.0f + 2.0f * (float(mu) + std::clamp(u1, 1e-4f, 1.0f - 1e-4f)) / float(nmu_);
+  const float z0 = muEdge_[size_t(mu)], z1 = muEdge_[size_t(mu) + 1];
+  const float z = std::clamp(z0 + (z1 - z0) * std::clamp(u1, 1e-4f, 1.0f - 1e-4f), z0, z1);
   const float s = std::sqrt(std::max(0.0f, 1.0f - z * z));
   const float du = std::clamp(u2, 1e-4f, 1.0f - 1e-4f);
   float cosPhi, sinPhi;
@@ -130,8 +133,22 @@ bool ProxyTable::sample(int b, float uBin, float u1, float u2, float uSide, Prox
   return out.pdf > 0;
 }
 
+void ProxyTable::buildMuBins() {
+  muEdge_.resize(size_t(nmu_) + 1);
+  for (int k = 0; k <= nmu_; ++k) muEdge_[size_t(k)] = float(-std::cos(kPiD * double(k) / double(nmu_)));
+  muEdge_.front() = -1.0f;
+  muEdge_.back() = 1.0f;
+  muCell_.resize(kMuCells);
+  for (int c = 0, mu = 0; c < kMuCells; ++c) {
+    const float start = -1.0f + 2.0f * float(c) / float(kMuCells);
+    while (mu + 1 < nmu_ && muEdge_[size_t(mu) + 1] <= start) ++mu;
+    muCell_[size_t(c)] = uint16_t(mu);
+  }
+}
+
 void ProxyTable::buildSamplingTables() {
   const int nd = nmu_ * nphi_;
+  buildMuBins();
   phiStart_.clear();
   if (kPi / float(nphi_) <= 0.2f)
     for (int ph = 0; ph < nphi_; ++ph) {
@@ -202,6 +219,13 @@ const ProxyTable& ProxyTables::at(int prototype, float size) const {
   return tables_[size_t(prototype)][best];
 }
 
+uint64_t ProxyTables::key() const {
+  uint64_t h = hashInts(0x50544253 /* "PTBS" */, uint64_t(tables_.size()));
+  for (size_t p = 0; p < tables_.size(); ++p)
+    for (size_t i = 0; i < tables_[p].size(); ++i) h = hashInts(hashValue(h, sizes_[p][i]), tables_[p][i].key());
+  return h;
+}
+
 Vec3 ProxyTable::meanAlbedo() const {
   // b bins hold equal shares of the entering rays: weigh each by its hits.
   Vec3 s(0.0f);
@@ -263,6 +287,7 @@ bool deserialiseProxyTable(const std::vector<char>& in, uint64_t key, ProxyTable
       if (!std::isfinite(c) || (i == 0 ? c != 0.0f : c < t.cdf_[size_t(b) * (nd + 1) + i - 1])) return false;
     }
   t.buildSamplingTables();
+  t.key_ = key;
   return true;
 }
 
@@ -284,6 +309,8 @@ ProxyTable estimateProxyTable(const TriangleMesh& mesh, const Material& material
   t.nmu_ = opt.muBins;
   t.nphi_ = opt.phiBins;
   t.rays_ = opt.rays;
+  t.key_ = key;
+  t.buildMuBins();
 
   EmbreeDevice device = makeEmbreeDevice();
   EmbreeScene bvh = buildTriangleScene(device, mesh);
@@ -341,7 +368,6 @@ ProxyTable estimateProxyTable(const TriangleMesh& mesh, const Material& material
       }
     }
   }
-  const double omega = double(t.binSolidAngle());
   t.hit_.resize(size_t(nb));
   t.albedo_.resize(size_t(nb));
   t.f_.assign(size_t(nb) * size_t(nd), Vec3(0.0f));
@@ -356,7 +382,7 @@ ProxyTable estimateProxyTable(const TriangleMesh& mesh, const Material& material
       Vec3 f;
       for (int ch = 0; ch < 3; ++ch) {
         a[ch] += energy[cell * 3 + size_t(ch)] / h;
-        f[ch] = float(energy[cell * 3 + size_t(ch)] / (h * omega));
+        f[ch] = float(energy[cell * 3 + size_t(ch)] / (h * double(t.binSolidAngle(i / t.nphi_))));
       }
       t.f_[cell] = f;
       mass += (energy[cell * 3] + energy[cell * 3 + 1] + energy[cell * 3 + 2]) / h;

@@ -13,8 +13,10 @@
 //                to its direction; up to offsetsPerBin of them per (b, direction bin), in
 //                the order traced (a uniform sample, not weighted by energy).
 // Directions are in the entry's frame (ProxyFrame): z along the entering ray, x towards
-// the side of the centre where it entered, y = z × x; bins equal in μ = cos θ and in
-// φ ∈ [0, π], the mirror image y → −y folded onto y ≥ 0.
+// the side of the centre where it entered, y = z × x; bins equal in the polar angle θ and
+// in φ ∈ [0, π], the mirror image y → −y folded onto y ≥ 0. Equal in θ, not in μ = cos θ:
+// a flat grain sends light straight on through parallel faces and straight back, peaks at
+// θ = 0 and π that 32 bins equal in μ would spread over 20° cones; equal in θ, 5.6°.
 //
 // Why that suffices: every grain is rotated uniformly at random, so averaged over its
 // rotations the sphere's response depends on the entering ray only through b, and is
@@ -26,7 +28,8 @@
 // exit offset on the energy left (absorbing grains).
 //
 // Sampling (pdf stated per steradian): a direction bin with probability proportional to
-// its Σ_c f_c mass, then ω uniform over the bin's solid angle and a mirror side with 1/2:
+// its Σ_c f_c mass, then ω uniform over the bin's solid angle (μ uniform between its edges,
+// φ uniform) and a mirror side with 1/2:
 //   pdf(ω) = Σ_c f_c(b, ω) / Σ_c albedo_c(b),   weight_c = f_c(b, ω) / pdf(ω).
 // eval() gives the same f_c and pdf (next-event estimation, MIS). A table is a pure
 // function of (mesh, material, options) and is cached on disk like TT's parameters.
@@ -123,6 +126,9 @@ class ProxyTable {
   int directionBins() const { return nmu_ * nphi_; }
   int64_t rays() const { return rays_; }
   bool fromCache() const { return fromCache_; }
+  // What the table was estimated from (mesh, material, options, its format): its cache
+  // key. What is measured with a table (switching.h) is cached under it too.
+  uint64_t key() const { return key_; }
   // The whole table's mean albedo over entering rays that met the grain, per channel,
   // and the hit chance over all entering rays (TT's α_s and β, tt.h, from the same kind of
   // rays: a check of the table).
@@ -135,7 +141,7 @@ class ProxyTable {
   friend bool deserialiseProxyTable(const std::vector<char>&, uint64_t, ProxyTable&);
   int directionBin(const Vec3& folded) const;
   void setValue(int bBin, ProxyDirection& d) const;  // d.f and d.pdf of d.bin
-  float binSolidAngle() const;
+  float binSolidAngle(int muBin) const;  // both mirror sides
   int nb_ = 0, nmu_ = 0, nphi_ = 0;
   std::vector<float> hit_;              // per b bin
   std::vector<Vec3> albedo_;            // per b bin
@@ -149,8 +155,15 @@ class ProxyTable {
   static constexpr int kGuides = 64;
   std::vector<uint32_t> guide_;
   std::vector<float> phiStart_;  // (cos, sin) of each φ bin's start, for bins up to 0.2 wide
-  void buildSamplingTables();
+  // μ bins: their nmu_ + 1 edges, μ_k = −cos(π k / nmu_), and per cell of kMuCells equal
+  // in μ the first bin it overlaps (directionBin's start, so it needs no arccosine).
+  static constexpr int kMuCells = 1024;
+  std::vector<float> muEdge_;
+  std::vector<uint16_t> muCell_;
+  void buildMuBins();
+  void buildSamplingTables();  // the μ bins too
   int64_t rays_ = 0;
+  uint64_t key_ = 0;
   bool fromCache_ = false;
 };
 
@@ -163,6 +176,8 @@ class ProxyTables {
   void add(int prototype, float size, ProxyTable table);
   const ProxyTable& at(int prototype, float size) const;
   int prototypes() const { return int(tables_.size()); }
+  // The tables' keys and sizes hashed together, prototype by prototype.
+  uint64_t key() const;
 
  private:
   std::vector<std::vector<float>> sizes_;

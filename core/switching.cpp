@@ -323,8 +323,8 @@ bool passes(const SwitchMeasure& m, int c, const SwitchOptions& o) {
 
 }  // namespace
 
-std::string switchCacheName(uint64_t cacheKey, const SwitchOptions& options) {
-  return str("switch-", std::hex, recordKey(cacheKey, options), ".bin");
+std::string switchCacheName(uint64_t cacheKey, const ProxyTables& tables, const SwitchOptions& options) {
+  return str("switch-", std::hex, recordKey(hashInts(cacheKey, tables.key()), options), ".bin");
 }
 
 int chooseSwitchVisits(const SwitchMeasure& m, const SwitchOptions& o) {
@@ -343,8 +343,8 @@ SwitchMeasure measureSwitch(const Aggregate& agg, const ProxyTables& tables, con
   if (options.paths < 2) throw InputError("switching", "paths", str(options.paths, " is < 2"));
   if (!(options.tolerance > 0)) throw InputError("switching", "tolerance", str(options.tolerance, " is not > 0"));
   if (!(options.precision > 0)) throw InputError("switching", "precision", str(options.precision, " is not > 0"));
-  const uint64_t key = cacheKey ? recordKey(cacheKey, options) : 0;
-  const std::string name = switchCacheName(cacheKey, options);
+  const uint64_t key = cacheKey ? recordKey(hashInts(cacheKey, tables.key()), options) : 0;
+  const std::string name = switchCacheName(cacheKey, tables, options);
   if (key) {
     std::vector<char> bytes;
     SwitchMeasure cached;

@@ -43,7 +43,8 @@
 // error is towards more visits (less bias, a slower render).
 // Walks end by Russian roulette (unbiased) or after a cap of events (leaks).
 // Deterministic for a seed, whatever the number of threads. With a cacheKey (everything
-// the aggregate, its tables and its medium depend on; 0: no cache) the measurement is
+// the aggregate and its medium depend on; 0: no cache; the tables' own key, ProxyTables::
+// key, is added to it here, so new tables are measured anew) the measurement is
 // cached on disk (cache.h) and read back instead; the choice is made from it anew (the
 // tolerance is not part of the key). InputError for options out of range.
 #pragma once
@@ -87,7 +88,7 @@ struct SwitchMeasure {
 };
 
 // The name of a measurement's entry in cacheDirectory().
-std::string switchCacheName(uint64_t cacheKey, const SwitchOptions& options);
+std::string switchCacheName(uint64_t cacheKey, const ProxyTables& tables, const SwitchOptions& options);
 
 // Chooses the visits from bias and biasSE as the contract says.
 int chooseSwitchVisits(const SwitchMeasure& m, const SwitchOptions& o);

@@ -76,6 +76,7 @@ SceneDesc slabScene(Technique t, float thickness, int spp) {
   s.settings.seed = 5;
   s.settings.tau = 1e-6f;
   s.settings.explicitBounces = 0;  // index-matched grains scatter nothing: no explicit orders
+  s.settings.lod = 0;  // the first grain explicit (passed straight through), not a proxy's binned average
   s.settings.physicalSun = false;  // a delta sun: never seen through a thin slab by the camera
   s.settings.roulette = 1.0f;
   s.camera.cameraToWorld = Transform::lookAt(Vec3(0, 0, 6), Vec3(0, 0, 0), Vec3(0, 1, 0));

@@ -132,7 +132,7 @@ TEST(Switching, IsDeterministicCachedAndRecomputesADamagedEntry) {
   ASSERT_FALSE(dir.empty());
   SwitchOptions o;
   o.paths = paths;
-  const std::filesystem::path entry = std::filesystem::path(dir) / switchCacheName(key, o);
+  const std::filesystem::path entry = std::filesystem::path(dir) / switchCacheName(key, scene->proxyTables(0), o);
   ASSERT_TRUE(std::filesystem::exists(entry)) << entry;
   {
     std::fstream f(entry, std::ios::in | std::ios::out | std::ios::binary);
@@ -223,6 +223,29 @@ TEST(Switching, OptionsOutOfRangeAreRefused) {
   o = SwitchOptions();
   o.tolerance = 0;
   EXPECT_THROW(measureSwitch(*scene->aggregates()[0], scene->proxyTables(0), scene->medium(0), o), InputError);
+}
+
+TEST(Switching, AMeasurementIsCachedUnderItsTablesToo) {
+  // The same key and other tables (estimated from other rays, as a new table format
+  // would be): another entry, so the old tables' choice is never lent to new ones.
+  auto scene = ballScene(1.55f, Vec3(0.1f));
+  const Aggregate& agg = *scene->aggregates()[0];
+  SwitchOptions o;
+  o.paths = 1 << 10;
+  const uint64_t key = 0x7ab1e5c4a11ULL;
+  measureSwitch(agg, scene->proxyTables(0), scene->medium(0), o, key);
+  EXPECT_TRUE(measureSwitch(agg, scene->proxyTables(0), scene->medium(0), o, key).fromCache);
+  ProxyTables other;
+  ProxyOptions po;
+  po.rays = 1 << 12;
+  po.seed = 99;
+  po.useCache = false;
+  for (size_t p = 0; p < agg.prototypes().size(); ++p) {
+    const GrainPrototype& proto = agg.prototypes()[p];
+    other.add(int(p), 1.0f, estimateProxyTable(proto.mesh, scene->material(proto.material), po));
+  }
+  EXPECT_NE(other.key(), scene->proxyTables(0).key());
+  EXPECT_NE(switchCacheName(key, other, o), switchCacheName(key, scene->proxyTables(0), o));
 }
 
 TEST(Switching, TheSceneMeasuresOncePerAggregateAndLendsIt) {
