@@ -315,8 +315,9 @@ def classify(rc, err, timed_out, stats):
             s = json.load(f)
     except (OSError, ValueError) as e:
         return "FAIL", f"no stats: {e}"
-    if s["nonfinite_samples"] or s["nonfinite_values"]:
-        return "FAIL", f"{s['nonfinite_samples']} non-finite samples, {s['nonfinite_values']} non-finite values"
+    if s["nonfinite_samples"] or s["nonfinite_values"] or s.get("lost_paths"):
+        return "FAIL", (f"{s['nonfinite_samples']} non-finite samples, {s['nonfinite_values']} non-finite values, "
+                        f"{s.get('lost_paths', 0)} lost paths")
     media = "media" if s.get("has_media") else "no media"
     return "ok", f"mean {s['mean'][0]:.3g} {s['mean'][1]:.3g} {s['mean'][2]:.3g}; {media}"
 

@@ -163,8 +163,37 @@ float sampleRadius(float h, float sigma, float uPick, float u, float& pdfArea) {
   return std::sqrt(std::max(0.0f, r * r - h * h));
 }
 
-// The path leaves the aggregate at boundary point p (normal ng) along dir, out of the media.
-void leaveAt(PathState& path, const Vec3& p, const Vec3& ng, const Vec3& dir) {
+// Is the boundary at p (outward normal ng) covered by a surface just outside it (an
+// aggregate's bottom face on a ground card)? Then light leaving there enters that surface:
+// the exit is moved inside by the SurfaceCutBoundary margin (1e-4 of the coordinates), the
+// path stays in its medium and meets the surface first (Scene::intersectMedium's tie rule).
+// Else, offset outwards past the coplanar surface, it went on under it (to the sky's lower
+// half) and its NEE saw that half too.
+bool coveredExit(const Scene& scene, const Vec3& p, const Vec3& ng, float time, Vec3& inside) {
+  const float margin = 1e-4f * std::max(1e-3f, maxComponent(vabs(p)));
+  Ray ray;
+  ray.o = p - ng * margin;
+  ray.d = ng;
+  ray.tmin = 0;
+  ray.tmax = 2.0f * margin;
+  ray.time = time;
+  Hit hit;
+  if (!scene.intersectMedium(ray, hit) || hit.kind != Hit::Surface || !(hit.t < ray.tmax)) return false;
+  inside = ray.o;
+  return true;
+}
+
+// The path leaves the aggregate at boundary point p (normal ng) along dir, out of the media
+// (or, where a surface covers the boundary, into that surface from inside: coveredExit).
+void leaveAt(const Scene& scene, PathState& path, const Vec3& p, const Vec3& ng, const Vec3& dir) {
+  Vec3 inside;
+  if (path.medium >= 0 && coveredExit(scene, p, ng, path.ray.time, inside)) {
+    path.ray.o = inside;
+    path.ray.d = dir;
+    path.ray.tmin = 0;
+    path.ray.tmax = kInf;
+    return;
+  }
   float eps = 1e-5f * std::max(1e-3f, maxComponent(vabs(p)));
   path.ray.o = offsetRayOrigin(p, ng, dir, eps);
   path.ray.d = dir;
@@ -272,6 +301,7 @@ void diffusionStep(const Scene& scene, PathState& path, const Vec3& x, const Dif
   Vec3 ngS;
   if (!(phasePdf > 0) || !boundary.intersect(x, w, kInf, s, ngS)) {
     path.alive = false;  // no boundary along ω: a leak (open by rounding)
+    path.lost = true;
     return;
   }
   const float sigmaBar = average(prof.sigmaTReduced);
@@ -284,7 +314,7 @@ void diffusionStep(const Scene& scene, PathState& path, const Vec3& x, const Dif
     path.lastPdf = phasePdf;
     path.lastP = x;
     path.lastNeeChance = 1;
-    leaveAt(path, boundary.exitPoint(x + w * s, ngS), ngS, w);
+    leaveAt(scene, path, boundary.exitPoint(x + w * s, ngS), ngS, w);
     ++path.depth;
     if (!isFinite(path.beta) || isBlack(path.beta)) path.alive = false;
     return;
@@ -296,8 +326,9 @@ void diffusionStep(const Scene& scene, PathState& path, const Vec3& x, const Dif
   // 2. The slab through y: near face at the closest boundary point, far face along −n.
   Vec3 closest;
   float z = boundary.closestPoint(y, closest);
-  if (!(z > 0)) {
+  if (!(z > 0)) {  // y on or outside the boundary: lost to rounding
     path.alive = false;
+    path.lost = true;
     return;
   }
   Vec3 n = (closest - y) / z;  // outward normal of the near face
@@ -329,17 +360,22 @@ void diffusionStep(const Scene& scene, PathState& path, const Vec3& x, const Dif
   Vec3 dir = normalize(q - y);
   float tOut;
   Vec3 ngOut;
-  if (!boundary.intersect(y, dir, kInf, tOut, ngOut)) {
+  if (!boundary.intersect(y, dir, kInf, tOut, ngOut)) {  // a leak
     path.alive = false;
+    path.lost = true;
     return;
   }
   path.beta *= J / (pdfArea * pFace);
-  path.medium = -1;
   // 4. At x_o the exit lobe plays the BSDF: NEE, then a direction sampled from it.
   Hit hit;
   hit.kind = Hit::Surface;
   hit.ng = dot(ngOut, dir) > 0 ? ngOut : -ngOut;
   hit.p = boundary.exitPoint(y + dir * tOut, hit.ng);
+  // A face covered by a surface (the far face on a ground card): out into that surface
+  // from just inside, still in the medium (coveredExit); else out of the media.
+  Vec3 inside;
+  if (path.medium >= 0 && coveredExit(scene, hit.p, hit.ng, path.ray.time, inside)) hit.p = inside;
+  else path.medium = -1;
   hit.t = tOut;
   hit.material = scene.diffusionExitMaterial();
   hit.eps = 1e-5f * std::max(1e-3f, maxComponent(vabs(hit.p)));

@@ -60,6 +60,7 @@ void foldSplits(std::vector<PathState>& paths, size_t n) {
     for (int t = 0; t < kTransports; ++t) p.L[t] += paths[i].L[t];
     p.cost[1] += paths[i].cost[1];
     if (paths[i].credit == kDa) p.credit = kDa;
+    p.lost = p.lost || paths[i].lost;
   }
   paths.resize(n);
 }

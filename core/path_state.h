@@ -66,6 +66,7 @@ struct PathState {
   float coneWidth = 0, coneSpread = 0;
   bool touchedAggregate = false;  // a grain has been hit (the LOD test is at first contact)
   bool shortcut = false;          // took the LOD shortcut: to the medium after this grain
+  bool lost = false;              // ended by a numerical failure (a leak, endless crossings): counted
   bool daRefused = false;         // the curvature guard refused DA once: VPT to the end (vpt.cpp)
   int daRetryDepth = 0;           // an instancer's varying packing refused DA: not asked before this depth
   // Deterministic cost (ray casts, a grain traversal counted kGrainCastCost) spent in

@@ -84,10 +84,11 @@ void Renderer::tracePixel(int x, int y, long first, int count, Film& film, int f
       paths.push_back(p);
     }
     traceBundle(scene_, paths, roulette_.pa);
-    long shortcuts = 0, nonFinite = 0, diffused = 0;
+    long shortcuts = 0, nonFinite = 0, diffused = 0, lost = 0;
     for (const PathState& p : paths) {
       shortcuts += p.shortcut;
       diffused += p.credit == kDa;
+      lost += p.lost;
       PixelSample ps;
       nonFinite += !toPixelSample(p, ps);
       film.add(fx, fy, ps);
@@ -96,6 +97,7 @@ void Renderer::tracePixel(int x, int y, long first, int count, Film& film, int f
     if (nonFinite) nonFinite_.fetch_add(nonFinite, std::memory_order_relaxed);
     shortcuts_ += shortcuts;
     diffused_ += diffused;
+    if (lost) lost_.fetch_add(lost, std::memory_order_relaxed);
     paths_ += long(paths.size());
   }
 }

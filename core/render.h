@@ -127,6 +127,10 @@ class Renderer {
   // Samples whose estimate was not finite (NaN or Inf in some AOV) and were dropped from
   // the film: a numerical failure somewhere, never expected (the stress suite checks it).
   long nonFiniteSamples() const { return nonFinite_.load(); }
+  // Paths ended by a numerical failure (a leak through a medium's boundary, crossings
+  // without end: PathState::lost), their light lost: never expected, reported.
+  long lostPaths() const { return lost_.load(); }
+  long paths() const { return paths_.load(); }
   // Fraction of the paths so far that took the level-of-detail shortcut.
   double shortcutFraction() const { return paths_ ? double(shortcuts_) / double(paths_) : 0.0; }
   // Fraction of the paths so far that went on by DA (diffusion.h; aggregates' and instancers' media).
@@ -156,7 +160,7 @@ class Renderer {
   std::atomic<uint64_t> passState_{0};
   std::atomic<long> passPixels_{0};
   RouletteTuning roulette_;
-  std::atomic<long> nonFinite_{0};
+  std::atomic<long> nonFinite_{0}, lost_{0};
   std::atomic<long> shortcuts_{0}, paths_{0}, diffused_{0};
 };
 

@@ -654,7 +654,9 @@ bool Scene::firstInstancedMedium(const Ray& ray, float tmax, int& index, float& 
     const BuiltInstanced& b = builtInstanced_[i];
     if (!b.medium) continue;
     float a0, a1;
-    if (!b.medium->medium.bounds().intersect(ray.o, invD, ray.tmin, tmax, a0, a1) || !(a0 < best)) continue;
+    // An empty interval (a ray leaving through a face) holds no medium.
+    if (!b.medium->medium.bounds().intersect(ray.o, invD, ray.tmin, tmax, a0, a1) || !(a1 > a0) || !(a0 < best))
+      continue;
     best = a0;
     index = int(i);
     t0 = a0;
@@ -1258,11 +1260,18 @@ void Scene::setMedium(int aggregate, const MediumParams& params) {
 bool Scene::intersectMedium(const Ray& ray, Hit& hit) const {
   float tmax = ray.tmax;
   bool found = intersectSurfaces(ray, Vec3(1.0f / ray.d.x, 1.0f / ray.d.y, 1.0f / ray.d.z), hit, tmax, true);
+  // A boundary face that a surface covers (an aggregate standing on a ground card at its
+  // bottom face): the surface, not the crossing, within the surface's own offset. Else the
+  // path left the medium there and, offset past the coplanar surface, went on under it
+  // (to the sky's lower half): +4% on a clear slab, +15% on a thin one.
+  const float tie = found ? 1e-5f * std::max({maxComponent(vabs(ray.o + ray.d * tmax)), tmax, 1e-3f * sceneScale_}) /
+                                std::max(length(ray.d), 1e-30f)
+                          : 0.0f;
   for (size_t a = 0; a < aggregates_.size(); ++a) {
     float t;
     Vec3 ng;
     if (missesMoving(a, ray.o, ray.d, ray.tmin, tmax)) continue;
-    if (aggregateAt(int(a), ray.time).intersectBoundary(ray.o, ray.d, ray.tmin, tmax, t, ng) && t < tmax) {
+    if (aggregateAt(int(a), ray.time).intersectBoundary(ray.o, ray.d, ray.tmin, tmax, t, ng) && t < tmax - tie) {
       found = true;
       tmax = t;
       hit.kind = Hit::Boundary;

@@ -222,6 +222,7 @@ void vptStep(const Scene& scene, PathState& path) {
       }
       if (!std::isfinite(tHit)) {  // a leak through the boundary (open by rounding): end the path
         path.alive = false;
+        path.lost = true;
         return;
       }
       // Passing to the hit: weight T(s) / P(flight >= s).
@@ -248,9 +249,10 @@ void vptStep(const Scene& scene, PathState& path) {
           path.alive = false;
           return;
         }
-        if (tEnd < tHit) {  // out of its bounds before the hit: go on from there
-          path.ray.o = path.ray.o + path.ray.d * tEnd;
-          path.ray.tmin = 0;
+        if (tEnd < tHit) {  // out of its bounds before the hit: go on along the same ray
+          // Not from o + d tEnd as a new origin: rounded onto the bounds' face it finds them
+          // again, as an empty interval, and never leaves.
+          path.ray.tmin = tEnd;
           continue;
         }
       }
@@ -267,7 +269,8 @@ void vptStep(const Scene& scene, PathState& path) {
     shadeSurface(scene, path, hit, true);
     return;
   }
-  path.alive = false;
+  path.alive = false;  // crossings without end
+  path.lost = true;
 }
 
 }  // namespace granular

@@ -54,6 +54,8 @@ void HdGranularRenderDelegate::_Initialize() {
        VtValue(granular::RenderSettings().daDepthFactor)},
       {"Diffusion after this many scatterings", HdGranularSettingsTokens->daMinOrder,
        VtValue(granular::RenderSettings().daMinOrder)},
+      {"Diffusion in simulated grains' media too (where uniform enough)", HdGranularSettingsTokens->daInstanced,
+       VtValue(granular::RenderSettings().daInstanced)},
       {"Level of detail (0: off)", HdGranularSettingsTokens->lod, VtValue(0.5f)},
       {"Proxies after the first grain (auto: under a narrow sun; on; off)", HdGranularSettingsTokens->proxies,
        VtValue(std::string(granular::proxyUseName(granular::RenderSettings().proxies)))},

@@ -22,6 +22,7 @@ PXR_NAMESPACE_OPEN_SCOPE
   ((explicitBounces, "granular:explicitBounces"))     \
   ((daDepthFactor, "granular:daDepthFactor"))         \
   ((daMinOrder, "granular:daMinOrder"))               \
+  ((daInstanced, "granular:daInstanced"))             \
   ((lod, "granular:lod"))                             \
   ((proxies, "granular:proxies"))                     \
   ((roulette, "granular:roulette"))                   \

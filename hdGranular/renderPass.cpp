@@ -169,6 +169,7 @@ granular::RenderSettings renderSettings(HdRenderDelegate* d, int width, int heig
   rs.explicitBounces = setting<int>(d, HdGranularSettingsTokens->explicitBounces, rs.explicitBounces);
   rs.daDepthFactor = setting<float>(d, HdGranularSettingsTokens->daDepthFactor, rs.daDepthFactor);
   rs.daMinOrder = setting<int>(d, HdGranularSettingsTokens->daMinOrder, rs.daMinOrder);
+  rs.daInstanced = setting<bool>(d, HdGranularSettingsTokens->daInstanced, rs.daInstanced);
   rs.lod = setting<float>(d, HdGranularSettingsTokens->lod, rs.lod);
   rs.proxies = granular::proxyUseFromName(
       setting<std::string>(d, HdGranularSettingsTokens->proxies, granular::proxyUseName(rs.proxies)),

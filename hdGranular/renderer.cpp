@@ -193,6 +193,7 @@ void HdGranularRenderer::_Render() {
     int pass = int(std::min<long>(bundle, target - done));
     bool finished = _renderer->renderPass(pass, &_cancel, onTile);
     _nonFinite = _renderer->nonFiniteSamples();
+    _lostPaths = _renderer->lostPaths();
     if (!finished) return;  // stopped mid-pass
     done = _renderer->samplesPerPixel();
     _samplesDone = done;
@@ -293,8 +294,9 @@ VtDictionary HdGranularRenderer::GetStats() const {
     for (size_t i = 0; i < _scene->instancedGrains().size(); ++i) {
       const int ii = int(i);
       if (_scene->instancedProxies(ii)) proxyVisits = std::max(proxyVisits, _scene->instancedProxyVisits(ii));
-      switching += (switching.empty() ? "" : "\n") + _scene->instancedGrains()[i]->desc().name + ": " +
-                   _scene->instancedLowOrdersText(ii);
+      const std::string& name = _scene->instancedGrains()[i]->desc().name;
+      switching += (switching.empty() ? "" : "\n") + name + ": " + _scene->instancedLowOrdersText(ii) + "\n" + name +
+                   ": " + _scene->instancedDiffusionText(ii);
     }
     stats["granular:proxyVisits"] = VtValue(proxyVisits);
     stats["granular:switching"] = VtValue(switching);
@@ -308,6 +310,8 @@ VtDictionary HdGranularRenderer::GetStats() const {
   stats["granular:instancedGrains"] = VtValue(instancedGrains);
   stats["granular:fullBuildPending"] = VtValue(_builder.Pending());
   stats["granular:nonFiniteSamples"] = VtValue(int(_nonFinite.load()));
+  // Paths ended by a numerical failure (core/render.h, lostPaths): 0 unless something is wrong.
+  stats["granular:lostPaths"] = VtValue(int(_lostPaths.load()));
   // Whether granular:denoise can denoise in this build (core/denoise.h).
   stats["granular:denoiserAvailable"] = VtValue(granular::denoiserAvailable());
   stats["granular:sceneBuilds"] = VtValue(_sceneBuilds);

@@ -97,7 +97,7 @@ class HdGranularRenderer {
   std::atomic<bool> _colorHeld{false};  // the color AOV holds a denoised image
   bool _preview = true, _provisional = false;
   std::atomic<bool> _cancel{false}, _converged{false}, _interrupted{false};
-  std::atomic<long> _nonFinite{0};
+  std::atomic<long> _nonFinite{0}, _lostPaths{0};
   // Since the delegate was made: core scenes built, aggregates voxelised in them or reused
   // from the scene before, equivalent media derived from TT (Scene::build's counts).
   int _sceneBuilds = 0, _aggregatesBuilt = 0, _aggregatesReused = 0, _mediaDerived = 0, _standInsBuilt = 0;

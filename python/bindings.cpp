@@ -1236,6 +1236,11 @@ PYBIND11_MODULE(granular_core, m) {
       .def_property_readonly("bundle_size", [](const PyRenderer& r) { return r.renderer->bundleSize(); })
       .def_property_readonly("shortcut_fraction", [](const PyRenderer& r) { return r.renderer->shortcutFraction(); },
                              "fraction of the paths that entered a medium directly by level of detail")
+      .def_property_readonly("lost_paths", [](const PyRenderer& r) { return r.renderer->lostPaths(); },
+                             "paths ended by a numerical failure (a leak through a medium's boundary): 0 unless "
+                             "something is wrong")
+      .def_property_readonly("paths", [](const PyRenderer& r) { return r.renderer->paths(); },
+                             "camera paths traced so far")
       .def_property_readonly("diffusion_fraction", [](const PyRenderer& r) { return r.renderer->diffusionFraction(); },
                              "fraction of the paths that went on by the diffusion approximation (DA)")
       .def_property_readonly(

@@ -162,10 +162,10 @@ int main(int argc, char** argv) {
       std::fprintf(f,
                    "{\"build_s\": %.6f, \"render_s\": %.6f, \"spp\": %ld, \"technique\": \"%s\", \"pa\": %.6f, "
                    "\"lod_fraction\": %.6f, \"has_media\": %s, \"nonfinite_samples\": %ld, \"nonfinite_values\": %ld, "
-                   "\"mean\": [%.6g, %.6g, %.6g]}\n",
+                   "\"lost_paths\": %ld, \"mean\": [%.6g, %.6g, %.6g]}\n",
                    scene->buildSeconds(), renderSeconds, renderer.samplesPerPixel(),
                    techniqueName(scene->settings().technique), renderer.roulette().pa, renderer.shortcutFraction(), scene->hasMedia() ? "true" : "false",
-                   renderer.nonFiniteSamples(), nonFiniteValues, sum[0] / n, sum[1] / n, sum[2] / n);
+                   renderer.nonFiniteSamples(), nonFiniteValues, renderer.lostPaths(), sum[0] / n, sum[1] / n, sum[2] / n);
       std::fclose(f);
     }
     return 0;

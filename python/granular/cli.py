@@ -426,6 +426,11 @@ def _low_orders(built):
 
 
 def _log_transports(args, built, renderer, image):
+    if renderer.lost_paths:
+        # Never expected: a numerical failure ended these paths and their light is missing.
+        print(f"warning: {renderer.lost_paths} of {renderer.paths} paths ended by a numerical failure (a leak "
+              f"through a medium's boundary); the image is darker by their light. Please report the scene.",
+              file=sys.stderr)
     if built.has_media:
         rt = renderer.roulette
         tuned = f" (tuned on {rt['pixels']} pixels)" if rt["pixels"] else ""

@@ -251,12 +251,8 @@ struct ChannelEstimate {
   double mean[3] = {0, 0, 0}, se[3] = {0, 0, 0};
 };
 
-// One render's estimates over windows of the image: each [x0, x1) x [y0, y1).
-inline std::vector<ChannelEstimate> renderEstimates(const SceneDesc& d, const std::vector<std::array<int, 4>>& windows) {
-  auto scene = Scene::build(d);
-  Renderer r(*scene);
-  EXPECT_TRUE(r.render(d.settings.spp));
-  const Image img = r.film().toImage();
+// An image's estimates over windows: each [x0, x1) x [y0, y1).
+inline std::vector<ChannelEstimate> imageEstimates(const Image& img, const std::vector<std::array<int, 4>>& windows) {
   const auto& names = img.channels;
   auto channel = [&](const std::string& n) { return int(std::find(names.begin(), names.end(), n) - names.begin()); };
   const int var[3] = {channel("variance.R"), channel("variance.G"), channel("variance.B")};
@@ -276,6 +272,14 @@ inline std::vector<ChannelEstimate> renderEstimates(const SceneDesc& d, const st
     out.push_back(e);
   }
   return out;
+}
+
+// One render's estimates over windows of the image.
+inline std::vector<ChannelEstimate> renderEstimates(const SceneDesc& d, const std::vector<std::array<int, 4>>& windows) {
+  auto scene = Scene::build(d);
+  Renderer r(*scene);
+  EXPECT_TRUE(r.render(d.settings.spp));
+  return imageEstimates(r.film().toImage(), windows);
 }
 
 inline ChannelEstimate renderEstimate(const SceneDesc& d, int x0 = 0, int x1 = -1, int y0 = 0, int y1 = -1) {

@@ -28,6 +28,7 @@ using granular::testing::randomRotation;
 using granular::testing::blocks;
 using granular::testing::renderEstimate;
 using granular::testing::renderEstimates;
+using granular::testing::imageEstimates;
 
 namespace {
 
@@ -1083,6 +1084,38 @@ TEST(InstancedGrainsInScene, TheHybridMatchesExplicitGrainsOnASlab) {
                                               << " explicit bounces, block " << b << ", channel " << c;
         }
     }
+  }
+}
+
+TEST(InstancedGrainsInScene, PathsLeaveTheMediumThroughItsBoundsWhereverTheSlabStands) {
+  // The slab of nearly clear grains, and the same slab and camera 20 times larger, lifted
+  // by 60 (render space keeps it there: the origin's grid is 128): its medium's bounds' top
+  // face lies where a float's step is 3.8e-6, 150 grain radii up, as a simulation's slab in
+  // metres of 1 cm grains has it. A path leaving the medium from just below that face must
+  // still leave. (One that went on from o + d t_end as its new origin could round onto the
+  // face, find the bounds again as the empty interval [0, 0] and never leave: lost, and a
+  // slab of ice 26% too dark.) The same image both ways, no path lost.
+  const auto windows = blocks(16, 1);
+  std::vector<ChannelEstimate> at;
+  for (float size : {1.0f, 20.0f}) {
+    SceneDesc d = slabScene(Technique::EptVpt, 8, false, 0);
+    d.materials[0].absorption = Vec3(0.002f, 0.004f, 0.008f);  // per bounding radius: alike at both sizes
+    d.settings.spp = 32;
+    const double lift = size > 1 ? 60.0 : 0.0;
+    d.camera.cameraToWorld = Transform::translate(0.0, lift, 0.0) * Transform::scale(Vec3(size)) * d.camera.cameraToWorld *
+                             Transform::scale(Vec3(1.0f / size));
+    d.instancedGrains[0].xf = Transform::translate(0.0, lift, 0.0) * Transform::scale(Vec3(size)) * d.instancedGrains[0].xf;
+    auto scene = Scene::build(d);
+    ASSERT_NE(scene->instancedMedium(0), nullptr);
+    Renderer r(*scene);
+    ASSERT_TRUE(r.render(d.settings.spp));
+    EXPECT_EQ(r.lostPaths(), 0) << "size " << size;
+    at.push_back(imageEstimates(r.film().toImage(), windows)[0]);
+  }
+  for (int c = 0; c < 3; ++c) {
+    std::printf("channel %d: slab %.4f, 20 times larger and lifted %.4f (noise %.4f)\n", c, at[0].mean[c],
+                at[1].mean[c], std::hypot(at[0].se[c], at[1].se[c]));
+    EXPECT_NEAR(at[1].mean[c], at[0].mean[c], 4 * std::hypot(at[0].se[c], at[1].se[c])) << "channel " << c;
   }
 }
 

@@ -179,6 +179,7 @@ TEST_P(Stress, RendersFiniteOrIsRefusedClearly) {
     Renderer r(*scene);
     ASSERT_TRUE(r.render(2));
     EXPECT_EQ(r.nonFiniteSamples(), 0);
+    EXPECT_EQ(r.lostPaths(), 0);
     for (int y = 0; y < d.settings.height; ++y)
       for (int x = 0; x < d.settings.width; ++x) {
         Vec3 m = r.film().mean(x, y);

@@ -343,6 +343,7 @@ TEST(HdGranular, EveryDocumentedRenderStatIsReported) {
   const double lod = stat<double>(stats, "granular:lodFraction");
   EXPECT_TRUE(lod >= 0 && lod <= 1) << lod;
   EXPECT_EQ(stat<int>(stats, "granular:nonFiniteSamples"), 0);
+  EXPECT_EQ(stat<int>(stats, "granular:lostPaths"), 0);
   EXPECT_FALSE(stat<bool>(stats, "granular:defaultLight"));
   EXPECT_GT(stat<double>(stats, "granular:firstImageSeconds"), 0.0);
   EXPECT_GT(stat<double>(stats, "granular:firstPassSeconds"), 0.0);
@@ -1066,6 +1067,16 @@ TEST(HdGranularExplicitGrains, AThickInstancerUsesProxiesAsGranularRenderSays) {
   ASSERT_TRUE(f.converged);
   const std::string off = stat<std::string>(engine->GetRenderStats(), "granular:switching");
   EXPECT_NE(off.find("/World/Sim: explicit grains to bounce "), std::string::npos) << off;
+  EXPECT_NE(off.find("/World/Sim: no DA (da_instanced off)"), std::string::npos) << off;
+  for (float v : f.values) ASSERT_TRUE(std::isfinite(v));
+  // granular:daInstanced reaches core as --instanced-da does: DA is asked for, and the rule
+  // (core/heterogeneous_diffusion.h) says where.
+  engine->SetRendererSetting(TfToken("granular:daInstanced"), VtValue(true));
+  f = render(*engine, stage, HdAovTokens->color, 16, 16);
+  ASSERT_TRUE(f.converged);
+  const std::string da = stat<std::string>(engine->GetRenderStats(), "granular:switching");
+  EXPECT_EQ(da.find("da_instanced off"), std::string::npos) << da;
+  EXPECT_NE(da.find("/World/Sim: DA where the medium is deep"), std::string::npos) << da;
   for (float v : f.values) ASSERT_TRUE(std::isfinite(v));
 }
 
