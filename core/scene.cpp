@@ -1262,8 +1262,8 @@ bool Scene::intersectMedium(const Ray& ray, Hit& hit) const {
   bool found = intersectSurfaces(ray, Vec3(1.0f / ray.d.x, 1.0f / ray.d.y, 1.0f / ray.d.z), hit, tmax, true);
   // A boundary face that a surface covers (an aggregate standing on a ground card at its
   // bottom face): the surface, not the crossing, within the surface's own offset. Else the
-  // path left the medium there and, offset past the coplanar surface, went on under it
-  // (to the sky's lower half): +4% on a clear slab, +15% on a thin one.
+  // path would leave the medium there and, offset past the coplanar surface, go on under
+  // it (to the sky's lower half).
   const float tie = found ? 1e-5f * std::max({maxComponent(vabs(ray.o + ray.d * tmax)), tmax, 1e-3f * sceneScale_}) /
                                 std::max(length(ray.d), 1e-30f)
                           : 0.0f;
