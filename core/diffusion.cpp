@@ -167,8 +167,8 @@ float sampleRadius(float h, float sigma, float uPick, float u, float& pdfArea) {
 // aggregate's bottom face on a ground card)? Then light leaving there enters that surface:
 // the exit is moved inside by the SurfaceCutBoundary margin (1e-4 of the coordinates), the
 // path stays in its medium and meets the surface first (Scene::intersectMedium's tie rule).
-// Else, offset outwards past the coplanar surface, it went on under it (to the sky's lower
-// half) and its NEE saw that half too.
+// Offset outwards past the coplanar surface, it would go on under it (to the sky's lower
+// half), and its NEE would see that half too.
 bool coveredExit(const Scene& scene, const Vec3& p, const Vec3& ng, float time, Vec3& inside) {
   const float margin = 1e-4f * std::max(1e-3f, maxComponent(vabs(p)));
   Ray ray;
