@@ -87,6 +87,7 @@ int ProxyTable::directionBin(const Vec3& w) const {
   const int cell = std::clamp(int((w.z + 1.0f) * 0.5f * float(kMuCells)), 0, kMuCells - 1);
   int mu = int(muCell_[size_t(cell)]);
   while (mu + 1 < nmu_ && w.z >= muEdge_[size_t(mu) + 1]) ++mu;
+  while (mu > 0 && w.z < muEdge_[size_t(mu)]) --mu;  // a cell index rounded up past an edge
   const float phi = std::atan2(std::max(w.y, 0.0f), w.x);  // in [0, π]
   const int ph = std::clamp(int(phi / kPi * float(nphi_)), 0, nphi_ - 1);
   return mu * nphi_ + ph;
