@@ -170,7 +170,7 @@ float sampleRadius(float h, float sigma, float uPick, float u, float& pdfArea) {
 // Offset outwards past the coplanar surface, it would go on under it (to the sky's lower
 // half), and its NEE would see that half too.
 bool coveredExit(const Scene& scene, const Vec3& p, const Vec3& ng, float time, Vec3& inside) {
-  const float margin = 1e-4f * std::max(1e-3f, maxComponent(vabs(p)));
+  const float margin = SurfaceCutBoundary::margin(p);
   Ray ray;
   ray.o = p - ng * margin;
   ray.d = ng;
@@ -178,7 +178,7 @@ bool coveredExit(const Scene& scene, const Vec3& p, const Vec3& ng, float time, 
   ray.tmax = 2.0f * margin;
   ray.time = time;
   Hit hit;
-  if (!scene.intersectMedium(ray, hit) || hit.kind != Hit::Surface || !(hit.t < ray.tmax)) return false;
+  if (!scene.intersectMedium(ray, hit) || hit.kind != Hit::Surface) return false;
   inside = ray.o;
   return true;
 }
@@ -214,7 +214,7 @@ bool AggregateBoundary::intersect(const Vec3& o, const Vec3& d, float tmax, floa
 
 float SurfaceCutBoundary::closestPoint(const Vec3& p, Vec3& closest) const { return inner_.closestPoint(p, closest); }
 
-float SurfaceCutBoundary::margin(const Vec3& p) const {
+float SurfaceCutBoundary::margin(const Vec3& p) {
   return 1e-4f * std::max(1e-3f, maxComponent(vabs(p)));
 }
 

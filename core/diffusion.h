@@ -139,8 +139,9 @@ class SurfaceCutBoundary final : public DiffusionBoundary {
   bool intersect(const Vec3& o, const Vec3& d, float tmax, float& t, Vec3& ng) const override;
   Vec3 exitPoint(const Vec3& p, const Vec3& ng) const override;
 
+  static float margin(const Vec3& p);  // how far before a surface a point stops
+
  private:
-  float margin(const Vec3& p) const;  // how far before a surface a point stops
   const DiffusionBoundary& inner_;
   const Scene& scene_;
   float time_;

@@ -108,7 +108,7 @@ bool ProxyTable::sample(int b, float uBin, float u1, float u2, float uSide, Prox
   while (i > 0 && !(cdf[i + 1] > cdf[i])) --i;
   const int mu = i / nphi_, ph = i % nphi_;
   const float z0 = muEdge_[size_t(mu)], z1 = muEdge_[size_t(mu) + 1];
-  const float z = std::clamp(z0 + (z1 - z0) * std::clamp(u1, 1e-4f, 1.0f - 1e-4f), z0, z1);
+  const float z = z0 + (z1 - z0) * std::clamp(u1, 1e-4f, 1.0f - 1e-4f);
   const float s = std::sqrt(std::max(0.0f, 1.0f - z * z));
   const float du = std::clamp(u2, 1e-4f, 1.0f - 1e-4f);
   float cosPhi, sinPhi;
@@ -149,7 +149,6 @@ void ProxyTable::buildMuBins() {
 
 void ProxyTable::buildSamplingTables() {
   const int nd = nmu_ * nphi_;
-  buildMuBins();
   phiStart_.clear();
   if (kPi / float(nphi_) <= 0.2f)
     for (int ph = 0; ph < nphi_; ++ph) {
@@ -287,6 +286,7 @@ bool deserialiseProxyTable(const std::vector<char>& in, uint64_t key, ProxyTable
       const float c = t.cdf_[size_t(b) * (nd + 1) + i];
       if (!std::isfinite(c) || (i == 0 ? c != 0.0f : c < t.cdf_[size_t(b) * (nd + 1) + i - 1])) return false;
     }
+  t.buildMuBins();
   t.buildSamplingTables();
   t.key_ = key;
   return true;

@@ -161,7 +161,7 @@ class ProxyTable {
   std::vector<float> muEdge_;
   std::vector<uint16_t> muCell_;
   void buildMuBins();
-  void buildSamplingTables();  // the μ bins too
+  void buildSamplingTables();  // from cdf_ and the μ bins
   int64_t rays_ = 0;
   uint64_t key_ = 0;
   bool fromCache_ = false;

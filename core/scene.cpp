@@ -942,7 +942,11 @@ void Scene::finishHit(const Ray& ray, Hit& hit) const {
   // to shadow rays starting below its surface: test_light.cpp.)
   float coordScale = std::max({maxComponent(vabs(hit.p)), hit.t, 1e-3f * sceneScale_});
   hit.eps = std::max(hit.eps, 4e-7f * coordScale);
-  if (hit.kind == Hit::Surface) hit.eps = std::max(hit.eps, 1e-5f * coordScale);
+  if (hit.kind == Hit::Surface) hit.eps = std::max(hit.eps, surfaceOffset(hit.p, hit.t));
+}
+
+float Scene::surfaceOffset(const Vec3& p, float t) const {
+  return 1e-5f * std::max({maxComponent(vabs(p)), t, 1e-3f * sceneScale_});
 }
 
 void Scene::instancedHit(Hit::Kind kind, int i, int64_t instance, int prototype, float t, float radius,
@@ -1264,9 +1268,7 @@ bool Scene::intersectMedium(const Ray& ray, Hit& hit) const {
   // bottom face): the surface, not the crossing, within the surface's own offset. Else the
   // path would leave the medium there and, offset past the coplanar surface, go on under
   // it (to the sky's lower half).
-  const float tie = found ? 1e-5f * std::max({maxComponent(vabs(ray.o + ray.d * tmax)), tmax, 1e-3f * sceneScale_}) /
-                                std::max(length(ray.d), 1e-30f)
-                          : 0.0f;
+  const float tie = found ? surfaceOffset(ray.o + ray.d * tmax, tmax) / std::max(length(ray.d), 1e-30f) : 0.0f;
   for (size_t a = 0; a < aggregates_.size(); ++a) {
     float t;
     Vec3 ng;

@@ -340,6 +340,8 @@ class Scene {
                          bool mediaMode = false, bool proxyMode = false) const;  // invD: 1 / ray.d
   bool intersectAreaLights(const Ray& ray, Hit& hit, float& tmax) const;
   void finishHit(const Ray& ray, Hit& hit) const;  // position and ray-offset scale
+  // A surface hit's ray offset at p, reached over t (finishHit).
+  float surfaceOffset(const Vec3& p, float t) const;
   void grainHit(Hit::Kind kind, int aggregate, const GrainHit& g, Hit& hit) const;  // Grain or Proxy
   // An instancer's grain (Grain) or its sphere (Proxy): all but the normal and centre.
   void instancedHit(Hit::Kind kind, int instancer, int64_t instance, int prototype, float t, float radius,

@@ -321,10 +321,17 @@ bool passes(const SwitchMeasure& m, int c, const SwitchOptions& o) {
   return true;
 }
 
+// A measurement's record key: the caller's key, its tables' and the options'.
+uint64_t measurementKey(uint64_t cacheKey, const ProxyTables& tables, const SwitchOptions& options) {
+  return recordKey(hashInts(cacheKey, tables.key()), options);
+}
+
+std::string recordName(uint64_t key) { return str("switch-", std::hex, key, ".bin"); }
+
 }  // namespace
 
 std::string switchCacheName(uint64_t cacheKey, const ProxyTables& tables, const SwitchOptions& options) {
-  return str("switch-", std::hex, recordKey(hashInts(cacheKey, tables.key()), options), ".bin");
+  return recordName(measurementKey(cacheKey, tables, options));
 }
 
 int chooseSwitchVisits(const SwitchMeasure& m, const SwitchOptions& o) {
@@ -343,8 +350,8 @@ SwitchMeasure measureSwitch(const Aggregate& agg, const ProxyTables& tables, con
   if (options.paths < 2) throw InputError("switching", "paths", str(options.paths, " is < 2"));
   if (!(options.tolerance > 0)) throw InputError("switching", "tolerance", str(options.tolerance, " is not > 0"));
   if (!(options.precision > 0)) throw InputError("switching", "precision", str(options.precision, " is not > 0"));
-  const uint64_t key = cacheKey ? recordKey(hashInts(cacheKey, tables.key()), options) : 0;
-  const std::string name = switchCacheName(cacheKey, tables, options);
+  const uint64_t key = cacheKey ? measurementKey(cacheKey, tables, options) : 0;
+  const std::string name = recordName(key);
   if (key) {
     std::vector<char> bytes;
     SwitchMeasure cached;

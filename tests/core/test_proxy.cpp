@@ -234,9 +234,12 @@ TEST(Proxy, AFlatGrainsStraightOnAndStraightBackPeaksStayNarrow) {
   ASSERT_GT(pOn, 0.05);  // the peaks are there to keep
   ASSERT_GT(pBack, 0.01);
   // The explicit share lies between the uniform-in-bin share and the whole bin's; the
-  // table's must be at least the uniform share of it, less noise.
-  EXPECT_GT(tOn, withinBin * pOn - 4.0 * seOn - 0.01 * pOn);
-  EXPECT_GT(tBack, withinBin * pBack - 4.0 * seBack - 0.01 * pBack);
+  // table's must be at least the uniform share of it, less noise: the explicit estimate's
+  // and the table's own, from as many rays (√2 of one), the draws' far below.
+  std::printf("within 3°: straight on explicit %.4f ± %.4f, table %.4f; straight back %.4f ± %.4f, table %.4f\n",
+              pOn, seOn, tOn, pBack, seBack, tBack);
+  EXPECT_GT(tOn, withinBin * pOn - 4.0 * std::sqrt(2.0) * seOn);
+  EXPECT_GT(tBack, withinBin * pBack - 4.0 * std::sqrt(2.0) * seBack);
 }
 
 TEST(Proxy, TablesAreCachedAndReadBackIdentical) {
