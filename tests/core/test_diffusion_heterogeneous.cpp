@@ -172,20 +172,21 @@ Paired compareWithoutDa(Scene& scene, const SceneDesc& desc) {
   scene.setView(desc.camera, desc.settings);
   const int da = a.channelIndex("da.R");
   Paired p;
-  double s2[3] = {0, 0, 0}, total = 0, daSum = 0;
+  const auto d = granular::testing::pairedDifference(a, b);
+  for (int c = 0; c < 3; ++c) {
+    p.diff[c] = d.diff[c];
+    p.se[c] = d.se[c];
+  }
+  double total = 0, daSum = 0;
   const double n = double(a.width) * a.height;
   for (int y = 0; y < a.height; ++y)
     for (int x = 0; x < a.width; ++x)
       for (int c = 0; c < 3; ++c) {
-        const double d = double(a.at(x, y)[c]) - b.at(x, y)[c];
-        p.diff[c] += d / n;
-        s2[c] += d * d / n;
         p.base[c] += b.at(x, y)[c] / n;
         p.daLight[c] += a.at(x, y)[da + c] / n;
         total += a.at(x, y)[c];
         daSum += a.at(x, y)[da + c];
       }
-  for (int c = 0; c < 3; ++c) p.se[c] = std::sqrt(std::max(0.0, s2[c] - p.diff[c] * p.diff[c]) / (n - 1));
   p.daShare = total > 0 ? daSum / total : 0;
   p.daPaths = ra.diffusionFraction();
   return p;
