@@ -12,6 +12,7 @@ and build, from the caches, left out; the set-up is reported apart).
 Usage: .venv/bin/python bench/instanced_hybrid.py [--grains 100000] [--size 80x60]
        [--ref-spp 1024] [--targets 0.02,0.01] [--out out/bench/instanced_hybrid] [--threads T]
        [--da] [--absorption-scale S] [--material ice] [--slab-depth D] [--gradient G]
+       [--sun E] [--sun-angle DEG]
 Prints a markdown table and the ladders; each step's heap mean against the reference's with
 its standard error (both images' variance AOVs).
 
@@ -24,6 +25,9 @@ multiplies the grains' absorption (the generator's quartz sand) by S: brighter g
 (S < 1) scatter longer, where DA takes more of the light. --material and --slab-depth go to the
 generator: ice grains (nearly clear), a flat slab D grid cells deep instead of the cone,
 its packing rate rising G times from bottom to top (a medium of varying density).
+--sun E lights the heap by the generator's sun at irradiance E (default 0: the sky alone, as
+every table of bench/README.md before the sun was measured), --sun-angle DEG wide: explicit
+grains find a sun only by hitting its disk, so EPT's reference needs one of a few degrees.
 """
 import argparse
 import math
@@ -119,6 +123,8 @@ def main():
     ap.add_argument("--slab-depth", type=int, help="a slab this many grid cells deep (make_grain_heap.py)")
     ap.add_argument("--gradient", type=float, default=1.0,
                     help="with --slab-depth: the slab's packing rate rises this many times to its top")
+    ap.add_argument("--sun", type=float, default=0.0, help="the sun's irradiance (0: the sky alone)")
+    ap.add_argument("--sun-angle", type=float, default=5.0, help="the sun's angular diameter, degrees")
     args = ap.parse_args()
     variants = DA_VARIANTS if args.da else VARIANTS
     names = list(variants)
@@ -126,12 +132,15 @@ def main():
     size = tuple(int(x) for x in args.size.split("x"))
     stage = os.path.join(args.out, "heap.usdc")
     shape = ["--material", args.material] + (["--slab-depth", str(args.slab_depth)] if args.slab_depth else []) + \
-        (["--gradient", str(args.gradient)] if args.gradient != 1.0 else [])
+        (["--gradient", str(args.gradient)] if args.gradient != 1.0 else []) + \
+        ["--sun", str(args.sun), "--sun-angle", str(args.sun_angle)]
     subprocess.run([sys.executable, os.path.join(ROOT, "examples", "make_grain_heap.py"), stage, "--grains",
                     str(args.grains), "--frames", "1"] + shape, check=True, capture_output=True)
     if args.absorption_scale != 1.0:
         scale_absorption(stage, args.absorption_scale)
-    ref_path = os.path.join(args.out, f"ref_da_off_abs{args.absorption_scale:g}.exr" if args.da else "ref.exr")
+    lit = f"_sun{args.sun:g}_{args.sun_angle:g}" if args.sun > 0 else ""
+    ref_path = os.path.join(args.out, f"ref_da_off_abs{args.absorption_scale:g}{lit}.exr" if args.da else
+                            f"ref{lit}.exr")
     if not os.path.exists(ref_path):
         render(stage, ref_path, size, args.ref_spp, variants[names[0]], 1000, args.threads)
     ref, prim, _, ref_var = load(ref_path)

@@ -3,7 +3,7 @@
 
 The heap of examples/make_grain_heap.py (a UsdGeomPointInstancer with
 GranularInstancedAggregateAPI: round and rock prototypes, quartz grains, a ground card, a
-camera, a 0.53° sun and a sky) is exported to Mitsuba 3 (scalar_rgb) as what our renderer
+camera, a 0.53° sun written at zero irradiance (`--sun 0`: lit by the sky) and a sky) is exported to Mitsuba 3 (scalar_rgb) as what our renderer
 sees (core/granular_prims.h, core/instanced_grains.h, usd_reader.read_instanced_grains):
 
   - one `shapegroup` per prototype: its mesh as authored (outward, flat-shaded), a
@@ -385,7 +385,7 @@ def heap_stage(args, n):
     stage = os.path.join(args.out, f"heap_{n}.usdc")
     if not os.path.exists(stage):
         subprocess.run([args.python, os.path.join(ROOT, "examples", "make_grain_heap.py"), stage, "--grains", str(n),
-                        "--frames", "1"], check=True, capture_output=True)
+                        "--frames", "1", "--sun", "0"], check=True, capture_output=True)
     return stage
 
 

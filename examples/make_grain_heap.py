@@ -5,7 +5,7 @@ scales, protoIndices, velocities, angularVelocities), over a few frames:
 
     .venv/bin/python examples/make_grain_heap.py OUT.usdc [--grains N] [--frames K] [--seed S] [--shutter OPEN CLOSE]
                                                  [--no-motion] [--slabs] [--material NAME] [--slab-depth D]
-                                                 [--gradient G]
+                                                 [--gradient G] [--sun E] [--sun-angle DEG]
 
 The heap is a cone at the angle of repose of dry sand (about 31 degrees) on a ground card,
 with a camera and a sun. Grains are placed one per cell of a cubic grid (cells whose centre
@@ -29,6 +29,12 @@ instead of the cone, as wide as the grains allow, seen from above at 45 degrees:
 wide medium for the diffusion approximation (bench/README.md, "DA in simulated grains' media").
 --gradient G thins the slab's grains with depth so that its packing rate rises G times from
 bottom to top: a medium of varying density.
+
+The sun is a normalised UsdLuxDistantLight of irradiance --sun (default 3) and angular
+diameter --sun-angle (default 0.53°, the physical sun's) at 50° elevation; the sky a dome of
+radiance 0.3. --sun 0 leaves the sun's prim at zero intensity: the heap is lit by the sky
+alone, as the benchmarks that compare explicit grains (which cannot find a 0.53° sun)
+render it.
 """
 import argparse
 import math
@@ -47,6 +53,8 @@ SPACING = 2.3          # grid cell edge, in largest radii
 JITTER = 0.1           # each way, in largest radii: centres stay 2.1 radii apart
 TAN_REPOSE = math.tan(math.radians(31.0))
 FPS = 24.0
+SUN_IRRADIANCE = 3.0   # normalised; on flat ground 2.3 at 50° elevation, the sky 0.94 (0.3 π)
+SUN_ANGLE = 0.53       # degrees, the physical sun
 
 
 def _unit_ball(tri):
@@ -167,7 +175,7 @@ def _write_static(stage, pi, centres, sizes, quats, protos):
 
 
 def write(path, grains=100000, frames=3, seed=1, shutter=None, motion=True, slabs=False, material=QUARTZ_SAND,
-          slab_depth=None, gradient=1.0):
+          slab_depth=None, gradient=1.0, sun=SUN_IRRADIANCE, sun_angle=SUN_ANGLE):
     if slab_depth:
         centres, sizes, quats, protos, height = slab(grains, seed, slab_depth, gradient)
         if not motion:
@@ -209,7 +217,7 @@ def write(path, grains=100000, frames=3, seed=1, shutter=None, motion=True, slab
         del centres, sizes, quats, protos
     else:
         _write_motion(stage, pi, centres, sizes, quats, protos, frames, seed)
-    _write_rest(stage, height, shutter, slab_width=slab_width)
+    _write_rest(stage, height, shutter, slab_width=slab_width, sun=sun, sun_angle=sun_angle)
     stage.GetRootLayer().Save()
     return count
 
@@ -245,7 +253,7 @@ def _write_motion(stage, pi, centres, sizes, quats, protos, frames, seed):
         orient_attr.Set(Vt.QuathArray.FromNumpy(q[:, [1, 2, 3, 0]].astype(np.float16)), Usd.TimeCode(1 + f))
 
 
-def _write_rest(stage, height, shutter, slab_width=0):
+def _write_rest(stage, height, shutter, slab_width=0, sun=SUN_IRRADIANCE, sun_angle=SUN_ANGLE):
     ground = UsdGeom.Mesh.Define(stage, "/World/Ground")
     g = 4.0 * max(height, slab_width) + 0.2
     ground.CreatePointsAttr([(-g, 0, -g), (g, 0, -g), (g, 0, g), (-g, 0, g)])
@@ -264,9 +272,13 @@ def _write_rest(stage, height, shutter, slab_width=0):
     if shutter is not None:  # motion blur from the grains' velocities and spins
         cam.CreateShutterOpenAttr(float(shutter[0]))
         cam.CreateShutterCloseAttr(float(shutter[1]))
-    sun = UsdLux.DistantLight.Define(stage, "/World/Sun")
-    sun.CreateIntensityAttr(3.0)
-    UsdGeom.Xformable(sun).AddRotateXYZOp().Set(Gf.Vec3f(-50, 30, 0))
+    # Normalised: the intensity is the sun's irradiance whatever its angle (without it a
+    # distant light's intensity is its radiance, and 3 over a 0.53° disk lights nothing).
+    light = UsdLux.DistantLight.Define(stage, "/World/Sun")
+    light.CreateIntensityAttr(float(sun))
+    light.CreateAngleAttr(float(sun_angle))
+    light.CreateNormalizeAttr(True)
+    UsdGeom.Xformable(light).AddRotateXYZOp().Set(Gf.Vec3f(-50, 30, 0))
     UsdLux.DomeLight.Define(stage, "/World/Sky").CreateIntensityAttr(0.3)
 
 
@@ -288,6 +300,11 @@ def main(argv=None):
                    help="a flat square slab D grid cells deep instead of the cone")
     p.add_argument("--gradient", type=float, default=1.0, metavar="G",
                    help="with --slab-depth: the packing rate rises G times from the slab's bottom to its top")
+    p.add_argument("--sun", type=float, default=SUN_IRRADIANCE, metavar="E",
+                   help=f"the sun's irradiance (a normalised UsdLuxDistantLight; default {SUN_IRRADIANCE:g}; "
+                        "0 leaves the sky alone)")
+    p.add_argument("--sun-angle", type=float, default=SUN_ANGLE, metavar="DEG",
+                   help=f"the sun's angular diameter in degrees (default {SUN_ANGLE:g}, the physical sun's)")
     a = p.parse_args(argv)
     if a.no_motion and a.frames not in (None, 1) or a.shutter and a.no_motion:
         p.error("--no-motion writes one frame without motion: no --frames or --shutter")
@@ -300,9 +317,12 @@ def main(argv=None):
         p.error("--slab-depth must be >= 1, and not with --slabs")
     if not a.gradient >= 1.0 or a.gradient != 1.0 and a.slab_depth is None:
         p.error("--gradient must be >= 1, and with --slab-depth")
+    if not a.sun >= 0 or not 0 <= a.sun_angle < 180:
+        p.error("--sun must be >= 0 and --sun-angle in [0, 180)")
     from granular.materials import MATERIALS
     n = write(a.output, a.grains, a.frames, a.seed, a.shutter, motion=not a.no_motion, slabs=a.slabs,
-              material=MATERIALS[a.material], slab_depth=a.slab_depth, gradient=a.gradient)
+              material=MATERIALS[a.material], slab_depth=a.slab_depth, gradient=a.gradient, sun=a.sun,
+              sun_angle=a.sun_angle)
     print(f"wrote {a.output}: {n} grains, {a.frames} frames")
     return 0
 

@@ -192,6 +192,31 @@ def test_render_draws_the_grains(heap, tmp_path, capsys):
     assert np.isfinite(px[..., ch.index("R")]).all()
 
 
+def test_the_generated_sun_lights_the_heap(tmp_path, capsys):
+    """The generator's sun is a normalised distant light: its intensity is its irradiance
+    whatever its angle. Without `normalize` a 0.53° sun of intensity 3 lit the ground by
+    2·10^-4, against the sky's 0.94: the heap was lit by the sky alone. Now the sunlit ground
+    (ρ/π · 3 sin 50° = 0.33 in red) outshines its sky light (ρ · 0.3 = 0.135 at most) about
+    three times; --sun 0 leaves the sky alone."""
+    paths = {}
+    for sun in (3.0, 0.0):
+        paths[sun] = str(tmp_path / f"heap_sun{sun:g}.usdc")
+        make_grain_heap.write(paths[sun], grains=300, frames=1, seed=2, motion=False, sun=sun)
+    light = next(l for l in usd_reader.read_stage(paths[3.0]).desc.lights if l.name == "/World/Sun")
+    assert light.normalize and light.intensity == pytest.approx(3.0) and light.angle == pytest.approx(0.53)
+    ground = {}
+    for sun, path in paths.items():
+        out = tmp_path / f"g{sun:g}.exr"
+        rc, _, err = run_cli(["render", path, "-o", out, "--width", 32, "--height", 24, "--spp", 16], capsys)
+        assert rc == 0, err
+        img = core.read_exr(str(out))
+        px, ch = np.asarray(img.pixels), list(img.channels)
+        on_ground = px[..., ch.index("primId")] == 0
+        ground[sun] = px[..., [ch.index(c) for c in "RGB"]][on_ground].mean(axis=0)
+    ratio = ground[3.0] / ground[0.0]
+    assert np.all((ratio > 2.0) & (ratio < 5.0)), ratio
+
+
 # ---- a small instancer to break -----------------------------------------------------------
 
 def _instancer(path, positions=((0, 0, 0), (3, 0, 0)), indices=(0, 0), scales=None, api=True, proto="Mesh"):
