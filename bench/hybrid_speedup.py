@@ -7,9 +7,14 @@ Each technique renders the scene at a ladder of sample counts; relMSE (mean over
 pixels and channels of (x − ref)² / (ref² + 0.01), bench/image_compare.cpp) and the
 bias of the image mean are measured against an EPT render with --ref-spp samples.
 For an unbiased estimator relMSE × time is constant; the equal-error speedup over EPT
-is the ratio of those products (median over the ladder's upper half). The reference's
-own noise adds (EPT's relMSE at the reference count) to every entry, which is reported
-so that a floor is not mistaken for bias.
+is the ratio of those products (median over the ladder's upper half).
+
+The reference is the mean of two EPT renders of --ref-spp / 2 samples on independent
+seeds. Its own noise adds the same floor to every entry (E[(x − r)²] = bias² + Var(x) +
+Var(r)); half their difference measures it (granular-compare with two references), and
+the second speed-up table removes it: (relMSE − floor) × time, the images' own error.
+The floor penalises the technique that converges fastest, whose error at the ladder's top
+comes nearest to it.
 
 Usage: python3 bench/hybrid_speedup.py [--build build] [--out out/bench] [--ref-spp 1024] [--set KEY=VALUE]
 Prints markdown tables; writes OUT/hybrid_speedup.png when matplotlib is available.
@@ -66,8 +71,8 @@ def render(exe, scene_path, out_exr, spp, technique, seed):
     return json.load(open(stats))
 
 
-def compare(exe, a, b):
-    r = subprocess.run([exe, a, b], check=True, capture_output=True, text=True)
+def compare(exe, a, *refs):
+    r = subprocess.run([exe, a, *refs], check=True, capture_output=True, text=True)
     return json.loads(r.stdout)
 
 
@@ -101,45 +106,58 @@ def main():
         tag = name.replace(" ", "_")
         path = os.path.join(a.out, tag + ".json")
         json.dump(desc, open(path, "w"), indent=1)
-        ref = os.path.join(a.out, tag + "_ref.exr")
+        refs = [os.path.join(a.out, f"{tag}_ref_{half}.exr") for half in "ab"]
         ref_path = path
         if overrides:  # the reference above keeps the defaults; the ladder gets the overrides
             desc["render"].update(overrides)
             path = os.path.join(a.out, tag + "_set.json")
             json.dump(desc, open(path, "w"), indent=1)
-        if not os.path.exists(ref):
-            st = render(render_exe, ref_path, ref, a.ref_spp, "ept", 1000)
-            print(f"# {name}: reference EPT {a.ref_spp} spp in {st['render_s']:.1f} s", file=sys.stderr)
+        for seed, ref in enumerate(refs, 1000):
+            if not os.path.exists(ref):
+                st = render(render_exe, ref_path, ref, a.ref_spp // 2, "ept", seed)
+                print(f"# {name}: reference EPT {a.ref_spp // 2} spp (seed {seed}) in {st['render_s']:.1f} s",
+                      file=sys.stderr)
         rows = []
         for t in techniques:
             for spp in ladder:
                 img = os.path.join(a.out, f"{tag}_{t.replace('+', '_')}_{spp}.exr")
                 st = render(render_exe, path, img, spp, t, 1)
-                c = compare(compare_exe, img, ref)
+                c = compare(compare_exe, img, *refs)
                 rows.append({"technique": t, "spp": spp, "time": st["render_s"], "build": st["build_s"],
-                             "relmse": c["relmse"], "bias": c["bias"], "pa": st["pa"]})
+                             "relmse": c["relmse"], "floor": c["floor"], "bias": c["bias"], "pa": st["pa"]})
         results[name] = rows
 
     print("## Hybrid against a converged EPT reference\n")
-    print(f"Reference: EPT, {a.ref_spp} spp. relMSE = mean((x − ref)² / (ref² + 0.01)); bias = relative "
-          "difference of the image means.\n")
-    print("| scene | technique | spp | render time (s) | relMSE | bias | P_a |")
-    print("|---|---|---|---|---|---|---|")
+    print(f"Reference: EPT, 2 × {a.ref_spp // 2} spp. relMSE = mean((x − ref)² / (ref² + 0.01)); floor = the "
+          "reference's own share of it; bias = relative difference of the image means.\n")
+    print("| scene | technique | spp | render time (s) | relMSE | floor | bias | P_a |")
+    print("|---|---|---|---|---|---|---|---|")
     for name, rows in results.items():
         for r in rows:
             print(f"| {name} | {r['technique']} | {r['spp']} | {r['time']:.2f} | {r['relmse']:.4g} | "
-                  f"{r['bias']:+.4f} | {r['pa']:.2f} |")
-    print("\n## Equal-error speedup over EPT (median of relMSE × time over the ladder's upper half)\n")
-    print("| scene | EPT relMSE×s | EPT+VPT speedup | EPT+VPT+DA speedup | hybrid bias at top spp |")
-    print("|---|---|---|---|---|")
-    for name, rows in results.items():
+                  f"{r['floor']:.3g} | {r['bias']:+.4f} | {r['pa']:.2f} |")
+
+    def speedups(net):
         eff = {}
-        for t in techniques:
-            rs = [r for r in rows if r["technique"] == t][len(ladder) // 2:]
-            eff[t] = statistics.median(r["relmse"] * r["time"] for r in rs)
-        top = [r for r in rows if r["technique"] == "hybrid"][-1]
-        print(f"| {name} | {eff['ept']:.4g} | {eff['ept'] / eff['ept+vpt']:.2f}× | {eff['ept'] / eff['hybrid']:.2f}× | "
-              f"{top['bias']:+.4f} |")
+        for name, rows in results.items():
+            for t in techniques:
+                rs = [r for r in rows if r["technique"] == t][len(ladder) // 2:]
+                # Floors come from the same two references, so they agree row to row.
+                eff[name, t] = statistics.median(max(r["relmse"] - (r["floor"] if net else 0), 1e-12) * r["time"]
+                                                 for r in rs)
+        return eff
+
+    for net in (False, True):
+        what = "relMSE − floor" if net else "relMSE"
+        print(f"\n## Equal-error speedup over EPT (median of ({what}) × time over the ladder's upper half)\n")
+        print(f"| scene | EPT ({what})×s | EPT+VPT speedup | EPT+VPT+DA speedup | hybrid bias at top spp |")
+        print("|---|---|---|---|---|")
+        eff = speedups(net)
+        for name, rows in results.items():
+            top = [r for r in rows if r["technique"] == "hybrid"][-1]
+            e = eff[name, "ept"]
+            print(f"| {name} | {e:.4g} | {e / eff[name, 'ept+vpt']:.2f}× | {e / eff[name, 'hybrid']:.2f}× | "
+                  f"{top['bias']:+.4f} |")
     try:
         import matplotlib
         matplotlib.use("Agg")
@@ -151,10 +169,10 @@ def main():
     for ax, (name, rows) in zip(axes[0], results.items()):
         for t in techniques:
             rs = [r for r in rows if r["technique"] == t]
-            ax.loglog([r["time"] for r in rs], [r["relmse"] for r in rs], "o-", label=t)
+            ax.loglog([r["time"] for r in rs], [max(r["relmse"] - r["floor"], 1e-12) for r in rs], "o-", label=t)
         ax.set_title(name)
         ax.set_xlabel("render time (s)")
-        ax.set_ylabel("relMSE vs EPT reference")
+        ax.set_ylabel("relMSE vs EPT reference, less its noise")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend()
     fig.tight_layout()

@@ -21,6 +21,8 @@ Usage: python3 bench/sun_matrix.py [--build build] [--materials quartz_sand,ice,
          [--json out/bench/sun_matrix.json]
          [--plot out/bench/sun_matrix.png]
 Prints a markdown table; --plot draws the medium-only and proxy biases against phase angle.
+`default` is the hybrid as a user gets it; `visits-K` (e.g. visits-16) proxies for K visits
+after the first grain, nothing measured: how the bias falls with the switch to the medium.
 """
 import argparse
 import json
@@ -186,11 +188,14 @@ def main():
     ap.add_argument("--height", type=int, default=24)
     ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--techniques", default="proxies,medium,medium-only",
-                    help="compared with EPT, of " + ", ".join(TECHNIQUES))
+                    help="compared with EPT, of " + ", ".join(TECHNIQUES) + ", visits-K (proxies for K visits)")
     ap.add_argument("--json")
     ap.add_argument("--plot")
     args = ap.parse_args()
     args.techniques = [t for t in args.techniques.split(",") if t]
+    for t in args.techniques:  # visits-K: proxies on for K visits after the first grain, measured nothing
+        if t.startswith("visits-") and t[7:].isdigit():
+            TECHNIQUES[t] = ("EptVpt", "On", 2 * int(t[7:]))  # kProxyOrders explicit bounces a visit
     unknown = [t for t in args.techniques if t not in TECHNIQUES]
     if unknown or not args.techniques:
         ap.error(f"--techniques: {', '.join(unknown) or 'none given'}; choose from {', '.join(TECHNIQUES)}")
