@@ -137,15 +137,23 @@ def main():
             print(f"| {name} | {r['technique']} | {r['spp']} | {r['time']:.2f} | {r['relmse']:.4g} | "
                   f"{r['floor']:.3g} | {r['bias']:+.4f} | {r['pa']:.2f} |")
 
+    def error(r, net):
+        """relMSE, or with net its part beyond the floor; None where noise leaves none."""
+        e = r["relmse"] - (r["floor"] if net else 0.0)
+        return e if e > 0 else None
+
     def speedups(net):
         eff = {}
         for name, rows in results.items():
             for t in techniques:
                 rs = [r for r in rows if r["technique"] == t][len(ladder) // 2:]
                 # Floors come from the same two references, so they agree row to row.
-                eff[name, t] = statistics.median(max(r["relmse"] - (r["floor"] if net else 0), 1e-12) * r["time"]
-                                                 for r in rs)
+                es = [error(r, net) for r in rs]
+                eff[name, t] = None if None in es else statistics.median(e * r["time"] for e, r in zip(es, rs))
         return eff
+
+    def ratio(a, b):
+        return "below the floor" if a is None or b is None else f"{a / b:.2f}×"
 
     for net in (False, True):
         what = "relMSE − floor" if net else "relMSE"
@@ -156,8 +164,8 @@ def main():
         for name, rows in results.items():
             top = [r for r in rows if r["technique"] == "hybrid"][-1]
             e = eff[name, "ept"]
-            print(f"| {name} | {e:.4g} | {e / eff[name, 'ept+vpt']:.2f}× | {e / eff[name, 'hybrid']:.2f}× | "
-                  f"{top['bias']:+.4f} |")
+            print(f"| {name} | {'—' if e is None else f'{e:.4g}'} | {ratio(e, eff[name, 'ept+vpt'])} | "
+                  f"{ratio(e, eff[name, 'hybrid'])} | {top['bias']:+.4f} |")
     try:
         import matplotlib
         matplotlib.use("Agg")
@@ -168,8 +176,8 @@ def main():
     fig, axes = plt.subplots(1, len(results), figsize=(5 * len(results), 4), squeeze=False)
     for ax, (name, rows) in zip(axes[0], results.items()):
         for t in techniques:
-            rs = [r for r in rows if r["technique"] == t]
-            ax.loglog([r["time"] for r in rs], [max(r["relmse"] - r["floor"], 1e-12) for r in rs], "o-", label=t)
+            rs = [r for r in rows if r["technique"] == t and error(r, True) is not None]
+            ax.loglog([r["time"] for r in rs], [error(r, True) for r in rs], "o-", label=t)
         ax.set_title(name)
         ax.set_xlabel("render time (s)")
         ax.set_ylabel("relMSE vs EPT reference, less its noise")

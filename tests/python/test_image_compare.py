@@ -40,11 +40,10 @@ def test_the_reference_noise_floor_is_measured_and_removed(tmp_path):
     assert c["relmse"] == pytest.approx(np.mean((x32 - r) ** 2 * wgt), rel=1e-5)
     assert c["floor"] == pytest.approx(np.mean((0.5 * (a32 - b32)) ** 2 * wgt), rel=1e-5)
     # The meaning: relMSE − floor estimates the test image's own error against the truth,
-    # within the standard error of the two per-pixel means it subtracts.
+    # within the standard error of their per-pixel difference.
     own = (x32 - truth) ** 2 * wgt
-    terms = (x32 - r) ** 2 * wgt - (0.5 * (a32 - b32)) ** 2 * wgt
-    se = terms.std() / np.sqrt(terms.size)
-    assert abs((c["relmse"] - c["floor"]) - own.mean()) < 4 * se + 4 * own.std() / np.sqrt(own.size)
+    gap = (x32 - r) ** 2 * wgt - (0.5 * (a32 - b32)) ** 2 * wgt - own
+    assert abs((c["relmse"] - c["floor"]) - own.mean()) < 4 * gap.std() / np.sqrt(gap.size)
     # Without removing it the floor is there: the reference's variance (σ²/2 of a mean of
     # two halves), weighted, within 4 standard errors of its per-pixel mean.
     floor_terms = (0.5 * (a32 - b32)) ** 2 * wgt
