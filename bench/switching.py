@@ -1,13 +1,20 @@
 #!/usr/bin/env python3
 """Switching from measured error (core/switching.h): per aggregate of the examples and of the
 hybrid speed-up scenes, the proxy visits chosen, the medium's measured bias right after the
-first grain and after the chosen visits, and what the measurement cost.
+first grain and after the chosen visits (in all, and in the worst exit bin), and what the
+measurement cost.
 
 Each scene is built with technique ept+vpt and an empty cache folder of its own, so the
 seconds are those of a first build (a second build reads the measurement from the cache).
 
+With --exit-bins N, each aggregate is measured again with N paths, every candidate forking
+in every path (Scene.measure_switch, stop_early=False), and a table per aggregate gives the
+bias after each candidate's visits in all and per exit bin (switching.h: the exit
+direction's cosine from the entry's normal, back toward the entry side or forward).
+
 Usage: python3 bench/switching.py [--build build] [--examples a,b] [--no-bench-scenes]
-Prints a markdown table.
+         [--scene extra.json ...] [--exit-bins N]
+Prints markdown tables.
 """
 import argparse
 import os
@@ -23,18 +30,41 @@ def worst(v):
     return 100 * max(v, key=abs)
 
 
-def rows_of(core, desc, label):
+def worst_bin(sw, k, bins):
+    """The exit bin of candidate k's largest |bias| (any channel): its label, bias % and s.e. %."""
+    n = len(bins)
+    j = max(range(n), key=lambda j: max(abs(x) for x in sw["exit_bias"][k * n + j]))
+    lo, hi, side = bins[j]
+    return f"{lo:.1f}–{hi:.1f} {side}", worst(sw["exit_bias"][k * n + j]), 100 * max(sw["exit_bias_se"][k * n + j])
+
+
+def rows_of(core, desc, label, exit_paths, tables):
     s = desc.settings
     s.technique = core.Technique.EptVpt
     desc.settings = s
     built = core.Scene.build(desc)
+    bins = core.switch_exit_bins()
     out = []
-    for info, sw in zip(built.aggregates, built.switching):
+    for a, (info, sw) in enumerate(zip(built.aggregates, built.switching)):
         if not sw["measured"]:
             continue
         k = sw["candidates"].index(sw["chosen"])
         out.append((label, info["name"], sw["chosen"], sw["uses_proxies"], worst(sw["bias"][0]),
-                    worst(sw["bias"][k]), 100 * max(sw["bias_se"][k]), sw["seconds"], sw["paths"], sw["events"]))
+                    worst(sw["bias"][k]), 100 * max(sw["bias_se"][k]), worst_bin(sw, k, bins), sw["seconds"],
+                    sw["paths"], sw["events"]))
+        if exit_paths:
+            m = built.measure_switch(a, paths=exit_paths, stop_early=False)
+            lines = [f"**{label}, {info['name']}** ({m['paths']} paths, {m['seconds']:.1f} s; bias % ± s.e., "
+                     "the largest of the channels)", "",
+                     "| visits | albedo | " + " | ".join(f"{lo:.1f}–{hi:.1f} {side}" for lo, hi, side in bins) + " |",
+                     "|---" * (len(bins) + 2) + "|"]
+            n = len(bins)
+            for c, visits in enumerate(m["candidates"][:-1]):
+                cells = [f"{worst(m['bias'][c]):+.2f} ± {100 * max(m['bias_se'][c]):.2f}"]
+                cells += [f"{worst(m['exit_bias'][c * n + j]):+.2f} ± {100 * max(m['exit_bias_se'][c * n + j]):.2f}"
+                          for j in range(n)]
+                lines.append(f"| {visits}{' (chosen)' if visits == sw['chosen'] else ''} | " + " | ".join(cells) + " |")
+            tables.append("\n".join(lines))
     return out
 
 
@@ -43,15 +73,21 @@ def main():
     ap.add_argument("--build", default=os.path.join(ROOT, "build"))
     ap.add_argument("--examples", default=",".join(EXAMPLES))
     ap.add_argument("--no-bench-scenes", action="store_true")
+    ap.add_argument("--scene", action="append", default=[], help="a JSON scene to add (repeatable)")
+    ap.add_argument("--exit-bins", type=int, default=0, metavar="N",
+                    help="measure each aggregate again with N paths and tabulate its exit bins")
     a = ap.parse_args()
     sys.path[:0] = [os.path.join(a.build, "python"), os.path.join(ROOT, "python"), HERE]
     os.environ["GRANULAR_CACHE_DIR"] = tempfile.mkdtemp(prefix="granular-switching-")
     import granular_core as core
     from granular.usd_reader import read_stage
 
-    rows = []
+    rows, tables = [], []
     for name in filter(None, a.examples.split(",")):
-        rows += rows_of(core, read_stage(os.path.join(ROOT, "examples", name + ".usda"), width=64).desc, name)
+        rows += rows_of(core, read_stage(os.path.join(ROOT, "examples", name + ".usda"), width=64).desc, name,
+                        a.exit_bins, tables)
+    for path in a.scene:
+        rows += rows_of(core, core.load_scene_json(path), os.path.basename(path), a.exit_bins, tables)
     if not a.no_bench_scenes:
         import json
         from hybrid_speedup import scenes
@@ -59,13 +95,17 @@ def main():
             for name, desc in scenes().items():
                 path = os.path.join(tmp, "scene.json")
                 json.dump(desc, open(path, "w"))
-                rows += rows_of(core, core.load_scene_json(path), name)
+                rows += rows_of(core, core.load_scene_json(path), name, a.exit_bins, tables)
     print("| scene | aggregate | visits chosen | proxies | medium after the first grain, bias % | "
-          "after the chosen visits, bias % ± s.e. | paths | walk steps | measured in s |")
-    print("|---|---|---|---|---|---|---|---|---|")
-    for label, agg, k, proxies, b0, bk, se, secs, paths, events in rows:
+          "after the chosen visits, bias % ± s.e. | its worst exit bin, bias % ± s.e. | paths | walk steps | "
+          "measured in s |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for label, agg, k, proxies, b0, bk, se, (bin_label, bb, bse), secs, paths, events in rows:
         print(f"| {label} | {agg} | {k} | {'yes' if proxies else 'no'} | {b0:+.1f} | {bk:+.2f} ± {se:.2f} | "
-              f"{paths} | {events:.3g} | {secs:.2f} |")
+              f"{bb:+.2f} ± {bse:.2f} ({bin_label}) | {paths} | {events:.3g} | {secs:.2f} |")
+    for t in tables:
+        print()
+        print(t)
 
 
 if __name__ == "__main__":

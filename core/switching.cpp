@@ -53,6 +53,8 @@ struct D3 {
 struct Sums {
   D3 a, a2;  // A∞ samples
   D3 d[kSwitchCandidates], d2[kSwitchCandidates];
+  D3 ea[kSwitchExitBins];  // S_K per exit bin
+  D3 ed[kSwitchCandidates][kSwitchExitBins], ed2[kSwitchCandidates][kSwitchExitBins];
   int64_t events = 0;  // walk steps taken (the measurement's cost)
   int64_t forkEvents[kSwitchCandidates] = {};  // those of each candidate's forks
   void add(const Sums& o) {
@@ -60,9 +62,14 @@ struct Sums {
     for (int c = 0; c < kSwitchCandidates; ++c) forkEvents[c] += o.forkEvents[c];
     a += o.a;
     a2 += o.a2;
+    for (int j = 0; j < kSwitchExitBins; ++j) ea[j] += o.ea[j];
     for (int c = 0; c < kSwitchCandidates; ++c) {
       d[c] += o.d[c];
       d2[c] += o.d2[c];
+      for (int j = 0; j < kSwitchExitBins; ++j) {
+        ed[c][j] += o.ed[c][j];
+        ed2[c][j] += o.ed2[c][j];
+      }
     }
   }
 };
@@ -76,6 +83,18 @@ bool survive(Vec3& w, Rng& rng) {
   w /= q;
   return true;
 }
+
+// The exit bins (switching.h) of a path that entered at a point of outward normal n along
+// d: the exit direction's cosine from n against kSwitchExitCos, and its side — back toward
+// where the path came in from (the entry direction reversed, in the tangent plane) or not.
+struct ExitBins {
+  Vec3 n, back;
+  ExitBins(const Vec3& normal, const Vec3& d) : n(normal) {
+    back = -d - n * dot(-d, n);
+    back = length2(back) > 1e-12f ? normalize(back) : Frame(n).s;  // entered along the normal: any side
+  }
+  int bin(const Vec3& w) const { return switchExitBin(dot(w, n), dot(w, back) >= 0); }
+};
 
 // A scattering at flight t (vpt.h: weight α σ_t T(t) / p(t), then the phase function).
 bool scatter(const HomogeneousMedium& med, float t, Vec3& o, Vec3& d, Vec3& w, Rng& rng) {
@@ -91,8 +110,9 @@ bool scatter(const HomogeneousMedium& med, float t, Vec3& o, Vec3& d, Vec3& w, R
 
 // The energy a walk in the equivalent medium carries out of the boundary, from o along d
 // (vpt.h's flight and phase sampling; the boundary index-matched, so a ray that leaves
-// may enter again where the boundary is concave).
-Vec3 mediumEscape(const Aggregate& agg, const HomogeneousMedium& med, Vec3 o, Vec3 d, Rng& rng, int64_t& events) {
+// may enter again where the boundary is concave); exitBin gets the bin it leaves in.
+Vec3 mediumEscape(const Aggregate& agg, const HomogeneousMedium& med, const ExitBins& bins, Vec3 o, Vec3 d,
+                  int& exitBin, Rng& rng, int64_t& events) {
   const float eps = 1e-4f * agg.grainRadius();
   bool inside = agg.insideBoundary(o);
   Vec3 w(1.0f);
@@ -101,7 +121,10 @@ Vec3 mediumEscape(const Aggregate& agg, const HomogeneousMedium& med, Vec3 o, Ve
     float tb;
     Vec3 ng;
     if (!inside) {
-      if (!agg.intersectBoundary(o, d, eps, kInf, tb, ng)) return w;  // out, for good
+      if (!agg.intersectBoundary(o, d, eps, kInf, tb, ng)) {  // out, for good
+        exitBin = bins.bin(d);
+        return w;
+      }
       o = o + d * tb;
       inside = true;
       continue;
@@ -147,7 +170,7 @@ struct BoundarySampler {
   }
 };
 
-// One path: A∞'s sample and each candidate's D_k (switching.h).
+// One path: A∞'s sample and each candidate's D_k (switching.h), in all and per exit bin.
 // Candidates not in `forking` (a bit per candidate) are decided: no fork, nothing summed.
 void tracePath(const Aggregate& agg, const ProxyTables& tables, const HomogeneousMedium& med,
                const BoundarySampler& boundary, uint64_t seed, int64_t index, uint32_t forking, Sums& sums) {
@@ -159,8 +182,12 @@ void tracePath(const Aggregate& agg, const ProxyTables& tables, const Homogeneou
   const float R = agg.grainRadius();
   Vec3 o = p + n * (1e-3f * R);
   Vec3 d = normalize(inward.toWorld(sampleCosineHemisphere(rng.next1D(), rng.next1D())));
-  Vec3 w(1.0f), escaped(0.0f);
-  Vec3 fork[kSwitchCandidates], escapedAtFork[kSwitchCandidates];
+  const ExitBins bins(n, d);
+  // Per candidate: the fork's escape and the bin it left in; what left before it, in all
+  // and per bin.
+  Vec3 w(1.0f), escaped(0.0f), escapedIn[kSwitchExitBins];
+  Vec3 fork[kSwitchCandidates], escapedAtFork[kSwitchCandidates], escapedInAtFork[kSwitchCandidates][kSwitchExitBins];
+  int forkBin[kSwitchCandidates] = {};
   int forks = 0, visits = 0;
   GrainHit from;
   bool started = false;
@@ -169,6 +196,7 @@ void tracePath(const Aggregate& agg, const ProxyTables& tables, const Homogeneou
     GrainHit h;
     if (!agg.intersectProxy(o, d, 0.0f, kInf, h, started ? &from : nullptr)) {
       escaped += w;  // no grain ahead: the light leaves the aggregate
+      escapedIn[bins.bin(d)] += w;
       break;
     }
     const ProxyTable& table = tables.at(h.prototype, h.radius / R);
@@ -193,10 +221,11 @@ void tracePath(const Aggregate& agg, const ProxyTables& tables, const Homogeneou
       if (forking & (1u << forks)) {
         Rng forkRng(hashInts(seed, uint64_t(index), uint64_t(forks), 0xf02cULL), 1);
         const int64_t before = sums.events;
-        fork[forks] = w * mediumEscape(agg, med, o, d, forkRng, sums.events);
+        fork[forks] = w * mediumEscape(agg, med, bins, o, d, forkBin[forks], forkRng, sums.events);
         sums.forkEvents[forks] += sums.events - before;
       }
       escapedAtFork[forks] = escaped;
+      for (int j = 0; j < kSwitchExitBins; ++j) escapedInAtFork[forks][j] = escapedIn[j];
       ++forks;
     }
     if (forks == kSwitchCandidates) break;  // the last fork holds the rest of the path
@@ -205,15 +234,25 @@ void tracePath(const Aggregate& agg, const ProxyTables& tables, const Homogeneou
   // S_k, the estimate of switching after k visits: what left before fork k and the fork's
   // escape (a path that ended before fork k: what left in all). The reference is S_last.
   auto estimate = [&](int c) { return c < forks ? escapedAtFork[c] + fork[c] : escaped; };
+  auto inBin = [&](int c, int j) {
+    if (c >= forks) return escapedIn[j];
+    return forkBin[c] == j ? escapedInAtFork[c][j] + fork[c] : escapedInAtFork[c][j];
+  };
   const Vec3 last = estimate(kSwitchCandidates - 1);
   const D3 a(last);
   sums.a += a;
   sums.a2 += a.squared();
+  for (int j = 0; j < kSwitchExitBins; ++j) sums.ea[j] += D3(inBin(kSwitchCandidates - 1, j));
   for (int c = 0; c < forks; ++c) {  // paths that ended before fork c add 0
     if (!(forking & (1u << c))) continue;
     const D3 dc(estimate(c) - last);
     sums.d[c] += dc;
     sums.d2[c] += dc.squared();
+    for (int j = 0; j < kSwitchExitBins; ++j) {
+      const D3 dj(inBin(c, j) - inBin(kSwitchCandidates - 1, j));
+      sums.ed[c][j] += dj;
+      sums.ed2[c][j] += dj.squared();
+    }
   }
 }
 
@@ -237,6 +276,19 @@ void summarise(const Sums& s, SwitchMeasure& m) {
       m.bias[size_t(c)][ch] = float(s.d[c].v[ch] / nc / a);
       m.biasSE[size_t(c)][ch] = float(stdError(s.d[c], s.d2[c], ch, nc) / a);
     }
+  m.exitReference.assign(kSwitchExitBins, Vec3(0.0f));
+  m.exitBias.assign(size_t(kSwitchCandidates * kSwitchExitBins), Vec3(0.0f));
+  m.exitBiasSE.assign(m.exitBias.size(), Vec3(0.0f));
+  for (int j = 0; j < kSwitchExitBins; ++j)
+    for (int ch = 0; ch < 3; ++ch) m.exitReference[size_t(j)][ch] = float(s.ea[j].v[ch] / n);
+  for (int c = 0; c < kSwitchCandidates; ++c)
+    for (int j = 0; j < kSwitchExitBins; ++j)
+      for (int ch = 0; ch < 3; ++ch) {
+        const double a = std::max(s.ea[j].v[ch] / n, 1e-12), nc = double(m.candidatePaths[size_t(c)]);
+        const size_t i = size_t(c * kSwitchExitBins + j);
+        m.exitBias[i][ch] = float(s.ed[c][j].v[ch] / nc / a);
+        m.exitBiasSE[i][ch] = float(stdError(s.ed[c][j], s.ed2[c][j], ch, nc) / a);
+      }
 }
 
 // Candidate c's estimate is beyond the tolerance by more than `errors` standard errors in
@@ -270,11 +322,11 @@ bool settled(const SwitchMeasure& m, const SwitchOptions& o, int64_t more) {
 
 // Cache record (cache.h: RecordWriter) of a measurement.
 constexpr RecordMagic kMagic = {'G', 'R', 'S', 'W', '\0', '\0', '\0', '\0'};
-constexpr uint32_t kFormatVersion = 6;  // 6: per-candidate path counts
+constexpr uint32_t kFormatVersion = 7;  // 7: the exit bins
 
 uint64_t recordKey(uint64_t key, const SwitchOptions& o) {
   return hashInts(key, uint64_t(kFormatVersion), uint64_t(o.paths), o.seed, uint64_t(kSwitchCandidates),
-                  uint64_t(o.eventBudget));
+                  uint64_t(o.eventBudget), uint64_t(o.stopEarly));
 }
 
 std::vector<char> serialise(const SwitchMeasure& m, uint64_t key) {
@@ -283,6 +335,9 @@ std::vector<char> serialise(const SwitchMeasure& m, uint64_t key) {
   w.putArray(std::array<Vec3, 2>{m.albedo, m.albedoSE});
   w.putArray(m.bias);
   w.putArray(m.biasSE);
+  w.putArray(m.exitBias);
+  w.putArray(m.exitBiasSE);
+  w.putArray(m.exitReference);
   w.putI64(m.paths);
   w.putArray(m.candidatePaths);
   w.putI64(m.events);
@@ -297,7 +352,11 @@ bool deserialise(const std::vector<char>& in, uint64_t key, SwitchMeasure& m) {
   m.bias.resize(kSwitchCandidates);
   m.biasSE.resize(kSwitchCandidates);
   m.candidatePaths.resize(kSwitchCandidates);
-  if (!r.getArray(a) || !r.getArray(m.bias) || !r.getArray(m.biasSE) || !r.getI64(m.paths) ||
+  m.exitBias.resize(size_t(kSwitchCandidates * kSwitchExitBins));
+  m.exitBiasSE.resize(m.exitBias.size());
+  m.exitReference.resize(kSwitchExitBins);
+  if (!r.getArray(a) || !r.getArray(m.bias) || !r.getArray(m.biasSE) || !r.getArray(m.exitBias) ||
+      !r.getArray(m.exitBiasSE) || !r.getArray(m.exitReference) || !r.getI64(m.paths) ||
       !r.getArray(m.candidatePaths) || !r.getI64(m.events) || !r.getF64(m.seconds) || !r.finish())
     return false;
   for (int64_t n : m.candidatePaths)
@@ -306,6 +365,10 @@ bool deserialise(const std::vector<char>& in, uint64_t key, SwitchMeasure& m) {
   m.albedoSE = a[1];
   for (size_t c = 0; c < m.bias.size(); ++c)
     if (!isFinite(m.bias[c]) || !isFinite(m.biasSE[c]) || minComponent(m.biasSE[c]) < 0) return false;
+  for (size_t i = 0; i < m.exitBias.size(); ++i)
+    if (!isFinite(m.exitBias[i]) || !isFinite(m.exitBiasSE[i]) || minComponent(m.exitBiasSE[i]) < 0) return false;
+  for (const Vec3& e : m.exitReference)
+    if (!isFinite(e)) return false;
   return isFinite(m.albedo);
 }
 
@@ -384,6 +447,7 @@ SwitchMeasure measureSwitch(const Aggregate& agg, const ProxyTables& tables, con
       if (forking & (1u << c)) m.candidatePaths[size_t(c)] += end - done;
     summarise(s, m);
     m.visits = chooseSwitchVisits(m, options);
+    if (!options.stopEarly) continue;
     if (s.events >= options.eventBudget) break;
     for (int c = 0; c + 1 < kSwitchCandidates; ++c)  // the last one is the reference
       if (beyond(m, c, options, kDecided)) forking &= ~(1u << c);

@@ -248,6 +248,23 @@ struct PyScene {
   std::unique_ptr<Scene> scene;
 };
 
+// A switching measurement's fields (switching.h) into d.
+void addSwitchMeasure(const SwitchMeasure& m, py::dict& d) {
+  d["candidates"] = std::vector<int>(std::begin(kSwitchVisits), std::end(kSwitchVisits));
+  d["bias"] = m.bias;
+  d["bias_se"] = m.biasSE;
+  d["exit_bias"] = m.exitBias;
+  d["exit_bias_se"] = m.exitBiasSE;
+  d["exit_reference"] = m.exitReference;
+  d["albedo"] = m.albedo;
+  d["albedo_se"] = m.albedoSE;
+  d["chosen"] = m.visits;
+  d["seconds"] = m.seconds;
+  d["paths"] = m.paths;
+  d["events"] = m.events;
+  d["from_cache"] = m.fromCache;
+}
+
 struct PyRenderer {
   std::shared_ptr<PyScene> scene;
   std::unique_ptr<Renderer> renderer;
@@ -353,6 +370,18 @@ PYBIND11_MODULE(granular_core, m) {
       },
       py::arg("points"), py::arg("face_vertex_counts"), py::arg("face_vertex_indices"), py::arg("object"),
       "Polygons (USD faceVertexCounts/Indices) to triangles by fans; InputError naming object.");
+  m.def(
+      "switch_exit_bins",
+      [] {
+        py::list out;
+        for (int j = 0; j < kSwitchExitBins; ++j) {
+          const int k = j / 2;
+          const float hi = k == 0 ? 1.0f : kSwitchExitCos[k - 1], lo = k + 1 < kSwitchExitPolar ? kSwitchExitCos[k] : 0.0f;
+          out.append(py::make_tuple(lo, hi, j % 2 == 0 ? "back" : "forward"));
+        }
+        return out;
+      },
+      "the switching measurement's exit bins (switching.h): (lowest cosine from the entry's normal, highest, side)");
   m.def("validate_mesh", &validateMesh, py::arg("mesh"), py::arg("object"), py::arg("attribute") = "points");
   m.def("validate_closed", &validateClosed, py::arg("mesh"), py::arg("object"),
         "Closed, 2-manifold, consistently wound, non-zero volume; returns the signed volume.");
@@ -1007,26 +1036,41 @@ PYBIND11_MODULE(granular_core, m) {
               d["explicit_bounces"] = s.scene->explicitBounces(ai);
               const SwitchMeasure* m = s.scene->switchMeasure(ai);
               d["measured"] = m != nullptr;
-              if (m) {
-                d["candidates"] = std::vector<int>(std::begin(kSwitchVisits), std::end(kSwitchVisits));
-                d["bias"] = m->bias;
-                d["bias_se"] = m->biasSE;
-                d["albedo"] = m->albedo;
-                d["albedo_se"] = m->albedoSE;
-                d["chosen"] = m->visits;
-                d["seconds"] = m->seconds;
-                d["paths"] = m->paths;
-                d["events"] = m->events;
-                d["from_cache"] = m->fromCache;
-              }
+              if (m) addSwitchMeasure(*m, d);
               out.append(d);
             }
             return out;
           },
           "per aggregate: whether paths go on among proxies after their first grain, the proxy visits (or "
           "explicit bounces without proxies) before the medium, and the measurement they come from (switching.h): "
-          "candidates (visits tried), bias and bias_se per candidate (relative, RGB), albedo, chosen, seconds, "
-          "paths, events (walk steps), from_cache")
+          "candidates (visits tried), bias and bias_se per candidate (relative, RGB), exit_bias and exit_bias_se "
+          "per candidate and exit bin (index candidate * len(switch_exit_bins()) + bin), exit_reference per bin, "
+          "albedo, chosen, seconds, paths, events (walk steps), from_cache")
+      .def(
+          "measure_switch",
+          [](const PyScene& s, int a, int64_t paths, bool stopEarly, uint64_t seed) {
+            const Scene& sc = *s.scene;
+            if (a < 0 || a >= int(sc.aggregates().size())) throw py::index_error("aggregate out of range");
+            if (!sc.switchMeasure(a))  // its proxy tables and medium exist
+              throw std::invalid_argument("measure_switch: the scene did not measure this aggregate's switching "
+                                          "(technique ept, or explicit_bounces set)");
+            SwitchOptions o;
+            o.paths = paths;
+            o.stopEarly = stopEarly;
+            o.seed = seed;
+            const SwitchMeasure m = [&] {
+              py::gil_scoped_release release;  // the walks run on TBB's threads
+              return measureSwitch(*sc.aggregates()[size_t(a)], sc.proxyTables(a), sc.medium(a), o);
+            }();
+            py::dict d;
+            addSwitchMeasure(m, d);
+            return d;
+          },
+          py::arg("aggregate"), py::arg("paths") = int64_t(1) << 16, py::arg("stop_early") = true,
+          py::arg("seed") = uint64_t(1),
+          "the switching measurement of aggregate a (switching.h) run anew, uncached, with `paths` paths; "
+          "stop_early=False: every candidate forks in every path and all the paths are traced (reports); the "
+          "fields of `switching`")
       .def(
           "low_orders_text", [](const PyScene& s, int a) {
             if (a < 0 || size_t(a) >= s.scene->aggregates().size()) throw py::index_error("no such aggregate");

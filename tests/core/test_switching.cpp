@@ -191,6 +191,48 @@ TEST(Switching, IsTheSameWhateverTheThreads) {
     EXPECT_EQ(single.bias[size_t(c)], many.bias[size_t(c)]) << c;
     EXPECT_EQ(single.biasSE[size_t(c)], many.biasSE[size_t(c)]) << c;
   }
+  EXPECT_EQ(single.exitBias, many.exitBias);
+  EXPECT_EQ(single.exitReference, many.exitReference);
+}
+
+TEST(Switching, ExitBinsAreByCosineFromTheNormalAndSide) {
+  EXPECT_EQ(switchExitBin(1.0f, true), 0);
+  EXPECT_EQ(switchExitBin(0.8f, false), 1);  // an edge belongs to the bin above it
+  EXPECT_EQ(switchExitBin(0.79f, true), 2);
+  EXPECT_EQ(switchExitBin(0.4f, false), 3);
+  EXPECT_EQ(switchExitBin(0.39f, true), 4);
+  EXPECT_EQ(switchExitBin(0.0f, false), kSwitchExitBins - 1);
+}
+
+TEST(Switching, ExitBinsSplitTheAlbedoAndItsBias) {
+  // What leaves in the bins is what leaves: the bins' reference sums to the albedo, and
+  // each candidate's bias, weighted by the bins' share, to its bias in all. Without
+  // stopping early every candidate forks in every path and all the paths are traced.
+  auto scene = ballScene(2.4f, Vec3(0.05f));
+  SwitchOptions o;
+  o.paths = 1 << 12;
+  o.stopEarly = false;
+  const SwitchMeasure m = measure(*scene, o);
+  EXPECT_EQ(m.paths, o.paths);
+  for (int64_t n : m.candidatePaths) EXPECT_EQ(n, o.paths);
+  ASSERT_EQ(m.exitReference.size(), size_t(kSwitchExitBins));
+  ASSERT_EQ(m.exitBias.size(), size_t(kSwitchCandidates * kSwitchExitBins));
+  Vec3 sum(0.0f);
+  for (const Vec3& e : m.exitReference) {
+    EXPECT_GT(minComponent(e), 0.0f);
+    sum += e;
+  }
+  for (int ch = 0; ch < 3; ++ch) EXPECT_NEAR(sum[ch], m.albedo[ch], 1e-5f * m.albedo[ch]);
+  for (int c = 0; c < kSwitchCandidates; ++c)
+    for (int ch = 0; ch < 3; ++ch) {
+      double weighted = 0;
+      for (int j = 0; j < kSwitchExitBins; ++j)
+        weighted += double(m.exitBias[size_t(c * kSwitchExitBins + j)][ch]) * m.exitReference[size_t(j)][ch];
+      EXPECT_NEAR(weighted, double(m.bias[size_t(c)][ch]) * m.albedo[ch], 1e-5 * m.albedo[ch]) << c;
+    }
+  // The reference against itself: nothing, bin by bin.
+  for (int j = 0; j < kSwitchExitBins; ++j)
+    EXPECT_EQ(m.exitBias[size_t((kSwitchCandidates - 1) * kSwitchExitBins + j)], Vec3(0.0f));
 }
 
 TEST(Switching, EndsEarlyWhenNoCandidateCanReachThePrecision) {

@@ -48,6 +48,33 @@ def test_auto_uses_proxies_under_a_narrow_sun_and_on_and_off_override_it(tmp_pat
         assert np.isfinite(px).all()
 
 
+def test_a_switching_measurement_is_run_again_with_its_exit_bins(tmp_path):
+    # Scene.measure_switch (bench/switching.py --exit-bins): every candidate forks in every
+    # path; what leaves per exit bin sums to the albedo; a scene that measured nothing refuses.
+    from granular.usd_reader import read_stage
+    scene = read_stage(str(small_scene(tmp_path / "wide.usda", _sun_angle(20.0))), width=24)
+    s = scene.desc.settings
+    s.technique = core.Technique.EptVpt
+    scene.desc.settings = s
+    built = core.Scene.build(scene.desc)
+    bins = core.switch_exit_bins()
+    assert [b[2] for b in bins[:2]] == ["back", "forward"] and bins[0][1] == 1.0 and bins[-1][0] == 0.0
+    m = built.measure_switch(0, paths=1024, stop_early=False)
+    assert m["paths"] == 1024 and not m["from_cache"]
+    n = len(bins)
+    assert len(m["exit_bias"]) == len(m["exit_bias_se"]) == n * len(m["candidates"])
+    np.testing.assert_allclose(np.sum(m["exit_reference"], axis=0), m["albedo"], rtol=1e-5)
+    assert not np.any(m["exit_bias"][-n:])  # the reference against itself
+    s.technique = core.Technique.Ept
+    scene.desc.settings = s
+    try:
+        core.Scene.build(scene.desc).measure_switch(0)
+    except ValueError as e:
+        assert "did not measure" in str(e)
+    else:
+        raise AssertionError("an explicit scene has nothing to measure the switch with")
+
+
 def test_the_explicit_reference_never_uses_proxies(tmp_path, capsys):
     # ept with proxies asked for: nothing reaches the proxies' AOV (a 20° sun, which
     # explicit grains find, so that the image is not black).
