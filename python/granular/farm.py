@@ -234,6 +234,12 @@ def _warm(scene):
     return True
 
 
+def _quiet():
+    """On a worker about to be shut down on purpose: its lost heartbeat to the scheduler that
+    closes first is not an error to print."""
+    logging.getLogger("distributed").setLevel(logging.CRITICAL)
+
+
 class _Cluster:
     """Starts the Dask client (and, without --scheduler, its LocalCluster) on a thread and
     warms its workers, while the caller reads the stage; result() waits for it."""
@@ -280,6 +286,11 @@ class _Cluster:
     def close(self):
         self.thread.join()
         if self.client is not None:
+            if self.cluster is not None:  # our own workers
+                try:
+                    self.client.run(_quiet)
+                except Exception:  # a worker already gone has nothing left to print
+                    pass
             self.client.close()
         if self.cluster is not None:
             self.cluster.close()
