@@ -63,7 +63,8 @@ void scatter(const Scene& scene, PathState& path, const Hit& hit, const ProxyTab
     if (lights[li].sampleLi(g.center, u1, u2, ls) && !isBlack(ls.Li)) {
       const ProxyDirection d = table.eval(b, frame.toLocal(ls.wi));
       if (d.pdf > 0) {
-        const Vec3 from = onSphere(g, frame, table.exitPoint(b, d, uExit));
+        const Vec3 from = scene.beforeSurfaces(hit, g.center, onSphere(g, frame, table.exitPoint(b, d, uExit)),
+                                               path.ray.time);
         const float dist = std::isfinite(ls.dist) ? std::max(0.0f, ls.dist - g.radius) * (1.0f - 1e-4f) : kInf;
         const float tr = scene.proxyTransmittance(from, ls.wi, dist, &own, path.rng.nextU32(), path.ray.time);
         path.cost[0] += 1;
@@ -93,7 +94,7 @@ void scatter(const Scene& scene, PathState& path, const Hit& hit, const ProxyTab
   path.lastNeeChance = q;
   path.inGrain = false;
   path.from = own;
-  path.ray.o = onSphere(g, frame, table.exitPoint(b, d, uExit));
+  path.ray.o = scene.beforeSurfaces(hit, g.center, onSphere(g, frame, table.exitPoint(b, d, uExit)), path.ray.time);
   path.ray.d = wi;
   path.ray.tmin = 0;
   path.ray.tmax = kInf;
@@ -159,10 +160,13 @@ void pptStep(const Scene& scene, PathState& path) {
       scatter(scene, path, hit, table, frame, b);
       break;
     }
-    // The grain is missed: the ray crosses the sphere and goes on from its far side.
+    // The grain is missed: the ray crosses the sphere and goes on from its far side (or
+    // from before a surface that cuts the sphere, Scene::beforeSurfaces).
     const float advance = std::max(sphereFarSide(path.ray.o - g.center, path.ray.d, g.radius), hit.t);
-    path.ray.o = path.ray.o + path.ray.d * advance;
-    if (path.firstGrainAt >= 0) path.firstGrainAt = std::max(0.0f, path.firstGrainAt - advance);
+    const Vec3 farSide = scene.beforeSurfaces(hit, path.ray.o, path.ray.o + path.ray.d * advance, path.ray.time);
+    const float moved = length(farSide - path.ray.o);
+    path.ray.o = farSide;
+    if (path.firstGrainAt >= 0) path.firstGrainAt = std::max(0.0f, path.firstGrainAt - moved);
     path.ray.tmin = 0;
     path.from.aggregate = hit.aggregate;
     path.from.grain = g;

@@ -106,6 +106,14 @@ class Scene {
   // area light or proxy sphere entered (Hit::Proxy; its grain's prototype in hit.grain, p
   // on the sphere, ng the sphere's outward normal there). from: the sphere the ray leaves.
   bool intersectProxies(const Ray& ray, Hit& hit, const GrainStart* from = nullptr) const;
+  // Where a walk among proxies may place a path (ppt.h) on its way from `from` (a grain's
+  // centre, or a point already placed) to `to` (on that grain's bounding sphere): `to`, or,
+  // where a surface lies between, a little before the first one. A bounding sphere reaches
+  // past a surface its aggregate stands on (a heap on the ground): a point on it beyond the
+  // surface would start the path on the far side (under the ground, lit by the dome's
+  // lower half). proxy: the sphere's hit, whose aggregate or instancer says whether any
+  // surface reaches into its bounds (else `to` without a ray query).
+  Vec3 beforeSurfaces(const Hit& proxy, const Vec3& from, const Vec3& to, float time) const;
   // Shadow rays among proxies: 0 if a surface blocks the ray, else the chance that it
   // meets no grain of the proxy spheres it crosses (Aggregate::proxyTransmittance; seed:
   // its roulette's random numbers).
@@ -459,6 +467,10 @@ class Scene {
   int explicitBounces_ = 0, maxProxyVisits_ = 0;
   std::vector<int> proxyVisits_, aggregateBounces_;
   std::vector<char> aggregateProxies_, instancedProxies_;
+  // Per aggregate and per instancer: whether a visible mesh's bounds reach into its own
+  // (beforeSurfaces).
+  std::vector<char> aggregateMeetsSurfaces_, instancerMeetsSurfaces_;
+  void findSurfacesInBounds();
   std::vector<int> instancedProxyVisits_, instancedBounces_;
   std::vector<std::shared_ptr<const SwitchMeasure>> switching_;
   // Proxies and switching per aggregate, from the settings and the media: the tables and

@@ -218,3 +218,58 @@ TEST(Ppt, ASunOfZeroIntensityChangesNothing) {
   print("dome and a dark sun", with);
   EXPECT_TRUE(within(with, without, "a dark sun"));
 }
+
+TEST(Ppt, AHeapOnTheGroundLetsNoLightThroughIt) {
+  // A slab of grains standing on a ground plane (its bottom face on the plane), lit only by
+  // a sun below the plane: no light can reach anything the camera sees above it, so the
+  // image is black. The grains' bounding spheres reach through the plane; a walk among
+  // proxies that placed a path on a sphere's far side (an exit point, or the far side of a
+  // sphere whose grain it missed) would start it under the plane, in the sun.
+  SceneDesc d;
+  d.settings.width = 24;
+  d.settings.height = 16;
+  d.settings.spp = 16;
+  d.settings.technique = Technique::EptVpt;
+  d.settings.proxies = ProxyUse::On;
+  d.settings.explicitBounces = 64;  // 32 proxy visits after the first grain
+  d.camera.cameraToWorld = Transform::lookAt(Vec3(0.0f, 1.2f, 1.6f), Vec3(0.0f, 0.1f, 0.0f), Vec3(0, 1, 0));
+  d.materials = {MaterialDesc{"grain", MaterialType::Dielectric, Vec3(0.5f), 1.5f, Vec3(0.02f)},
+                 MaterialDesc{"ground", MaterialType::Lambert, Vec3(0.8f)}};
+  MeshDesc ground;
+  ground.name = "ground";
+  ground.mesh.points = {Vec3(-4, 0, -4), Vec3(4, 0, -4), Vec3(4, 0, 4), Vec3(-4, 0, 4)};
+  ground.mesh.indices = {0, 2, 1, 0, 3, 2};
+  ground.material = 1;
+  d.meshes.push_back(ground);
+  LightDesc sun;
+  sun.name = "sun";
+  sun.type = LightType::Distant;
+  sun.intensity = 4.0f;
+  sun.normalize = true;
+  sun.xf = Transform::lookAt(Vec3(0.0f), Vec3(0.1f, 1.0f, 0.2f), Vec3(0, 0, 1));  // shining upwards
+  d.lights.push_back(sun);
+  AggregateDesc a;
+  a.name = "slab";
+  a.boundary = makeBox(Vec3(-0.6f, 0.0f, -0.6f), Vec3(0.6f, 0.2f, 0.6f));
+  a.grainRadius = 0.02f;
+  a.packingRate = 0.6f;
+  a.seed = 5;
+  a.tileSpheres = 256;
+  a.prototypes = {GrainPrototypeDesc{"rock", makeRock(2, 0.25f, 2), 0}};
+  a.weights = {1};
+  d.aggregates.push_back(a);
+  auto scene = Scene::build(d);
+  ASSERT_TRUE(scene->useProxies());
+  Renderer r(*scene);
+  ASSERT_TRUE(r.render(d.settings.spp));
+  const Image img = r.film().toImage();
+  double sum = 0, ppt = 0;
+  const auto& names = img.channels;
+  const size_t pptR = size_t(std::find(names.begin(), names.end(), "ppt.R") - names.begin());
+  for (int y = 0; y < img.height; ++y)
+    for (int x = 0; x < img.width; ++x) {
+      for (int c = 0; c < 3; ++c) sum += img.at(x, y)[c];
+      ppt += img.at(x, y)[pptR];
+    }
+  EXPECT_EQ(sum, 0.0) << "light through the ground (the proxies' share in red: " << ppt << ")";
+}
