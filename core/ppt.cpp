@@ -63,7 +63,7 @@ void scatter(const Scene& scene, PathState& path, const Hit& hit, const ProxyTab
     if (lights[li].sampleLi(g.center, u1, u2, ls) && !isBlack(ls.Li)) {
       const ProxyDirection d = table.eval(b, frame.toLocal(ls.wi));
       if (d.pdf > 0) {
-        const Vec3 from = scene.beforeSurfaces(hit, g.center, onSphere(g, frame, table.exitPoint(b, d, uExit)),
+        const Vec3 from = scene.beforeSurfaces(g.center, onSphere(g, frame, table.exitPoint(b, d, uExit)),
                                                path.ray.time);
         const float dist = std::isfinite(ls.dist) ? std::max(0.0f, ls.dist - g.radius) * (1.0f - 1e-4f) : kInf;
         const float tr = scene.proxyTransmittance(from, ls.wi, dist, &own, path.rng.nextU32(), path.ray.time);
@@ -94,7 +94,7 @@ void scatter(const Scene& scene, PathState& path, const Hit& hit, const ProxyTab
   path.lastNeeChance = q;
   path.inGrain = false;
   path.from = own;
-  path.ray.o = scene.beforeSurfaces(hit, g.center, onSphere(g, frame, table.exitPoint(b, d, uExit)), path.ray.time);
+  path.ray.o = scene.beforeSurfaces(g.center, onSphere(g, frame, table.exitPoint(b, d, uExit)), path.ray.time);
   path.ray.d = wi;
   path.ray.tmin = 0;
   path.ray.tmax = kInf;
@@ -163,7 +163,7 @@ void pptStep(const Scene& scene, PathState& path) {
     // The grain is missed: the ray crosses the sphere and goes on from its far side (or
     // from before a surface that cuts the sphere, Scene::beforeSurfaces).
     const float advance = std::max(sphereFarSide(path.ray.o - g.center, path.ray.d, g.radius), hit.t);
-    const Vec3 farSide = scene.beforeSurfaces(hit, path.ray.o, path.ray.o + path.ray.d * advance, path.ray.time);
+    const Vec3 farSide = scene.beforeSurfaces(path.ray.o, path.ray.o + path.ray.d * advance, path.ray.time);
     const float moved = length(farSide - path.ray.o);
     path.ray.o = farSide;
     if (path.firstGrainAt >= 0) path.firstGrainAt = std::max(0.0f, path.firstGrainAt - moved);

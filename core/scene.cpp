@@ -280,7 +280,6 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& worldDesc, const Scene* pre
   const std::vector<LightDesc> lights = s->buildLights(desc);
   s->buildIdentities(desc, lights);
   s->findEmittersInside(desc, lights);
-  s->findSurfacesInBounds();
   s->updateDiffusionDepths();
   s->updateSwitching();
   s->buildSeconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -1262,29 +1261,10 @@ void Scene::setMedium(int aggregate, const MediumParams& params) {
   updateSwitching();
 }
 
-void Scene::findSurfacesInBounds() {
-  auto meets = [&](const Bounds3& own) {
-    for (size_t g = 0; g < worldMeshes_.size(); ++g) {
-      Bounds3 b = worldMeshes_[g].bounds();
-      if (!worldMeshesAtClose_[g].points.empty()) b.extend(worldMeshesAtClose_[g].bounds());
-      if (!b.empty() && b.lo.x <= own.hi.x && b.hi.x >= own.lo.x && b.lo.y <= own.hi.y && b.hi.y >= own.lo.y &&
-          b.lo.z <= own.hi.z && b.hi.z >= own.lo.z)
-        return char(1);
-    }
-    return char(0);
-  };
-  aggregateMeetsSurfaces_.clear();
-  for (const Bounds3& b : aggregateBounds_) aggregateMeetsSurfaces_.push_back(meets(b));
-  instancerMeetsSurfaces_.clear();
-  for (const BuiltInstanced& b : builtInstanced_) instancerMeetsSurfaces_.push_back(meets(b.bounds));
-}
-
-Vec3 Scene::beforeSurfaces(const Hit& proxy, const Vec3& from, const Vec3& to, float time) const {
-  const bool near = proxy.aggregate >= 0 ? aggregateMeetsSurfaces_[size_t(proxy.aggregate)] != 0
-                                         : proxy.instancer >= 0 && instancerMeetsSurfaces_[size_t(proxy.instancer)] != 0;
+Vec3 Scene::beforeSurfaces(const Vec3& from, const Vec3& to, float time) const {
   const Vec3 step = to - from;
   const float len = length(step);
-  if (!near || !(len > 0)) return to;
+  if (!(len > 0)) return to;
   Ray ray;
   ray.o = from;
   ray.d = step / len;

@@ -111,9 +111,9 @@ class Scene {
   // where a surface lies between, a little before the first one. A bounding sphere reaches
   // past a surface its aggregate stands on (a heap on the ground): a point on it beyond the
   // surface would start the path on the far side (under the ground, lit by the dome's
-  // lower half). proxy: the sphere's hit, whose aggregate or instancer says whether any
-  // surface reaches into its bounds (else `to` without a ray query).
-  Vec3 beforeSurfaces(const Hit& proxy, const Vec3& from, const Vec3& to, float time) const;
+  // lower half). A segment outside the surfaces' bounds costs no ray query (intersectMeshes'
+  // own test).
+  Vec3 beforeSurfaces(const Vec3& from, const Vec3& to, float time) const;
   // Shadow rays among proxies: 0 if a surface blocks the ray, else the chance that it
   // meets no grain of the proxy spheres it crosses (Aggregate::proxyTransmittance; seed:
   // its roulette's random numbers).
@@ -467,10 +467,6 @@ class Scene {
   int explicitBounces_ = 0, maxProxyVisits_ = 0;
   std::vector<int> proxyVisits_, aggregateBounces_;
   std::vector<char> aggregateProxies_, instancedProxies_;
-  // Per aggregate and per instancer: whether a visible mesh's bounds reach into its own
-  // (beforeSurfaces).
-  std::vector<char> aggregateMeetsSurfaces_, instancerMeetsSurfaces_;
-  void findSurfacesInBounds();
   std::vector<int> instancedProxyVisits_, instancedBounces_;
   std::vector<std::shared_ptr<const SwitchMeasure>> switching_;
   // Proxies and switching per aggregate, from the settings and the media: the tables and

@@ -204,17 +204,23 @@ def test_the_generated_sun_lights_the_heap(tmp_path, capsys):
         make_grain_heap.write(paths[sun], grains=300, frames=1, seed=2, motion=False, sun=sun)
     light = next(l for l in usd_reader.read_stage(paths[3.0]).desc.lights if l.name == "/World/Sun")
     assert light.normalize and light.intensity == pytest.approx(3.0) and light.angle == pytest.approx(0.53)
-    ground = {}
+    ground, var = {}, {}
     for sun, path in paths.items():
         out = tmp_path / f"g{sun:g}.exr"
         rc, _, err = run_cli(["render", path, "-o", out, "--width", 32, "--height", 24, "--spp", 16], capsys)
         assert rc == 0, err
         img = core.read_exr(str(out))
-        px, ch = np.asarray(img.pixels), list(img.channels)
+        px, ch = np.asarray(img.pixels, dtype=np.float64), list(img.channels)
         on_ground = px[..., ch.index("primId")] == 0
         ground[sun] = px[..., [ch.index(c) for c in "RGB"]][on_ground].mean(axis=0)
+        var[sun] = px[..., [ch.index("variance." + c) for c in "RGB"]][on_ground].sum(axis=0) / on_ground.sum() ** 2
     ratio = ground[3.0] / ground[0.0]
     assert np.all((ratio > 2.0) & (ratio < 5.0)), ratio
+    # What the sun adds is at most what it gives open ground (ρ/π · 3 sin 50°, the ground's
+    # albedo ρ its displayColor), less where the heap shadows it (a small part of the view).
+    sunlit = np.array([0.45, 0.4, 0.35]) / np.pi * 3.0 * np.sin(np.radians(50.0))
+    added, se = ground[3.0] - ground[0.0], np.sqrt(var[3.0] + var[0.0])
+    assert np.all(added < sunlit + 4 * se) and np.all(added > 0.5 * sunlit), (added, sunlit, se)
 
 
 # ---- a small instancer to break -----------------------------------------------------------
