@@ -184,6 +184,7 @@ def measure(core, scene, technique, lod, spp, seeds, threads, tmp, proxies="Auto
     if lod is not None:
         s.lod = lod
     s.proxies = getattr(core.ProxyUse, proxies)
+    s.sun_regularization = 0.0  # the sun as authored: the reference exact, a technique's bias the medium's
     desc.settings = s
     t0 = time.monotonic()
     built = core.Scene.build(desc)

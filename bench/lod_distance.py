@@ -46,7 +46,7 @@ VIEW_DIR = np.array([0.45, 0.3, 1.0]) / np.linalg.norm([0.45, 0.3, 1.0])  # from
 
 def scene_json(R):
     return {
-        "render": {"width": WIDTH, "height": HEIGHT, "spp": 1, "seed": 1},
+        "render": {"width": WIDTH, "height": HEIGHT, "spp": 1, "seed": 1, "sun_regularization": 0},  # the 5° sun exact
         "camera": {"look_at": {"eye": [0, 0, 5], "target": [0, 0, 0], "up": [0, 1, 0]},
                    "focal_length": FOCAL, "horizontal_aperture": H_APERTURE, "vertical_aperture": V_APERTURE},
         "materials": {

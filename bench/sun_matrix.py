@@ -89,7 +89,8 @@ def scene(material, shape, sun_angle, elevation, azimuth):
         floor_y = -1.0
     eye = [target[i] + distance * to_cam[i] for i in range(3)]
     return {
-        "render": {"width": 32, "height": 24, "spp": 16, "seed": 1, "technique": "ept"},
+        # The sun as authored in every render (no regularisation): a technique's bias is the medium's.
+        "render": {"width": 32, "height": 24, "spp": 16, "seed": 1, "technique": "ept", "sun_regularization": 0},
         "camera": {"look_at": {"eye": eye, "target": target, "up": [0, 1, 0]}, "focal_length": 35,
                    "horizontal_aperture": 36, "vertical_aperture": 27, "clipping_range": [0.01, 100]},
         "materials": mats,

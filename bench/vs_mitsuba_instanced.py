@@ -116,7 +116,7 @@ def export(stage_path, width, height, out):
     cam = desc.camera
     ours = {"render": {"width": width, "height": height, "technique": "ept", "max_depth": desc.settings.max_depth,
                        "rr_depth": desc.settings.rr_depth, "physical_sun": desc.settings.physical_sun,
-                       "motion_blur": False},
+                       "sun_regularization": 0, "motion_blur": False},
             "camera": {"transform": np.asarray(cam.camera_to_world).ravel().tolist(),
                        "focal_length": cam.focal_length, "horizontal_aperture": cam.horizontal_aperture,
                        "vertical_aperture": cam.vertical_aperture, "clipping_range": [cam.clip_near, cam.clip_far]},

@@ -71,10 +71,16 @@ Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir)
   const float lightPick = lightPickProb(scene);
   Vec3 L(0.0f);
   const bool camera = path.depth == 0;
+  // A smooth chain from a grain sees narrow suns widened (RenderSettings::sunRegularization).
+  const float wide = path.sunWidening;
+  const bool widen = path.lastDelta && wide > 0;
+  const float halfWide = 0.5f * wide * kPi / 180.0f;
+  const float cosWide = widen ? std::cos(halfWide) : 1.0f;
+  const double sin2Wide = widen ? std::sin(double(halfWide)) * std::sin(double(halfWide)) : 0.0;
   for (int li : scene.infiniteLights()) {
     const Light& light = scene.lights()[li];
     if (camera && light.type() == LightType::Dome && !scene.settings().domeCameraVisible) continue;
-    Vec3 Le = light.escapedLe(dir);
+    Vec3 Le = widen ? light.escapedLeWidened(dir, cosWide, sin2Wide) : light.escapedLe(dir);
     if (isBlack(Le)) continue;
     float w = 1.0f;
     if (!path.lastDelta) w = powerHeuristic(path.lastPdf, light.pdfLi(path.lastP, dir, kInf) * lightPick * path.lastNeeChance);
@@ -173,6 +179,16 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
   if (!bs.delta) path.coneSpread = std::max(path.coneSpread, std::min(kDiffuseConeSpread, m.lobeSpread()));
   path.lastDelta = bs.delta;
   path.lastPdf = bs.pdf;
+  if (hit.kind == Hit::Grain && !path.metGrain) {
+    path.metGrain = true;
+    // A footprint w on a grain of radius R spans normals over w/R and reflections over
+    // 2w/R: the pixel already spreads the sun's glint over that angle, so widening the
+    // sun up to it only moves light within the footprint (a grain the pixels resolve keeps
+    // its sharp glint).
+    const float radius = hit.grain.radius;
+    const float spread = radius > 0 ? 2.0f * footprint / radius * (180.0f / kPi) : 0.0f;
+    path.sunWidening = std::min(scene.settings().sunRegularization, spread);
+  }
   path.lastP = hit.p;
   path.lastNeeChance = 1;
   // Inside a grain after this bounce when the new direction heads into it.

@@ -211,6 +211,13 @@ Vec3 Light::escapedLe(const Vec3& dir) const {
   return Vec3(0.0f);
 }
 
+Vec3 Light::escapedLeWidened(const Vec3& dir, float cosWide, double sin2Wide) const {
+  if (type_ != LightType::Distant || cosMax_ >= 1.0f || cosMax_ <= cosWide) return escapedLe(dir);
+  if (dot(dir, dir_) < cosWide) return Vec3(0.0f);
+  // Irradiance L π sin²(half-angle) (normalizationArea), spread over the wider disk.
+  return radiance_ * float(sunSin2_ / sin2Wide);
+}
+
 float Light::pdfLi(const Vec3& p, const Vec3& wi, float dist) const {
   switch (type_) {
     case LightType::Distant:

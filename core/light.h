@@ -42,6 +42,10 @@ class Light {
   bool sampleLi(const Vec3& p, float u1, float u2, LightSample& s) const;
   // For infinite lights: radiance and solid-angle pdf for an escaping direction.
   Vec3 escapedLe(const Vec3& dir) const;
+  // escapedLe() with a sun narrower than the cone of cosine cosWide (sin² sin2Wide) seen as
+  // that cone, of uniform radiance and the same irradiance (RenderSettings::sunRegularization).
+  // Other lights, delta suns and wider suns: escapedLe().
+  Vec3 escapedLeWidened(const Vec3& dir, float cosWide, double sin2Wide) const;
   float pdfLi(const Vec3& p, const Vec3& wi, float dist) const;
   // For area lights: nearest hit of the emitting shape in (tmin, tmax).
   bool intersect(const Ray& r, float& t) const;

@@ -203,6 +203,9 @@ void validateSceneDesc(const SceneDesc& desc) {
   if (s.explicitBounces < -1)
     throw InputError("render", "explicitBounces", str(s.explicitBounces, " must be >= -1 (-1: automatic; 0: switch as soon as the spread allows)"));
   if (!std::isfinite(s.lod) || s.lod < 0) throw InputError("render", "lod", str(s.lod, " must be finite and >= 0 (0: off)"));
+  if (!(s.sunRegularization >= 0 && s.sunRegularization <= 45))
+    throw InputError("render", "sunRegularization",
+                     str(s.sunRegularization, " must be in [0, 45] degrees (0: off)"));
   if (std::isnan(s.roulette) || s.roulette == 0 || s.roulette > RenderSettings::kMaxSplit)
     throw InputError("render", "roulette",
                      str(s.roulette, " must be in (0, ", RenderSettings::kMaxSplit, "] (above 1: splitting), or negative for automatic"));
@@ -586,7 +589,7 @@ static_assert(fieldCount<LightDesc>() == 12, "compare the new field in sameLight
 static_assert(fieldCount<MeshDesc>() == 8, "compare the new field in sameMeshDesc");
 static_assert(fieldCount<GrainPrototypeDesc>() == 3, "compare the new field in sameAggregateInputs");
 static_assert(fieldCount<AggregateDesc>() == 14, "compare the new field in sameAggregateInputs (or the id check)");
-static_assert(fieldCount<RenderSettings>() == 25, "compare the new field in sameViewSettings or settingsNeedBuild");
+static_assert(fieldCount<RenderSettings>() == 26, "compare the new field in sameViewSettings or settingsNeedBuild");
 static_assert(fieldCount<SceneDesc>() == 7, "compare the new part in compareScenes");
 static_assert(fieldCount<InstancedGrainsDesc>() == 10, "compare the new field in sameInstancedGrains (or the id check)");
 
@@ -658,6 +661,7 @@ bool sameViewSettings(const RenderSettings& a, const RenderSettings& b) {
          a.daDepthFactor == b.daDepthFactor && a.daMinOrder == b.daMinOrder && a.daInstanced == b.daInstanced &&
          a.roulette == b.roulette &&
          a.lod == b.lod && a.proxies == b.proxies && a.domeCameraVisible == b.domeCameraVisible &&
+         a.sunRegularization == b.sunRegularization &&
          a.cropX0 == b.cropX0 && a.cropX1 == b.cropX1 && a.cropY0 == b.cropY0 && a.cropY1 == b.cropY1 &&
          a.cryptomatte == b.cryptomatte;
 }

@@ -286,6 +286,18 @@ struct RenderSettings {
   // refracted through a grain can never reach a delta light. false keeps them delta (to
   // compare with renderers that lose that light, as bench/validate_mitsuba.py does).
   bool physicalSun = true;
+  // Path regularisation of narrow suns (degrees; 0: off). A chain of smooth bounces off or
+  // through grains reaches a sun only by hitting its disk, with a chance ~ its solid angle:
+  // under the 0.53° sun a few such paths carry the chain's light, as fireflies. Paths whose
+  // last bounce was smooth and that met a grain see a sun narrower than this angle as a disk
+  // of the same irradiance, as wide as this angle or as the spread of the first grain's
+  // reflections over the path's footprint there (2 w / R), whichever is less: a grain the
+  // pixels resolve keeps its sharp glint (Kaplanyan and Dachsbacher 2013 widen the BSDF
+  // instead; a wider light is the same trade). Biased: glints of grains smaller than the
+  // footprint are blurred to this size. Light that next-event estimation reaches (rough
+  // grains, proxies, the medium, meshes) and what the camera or a smooth mesh shows of the
+  // sun stay exact. Delta suns kept delta (physicalSun false) are left alone.
+  float sunRegularization = 10.0f;
   // Crop: only the pixels [cropX0, cropX1) × [cropY0, cropY1) of the width × height image
   // are rendered (a tile of a farm job, UsdRenderSettings dataWindowNDC); all 0 (the
   // default): every pixel. A pixel's samples depend on (seed, pixel, sample index) only and

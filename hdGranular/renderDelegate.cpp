@@ -64,6 +64,8 @@ void HdGranularRenderDelegate::_Initialize() {
       {"Default dome light when the stage has none", HdGranularSettingsTokens->defaultLight, VtValue(true)},
       {"Delta suns as the physical sun (0.53 degrees) over smooth grains", HdGranularSettingsTokens->physicalSun,
        VtValue(true)},
+      {"Suns narrower than this (degrees) widened for smooth grains' glints (0: exact)",
+       HdGranularSettingsTokens->sunRegularization, VtValue(granular::RenderSettings().sunRegularization)},
       {"Coarse previews before the first pass", HdGranularSettingsTokens->preview, VtValue(true)},
       {"Stand-ins (the medium alone) while aggregates build", HdGranularSettingsTokens->standIns, VtValue(true)},
       {"Denoise the color AOV after each pass (Intel Open Image Denoise)", HdGranularSettingsTokens->denoise,

@@ -29,6 +29,7 @@ PXR_NAMESPACE_OPEN_SCOPE
   ((bundleSize, "granular:bundleSize"))               \
   ((defaultLight, "granular:defaultLight"))           \
   ((physicalSun, "granular:physicalSun"))             \
+  ((sunRegularization, "granular:sunRegularization")) \
   ((preview, "granular:preview"))                     \
   ((standIns, "granular:standIns"))                   \
   ((denoise, "granular:denoise"))                   \

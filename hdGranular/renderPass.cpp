@@ -179,6 +179,7 @@ granular::RenderSettings renderSettings(HdRenderDelegate* d, int width, int heig
   rs.domeCameraVisible = setting<bool>(d, HdRenderSettingsTokens->domeLightCameraVisibility, true);
   rs.defaultLight = defaultLightSetting(d);
   rs.physicalSun = physicalSunSetting(d);
+  rs.sunRegularization = setting<float>(d, HdGranularSettingsTokens->sunRegularization, rs.sunRegularization);
   return rs;
 }
 

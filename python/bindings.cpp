@@ -554,6 +554,7 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("proxies", &RenderSettings::proxies)
       .def_readwrite("default_light", &RenderSettings::defaultLight)
       .def_readwrite("physical_sun", &RenderSettings::physicalSun)
+      .def_readwrite("sun_regularization", &RenderSettings::sunRegularization)
       .def_readwrite("dome_camera_visible", &RenderSettings::domeCameraVisible)
       .def_readwrite("cryptomatte", &RenderSettings::cryptomatte)
       .def_property(

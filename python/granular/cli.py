@@ -3,7 +3,7 @@
     granular render SCENE.usda -o OUT.exr [--png OUT.png] [--width W --height H] [--spp N]
                     [--camera /path] [--seed S] [--threads T] [--exposure E] [--quiet]
                     [--technique ept|ept+vpt|hybrid] [--roulette P_a] [--lod L] [--no-default-light]
-                    [--no-physical-sun] [--no-motion-blur] [--instanced-da]
+                    [--no-physical-sun] [--sun-regularization DEG] [--no-motion-blur] [--instanced-da]
                     [--frames A:B[xSTEP]]   (then -o and --png name a run of '#': OUT.####.exr)
                     [--crop X0:X1,Y0:Y1]    (only those pixels; the EXR keeps their place)
     granular render SCENE.usda [--settings /Render/Settings] [--frames A:B] [render options]
@@ -114,6 +114,13 @@ def _non_negative_float():
     return parse
 
 
+def _sun_regularization(text):
+    v = _number(text)
+    if not (0 <= v <= 45):  # as core's check of RenderSettings::sunRegularization
+        raise argparse.ArgumentTypeError(f"{text} must be in [0, 45] degrees (0: off)")
+    return _single(v, text)
+
+
 def _exposure(text):
     v = _number(text)
     if not math.isfinite(v):
@@ -195,6 +202,12 @@ def _render_options(r):
                    help="keep delta suns (distant lights of angle 0) delta; by default, over smooth dielectric "
                         "grains, they are rendered as the physical 0.53 degree sun of the same irradiance, "
                         "with a warning")
+    r.add_argument("--sun-regularization", type=_sun_regularization, default=None, metavar="DEGREES",
+                   help="paths whose last bounce was smooth and that met a grain see a sun narrower than "
+                        "this as a disk of this angle with the same irradiance: the glints and caustics "
+                        "of smooth grains under the 0.53 degree sun without their fireflies, blurred to "
+                        "this size, or to the spread of the first grain's reflections over the pixel if less "
+                        "(biased; default 10, 0: exact)")
     r.add_argument("--no-motion-blur", action="store_true",
                    help="render the frame's instant: the camera's shutter closed, moving grains and meshes "
                         "still (as the render settings' disableMotionBlur)")

@@ -132,6 +132,8 @@ def apply_options(args, scene):
     s.proxies = core.proxy_use_from_name(args.proxies, "command line")
     s.default_light = not args.no_default_light
     s.physical_sun = not args.no_physical_sun
+    if getattr(args, "sun_regularization", None) is not None:
+        s.sun_regularization = args.sun_regularization
     if getattr(args, "instanced_da", False):
         s.da_instanced = True
     if getattr(args, "no_motion_blur", False):

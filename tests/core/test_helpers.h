@@ -298,6 +298,14 @@ inline PairedDifference pairedDifference(const Image& a, const Image& b) {
 }
 
 // One render's estimates over windows of the image.
+// The scene built and rendered at its settings' spp, as an image.
+inline Image renderImage(const SceneDesc& d) {
+  auto scene = Scene::build(d);
+  Renderer r(*scene);
+  EXPECT_TRUE(r.render(d.settings.spp));
+  return r.film().toImage();
+}
+
 inline std::vector<ChannelEstimate> renderEstimates(const SceneDesc& d, const std::vector<std::array<int, 4>>& windows) {
   auto scene = Scene::build(d);
   Renderer r(*scene);

@@ -12,6 +12,7 @@
 #include "test_helpers.h"
 
 using namespace granular;
+using granular::testing::renderImage;
 
 namespace {
 
@@ -27,13 +28,6 @@ SceneDesc ballScene(Technique t, int spp) {
   s.settings.seed = 11;
   s.settings.lod = 0;  // grains are sub-pixel here: test the switching alone (LOD: test_lod.cpp)
   return s;
-}
-
-Image renderImage(const SceneDesc& d) {
-  auto scene = Scene::build(d);
-  Renderer r(*scene);
-  EXPECT_TRUE(r.render(d.settings.spp));
-  return r.film().toImage();
 }
 
 // Per-pixel luminance mean and its standard error from the film.

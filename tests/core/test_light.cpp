@@ -9,8 +9,10 @@
 #include "core/sampling.h"
 #include "core/scene.h"
 #include "core/shapes.h"
+#include "test_helpers.h"
 
 using namespace granular;
+using granular::testing::renderImage;
 
 TEST(Light, PowerHeuristicSurvivesHugePdfs) {
   EXPECT_FLOAT_EQ(powerHeuristic(1.0f, 1.0f), 0.5f);
@@ -264,4 +266,100 @@ TEST(PhysicalSun, LambertGrainsOrTheSettingOffKeepTheDeltaSun) {
   const double samples = double(on.settings.spp) * ia.width * ia.height;
   EXPECT_NEAR(mb, expected, 1e-5 * expected);  // float sums of exact values
   EXPECT_NEAR(ma, expected, 4 * tanSun * h / std::sqrt(3.0) / std::sqrt(samples) * expected);
+}
+
+namespace {
+
+// A heap of smooth glass grains under a normalised sun of `angle` degrees (irradiance 3),
+// nothing else: every path that reaches the sun does so by a chain of smooth bounces.
+SceneDesc glassUnderSun(float angle, float regularization) {
+  SceneDesc d = sunAndGrains(MaterialType::Dielectric);
+  d.meshes.clear();  // no ground: no surface samples the sun
+  d.aggregates[0].xf = Transform();
+  d.settings.width = d.settings.height = 16;
+  d.settings.spp = 8;
+  d.settings.technique = Technique::Ept;
+  d.settings.sunRegularization = regularization;
+  d.camera.cameraToWorld = Transform::lookAt(Vec3(0, 1.5f, 3), Vec3(0.0f), Vec3(0, 1, 0));
+  LightDesc& sun = d.lights[0];
+  sun.angle = angle;
+  sun.normalize = true;
+  sun.xf = Transform::lookAt(Vec3(0.0f), Vec3(-0.2f, -1.0f, -0.6f), Vec3(0, 0, 1));
+  return d;
+}
+
+}  // namespace
+
+TEST(SunRegularization, ASmoothChainFromAGrainSeesTheNarrowSunAsTheWiderDisk) {
+  // Smooth grains admit no next-event estimation, and escapes draw no random number: with
+  // the 0.53° sun regularised to 5°, the same paths meet the sun where a 5° sun of the same
+  // irradiance stands, with the same radiance, so the images agree to float rounding.
+  const Image narrow = renderImage(glassUnderSun(0.53f, 5.0f));
+  const Image wide = renderImage(glassUnderSun(5.0f, 0.0f));
+  const Image exact = renderImage(glassUnderSun(0.53f, 0.0f));
+  double sum = 0, differs = 0;
+  for (int y = 0; y < 16; ++y)
+    for (int x = 0; x < 16; ++x)
+      for (int c = 0; c < 3; ++c) {
+        const float a = narrow.at(x, y)[c], b = wide.at(x, y)[c];
+        ASSERT_NEAR(a, b, 1e-5f * std::max(1.0f, b)) << x << ", " << y;
+        sum += a;
+        differs += a != exact.at(x, y)[c];
+      }
+  EXPECT_GT(sum / (16 * 16 * 3), 0.01);  // the heap is lit through its chains
+  EXPECT_GT(differs, 0);                 // and the setting changed what they saw
+}
+
+TEST(SunRegularization, WhatTheCameraSeesOfTheSunStaysExact) {
+  // The camera looks straight at the 0.53° sun (a field of view of 1.1°, the heap out of
+  // sight): its pixels hold the sun's own radiance, regularised or not, and none beyond its
+  // disk is lit.
+  SceneDesc d = glassUnderSun(0.53f, 5.0f);
+  d.camera.cameraToWorld = Transform::lookAt(Vec3(0, 10, 0), Vec3(0.2f, 11.0f, 0.6f), Vec3(0, 1, 0));
+  d.camera.horizontalAperture = d.camera.verticalAperture = 1.0f;  // mm, at 50 mm
+  SceneDesc off = d;
+  off.settings.sunRegularization = 0;
+  const Image a = renderImage(d), b = renderImage(off);
+  double lit = 0;
+  for (int y = 0; y < 16; ++y)
+    for (int x = 0; x < 16; ++x) {
+      EXPECT_EQ(a.at(x, y)[0], b.at(x, y)[0]) << x << ", " << y;
+      lit += a.at(x, y)[0] > 0;
+    }
+  // The disk covers π/4 (0.265 / 0.573)² ≈ 17% of the square view, fully lit pixels and
+  // its edge's; a 5° disk would cover all of it.
+  EXPECT_GT(lit, 0.1 * 256);
+  EXPECT_LT(lit, 0.4 * 256);
+}
+
+TEST(SunRegularization, AGrainThePixelsResolveKeepsItsSharpGlint) {
+  // The widening is bounded by the spread of the first grain's reflections over a pixel's
+  // footprint (2 w / R): seen from 0.4 away through a 0.3 mm aperture at 50 mm (a footprint
+  // of 1.5e-4, 2 w / R = 0.17°), a grain's chains see the 0.53° sun as it is, the setting on
+  // or off. Through a 20 mm aperture (a footprint of R / 10, 2 w / R = 11°) the setting counts.
+  auto closeUp = [](float aperture, float regularization) {
+    SceneDesc d = glassUnderSun(0.53f, regularization);
+    d.camera.cameraToWorld = Transform::lookAt(Vec3(0, 0.6f, 1.2f), Vec3(0.0f), Vec3(0, 1, 0));
+    d.camera.horizontalAperture = d.camera.verticalAperture = aperture;
+    LightDesc sky;  // so that every pixel sees something through its chains
+    sky.name = "sky";
+    sky.type = LightType::Dome;
+    sky.intensity = 0.2f;
+    d.lights.push_back(sky);
+    return renderImage(d);
+  };
+  const Image a = closeUp(0.3f, 5.0f), b = closeUp(0.3f, 0.0f);
+  double sum = 0;
+  for (int y = 0; y < 16; ++y)
+    for (int x = 0; x < 16; ++x)
+      for (int c = 0; c < 3; ++c) {
+        EXPECT_EQ(a.at(x, y)[c], b.at(x, y)[c]) << x << ", " << y;
+        sum += a.at(x, y)[c];
+      }
+  EXPECT_GT(sum, 0);
+  const Image wideOn = closeUp(20.0f, 5.0f), wideOff = closeUp(20.0f, 0.0f);
+  bool differs = false;
+  for (int y = 0; y < 16; ++y)
+    for (int x = 0; x < 16; ++x) differs = differs || wideOn.at(x, y)[0] != wideOff.at(x, y)[0];
+  EXPECT_TRUE(differs);
 }

@@ -149,6 +149,7 @@ TEST(SceneChanges, SettingsThatSetViewTakesAreAView) {
                  d.settings.proxies = d.settings.proxies == ProxyUse::Off ? ProxyUse::On : ProxyUse::Off;
                }},
               {"domeCameraVisible", [](SceneDesc& d) { d.settings.domeCameraVisible = false; }},
+              {"sunRegularization", [](SceneDesc& d) { d.settings.sunRegularization = 0; }},
               {"cropX0", [](SceneDesc& d) { d.settings.cropX0 = 1; }},
               {"cropX1", [](SceneDesc& d) { d.settings.cropX1 = 1; }},
               {"cropY0", [](SceneDesc& d) { d.settings.cropY0 = 1; }},

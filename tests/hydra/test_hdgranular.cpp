@@ -838,6 +838,37 @@ TEST(HdGranular, ADeltaSunOverSmoothGrainsIsThePhysicalSunUnlessTurnedOff) {
   EXPECT_EQ(stat<int>(engine->GetRenderStats(), "granular:sceneBuilds"), 2);  // a setting that rebuilds
 }
 
+TEST(HdGranular, SunRegularizationShowsSmoothChainsTheNarrowSunAsTheWiderDiskAsInGranularRender) {
+  // The snow slab's grains alone (ground and sky hidden) under its 0.53° sun, explicit grains:
+  // nothing samples the sun, so regularised to 5° the image is the one of a normalised 5° sun
+  // with the setting at 0, as granular render's (tests/python/test_physical_sun.py); 0 keeps
+  // the 0.53° disk exact. A change of view.
+  UsdStageRefPtr stage = UsdStage::Open(kExamples + "/snowslab.usda");
+  ASSERT_TRUE(stage->GetPrimAtPath(SdfPath("/World/Ground")).SetActive(false));
+  ASSERT_TRUE(stage->GetPrimAtPath(SdfPath("/World/Sky")).SetActive(false));
+  UsdPrim sun = stage->GetPrimAtPath(SdfPath("/World/Sun"));  // normalised in the example
+  auto engine = makeEngine(16);
+  engine->SetRendererSetting(TfToken("granular:technique"), VtValue(std::string("ept")));
+  engine->SetRendererSetting(TfToken("granular:sunRegularization"), VtValue(5.0f));
+  Frame regularised = render(*engine, stage, HdAovTokens->color, 32, 20);
+  engine->SetRendererSetting(TfToken("granular:sunRegularization"), VtValue(0.0f));
+  Frame exact = render(*engine, stage, HdAovTokens->color, 32, 20);
+  EXPECT_EQ(stat<int>(engine->GetRenderStats(), "granular:sceneBuilds"), 1);
+  ASSERT_TRUE(sun.GetAttribute(TfToken("inputs:angle")).Set(5.0f));
+  Frame wide = render(*engine, stage, HdAovTokens->color, 32, 20);
+  ASSERT_TRUE(regularised.converged && exact.converged && wide.converged);
+  ASSERT_EQ(regularised.values.size(), wide.values.size());
+  double sum = 0;
+  bool differs = false;
+  for (size_t i = 0; i < wide.values.size(); ++i) {
+    ASSERT_NEAR(regularised.values[i], wide.values[i], 1e-5f * std::max(1.0f, std::fabs(wide.values[i]))) << i;
+    sum += regularised.values[i];
+    differs = differs || regularised.values[i] != exact.values[i];
+  }
+  EXPECT_GT(sum, 0);
+  EXPECT_TRUE(differs);
+}
+
 TEST(HdGranular, ProxiesCarryTheLowOrdersUnderANarrowSunAsInGranularRender) {
   // The snow slab's 0.53° sun: the setting's default (auto) uses proxies there, as
   // granular render does; "off" turns them off as a change of view (no rebuild). Their

@@ -75,6 +75,8 @@ def testUsdviewInputFunction(appController):
     appController._dataModel.selection.clearPrims()
     toggle = _granular_menu(appController).get("Toggle EPT-only Reference")
     if toggle:
+        # The sun exact for the EPT comparison (usdview_check.py says why).
+        appController._stageView.SetRendererSetting("granular:sunRegularization", 0.0)
         toggle.trigger()
         report["technique_after_toggle"] = str(appController._stageView.GetRendererSetting("granular:technique"))
         # The converged flag is the old render's until the viewport restarts the loop.
