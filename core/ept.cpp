@@ -72,11 +72,9 @@ Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir)
   Vec3 L(0.0f);
   const bool camera = path.depth == 0;
   // A smooth chain from a grain sees narrow suns widened (RenderSettings::sunRegularization).
-  const float wide = path.sunWidening;
-  const bool widen = path.lastDelta && wide > 0;
-  const float halfWide = 0.5f * wide * kPi / 180.0f;
-  const float cosWide = widen ? std::cos(halfWide) : 1.0f;
-  const double sin2Wide = widen ? std::sin(double(halfWide)) * std::sin(double(halfWide)) : 0.0;
+  const bool widen = path.lastDelta && path.sunHalfAngle > 0;
+  const float cosWide = widen ? std::cos(path.sunHalfAngle) : 1.0f;
+  const double sin2Wide = widen ? std::sin(double(path.sunHalfAngle)) * std::sin(double(path.sunHalfAngle)) : 0.0;
   for (int li : scene.infiniteLights()) {
     const Light& light = scene.lights()[li];
     if (camera && light.type() == LightType::Dome && !scene.settings().domeCameraVisible) continue;
@@ -179,15 +177,14 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
   if (!bs.delta) path.coneSpread = std::max(path.coneSpread, std::min(kDiffuseConeSpread, m.lobeSpread()));
   path.lastDelta = bs.delta;
   path.lastPdf = bs.pdf;
-  if (hit.kind == Hit::Grain && !path.metGrain) {
-    path.metGrain = true;
+  if (hit.kind == Hit::Grain && path.sunHalfAngle < 0) {
     // A footprint w on a grain of radius R spans normals over w/R and reflections over
-    // 2w/R: the pixel already spreads the sun's glint over that angle, so widening the
-    // sun up to it only moves light within the footprint (a grain the pixels resolve keeps
-    // its sharp glint).
+    // 2w/R: the pixel already spreads the sun's glint over that angle (a half-angle of
+    // w/R), so widening the sun up to it only moves light within the footprint (a grain
+    // the pixels resolve keeps its sharp glint).
     const float radius = hit.grain.radius;
-    const float spread = radius > 0 ? 2.0f * footprint / radius * (180.0f / kPi) : 0.0f;
-    path.sunWidening = std::min(scene.settings().sunRegularization, spread);
+    path.sunHalfAngle = std::min(0.5f * scene.settings().sunRegularization * kPi / 180.0f,
+                                 radius > 0 ? footprint / radius : 0.0f);
   }
   path.lastP = hit.p;
   path.lastNeeChance = 1;

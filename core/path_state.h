@@ -65,10 +65,10 @@ struct PathState {
   // spread angle; for the level-of-detail shortcut (RenderSettings::lod).
   float coneWidth = 0, coneSpread = 0;
   bool touchedAggregate = false;  // a grain has been hit (the LOD test is at first contact)
-  // The disk (degrees) a smooth chain from the first explicit grain the path met sees a
-  // narrower sun as (RenderSettings::sunRegularization; 0: exact, or no grain met yet).
-  float sunWidening = 0;
-  bool metGrain = false;
+  // The half-angle (radians) of the disk a smooth chain from the first explicit grain the
+  // path met sees a narrower sun as (RenderSettings::sunRegularization; 0: exact; -1: no
+  // grain met yet).
+  float sunHalfAngle = -1;
   bool shortcut = false;          // took the LOD shortcut: to the medium after this grain
   bool lost = false;              // ended by a numerical failure (a leak, endless crossings): counted
   bool daRefused = false;         // the curvature guard refused DA once: VPT to the end (vpt.cpp)

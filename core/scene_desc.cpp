@@ -203,9 +203,10 @@ void validateSceneDesc(const SceneDesc& desc) {
   if (s.explicitBounces < -1)
     throw InputError("render", "explicitBounces", str(s.explicitBounces, " must be >= -1 (-1: automatic; 0: switch as soon as the spread allows)"));
   if (!std::isfinite(s.lod) || s.lod < 0) throw InputError("render", "lod", str(s.lod, " must be finite and >= 0 (0: off)"));
-  if (!(s.sunRegularization >= 0 && s.sunRegularization <= 45))
+  if (!(s.sunRegularization >= 0 && s.sunRegularization <= RenderSettings::kMaxSunRegularization))
     throw InputError("render", "sunRegularization",
-                     str(s.sunRegularization, " must be in [0, 45] degrees (0: off)"));
+                     str(s.sunRegularization, " must be in [0, ", RenderSettings::kMaxSunRegularization,
+                         "] degrees (0: off)"));
   if (std::isnan(s.roulette) || s.roulette == 0 || s.roulette > RenderSettings::kMaxSplit)
     throw InputError("render", "roulette",
                      str(s.roulette, " must be in (0, ", RenderSettings::kMaxSplit, "] (above 1: splitting), or negative for automatic"));

@@ -298,6 +298,7 @@ struct RenderSettings {
   // grains, proxies, the medium, meshes) and what the camera or a smooth mesh shows of the
   // sun stay exact. Delta suns kept delta (physicalSun false) are left alone.
   float sunRegularization = 10.0f;
+  static constexpr float kMaxSunRegularization = 45.0f;
   // Crop: only the pixels [cropX0, cropX1) × [cropY0, cropY1) of the width × height image
   // are rendered (a tile of a farm job, UsdRenderSettings dataWindowNDC); all 0 (the
   // default): every pixel. A pixel's samples depend on (seed, pixel, sample index) only and

@@ -264,31 +264,34 @@ void summarise(const Sums& s, SwitchMeasure& m) {
     return std::sqrt(std::max(0.0, sum2.v[ch] / n - mean * mean) / (n - 1));
   };
   const double n = double(m.paths);
+  // A difference's mean and standard error over nc paths, relative to the mean of the
+  // reference's sum over all the paths.
+  auto relative = [&](const D3& d, const D3& d2, double nc, const D3& reference, Vec3& bias, Vec3& se) {
+    for (int ch = 0; ch < 3; ++ch) {
+      const double a = std::max(reference.v[ch] / n, 1e-12);
+      bias[ch] = float(d.v[ch] / nc / a);
+      se[ch] = float(stdError(d, d2, ch, nc) / a);
+    }
+  };
   for (int ch = 0; ch < 3; ++ch) {
     m.albedo[ch] = float(s.a.v[ch] / n);
     m.albedoSE[ch] = float(stdError(s.a, s.a2, ch, n));
   }
-  m.bias.assign(kSwitchCandidates, Vec3(0.0f));
-  m.biasSE.assign(kSwitchCandidates, Vec3(0.0f));
-  for (int c = 0; c < kSwitchCandidates; ++c)
-    for (int ch = 0; ch < 3; ++ch) {
-      const double a = std::max(s.a.v[ch] / n, 1e-12), nc = double(m.candidatePaths[size_t(c)]);
-      m.bias[size_t(c)][ch] = float(s.d[c].v[ch] / nc / a);
-      m.biasSE[size_t(c)][ch] = float(stdError(s.d[c], s.d2[c], ch, nc) / a);
-    }
   m.exitReference.assign(kSwitchExitBins, Vec3(0.0f));
-  m.exitBias.assign(size_t(kSwitchCandidates * kSwitchExitBins), Vec3(0.0f));
-  m.exitBiasSE.assign(m.exitBias.size(), Vec3(0.0f));
   for (int j = 0; j < kSwitchExitBins; ++j)
     for (int ch = 0; ch < 3; ++ch) m.exitReference[size_t(j)][ch] = float(s.ea[j].v[ch] / n);
-  for (int c = 0; c < kSwitchCandidates; ++c)
-    for (int j = 0; j < kSwitchExitBins; ++j)
-      for (int ch = 0; ch < 3; ++ch) {
-        const double a = std::max(s.ea[j].v[ch] / n, 1e-12), nc = double(m.candidatePaths[size_t(c)]);
-        const size_t i = size_t(c * kSwitchExitBins + j);
-        m.exitBias[i][ch] = float(s.ed[c][j].v[ch] / nc / a);
-        m.exitBiasSE[i][ch] = float(stdError(s.ed[c][j], s.ed2[c][j], ch, nc) / a);
-      }
+  m.bias.assign(kSwitchCandidates, Vec3(0.0f));
+  m.biasSE.assign(kSwitchCandidates, Vec3(0.0f));
+  m.exitBias.assign(size_t(kSwitchCandidates * kSwitchExitBins), Vec3(0.0f));
+  m.exitBiasSE.assign(m.exitBias.size(), Vec3(0.0f));
+  for (int c = 0; c < kSwitchCandidates; ++c) {
+    const double nc = double(m.candidatePaths[size_t(c)]);
+    relative(s.d[c], s.d2[c], nc, s.a, m.bias[size_t(c)], m.biasSE[size_t(c)]);
+    for (int j = 0; j < kSwitchExitBins; ++j) {
+      const size_t i = size_t(c * kSwitchExitBins + j);
+      relative(s.ed[c][j], s.ed2[c][j], nc, s.ea[j], m.exitBias[i], m.exitBiasSE[i]);
+    }
+  }
 }
 
 // Candidate c's estimate is beyond the tolerance by more than `errors` standard errors in

@@ -83,6 +83,15 @@ constexpr int switchExitBin(float mu, bool back) {
   while (k + 1 < kSwitchExitPolar && mu < kSwitchExitCos[k]) ++k;
   return 2 * k + (back ? 0 : 1);
 }
+// Bin j's cosines [lo, hi) from the entry's normal (hi 1 inclusive) and its side.
+struct SwitchExitBinRange {
+  float lo, hi;
+  bool back;
+};
+constexpr SwitchExitBinRange switchExitBinRange(int j) {
+  const int k = j / 2;
+  return {k + 1 < kSwitchExitPolar ? kSwitchExitCos[k] : 0.0f, k == 0 ? 1.0f : kSwitchExitCos[k - 1], j % 2 == 0};
+}
 
 struct SwitchOptions {
   int64_t paths = 1 << 16;

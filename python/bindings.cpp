@@ -375,9 +375,8 @@ PYBIND11_MODULE(granular_core, m) {
       [] {
         py::list out;
         for (int j = 0; j < kSwitchExitBins; ++j) {
-          const int k = j / 2;
-          const float hi = k == 0 ? 1.0f : kSwitchExitCos[k - 1], lo = k + 1 < kSwitchExitPolar ? kSwitchExitCos[k] : 0.0f;
-          out.append(py::make_tuple(lo, hi, j % 2 == 0 ? "back" : "forward"));
+          const SwitchExitBinRange r = switchExitBinRange(j);
+          out.append(py::make_tuple(r.lo, r.hi, r.back ? "back" : "forward"));
         }
         return out;
       },
@@ -555,6 +554,7 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("default_light", &RenderSettings::defaultLight)
       .def_readwrite("physical_sun", &RenderSettings::physicalSun)
       .def_readwrite("sun_regularization", &RenderSettings::sunRegularization)
+      .def_readonly_static("MAX_SUN_REGULARIZATION", &RenderSettings::kMaxSunRegularization)
       .def_readwrite("dome_camera_visible", &RenderSettings::domeCameraVisible)
       .def_readwrite("cryptomatte", &RenderSettings::cryptomatte)
       .def_property(

@@ -115,9 +115,10 @@ def _non_negative_float():
 
 
 def _sun_regularization(text):
-    v = _number(text)
-    if not (0 <= v <= 45):  # as core's check of RenderSettings::sunRegularization
-        raise argparse.ArgumentTypeError(f"{text} must be in [0, 45] degrees (0: off)")
+    import granular_core as core
+    v, most = _number(text), core.RenderSettings.MAX_SUN_REGULARIZATION
+    if not (0 <= v <= most):
+        raise argparse.ArgumentTypeError(f"{text} must be in [0, {most:g}] degrees (0: off)")
     return _single(v, text)
 
 

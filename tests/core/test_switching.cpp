@@ -202,6 +202,13 @@ TEST(Switching, ExitBinsAreByCosineFromTheNormalAndSide) {
   EXPECT_EQ(switchExitBin(0.4f, false), 3);
   EXPECT_EQ(switchExitBin(0.39f, true), 4);
   EXPECT_EQ(switchExitBin(0.0f, false), kSwitchExitBins - 1);
+  // Each bin's range (the reports' labels) holds its own lower edge; its upper edge is the
+  // bin above's.
+  for (int j = 0; j < kSwitchExitBins; ++j) {
+    const SwitchExitBinRange r = switchExitBinRange(j);
+    EXPECT_EQ(switchExitBin(r.lo, r.back), j);
+    EXPECT_EQ(switchExitBin(r.hi, r.back), r.hi < 1.0f ? j - 2 : j);
+  }
 }
 
 TEST(Switching, ExitBinsSplitTheAlbedoAndItsBias) {
