@@ -21,7 +21,8 @@ Usage: python3 bench/sun_matrix.py [--build build] [--materials quartz_sand,ice,
          [--json out/bench/sun_matrix.json]
          [--plot out/bench/sun_matrix.png]
 Prints a markdown table; --plot draws the medium-only and proxy biases against phase angle.
-`default` is the hybrid as a user gets it; `visits-K` (e.g. visits-16) proxies for K visits
+`default` is the hybrid as a user gets it, `view` the same with switch_for_view (the switch
+measured for the camera and the sun too); `visits-K` (e.g. visits-16) proxies for K visits
 after the first grain, nothing measured: how the bias falls with the switch to the medium.
 """
 import argparse
@@ -39,7 +40,8 @@ import accuracy_matrix  # noqa: E402  (its measure(): the object's mean per seed
 # name -> (technique, proxies, explicit_bounces or None for the automatic count); `default`
 # is the hybrid as a user gets it (proxies Auto).
 TECHNIQUES = {"default": ("EptVpt", "Auto", None), "proxies": ("EptVpt", "On", None),
-              "medium": ("EptVpt", "Off", None), "medium-only": ("EptVpt", "Off", 0)}
+              "medium": ("EptVpt", "Off", None), "medium-only": ("EptVpt", "Off", 0),
+              "view": ("EptVpt", "Auto", None)}
 VIEW_ELEVATION = 30.0
 
 
@@ -117,6 +119,7 @@ def run_case(core, material, shape, sun, elevation, phase, args, tmp):
         case["render"].update(width=args.width, height=args.height)
         if bounces is not None:
             case["render"]["explicit_bounces"] = bounces
+        case["render"]["switch_for_view"] = name == "view"
         means, _, _, seconds = accuracy_matrix.measure(core, case, technique, None, args.spp, args.seeds, args.threads,
                                                        tmp, proxies)
         mean, se = accuracy_matrix.stats(means)

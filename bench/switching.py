@@ -7,13 +7,20 @@ measurement cost.
 Each scene is built with technique ept+vpt and an empty cache folder of its own, so the
 seconds are those of a first build (a second build reads the measurement from the cache).
 
+With --view, the scenes are built with switch_for_view: each aggregate the camera sees is
+measured for that view as well (switching.h: measureViewSwitch, the radiance the camera
+sees under the scene's lights), and its columns follow. With --view-paths N, each such
+aggregate is measured again with N paths, every candidate forking in every path
+(Scene.measure_view_switch and Scene.measure_switch, stop_early=False), and a table per
+aggregate sets the bias in what the camera sees beside the bias in the albedo.
+
 With --exit-bins N, each aggregate is measured again with N paths, every candidate forking
 in every path (Scene.measure_switch, stop_early=False), and a table per aggregate gives the
 bias after each candidate's visits in all and per exit bin (switching.h: the exit
 direction's cosine from the entry's normal, back toward the entry side or forward).
 
 Usage: python3 bench/switching.py [--build build] [--examples a,b] [--no-bench-scenes]
-         [--scene extra.json ...] [--exit-bins N]
+         [--scene extra.json ...] [--exit-bins N] [--view] [--view-paths N]
 Prints markdown tables.
 """
 import argparse
@@ -38,9 +45,24 @@ def worst_bin(sw, k, bins):
     return f"{lo:.1f}–{hi:.1f} {side}", worst(sw["exit_bias"][k * n + j]), 100 * max(sw["exit_bias_se"][k * n + j])
 
 
-def rows_of(core, desc, label, exit_paths, tables):
+def view_table(built, a, label, name, paths):
+    """The bias after each candidate's visits in the albedo and in what the camera sees."""
+    v = built.measure_view_switch(a, paths=paths, stop_early=False)
+    d = built.measure_switch(a, paths=paths, stop_early=False)
+    lines = [f"**{label}, {name}** ({paths} paths each; {v['entries']} of the camera's rays enter it; view "
+             f"{v['seconds']:.1f} s, albedo {d['seconds']:.1f} s; bias % R / G / B ± s.e.)", "",
+             "| visits | albedo (dome) | what the camera sees |", "|---|---|---|"]
+    for c, visits in enumerate(v["candidates"][:-1]):
+        cells = ["/".join(f"{100 * x:+.2f}" for x in m["bias"][c]) + " ± " +
+                 "/".join(f"{100 * x:.2f}" for x in m["bias_se"][c]) for m in (d, v)]
+        lines.append(f"| {visits} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def rows_of(core, desc, label, exit_paths, tables, view=False, view_paths=0):
     s = desc.settings
     s.technique = core.Technique.EptVpt
+    s.switch_for_view = view or view_paths > 0
     desc.settings = s
     built = core.Scene.build(desc)
     bins = core.switch_exit_bins()
@@ -51,7 +73,9 @@ def rows_of(core, desc, label, exit_paths, tables):
         k = sw["candidates"].index(sw["chosen"])
         out.append((label, info["name"], sw["chosen"], sw["uses_proxies"], worst(sw["bias"][0]),
                     worst(sw["bias"][k]), 100 * max(sw["bias_se"][k]), worst_bin(sw, k, bins), sw["seconds"],
-                    sw["paths"], sw["events"]))
+                    sw["paths"], sw["events"], sw.get("view"), sw["proxy_visits"]))
+        if view_paths and "view" in sw:
+            tables.append(view_table(built, a, label, info["name"], view_paths))
         if exit_paths:
             m = built.measure_switch(a, paths=exit_paths, stop_early=False)
             lines = [f"**{label}, {info['name']}** ({m['paths']} paths, {m['seconds']:.1f} s; bias % ± s.e., "
@@ -76,6 +100,9 @@ def main():
     ap.add_argument("--scene", action="append", default=[], help="a JSON scene to add (repeatable)")
     ap.add_argument("--exit-bins", type=int, default=0, metavar="N",
                     help="measure each aggregate again with N paths and tabulate its exit bins")
+    ap.add_argument("--view", action="store_true", help="measure the switch for each example's view too")
+    ap.add_argument("--view-paths", type=int, default=0, metavar="N",
+                    help="measure each aggregate the camera sees again with N paths, for the view and the dome")
     a = ap.parse_args()
     sys.path[:0] = [os.path.join(a.build, "python"), os.path.join(ROOT, "python"), HERE]
     os.environ["GRANULAR_CACHE_DIR"] = tempfile.mkdtemp(prefix="granular-switching-")
@@ -85,9 +112,9 @@ def main():
     rows, tables = [], []
     for name in filter(None, a.examples.split(",")):
         rows += rows_of(core, read_stage(os.path.join(ROOT, "examples", name + ".usda"), width=64).desc, name,
-                        a.exit_bins, tables)
+                        a.exit_bins, tables, a.view, a.view_paths)
     for path in a.scene:
-        rows += rows_of(core, core.load_scene_json(path), os.path.basename(path), a.exit_bins, tables)
+        rows += rows_of(core, core.load_scene_json(path), os.path.basename(path), a.exit_bins, tables, a.view, a.view_paths)
     if not a.no_bench_scenes:
         import json
         from hybrid_speedup import scenes
@@ -95,14 +122,24 @@ def main():
             for name, desc in scenes().items():
                 path = os.path.join(tmp, "scene.json")
                 json.dump(desc, open(path, "w"))
-                rows += rows_of(core, core.load_scene_json(path), name, a.exit_bins, tables)
+                rows += rows_of(core, core.load_scene_json(path), name, a.exit_bins, tables, a.view, a.view_paths)
+    view = a.view or a.view_paths > 0
     print("| scene | aggregate | visits chosen | proxies | medium after the first grain, bias % | "
           "after the chosen visits, bias % ± s.e. | its worst exit bin, bias % ± s.e. | paths | walk steps | "
-          "measured in s |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
-    for label, agg, k, proxies, b0, bk, se, (bin_label, bb, bse), secs, paths, events in rows:
-        print(f"| {label} | {agg} | {k} | {'yes' if proxies else 'no'} | {b0:+.1f} | {bk:+.2f} ± {se:.2f} | "
-              f"{bb:+.2f} ± {bse:.2f} ({bin_label}) | {paths} | {events:.3g} | {secs:.2f} |")
+          "measured in s |" + (" for the view: visits chosen, bias % ± s.e. there | its paths, s | visits taken |"
+                               if view else ""))
+    print("|---" * (13 if view else 10) + "|")
+    for label, agg, k, proxies, b0, bk, se, (bin_label, bb, bse), secs, paths, events, v, taken in rows:
+        line = (f"| {label} | {agg} | {k} | {'yes' if proxies else 'no'} | {b0:+.1f} | {bk:+.2f} ± {se:.2f} | "
+                f"{bb:+.2f} ± {bse:.2f} ({bin_label}) | {paths} | {events:.3g} | {secs:.2f} |")
+        if view:
+            if v:
+                kv = v["candidates"].index(v["chosen"])
+                line += (f" {v['chosen']}, {worst(v['bias'][kv]):+.2f} ± {100 * max(v['bias_se'][kv]):.2f} | "
+                         f"{v['paths']}, {v['seconds']:.1f} | {taken} |")
+            else:
+                line += f" (not seen) | | {taken} |"
+        print(line)
     for t in tables:
         print()
         print(t)

@@ -1046,6 +1046,19 @@ void Scene::updateProxyTables() {
   }
 }
 
+namespace {
+
+// f() as many threads as the render may use run it (a measurement's result does not
+// depend on them).
+template <typename F>
+auto inArena(int threads, const F& f) {
+  if (threads <= 0) return f();
+  tbb::task_arena arena(threads);
+  return arena.execute(f);
+}
+
+}  // namespace
+
 void Scene::measureSwitching(size_t a) {
   BuiltAggregate& entry = built_[a];
   if (entry.switching) return;
@@ -1057,14 +1070,16 @@ void Scene::measureSwitching(size_t a) {
   for (size_t i = 0; i < agg.prototypes().size(); ++i)
     key = hashGrainInputs(key, agg.prototypes()[i].mesh, materials_[size_t(entry.materials[i])]);
   for (const Vec3* v : {&m.sigmaT, &m.albedo, &m.g}) key = hashBytes(key, v, sizeof(Vec3));
-  // As many threads as the render may use (the result does not depend on them).
-  auto run = [&] { return measureSwitch(agg, *entry.proxies, media_[a], {}, key); };
-  if (settings_.threads > 0) {
-    tbb::task_arena arena(settings_.threads);
-    entry.switching = std::make_shared<const SwitchMeasure>(arena.execute(run));
-  } else {
-    entry.switching = std::make_shared<const SwitchMeasure>(run());
-  }
+  entry.switchKey = key;
+  entry.switching = std::make_shared<const SwitchMeasure>(
+      inArena(settings_.threads, [&] { return measureSwitch(agg, *entry.proxies, media_[a], {}, key); }));
+}
+
+std::shared_ptr<const SwitchMeasure> Scene::measureViewSwitching(size_t a, const SwitchView& view) const {
+  const BuiltAggregate& entry = built_[a];
+  return std::make_shared<const SwitchMeasure>(inArena(settings_.threads, [&] {
+    return measureViewSwitch(*aggregates_[a], *entry.proxies, media_[a], view, viewSwitchOptions(), entry.switchKey);
+  }));
 }
 
 void Scene::updateSwitching() {
@@ -1073,6 +1088,7 @@ void Scene::updateSwitching() {
   proxyVisits_.assign(n, 0);
   aggregateBounces_.assign(n, 0);
   switching_.assign(n, nullptr);
+  viewSwitching_.assign(n, nullptr);
   const bool canUse = settings_.technique != Technique::Ept && !standIns_ && n > 0;
   const bool measure = canUse && !media_.empty() && settings_.explicitBounces < 0;
   const ProxyUse use = settings_.proxies;
@@ -1085,8 +1101,13 @@ void Scene::updateSwitching() {
     if (measure) {
       measureSwitching(a);
       switching_[a] = built_[a].switching;
+      if (settings_.switchForView) {
+        const SwitchView view = switchView(a);
+        if (int(view.entries.size()) >= kMinViewEntries) viewSwitching_[a] = measureViewSwitching(a, view);
+      }
     }
-    const int k = switching_[a] ? switching_[a]->visits : -1;
+    int k = switching_[a] ? switching_[a]->visits : -1;
+    if (viewSwitching_[a]) k = std::max(k, viewSwitching_[a]->visits);
     const bool proxies = canUse && (use == ProxyUse::On || (use == ProxyUse::Auto && (narrowSun_ || k > 0)));
     aggregateProxies_[a] = proxies;
     useProxies_ = useProxies_ || proxies;
@@ -1137,6 +1158,39 @@ void Scene::updateSwitching() {
   }
 }
 
+SwitchView Scene::switchView(size_t a) const {
+  SwitchView view;
+  view.lights = &lights_;
+  bool lit = false;
+  for (const Light& light : lights_) lit = lit || light.isInfinite();
+  if (!lit || lights_.size() > 32 || aggregateMotion_[a].moving()) return view;
+  // The centres of a kViewGrid² grid over the image; a ray counts where the boundary of
+  // aggregate a is the first thing it meets in the media's view (grains unseen), from outside.
+  for (int j = 0; j < kViewGrid; ++j)
+    for (int i = 0; i < kViewGrid; ++i) {
+      const Ray ray = camera_.generateRay((float(i) + 0.5f) * float(settings_.width) / float(kViewGrid),
+                                          (float(j) + 0.5f) * float(settings_.height) / float(kViewGrid));
+      Hit hit;
+      if (!intersectMedium(ray, hit) || hit.kind != Hit::Boundary || hit.aggregate != int(a) ||
+          !(dot(ray.d, hit.ng) < 0))
+        continue;
+      SwitchView::Entry e{hit.p, hit.ng, ray.d, 0};
+      // A distant light reaches the entry when its central ray leaves there unblocked by
+      // surfaces and the media's boundaries (another aggregate's shadow).
+      for (size_t l = 0; l < lights_.size(); ++l) {
+        LightSample ls;
+        if (lights_[l].type() != LightType::Distant || !lights_[l].sampleLi(hit.p, 0.5f, 0.5f, ls)) continue;
+        Ray shadow;
+        shadow.o = hit.p + hit.ng * (1e-3f * aggregates_[a]->grainRadius());
+        shadow.d = ls.wi;
+        Hit blocker;
+        if (!intersectMedium(shadow, blocker)) e.lit |= 1u << l;
+      }
+      view.entries.push_back(e);
+    }
+  return view;
+}
+
 void Scene::updateInstancedProxyTables() {
   for (size_t i = 0; i < builtInstanced_.size(); ++i) {
     BuiltInstanced& b = builtInstanced_[i];
@@ -1177,20 +1231,32 @@ std::string Scene::lowOrdersText(int a) const {
                      : explicitBounces(a) > 0 ? str("explicit grains to bounce ", explicitBounces(a))
                                               : std::string();
   text += text.empty() ? "the medium" : ", then the medium";
-  if (const SwitchMeasure* m = switching_[size_t(a)].get()) {
+  auto worst = [](const Vec3& v) {
+    int w = 0;
+    for (int ch = 1; ch < 3; ++ch) w = std::fabs(v[ch]) > std::fabs(v[w]) ? ch : w;
+    return w;
+  };
+  // The measured bias at the visits taken, in its worst channel.
+  auto at = [&](const SwitchMeasure& m, char* buf, size_t size) {
     int c = 0;
-    while (kSwitchVisits[c] != m->visits) ++c;
-    auto worst = [](const Vec3& v) {
-      int w = 0;
-      for (int ch = 1; ch < 3; ++ch) w = std::fabs(v[ch]) > std::fabs(v[w]) ? ch : w;
-      return w;
-    };
-    const int w = worst(m->bias[size_t(c)]);
-    char buf[160];
+    while (c + 1 < kSwitchCandidates && kSwitchVisits[c] < proxyVisits(a)) ++c;
+    const int w = worst(m.bias[size_t(c)]);
+    std::snprintf(buf, size, "%+.2f%% ± %.2f%%", 100.0 * m.bias[size_t(c)][w], 100.0 * m.biasSE[size_t(c)][w]);
+  };
+  if (const SwitchMeasure* m = switching_[size_t(a)].get()) {
+    char bias[64], buf[200];
+    at(*m, bias, sizeof bias);
     // Not whether it came from the disk cache: the words are the same whatever the cache holds.
-    std::snprintf(buf, sizeof buf, " (measured: the medium's bias there %+.2f%% ± %.2f%%, right after the first grain %+.1f%%)",
-                  100.0 * m->bias[size_t(c)][w], 100.0 * m->biasSE[size_t(c)][w], 100.0 * m->bias[0][worst(m->bias[0])]);
+    std::snprintf(buf, sizeof buf, " (measured: the medium's bias there %s, right after the first grain %+.1f%%",
+                  bias, 100.0 * m->bias[0][worst(m->bias[0])]);
     text += buf;
+    if (const SwitchMeasure* v = viewSwitching_[size_t(a)].get()) {
+      at(*v, bias, sizeof bias);
+      std::snprintf(buf, sizeof buf, "; for this view %s, right after the first grain %+.1f%%", bias,
+                    100.0 * v->bias[0][worst(v->bias[0])]);
+      text += buf;
+    }
+    text += ")";
   }
   return text;
 }

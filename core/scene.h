@@ -148,6 +148,20 @@ class Scene {
   }
   // Null when not measured (see above).
   const SwitchMeasure* switchMeasure(int aggregate) const { return switching_[size_t(aggregate)].get(); }
+  // With RenderSettings::switchForView, the view measurement (switching.h:
+  // measureViewSwitch) of each measured aggregate the camera sees, made at setView (from the
+  // disk cache for a view measured before); the visits are then the larger of the two
+  // choices (the dome's keeps what lights the rest of the scene). Null when not made: off,
+  // not measured, or fewer than kMinViewEntries entries (switchView).
+  const SwitchMeasure* viewSwitchMeasure(int aggregate) const { return viewSwitching_[size_t(aggregate)].get(); }
+  static constexpr int kMinViewEntries = 16;
+  // The camera's entries into aggregate a for its view measurement (switching.h:
+  // measureViewSwitch): the centres of a kViewGrid² grid over the image whose rays meet its
+  // boundary first (grains unseen), from outside, each with the distant lights whose
+  // central ray leaves there unblocked by surfaces and the media's boundaries. None for a
+  // moving aggregate, a scene without distant lights or domes, or with more than 32 lights.
+  SwitchView switchView(size_t aggregate) const;
+  static constexpr int kViewGrid = 64;
   // What carries the aggregate's low orders after its first grain, in words both front ends
   // print: "proxies for 8 visits, then the medium (measured: the medium's bias there −0.11%
   // ± 0.14%, right after the first grain −6.8%)", "explicit grains to bounce 16, then the
@@ -393,6 +407,7 @@ class Scene {
     double mediumSauterSize = 0;                // the Sauter size it was derived with
     std::shared_ptr<const ProxyTables> proxies;  // made when first needed (updateProxyTables)
     std::shared_ptr<const SwitchMeasure> switching;  // likewise (updateSwitching)
+    uint64_t switchKey = 0;                          // its cache key (the view measurement's too)
     bool mediumReplaced = false;                     // setMedium: switching is not lent
   };
   // fullOnly: a stand-in is not lent (its medium is, through `medium`).
@@ -468,13 +483,14 @@ class Scene {
   std::vector<int> proxyVisits_, aggregateBounces_;
   std::vector<char> aggregateProxies_, instancedProxies_;
   std::vector<int> instancedProxyVisits_, instancedBounces_;
-  std::vector<std::shared_ptr<const SwitchMeasure>> switching_;
+  std::vector<std::shared_ptr<const SwitchMeasure>> switching_, viewSwitching_;
   // Proxies and switching per aggregate, from the settings and the media: the tables and
   // measurements they need (lent by an unchanged aggregate, else cached on disk or made).
   void updateSwitching();
   void updateProxyTables();
   void updateInstancedProxyTables();
   void measureSwitching(size_t aggregate);
+  std::shared_ptr<const SwitchMeasure> measureViewSwitching(size_t aggregate, const SwitchView& view) const;
   bool useProxies_ = false, proxyLightSampling_ = false;
   std::vector<TriangleMesh> worldMeshes_;   // per Embree geometry id (moving: at the shutter's open)
   std::vector<TriangleMesh> worldMeshesAtClose_;  // per geometry id: at the shutter's close; empty when still

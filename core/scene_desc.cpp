@@ -590,7 +590,7 @@ static_assert(fieldCount<LightDesc>() == 12, "compare the new field in sameLight
 static_assert(fieldCount<MeshDesc>() == 8, "compare the new field in sameMeshDesc");
 static_assert(fieldCount<GrainPrototypeDesc>() == 3, "compare the new field in sameAggregateInputs");
 static_assert(fieldCount<AggregateDesc>() == 14, "compare the new field in sameAggregateInputs (or the id check)");
-static_assert(fieldCount<RenderSettings>() == 26, "compare the new field in sameViewSettings or settingsNeedBuild");
+static_assert(fieldCount<RenderSettings>() == 27, "compare the new field in sameViewSettings or settingsNeedBuild");
 static_assert(fieldCount<SceneDesc>() == 7, "compare the new part in compareScenes");
 static_assert(fieldCount<InstancedGrainsDesc>() == 10, "compare the new field in sameInstancedGrains (or the id check)");
 
@@ -662,7 +662,7 @@ bool sameViewSettings(const RenderSettings& a, const RenderSettings& b) {
          a.daDepthFactor == b.daDepthFactor && a.daMinOrder == b.daMinOrder && a.daInstanced == b.daInstanced &&
          a.roulette == b.roulette &&
          a.lod == b.lod && a.proxies == b.proxies && a.domeCameraVisible == b.domeCameraVisible &&
-         a.sunRegularization == b.sunRegularization &&
+         a.sunRegularization == b.sunRegularization && a.switchForView == b.switchForView &&
          a.cropX0 == b.cropX0 && a.cropX1 == b.cropX1 && a.cropY0 == b.cropY0 && a.cropY1 == b.cropY1 &&
          a.cryptomatte == b.cryptomatte;
 }

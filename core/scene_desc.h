@@ -299,6 +299,13 @@ struct RenderSettings {
   // sun stay exact. Delta suns kept delta (physicalSun false) are left alone.
   float sunRegularization = 10.0f;
   static constexpr float kMaxSunRegularization = 45.0f;
+  // The switch from proxies to the medium measured for this view too (switching.h:
+  // measureViewSwitch): each aggregate the camera sees takes the larger of the dome's
+  // choice and the view's. The dome's albedo averages over where light leaves; the
+  // medium's error hides toward the light at grazing views, as on a beach seen with the
+  // sun behind the camera. Costs about a render of the aggregate's pixels at 256 spp of
+  // 64 × 48 (bench/README.md, "The switch for a view") per new view, cached on disk.
+  bool switchForView = false;
   // Crop: only the pixels [cropX0, cropX1) × [cropY0, cropY1) of the width × height image
   // are rendered (a tile of a farm job, UsdRenderSettings dataWindowNDC); all 0 (the
   // default): every pixel. A pixel's samples depend on (seed, pixel, sample index) only and

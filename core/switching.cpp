@@ -96,10 +96,14 @@ struct ExitBins {
   int bin(const Vec3& w) const { return switchExitBin(dot(w, n), dot(w, back) >= 0); }
 };
 
-// A scattering at flight t (vpt.h: weight α σ_t T(t) / p(t), then the phase function).
-bool scatter(const HomogeneousMedium& med, float t, Vec3& o, Vec3& d, Vec3& w, Rng& rng) {
+// The flight's weight at a scattering at t (vpt.h: α σ_t T(t) / p(t)); the point moves there.
+void flyTo(const HomogeneousMedium& med, float t, Vec3& o, const Vec3& d, Vec3& w) {
   w *= med.transmittance(t) * med.sigmaT() * med.albedo() / med.distancePdf(t);
   o = o + d * t;
+}
+
+// The next direction, by the phase function.
+bool scatter(const HomogeneousMedium& med, Vec3& d, Vec3& w, Rng& rng) {
   Vec3 weight;
   float pdf;
   const float uc = rng.next1D(), u1 = rng.next1D(), u2 = rng.next1D();
@@ -108,14 +112,23 @@ bool scatter(const HomogeneousMedium& med, float t, Vec3& o, Vec3& d, Vec3& w, R
   return isFinite(w);
 }
 
-// The energy a walk in the equivalent medium carries out of the boundary, from o along d
-// (vpt.h's flight and phase sampling; the boundary index-matched, so a ray that leaves
-// may enter again where the boundary is concave); exitBin gets the bin it leaves in.
-Vec3 mediumEscape(const Aggregate& agg, const HomogeneousMedium& med, const ExitBins& bins, Vec3 o, Vec3 d,
-                  int& exitBin, Rng& rng, int64_t& events) {
+// Light as the dome measurement sees it: a uniform white dome, scored where paths leave.
+struct WhiteDome {
+  Vec3 escaped(const Vec3&) const { return Vec3(1.0f); }
+  Vec3 atProxy(const GrainHit&, const ProxyTable&, const ProxyFrame&, int, Rng&) const { return Vec3(0.0f); }
+  Vec3 atScatter(const Vec3&, const Vec3&, Rng&) const { return Vec3(0.0f); }
+};
+
+// The energy (or, with a lighting policy of lights, the radiance) a walk in the equivalent
+// medium carries out of the boundary, from o along d (vpt.h's flight and phase sampling;
+// the boundary index-matched, so a ray that leaves may enter again where the boundary is
+// concave); exitBin gets the bin it leaves in.
+template <typename Lighting>
+Vec3 mediumEscape(const Aggregate& agg, const HomogeneousMedium& med, const Lighting& light, const ExitBins& bins,
+                  Vec3 o, Vec3 d, int& exitBin, Rng& rng, int64_t& events) {
   const float eps = 1e-4f * agg.grainRadius();
   bool inside = agg.insideBoundary(o);
-  Vec3 w(1.0f);
+  Vec3 w(1.0f), gathered(0.0f);
   for (int event = 0; event < kMaxWalkEvents; ++event) {
     ++events;
     float tb;
@@ -123,7 +136,7 @@ Vec3 mediumEscape(const Aggregate& agg, const HomogeneousMedium& med, const Exit
     if (!inside) {
       if (!agg.intersectBoundary(o, d, eps, kInf, tb, ng)) {  // out, for good
         exitBin = bins.bin(d);
-        return w;
+        return gathered + w * light.escaped(d);
       }
       o = o + d * tb;
       inside = true;
@@ -133,7 +146,7 @@ Vec3 mediumEscape(const Aggregate& agg, const HomogeneousMedium& med, const Exit
     // the boundary: no ray query (most events of a long walk in nearly clear grains).
     const float t = med.sampleDistance(rng.next1D(), rng.next1D());
     if (!(t < -0.5f * agg.boundaryDistance(o))) {
-      if (!agg.intersectBoundary(o, d, eps, kInf, tb, ng)) return Vec3(0.0f);  // a leak: the renderer ends it
+      if (!agg.intersectBoundary(o, d, eps, kInf, tb, ng)) return gathered;  // a leak: the renderer ends it
       if (t >= tb) {
         w *= med.transmittance(tb) / med.survivalProbability(tb);
         o = o + d * tb;
@@ -141,10 +154,12 @@ Vec3 mediumEscape(const Aggregate& agg, const HomogeneousMedium& med, const Exit
         continue;
       }
     }
-    if (!scatter(med, t, o, d, w, rng)) return Vec3(0.0f);
-    if (event >= kRouletteAfter && !survive(w, rng)) return Vec3(0.0f);
+    flyTo(med, t, o, d, w);
+    gathered += w * light.atScatter(o, d, rng);
+    if (!scatter(med, d, w, rng)) return gathered;
+    if (event >= kRouletteAfter && !survive(w, rng)) return gathered;
   }
-  return Vec3(0.0f);
+  return gathered;
 }
 
 // Boundary triangles by area (Distribution1D): a point uniform on the boundary and its
@@ -170,18 +185,30 @@ struct BoundarySampler {
   }
 };
 
+// The dome measurement's entries: a point uniform on the boundary, a direction
+// cosine-distributed about the inward normal.
+struct DomeEntries {
+  const BoundarySampler& boundary;
+  WhiteDome operator()(Rng& rng, Vec3& p, Vec3& n, Vec3& d) const {
+    const float u = rng.next1D(), u1 = rng.next1D(), u2 = rng.next1D();
+    boundary.sample(u, u1, u2, p, n);
+    d = normalize(Frame(-n).toWorld(sampleCosineHemisphere(rng.next1D(), rng.next1D())));
+    return WhiteDome();
+  }
+};
+
 // One path: A∞'s sample and each candidate's D_k (switching.h), in all and per exit bin.
 // Candidates not in `forking` (a bit per candidate) are decided: no fork, nothing summed.
-void tracePath(const Aggregate& agg, const ProxyTables& tables, const HomogeneousMedium& med,
-               const BoundarySampler& boundary, uint64_t seed, int64_t index, uint32_t forking, Sums& sums) {
+// start(rng, p, n, d) picks the entry point, its outward normal and the direction in, and
+// returns the lighting the path gathers (escaped(), atProxy(), atScatter()).
+template <typename Start>
+void tracePath(const Aggregate& agg, const ProxyTables& tables, const HomogeneousMedium& med, const Start& start,
+               uint64_t seed, int64_t index, uint32_t forking, Sums& sums) {
   Rng rng(hashInts(seed, uint64_t(index), 0x5717c4ULL), 0);
-  Vec3 p, n;
-  const float u = rng.next1D(), u1 = rng.next1D(), u2 = rng.next1D();
-  boundary.sample(u, u1, u2, p, n);
-  const Frame inward(-n);
+  Vec3 p, n, d;
+  const auto light = start(rng, p, n, d);
   const float R = agg.grainRadius();
   Vec3 o = p + n * (1e-3f * R);
-  Vec3 d = normalize(inward.toWorld(sampleCosineHemisphere(rng.next1D(), rng.next1D())));
   const ExitBins bins(n, d);
   // Per candidate: the fork's escape and the bin it left in; what left before it, in all
   // and per bin.
@@ -195,8 +222,9 @@ void tracePath(const Aggregate& agg, const ProxyTables& tables, const Homogeneou
     ++sums.events;
     GrainHit h;
     if (!agg.intersectProxy(o, d, 0.0f, kInf, h, started ? &from : nullptr)) {
-      escaped += w;  // no grain ahead: the light leaves the aggregate
-      escapedIn[bins.bin(d)] += w;
+      const Vec3 out = w * light.escaped(d);  // no grain ahead: the light leaves the aggregate
+      escaped += out;
+      escapedIn[bins.bin(d)] += out;
       break;
     }
     const ProxyTable& table = tables.at(h.prototype, h.radius / R);
@@ -208,6 +236,7 @@ void tracePath(const Aggregate& agg, const ProxyTables& tables, const Homogeneou
       o = o + d * std::max(sphereFarSide(o - h.center, d, h.radius), h.t);
       continue;
     }
+    escaped += w * light.atProxy(h, table, frame, b, rng);
     ProxyDirection s;
     const float ub = rng.next1D(), v1 = rng.next1D(), v2 = rng.next1D(), us = rng.next1D(), ue = rng.next1D();
     if (!table.sample(b, ub, v1, v2, us, s)) break;  // nothing leaves this grain
@@ -221,7 +250,7 @@ void tracePath(const Aggregate& agg, const ProxyTables& tables, const Homogeneou
       if (forking & (1u << forks)) {
         Rng forkRng(hashInts(seed, uint64_t(index), uint64_t(forks), 0xf02cULL), 1);
         const int64_t before = sums.events;
-        fork[forks] = w * mediumEscape(agg, med, bins, o, d, forkBin[forks], forkRng, sums.events);
+        fork[forks] = w * mediumEscape(agg, med, light, bins, o, d, forkBin[forks], forkRng, sums.events);
         sums.forkEvents[forks] += sums.events - before;
       }
       escapedAtFork[forks] = escaped;
@@ -306,8 +335,14 @@ bool beyond(const SwitchMeasure& m, int c, const SwitchOptions& o, double errors
 // error falls as 1/√n).
 bool outOfReach(const SwitchMeasure& m, int c, const SwitchOptions& o, int64_t more) {
   const double n = double(m.candidatePaths[size_t(c)]), scale = std::sqrt(n / (n + double(more)));
-  for (int ch = 0; ch < 3; ++ch)
-    if (m.biasSE[size_t(c)][ch] * scale > kOutOfReach * o.precision * o.tolerance) return true;
+  for (int ch = 0; ch < 3; ++ch) {
+    const double se = m.biasSE[size_t(c)][ch], reach = se * scale;
+    if (reach > kOutOfReach * o.precision * o.tolerance) return true;
+    // With a margin: its estimate, kDecided standard errors nearer 0, would still fail with
+    // that standard error (nearer by fewer, a noisy estimate would pass over candidates).
+    if (o.margin > 0 && std::fabs(m.bias[size_t(c)][ch]) - kDecided * se + o.margin * reach > o.tolerance)
+      return true;
+  }
   return false;
 }
 
@@ -328,8 +363,9 @@ constexpr RecordMagic kMagic = {'G', 'R', 'S', 'W', '\0', '\0', '\0', '\0'};
 constexpr uint32_t kFormatVersion = 7;  // 7: the exit bins
 
 uint64_t recordKey(uint64_t key, const SwitchOptions& o) {
-  return hashInts(key, uint64_t(kFormatVersion), uint64_t(o.paths), o.seed, uint64_t(kSwitchCandidates),
-                  uint64_t(o.eventBudget), uint64_t(o.stopEarly));
+  key = hashInts(key, uint64_t(kFormatVersion), uint64_t(o.paths), o.seed, uint64_t(kSwitchCandidates),
+                 uint64_t(o.eventBudget), uint64_t(o.stopEarly));
+  return o.margin > 0 ? hashBytes(key, &o.margin, sizeof o.margin) : key;  // it moves where a measurement stops
 }
 
 std::vector<char> serialise(const SwitchMeasure& m, uint64_t key) {
@@ -382,7 +418,8 @@ namespace {
 // Candidate c's estimate is within the tolerance and measured to the precision asked.
 bool passes(const SwitchMeasure& m, int c, const SwitchOptions& o) {
   for (int ch = 0; ch < 3; ++ch)
-    if (!(std::fabs(m.bias[size_t(c)][ch]) <= o.tolerance && m.biasSE[size_t(c)][ch] <= o.precision * o.tolerance))
+    if (!(std::fabs(m.bias[size_t(c)][ch]) + o.margin * m.biasSE[size_t(c)][ch] <= o.tolerance &&
+          m.biasSE[size_t(c)][ch] <= o.precision * o.tolerance))
       return false;
   return true;
 }
@@ -411,25 +448,15 @@ int chooseSwitchVisits(const SwitchMeasure& m, const SwitchOptions& o) {
   return kSwitchVisits[kSwitchCandidates - 1];
 }
 
-SwitchMeasure measureSwitch(const Aggregate& agg, const ProxyTables& tables, const HomogeneousMedium& medium,
-                            const SwitchOptions& options, uint64_t cacheKey) {
-  if (options.paths < 2) throw InputError("switching", "paths", str(options.paths, " is < 2"));
-  if (!(options.tolerance > 0)) throw InputError("switching", "tolerance", str(options.tolerance, " is not > 0"));
-  if (!(options.precision > 0)) throw InputError("switching", "precision", str(options.precision, " is not > 0"));
-  const uint64_t key = cacheKey ? measurementKey(cacheKey, tables, options) : 0;
-  const std::string name = recordName(key);
-  if (key) {
-    std::vector<char> bytes;
-    SwitchMeasure cached;
-    if (readCacheFile(name, bytes) && deserialise(bytes, key, cached)) {
-      cached.fromCache = true;
-      cached.visits = chooseSwitchVisits(cached, options);
-      return cached;
-    }
-  }
+namespace {
+
+// The batches, decisions and summaries of a measurement (switching.h) whose paths start as
+// start() says (tracePath).
+template <typename Start>
+SwitchMeasure measure(const Aggregate& agg, const ProxyTables& tables, const HomogeneousMedium& medium,
+                      const Start& start, const SwitchOptions& options) {
   const auto t0 = std::chrono::steady_clock::now();
   agg.prepareProxies();
-  const BoundarySampler boundary(agg.boundary());
   SwitchMeasure m;
   m.candidatePaths.assign(kSwitchCandidates, 0);
   Sums s;
@@ -442,7 +469,7 @@ SwitchMeasure measureSwitch(const Aggregate& agg, const ProxyTables& tables, con
     std::vector<Sums> partial(static_cast<size_t>(blocks));
     tbb::parallel_for(int64_t(0), blocks, [&](int64_t k) {
       for (int64_t i = done + k * kPathsPerBlock; i < std::min(end, done + (k + 1) * kPathsPerBlock); ++i)
-        tracePath(agg, tables, medium, boundary, options.seed, i, forking, partial[size_t(k)]);
+        tracePath(agg, tables, medium, start, options.seed, i, forking, partial[size_t(k)]);
     });
     for (const Sums& p : partial) s.add(p);
     m.paths = end;
@@ -466,6 +493,154 @@ SwitchMeasure measureSwitch(const Aggregate& agg, const ProxyTables& tables, con
   }
   m.events = s.events;
   m.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return m;
+}
+
+// A measurement from the disk cache, its choice made anew (the tolerance is not in the key).
+bool readCached(const std::string& name, uint64_t key, const SwitchOptions& options, SwitchMeasure& m) {
+  std::vector<char> bytes;
+  if (!readCacheFile(name, bytes) || !deserialise(bytes, key, m)) return false;
+  m.fromCache = true;
+  m.visits = chooseSwitchVisits(m, options);
+  return true;
+}
+
+void checkOptions(const SwitchOptions& options) {
+  if (options.paths < 2) throw InputError("switching", "paths", str(options.paths, " is < 2"));
+  if (!(options.tolerance > 0)) throw InputError("switching", "tolerance", str(options.tolerance, " is not > 0"));
+  if (!(options.precision > 0)) throw InputError("switching", "precision", str(options.precision, " is not > 0"));
+  if (!(options.margin >= 0)) throw InputError("switching", "margin", str(options.margin, " is not >= 0"));
+}
+
+}  // namespace
+
+SwitchMeasure measureSwitch(const Aggregate& agg, const ProxyTables& tables, const HomogeneousMedium& medium,
+                            const SwitchOptions& options, uint64_t cacheKey) {
+  checkOptions(options);
+  const uint64_t key = cacheKey ? measurementKey(cacheKey, tables, options) : 0;
+  const std::string name = recordName(key);
+  SwitchMeasure cached;
+  if (key && readCached(name, key, options, cached)) return cached;
+  const BoundarySampler boundary(agg.boundary());
+  SwitchMeasure m = measure(agg, tables, medium, DomeEntries{boundary}, options);
+  if (key) writeCacheFile(name, serialise(m, key));
+  return m;
+}
+
+namespace {
+
+// Light as the view measurement gathers it (switching.h): next-event estimation toward the
+// distant lights that reach the entry point, and the domes where paths leave.
+struct ViewLighting {
+  const Aggregate& agg;
+  const ProxyTables& tables;
+  const HomogeneousMedium& med;
+  const SwitchView& view;
+  uint32_t lit;  // bit i: view.lights[i] reaches the entry point
+  Vec3 escaped(const Vec3& d) const {
+    Vec3 L(0.0f);
+    for (const Light& light : *view.lights)
+      if (light.type() == LightType::Dome) L += light.escapedLe(d);
+    return L;
+  }
+  // At a grain met among proxies: the table toward the light, from one of its exit points,
+  // and the chance that the other proxies' grains let it through.
+  Vec3 atProxy(const GrainHit& h, const ProxyTable& table, const ProxyFrame& frame, int b, Rng& rng) const {
+    Vec3 L(0.0f);
+    for (size_t i = 0; i < view.lights->size(); ++i) {
+      if (!(lit & (1u << i))) continue;
+      LightSample ls;
+      const float u1 = rng.next1D(), u2 = rng.next1D(), ue = rng.next1D();
+      const uint32_t roulette = rng.nextU32();
+      if (!(*view.lights)[i].sampleLi(h.center, u1, u2, ls) || isBlack(ls.Li)) continue;
+      const ProxyDirection pd = table.eval(b, frame.toLocal(ls.wi));
+      if (!(pd.pdf > 0)) continue;
+      const Vec3 x = h.center + frame.toWorld(table.exitPoint(b, pd, ue)) * h.radius;
+      const float tr = agg.proxyTransmittance(x, ls.wi, 0.0f, kInf, tables, &h, roulette);
+      L += pd.f * ls.Li * (tr / (ls.delta ? 1.0f : ls.pdf));
+    }
+    return L;
+  }
+  // At a scattering in the medium: the phase function toward the light and exp(−σ_t ℓ) to
+  // the boundary (none deeper than where that is below e^−9 in every channel).
+  Vec3 atScatter(const Vec3& o, const Vec3& d, Rng& rng) const {
+    Vec3 L(0.0f);
+    if (-agg.boundaryDistance(o) * minComponent(med.sigmaT()) > 9.0f) return L;
+    const float eps = 1e-4f * agg.grainRadius();
+    for (size_t i = 0; i < view.lights->size(); ++i) {
+      if (!(lit & (1u << i))) continue;
+      LightSample ls;
+      const float u1 = rng.next1D(), u2 = rng.next1D();
+      if (!(*view.lights)[i].sampleLi(o, u1, u2, ls) || isBlack(ls.Li)) continue;
+      float tb;
+      Vec3 ng;
+      if (!agg.intersectBoundary(o, ls.wi, eps, kInf, tb, ng)) continue;
+      L += med.phase(d, ls.wi) * med.transmittance(tb) * ls.Li / (ls.delta ? 1.0f : ls.pdf);
+    }
+    return L;
+  }
+};
+
+// The view measurement's entries: one of the camera's, uniformly (each stands for the
+// same share of the image).
+struct ViewEntries {
+  const Aggregate& agg;
+  const ProxyTables& tables;
+  const HomogeneousMedium& med;
+  const SwitchView& view;
+  ViewLighting operator()(Rng& rng, Vec3& p, Vec3& n, Vec3& d) const {
+    const size_t count = view.entries.size();
+    const SwitchView::Entry& e = view.entries[std::min(count - 1, size_t(rng.next1D() * float(count)))];
+    p = e.p;
+    n = e.n;
+    d = e.d;
+    return ViewLighting{agg, tables, med, view, e.lit};
+  }
+};
+
+}  // namespace
+
+SwitchOptions viewSwitchOptions() {
+  SwitchOptions o;
+  o.paths = int64_t(1) << 19;
+  o.eventBudget = int64_t(1) << 24;
+  o.margin = 1.0f;
+  return o;
+}
+
+SwitchMeasure measureViewSwitch(const Aggregate& agg, const ProxyTables& tables, const HomogeneousMedium& medium,
+                                const SwitchView& view, const SwitchOptions& options, uint64_t cacheKey) {
+  checkOptions(options);
+  if (view.entries.empty() || !view.lights) throw InputError("switching", "view", "no entry seen by the camera");
+  if (view.lights->size() > 32) throw InputError("switching", "view", "more than 32 lights");
+  uint64_t key = 0;
+  if (cacheKey) {
+    key = hashInts(cacheKey, 0x56494557 /* "VIEW" */);
+    for (const SwitchView::Entry& e : view.entries) {
+      for (const Vec3* v : {&e.p, &e.n, &e.d}) key = hashBytes(key, v, sizeof(Vec3));
+      key = hashInts(key, e.lit);
+    }
+    // The lights by what they send: a sample toward the origin and the light escaping
+    // along the six axes.
+    for (const Light& light : *view.lights) {
+      LightSample ls;
+      const bool sampled = light.sampleLi(Vec3(0.0f), 0.5f, 0.5f, ls);
+      key = hashInts(key, uint64_t(light.type()), uint64_t(sampled));
+      for (const Vec3* v : {&ls.wi, &ls.Li}) key = hashBytes(key, v, sizeof(Vec3));
+      key = hashBytes(key, &ls.pdf, sizeof ls.pdf);
+      for (int axis = 0; axis < 6; ++axis) {
+        Vec3 dir(0.0f);
+        dir[axis / 2] = axis % 2 ? -1.0f : 1.0f;
+        const Vec3 le = light.isInfinite() ? light.escapedLe(dir) : Vec3(0.0f);
+        key = hashBytes(key, &le, sizeof le);
+      }
+    }
+    key = measurementKey(key, tables, options);
+  }
+  const std::string name = recordName(key);
+  SwitchMeasure cached;
+  if (key && readCached(name, key, options, cached)) return cached;
+  SwitchMeasure m = measure(agg, tables, medium, ViewEntries{agg, tables, medium, view}, options);
   if (key) writeCacheFile(name, serialise(m, key));
   return m;
 }

@@ -54,6 +54,7 @@
 #include <vector>
 
 #include "aggregate.h"
+#include "light.h"
 #include "math.h"
 #include "proxy.h"
 #include "vpt.h"
@@ -98,6 +99,11 @@ struct SwitchOptions {
   uint64_t seed = 1;
   float tolerance = 0.005f;  // relative bias allowed in each channel
   float precision = 1.0f;    // the standard error a choice needs, in tolerances
+  // Standard errors added to |bias_k| in the choice (|bias_k| + margin · s.e._k ≤ tolerance),
+  // and a candidate whose estimate would fail so at the standard error the paths left could
+  // reach is out of reach. 0 for the dome: nearly clear grains' long walks leave a standard
+  // error near the tolerance (above). The view measurement's (viewSwitchOptions) is 1.
+  float margin = 0.0f;
   // Walk steps (proxy spheres entered, medium events) after which no batch starts: nearly
   // clear grains walk hundreds of steps per path.
   int64_t eventBudget = int64_t(1) << 22;
@@ -129,5 +135,38 @@ int chooseSwitchVisits(const SwitchMeasure& m, const SwitchOptions& o);
 
 SwitchMeasure measureSwitch(const Aggregate& aggregate, const ProxyTables& tables, const HomogeneousMedium& medium,
                             const SwitchOptions& options = SwitchOptions(), uint64_t cacheKey = 0);
+
+// The view measurement: the same forks and choice, for what a camera sees of the aggregate
+// under the scene's lights. A dome albedo averages over the directions light leaves in;
+// the medium's error hides toward the light at grazing views (shadow hiding), where a
+// camera with the sun behind it looks (bench/README.md, "Exit bins"). Paths enter where
+// the camera's rays meet the aggregate's boundary, along them, and gather the radiance
+// they bring back: next-event estimation toward the distant lights that reach the entry
+// point (at a grain among proxies: its table toward the light and the other proxies'
+// chance of missing; at a scattering in the medium: the phase function and exp(−σ_t ℓ)
+// to the boundary), and the domes' radiance where a path leaves. So bias_k is the
+// medium's bias in the aggregate's pixels, in the frame of the aggregate (a static one:
+// its render space). Area lights are left out. With a cacheKey (as measureSwitch's) it
+// is cached on disk under that key, the tables', the entries' and the lights' (their
+// light at a few probe directions). InputError without entries or lights, or with more
+// than 32 lights.
+struct SwitchView {
+  struct Entry {
+    Vec3 p, n, d;      // on the boundary, its outward normal, the camera ray's direction
+    uint32_t lit = 0;  // bit i: (*lights)[i], a distant light, reaches p
+  };
+  std::vector<Entry> entries;  // each the same share of the camera's view of the aggregate
+  const std::vector<Light>* lights = nullptr;
+};
+
+// Its options: a view is measured against radiance toward one direction, noisier than a
+// dome's albedo (bench/README.md, "The switch for a view"), so more paths and steps; and
+// the choice wants its estimate within the tolerance by a standard error (margin 1): the
+// renders at a view's choice read about its estimate and its standard error again.
+SwitchOptions viewSwitchOptions();
+
+SwitchMeasure measureViewSwitch(const Aggregate& aggregate, const ProxyTables& tables, const HomogeneousMedium& medium,
+                                const SwitchView& view, const SwitchOptions& options = viewSwitchOptions(),
+                                uint64_t cacheKey = 0);
 
 }  // namespace granular

@@ -66,6 +66,8 @@ void HdGranularRenderDelegate::_Initialize() {
        VtValue(true)},
       {"Suns narrower than this (degrees) widened for smooth grains' glints (0: exact)",
        HdGranularSettingsTokens->sunRegularization, VtValue(granular::RenderSettings().sunRegularization)},
+      {"The switch from proxies to the medium measured for this view too (seconds per aggregate per new view)",
+       HdGranularSettingsTokens->switchForView, VtValue(granular::RenderSettings().switchForView)},
       {"Coarse previews before the first pass", HdGranularSettingsTokens->preview, VtValue(true)},
       {"Stand-ins (the medium alone) while aggregates build", HdGranularSettingsTokens->standIns, VtValue(true)},
       {"Denoise the color AOV after each pass (Intel Open Image Denoise)", HdGranularSettingsTokens->denoise,

@@ -30,6 +30,7 @@ PXR_NAMESPACE_OPEN_SCOPE
   ((defaultLight, "granular:defaultLight"))           \
   ((physicalSun, "granular:physicalSun"))             \
   ((sunRegularization, "granular:sunRegularization")) \
+  ((switchForView, "granular:switchForView"))         \
   ((preview, "granular:preview"))                     \
   ((standIns, "granular:standIns"))                   \
   ((denoise, "granular:denoise"))                   \

@@ -180,6 +180,7 @@ granular::RenderSettings renderSettings(HdRenderDelegate* d, int width, int heig
   rs.defaultLight = defaultLightSetting(d);
   rs.physicalSun = physicalSunSetting(d);
   rs.sunRegularization = setting<float>(d, HdGranularSettingsTokens->sunRegularization, rs.sunRegularization);
+  rs.switchForView = setting<bool>(d, HdGranularSettingsTokens->switchForView, rs.switchForView);
   return rs;
 }
 

@@ -265,6 +265,17 @@ void addSwitchMeasure(const SwitchMeasure& m, py::dict& d) {
   d["from_cache"] = m.fromCache;
 }
 
+// The scene of aggregate a, which measured its switching (so its proxy tables and medium
+// exist); IndexError or ValueError naming `what` otherwise.
+const Scene& measuredAggregate(const PyScene& s, int a, const char* what) {
+  const Scene& sc = *s.scene;
+  if (a < 0 || a >= int(sc.aggregates().size())) throw py::index_error("aggregate out of range");
+  if (!sc.switchMeasure(a))
+    throw std::invalid_argument(str(what, ": the scene did not measure this aggregate's switching "
+                                    "(technique ept, or explicit_bounces set)"));
+  return sc;
+}
+
 struct PyRenderer {
   std::shared_ptr<PyScene> scene;
   std::unique_ptr<Renderer> renderer;
@@ -554,6 +565,7 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("default_light", &RenderSettings::defaultLight)
       .def_readwrite("physical_sun", &RenderSettings::physicalSun)
       .def_readwrite("sun_regularization", &RenderSettings::sunRegularization)
+      .def_readwrite("switch_for_view", &RenderSettings::switchForView)
       .def_readonly_static("MAX_SUN_REGULARIZATION", &RenderSettings::kMaxSunRegularization)
       .def_readwrite("dome_camera_visible", &RenderSettings::domeCameraVisible)
       .def_readwrite("cryptomatte", &RenderSettings::cryptomatte)
@@ -1038,6 +1050,11 @@ PYBIND11_MODULE(granular_core, m) {
               const SwitchMeasure* m = s.scene->switchMeasure(ai);
               d["measured"] = m != nullptr;
               if (m) addSwitchMeasure(*m, d);
+              if (const SwitchMeasure* v = s.scene->viewSwitchMeasure(ai)) {
+                py::dict view;
+                addSwitchMeasure(*v, view);
+                d["view"] = view;
+              }
               out.append(d);
             }
             return out;
@@ -1046,15 +1063,41 @@ PYBIND11_MODULE(granular_core, m) {
           "explicit bounces without proxies) before the medium, and the measurement they come from (switching.h): "
           "candidates (visits tried), bias and bias_se per candidate (relative, RGB), exit_bias and exit_bias_se "
           "per candidate and exit bin (index candidate * len(switch_exit_bins()) + bin), exit_reference per bin, "
-          "albedo, chosen, seconds, paths, events (walk steps), from_cache")
+          "albedo, chosen, seconds, paths, events (walk steps), from_cache; with switch_for_view, under `view` the "
+          "same fields of the view measurement where it was made (its albedo: the radiance the camera sees there)")
+      .def(
+          "measure_view_switch",
+          [](const PyScene& s, int a, int64_t paths, bool stopEarly, uint64_t seed) {
+            const Scene& sc = measuredAggregate(s, a, "measure_view_switch");
+            const SwitchView view = sc.switchView(size_t(a));
+            if (view.entries.size() < size_t(Scene::kMinViewEntries))
+              throw std::invalid_argument(str("measure_view_switch: the camera sees aggregate ", a, " in ",
+                                              view.entries.size(), " of its ", Scene::kViewGrid * Scene::kViewGrid,
+                                              " entry rays (", Scene::kMinViewEntries,
+                                              " needed), or no distant light or dome lights it"));
+            SwitchOptions o = viewSwitchOptions();
+            o.paths = paths;
+            o.stopEarly = stopEarly;
+            o.seed = seed;
+            const SwitchMeasure m = [&] {
+              py::gil_scoped_release release;  // the walks run on TBB's threads
+              return measureViewSwitch(*sc.aggregates()[size_t(a)], sc.proxyTables(a), sc.medium(a), view, o);
+            }();
+            py::dict d;
+            addSwitchMeasure(m, d);
+            d["entries"] = view.entries.size();
+            return d;
+          },
+          py::arg("aggregate"), py::arg("paths") = viewSwitchOptions().paths, py::arg("stop_early") = true,
+          py::arg("seed") = uint64_t(1),
+          "the view measurement of aggregate a (switching.h: measureViewSwitch; Scene::switchView) from the scene's camera "
+          "and lights, uncached: the fields of `switching` (albedo: the radiance the camera sees there), and entries "
+          "(the camera's rays that meet the aggregate); ValueError when the camera sees too little of it (fewer than 16 "
+          "entries) or no distant light or dome lights it")
       .def(
           "measure_switch",
           [](const PyScene& s, int a, int64_t paths, bool stopEarly, uint64_t seed) {
-            const Scene& sc = *s.scene;
-            if (a < 0 || a >= int(sc.aggregates().size())) throw py::index_error("aggregate out of range");
-            if (!sc.switchMeasure(a))  // its proxy tables and medium exist
-              throw std::invalid_argument("measure_switch: the scene did not measure this aggregate's switching "
-                                          "(technique ept, or explicit_bounces set)");
+            const Scene& sc = measuredAggregate(s, a, "measure_switch");
             SwitchOptions o;
             o.paths = paths;
             o.stopEarly = stopEarly;

@@ -3,7 +3,8 @@
     granular render SCENE.usda -o OUT.exr [--png OUT.png] [--width W --height H] [--spp N]
                     [--camera /path] [--seed S] [--threads T] [--exposure E] [--quiet]
                     [--technique ept|ept+vpt|hybrid] [--roulette P_a] [--lod L] [--no-default-light]
-                    [--no-physical-sun] [--sun-regularization DEG] [--no-motion-blur] [--instanced-da]
+                    [--no-physical-sun] [--sun-regularization DEG] [--switch-for-view] [--no-motion-blur]
+                    [--instanced-da]
                     [--frames A:B[xSTEP]]   (then -o and --png name a run of '#': OUT.####.exr)
                     [--crop X0:X1,Y0:Y1]    (only those pixels; the EXR keeps their place)
     granular render SCENE.usda [--settings /Render/Settings] [--frames A:B] [render options]
@@ -209,6 +210,11 @@ def _render_options(r):
                         "of smooth grains under the 0.53 degree sun without their fireflies, blurred to "
                         "this size, or to the spread of the first grain's reflections over the pixel if less "
                         "(biased; default 10, 0: exact)")
+    r.add_argument("--switch-for-view", action="store_true",
+                   help="measure when paths leave the proxies for the medium for this camera and these lights "
+                        "too, not only for a dome: each aggregate the camera sees keeps its proxies as long as "
+                        "either measurement asks (a beach seen at a grazing angle with the sun behind the camera "
+                        "needs more); costs seconds per aggregate per new view, cached on disk")
     r.add_argument("--no-motion-blur", action="store_true",
                    help="render the frame's instant: the camera's shutter closed, moving grains and meshes "
                         "still (as the render settings' disableMotionBlur)")

@@ -136,6 +136,8 @@ def apply_options(args, scene):
         s.sun_regularization = args.sun_regularization
     if getattr(args, "instanced_da", False):
         s.da_instanced = True
+    if getattr(args, "switch_for_view", False):
+        s.switch_for_view = True
     if getattr(args, "no_motion_blur", False):
         core.still_frame(scene.desc)
     if getattr(args, "crop", None):

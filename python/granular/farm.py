@@ -190,7 +190,8 @@ def render_tile(job, frame, window):
 
 # Options a task needs; everything else (outputs, scheduling) stays on the client.
 _JOB_OPTIONS = ("scene", "camera", "width", "height", "spp", "seed", "threads", "technique", "roulette", "lod", "proxies",
-                "no_default_light", "no_physical_sun", "sun_regularization", "no_motion_blur", "instanced_da")
+                "no_default_light", "no_physical_sun", "sun_regularization", "switch_for_view", "no_motion_blur",
+                "instanced_da")
 
 
 # ---- the client ------------------------------------------------------------------------------

@@ -104,6 +104,14 @@ TEST(Switching, TheChoiceIsTheLeastVisitsWithinToleranceInEveryChannel) {
   m.bias[1] = Vec3(0.0f, 0.004f, 0.0f);
   m.biasSE[1] = Vec3(0.0f, 0.006f, 0.0f);  // within the tolerance, not measured well enough to tell
   EXPECT_EQ(chooseSwitchVisits(m, o), kSwitchVisits[2]);
+  // A margin of one standard error: within the tolerance by its standard error.
+  m.bias[1] = Vec3(0.0f, 0.007f, 0.0f);
+  m.biasSE[1] = Vec3(0.0f, 0.004f, 0.0f);
+  EXPECT_EQ(chooseSwitchVisits(m, o), kSwitchVisits[1]);
+  o.margin = 1.0f;
+  EXPECT_EQ(chooseSwitchVisits(m, o), kSwitchVisits[2]) << "0.7% + 0.4% is beyond 1%";
+  m.biasSE[1] = Vec3(0.0f, 0.005f, 0.0f);
+  o.margin = 0.0f;
   for (Vec3& b : m.bias) b = Vec3(0.05f);
   EXPECT_EQ(chooseSwitchVisits(m, o), kSwitchVisits[kSwitchCandidates - 1]) << "none within: the largest";
 }
@@ -272,6 +280,9 @@ TEST(Switching, OptionsOutOfRangeAreRefused) {
   o = SwitchOptions();
   o.tolerance = 0;
   EXPECT_THROW(measureSwitch(*scene->aggregates()[0], scene->proxyTables(0), scene->medium(0), o), InputError);
+  o = SwitchOptions();
+  o.margin = -1;
+  EXPECT_THROW(measureSwitch(*scene->aggregates()[0], scene->proxyTables(0), scene->medium(0), o), InputError);
 }
 
 TEST(Switching, AMeasurementIsCachedUnderItsTablesToo) {
@@ -310,3 +321,138 @@ TEST(Switching, TheSceneMeasuresOncePerAggregateAndLendsIt) {
   EXPECT_EQ(Scene::build(d)->switchMeasure(0), nullptr);
 }
 
+
+namespace {
+
+// The camera's entries into the ball and a measurement of them with `paths` paths.
+SwitchMeasure measureView(const Scene& s, const SwitchView& view, int64_t paths, uint64_t key = 0,
+                          bool stopEarly = true) {
+  SwitchOptions o = viewSwitchOptions();
+  o.paths = paths;
+  o.stopEarly = stopEarly;
+  return measureViewSwitch(*s.aggregates()[0], s.proxyTables(0), s.medium(0), view, o, key);
+}
+
+// A distant light of (nearly) a hemisphere about dir (towards the light), radiance 1.
+Light hemisphere(const Vec3& dir) {
+  LightDesc d;
+  d.type = LightType::Distant;
+  d.angle = 179.98f;
+  d.xf = Transform::lookAt(Vec3(0.0f), -dir, std::fabs(dir.y) > 0.5f ? Vec3(0, 0, 1) : Vec3(0, 1, 0));
+  return Light::fromDesc(d);
+}
+
+}  // namespace
+
+TEST(Switching, TheViewsEntriesAreWhereTheCameraMeetsTheBoundary) {
+  // The ball fills most of the image: most of the grid's rays enter it, from outside, at
+  // its boundary (the unit icosphere); the white dome is no distant light: none is lit.
+  auto scene = ballScene(1.5f, Vec3(0.0f));
+  const SwitchView view = scene->switchView(0);
+  EXPECT_GT(view.entries.size(), size_t(Scene::kViewGrid * Scene::kViewGrid / 4));
+  for (const SwitchView::Entry& e : view.entries) {
+    EXPECT_LT(dot(e.d, e.n), 0.0f);
+    EXPECT_NEAR(length(e.p), 1.0f, 0.02f);
+    EXPECT_EQ(e.lit, 0u);
+  }
+}
+
+TEST(Switching, TheViewMeasurementOfAWhiteFurnaceSeesTheDome) {
+  // Clear grains under the white dome (radiance 1), a medium of albedo 1: every path the
+  // camera sends in leaves again and brings the dome's radiance back, whatever the visits.
+  auto scene = ballScene(1.5f, Vec3(0.0f));
+  const SwitchMeasure m = measureView(*scene, scene->switchView(0), 1 << 12);
+  print(m);
+  for (int c = 0; c < 3; ++c) EXPECT_NEAR(m.albedo[c], 1.0f, 1e-3f);
+  for (int k = 0; k < kSwitchCandidates; ++k)
+    for (int c = 0; c < 3; ++c) EXPECT_NEAR(m.bias[size_t(k)][c], 0.0f, 4.0f * m.biasSE[size_t(k)][c] + 1e-3f);
+  EXPECT_EQ(m.visits, 0);
+}
+
+TEST(Switching, TheViewMeasurementsLightSamplesAgreeWithItsDomeWhereTheyMeanTheSame) {
+  // Two distant lights of a hemisphere each, radiance 1, light the ball as the white dome
+  // does (less a ring 0.01° wide). Next-event estimation gathers theirs at every grain
+  // among proxies and every scattering in the medium; the dome's is gathered where paths
+  // leave. Absorbing grains of IOR 1.55: the same radiance toward the camera, and the same
+  // bias after each visit, within the two estimates' noise.
+  auto scene = ballScene(1.55f, Vec3(0.3f));
+  const SwitchView domeView = scene->switchView(0);
+  std::vector<Light> lights = {hemisphere(Vec3(0, 1, 0)), hemisphere(Vec3(0, -1, 0))};
+  SwitchView sunView = domeView;
+  sunView.lights = &lights;
+  for (SwitchView::Entry& e : sunView.entries) e.lit = 3;
+  const SwitchMeasure dome = measureView(*scene, domeView, 1 << 14, 0, false);
+  const SwitchMeasure suns = measureView(*scene, sunView, 1 << 14, 0, false);
+  print(dome);
+  print(suns);
+  for (int c = 0; c < 3; ++c) {
+    EXPECT_LT(dome.albedo[c], 0.9f) << "the grains absorb";
+    EXPECT_NEAR(suns.albedo[c], dome.albedo[c], 4.0f * std::hypot(suns.albedoSE[c], dome.albedoSE[c]));
+    for (int k : {0, 2}) {
+      const float se = std::hypot(suns.biasSE[size_t(k)][c], dome.biasSE[size_t(k)][c]);
+      EXPECT_NEAR(suns.bias[size_t(k)][c], dome.bias[size_t(k)][c], 4.0f * se + 1e-3f) << "after " << kSwitchVisits[k];
+    }
+  }
+}
+
+TEST(Switching, TheViewMeasurementIsDeterministicAndCachedUnderItsView) {
+  auto scene = ballScene(1.55f, Vec3(0.1f));
+  const SwitchView view = scene->switchView(0);
+  const uint64_t key = 0x71e3a5c0ffeeULL;
+  const SwitchMeasure first = measureView(*scene, view, 1 << 10, key);  // stored, or read back
+  const SwitchMeasure read = measureView(*scene, view, 1 << 10, key);
+  const SwitchMeasure uncached = measureView(*scene, view, 1 << 10);
+  EXPECT_TRUE(read.fromCache);
+  EXPECT_FALSE(uncached.fromCache);
+  for (int k = 0; k < kSwitchCandidates; ++k) {
+    EXPECT_EQ(read.bias[size_t(k)].y, uncached.bias[size_t(k)].y);
+    EXPECT_EQ(first.bias[size_t(k)].y, uncached.bias[size_t(k)].y);
+  }
+  // Another view (one entry fewer), or a light more: another entry, never this one's.
+  auto differs = [&](const SwitchMeasure& m) {
+    for (int k = 0; k < kSwitchCandidates; ++k)
+      if (m.bias[size_t(k)] != uncached.bias[size_t(k)]) return true;
+    return m.albedo != uncached.albedo;
+  };
+  SwitchView fewer = view;
+  fewer.entries.pop_back();
+  EXPECT_TRUE(differs(measureView(*scene, fewer, 1 << 10, key)));
+  std::vector<Light> lights = *view.lights;
+  lights.push_back(hemisphere(Vec3(0, 1, 0)));
+  SwitchView lit = view;
+  lit.lights = &lights;
+  for (SwitchView::Entry& e : lit.entries) e.lit = 1u << 1;
+  EXPECT_TRUE(differs(measureView(*scene, lit, 1 << 10, key)));
+  SwitchView none = view;
+  none.entries.clear();
+  EXPECT_THROW(measureView(*scene, none, 1 << 10), InputError);
+}
+
+TEST(Switching, TheSceneMeasuresTheViewWhenAskedAndTakesTheLargerChoice) {
+  // switch_for_view is a change of view: the same built scene, the view measured at
+  // setView, the visits the larger of the two choices; off again, the dome's alone.
+  SceneDesc d = granular::testing::matrixBall(false, 1.55f);
+  d.settings.technique = Technique::EptVpt;
+  auto scene = Scene::build(d);
+  ASSERT_NE(scene->switchMeasure(0), nullptr);
+  EXPECT_EQ(scene->viewSwitchMeasure(0), nullptr);
+  const int dome = scene->proxyVisits(0);
+  RenderSettings s = d.settings;
+  s.switchForView = true;
+  scene->setView(d.camera, s);
+  const SwitchMeasure* view = scene->viewSwitchMeasure(0);
+  ASSERT_NE(view, nullptr);
+  EXPECT_EQ(scene->proxyVisits(0), std::max(dome, view->visits));
+  EXPECT_EQ(scene->switchMeasure(0)->visits, dome);
+  EXPECT_NE(scene->lowOrdersText(0).find("for this view"), std::string::npos) << scene->lowOrdersText(0);
+  // A camera that sees no aggregate: no view measurement.
+  CameraDesc away = d.camera;
+  away.cameraToWorld = Transform::lookAt(Vec3(0.3f, 0.7f, 2.6f), Vec3(0.3f, 0.7f, 5.0f), Vec3(0, 1, 0));
+  scene->setView(away, s);
+  EXPECT_EQ(scene->viewSwitchMeasure(0), nullptr);
+  EXPECT_EQ(scene->proxyVisits(0), dome);
+  s.switchForView = false;
+  scene->setView(d.camera, s);
+  EXPECT_EQ(scene->viewSwitchMeasure(0), nullptr);
+  EXPECT_EQ(scene->proxyVisits(0), dome);
+}

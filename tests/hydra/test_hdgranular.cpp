@@ -869,6 +869,26 @@ TEST(HdGranular, SunRegularizationShowsSmoothChainsTheNarrowSunAsTheWiderDiskAsI
   EXPECT_TRUE(differs);
 }
 
+TEST(HdGranular, SwitchForViewMeasuresTheSwitchForThisViewAsGranularRenderDoes) {
+  // granular:switchForView, as granular render's --switch-for-view: the switch from proxies
+  // to the medium is measured for this camera and these lights too (core/switching.h:
+  // measureViewSwitch), and granular:switching says so in granular render's words. A
+  // change of view: nothing rebuilt.
+  UsdStageRefPtr stage = UsdStage::Open(kExamples + "/snowslab.usda");
+  auto engine = makeEngine(4);
+  Frame dome = render(*engine, stage, HdAovTokens->color, 32, 20);
+  const std::string before = stat<std::string>(engine->GetRenderStats(), "granular:switching");
+  EXPECT_NE(before.find("/World/Snow: proxies for"), std::string::npos) << before;
+  EXPECT_EQ(before.find("for this view"), std::string::npos) << before;
+  engine->SetRendererSetting(TfToken("granular:switchForView"), VtValue(true));
+  Frame view = render(*engine, stage, HdAovTokens->color, 32, 20);
+  const std::string after = stat<std::string>(engine->GetRenderStats(), "granular:switching");
+  EXPECT_NE(after.find("for this view"), std::string::npos) << after;
+  EXPECT_EQ(stat<int>(engine->GetRenderStats(), "granular:sceneBuilds"), 1);
+  ASSERT_TRUE(dome.converged && view.converged);
+  for (float v : view.values) ASSERT_TRUE(std::isfinite(v));
+}
+
 TEST(HdGranular, ProxiesCarryTheLowOrdersUnderANarrowSunAsInGranularRender) {
   // The snow slab's 0.53° sun: the setting's default (auto) uses proxies there, as
   // granular render does; "off" turns them off as a change of view (no rebuild). Their

@@ -118,3 +118,47 @@ def test_a_json_scene_says_proxies_as_the_command_line_does(tmp_path):
         assert "proxies" in str(e) and "sometimes" in str(e)
     else:
         raise AssertionError("an unknown proxies word was accepted")
+
+
+def test_switch_for_view_measures_the_view_too_and_takes_the_larger_choice(tmp_path, capsys):
+    # --switch-for-view (JSON switch_for_view, Hydra granular:switchForView): each aggregate
+    # the camera sees is measured for this camera and these lights as well (core/switching.h:
+    # measureViewSwitch), its visits the larger choice, said on the low-orders line; a
+    # change of view, no rebuild. The same measurement through Scene.measure_view_switch.
+    from granular.usd_reader import read_stage
+    stage = small_scene(tmp_path / "wide.usda", _sun_angle(20.0))
+    scene = read_stage(str(stage), width=24, height=16)  # OPTIONS' image: the same view
+    s = scene.desc.settings
+    s.technique = core.Technique.EptVpt
+    scene.desc.settings = s
+    built = core.Scene.build(scene.desc)
+    dome = built.switching[0]
+    assert "view" not in dome
+    s.switch_for_view = True
+    built.set_view(scene.desc.camera, s)
+    sw = built.switching[0]
+    view = sw["view"]
+    assert sw["proxy_visits"] == max(dome["chosen"], view["chosen"])
+    assert sw["chosen"] == dome["chosen"] and view["candidates"] == dome["candidates"]
+    assert np.isfinite(view["bias"]).all() and min(view["albedo"]) > 0  # the radiance the camera sees
+    again = built.measure_view_switch(0)
+    assert again["entries"] >= 16 and again["bias"] == view["bias"]
+    lines = {}
+    for flag in ([], ["--switch-for-view"]):
+        rc, _, err = run_cli(["render", stage, "-o", tmp_path / "v.exr", *OPTIONS, *flag], capsys)
+        assert rc == 0, err
+        lines[bool(flag)] = _low_orders(err)
+        assert np.isfinite(np.asarray(core.read_image_rgb(str(tmp_path / "v.exr")).pixels)).all()
+    assert "for this view" not in lines[False] and "for this view" in lines[True], lines
+    assert lines[True].startswith(f"after the first grain: proxies for {sw['proxy_visits']} visits"), lines
+
+
+def test_switch_for_view_in_a_json_scene(tmp_path):
+    scene = tmp_path / "s.json"
+    scene.write_text('{"render": {"switch_for_view": true}, "lights": [{"type": "distant"}]}')
+    assert core.load_scene_json(str(scene)).settings.switch_for_view is True
+    assert core.RenderSettings().switch_for_view is False
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"render": {"switch_for_view": 1}}')
+    with pytest.raises(core.InputError, match=r"render\.switch_for_view"):
+        core.load_scene_json(str(bad))
