@@ -5,8 +5,8 @@
 #include <limits>
 
 #include <tbb/parallel_for.h>
-#include <tbb/task_arena.h>
 
+#include "arena.h"
 #include "ept.h"
 #include "ppt.h"
 #include "vpt.h"
@@ -172,12 +172,7 @@ RouletteTuning tuneRoulette(const Scene& scene) {
     }
   };
   tbb::blocked_range<int64_t> range(0, count, 4);
-  if (rs.threads > 0) {
-    tbb::task_arena arena(rs.threads);
-    arena.execute([&] { tbb::parallel_for(range, body); });
-  } else {
-    tbb::parallel_for(range, body);
-  }
+  inArena(rs.threads, [&] { tbb::parallel_for(range, body); });
   for (const PixelResult& pr : res) {  // in order: deterministic sums
     out.VL += pr.VL; out.VH += pr.VH; out.tL += pr.tL; out.tH += pr.tH;
   }

@@ -6,8 +6,8 @@
 #include <tbb/blocked_range2d.h>
 #include <tbb/global_control.h>
 #include <tbb/parallel_for.h>
-#include <tbb/task_arena.h>
 
+#include "arena.h"
 #include "ept.h"
 #include "error.h"
 
@@ -107,13 +107,7 @@ void Renderer::tracePixel(int x, int y, long first, int count, Film& film, int f
 template <typename Body>
 void Renderer::forTiles(int width, int height, const Body& body) const {
   tbb::blocked_range2d<int> range(0, height, 8, 0, width, 8);
-  const int threads = scene_.settings().threads;
-  if (threads > 0) {
-    tbb::task_arena arena(threads);
-    arena.execute([&] { tbb::parallel_for(range, body); });
-  } else {
-    tbb::parallel_for(range, body);
-  }
+  inArena(scene_.settings().threads, [&] { tbb::parallel_for(range, body); });
 }
 
 bool Renderer::renderPass(int samples, const std::atomic<bool>* cancel, const TileCallback& onTile) {

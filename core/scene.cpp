@@ -11,8 +11,8 @@
 #include <cstring>
 #include <set>
 
-#include <tbb/task_arena.h>
 
+#include "arena.h"
 #include "build_cache.h"
 #include "cache.h"
 #include "error.h"
@@ -1046,19 +1046,6 @@ void Scene::updateProxyTables() {
   }
 }
 
-namespace {
-
-// f() as many threads as the render may use run it (a measurement's result does not
-// depend on them).
-template <typename F>
-auto inArena(int threads, const F& f) {
-  if (threads <= 0) return f();
-  tbb::task_arena arena(threads);
-  return arena.execute(f);
-}
-
-}  // namespace
-
 void Scene::measureSwitching(size_t a) {
   BuiltAggregate& entry = built_[a];
   if (entry.switching) return;
@@ -1071,6 +1058,7 @@ void Scene::measureSwitching(size_t a) {
     key = hashGrainInputs(key, agg.prototypes()[i].mesh, materials_[size_t(entry.materials[i])]);
   for (const Vec3* v : {&m.sigmaT, &m.albedo, &m.g}) key = hashBytes(key, v, sizeof(Vec3));
   entry.switchKey = key;
+  // As many threads as the render may use (the result does not depend on them).
   entry.switching = std::make_shared<const SwitchMeasure>(
       inArena(settings_.threads, [&] { return measureSwitch(agg, *entry.proxies, media_[a], {}, key); }));
 }
@@ -1092,6 +1080,7 @@ void Scene::updateSwitching() {
   const bool canUse = settings_.technique != Technique::Ept && !standIns_ && n > 0;
   const bool measure = canUse && !media_.empty() && settings_.explicitBounces < 0;
   const ProxyUse use = settings_.proxies;
+  const std::vector<SwitchView> views = measure && settings_.switchForView ? switchViews() : std::vector<SwitchView>();
   proxyTables_.clear();
   if (canUse && (measure || use == ProxyUse::On || (use == ProxyUse::Auto && narrowSun_))) updateProxyTables();
   explicitBounces_ = std::max(0, settings_.explicitBounces);
@@ -1101,10 +1090,8 @@ void Scene::updateSwitching() {
     if (measure) {
       measureSwitching(a);
       switching_[a] = built_[a].switching;
-      if (settings_.switchForView) {
-        const SwitchView view = switchView(a);
-        if (int(view.entries.size()) >= kMinViewEntries) viewSwitching_[a] = measureViewSwitching(a, view);
-      }
+      if (!views.empty() && int(views[a].entries.size()) >= kMinViewEntries)
+        viewSwitching_[a] = measureViewSwitching(a, views[a]);
     }
     int k = switching_[a] ? switching_[a]->visits : -1;
     if (viewSwitching_[a]) k = std::max(k, viewSwitching_[a]->visits);
@@ -1158,37 +1145,38 @@ void Scene::updateSwitching() {
   }
 }
 
-SwitchView Scene::switchView(size_t a) const {
-  SwitchView view;
-  view.lights = &lights_;
+std::vector<SwitchView> Scene::switchViews() const {
+  std::vector<SwitchView> views(aggregates_.size());
+  for (SwitchView& v : views) v.lights = &lights_;
   bool lit = false;
   for (const Light& light : lights_) lit = lit || light.isInfinite();
-  if (!lit || lights_.size() > 32 || aggregateMotion_[a].moving()) return view;
-  // The centres of a kViewGrid² grid over the image; a ray counts where the boundary of
-  // aggregate a is the first thing it meets in the media's view (grains unseen), from outside.
+  if (!lit || lights_.size() > 32) return views;
+  // The centres of a kViewGrid² grid over the image; a ray counts for the aggregate whose
+  // boundary is the first thing it meets in the media's view (grains unseen), from outside.
   for (int j = 0; j < kViewGrid; ++j)
     for (int i = 0; i < kViewGrid; ++i) {
       const Ray ray = camera_.generateRay((float(i) + 0.5f) * float(settings_.width) / float(kViewGrid),
                                           (float(j) + 0.5f) * float(settings_.height) / float(kViewGrid));
       Hit hit;
-      if (!intersectMedium(ray, hit) || hit.kind != Hit::Boundary || hit.aggregate != int(a) ||
-          !(dot(ray.d, hit.ng) < 0))
+      if (!intersectMedium(ray, hit) || hit.kind != Hit::Boundary || hit.aggregate < 0 ||
+          aggregateMotion_[size_t(hit.aggregate)].moving() || !(dot(ray.d, hit.ng) < 0))
         continue;
       SwitchView::Entry e{hit.p, hit.ng, ray.d, 0};
-      // A distant light reaches the entry when its central ray leaves there unblocked by
-      // surfaces and the media's boundaries (another aggregate's shadow).
+      // A distant light reaches the entry when its central ray (the cone's axis: u1 = 0)
+      // leaves there unblocked by surfaces and the media's boundaries (another aggregate's
+      // shadow).
       for (size_t l = 0; l < lights_.size(); ++l) {
         LightSample ls;
-        if (lights_[l].type() != LightType::Distant || !lights_[l].sampleLi(hit.p, 0.5f, 0.5f, ls)) continue;
+        if (lights_[l].type() != LightType::Distant || !lights_[l].sampleLi(hit.p, 0.0f, 0.0f, ls)) continue;
         Ray shadow;
-        shadow.o = hit.p + hit.ng * (1e-3f * aggregates_[a]->grainRadius());
+        shadow.o = hit.p + hit.ng * (1e-3f * aggregates_[size_t(hit.aggregate)]->grainRadius());
         shadow.d = ls.wi;
         Hit blocker;
         if (!intersectMedium(shadow, blocker)) e.lit |= 1u << l;
       }
-      view.entries.push_back(e);
+      views[size_t(hit.aggregate)].entries.push_back(e);
     }
-  return view;
+  return views;
 }
 
 void Scene::updateInstancedProxyTables() {

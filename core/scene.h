@@ -152,15 +152,16 @@ class Scene {
   // measureViewSwitch) of each measured aggregate the camera sees, made at setView (from the
   // disk cache for a view measured before); the visits are then the larger of the two
   // choices (the dome's keeps what lights the rest of the scene). Null when not made: off,
-  // not measured, or fewer than kMinViewEntries entries (switchView).
+  // not measured, or fewer than kMinViewEntries entries (switchViews).
   const SwitchMeasure* viewSwitchMeasure(int aggregate) const { return viewSwitching_[size_t(aggregate)].get(); }
   static constexpr int kMinViewEntries = 16;
-  // The camera's entries into aggregate a for its view measurement (switching.h:
-  // measureViewSwitch): the centres of a kViewGrid² grid over the image whose rays meet its
-  // boundary first (grains unseen), from outside, each with the distant lights whose
-  // central ray leaves there unblocked by surfaces and the media's boundaries. None for a
-  // moving aggregate, a scene without distant lights or domes, or with more than 32 lights.
-  SwitchView switchView(size_t aggregate) const;
+  // Per aggregate, the camera's entries into it for its view measurement (switching.h:
+  // measureViewSwitch), from one pass over the centres of a kViewGrid² grid over the image:
+  // those whose rays meet its boundary first (grains unseen), from outside, each with the
+  // distant lights whose central ray leaves there unblocked by surfaces and the media's
+  // boundaries. None for a moving aggregate, and none at all in a scene without distant
+  // lights or domes, or with more than 32 lights.
+  std::vector<SwitchView> switchViews() const;
   static constexpr int kViewGrid = 64;
   // What carries the aggregate's low orders after its first grain, in words both front ends
   // print: "proxies for 8 visits, then the medium (measured: the medium's bias there −0.11%

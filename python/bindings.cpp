@@ -1069,7 +1069,7 @@ PYBIND11_MODULE(granular_core, m) {
           "measure_view_switch",
           [](const PyScene& s, int a, int64_t paths, bool stopEarly, uint64_t seed) {
             const Scene& sc = measuredAggregate(s, a, "measure_view_switch");
-            const SwitchView view = sc.switchView(size_t(a));
+            const SwitchView view = sc.switchViews()[size_t(a)];
             if (view.entries.size() < size_t(Scene::kMinViewEntries))
               throw std::invalid_argument(str("measure_view_switch: the camera sees aggregate ", a, " in ",
                                               view.entries.size(), " of its ", Scene::kViewGrid * Scene::kViewGrid,
@@ -1090,7 +1090,7 @@ PYBIND11_MODULE(granular_core, m) {
           },
           py::arg("aggregate"), py::arg("paths") = viewSwitchOptions().paths, py::arg("stop_early") = true,
           py::arg("seed") = uint64_t(1),
-          "the view measurement of aggregate a (switching.h: measureViewSwitch; Scene::switchView) from the scene's camera "
+          "the view measurement of aggregate a (switching.h: measureViewSwitch; Scene::switchViews) from the scene's camera "
           "and lights, uncached: the fields of `switching` (albedo: the radiance the camera sees there), and entries "
           "(the camera's rays that meet the aggregate); ValueError when the camera sees too little of it (fewer than 16 "
           "entries) or no distant light or dome lights it")

@@ -348,7 +348,7 @@ TEST(Switching, TheViewsEntriesAreWhereTheCameraMeetsTheBoundary) {
   // The ball fills most of the image: most of the grid's rays enter it, from outside, at
   // its boundary (the unit icosphere); the white dome is no distant light: none is lit.
   auto scene = ballScene(1.5f, Vec3(0.0f));
-  const SwitchView view = scene->switchView(0);
+  const SwitchView view = scene->switchViews()[0];
   EXPECT_GT(view.entries.size(), size_t(Scene::kViewGrid * Scene::kViewGrid / 4));
   for (const SwitchView::Entry& e : view.entries) {
     EXPECT_LT(dot(e.d, e.n), 0.0f);
@@ -361,7 +361,7 @@ TEST(Switching, TheViewMeasurementOfAWhiteFurnaceSeesTheDome) {
   // Clear grains under the white dome (radiance 1), a medium of albedo 1: every path the
   // camera sends in leaves again and brings the dome's radiance back, whatever the visits.
   auto scene = ballScene(1.5f, Vec3(0.0f));
-  const SwitchMeasure m = measureView(*scene, scene->switchView(0), 1 << 12);
+  const SwitchMeasure m = measureView(*scene, scene->switchViews()[0], 1 << 12);
   print(m);
   for (int c = 0; c < 3; ++c) EXPECT_NEAR(m.albedo[c], 1.0f, 1e-3f);
   for (int k = 0; k < kSwitchCandidates; ++k)
@@ -376,7 +376,7 @@ TEST(Switching, TheViewMeasurementsLightSamplesAgreeWithItsDomeWhereTheyMeanTheS
   // leave. Absorbing grains of IOR 1.55: the same radiance toward the camera, and the same
   // bias after each visit, within the two estimates' noise.
   auto scene = ballScene(1.55f, Vec3(0.3f));
-  const SwitchView domeView = scene->switchView(0);
+  const SwitchView domeView = scene->switchViews()[0];
   std::vector<Light> lights = {hemisphere(Vec3(0, 1, 0)), hemisphere(Vec3(0, -1, 0))};
   SwitchView sunView = domeView;
   sunView.lights = &lights;
@@ -397,7 +397,7 @@ TEST(Switching, TheViewMeasurementsLightSamplesAgreeWithItsDomeWhereTheyMeanTheS
 
 TEST(Switching, TheViewMeasurementIsDeterministicAndCachedUnderItsView) {
   auto scene = ballScene(1.55f, Vec3(0.1f));
-  const SwitchView view = scene->switchView(0);
+  const SwitchView view = scene->switchViews()[0];
   const uint64_t key = 0x71e3a5c0ffeeULL;
   const SwitchMeasure first = measureView(*scene, view, 1 << 10, key);  // stored, or read back
   const SwitchMeasure read = measureView(*scene, view, 1 << 10, key);
