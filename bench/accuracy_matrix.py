@@ -12,7 +12,8 @@ cases' edits (e.g. size-25/absorption-0.0).
 
 Per case and technique, `--seeds` independent renders (different seeds) give the mean
 radiance per channel over the pixels that see the ball (primId); the bias of a technique
-is (its mean − EPT's) / EPT's, with a standard error from the seeds' spread of both.
+is (its mean − EPT's) / EPT's, with a standard error from both: per technique the larger
+of the seeds' spread and the renders' own variance AOV (stats()).
 
 Usage: python3 bench/accuracy_matrix.py [--build build] [--spp 256] [--seeds 4] [--threads 0]
          [--cases base,ior-2.4,size-25/absorption-0.0,...] [--techniques ept+vpt,hybrid,lod0] [--json out/accuracy.json]
@@ -166,10 +167,12 @@ def scene_for(case):
     return s
 
 
-def measure(core, scene, technique, lod, spp, seeds, threads, tmp, proxies="Auto"):
+def measure(core, scene, technique, lod, spp, seeds, threads, tmp, proxies="Auto", variances=None):
     """Per seed (1000, 1001, ...), the mean RGB over the ball's pixels (primId 1); the pixel
     count, the build's seconds and the renders' seconds. The scene is built once; each seed
-    is a new view of it (Scene.set_view)."""
+    is a new view of it (Scene.set_view). Given a list, `variances` gets per seed the
+    variance of that mean that the render itself estimates (its variance AOV, summed over
+    the pixels, over their count squared)."""
     import numpy as np
     with open(tmp, "w") as f:
         json.dump(scene, f)
@@ -201,16 +204,25 @@ def measure(core, scene, technique, lod, spp, seeds, threads, tmp, proxies="Auto
         px = img.pixels
         mask = px[..., list(img.channels).index("primId")] == 1
         means.append(px[mask][:, :3].astype(np.float64).mean(axis=0))
+        if variances is not None:
+            v = [list(img.channels).index(f"variance.{c}") for c in "RGB"]
+            variances.append(px[mask][:, v].astype(np.float64).sum(axis=0) / float(mask.sum()) ** 2)
         pixels = int(mask.sum())
     return means, pixels, build_seconds, render_seconds
 
 
-def stats(values):
-    """Mean and standard error of the mean of a list of RGB arrays."""
+def stats(values, variances=None):
+    """Mean and standard error of the mean of a list of RGB arrays. Given the renders' own
+    variances of each value (measure()), the standard error is the larger of the two
+    estimates: the seeds' spread alone has n − 1 degrees of freedom (with 4 seeds it is
+    off by 40% one time in three), the variance AOV misses rare bright samples."""
     import numpy as np
     a = np.array(values)
     n = len(a)
-    return a.mean(axis=0), (a.std(axis=0, ddof=1) / math.sqrt(n) if n > 1 else np.full(3, np.nan))
+    se = a.std(axis=0, ddof=1) / math.sqrt(n) if n > 1 else np.full(3, np.nan)
+    if variances is not None and len(variances) == n:
+        se = np.fmax(se, np.sqrt(np.mean(np.array(variances), axis=0) / n))
+    return a.mean(axis=0), se
 
 
 def run_case(core, case, techniques, spp, seeds, threads, tmp, log, explicit_bounces=None):
@@ -219,8 +231,10 @@ def run_case(core, case, techniques, spp, seeds, threads, tmp, log, explicit_bou
         scene["render"]["explicit_bounces"] = explicit_bounces
     out = {"case": case, "techniques": {}}
     for name, (technique, lod, proxies) in [("ept", ("Ept", None, "Auto"))] + [(t, TECHNIQUES[t]) for t in techniques]:
-        means, pixels, build_s, render_s = measure(core, scene, technique, lod, spp, seeds, threads, tmp, proxies)
-        mean, se = stats(means)
+        variances = []
+        means, pixels, build_s, render_s = measure(core, scene, technique, lod, spp, seeds, threads, tmp, proxies,
+                                                   variances)
+        mean, se = stats(means, variances)
         out["techniques"][name] = {"mean": mean.tolist(), "se": se.tolist(), "seconds": render_s,
                                    "build_seconds": build_s, "pixels": pixels}
         log(f"{case:26s} {name:8s} mean {mean.round(5)} ± {se.round(5)} (build {build_s:.1f} s, "
@@ -318,7 +332,8 @@ def main():
     log = lambda m: print(m, file=sys.stderr, flush=True)
     results = [run_case(core, c, techniques, args.spp, args.seeds, args.threads, tmp, log, args.explicit_bounces)
                for c in cases]
-    print(f"spp {args.spp} x {args.seeds} seeds per technique; bias = (technique − EPT) / EPT over the ball's pixels\n")
+    print(f"spp {args.spp} x {args.seeds} seeds per technique; bias = (technique − EPT) / EPT over the ball's pixels; "
+          "s.e.: the larger of the seeds' spread and the renders' variance AOV\n")
     print(table(results, techniques))
     if args.json:
         os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)

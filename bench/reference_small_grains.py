@@ -161,7 +161,7 @@ def render_n(args, n, mpy, furnace=False):
 
 
 def stats_max_depth():
-    return ball_scene(1e3)["render"].get("max_depth", 4096)
+    return ball_scene(1e3)["render"].get("max_depth", 1 << 16)
 
 
 def diff(a, b):

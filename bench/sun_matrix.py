@@ -12,7 +12,7 @@ a dim sky (radiance 0.1). The camera looks at the object from elevation 30°; th
 azimuth is chosen so that the angle between the directions to the sun and to the camera
 is the phase angle (combinations no azimuth gives are skipped). The mean over the
 object's pixels, per seed; bias = (technique − EPT) / EPT with a standard error from the
-seeds. The medium-only column against the phase angle tells the shadow hiding (a deficit
+seeds and the renders' variance AOV (accuracy_matrix.stats()). The medium-only column against the phase angle tells the shadow hiding (a deficit
 that grows towards phase 0) from a free-path error (flat).
 
 Usage: python3 bench/sun_matrix.py [--build build] [--materials quartz_sand,ice,sucrose,glass_mixture]
@@ -120,10 +120,12 @@ def run_case(core, material, shape, sun, elevation, phase, args, tmp):
         if bounces is not None:
             case["render"]["explicit_bounces"] = bounces
         case["render"]["switch_for_view"] = name == "view"
+        variances = []
         means, _, _, seconds = accuracy_matrix.measure(core, case, technique, None, args.spp, args.seeds, args.threads,
-                                                       tmp, proxies)
-        mean, se = accuracy_matrix.stats(means)
-        entry = {"mean": mean.tolist(), "se": se.tolist(), "seconds": seconds}
+                                                       tmp, proxies, variances)
+        mean, se = accuracy_matrix.stats(means, variances)
+        entry = {"mean": mean.tolist(), "se": se.tolist(), "seconds": seconds,
+                 "seed_means": [m.tolist() for m in means], "seed_variances": [v.tolist() for v in variances]}
         if ref is None:
             ref = (mean, se)
         else:
@@ -220,7 +222,7 @@ def main():
                             if r is not None:
                                 results.append(r)
     print(f"spp {args.spp} x {args.seeds} seeds, {args.width}x{args.height}; bias = (technique − EPT) / EPT over "
-          f"the object's pixels\n")
+          f"the object's pixels; s.e.: the larger of the seeds' spread and the renders' variance AOV\n")
     print(table(results, args.techniques))
     if args.json:
         os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)

@@ -9,7 +9,7 @@
 //
 // Format (// comments allowed; every key optional unless marked *):
 // {
-//  "render": {"width":640, "height":480, "spp":16, "seed":0, "max_depth":4096, "rr_depth":8, "threads":0,
+//  "render": {"width":640, "height":480, "spp":16, "seed":0, "max_depth":65536, "rr_depth":8, "threads":0,
 //             "motion_blur":true},   // false: the shutter's instant (no blur, meshes still)
 //  "camera": {"look_at": {"eye":[0,1,5], "target":[0,0,0], "up":[0,1,0]},  // or "transform": T
 //             "focal_length":50, "horizontal_aperture":36, "vertical_aperture":24,
