@@ -602,7 +602,7 @@ struct ViewEntries {
 
 SwitchOptions viewSwitchOptions() {
   SwitchOptions o;
-  o.paths = int64_t(1) << 19;
+  o.paths = int64_t(1) << 17;
   o.eventBudget = int64_t(1) << 24;
   o.margin = 1.0f;
   return o;

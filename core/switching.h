@@ -162,7 +162,9 @@ struct SwitchView {
 // Its options: a view is measured against radiance toward one direction, noisier than a
 // dome's albedo (bench/README.md, "The switch for a view"), so more paths and steps; and
 // the choice wants its estimate within the tolerance by a standard error (margin 1): the
-// renders at a view's choice read about its estimate and its standard error again.
+// renders at a view's choice read about its estimate and its standard error again. The
+// paths stop at 2^17: where a choice needs more, a visit more costs the render less than
+// the paths would cost the measurement, so it errs toward the largest candidate.
 SwitchOptions viewSwitchOptions();
 
 SwitchMeasure measureViewSwitch(const Aggregate& aggregate, const ProxyTables& tables, const HomogeneousMedium& medium,
