@@ -12,8 +12,9 @@ a dim sky (radiance 0.1). The camera looks at the object from elevation 30°; th
 azimuth is chosen so that the angle between the directions to the sun and to the camera
 is the phase angle (combinations no azimuth gives are skipped). The mean over the
 object's pixels, per seed; bias = (technique − EPT) / EPT with a standard error from the
-seeds and the renders' variance AOV (accuracy_matrix.stats()). The medium-only column against the phase angle tells the shadow hiding (a deficit
-that grows towards phase 0) from a free-path error (flat).
+seeds and the renders' variance AOV (accuracy_matrix.stats()). The medium-only column
+against the phase angle tells the shadow hiding (a deficit that grows towards phase 0)
+from a free-path error (flat).
 
 Usage: python3 bench/sun_matrix.py [--build build] [--materials quartz_sand,ice,sucrose,glass_mixture]
          [--shapes ball,slab] [--suns 20,5] [--elevations 15,45,80] [--phases 0,30,60,90,120,150]
