@@ -276,6 +276,22 @@ const Scene& measuredAggregate(const PyScene& s, int a, const char* what) {
   return sc;
 }
 
+// A measurement run anew with these paths, early stop and seed, the GIL released while
+// the walks run on TBB's threads; the fields of `switching`.
+template <typename Measure>
+py::dict measuredAnew(SwitchOptions o, int64_t paths, bool stopEarly, uint64_t seed, const Measure& measure) {
+  o.paths = paths;
+  o.stopEarly = stopEarly;
+  o.seed = seed;
+  const SwitchMeasure m = [&] {
+    py::gil_scoped_release release;
+    return measure(o);
+  }();
+  py::dict d;
+  addSwitchMeasure(m, d);
+  return d;
+}
+
 struct PyRenderer {
   std::shared_ptr<PyScene> scene;
   std::unique_ptr<Renderer> renderer;
@@ -1075,16 +1091,9 @@ PYBIND11_MODULE(granular_core, m) {
                                               view.entries.size(), " of its ", Scene::kViewGrid * Scene::kViewGrid,
                                               " entry rays (", Scene::kMinViewEntries,
                                               " needed), or no distant light or dome lights it"));
-            SwitchOptions o = viewSwitchOptions();
-            o.paths = paths;
-            o.stopEarly = stopEarly;
-            o.seed = seed;
-            const SwitchMeasure m = [&] {
-              py::gil_scoped_release release;  // the walks run on TBB's threads
+            py::dict d = measuredAnew(viewSwitchOptions(), paths, stopEarly, seed, [&](const SwitchOptions& o) {
               return measureViewSwitch(*sc.aggregates()[size_t(a)], sc.proxyTables(a), sc.medium(a), view, o);
-            }();
-            py::dict d;
-            addSwitchMeasure(m, d);
+            });
             d["entries"] = view.entries.size();
             return d;
           },
@@ -1098,17 +1107,9 @@ PYBIND11_MODULE(granular_core, m) {
           "measure_switch",
           [](const PyScene& s, int a, int64_t paths, bool stopEarly, uint64_t seed) {
             const Scene& sc = measuredAggregate(s, a, "measure_switch");
-            SwitchOptions o;
-            o.paths = paths;
-            o.stopEarly = stopEarly;
-            o.seed = seed;
-            const SwitchMeasure m = [&] {
-              py::gil_scoped_release release;  // the walks run on TBB's threads
+            return measuredAnew(SwitchOptions{}, paths, stopEarly, seed, [&](const SwitchOptions& o) {
               return measureSwitch(*sc.aggregates()[size_t(a)], sc.proxyTables(a), sc.medium(a), o);
-            }();
-            py::dict d;
-            addSwitchMeasure(m, d);
-            return d;
+            });
           },
           py::arg("aggregate"), py::arg("paths") = int64_t(1) << 16, py::arg("stop_early") = true,
           py::arg("seed") = uint64_t(1),

@@ -57,6 +57,15 @@ void print(const SwitchMeasure& m) {
                 m.bias[c].y, m.bias[c].z, m.biasSE[c].x, m.biasSE[c].y, m.biasSE[c].z);
 }
 
+// A white furnace: every path leaves, both ways, so the measured radiance is 1, every
+// candidate's bias 0 within its noise, and no visits are needed.
+void expectWhiteFurnace(const SwitchMeasure& m) {
+  for (int c = 0; c < 3; ++c) EXPECT_NEAR(m.albedo[c], 1.0f, 1e-3f);
+  for (int k = 0; k < kSwitchCandidates; ++k)
+    for (int c = 0; c < 3; ++c) EXPECT_NEAR(m.bias[size_t(k)][c], 0.0f, 4.0f * m.biasSE[size_t(k)][c] + 1e-3f);
+  EXPECT_EQ(m.visits, 0);
+}
+
 }  // namespace
 
 TEST(Switching, ClearGrainsReturnAllLightAndNeedNoVisitsWhiteFurnace) {
@@ -65,10 +74,7 @@ TEST(Switching, ClearGrainsReturnAllLightAndNeedNoVisitsWhiteFurnace) {
   auto scene = ballScene(1.5f, Vec3(0.0f));
   const SwitchMeasure m = measure(*scene, 1 << 13);
   print(m);
-  for (int c = 0; c < 3; ++c) EXPECT_NEAR(m.albedo[c], 1.0f, 1e-3f);
-  for (int k = 0; k < kSwitchCandidates; ++k)
-    for (int c = 0; c < 3; ++c) EXPECT_NEAR(m.bias[size_t(k)][c], 0.0f, 4.0f * m.biasSE[size_t(k)][c] + 1e-3f);
-  EXPECT_EQ(m.visits, 0);
+  expectWhiteFurnace(m);
 }
 
 TEST(Switching, HighIndexGrainsNeedVisitsAndTheBiasFallsWithThem) {
@@ -363,10 +369,7 @@ TEST(Switching, TheViewMeasurementOfAWhiteFurnaceSeesTheDome) {
   auto scene = ballScene(1.5f, Vec3(0.0f));
   const SwitchMeasure m = measureView(*scene, scene->switchViews()[0], 1 << 12);
   print(m);
-  for (int c = 0; c < 3; ++c) EXPECT_NEAR(m.albedo[c], 1.0f, 1e-3f);
-  for (int k = 0; k < kSwitchCandidates; ++k)
-    for (int c = 0; c < 3; ++c) EXPECT_NEAR(m.bias[size_t(k)][c], 0.0f, 4.0f * m.biasSE[size_t(k)][c] + 1e-3f);
-  EXPECT_EQ(m.visits, 0);
+  expectWhiteFurnace(m);
 }
 
 TEST(Switching, TheViewMeasurementsLightSamplesAgreeWithItsDomeWhereTheyMeanTheSame) {
