@@ -496,13 +496,21 @@ SwitchMeasure measure(const Aggregate& agg, const ProxyTables& tables, const Hom
   return m;
 }
 
-// A measurement from the disk cache, its choice made anew (the tolerance is not in the key).
-bool readCached(const std::string& name, uint64_t key, const SwitchOptions& options, SwitchMeasure& m) {
+// The measurement under key from the disk cache, its choice made anew (the tolerance is
+// not in the key); else measured by compute() and cached (key 0: neither).
+template <typename Compute>
+SwitchMeasure cachedOrMeasured(uint64_t key, const SwitchOptions& options, const Compute& compute) {
+  const std::string name = recordName(key);
   std::vector<char> bytes;
-  if (!readCacheFile(name, bytes) || !deserialise(bytes, key, m)) return false;
-  m.fromCache = true;
-  m.visits = chooseSwitchVisits(m, options);
-  return true;
+  SwitchMeasure m;
+  if (key && readCacheFile(name, bytes) && deserialise(bytes, key, m)) {
+    m.fromCache = true;
+    m.visits = chooseSwitchVisits(m, options);
+    return m;
+  }
+  m = compute();
+  if (key) writeCacheFile(name, serialise(m, key));
+  return m;
 }
 
 void checkOptions(const SwitchOptions& options) {
@@ -518,13 +526,10 @@ SwitchMeasure measureSwitch(const Aggregate& agg, const ProxyTables& tables, con
                             const SwitchOptions& options, uint64_t cacheKey) {
   checkOptions(options);
   const uint64_t key = cacheKey ? measurementKey(cacheKey, tables, options) : 0;
-  const std::string name = recordName(key);
-  SwitchMeasure cached;
-  if (key && readCached(name, key, options, cached)) return cached;
-  const BoundarySampler boundary(agg.boundary());
-  SwitchMeasure m = measure(agg, tables, medium, DomeEntries{boundary}, options);
-  if (key) writeCacheFile(name, serialise(m, key));
-  return m;
+  return cachedOrMeasured(key, options, [&] {
+    const BoundarySampler boundary(agg.boundary());
+    return measure(agg, tables, medium, DomeEntries{boundary}, options);
+  });
 }
 
 namespace {
@@ -637,12 +642,8 @@ SwitchMeasure measureViewSwitch(const Aggregate& agg, const ProxyTables& tables,
     }
     key = measurementKey(key, tables, options);
   }
-  const std::string name = recordName(key);
-  SwitchMeasure cached;
-  if (key && readCached(name, key, options, cached)) return cached;
-  SwitchMeasure m = measure(agg, tables, medium, ViewEntries{agg, tables, medium, view}, options);
-  if (key) writeCacheFile(name, serialise(m, key));
-  return m;
+  return cachedOrMeasured(key, options,
+                          [&] { return measure(agg, tables, medium, ViewEntries{agg, tables, medium, view}, options); });
 }
 
 }  // namespace granular
