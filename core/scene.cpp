@@ -1083,6 +1083,22 @@ void Scene::updateSwitching() {
   const std::vector<SwitchView> views = measure && settings_.switchForView ? switchViews() : std::vector<SwitchView>();
   proxyTables_.clear();
   if (canUse && (measure || use == ProxyUse::On || (use == ProxyUse::Auto && narrowSun_))) updateProxyTables();
+  if (measure && narrowSun_ && sunSwitching_.size() != n) {
+    // The sun measurements depend on the aggregates, their media and the lights only: made
+    // once per scene (and setMedium), not at each setView.
+    const std::vector<SwitchView> suns = sunSwitchViews();
+    sunSwitching_.assign(n, nullptr);
+    for (size_t a = 0; a < n; ++a)
+      if (int(suns[a].entries.size()) >= kMinViewEntries) {
+        measureSwitching(a);  // its cache key
+        // It adds to the dome's choice what it shows to be needed: toward the sun, nearly
+        // clear grains' radiance is too noisy to resolve within its paths, and erring toward
+        // the most visits there would make their renders noisier, not more accurate.
+        SwitchMeasure sun = *measureViewSwitching(a, suns[a]);
+        sun.visits = switchVisitsShownNeeded(sun, viewSwitchOptions());
+        sunSwitching_[a] = std::make_shared<const SwitchMeasure>(std::move(sun));
+      }
+  }
   explicitBounces_ = std::max(0, settings_.explicitBounces);
   maxProxyVisits_ = 0;
   useProxies_ = false;
@@ -1094,6 +1110,7 @@ void Scene::updateSwitching() {
         viewSwitching_[a] = measureViewSwitching(a, views[a]);
     }
     int k = switching_[a] ? switching_[a]->visits : -1;
+    if (measure && a < sunSwitching_.size() && sunSwitching_[a]) k = std::max(k, sunSwitching_[a]->visits);
     if (viewSwitching_[a]) k = std::max(k, viewSwitching_[a]->visits);
     const bool proxies = canUse && (use == ProxyUse::On || (use == ProxyUse::Auto && (narrowSun_ || k > 0)));
     aggregateProxies_[a] = proxies;
@@ -1161,21 +1178,62 @@ std::vector<SwitchView> Scene::switchViews() const {
       if (!intersectMedium(ray, hit) || hit.kind != Hit::Boundary || hit.aggregate < 0 ||
           aggregateMotion_[size_t(hit.aggregate)].moving() || !(dot(ray.d, hit.ng) < 0))
         continue;
-      SwitchView::Entry e{hit.p, hit.ng, ray.d, 0};
-      // A distant light reaches the entry when its central ray (the cone's axis: u1 = 0)
-      // leaves there unblocked by surfaces and the media's boundaries (another aggregate's
-      // shadow).
-      for (size_t l = 0; l < lights_.size(); ++l) {
-        LightSample ls;
-        if (lights_[l].type() != LightType::Distant || !lights_[l].sampleLi(hit.p, 0.0f, 0.0f, ls)) continue;
-        Ray shadow;
-        shadow.o = hit.p + hit.ng * (1e-3f * aggregates_[size_t(hit.aggregate)]->grainRadius());
-        shadow.d = ls.wi;
-        Hit blocker;
-        if (!intersectMedium(shadow, blocker)) e.lit |= 1u << l;
-      }
-      views[size_t(hit.aggregate)].entries.push_back(e);
+      views[size_t(hit.aggregate)].entries.push_back({hit.p, hit.ng, ray.d, distantLightsReaching(hit)});
     }
+  return views;
+}
+
+uint32_t Scene::distantLightsReaching(const Hit& hit) const {
+  // A distant light reaches the entry when its central ray (the cone's axis: u1 = 0) leaves
+  // there unblocked by surfaces and the media's boundaries (another aggregate's shadow).
+  uint32_t lit = 0;
+  for (size_t l = 0; l < lights_.size(); ++l) {
+    LightSample ls;
+    if (lights_[l].type() != LightType::Distant || !lights_[l].sampleLi(hit.p, 0.0f, 0.0f, ls)) continue;
+    Ray shadow;
+    shadow.o = hit.p + hit.ng * (1e-3f * aggregates_[size_t(hit.aggregate)]->grainRadius());
+    shadow.d = ls.wi;
+    Hit blocker;
+    if (!intersectMedium(shadow, blocker)) lit |= 1u << l;
+  }
+  return lit;
+}
+
+std::vector<SwitchView> Scene::sunSwitchViews() const {
+  std::vector<SwitchView> views(aggregates_.size());
+  for (SwitchView& v : views) v.lights = &lights_;
+  if (lights_.size() > 32) return views;
+  for (size_t l = 0; l < lights_.size(); ++l) {
+    if (lights_[l].type() != LightType::Distant) continue;
+    for (size_t a = 0; a < aggregates_.size(); ++a) {
+      const Bounds3& b = aggregateBounds_[a];
+      LightSample ls;
+      if (aggregateMotion_[a].moving() || b.empty() || !lights_[l].sampleLi(b.center(), 0.0f, 0.0f, ls) ||
+          !(maxComponent(ls.Li) > 0))
+        continue;  // a sun that adds no light asks for nothing
+      // An orthographic grid across the sun's direction over the aggregate's bounds, its rays
+      // starting beyond everything in the scene.
+      const Frame f(ls.wi);
+      float u0 = kInf, u1 = -kInf, v0 = kInf, v1 = -kInf;
+      for (int c = 0; c < 8; ++c) {
+        const Vec3 q = f.toLocal(Vec3(c & 1 ? b.hi.x : b.lo.x, c & 2 ? b.hi.y : b.lo.y, c & 4 ? b.hi.z : b.lo.z) -
+                                 b.center());
+        u0 = std::min(u0, q.x), u1 = std::max(u1, q.x), v0 = std::min(v0, q.y), v1 = std::max(v1, q.y);
+      }
+      const Vec3 start = b.center() + ls.wi * (4.0f * sceneScale_ + length(b.extent()));
+      for (int j = 0; j < kViewGrid; ++j)
+        for (int i = 0; i < kViewGrid; ++i) {
+          Ray ray;
+          ray.o = start + f.s * (u0 + (u1 - u0) * (float(i) + 0.5f) / float(kViewGrid)) +
+                  f.t * (v0 + (v1 - v0) * (float(j) + 0.5f) / float(kViewGrid));
+          ray.d = -ls.wi;
+          Hit hit;
+          if (intersectMedium(ray, hit) && hit.kind == Hit::Boundary && hit.aggregate == int(a) &&
+              dot(ray.d, hit.ng) < 0)
+            views[a].entries.push_back({hit.p, hit.ng, ray.d, distantLightsReaching(hit)});
+        }
+    }
+  }
   return views;
 }
 
@@ -1238,6 +1296,12 @@ std::string Scene::lowOrdersText(int a) const {
     std::snprintf(buf, sizeof buf, " (measured: the medium's bias there %s, right after the first grain %+.1f%%",
                   bias, 100.0 * m->bias[0][worst(m->bias[0])]);
     text += buf;
+    if (const SwitchMeasure* v = sunSwitchMeasure(a)) {
+      at(*v, bias, sizeof bias);
+      std::snprintf(buf, sizeof buf, "; toward the sun %s, right after the first grain %+.1f%%", bias,
+                    100.0 * v->bias[0][worst(v->bias[0])]);
+      text += buf;
+    }
     if (const SwitchMeasure* v = viewSwitching_[size_t(a)].get()) {
       at(*v, bias, sizeof bias);
       std::snprintf(buf, sizeof buf, "; for this view %s, right after the first grain %+.1f%%", bias,
@@ -1311,6 +1375,7 @@ void Scene::setMedium(int aggregate, const MediumParams& params) {
   diffusionProfiles_[aggregate] = DiffusionProfile(params);
   built_[size_t(aggregate)].switching.reset();  // measured with the medium it replaces
   built_[size_t(aggregate)].mediumReplaced = true;
+  sunSwitching_.clear();
   updateDiffusionDepths();
   updateSwitching();
 }

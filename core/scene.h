@@ -163,6 +163,29 @@ class Scene {
   // lights or domes, or with more than 32 lights.
   std::vector<SwitchView> switchViews() const;
   static constexpr int kViewGrid = 64;
+  // The sun measurement, made under a narrow sun (narrowSun) whatever the camera: the view
+  // measurement (measureViewSwitch) of each measured aggregate as each distant light sees
+  // it, the radiance scattered back toward the sun, where the shadow hiding the medium
+  // loses is largest (Müller et al. 2016, §1). A dome's albedo averages that away; a
+  // camera with the sun behind it sees it (bench/README.md, "The switch toward the sun").
+  // Its visits are what it shows to be needed (switchVisitsShownNeeded: radiance toward one
+  // direction is noisy, and nearly clear grains' too noisy to resolve); the aggregate takes
+  // the largest of the dome's, the sun's and (switchForView) the camera's choices. Only
+  // under a narrow sun, where every path goes on among proxies after its first grain
+  // anyway: under a wide one the nearly clear scenes need no proxies, and the measurement
+  // would cost seconds to ask for some. Made once per scene (and per setMedium), cached on
+  // disk. Null when not made: no switching measurement, no narrow sun, no distant light of
+  // non-zero radiance, or fewer than kMinViewEntries entries.
+  const SwitchMeasure* sunSwitchMeasure(int aggregate) const {
+    return size_t(aggregate) < sunSwitching_.size() && !switching_.empty() && switching_[size_t(aggregate)]
+               ? sunSwitching_[size_t(aggregate)].get()
+               : nullptr;
+  }
+  // Per aggregate, the sun measurement's entries: per distant light of non-zero radiance, a
+  // kViewGrid² orthographic grid of rays from the light over the aggregate's bounds, those
+  // that meet its boundary first (grains unseen), with the distant lights that reach them
+  // (as switchViews). None for a moving aggregate, or with more than 32 lights.
+  std::vector<SwitchView> sunSwitchViews() const;
   // What carries the aggregate's low orders after its first grain, in words both front ends
   // print: "proxies for 8 visits, then the medium (measured: the medium's bias there −0.11%
   // ± 0.14%, right after the first grain −6.8%)", "explicit grains to bounce 16, then the
@@ -484,7 +507,9 @@ class Scene {
   std::vector<int> proxyVisits_, aggregateBounces_;
   std::vector<char> aggregateProxies_, instancedProxies_;
   std::vector<int> instancedProxyVisits_, instancedBounces_;
-  std::vector<std::shared_ptr<const SwitchMeasure>> switching_, viewSwitching_;
+  std::vector<std::shared_ptr<const SwitchMeasure>> switching_, viewSwitching_, sunSwitching_;
+  // The distant lights (bits of lights_) whose central ray leaves a boundary hit unblocked.
+  uint32_t distantLightsReaching(const Hit& hit) const;
   // Proxies and switching per aggregate, from the settings and the media: the tables and
   // measurements they need (lent by an unchanged aggregate, else cached on disk or made).
   void updateSwitching();

@@ -448,6 +448,16 @@ int chooseSwitchVisits(const SwitchMeasure& m, const SwitchOptions& o) {
   return kSwitchVisits[kSwitchCandidates - 1];
 }
 
+int switchVisitsShownNeeded(const SwitchMeasure& m, const SwitchOptions& o) {
+  for (int c = 0; c < int(m.bias.size()); ++c) {
+    bool shown = false;
+    for (int ch = 0; ch < 3; ++ch)
+      shown = shown || std::fabs(m.bias[size_t(c)][ch]) - o.margin * m.biasSE[size_t(c)][ch] > o.tolerance;
+    if (!shown) return kSwitchVisits[c];
+  }
+  return kSwitchVisits[kSwitchCandidates - 1];
+}
+
 namespace {
 
 // The batches, decisions and summaries of a measurement (switching.h) whose paths start as

@@ -133,6 +133,13 @@ std::string switchCacheName(uint64_t cacheKey, const ProxyTables& tables, const 
 // Chooses the visits from bias and biasSE as the contract says.
 int chooseSwitchVisits(const SwitchMeasure& m, const SwitchOptions& o);
 
+// The visits a measurement shows to be needed: the least candidate none of whose channels
+// is beyond the tolerance by more than margin standard errors (K when every one is). Where
+// chooseSwitchVisits asks a choice to be measured within the tolerance, and errs toward K
+// when it is not, this errs toward fewer visits: what a noisy measurement (radiance toward
+// one direction) adds to another's choice is only what it resolves.
+int switchVisitsShownNeeded(const SwitchMeasure& m, const SwitchOptions& o);
+
 SwitchMeasure measureSwitch(const Aggregate& aggregate, const ProxyTables& tables, const HomogeneousMedium& medium,
                             const SwitchOptions& options = SwitchOptions(), uint64_t cacheKey = 0);
 

@@ -1066,6 +1066,11 @@ PYBIND11_MODULE(granular_core, m) {
               const SwitchMeasure* m = s.scene->switchMeasure(ai);
               d["measured"] = m != nullptr;
               if (m) addSwitchMeasure(*m, d);
+              if (const SwitchMeasure* v = s.scene->sunSwitchMeasure(ai)) {
+                py::dict sun;
+                addSwitchMeasure(*v, sun);
+                d["sun"] = sun;
+              }
               if (const SwitchMeasure* v = s.scene->viewSwitchMeasure(ai)) {
                 py::dict view;
                 addSwitchMeasure(*v, view);
@@ -1079,8 +1084,10 @@ PYBIND11_MODULE(granular_core, m) {
           "explicit bounces without proxies) before the medium, and the measurement they come from (switching.h): "
           "candidates (visits tried), bias and bias_se per candidate (relative, RGB), exit_bias and exit_bias_se "
           "per candidate and exit bin (index candidate * len(switch_exit_bins()) + bin), exit_reference per bin, "
-          "albedo, chosen, seconds, paths, events (walk steps), from_cache; with switch_for_view, under `view` the "
-          "same fields of the view measurement where it was made (its albedo: the radiance the camera sees there)")
+          "albedo, chosen, seconds, paths, events (walk steps), from_cache; under `sun` the same fields of the sun "
+          "measurement where it was made (Scene::sunSwitchMeasure: the radiance scattered back toward the distant "
+          "lights); with switch_for_view, under `view` those of the view measurement where it was made (its "
+          "albedo: the radiance the camera sees there)")
       .def(
           "measure_view_switch",
           [](const PyScene& s, int a, int64_t paths, bool stopEarly, uint64_t seed) {

@@ -97,10 +97,16 @@ TEST(Switching, HighIndexGrainsNeedVisitsAndTheBiasFallsWithThem) {
   EXPECT_EQ(kSwitchVisits[5], 16);
 }
 
-TEST(Switching, TheChoiceIsTheLeastVisitsWithinToleranceInEveryChannel) {
+// A measurement of every candidate without bias or noise, for the choices to be made from.
+SwitchMeasure unbiasedMeasure() {
   SwitchMeasure m;
   m.bias.assign(kSwitchCandidates, Vec3(0.0f));
   m.biasSE.assign(kSwitchCandidates, Vec3(0.0f));
+  return m;
+}
+
+TEST(Switching, TheChoiceIsTheLeastVisitsWithinToleranceInEveryChannel) {
+  SwitchMeasure m = unbiasedMeasure();
   SwitchOptions o;
   o.tolerance = 0.01f;
   o.precision = 0.5f;
@@ -120,6 +126,30 @@ TEST(Switching, TheChoiceIsTheLeastVisitsWithinToleranceInEveryChannel) {
   o.margin = 0.0f;
   for (Vec3& b : m.bias) b = Vec3(0.05f);
   EXPECT_EQ(chooseSwitchVisits(m, o), kSwitchVisits[kSwitchCandidates - 1]) << "none within: the largest";
+}
+
+TEST(Switching, WhatAMeasurementShowsNeededErrsTowardFewerVisits) {
+  // Candidates beyond the tolerance by more than margin standard errors in some channel are
+  // shown biased; the least other one is taken. A noisy estimate is not shown biased, where
+  // the choice proper (within the tolerance, measured to its precision) passes it over.
+  SwitchMeasure m = unbiasedMeasure();
+  SwitchOptions o;
+  o.tolerance = 0.005f;
+  o.margin = 1.0f;
+  EXPECT_EQ(switchVisitsShownNeeded(m, o), 0);
+  auto set = [&](int c, float bias, float se) {  // in one channel of candidate c
+    m.bias[size_t(c)][c % 3] = bias;
+    m.biasSE[size_t(c)][c % 3] = se;
+  };
+  set(0, -0.05f, 0.01f);  // 5% ± 1%: shown
+  set(1, 0.03f, 0.03f);   // 3% ± 3%: beyond the tolerance by 2.5%, less than its error
+  EXPECT_EQ(switchVisitsShownNeeded(m, o), kSwitchVisits[1]);
+  EXPECT_EQ(chooseSwitchVisits(m, o), kSwitchVisits[2]) << "the choice proper wants it measured within";
+  set(1, 0.03f, 0.01f);  // 3% ± 1%: shown
+  EXPECT_EQ(switchVisitsShownNeeded(m, o), kSwitchVisits[2]);
+  for (Vec3& b : m.bias) b = Vec3(0.05f);
+  for (Vec3& e : m.biasSE) e = Vec3(0.001f);
+  EXPECT_EQ(switchVisitsShownNeeded(m, o), kSwitchVisits[kSwitchCandidates - 1]) << "every one shown: the largest";
 }
 
 TEST(Switching, IsDeterministicCachedAndRecomputesADamagedEntry) {
@@ -458,4 +488,75 @@ TEST(Switching, TheSceneMeasuresTheViewWhenAskedAndTakesTheLargerChoice) {
   scene->setView(d.camera, s);
   EXPECT_EQ(scene->viewSwitchMeasure(0), nullptr);
   EXPECT_EQ(scene->proxyVisits(0), dome);
+}
+
+namespace {
+
+// The matrix ball under a sun of the given angle (towards the light: dir) and radiance.
+SceneDesc sunlitBall(float angle, const Vec3& dir, float intensity = 1.0f) {
+  SceneDesc d = granular::testing::matrixBall(false, 1.55f);
+  d.settings.technique = Technique::EptVpt;
+  LightDesc sun;
+  sun.name = "sun";
+  sun.type = LightType::Distant;
+  sun.angle = angle;
+  sun.intensity = intensity;
+  sun.xf = Transform::lookAt(Vec3(0.0f), -dir, Vec3(0, 0, 1));
+  d.lights.push_back(sun);
+  return d;
+}
+
+}  // namespace
+
+TEST(Switching, TheSunsEntriesAreTheBoundaryItLights) {
+  // Seen from the sun, the ball's boundary (the unit icosphere) fills π/4 of a grid over
+  // its bounds at most; every entry comes in along the sun's light, from outside, and the
+  // sun reaches it. A box between the sun and the ball leaves none; so does a sun of zero
+  // radiance, which asks for nothing.
+  const Vec3 dir = normalize(Vec3(0.3f, 0.8f, 0.5f));
+  auto scene = Scene::build(sunlitBall(0.53f, dir));
+  const SwitchView view = scene->sunSwitchViews()[0];
+  const size_t grid = size_t(Scene::kViewGrid * Scene::kViewGrid);
+  EXPECT_GT(view.entries.size(), grid / 8);
+  EXPECT_LT(view.entries.size(), grid * 8 / 10);
+  const uint32_t sunBit = 1u << 1;  // lights: the sky, then the sun
+  for (const SwitchView::Entry& e : view.entries) {
+    EXPECT_NEAR(dot(e.d, -dir), 1.0f, 1e-5f);
+    EXPECT_LT(dot(e.d, e.n), 0.0f);
+    EXPECT_NEAR(length(e.p), 1.0f, 0.02f);
+    EXPECT_EQ(e.lit & sunBit, sunBit);
+  }
+  SceneDesc shaded = sunlitBall(0.53f, dir);
+  MeshDesc roof;
+  roof.name = "roof";
+  roof.mesh = makeBox(Vec3(-3.0f, 2.0f, -3.0f), Vec3(3.0f, 2.2f, 3.0f));
+  roof.material = 1;
+  shaded.meshes.push_back(roof);
+  EXPECT_TRUE(Scene::build(shaded)->sunSwitchViews()[0].entries.empty());
+  EXPECT_TRUE(Scene::build(sunlitBall(0.53f, dir, 0.0f))->sunSwitchViews()[0].entries.empty());
+}
+
+TEST(Switching, TheSceneMeasuresTowardANarrowSunAndTakesTheLargerChoice) {
+  // Under a narrow sun (smooth grains), each aggregate is also measured as the sun sees it,
+  // once per scene whatever the camera; its visits are the larger choice, said on the
+  // low-orders line. Under a wide sun there is no such measurement.
+  const Vec3 dir = normalize(Vec3(0.3f, 0.8f, 0.5f));
+  const SceneDesc d = sunlitBall(0.53f, dir);
+  auto scene = Scene::build(d);
+  ASSERT_NE(scene->switchMeasure(0), nullptr);
+  const SwitchMeasure* sun = scene->sunSwitchMeasure(0);
+  ASSERT_NE(sun, nullptr);
+  print(*sun);
+  EXPECT_EQ(scene->proxyVisits(0), std::max(scene->switchMeasure(0)->visits, sun->visits));
+  EXPECT_NE(scene->lowOrdersText(0).find("toward the sun"), std::string::npos) << scene->lowOrdersText(0);
+  for (int c = 0; c < 3; ++c) EXPECT_GT(sun->albedo[c], 0.0f);  // the radiance sent back toward the sun
+  // Another camera: the same measurement, not made again.
+  CameraDesc other = d.camera;
+  other.cameraToWorld = Transform::lookAt(Vec3(-2.0f, 0.5f, 1.6f), Vec3(0.0f), Vec3(0, 1, 0));
+  scene->setView(other, d.settings);
+  EXPECT_EQ(scene->sunSwitchMeasure(0), sun);
+  auto wide = Scene::build(sunlitBall(20.0f, dir));
+  ASSERT_NE(wide->switchMeasure(0), nullptr);
+  EXPECT_EQ(wide->sunSwitchMeasure(0), nullptr);
+  EXPECT_EQ(wide->lowOrdersText(0).find("toward the sun"), std::string::npos);
 }

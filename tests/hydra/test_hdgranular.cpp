@@ -903,6 +903,8 @@ TEST(HdGranular, ProxiesCarryTheLowOrdersUnderANarrowSunAsInGranularRender) {
   const std::string switching = stat<std::string>(engine->GetRenderStats(), "granular:switching");
   EXPECT_NE(switching.find("/World/Snow: proxies for"), std::string::npos) << switching;
   EXPECT_NE(switching.find("measured: the medium's bias there"), std::string::npos) << switching;
+  // Measured toward the sun too, whatever the camera (core/scene.h: sunSwitchMeasure).
+  EXPECT_NE(switching.find("toward the sun"), std::string::npos) << switching;
   engine->SetRendererSetting(TfToken("granular:proxies"), VtValue(std::string("off")));
   Frame medium = render(*engine, stage, HdAovTokens->color, 32, 20);
   ASSERT_TRUE(medium.converged);

@@ -32,13 +32,17 @@ def test_auto_uses_proxies_under_a_narrow_sun_and_on_and_off_override_it(tmp_pat
     narrow = small_scene(tmp_path / "narrow.usda", _sun_angle(0.53))
     wide = small_scene(tmp_path / "wide.usda", _sun_angle(20.0))
     from granular.usd_reader import read_stage
-    scene = read_stage(str(wide), width=24)
-    s = scene.desc.settings
-    s.technique = core.Technique.EptVpt
-    scene.desc.settings = s
-    sw = core.Scene.build(scene.desc).switching[0]
+
+    def switching(stage):
+        scene = read_stage(str(stage), width=24)
+        s = scene.desc.settings
+        s.technique = core.Technique.EptVpt
+        scene.desc.settings = s
+        return core.Scene.build(scene.desc).switching[0]
+    sw = switching(wide)
     assert sw["measured"] and sw["proxy_visits"] == sw["chosen"] > 0 and sw["uses_proxies"]
-    off = f"explicit grains to bounce {2 * sw['chosen']}"
+    # Off: the visits measured (under the narrow sun toward it too) stay explicit.
+    off = f"explicit grains to bounce {2 * switching(narrow)['proxy_visits']}"
     expected = [(narrow, [], "proxies"), (wide, [], f"proxies for {sw['chosen']} visits"),
                 (wide, ["--proxies", "on"], "proxies"), (narrow, ["--proxies", "off"], off)]
     for k, (stage, extra, level) in enumerate(expected):
@@ -162,3 +166,28 @@ def test_switch_for_view_in_a_json_scene(tmp_path):
     bad.write_text('{"render": {"switch_for_view": 1}}')
     with pytest.raises(core.InputError, match=r"render\.switch_for_view"):
         core.load_scene_json(str(bad))
+
+
+def test_under_a_narrow_sun_the_switch_is_measured_toward_the_sun_too(tmp_path, capsys):
+    # Under a narrow sun each aggregate is also measured as the sun sees it (core/scene.h:
+    # sunSwitchMeasure), whatever the camera: its visits are the larger choice, said on the
+    # low-orders line that granular render prints and hdGranular reports. A wide sun: not.
+    from granular.usd_reader import read_stage
+    built = {}
+    for angle in (0.53, 20.0):
+        stage = small_scene(tmp_path / f"sun{angle}.usda", _sun_angle(angle))
+        scene = read_stage(str(stage), width=24, height=16)
+        s = scene.desc.settings
+        s.technique = core.Technique.EptVpt
+        scene.desc.settings = s
+        built[angle] = core.Scene.build(scene.desc).switching[0]
+        rc, _, err = run_cli(["render", stage, "-o", tmp_path / "s.exr", *OPTIONS], capsys)
+        assert rc == 0, err
+        line = _low_orders(err)
+        assert ("toward the sun" in line) == (angle < 5), line
+    narrow = built[0.53]
+    sun = narrow["sun"]
+    assert narrow["proxy_visits"] == max(narrow["chosen"], sun["chosen"])
+    assert sun["candidates"] == narrow["candidates"] and np.isfinite(sun["bias"]).all()
+    assert min(sun["albedo"]) > 0  # the radiance scattered back toward the sun
+    assert "sun" not in built[20.0]
