@@ -1296,18 +1296,16 @@ std::string Scene::lowOrdersText(int a) const {
     std::snprintf(buf, sizeof buf, " (measured: the medium's bias there %s, right after the first grain %+.1f%%",
                   bias, 100.0 * m->bias[0][worst(m->bias[0])]);
     text += buf;
-    if (const SwitchMeasure* v = sunSwitchMeasure(a)) {
-      at(*v, bias, sizeof bias);
-      std::snprintf(buf, sizeof buf, "; toward the sun %s, right after the first grain %+.1f%%", bias,
-                    100.0 * v->bias[0][worst(v->bias[0])]);
+    // The measurements toward one direction are noisy: their first-grain figure with its error.
+    auto directional = [&](const char* what, const SwitchMeasure& v) {
+      at(v, bias, sizeof bias);
+      const int w = worst(v.bias[0]);
+      std::snprintf(buf, sizeof buf, "; %s %s, right after the first grain %+.1f%% ± %.1f%%", what, bias,
+                    100.0 * v.bias[0][w], 100.0 * v.biasSE[0][w]);
       text += buf;
-    }
-    if (const SwitchMeasure* v = viewSwitching_[size_t(a)].get()) {
-      at(*v, bias, sizeof bias);
-      std::snprintf(buf, sizeof buf, "; for this view %s, right after the first grain %+.1f%%", bias,
-                    100.0 * v->bias[0][worst(v->bias[0])]);
-      text += buf;
-    }
+    };
+    if (const SwitchMeasure* v = sunSwitchMeasure(a)) directional("toward the sun", *v);
+    if (const SwitchMeasure* v = viewSwitching_[size_t(a)].get()) directional("for this view", *v);
     text += ")";
   }
   return text;
