@@ -165,9 +165,11 @@ class Scene {
   static constexpr int kViewGrid = 64;
   // The sun measurement, made under a narrow sun (narrowSun) whatever the camera: the view
   // measurement (measureViewSwitch) of each measured aggregate as each distant light sees
-  // it, the radiance scattered back toward the sun, where the shadow hiding the medium
-  // loses is largest (Müller et al. 2016, §1). A dome's albedo averages that away; a
-  // camera with the sun behind it sees it (bench/README.md, "The switch toward the sun").
+  // it, the radiance scattered back toward the sun. A dome's albedo averages over the
+  // directions light leaves in, and the medium's error toward one of them can be far larger,
+  // of either sign (the paper castle's beach: +17% toward the sun right after the first
+  // grain, where its albedo reads −0.7%, and −2% in blue from its camera with the dome's
+  // choice; bench/README.md, "The switch toward the sun").
   // Its visits are what it shows to be needed (switchVisitsShownNeeded: radiance toward one
   // direction is noisy, and nearly clear grains' too noisy to resolve); the aggregate takes
   // the largest of the dome's, the sun's and (switchForView) the camera's choices. Only
