@@ -1083,22 +1083,11 @@ void Scene::updateSwitching() {
   const std::vector<SwitchView> views = measure && settings_.switchForView ? switchViews() : std::vector<SwitchView>();
   proxyTables_.clear();
   if (canUse && (measure || use == ProxyUse::On || (use == ProxyUse::Auto && narrowSun_))) updateProxyTables();
-  if (measure && narrowSun_ && sunSwitching_.size() != n) {
-    // The sun measurements depend on the aggregates, their media and the lights only: made
-    // once per scene (and setMedium), not at each setView.
-    const std::vector<SwitchView> suns = sunSwitchViews();
-    sunSwitching_.assign(n, nullptr);
-    for (size_t a = 0; a < n; ++a)
-      if (int(suns[a].entries.size()) >= kMinViewEntries) {
-        measureSwitching(a);  // its cache key
-        // It adds to the dome's choice what it shows to be needed: toward the sun, nearly
-        // clear grains' radiance is too noisy to resolve within its paths, and erring toward
-        // the most visits there would make their renders noisier, not more accurate.
-        SwitchMeasure sun = *measureViewSwitching(a, suns[a]);
-        sun.visits = switchVisitsShownNeeded(sun, viewSwitchOptions());
-        sunSwitching_[a] = std::make_shared<const SwitchMeasure>(std::move(sun));
-      }
-  }
+  // The sun measurements depend on the aggregates, their media and the lights only: made
+  // once per scene (and setMedium), not at each setView.
+  const bool measureSuns = measure && narrowSun_ && sunSwitching_.size() != n;
+  const std::vector<SwitchView> suns = measureSuns ? sunSwitchViews() : std::vector<SwitchView>();
+  if (measureSuns) sunSwitching_.assign(n, nullptr);
   explicitBounces_ = std::max(0, settings_.explicitBounces);
   maxProxyVisits_ = 0;
   useProxies_ = false;
@@ -1106,11 +1095,19 @@ void Scene::updateSwitching() {
     if (measure) {
       measureSwitching(a);
       switching_[a] = built_[a].switching;
+      if (!suns.empty() && int(suns[a].entries.size()) >= kMinViewEntries) {
+        // It adds to the dome's choice what it shows to be needed: toward the sun, nearly
+        // clear grains' radiance is too noisy to resolve within its paths, and erring toward
+        // the most visits there would make their renders noisier, not more accurate.
+        SwitchMeasure sun = *measureViewSwitching(a, suns[a]);
+        sun.visits = switchVisitsShownNeeded(sun, viewSwitchOptions());
+        sunSwitching_[a] = std::make_shared<const SwitchMeasure>(std::move(sun));
+      }
       if (!views.empty() && int(views[a].entries.size()) >= kMinViewEntries)
         viewSwitching_[a] = measureViewSwitching(a, views[a]);
     }
     int k = switching_[a] ? switching_[a]->visits : -1;
-    if (measure && a < sunSwitching_.size() && sunSwitching_[a]) k = std::max(k, sunSwitching_[a]->visits);
+    if (const SwitchMeasure* sun = sunSwitchMeasure(int(a))) k = std::max(k, sun->visits);
     if (viewSwitching_[a]) k = std::max(k, viewSwitching_[a]->visits);
     const bool proxies = canUse && (use == ProxyUse::On || (use == ProxyUse::Auto && (narrowSun_ || k > 0)));
     aggregateProxies_[a] = proxies;

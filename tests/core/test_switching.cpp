@@ -547,6 +547,7 @@ TEST(Switching, TheSceneMeasuresTowardANarrowSunAndTakesTheLargerChoice) {
   const SwitchMeasure* sun = scene->sunSwitchMeasure(0);
   ASSERT_NE(sun, nullptr);
   print(*sun);
+  EXPECT_EQ(sun->visits, switchVisitsShownNeeded(*sun, viewSwitchOptions()));  // what it shows, not its own choice
   EXPECT_EQ(scene->proxyVisits(0), std::max(scene->switchMeasure(0)->visits, sun->visits));
   EXPECT_NE(scene->lowOrdersText(0).find("toward the sun"), std::string::npos) << scene->lowOrdersText(0);
   for (int c = 0; c < 3; ++c) EXPECT_GT(sun->albedo[c], 0.0f);  // the radiance sent back toward the sun

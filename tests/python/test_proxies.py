@@ -20,6 +20,16 @@ def _sun_angle(angle):
     return mutate
 
 
+def _ept_vpt_desc(stage, **size):
+    """The stage's scene description (read_stage at the image `size`), technique ept+vpt."""
+    from granular.usd_reader import read_stage
+    desc = read_stage(str(stage), **size).desc
+    s = desc.settings
+    s.technique = core.Technique.EptVpt
+    desc.settings = s
+    return desc
+
+
 def _low_orders(err):
     lines = [line.strip() for line in err.splitlines() if line.strip().startswith("after the first grain:")]
     assert len(lines) == 1, err
@@ -31,14 +41,9 @@ def test_auto_uses_proxies_under_a_narrow_sun_and_on_and_off_override_it(tmp_pat
     # first grain is measured biased (core/switching.h), which this scene's absorbing grains are.
     narrow = small_scene(tmp_path / "narrow.usda", _sun_angle(0.53))
     wide = small_scene(tmp_path / "wide.usda", _sun_angle(20.0))
-    from granular.usd_reader import read_stage
 
     def switching(stage):
-        scene = read_stage(str(stage), width=24)
-        s = scene.desc.settings
-        s.technique = core.Technique.EptVpt
-        scene.desc.settings = s
-        return core.Scene.build(scene.desc).switching[0]
+        return core.Scene.build(_ept_vpt_desc(stage, width=24)).switching[0]
     sw = switching(wide)
     assert sw["measured"] and sw["proxy_visits"] == sw["chosen"] > 0 and sw["uses_proxies"]
     # Off: the visits measured (under the narrow sun toward it too) stay explicit.
@@ -56,12 +61,8 @@ def test_auto_uses_proxies_under_a_narrow_sun_and_on_and_off_override_it(tmp_pat
 def test_a_switching_measurement_is_run_again_with_its_exit_bins(tmp_path):
     # Scene.measure_switch (bench/switching.py --exit-bins): every candidate forks in every
     # path; what leaves per exit bin sums to the albedo; a scene that measured nothing refuses.
-    from granular.usd_reader import read_stage
-    scene = read_stage(str(small_scene(tmp_path / "wide.usda", _sun_angle(20.0))), width=24)
-    s = scene.desc.settings
-    s.technique = core.Technique.EptVpt
-    scene.desc.settings = s
-    built = core.Scene.build(scene.desc)
+    desc = _ept_vpt_desc(small_scene(tmp_path / "wide.usda", _sun_angle(20.0)), width=24)
+    built = core.Scene.build(desc)
     bins = core.switch_exit_bins()
     assert [b[2] for b in bins[:2]] == ["back", "forward"] and bins[0][1] == 1.0 and bins[-1][0] == 0.0
     m = built.measure_switch(0, paths=1024, stop_early=False)
@@ -70,10 +71,11 @@ def test_a_switching_measurement_is_run_again_with_its_exit_bins(tmp_path):
     assert len(m["exit_bias"]) == len(m["exit_bias_se"]) == n * len(m["candidates"])
     np.testing.assert_allclose(np.sum(m["exit_reference"], axis=0), m["albedo"], rtol=1e-5)
     assert not np.any(m["exit_bias"][-n:])  # the reference against itself
+    s = desc.settings
     s.technique = core.Technique.Ept
-    scene.desc.settings = s
+    desc.settings = s
     with pytest.raises(ValueError, match="did not measure"):  # an explicit scene has nothing to measure with
-        core.Scene.build(scene.desc).measure_switch(0)
+        core.Scene.build(desc).measure_switch(0)
 
 
 def test_the_explicit_reference_never_uses_proxies(tmp_path, capsys):
@@ -129,17 +131,14 @@ def test_switch_for_view_measures_the_view_too_and_takes_the_larger_choice(tmp_p
     # the camera sees is measured for this camera and these lights as well (core/switching.h:
     # measureViewSwitch), its visits the larger choice, said on the low-orders line; a
     # change of view, no rebuild. The same measurement through Scene.measure_view_switch.
-    from granular.usd_reader import read_stage
     stage = small_scene(tmp_path / "wide.usda", _sun_angle(20.0))
-    scene = read_stage(str(stage), width=24, height=16)  # OPTIONS' image: the same view
-    s = scene.desc.settings
-    s.technique = core.Technique.EptVpt
-    scene.desc.settings = s
-    built = core.Scene.build(scene.desc)
+    desc = _ept_vpt_desc(stage, width=24, height=16)  # OPTIONS' image: the same view
+    built = core.Scene.build(desc)
     dome = built.switching[0]
     assert "view" not in dome
+    s = desc.settings
     s.switch_for_view = True
-    built.set_view(scene.desc.camera, s)
+    built.set_view(desc.camera, s)
     sw = built.switching[0]
     view = sw["view"]
     assert sw["proxy_visits"] == max(dome["chosen"], view["chosen"])
@@ -172,15 +171,10 @@ def test_under_a_narrow_sun_the_switch_is_measured_toward_the_sun_too(tmp_path, 
     # Under a narrow sun each aggregate is also measured as the sun sees it (core/scene.h:
     # sunSwitchMeasure), whatever the camera: its visits are the larger choice, said on the
     # low-orders line that granular render prints and hdGranular reports. A wide sun: not.
-    from granular.usd_reader import read_stage
     built = {}
     for angle in (0.53, 20.0):
         stage = small_scene(tmp_path / f"sun{angle}.usda", _sun_angle(angle))
-        scene = read_stage(str(stage), width=24, height=16)
-        s = scene.desc.settings
-        s.technique = core.Technique.EptVpt
-        scene.desc.settings = s
-        built[angle] = core.Scene.build(scene.desc).switching[0]
+        built[angle] = core.Scene.build(_ept_vpt_desc(stage, width=24, height=16)).switching[0]
         rc, _, err = run_cli(["render", stage, "-o", tmp_path / "s.exr", *OPTIONS], capsys)
         assert rc == 0, err
         line = _low_orders(err)
