@@ -796,12 +796,12 @@ bool Aggregate::intersectProxy(const Vec3& o, const Vec3& d, float tmin, float t
   return walk(r, t0, t1);
 }
 
-float Aggregate::proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax,
-                                    const ProxyTables& tables, const GrainHit* skip, uint64_t seed) const {
-  if (!isFinite(o) || !isFinite(d) || standIn_) return 1.0f;
+ProxyShadow Aggregate::proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax,
+                                          const ProxyTables& tables, const GrainHit* skip, uint64_t seed) const {
+  if (!isFinite(o) || !isFinite(d) || standIn_) return ProxyShadow();
   const Vec3 invD(1.0f / d.x, 1.0f / d.y, 1.0f / d.z);
   float t0, t1;
-  if (!bounds_.intersect(o, invD, tmin, tmax, t0, t1)) return 1.0f;
+  if (!bounds_.intersect(o, invD, tmin, tmax, t0, t1)) return ProxyShadow();
   GrainHit hit;
   RayWalk r{o, d, invD, tmin, tmax, hit, skip, false, DistanceField::NearestProbe(sdf_)};
   r.mode = WalkMode::ProxyTransmittance;
@@ -817,7 +817,7 @@ float Aggregate::proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, fl
     const float tDone = std::min(tmax, nbReach_[size_t(i)] - r0);
     const uint32_t k0 = nbStart_[size_t(i)], k1 = nbStart_[size_t(i) + 1];
     // Which listed spheres the ray crosses before tDone, a block at a time as in
-    // nearestNeighbour(); then each crossed one's chance of missing its grain, in order.
+    // nearestNeighbour(); then each crossed one's chance of letting the light cross, in order.
     const float *X = nbX_.data(), *Y = nbY_.data(), *Z = nbZ_.data(), *R2 = nbR2_.data(), *K = nbKey_.data();
     for (uint32_t kb = k0; kb < k1 && K[kb] - r0 < tDone; kb += kNeighbourBlock) {
       float te[kNeighbourBlock], w2[kNeighbourBlock];
@@ -832,10 +832,10 @@ float Aggregate::proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, fl
         if (!sphereIsInside(home, sphereCenter(home, j), r.probe)) continue;
         const ProxyTable& t =
             tables.at(selector_.prototype(home[0], home[1], home[2], j, tile_.sizeClass(j)), tile_.size(j));
-        r.transmittance *= 1.0f - t.hitProbability(t.bBin(std::sqrt(w2[l] / R2[k])));
+        r.transmittance *= t.shadow(t.bBin(std::sqrt(w2[l] / R2[k])));
       }
     }
-    if (!proxyRoulette(r.transmittance, r.seed, r.draws)) return 0.0f;
+    if (!proxyRoulette(r.transmittance, r.seed, r.draws)) return r.transmittance;
     if (tDone >= tmax) return r.transmittance;
     r.tEnterMin = tDone;
   }
@@ -877,7 +877,7 @@ bool Aggregate::visitProxy(RayWalk& r, const TileSphere& s, const int64_t cell[3
   r.recent[r.cursor++ & 7] = id;
   r.nRecent = std::min(r.nRecent + 1, 8);
   const ProxyTable& t = r.tables->at(prototype, tile_.size(s.id));
-  r.transmittance *= 1.0f - t.hitProbability(t.bBin(std::sqrt(w2) / s.radius));
+  r.transmittance *= t.shadow(t.bBin(std::sqrt(w2) / s.radius));
   return !proxyRoulette(r.transmittance, r.seed, r.draws);  // true ends the walk
 }
 

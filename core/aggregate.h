@@ -119,11 +119,11 @@ class Aggregate {
   // the answer, without the walk.
   bool intersectProxy(const Vec3& o, const Vec3& d, float tmin, float tmax, GrainHit& hit,
                       const GrainHit* skip = nullptr) const;
-  // The chance that a ray along [tmin, tmax] meets none of the proxies' grains: the product
-  // over the spheres it crosses (but `skip`) of 1 − hit(b), from each grain's prototype's
-  // table at its size, with proxyRoulette() (proxy.h) from `seed` below kProxyRoulette.
-  float proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax, const ProxyTables& tables,
-                           const GrainHit* skip, uint64_t seed) const;
+  // Light along [tmin, tmax] through the proxies' spheres (ProxyShadow, proxy.h): the
+  // products over the spheres it crosses (but `skip`), from each grain's prototype's table
+  // at its size, with proxyRoulette() from `seed` below kProxyRoulette.
+  ProxyShadow proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax, const ProxyTables& tables,
+                                 const GrainHit* skip, uint64_t seed) const;
   // Builds the neighbour lists the proxy queries use (once; thread-safe). Only scenes that
   // use proxies pay for them: about a second and 45 MiB for a tile of 32768 spheres.
   void prepareProxies() const;
@@ -184,7 +184,7 @@ class Aggregate {
     bool found = false;
     WalkMode mode = WalkMode::Grains;
     const ProxyTables* tables = nullptr;  // ProxyTransmittance
-    float transmittance = 1;
+    ProxyShadow transmittance;
     uint64_t seed = 0;   // roulette's random numbers (ProxyTransmittance)
     uint64_t draws = 0;
     float tEnterMin = -kInf;  // ProxyTransmittance: spheres entered before are counted already

@@ -126,8 +126,8 @@ bool PosedAggregate::intersectProxy(const Vec3& o, const Vec3& d, float tmin, fl
   return true;
 }
 
-float PosedAggregate::proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax,
-                                         const ProxyTables& tables, const GrainHit* skip, uint64_t seed) const {
+ProxyShadow PosedAggregate::proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax,
+                                               const ProxyTables& tables, const GrainHit* skip, uint64_t seed) const {
   if (pose_.still) return agg_->proxyTransmittance(o, d, tmin, tmax, tables, skip, seed);
   const BuildRay r = toBuildRay(o, d);
   return agg_->proxyTransmittance(r.o, r.d, tmin * r.scale, tmax * r.scale, tables, skip, seed);

@@ -73,8 +73,8 @@ class PosedAggregate {
   bool occluded(const Vec3& o, const Vec3& d, float tmin, float tmax) const;
   bool intersectProxy(const Vec3& o, const Vec3& d, float tmin, float tmax, GrainHit& hit,
                       const GrainHit* skip = nullptr) const;
-  float proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax, const ProxyTables& tables,
-                           const GrainHit* skip, uint64_t seed) const;
+  ProxyShadow proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax, const ProxyTables& tables,
+                                 const GrainHit* skip, uint64_t seed) const;
   bool insideBoundary(const Vec3& p) const { return agg_->insideBoundary(toBuild(p)); }
   bool intersectBoundary(const Vec3& o, const Vec3& d, float tmin, float tmax, float& t, Vec3& ng) const;
   float closestBoundaryPoint(const Vec3& p, Vec3& closest) const;

@@ -47,6 +47,7 @@ void switchToMedia(const Scene& scene, std::vector<PathState>& paths, size_t i, 
                    std::vector<PathState>& split) {
   PathState& p = paths[i];
   p.switchPending = false;
+  p.pendingStraight = Vec3(0.0f);  // the media count those grains as scatterings (ppt.h)
   p.mode = kVpt;
   p.credit = kVpt;
   p.medium = scene.mediumAt(p.ray.o, p.ray.time);
@@ -91,6 +92,7 @@ BundleStats traceBundle(const Scene& scene, std::vector<PathState>& paths, float
       if (p.mode == kEpt) eptStep(scene, p);
       else if (p.mode == kPpt) pptStep(scene, p);
       else vptStep(scene, p);
+      if (!p.alive) p.addPendingStraight();  // ended among proxies: theirs (ppt.h)
       if (p.alive && p.switchPending && !p.inGrain) switchToMedia(scene, paths, i, pa, split);
       // In the media by the level-of-detail shortcut (ept.h, ppt.h): the same roulette.
       else if (p.alive && p.mode == kVpt && !p.enteredMedia) continueIntoMedia(paths, i, pa, split);

@@ -632,14 +632,14 @@ bool InstancedGrains::intersectProxy(const Vec3& o, const Vec3& d, float tmin, f
   return found;
 }
 
-float InstancedGrains::proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax, int64_t skip,
-                                          const std::function<float(const InstancedGrain&, float)>& hitChance,
-                                          uint64_t seed, float time) const {
-  if (!traceable(o, d, tmin, tmax)) return 1.0f;
+ProxyShadow InstancedGrains::proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax, int64_t skip,
+                                                const std::function<ProxyShadow(const InstancedGrain&, float)>& shadow,
+                                                uint64_t seed, float time) const {
+  if (!traceable(o, d, tmin, tmax)) return ProxyShadow();
   const Vec3 ol = identity_ ? o : inv_.point(o), dl = identity_ ? d : inv_.vector(d);
   const float a = dot(dl, dl);
   const float when = motionSpan_ > 0 ? time : 0.0f;
-  float tr = 1.0f;
+  ProxyShadow tr;
   uint64_t draws = 0;
   // Each sphere counts once: in the cell where the ray enters it (every cell a sphere
   // touches lists it; the cells' ranges of t do not overlap).
@@ -649,12 +649,12 @@ float InstancedGrains::proxyTransmittance(const Vec3& o, const Vec3& d, float tm
       const InstancedGrain g = this->grain(list_[k], when);
       float te, b2;
       if (!enterSphere(g, ol, dl, a, tmin, te, b2) || te >= tmax || te < tEnter || te >= tExit) continue;
-      tr *= 1.0f - hitChance(g, std::sqrt(b2));
+      tr *= shadow(g, std::sqrt(b2));
       if (!proxyRoulette(tr, seed, draws)) return false;
     }
     return true;
   });
-  return std::max(0.0f, tr);
+  return tr;
 }
 
 bool InstancedGrains::intersect(const Vec3& o, const Vec3& d, float tmin, float tmax, InstancedGrainHit& hit,

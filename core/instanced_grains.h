@@ -75,6 +75,7 @@
 #include "embree_util.h"
 #include "grain.h"
 #include "math.h"
+#include "proxy.h"
 #include "scene_desc.h"
 
 namespace granular {
@@ -160,14 +161,15 @@ class InstancedGrains {
   // Proxies (proxy.h, ppt.h): the grains' bounding spheres at their positions. intersectProxy()
   // finds the nearest sphere the world-space ray enters (t: where, tmin when it starts inside
   // one) other than grain `skip` (the one it leaves; -1: none); grain in object space.
-  // proxyTransmittance() is the chance that the ray meets no grain of the spheres it enters
-  // before tmax: the product of 1 − hitChance(grain, b) over them (b: the impact parameter
-  // over the radius), each counted once; proxyRoulette() (proxy.h) from seed.
+  // proxyTransmittance() is the passage of light through the spheres the ray enters before
+  // tmax (ProxyShadow, proxy.h): the product of shadow(grain, b) over them (b: the impact
+  // parameter over the radius; ProxyTable::shadow), each counted once; proxyRoulette()
+  // from seed.
   bool intersectProxy(const Vec3& o, const Vec3& d, float tmin, float tmax, int64_t skip, InstancedGrain& grain,
                       float& t, float time = 0) const;
-  float proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax, int64_t skip,
-                           const std::function<float(const InstancedGrain&, float)>& hitChance, uint64_t seed,
-                           float time = 0) const;
+  ProxyShadow proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax, int64_t skip,
+                                 const std::function<ProxyShadow(const InstancedGrain&, float)>& shadow,
+                                 uint64_t seed, float time = 0) const;
 
   InstancedGrain grain(int64_t i, float time = 0) const;
   // A brute-force reference over every grain (tests, benchmarks): intersect()'s answer.

@@ -50,6 +50,14 @@ struct PathState {
   Transport credit = kEpt; // which AOV the path's radiance goes to (kDa after a DA step)
   int medium = -1;         // aggregate whose medium holds the path (kVpt), or -1
   bool switchPending = false;  // switch to kVpt once out of the current grain
+  // Light the last next-event estimate among proxies found through grains' straight lobes
+  // (ProxyShadow, proxy.h): added once the path goes on among proxies or ends, dropped if it
+  // switches to the media, which count those grains as scatterings (ppt.h).
+  Vec3 pendingStraight{0.0f};
+  void addPendingStraight() {
+    L[credit] += pendingStraight;
+    pendingStraight = Vec3(0.0f);
+  }
   // The level-of-detail shortcut's first grain (ppt.h): the grain the explicit ray met,
   // which the proxy walk then meets for sure, `firstGrainAt` along the ray (-1: none).
   GrainStart firstGrain;

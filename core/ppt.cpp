@@ -66,15 +66,13 @@ void scatter(const Scene& scene, PathState& path, const Hit& hit, const ProxyTab
         const Vec3 from = scene.beforeSurfaces(g.center, onSphere(g, frame, table.exitPoint(b, d, uExit)),
                                                path.ray.time);
         const float dist = std::isfinite(ls.dist) ? std::max(0.0f, ls.dist - g.radius) * (1.0f - 1e-4f) : kInf;
-        const float tr = scene.proxyTransmittance(from, ls.wi, dist, &own, path.rng.nextU32(), path.ray.time);
+        const ProxyShadow tr = scene.proxyTransmittance(from, ls.wi, dist, &own, path.rng.nextU32(), path.ray.time);
         path.cost[0] += 1;
-        if (tr > 0) {
-          if (ls.delta) {
-            path.L[path.credit] += path.beta * d.f * (tr * ls.Li / lightPick);
-          } else {
-            const float lp = ls.pdf * lightPick;
-            path.L[path.credit] += path.beta * d.f * ls.Li * (tr * powerHeuristic(lp, d.pdf) / lp);
-          }
+        if (!tr.blocked()) {
+          const Vec3 c = path.beta * d.f * ls.Li *
+                         (ls.delta ? 1.0f / lightPick : powerHeuristic(ls.pdf * lightPick, d.pdf) / (ls.pdf * lightPick));
+          path.L[path.credit] += c * tr.unscattered;
+          path.pendingStraight += c * (tr.crossing - Vec3(tr.unscattered));
         }
       }
     }
@@ -87,6 +85,17 @@ void scatter(const Scene& scene, PathState& path, const Hit& hit, const ProxyTab
     return;
   }
   path.beta *= d.f / d.pdf;
+  if (d.straight) {
+    // The straight lobe: on along the same line from the exit the table gives, as a grain
+    // missed is crossed — a delta event, so the last scattering (its pdf for MIS, whose
+    // next-event estimation counted this lobe in its shadow ray) stays the path's.
+    path.from = own;
+    path.ray.o = scene.beforeSurfaces(g.center, onSphere(g, frame, table.exitPoint(b, d, uExit)), path.ray.time);
+    path.ray.tmin = 0;
+    path.ray.tmax = kInf;
+    if (!isFinite(path.beta) || isBlack(path.beta)) path.alive = false;
+    return;
+  }
   const Vec3 wi = normalize(frame.toWorld(d.w));
   path.lastDelta = false;
   path.lastPdf = d.pdf;
@@ -124,6 +133,7 @@ bool lowOrdersDone(const Scene& scene, const PathState& path) {
 }
 
 void pptStep(const Scene& scene, PathState& path) {
+  path.addPendingStraight();  // the path goes on among proxies
   if (path.depth >= scene.settings().maxDepth) {
     path.alive = false;
     return;
@@ -176,6 +186,7 @@ void pptStep(const Scene& scene, PathState& path) {
   }
   // The level-of-detail shortcut leaves for the medium after the low orders (ept.h).
   if (path.shortcut && path.alive && scene.hasMedia() && lowOrdersDone(scene, path)) {
+    path.pendingStraight = Vec3(0.0f);  // the medium counts those grains as scatterings
     path.mode = path.credit = kVpt;
     path.medium = scene.mediumAt(path.ray.o, path.ray.time);
   }

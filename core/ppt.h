@@ -14,10 +14,20 @@
 // A grain met scatters:
 //  - next-event estimation: one light, sampled from the sphere's centre; the table's f_c
 //    toward it, the shadow ray leaving from that direction's exit point and crossing other
-//    proxies with their chance of missing their grains (Scene::proxyTransmittance); MIS by
-//    the power heuristic against the table's pdf, delta lights unweighted. Smooth grains'
-//    tables are smooth in direction, so delta and narrow suns are reached like any light;
-//  - the next direction from the table (weight f_c / pdf), leaving from its exit point.
+//    proxies with their chance of letting it through (Scene::proxyTransmittance: grains
+//    missed, or met and left straight on); MIS by the power heuristic against the table's
+//    pdf, delta lights unweighted. Smooth grains' tables are smooth in direction, so delta
+//    and narrow suns are reached like any light;
+//  - the next direction from the table (weight f_c / pdf), leaving from its exit point; or
+//    the straight lobe (proxy.h): on along the same line, a delta event that is not a visit
+//    and keeps the last scattering's pdf for MIS (its next-event estimate counted the lobe).
+// What a shadow ray found through other grains' straight lobes is the path's only while
+// it goes on among proxies: the equivalent medium counts every grain met as a scattering
+// (tt.h), and light through a straight lobe is then its forward-scattered light. So it is
+// held (PathState::pendingStraight) until the next proxy step or the path's end, and
+// dropped when the path switches to the media; the light that met no grain is added at
+// once. Without that, that light is counted twice where the medium takes over
+// (bench/README.md, "Straight through flat grains").
 // Surfaces are shaded as EPT shades them, shadow rays crossing proxies as above. The path
 // leaves PPT for the media at the hybrid's switch (hybrid.h) or, when it took the
 // level-of-detail shortcut, at once, both once lowOrdersDone() (below).

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <utility>
 
 #include "cache.h"
 #include "embree_util.h"
@@ -48,12 +49,14 @@ struct Record {
 struct ChunkSums {
   std::vector<int64_t> entered, hits;  // per b bin
   std::vector<double> energy;          // per (b, direction) bin and channel
+  std::vector<double> pass;            // per b bin and channel: straight on
   std::vector<Record> records;         // in ray order
+  std::vector<Record> straight;        // in ray order, bin: the b bin
 };
 
 // Cache record (cache.h: RecordWriter) of a table.
 constexpr RecordMagic kMagic = {'G', 'R', 'P', 'X', '\0', '\0', '\0', '\0'};
-constexpr uint32_t kFormatVersion = 2;  // 2: bins equal in θ
+constexpr uint32_t kFormatVersion = 3;  // 2: bins equal in θ; 3: the straight lobe
 static_assert(sizeof(Vec3) == 3 * sizeof(float), "a Vec3 is stored as three floats");
 
 uint64_t cacheKey(const TriangleMesh& mesh, const Material& m, const ProxyOptions& o) {
@@ -96,11 +99,26 @@ int ProxyTable::directionBin(const Vec3& w) const {
 bool ProxyTable::sample(int b, float uBin, float u1, float u2, float uSide, ProxyDirection& out) const {
   const int nd = nmu_ * nphi_;
   const float* cdf = &cdf_[size_t(b) * size_t(nd + 1)];
-  if (!(cdf[nd] > 0)) return false;
+  const Vec3& pass = pass_[size_t(b)];
+  const float passMass = pass.x + pass.y + pass.z;
+  if (!(cdf[nd] + passMass > 0)) return false;
+  float u = uBin * (cdf[nd] + passMass);
+  if (u < passMass || !(cdf[nd] > 0)) {  // the straight lobe (proxy.h)
+    const Vec3& a = albedo_[size_t(b)];
+    out.w = Vec3(0.0f, 0.0f, 1.0f);
+    out.f = pass;
+    out.pdf = passMass / std::max(a.x + a.y + a.z, passMass);
+    out.bin = -1;
+    out.mirrored = uSide < 0.5f;
+    out.straight = true;
+    return out.pdf > 0;
+  }
+  out.straight = false;
   // Largest i with cdf[i] <= u (u < cdf[nd]) and a bin of non-zero mass: from the guide
   // of u's share of the total forward (a step back guards against rounding).
-  const float u = uBin * cdf[nd];
-  const int j = std::clamp(int(uBin * float(kGuides)), 0, kGuides);
+  u = std::min(u - passMass, cdf[nd]);
+  const float uc = u / cdf[nd];
+  const int j = std::clamp(int(uc * float(kGuides)), 0, kGuides);
   int i = int(guide_[size_t(b) * size_t(kGuides + 1) + size_t(j)]);
   while (i > 0 && cdf[i] > u) --i;
   while (i < nd && cdf[i + 1] <= u) ++i;
@@ -187,6 +205,16 @@ ProxyDirection ProxyTable::eval(int b, const Vec3& wLocal) const {
 }
 
 Vec3 ProxyTable::exitPoint(int b, const ProxyDirection& d, float u) const {
+  if (d.straight) {  // on along the entry's z from one of the straight rays' offsets
+    const uint32_t first = straightStart_[size_t(b)], count = straightStart_[size_t(b) + 1] - first;
+    Vec3 e(0.0f);
+    if (count > 0) {
+      const uint32_t k = first + std::min(count - 1, uint32_t(u * float(count)));
+      e = Vec3(straightOffsets_[2 * k], straightOffsets_[2 * k + 1], 0.0f);
+    }
+    if (d.mirrored) e.y = -e.y;
+    return sphereExitPoint(e, Vec3(0.0f, 0.0f, 1.0f));
+  }
   Vec3 w = d.w;
   w.y = std::fabs(w.y);
   const size_t cell = size_t(b) * size_t(nmu_ * nphi_) + size_t(d.bin);
@@ -249,38 +277,50 @@ std::vector<char> serialiseProxyTable(const ProxyTable& t, uint64_t key) {
   for (int v : {t.nb_, t.nmu_, t.nphi_}) w.putI32(int32_t(v));
   w.putI64(t.rays_);
   w.putU64(uint64_t(t.offsets_.size()));
+  w.putU64(uint64_t(t.straightOffsets_.size()));
   w.putArray(t.hit_);
   w.putArray(t.albedo_);
+  w.putArray(t.pass_);
   w.putArray(t.f_);
   w.putArray(t.cdf_);
   w.putArray(t.offsets_);
   w.putArray(t.offsetStart_);
+  w.putArray(t.straightOffsets_);
+  w.putArray(t.straightStart_);
   return w.finish();
 }
 
 bool deserialiseProxyTable(const std::vector<char>& in, uint64_t key, ProxyTable& t) {
   RecordReader r(in, kMagic);
-  uint64_t offsets = 0;
+  uint64_t offsets = 0, straight = 0;
   int32_t nb = 0, nmu = 0, nphi = 0;
   if (!r.getHeader(kFormatVersion, key)) return false;
-  if (!r.getI32(nb) || !r.getI32(nmu) || !r.getI32(nphi) || !r.getI64(t.rays_) || !r.getU64(offsets)) return false;
+  if (!r.getI32(nb) || !r.getI32(nmu) || !r.getI32(nphi) || !r.getI64(t.rays_) || !r.getU64(offsets) ||
+      !r.getU64(straight))
+    return false;
   const size_t nd = size_t(nmu) * size_t(nphi), cells = size_t(nb) * nd;
   // The lengths the counts imply, checked before anything is allocated for them.
-  if (nb < 1 || nmu < 1 || nphi < 1 || offsets % 2 != 0 ||
-      r.remaining() != size_t(nb) * 4 + size_t(nb) * 12 + cells * 12 + size_t(nb) * (nd + 1) * 4 + offsets * 4 +
-                           (cells + 1) * 4)
+  if (nb < 1 || nmu < 1 || nphi < 1 || offsets % 2 != 0 || straight % 2 != 0 ||
+      r.remaining() != size_t(nb) * 4 + size_t(nb) * 24 + cells * 12 + size_t(nb) * (nd + 1) * 4 + offsets * 4 +
+                           (cells + 1) * 4 + straight * 4 + (size_t(nb) + 1) * 4)
     return false;
   t.nb_ = nb; t.nmu_ = nmu; t.nphi_ = nphi;
-  t.hit_.resize(size_t(nb)); t.albedo_.resize(size_t(nb)); t.f_.resize(cells);
+  t.hit_.resize(size_t(nb)); t.albedo_.resize(size_t(nb)); t.pass_.resize(size_t(nb)); t.f_.resize(cells);
   t.cdf_.resize(size_t(nb) * (nd + 1)); t.offsets_.resize(offsets); t.offsetStart_.resize(cells + 1);
-  if (!r.getArray(t.hit_) || !r.getArray(t.albedo_) || !r.getArray(t.f_) || !r.getArray(t.cdf_) ||
-      !r.getArray(t.offsets_) || !r.getArray(t.offsetStart_) || !r.finish())
+  t.straightOffsets_.resize(straight); t.straightStart_.resize(size_t(nb) + 1);
+  if (!r.getArray(t.hit_) || !r.getArray(t.albedo_) || !r.getArray(t.pass_) || !r.getArray(t.f_) ||
+      !r.getArray(t.cdf_) || !r.getArray(t.offsets_) || !r.getArray(t.offsetStart_) ||
+      !r.getArray(t.straightOffsets_) || !r.getArray(t.straightStart_) || !r.finish())
     return false;
-  for (const Vec3& v : t.f_)
-    if (!isFinite(v) || minComponent(v) < 0) return false;
-  if (t.offsetStart_.back() * 2 != offsets) return false;
+  for (const std::vector<Vec3>* a : {&t.f_, &t.pass_})
+    for (const Vec3& v : *a)
+      if (!isFinite(v) || minComponent(v) < 0) return false;
+  if (t.offsetStart_.back() * 2 != offsets || t.straightStart_.front() != 0 || t.straightStart_.back() * 2 != straight)
+    return false;
   for (size_t i = 0; i + 1 < t.offsetStart_.size(); ++i)
     if (t.offsetStart_[i] > t.offsetStart_[i + 1]) return false;
+  for (size_t i = 0; i + 1 < t.straightStart_.size(); ++i)
+    if (t.straightStart_[i] > t.straightStart_[i + 1]) return false;
   for (int b = 0; b < nb; ++b)  // a CDF: finite, from 0, never falling
     for (size_t i = 0; i <= nd; ++i) {
       const float c = t.cdf_[size_t(b) * (nd + 1) + i];
@@ -315,6 +355,7 @@ ProxyTable estimateProxyTable(const TriangleMesh& mesh, const Material& material
 
   EmbreeDevice device = makeEmbreeDevice();
   EmbreeScene bvh = buildTriangleScene(device, mesh);
+  const float cosStraight = float(std::cos(kStraightOnDegrees * kPiD / 180.0));
   const int64_t chunks = (opt.rays + kChunk - 1) / kChunk;
   std::vector<ChunkSums> parts{size_t(chunks)};
   tbb::parallel_for(tbb::blocked_range<int64_t>(0, chunks, 1), [&](const tbb::blocked_range<int64_t>& r) {
@@ -323,6 +364,7 @@ ProxyTable estimateProxyTable(const TriangleMesh& mesh, const Material& material
       s.entered.assign(size_t(nb), 0);
       s.hits.assign(size_t(nb), 0);
       s.energy.assign(size_t(nb) * size_t(nd) * 3, 0.0);
+      s.pass.assign(size_t(nb) * 3, 0.0);
       const int64_t first = c * kChunk, count = std::min(kChunk, opt.rays - first);
       for (int64_t k = 0; k < count; ++k) {
         Rng rng(hashInts(opt.seed, 0x5058 /* "PX" */, uint64_t(first + k)));
@@ -342,6 +384,11 @@ ProxyTable estimateProxyTable(const TriangleMesh& mesh, const Material& material
           w.y = -w.y;
           e.y = -e.y;
         }
+        if (w.z > cosStraight) {  // the straight lobe: its energy and its line's offset
+          for (int ch = 0; ch < 3; ++ch) s.pass[size_t(b) * 3 + size_t(ch)] += double(g.weight[ch]);
+          s.straight.push_back({uint32_t(b), e.x, e.y});
+          continue;
+        }
         const int i = t.directionBin(w);
         const size_t cell = size_t(b) * size_t(nd) + size_t(i);
         for (int ch = 0; ch < 3; ++ch) s.energy[cell * 3 + size_t(ch)] += double(g.weight[ch]);
@@ -353,30 +400,38 @@ ProxyTable estimateProxyTable(const TriangleMesh& mesh, const Material& material
   });
 
   std::vector<int64_t> entered(size_t(nb), 0), hits(size_t(nb), 0);
-  std::vector<double> energy(size_t(nb) * size_t(nd) * 3, 0.0);
+  std::vector<double> energy(size_t(nb) * size_t(nd) * 3, 0.0), pass(size_t(nb) * 3, 0.0);
   std::vector<std::vector<float>> kept(size_t(nb) * size_t(nd));
+  std::vector<std::vector<float>> keptStraight(static_cast<size_t>(nb));
   for (const ChunkSums& s : parts) {  // in chunk order: reproducible sums and samples
     for (int b = 0; b < nb; ++b) {
       entered[size_t(b)] += s.entered[size_t(b)];
       hits[size_t(b)] += s.hits[size_t(b)];
     }
     for (size_t i = 0; i < energy.size(); ++i) energy[i] += s.energy[i];
-    for (const Record& r : s.records) {
-      auto& k = kept[r.bin];
-      if (int(k.size()) < 2 * opt.offsetsPerBin) {
-        k.push_back(r.c1);
-        k.push_back(r.c2);
+    for (size_t i = 0; i < pass.size(); ++i) pass[i] += s.pass[i];
+    for (const auto& [records, into] : {std::pair{&s.records, &kept}, std::pair{&s.straight, &keptStraight}})
+      for (const Record& r : *records) {
+        auto& k = (*into)[r.bin];
+        if (int(k.size()) < 2 * opt.offsetsPerBin) {
+          k.push_back(r.c1);
+          k.push_back(r.c2);
+        }
       }
-    }
   }
   t.hit_.resize(size_t(nb));
   t.albedo_.resize(size_t(nb));
+  t.pass_.resize(size_t(nb));
   t.f_.assign(size_t(nb) * size_t(nd), Vec3(0.0f));
   t.cdf_.assign(size_t(nb) * size_t(nd + 1), 0.0f);
   for (int b = 0; b < nb; ++b) {
     t.hit_[size_t(b)] = entered[size_t(b)] > 0 ? float(double(hits[size_t(b)]) / double(entered[size_t(b)])) : 0.0f;
     const double h = double(std::max<int64_t>(1, hits[size_t(b)]));
-    double a[3] = {0, 0, 0}, mass = 0;
+    double a[3], mass = 0;
+    for (int ch = 0; ch < 3; ++ch) {
+      a[ch] = pass[size_t(b) * 3 + size_t(ch)] / h;
+      t.pass_[size_t(b)][ch] = float(a[ch]);
+    }
     float* cdf = &t.cdf_[size_t(b) * size_t(nd + 1)];
     for (int i = 0; i < nd; ++i) {
       const size_t cell = size_t(b) * size_t(nd) + size_t(i);
@@ -395,6 +450,11 @@ ProxyTable estimateProxyTable(const TriangleMesh& mesh, const Material& material
   for (const auto& k : kept) {
     t.offsets_.insert(t.offsets_.end(), k.begin(), k.end());
     t.offsetStart_.push_back(uint32_t(t.offsets_.size() / 2));
+  }
+  t.straightStart_.assign(1, 0);
+  for (const auto& k : keptStraight) {
+    t.straightOffsets_.insert(t.straightOffsets_.end(), k.begin(), k.end());
+    t.straightStart_.push_back(uint32_t(t.straightOffsets_.size() / 2));
   }
   t.buildSamplingTables();
   if (opt.useCache) writeCacheFile(name, serialiseProxyTable(t, key));

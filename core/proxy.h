@@ -8,10 +8,22 @@
 // b², so each holds the same share of the entering rays):
 //   hit(b)       the chance that the ray meets the grain; else it crosses unchanged;
 //   f_c(b, ω)    per channel, the energy that leaves into direction ω per steradian, per
-//                ray that met the grain (∫ f_c dω is the grain's albedo at b);
+//                ray that met the grain, but for what leaves straight on;
+//   pass_c(b)    per channel, the energy that leaves straight on (within kStraightOnDegrees of the
+//                entering direction), per ray that met the grain: a lobe of its own, a
+//                delta (∫ f_c dω + pass_c is the grain's albedo at b);
 //   offsets      where rays leave: the exit line's offset from the centre, perpendicular
 //                to its direction; up to offsetsPerBin of them per (b, direction bin), in
 //                the order traced (a uniform sample, not weighted by energy).
+//   straight     where the straight-on rays leave: their line's offset from the centre,
+//                up to offsetsPerBin per b bin.
+// Why a straight lobe: a flat grain sends much of what it meets near its middle through
+// parallel faces unturned (bench/README.md, "Straight through flat grains"), light that a
+// density spreads over its 5.6° first bin and that next-event estimation toward a narrow
+// sun meets only where the path lines up with it.
+// As a delta it keeps its direction, and a shadow ray crosses a proxy with the chance
+// crossing_c(b) = 1 − hit(b) + hit(b) pass_c(b), so sunlight through clear flat grains is
+// found by every shadow ray, not by chance.
 // Directions are in the entry's frame (ProxyFrame): z along the entering ray, x towards
 // the side of the centre where it entered, y = z × x; bins equal in the polar angle θ and
 // in φ ∈ [0, π], the mirror image y → −y folded onto y ≥ 0. Equal in θ, not in μ = cos θ:
@@ -27,11 +39,13 @@
 // grain (a proxy is re-rotated at each visit), and within a bin any dependence of the
 // exit offset on the energy left (absorbing grains).
 //
-// Sampling (pdf stated per steradian): a direction bin with probability proportional to
-// its Σ_c f_c mass, then ω uniform over the bin's solid angle (μ uniform between its edges,
-// φ uniform) and a mirror side with 1/2:
-//   pdf(ω) = Σ_c f_c(b, ω) / Σ_c albedo_c(b),   weight_c = f_c(b, ω) / pdf(ω).
-// eval() gives the same f_c and pdf (next-event estimation, MIS). A table is a pure
+// Sampling: the straight lobe with probability P = Σ_c pass_c / Σ_c albedo_c (weight_c =
+// pass_c / P), else a direction bin with probability proportional to its Σ_c f_c mass,
+// then ω uniform over the bin's solid angle (μ uniform between its edges, φ uniform) and
+// a mirror side with 1/2 (pdf stated per steradian):
+//   pdf(ω) = Σ_c f_c(b, ω) / Σ_c albedo_c(b),   weight_c = f_c(b, ω) / pdf(ω),
+// so the pdf integrates to 1 − P. eval() gives the same f_c and pdf (next-event
+// estimation, MIS); it never gives the straight lobe. A table is a pure
 // function of (mesh, material, options) and is cached on disk like TT's parameters.
 #pragma once
 
@@ -47,6 +61,10 @@
 #include "rng.h"
 
 namespace granular {
+
+// What counts as straight on: an exit direction within this angle of the entering one.
+// Parallel faces send rays exactly straight, so it need only be small.
+constexpr double kStraightOnDegrees = 0.25;
 
 struct ProxyOptions {
   int64_t rays = 1 << 20;
@@ -85,18 +103,39 @@ inline float sphereFarSide(const Vec3& oc, const Vec3& d, float r) {
   return std::max(0.0f, -along + std::sqrt(std::max(0.0f, r * r - length2(oc - d * along))));
 }
 
-// Russian roulette on a proxy shadow ray's transmittance (the product of 1 − hit(b) over
-// the spheres it crosses): deep inside, that product soon vanishes, so once under
-// kProxyRoulette it goes on with probability T / kProxyRoulette at kProxyRoulette, else
-// it is 0 (unbiased). The `draws`-th random number of `seed`; false when it ends.
+// A shadow ray's passage through proxies (Aggregate::proxyTransmittance): per channel the
+// chance that light crosses the spheres on its line — the product of crossing_c(b), grains
+// missed or left straight on —, and the chance that it meets no grain at all — the product
+// of 1 − hit(b). The two differ by the light the straight lobe lets through, which the
+// equivalent medium counts as scattered (TT: every grain met is a scattering event): next-
+// event estimation among proxies takes the first only while the path goes on among proxies
+// (ppt.h: PathState::pendingStraight).
+struct ProxyShadow {
+  Vec3 crossing{1.0f};
+  float unscattered = 1.0f;
+  ProxyShadow& operator*=(const ProxyShadow& o) {
+    crossing *= o.crossing;
+    unscattered *= o.unscattered;
+    return *this;
+  }
+  bool blocked() const { return isBlack(crossing); }
+};
+
+// Russian roulette on a proxy shadow ray (the products above, over the spheres it
+// crosses): deep inside they soon vanish, so once the crossing's largest channel m is under
+// kProxyRoulette the ray goes on with probability m / kProxyRoulette, both products scaled
+// by kProxyRoulette / m, else both are 0 (unbiased). The `draws`-th random number of
+// `seed`; false when it ends.
 constexpr float kProxyRoulette = 0.05f;
-inline bool proxyRoulette(float& transmittance, uint64_t seed, uint64_t& draws) {
-  if (transmittance >= kProxyRoulette) return true;
-  if (!(transmittance > 0) || toUnitFloat(hashInts(seed, draws++)) * kProxyRoulette >= transmittance) {
-    transmittance = 0;
+inline bool proxyRoulette(ProxyShadow& shadow, uint64_t seed, uint64_t& draws) {
+  const float m = maxComponent(shadow.crossing);
+  if (m >= kProxyRoulette) return true;
+  if (!(m > 0) || toUnitFloat(hashInts(seed, draws++)) * kProxyRoulette >= m) {
+    shadow = ProxyShadow{Vec3(0.0f), 0.0f};
     return false;
   }
-  transmittance = kProxyRoulette;
+  shadow.crossing *= kProxyRoulette / m;
+  shadow.unscattered *= kProxyRoulette / m;
   return true;
 }
 
@@ -105,8 +144,9 @@ struct ProxyDirection {
   Vec3 w;                 // unit, local
   Vec3 f{0.0f};           // f_c(b, ω) per steradian
   float pdf = 0;          // per steradian
-  int bin = -1;           // its direction bin (folded); -1: none
+  int bin = -1;           // its direction bin (folded); -1: none, or the straight lobe
   bool mirrored = false;  // w.y < 0 (the folded bin's mirror image)
+  bool straight = false;  // the straight lobe: w = (0, 0, 1), f = pass_c, pdf its probability
 };
 
 class ProxyTable {
@@ -114,12 +154,21 @@ class ProxyTable {
   int bBin(float b) const { return std::clamp(int(b * b * float(nb_)), 0, nb_ - 1); }
   float hitProbability(int bBin) const { return hit_[size_t(bBin)]; }
   const Vec3& albedo(int bBin) const { return albedo_[size_t(bBin)]; }
+  // The straight lobe's energy per ray that met the grain, per channel.
+  const Vec3& pass(int bBin) const { return pass_[size_t(bBin)]; }
+  // The chance per channel that light crosses the sphere on its line: the grain missed, or
+  // met and left straight on (a shadow ray's factor).
+  Vec3 crossing(int bBin) const {
+    const float h = hit_[size_t(bBin)];
+    return Vec3(1.0f - h) + pass_[size_t(bBin)] * h;
+  }
+  ProxyShadow shadow(int bBin) const { return ProxyShadow{crossing(bBin), 1.0f - hit_[size_t(bBin)]}; }
   // False when nothing leaves a grain met at this b (black grains): the path ends there.
   bool sample(int bBin, float uBin, float u1, float u2, float uSide, ProxyDirection& out) const;
   // f and pdf toward a local direction (both 0 in a bin no energy reaches).
   ProxyDirection eval(int bBin, const Vec3& wLocal) const;
   // Where a ray leaving in direction d crosses the unit sphere (local frame): one of the
-  // bin's offsets, picked by u.
+  // bin's offsets (of the b bin's straight rays for the straight lobe), picked by u.
   Vec3 exitPoint(int bBin, const ProxyDirection& d, float u) const;
 
   int bBins() const { return nb_; }
@@ -145,6 +194,9 @@ class ProxyTable {
   int nb_ = 0, nmu_ = 0, nphi_ = 0;
   std::vector<float> hit_;              // per b bin
   std::vector<Vec3> albedo_;            // per b bin
+  std::vector<Vec3> pass_;              // per b bin
+  std::vector<float> straightOffsets_;  // (x, |y|) pairs in the entry frame
+  std::vector<uint32_t> straightStart_; // per b bin, its first pair (CSR)
   std::vector<Vec3> f_;                 // per (b, direction) bin, per steradian
   std::vector<float> cdf_;              // per b bin, nd + 1 values over its direction bins
   std::vector<float> offsets_;          // (c1, c2) pairs: the exit offset in exitFrame()

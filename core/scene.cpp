@@ -1470,11 +1470,11 @@ bool Scene::intersectProxies(const Ray& ray, Hit& hit, const GrainStart* from) c
   return true;
 }
 
-float Scene::proxyTransmittance(const Vec3& p, const Vec3& dir, float dist, const GrainStart* from,
-                                uint64_t seed, float time) const {
-  if (surfacesOccluded(p, dir, dist, time, false, true)) return 0.0f;
-  float tr = 1.0f;
-  for (size_t i = 0; i < builtInstanced_.size() && tr > 0; ++i) {
+ProxyShadow Scene::proxyTransmittance(const Vec3& p, const Vec3& dir, float dist, const GrainStart* from,
+                                      uint64_t seed, float time) const {
+  if (surfacesOccluded(p, dir, dist, time, false, true)) return ProxyShadow{Vec3(0.0f), 0.0f};
+  ProxyShadow tr;
+  for (size_t i = 0; i < builtInstanced_.size() && !tr.blocked(); ++i) {
     if (!instancedProxies_[i]) continue;
     const BuiltInstanced& b = builtInstanced_[i];
     const ProxyTables& tables = *b.proxies;
@@ -1483,11 +1483,11 @@ float Scene::proxyTransmittance(const Vec3& p, const Vec3& dir, float dist, cons
         p, dir, 0.0f, dist, own ? from->instance : -1,
         [&](const InstancedGrain& g, float bRel) {
           const ProxyTable& t = tables.at(g.prototype, g.scale);
-          return t.hitProbability(t.bBin(bRel));
+          return t.shadow(t.bBin(bRel));
         },
         hashInts(seed, 0x1257ULL, i), time);
   }
-  for (size_t a = 0; a < aggregates_.size() && tr > 0; ++a) {
+  for (size_t a = 0; a < aggregates_.size() && !tr.blocked(); ++a) {
     const bool own = from && from->aggregate == int(a);
     if (missesMoving(a, p, dir, 0.0f, dist)) continue;
     tr *= aggregateAt(int(a), time).proxyTransmittance(p, dir, 0.0f, dist, *proxyTables_[a],

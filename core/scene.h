@@ -114,11 +114,11 @@ class Scene {
   // lower half). A segment outside the surfaces' bounds costs no ray query (intersectMeshes'
   // own test).
   Vec3 beforeSurfaces(const Vec3& from, const Vec3& to, float time) const;
-  // Shadow rays among proxies: 0 if a surface blocks the ray, else the chance that it
-  // meets no grain of the proxy spheres it crosses (Aggregate::proxyTransmittance; seed:
-  // its roulette's random numbers).
-  float proxyTransmittance(const Vec3& p, const Vec3& dir, float dist, const GrainStart* from, uint64_t seed,
-                           float time = 0) const;
+  // Shadow rays among proxies: 0 if a surface blocks the ray, else the light's passage
+  // through the proxy spheres on its line (ProxyShadow, proxy.h; Aggregate::
+  // proxyTransmittance; seed: its roulette's random numbers).
+  ProxyShadow proxyTransmittance(const Vec3& p, const Vec3& dir, float dist, const GrainStart* from, uint64_t seed,
+                                 float time = 0) const;
   // Paths go on among proxies after their first grain in some aggregate (useProxies(a)).
   // Their tables are built (or read from the disk cache) when first needed, by build() or
   // setView(): for every aggregate once any uses proxies or switching is measured.

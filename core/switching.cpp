@@ -115,7 +115,7 @@ bool scatter(const HomogeneousMedium& med, Vec3& d, Vec3& w, Rng& rng) {
 // Light as the dome measurement sees it: a uniform white dome, scored where paths leave.
 struct WhiteDome {
   Vec3 escaped(const Vec3&) const { return Vec3(1.0f); }
-  Vec3 atProxy(const GrainHit&, const ProxyTable&, const ProxyFrame&, int, Rng&) const { return Vec3(0.0f); }
+  Vec3 atProxy(const GrainHit&, const ProxyTable&, const ProxyFrame&, int, Rng&, Vec3&) const { return Vec3(0.0f); }
   Vec3 atScatter(const Vec3&, const Vec3&, Rng&) const { return Vec3(0.0f); }
 };
 
@@ -236,12 +236,15 @@ void tracePath(const Aggregate& agg, const ProxyTables& tables, const Homogeneou
       o = o + d * std::max(sphereFarSide(o - h.center, d, h.radius), h.t);
       continue;
     }
-    escaped += w * light.atProxy(h, table, frame, b, rng);
+    Vec3 straight;
+    escaped += w * light.atProxy(h, table, frame, b, rng, straight);
+    straight *= w;
     ProxyDirection s;
     const float ub = rng.next1D(), v1 = rng.next1D(), v2 = rng.next1D(), us = rng.next1D(), ue = rng.next1D();
     if (!table.sample(b, ub, v1, v2, us, s)) break;  // nothing leaves this grain
     w *= s.f / s.pdf;
     o = h.center + frame.toWorld(table.exitPoint(b, s, ue)) * h.radius;
+    if (s.straight) continue;  // on along the same line, as ppt.h: not a visit
     d = normalize(frame.toWorld(s.w));
     ++visits;
     // The first visit stands for the renderer's explicit first grain: candidate k forks
@@ -253,7 +256,7 @@ void tracePath(const Aggregate& agg, const ProxyTables& tables, const Homogeneou
         fork[forks] = w * mediumEscape(agg, med, light, bins, o, d, forkBin[forks], forkRng, sums.events);
         sums.forkEvents[forks] += sums.events - before;
       }
-      escapedAtFork[forks] = escaped;
+      escapedAtFork[forks] = escaped - straight;  // the medium counts those grains as scatterings
       for (int j = 0; j < kSwitchExitBins; ++j) escapedInAtFork[forks][j] = escapedIn[j];
       ++forks;
     }
@@ -559,9 +562,13 @@ struct ViewLighting {
     return L;
   }
   // At a grain met among proxies: the table toward the light, from one of its exit points,
-  // and the chance that the other proxies' grains let it through.
-  Vec3 atProxy(const GrainHit& h, const ProxyTable& table, const ProxyFrame& frame, int b, Rng& rng) const {
+  // and the chance that the other proxies' grains let it through; `straight` gets the part
+  // that came through their straight lobes (ProxyShadow, proxy.h), which a fork into the
+  // medium here leaves to the medium.
+  Vec3 atProxy(const GrainHit& h, const ProxyTable& table, const ProxyFrame& frame, int b, Rng& rng,
+               Vec3& straight) const {
     Vec3 L(0.0f);
+    straight = Vec3(0.0f);
     for (size_t i = 0; i < view.lights->size(); ++i) {
       if (!(lit & (1u << i))) continue;
       LightSample ls;
@@ -571,8 +578,10 @@ struct ViewLighting {
       const ProxyDirection pd = table.eval(b, frame.toLocal(ls.wi));
       if (!(pd.pdf > 0)) continue;
       const Vec3 x = h.center + frame.toWorld(table.exitPoint(b, pd, ue)) * h.radius;
-      const float tr = agg.proxyTransmittance(x, ls.wi, 0.0f, kInf, tables, &h, roulette);
-      L += pd.f * ls.Li * (tr / (ls.delta ? 1.0f : ls.pdf));
+      const ProxyShadow tr = agg.proxyTransmittance(x, ls.wi, 0.0f, kInf, tables, &h, roulette);
+      const Vec3 c = pd.f * ls.Li / (ls.delta ? 1.0f : ls.pdf);
+      L += c * tr.crossing;
+      straight += c * (tr.crossing - Vec3(tr.unscattered));
     }
     return L;
   }

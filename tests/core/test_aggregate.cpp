@@ -409,11 +409,12 @@ TEST(Aggregate, ProxyQueriesAgreeWithEveryGrainChecked) {
     GrainHit from;
     for (int k = 0; k < 3; ++k) from.cell[k] = g.cell[k];
     from.sphere = g.sphere;
-    // Brute force: the nearest entry, and the product of the chances of missing.
+    // Brute force: the nearest entry, and the product of the chances of crossing.
     float tBest = kInf;
     const GrainInstance* best = nullptr;
     const float tmax = 3.0f * a.grainRadius();
-    double T = 1;
+    Vec3 T(1.0f);
+    double U = 1;  // the chance of meeting no grain at all
     for (const GrainInstance& h : grains) {
       if (&h == &g) continue;
       const Vec3 oc = o - h.center;
@@ -426,7 +427,8 @@ TEST(Aggregate, ProxyQueriesAgreeWithEveryGrainChecked) {
       }
       if (te < tmax) {
         const ProxyTable& t = tables.at(h.prototype, h.radius / a.grainRadius());
-        T *= 1.0 - t.hitProbability(t.bBin(std::sqrt(w2) / h.radius));
+        T *= t.crossing(t.bBin(std::sqrt(w2) / h.radius));
+        U *= 1.0 - t.hitProbability(t.bBin(std::sqrt(w2) / h.radius));
       }
     }
     GrainHit hit;
@@ -442,11 +444,14 @@ TEST(Aggregate, ProxyQueriesAgreeWithEveryGrainChecked) {
         EXPECT_NEAR(length(hit.center - best->center), 0.0f, 1e-5f);
       }
     }
-    const float tr = a.proxyTransmittance(o, d, 0.0f, tmax, tables, &from, uint64_t(r));
-    if (T >= kProxyRoulette * 1.001)
-      ASSERT_NEAR(tr, T, 1e-4 * T + 1e-6) << "ray " << r;
-    else
-      ASSERT_TRUE(tr == 0.0f || tr == kProxyRoulette) << "ray " << r << ": " << tr;
+    const ProxyShadow tr = a.proxyTransmittance(o, d, 0.0f, tmax, tables, &from, uint64_t(r));
+    if (maxComponent(T) >= kProxyRoulette * 1.001f) {
+      for (int c = 0; c < 3; ++c)
+        ASSERT_NEAR(tr.crossing[c], T[c], 1e-4f * T[c] + 1e-6f) << "ray " << r << " channel " << c;
+      ASSERT_NEAR(tr.unscattered, U, 1e-4 * U + 1e-6) << "ray " << r;
+    } else {
+      ASSERT_TRUE(tr.blocked() || std::fabs(maxComponent(tr.crossing) - kProxyRoulette) < 1e-6f) << "ray " << r;
+    }
   }
   EXPECT_GT(hits, 1500);
   EXPECT_GE(exact, hits - 3) << "only ties may name another sphere";

@@ -169,7 +169,11 @@ void expectSameProxies(const InstancedGrains& g, const Transform& xf, const Boun
   std::mt19937 rng(seed);
   std::uniform_real_distribution<float> u(0.0f, 1.0f);
   const Vec3 lo = region.lo - region.extent() * 0.1f, size = region.extent() * 1.2f;
-  auto chance = [](const InstancedGrain& grain, float b) { return 0.1f + 0.3f * b + 0.02f * float(grain.prototype); };
+  // Per channel, as a grain that sends some of what it meets straight on (ProxyTable::crossing).
+  auto shadow = [](const InstancedGrain& grain, float b) {
+    const float c = 0.1f + 0.3f * b + 0.02f * float(grain.prototype);
+    return ProxyShadow{Vec3(1.0f - c, 1.0f - 0.5f * c, 1.0f - 0.8f * c), 1.0f - c};
+  };
   int hits = 0, products = 0;
   for (int k = 0; k < rays; ++k) {
     const Vec3 o = lo + Vec3(u(rng), u(rng), u(rng)) * size;
@@ -177,7 +181,8 @@ void expectSameProxies(const InstancedGrains& g, const Transform& xf, const Boun
     const float tmax = 2.0f + 10.0f * u(rng);
     const int64_t skip = k % 2 ? int64_t(u(rng) * float(g.stats().grains)) : -1;
     const Vec3 ol = inv.point(o), dl = inv.vector(d);
-    float best = tmax, product = 1.0f;
+    float best = tmax;
+    ProxyShadow product;
     int64_t nearest = -1;
     for (int64_t i = 0; i < g.stats().grains; ++i) {
       if (i == skip) continue;
@@ -193,7 +198,7 @@ void expectSameProxies(const InstancedGrains& g, const Transform& xf, const Boun
         nearest = i;
       }
       const float w2 = std::max(0.0f, dot(oc, oc) - b * b / a);
-      product *= 1.0f - chance(s, std::sqrt(std::min(1.0f, w2 / (s.radius * s.radius))));
+      product *= shadow(s, std::sqrt(std::min(1.0f, w2 / (s.radius * s.radius))));
     }
     InstancedGrain found;
     float t = 0;
@@ -204,10 +209,11 @@ void expectSameProxies(const InstancedGrains& g, const Transform& xf, const Boun
       EXPECT_EQ(found.index, nearest) << "ray " << k;
       EXPECT_NEAR(t, best, 1e-4f * (1.0f + best)) << "ray " << k;
     }
-    if (product < 0.06f) continue;  // below, Russian roulette decides
+    if (maxComponent(product.crossing) < 0.06f) continue;  // below, Russian roulette decides
     ++products;
-    const float tr = g.proxyTransmittance(o, d, 0.0f, tmax, skip, chance, uint64_t(k));
-    EXPECT_NEAR(tr, product, 1e-4f) << "ray " << k;
+    const ProxyShadow tr = g.proxyTransmittance(o, d, 0.0f, tmax, skip, shadow, uint64_t(k));
+    for (int c = 0; c < 3; ++c) EXPECT_NEAR(tr.crossing[c], product.crossing[c], 1e-4f) << "ray " << k << " channel " << c;
+    EXPECT_NEAR(tr.unscattered, product.unscattered, 1e-4f) << "ray " << k;
   }
   EXPECT_GT(hits, rays / 10);
   EXPECT_GT(products, rays / 10);
@@ -236,6 +242,7 @@ TEST(InstancedGrains, ProxyTransmittanceRouletteIsUnbiased) {
   g.build(nonOverlapping(device, 12, 1.0f, 2), device);
   const Vec3 o(-2.0f, 2.35f, 2.25f), d = normalize(Vec3(1.0f, 0.01f, 0.005f));  // along a row of the lattice
   auto chance = [](const InstancedGrain&, float b) { return 0.4f * (1.0f - b * b); };
+  auto shadow = [&](const InstancedGrain& s, float b) { return ProxyShadow{Vec3(1.0f - chance(s, b)), 1.0f - chance(s, b)}; };
   // The exact product, with roulette out of reach (a chance function scaled to stay above it
   // cannot give it: count the factors once by brute force instead).
   double product = 1;
@@ -250,7 +257,7 @@ TEST(InstancedGrains, ProxyTransmittanceRouletteIsUnbiased) {
   constexpr int kSeeds = 20000;
   double sum = 0, sum2 = 0;
   for (int k = 0; k < kSeeds; ++k) {
-    const double tr = g.proxyTransmittance(o, d, 0.0f, kInf, -1, chance, uint64_t(k));
+    const double tr = g.proxyTransmittance(o, d, 0.0f, kInf, -1, shadow, uint64_t(k)).crossing.x;
     sum += tr;
     sum2 += tr * tr;
   }

@@ -76,35 +76,53 @@ TEST(Proxy, ClearGrainsReturnAllTheyMeetWhiteFurnace) {
 }
 
 TEST(Proxy, SamplingAgreesWithEvaluationAndThePdfIntegratesToOne) {
+  // A rock, which sends almost nothing straight on, and a box of sucrose's proportions,
+  // whose straight lobe (proxy.h) takes its share P out of the density: ∫ pdf dω + P = 1.
   const TriangleMesh rock = unitGrain(makeRock(3, 0.3f, 11));
-  const ProxyTable table = estimateProxyTable(rock, dielectric(1.31f, Vec3(0.2f, 0.5f, 0.9f)), proxyOptions(1 << 16));
-  Rng rng(5);
-  for (int b = 0; b < table.bBins(); ++b) {
-    for (int k = 0; k < 500; ++k) {
-      ProxyDirection s;
-      ASSERT_TRUE(table.sample(b, rng.next1D(), rng.next1D(), rng.next1D(), rng.next1D(), s));
-      EXPECT_NEAR(length(s.w), 1.0f, 1e-5f);
-      const ProxyDirection e = table.eval(b, s.w);
-      ASSERT_EQ(e.bin, s.bin);
-      ASSERT_EQ(e.mirrored, s.mirrored);
-      ASSERT_NEAR(e.pdf, s.pdf, 1e-5f * s.pdf);
-      for (int c = 0; c < 3; ++c) ASSERT_NEAR(e.f[c], s.f[c], 1e-6f * (1 + s.f[c]));
-    }
-    // ∫ pdf dω over the sphere, on a grid of cells equal in θ and φ, each inside one bin
-    // (the bins' edges in θ are among the grid's), each weighed by its solid angle.
-    const int nt = 1024, np = 256;
-    double integral = 0;
-    for (int i = 0; i < nt; ++i) {
-      const double t0 = kPiD * i / nt, t1 = kPiD * (i + 1) / nt;
-      const float mu = float(std::cos(0.5 * (t0 + t1)));
-      const double cellOmega = (std::cos(t0) - std::cos(t1)) * (2.0 * kPiD / np);
-      for (int j = 0; j < np; ++j) {
-        const float phi = -kPi + 2.0f * kPi * (float(j) + 0.5f) / float(np);
-        const float s = std::sqrt(1.0f - mu * mu);
-        integral += double(table.eval(b, Vec3(s * std::cos(phi), s * std::sin(phi), mu)).pdf) * cellOmega;
+  const TriangleMesh box = unitGrain(makeBox(Vec3(-1.0f, -0.7f, -0.55f), Vec3(1.0f, 0.7f, 0.55f)));
+  const Material tinted = dielectric(1.31f, Vec3(0.2f, 0.5f, 0.9f));
+  for (const TriangleMesh* grain : {&rock, &box}) {
+    const ProxyTable table = estimateProxyTable(*grain, tinted, proxyOptions(1 << 16));
+    Rng rng(5);
+    double straightShare = 0;
+    for (int b = 0; b < table.bBins(); ++b) {
+      const Vec3 a = table.albedo(b), pass = table.pass(b);
+      const float P = (pass.x + pass.y + pass.z) / (a.x + a.y + a.z);
+      straightShare = std::max(straightShare, double(P));
+      for (int k = 0; k < 500; ++k) {
+        ProxyDirection s;
+        ASSERT_TRUE(table.sample(b, rng.next1D(), rng.next1D(), rng.next1D(), rng.next1D(), s));
+        EXPECT_NEAR(length(s.w), 1.0f, 1e-5f);
+        if (s.straight) {  // a delta: never evaluated, straight on with its probability
+          ASSERT_EQ(s.w.z, 1.0f);
+          ASSERT_NEAR(s.pdf, P, 1e-6f);
+          for (int c = 0; c < 3; ++c) ASSERT_EQ(s.f[c], pass[c]);
+          continue;
+        }
+        const ProxyDirection e = table.eval(b, s.w);
+        ASSERT_EQ(e.bin, s.bin);
+        ASSERT_EQ(e.mirrored, s.mirrored);
+        ASSERT_NEAR(e.pdf, s.pdf, 1e-5f * s.pdf);
+        for (int c = 0; c < 3; ++c) ASSERT_NEAR(e.f[c], s.f[c], 1e-6f * (1 + s.f[c]));
       }
+      // ∫ pdf dω over the sphere, on a grid of cells equal in θ and φ, each inside one bin
+      // (the bins' edges in θ are among the grid's), each weighed by its solid angle.
+      const int nt = 1024, np = 256;
+      double integral = 0;
+      for (int i = 0; i < nt; ++i) {
+        const double t0 = kPiD * i / nt, t1 = kPiD * (i + 1) / nt;
+        const float mu = float(std::cos(0.5 * (t0 + t1)));
+        const double cellOmega = (std::cos(t0) - std::cos(t1)) * (2.0 * kPiD / np);
+        for (int j = 0; j < np; ++j) {
+          const float phi = -kPi + 2.0f * kPi * (float(j) + 0.5f) / float(np);
+          const float s = std::sqrt(1.0f - mu * mu);
+          integral += double(table.eval(b, Vec3(s * std::cos(phi), s * std::sin(phi), mu)).pdf) * cellOmega;
+        }
+      }
+      EXPECT_NEAR(integral + P, 1.0, 1e-3) << "b bin " << b;
     }
-    EXPECT_NEAR(integral, 1.0, 1e-3) << "b bin " << b;
+    if (grain == &box) EXPECT_GT(straightShare, 0.5) << "the box's straight lobe";
+    else EXPECT_LT(straightShare, 0.01) << "the rock's";
   }
 }
 
@@ -181,11 +199,13 @@ TEST(Proxy, TableExitsMatchTheGrainTracedExplicitly) {
 
 TEST(Proxy, AFlatGrainsStraightOnAndStraightBackPeaksStayNarrow) {
   // A flat box (sucrose's 1 : 0.7 : 0.55) sends light straight on through its parallel
-  // faces and straight back from faces met head-on: peaks at θ = 0 and π. The energy
-  // leaving within 3° of each, traced explicitly, against the table's samples: the table
-  // keeps what its first bin (5.6°, bins equal in θ) holds, uniform over the bin's solid
-  // angle, so its share within 3° is that bin's share × (1 − cos 3°) / (1 − cos 5.625°).
-  // Bins equal in μ (a 20° first bin) put about a tenth of the peak there instead.
+  // faces and straight back from faces met head-on: peaks at θ = 0 and π. Straight on, the
+  // table's straight lobe holds exactly what leaves within kStraightOnDegrees. Within 3°
+  // of each peak, traced explicitly, against the table's samples: the table keeps the
+  // rest of what its first bin (5.6°, bins equal in θ) holds uniform over the bin's solid
+  // angle, so its share within 3° is at least that bin's share × (1 − cos 3°) /
+  // (1 − cos 5.625°). Bins equal in μ (a 20° first bin) put about a tenth of the straight
+  // back peak there instead.
   const TriangleMesh box = unitGrain(makeBox(Vec3(-0.5f, -0.35f, -0.275f), Vec3(0.5f, 0.35f, 0.275f)));
   const Material m = dielectric(1.56f);
   const ProxyTable table = estimateProxyTable(box, m, proxyOptions(1 << 18));
@@ -194,7 +214,8 @@ TEST(Proxy, AFlatGrainsStraightOnAndStraightBackPeaksStayNarrow) {
   const double c3 = std::cos(3.0 * kPiD / 180.0), cBin = std::cos(kPiD / 32.0);
   const double withinBin = (1.0 - c3) / (1.0 - cBin);
   int64_t hits = 0;
-  double on = 0, on2 = 0, back = 0, back2 = 0;
+  double on = 0, on2 = 0, back = 0, back2 = 0, straight = 0, straight2 = 0;
+  const double cStraight = std::cos(kStraightOnDegrees * kPiD / 180.0);
   const int64_t n = 1 << 18;
   for (int64_t k = 0; k < n; ++k) {
     Rng rng(hashInts(77, uint64_t(k)));
@@ -206,6 +227,7 @@ TEST(Proxy, AFlatGrainsStraightOnAndStraightBackPeaksStayNarrow) {
     const double mu = dot(g.d, wi);
     const double e = g.weight.x;
     if (mu > c3) { on += e; on2 += e * e; }
+    if (mu > cStraight) { straight += e; straight2 += e * e; }
     if (mu < -c3) { back += e; back2 += e * e; }
   }
   // The table's share, over the b bins (equal shares of entering rays) weighed by hits.
@@ -231,6 +253,18 @@ TEST(Proxy, AFlatGrainsStraightOnAndStraightBackPeaksStayNarrow) {
   const double pOn = on / h, pBack = back / h;
   const double seOn = std::sqrt(std::max(0.0, on2 / h - pOn * pOn) / h);
   const double seBack = std::sqrt(std::max(0.0, back2 / h - pBack * pBack) / h);
+  // Straight on within kStraightOnDegrees: the table's straight lobe, per ray met (over
+  // the b bins weighed by hits), against the share traced (the box's parallel faces send
+  // these rays exactly straight).
+  double lobe = 0;
+  for (int b = 0; b < table.bBins(); ++b) lobe += table.hitProbability(b) * table.pass(b).x;
+  lobe /= tHits;
+  const double pStraight = straight / double(hits);
+  const double seStraight = std::sqrt(std::max(0.0, straight2 / double(hits) - pStraight * pStraight) / double(hits));
+  std::printf("straight on within %.2f°: explicit %.4f ± %.4f, the table's lobe %.4f\n", kStraightOnDegrees,
+              pStraight, seStraight, lobe);
+  EXPECT_GT(pStraight, 0.2);
+  EXPECT_NEAR(lobe, pStraight, 4.0 * std::sqrt(2.0) * seStraight);
   ASSERT_GT(pOn, 0.05);  // the peaks are there to keep
   ASSERT_GT(pBack, 0.01);
   // The explicit share lies between the uniform-in-bin share and the whole bin's; the
