@@ -184,7 +184,7 @@ class Aggregate {
     bool found = false;
     WalkMode mode = WalkMode::Grains;
     const ProxyTables* tables = nullptr;  // ProxyTransmittance
-    ProxyShadow transmittance;
+    ProxyShadow transmittance{};
     uint64_t seed = 0;   // roulette's random numbers (ProxyTransmittance)
     uint64_t draws = 0;
     float tEnterMin = -kInf;  // ProxyTransmittance: spheres entered before are counted already
