@@ -36,8 +36,8 @@
 //     and materials: the hit chance and albedo, the table's largest density f (a cell's
 //     mean over the channels, per steradian) and its ratio to an isotropic grain's,
 //     albedo / 4π — what next-event estimation toward a point-like sun reads at worst —,
-//     and the share of the energy a grain met sends within 0.5° of straight on (N rays
-//     traced through the grain apart from the table's). One JSON line per prototype.
+//     and the share of the energy a grain met sends straight on (the table's straight lobe:
+//     within kStraightOnDegrees). One JSON line per prototype.
 #include <sys/resource.h>
 
 #include <algorithm>
@@ -307,7 +307,7 @@ int peaks(long rays) {
     const ProxyTable t = estimateProxyTable(unit, m, o);
     const int nb = t.bBins();
     // The largest density: the table evaluated on a grid finer than its bins.
-    std::vector<double> peak(size_t(nb), 0.0), straight(size_t(nb), 0.0), energy(size_t(nb), 0.0);
+    std::vector<double> peak(size_t(nb), 0.0);
     for (int b = 0; b < nb; ++b)
       for (int i = 0; i < 1024; ++i)
         for (int j = 0; j < 128; ++j) {
@@ -315,29 +315,16 @@ int peaks(long rays) {
           const Vec3 f = t.eval(b, Vec3(std::sin(th) * std::cos(ph), std::sin(th) * std::sin(ph), std::cos(th))).f;
           peak[size_t(b)] = std::max(peak[size_t(b)], double(f.x + f.y + f.z) / 3.0);
         }
-    EmbreeScene bvh = buildTriangleScene(dev, unit);
-    const double cosStraight = std::cos(0.5 * kPiD / 180.0);
-    for (long k = 0; k < rays; ++k) {
-      Rng rng(hashInts(2, 0x504b /* "PK" */, uint64_t(k)));
-      Vec3 xi, wi;
-      sampleSphereEntry(rng, xi, wi);
-      const int b = t.bBin(ProxyFrame(wi, xi).b);
-      const GrainPassage g = traceGrainPassage(bvh.get(), unit, m, o.maxBounces, xi, wi, rng);
-      if (!g.hit) continue;
-      const double e = double(g.weight.x + g.weight.y + g.weight.z) / 3.0;
-      energy[size_t(b)] += e;
-      if (dot(normalize(g.d), wi) > cosStraight) straight[size_t(b)] += e;
-    }
     std::string hit, albedo, pk, ratio, share;
     for (int b = 0; b < nb; ++b) {
-      const Vec3 a = t.albedo(b);
+      const Vec3 a = t.albedo(b), pass = t.pass(b);
       const double iso = double(a.x + a.y + a.z) / 3.0 / (4.0 * kPiD);
       const char* sep = b ? ", " : "";
       hit += str(sep, t.hitProbability(b));
       albedo += str(sep, double(a.x + a.y + a.z) / 3.0);
       pk += str(sep, peak[size_t(b)]);
       ratio += str(sep, iso > 0 ? peak[size_t(b)] / iso : 0.0);
-      share += str(sep, energy[size_t(b)] > 0 ? straight[size_t(b)] / energy[size_t(b)] : 0.0);
+      share += str(sep, a.x + a.y + a.z > 0 ? double(pass.x + pass.y + pass.z) / double(a.x + a.y + a.z) : 0.0);
     }
     std::printf(
         "{\"prototype\": \"%s\", \"ior\": %g, \"absorption\": %s, \"rays\": %ld, \"hit\": [%s], \"albedo\": [%s], "

@@ -139,24 +139,18 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
       if (!isBlack(f)) {
         Vec3 origin = offsetRayOrigin(hit.p, hit.ng, ls.wi, hit.eps);
         float dist = std::isfinite(ls.dist) ? ls.dist * (1.0f - 1e-4f) : kInf;
-        Vec3 Tr(1.0f), straight(0.0f);
+        const Vec3 c = path.beta * f * ls.Li *
+                       (ls.delta ? 1.0f / lightPick : powerHeuristic(ls.pdf * lightPick, bsdfPdf) / (ls.pdf * lightPick));
         if (mediaMode) {
-          Tr = scene.transmittance(origin, ls.wi, dist, ray.time, &path.rng);
+          const Vec3 Tr = scene.transmittance(origin, ls.wi, dist, ray.time, &path.rng);
+          if (!isBlack(Tr)) path.L[path.credit] += c * Tr;
           cost += 1;
         } else if (path.mode == kPpt) {
-          const ProxyShadow shadow = scene.proxyTransmittance(origin, ls.wi, dist, nullptr, path.rng.nextU32(), ray.time);
-          Tr = Vec3(shadow.unscattered);
-          straight = shadow.crossing - Tr;  // pending while among proxies (ppt.h)
+          path.addThroughProxies(c, scene.proxyTransmittance(origin, ls.wi, dist, nullptr, path.rng.nextU32(), ray.time));
           cost += 1;
         } else {
-          Tr = Vec3(scene.occluded(origin, ls.wi, dist, ray.time) ? 0.0f : 1.0f);
+          if (!scene.occluded(origin, ls.wi, dist, ray.time)) path.L[path.credit] += c;
           cost += scene.aggregates().empty() ? 1 : kGrainCastCost;
-        }
-        if (!isBlack(Tr) || !isBlack(straight)) {
-          const Vec3 c = path.beta * f * ls.Li *
-                         (ls.delta ? 1.0f / lightPick : powerHeuristic(ls.pdf * lightPick, bsdfPdf) / (ls.pdf * lightPick));
-          path.L[path.credit] += c * Tr;
-          path.pendingStraight += c * straight;
         }
       }
     }

@@ -54,6 +54,13 @@ struct PathState {
   // (ProxyShadow, proxy.h): added once the path goes on among proxies or ends, dropped if it
   // switches to the media, which count those grains as scatterings (ppt.h).
   Vec3 pendingStraight{0.0f};
+  // A next-event estimate c (all but its shadow ray's factor) whose shadow ray crossed
+  // proxies: what met no grain is added at once, what came through straight lobes held.
+  void addThroughProxies(const Vec3& c, const ProxyShadow& shadow) {
+    if (shadow.blocked()) return;
+    L[credit] += c * shadow.unscattered;
+    pendingStraight += c * (shadow.crossing - Vec3(shadow.unscattered));
+  }
   void addPendingStraight() {
     L[credit] += pendingStraight;
     pendingStraight = Vec3(0.0f);

@@ -71,8 +71,7 @@ void scatter(const Scene& scene, PathState& path, const Hit& hit, const ProxyTab
         if (!tr.blocked()) {
           const Vec3 c = path.beta * d.f * ls.Li *
                          (ls.delta ? 1.0f / lightPick : powerHeuristic(ls.pdf * lightPick, d.pdf) / (ls.pdf * lightPick));
-          path.L[path.credit] += c * tr.unscattered;
-          path.pendingStraight += c * (tr.crossing - Vec3(tr.unscattered));
+          path.addThroughProxies(c, tr);
         }
       }
     }

@@ -6,7 +6,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <utility>
 
 #include "cache.h"
 #include "embree_util.h"
@@ -51,7 +50,6 @@ struct ChunkSums {
   std::vector<double> energy;          // per (b, direction) bin and channel
   std::vector<double> pass;            // per b bin and channel: straight on
   std::vector<Record> records;         // in ray order
-  std::vector<Record> straight;        // in ray order, bin: the b bin
 };
 
 // Cache record (cache.h: RecordWriter) of a table.
@@ -205,19 +203,9 @@ ProxyDirection ProxyTable::eval(int b, const Vec3& wLocal) const {
 }
 
 Vec3 ProxyTable::exitPoint(int b, const ProxyDirection& d, float u) const {
-  if (d.straight) {  // on along the entry's z from one of the straight rays' offsets
-    const uint32_t first = straightStart_[size_t(b)], count = straightStart_[size_t(b) + 1] - first;
-    Vec3 e(0.0f);
-    if (count > 0) {
-      const uint32_t k = first + std::min(count - 1, uint32_t(u * float(count)));
-      e = Vec3(straightOffsets_[2 * k], straightOffsets_[2 * k + 1], 0.0f);
-    }
-    if (d.mirrored) e.y = -e.y;
-    return sphereExitPoint(e, Vec3(0.0f, 0.0f, 1.0f));
-  }
-  Vec3 w = d.w;
+  Vec3 w = d.straight ? Vec3(0.0f, 0.0f, 1.0f) : d.w;  // the straight lobe: on along the entry's z
   w.y = std::fabs(w.y);
-  const size_t cell = size_t(b) * size_t(nmu_ * nphi_) + size_t(d.bin);
+  const size_t cell = offsetCell(b, d);
   const uint32_t first = offsetStart_[cell], count = offsetStart_[cell + 1] - first;
   Vec3 p = w;  // no offset recorded: leave through the point straight ahead
   if (count > 0) {
@@ -277,7 +265,6 @@ std::vector<char> serialiseProxyTable(const ProxyTable& t, uint64_t key) {
   for (int v : {t.nb_, t.nmu_, t.nphi_}) w.putI32(int32_t(v));
   w.putI64(t.rays_);
   w.putU64(uint64_t(t.offsets_.size()));
-  w.putU64(uint64_t(t.straightOffsets_.size()));
   w.putArray(t.hit_);
   w.putArray(t.albedo_);
   w.putArray(t.pass_);
@@ -285,42 +272,34 @@ std::vector<char> serialiseProxyTable(const ProxyTable& t, uint64_t key) {
   w.putArray(t.cdf_);
   w.putArray(t.offsets_);
   w.putArray(t.offsetStart_);
-  w.putArray(t.straightOffsets_);
-  w.putArray(t.straightStart_);
   return w.finish();
 }
 
 bool deserialiseProxyTable(const std::vector<char>& in, uint64_t key, ProxyTable& t) {
   RecordReader r(in, kMagic);
-  uint64_t offsets = 0, straight = 0;
+  uint64_t offsets = 0;
   int32_t nb = 0, nmu = 0, nphi = 0;
   if (!r.getHeader(kFormatVersion, key)) return false;
-  if (!r.getI32(nb) || !r.getI32(nmu) || !r.getI32(nphi) || !r.getI64(t.rays_) || !r.getU64(offsets) ||
-      !r.getU64(straight))
-    return false;
+  if (!r.getI32(nb) || !r.getI32(nmu) || !r.getI32(nphi) || !r.getI64(t.rays_) || !r.getU64(offsets)) return false;
   const size_t nd = size_t(nmu) * size_t(nphi), cells = size_t(nb) * nd;
+  const size_t offsetCells = cells + size_t(nb);  // and the straight lobes'
   // The lengths the counts imply, checked before anything is allocated for them.
-  if (nb < 1 || nmu < 1 || nphi < 1 || offsets % 2 != 0 || straight % 2 != 0 ||
+  if (nb < 1 || nmu < 1 || nphi < 1 || offsets % 2 != 0 ||
       r.remaining() != size_t(nb) * 4 + size_t(nb) * 24 + cells * 12 + size_t(nb) * (nd + 1) * 4 + offsets * 4 +
-                           (cells + 1) * 4 + straight * 4 + (size_t(nb) + 1) * 4)
+                           (offsetCells + 1) * 4)
     return false;
   t.nb_ = nb; t.nmu_ = nmu; t.nphi_ = nphi;
   t.hit_.resize(size_t(nb)); t.albedo_.resize(size_t(nb)); t.pass_.resize(size_t(nb)); t.f_.resize(cells);
-  t.cdf_.resize(size_t(nb) * (nd + 1)); t.offsets_.resize(offsets); t.offsetStart_.resize(cells + 1);
-  t.straightOffsets_.resize(straight); t.straightStart_.resize(size_t(nb) + 1);
+  t.cdf_.resize(size_t(nb) * (nd + 1)); t.offsets_.resize(offsets); t.offsetStart_.resize(offsetCells + 1);
   if (!r.getArray(t.hit_) || !r.getArray(t.albedo_) || !r.getArray(t.pass_) || !r.getArray(t.f_) ||
-      !r.getArray(t.cdf_) || !r.getArray(t.offsets_) || !r.getArray(t.offsetStart_) ||
-      !r.getArray(t.straightOffsets_) || !r.getArray(t.straightStart_) || !r.finish())
+      !r.getArray(t.cdf_) || !r.getArray(t.offsets_) || !r.getArray(t.offsetStart_) || !r.finish())
     return false;
   for (const std::vector<Vec3>* a : {&t.f_, &t.pass_})
     for (const Vec3& v : *a)
       if (!isFinite(v) || minComponent(v) < 0) return false;
-  if (t.offsetStart_.back() * 2 != offsets || t.straightStart_.front() != 0 || t.straightStart_.back() * 2 != straight)
-    return false;
+  if (t.offsetStart_.back() * 2 != offsets) return false;
   for (size_t i = 0; i + 1 < t.offsetStart_.size(); ++i)
     if (t.offsetStart_[i] > t.offsetStart_[i + 1]) return false;
-  for (size_t i = 0; i + 1 < t.straightStart_.size(); ++i)
-    if (t.straightStart_[i] > t.straightStart_[i + 1]) return false;
   for (int b = 0; b < nb; ++b)  // a CDF: finite, from 0, never falling
     for (size_t i = 0; i <= nd; ++i) {
       const float c = t.cdf_[size_t(b) * (nd + 1) + i];
@@ -386,7 +365,8 @@ ProxyTable estimateProxyTable(const TriangleMesh& mesh, const Material& material
         }
         if (w.z > cosStraight) {  // the straight lobe: its energy and its line's offset
           for (int ch = 0; ch < 3; ++ch) s.pass[size_t(b) * 3 + size_t(ch)] += double(g.weight[ch]);
-          s.straight.push_back({uint32_t(b), e.x, e.y});
+          // Its offset in exitFrame of (0, 0, 1): the entry frame's x and y.
+          s.records.push_back({uint32_t(size_t(nb) * size_t(nd) + size_t(b)), e.x, e.y});
           continue;
         }
         const int i = t.directionBin(w);
@@ -401,8 +381,7 @@ ProxyTable estimateProxyTable(const TriangleMesh& mesh, const Material& material
 
   std::vector<int64_t> entered(size_t(nb), 0), hits(size_t(nb), 0);
   std::vector<double> energy(size_t(nb) * size_t(nd) * 3, 0.0), pass(size_t(nb) * 3, 0.0);
-  std::vector<std::vector<float>> kept(size_t(nb) * size_t(nd));
-  std::vector<std::vector<float>> keptStraight(static_cast<size_t>(nb));
+  std::vector<std::vector<float>> kept(size_t(nb) * size_t(nd) + size_t(nb));  // and the straight lobes'
   for (const ChunkSums& s : parts) {  // in chunk order: reproducible sums and samples
     for (int b = 0; b < nb; ++b) {
       entered[size_t(b)] += s.entered[size_t(b)];
@@ -410,14 +389,13 @@ ProxyTable estimateProxyTable(const TriangleMesh& mesh, const Material& material
     }
     for (size_t i = 0; i < energy.size(); ++i) energy[i] += s.energy[i];
     for (size_t i = 0; i < pass.size(); ++i) pass[i] += s.pass[i];
-    for (const auto& [records, into] : {std::pair{&s.records, &kept}, std::pair{&s.straight, &keptStraight}})
-      for (const Record& r : *records) {
-        auto& k = (*into)[r.bin];
-        if (int(k.size()) < 2 * opt.offsetsPerBin) {
-          k.push_back(r.c1);
-          k.push_back(r.c2);
-        }
+    for (const Record& r : s.records) {
+      auto& k = kept[r.bin];
+      if (int(k.size()) < 2 * opt.offsetsPerBin) {
+        k.push_back(r.c1);
+        k.push_back(r.c2);
       }
+    }
   }
   t.hit_.resize(size_t(nb));
   t.albedo_.resize(size_t(nb));
@@ -450,11 +428,6 @@ ProxyTable estimateProxyTable(const TriangleMesh& mesh, const Material& material
   for (const auto& k : kept) {
     t.offsets_.insert(t.offsets_.end(), k.begin(), k.end());
     t.offsetStart_.push_back(uint32_t(t.offsets_.size() / 2));
-  }
-  t.straightStart_.assign(1, 0);
-  for (const auto& k : keptStraight) {
-    t.straightOffsets_.insert(t.straightOffsets_.end(), k.begin(), k.end());
-    t.straightStart_.push_back(uint32_t(t.straightOffsets_.size() / 2));
   }
   t.buildSamplingTables();
   if (opt.useCache) writeCacheFile(name, serialiseProxyTable(t, key));

@@ -9,14 +9,13 @@
 //   hit(b)       the chance that the ray meets the grain; else it crosses unchanged;
 //   f_c(b, ω)    per channel, the energy that leaves into direction ω per steradian, per
 //                ray that met the grain, but for what leaves straight on;
-//   pass_c(b)    per channel, the energy that leaves straight on (within kStraightOnDegrees of the
-//                entering direction), per ray that met the grain: a lobe of its own, a
-//                delta (∫ f_c dω + pass_c is the grain's albedo at b);
+//   pass_c(b)    per channel, the energy that leaves straight on (within
+//                kStraightOnDegrees of the entering direction), per ray that met the
+//                grain: a lobe of its own, a delta (∫ f_c dω + pass_c is the albedo at b);
 //   offsets      where rays leave: the exit line's offset from the centre, perpendicular
 //                to its direction; up to offsetsPerBin of them per (b, direction bin), in
 //                the order traced (a uniform sample, not weighted by energy).
-//   straight     where the straight-on rays leave: their line's offset from the centre,
-//                up to offsetsPerBin per b bin.
+//                The straight lobe's rays keep theirs likewise, per b bin.
 // Why a straight lobe: a flat grain sends much of what it meets near its middle through
 // parallel faces unturned (bench/README.md, "Straight through flat grains"), light that a
 // density spreads over its 5.6° first bin and that next-event estimation toward a narrow
@@ -195,12 +194,14 @@ class ProxyTable {
   std::vector<float> hit_;              // per b bin
   std::vector<Vec3> albedo_;            // per b bin
   std::vector<Vec3> pass_;              // per b bin
-  std::vector<float> straightOffsets_;  // (x, |y|) pairs in the entry frame
-  std::vector<uint32_t> straightStart_; // per b bin, its first pair (CSR)
   std::vector<Vec3> f_;                 // per (b, direction) bin, per steradian
   std::vector<float> cdf_;              // per b bin, nd + 1 values over its direction bins
   std::vector<float> offsets_;          // (c1, c2) pairs: the exit offset in exitFrame()
-  std::vector<uint32_t> offsetStart_;   // per (b, direction) bin, its first pair (CSR)
+  std::vector<uint32_t> offsetStart_;   // per (b, direction) bin, then per b bin's straight lobe: its first pair (CSR)
+  size_t offsetCell(int bBin, const ProxyDirection& d) const {
+    return d.straight ? size_t(nb_) * size_t(nmu_ * nphi_) + size_t(bBin)
+                      : size_t(bBin) * size_t(nmu_ * nphi_) + size_t(d.bin);
+  }
   // Per b bin, kGuides + 1 starting points of sample()'s search (the guide table of
   // Chen & Asau 1974): guide[j] is the last direction bin whose cdf is at most j/kGuides
   // of the total. Made from cdf_ (buildSamplingTables), not stored, as is phiStart_.

@@ -167,9 +167,7 @@ class Scene {
   // measurement (measureViewSwitch) of each measured aggregate as each distant light sees
   // it, the radiance scattered back toward the sun. A dome's albedo averages over the
   // directions light leaves in, and the medium's error toward one of them can be far larger,
-  // of either sign (the paper castle's beach: +17% toward the sun right after the first
-  // grain, where its albedo reads −0.7%, and −2% in blue from its camera with the dome's
-  // choice; bench/README.md, "The switch toward the sun").
+  // of either sign (bench/README.md, "The switch toward the sun").
   // Its visits are what it shows to be needed (switchVisitsShownNeeded: radiance toward one
   // direction is noisy, and nearly clear grains' too noisy to resolve); the aggregate takes
   // the largest of the dome's, the sun's and (switchForView) the camera's choices. Only

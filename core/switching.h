@@ -154,9 +154,9 @@ SwitchMeasure measureSwitch(const Aggregate& aggregate, const ProxyTables& table
 // exp(−σ_t ℓ) to the boundary), and the domes' radiance where a path leaves; a fork
 // leaves to the medium what its grain's estimate found through straight lobes (ppt.h). So
 // bias_k is the medium's bias in the aggregate's pixels, in the frame of the aggregate (a
-// static one: its render space). Area lights are left out. With a cacheKey (as measureSwitch's) it
-// is cached on disk under that key, the tables', the entries' and the lights' (their
-// light at a few probe directions). InputError without entries or lights, or with more
+// static one: its render space). Area lights are left out. With a cacheKey (as
+// measureSwitch's) it is cached on disk under that key, the tables', the entries' and the
+// lights' (their light at a few probe directions). InputError without entries or lights, or with more
 // than 32 lights.
 struct SwitchView {
   struct Entry {

@@ -291,6 +291,7 @@ TEST(Proxy, TablesAreCachedAndReadBackIdentical) {
     ProxyDirection a, c;
     ASSERT_EQ(first.sample(b, u[0], u[1], u[2], u[3], a), second.sample(b, u[0], u[1], u[2], u[3], c));
     EXPECT_EQ(a.bin, c.bin);
+    EXPECT_EQ(a.straight, c.straight);
     EXPECT_EQ(a.pdf, c.pdf);
     const Vec3 pa = first.exitPoint(b, a, u[4]), pc = second.exitPoint(b, c, u[4]);
     EXPECT_EQ(pa.x, pc.x);
