@@ -1392,6 +1392,11 @@ Vec3 Scene::beforeSurfaces(const Vec3& from, const Vec3& to, float time) const {
   return from + ray.d * std::max(0.0f, tmax - 2.0f * surfaceOffset(from + ray.d * tmax, tmax));
 }
 
+float Scene::flightReach(const Vec3& o, float t) const {
+  // Ten times surfaceOffset at any point of the flight, in a unit direction.
+  return t + 1e-4f * std::max({maxComponent(vabs(o)) + t, t, 1e-3f * sceneScale_});
+}
+
 bool Scene::intersectMedium(const Ray& ray, Hit& hit) const {
   float tmax = ray.tmax;
   bool found = intersectSurfaces(ray, Vec3(1.0f / ray.d.x, 1.0f / ray.d.y, 1.0f / ray.d.z), hit, tmax, true);

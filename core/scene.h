@@ -98,6 +98,11 @@ class Scene {
   // The equivalent media (VPT, DA): nearest surface, area light or aggregate boundary
   // (Hit::Boundary, ng outward); grains are not seen.
   bool intersectMedium(const Ray& ray, Hit& hit) const;
+  // How far along a ray from o intersectMedium must search to decide a flight of length t
+  // as an unbounded search would: a boundary crossing within a surface's offset of the
+  // surface is the surface's (intersectMedium), so a little past t. A short search
+  // traverses less of the scene's hierarchies.
+  float flightReach(const Vec3& o, float t) const;
   // Transmittance of a shadow ray through the media: 0 if a surface blocks it, else the
   // product of exp(−σ_t ℓ) over the lengths ℓ it runs inside each aggregate's boundary.
   // Instancers' media are crossed by ratio tracking, from rng (without one: from a hash of the ray).

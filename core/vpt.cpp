@@ -93,12 +93,33 @@ bool deeperThan(const Aggregate& agg, const Vec3& p, float depth) {
   return agg.closestBoundaryPoint(p, closest) > depth;
 }
 
+// Russian roulette on the shadow ray of a scattering deep in its aggregate's medium. The
+// ray runs at least the depth to the boundary inside, so its transmittance is at most
+// exp(−σ_t,min · depth); the distance field estimates that depth for a lookup, where the
+// ray costs a search of the surfaces and of each boundary crossing. The chance to trace
+// it is min(1, that bound / kShadowRouletteBelow), the light found divided by it: unbiased
+// whatever the estimate (a voxel off), which sets only how much variance it adds.
+constexpr float kShadowRouletteBelow = 1.0f / 32.0f;
+
+float shadowChance(const Scene& scene, const PathState& path, const HomogeneousMedium& med, const Vec3& p) {
+  const Aggregate& agg = *scene.aggregates()[path.medium];
+  if (agg.standIn()) return 1.0f;  // no distance field
+  DistanceField::NearestProbe probe(agg.distanceField());  // within a voxel: enough for a chance
+  const float depth = -probe(scene.aggregateAt(path.medium, path.ray.time).toBuild(p));
+  const float bound = std::exp(-minComponent(med.sigmaT()) * std::max(depth, 0.0f));
+  return std::min(1.0f, bound / kShadowRouletteBelow);
+}
+
 }  // namespace
 
 void mediumNee(const Scene& scene, PathState& path, const HomogeneousMedium& med, const Vec3& p,
                const DiffusionBoundary* boundary, const Vec3& reducedBy) {
   const auto& lights = scene.lights();
   const Vec3 wi = path.ray.d;
+  // In its aggregate's own medium, not DA's reduced one (whose flight to the boundary is
+  // given extinction back).
+  const float chance = !boundary && path.medium >= 0 ? shadowChance(scene, path, med, p) : 1.0f;
+  if (chance < 1.0f && path.rng.next1D() >= chance) return;
   if (!lights.empty()) {
     const float lightPick = 1.0f / float(lights.size());
     int li = std::min(int(path.rng.next1D() * lights.size()), int(lights.size()) - 1);
@@ -117,11 +138,11 @@ void mediumNee(const Scene& scene, PathState& path, const HomogeneousMedium& med
       }
       if (!isBlack(Tr) && !isBlack(f)) {
         if (ls.delta) {
-          path.L[path.credit] += path.beta * f * Tr * ls.Li / lightPick;
+          path.L[path.credit] += path.beta * f * Tr * ls.Li / (lightPick * chance);
         } else {
           float lp = ls.pdf * lightPick;
           float w = powerHeuristic(lp, med.phasePdf(wi, ls.wi));
-          path.L[path.credit] += path.beta * f * Tr * ls.Li * (w / lp);
+          path.L[path.credit] += path.beta * f * Tr * ls.Li * (w / (lp * chance));
         }
       }
     }
@@ -202,13 +223,18 @@ void vptStep(const Scene& scene, PathState& path) {
   }
   // Boundary crossings are null events (index-matched interface): loop over them.
   for (int crossing = 0; crossing < 256; ++crossing) {
+    // In a homogeneous medium the flight is drawn first: what lies past it cannot change
+    // the event, so the scene is searched only that far (Scene::flightReach).
+    float t = kInf;
+    if (path.medium >= 0) t = scene.medium(path.medium).sampleDistance(path.rng.next1D(), path.rng.next1D());
+    Ray query = path.ray;
+    if (std::isfinite(t)) query.tmax = std::min(query.tmax, scene.flightReach(query.o, t));
     Hit hit;
-    bool found = scene.intersectMedium(path.ray, hit);
+    bool found = scene.intersectMedium(query, hit);
     path.cost[1] += 1;
     if (path.medium >= 0) {
       const HomogeneousMedium& med = scene.medium(path.medium);
       float tHit = found ? hit.t : kInf;
-      float t = med.sampleDistance(path.rng.next1D(), path.rng.next1D());
       if (t < tHit) {
         // Scattering at t: weight α σ_t T(t) / p(t) per channel (vpt.h).
         Vec3 p = path.ray.o + path.ray.d * t;

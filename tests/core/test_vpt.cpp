@@ -3,8 +3,10 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <vector>
 
 #include "core/ept.h"
+#include "core/sampling.h"
 #include "core/scene.h"
 #include "core/shapes.h"
 #include "core/vpt.h"
@@ -132,4 +134,104 @@ TEST(Vpt, SingleScatteringOfASlabUnderASun) {
   float expected = albedo * sigma * 2.0f / (4.0f * kPi) * (1.0f - std::exp(-k * kSlab)) / k;
   EXPECT_GT(se.x, 0.0f);
   EXPECT_NEAR(mean.x, expected, 4 * se.x) << "se " << se.x;
+}
+
+TEST(Vpt, FlightsSearchedOnlyAsFarAsTheyGoDecideAsAnUnboundedSearch) {
+  // vptStep draws a flight t first and searches the scene only to Scene::flightReach(o, t).
+  // Every decision (scatter at t, or the hit before it) must be the unbounded search's,
+  // also where the slab stands on a ground box whose top face is its bottom face: there a
+  // crossing within the surface's offset of it is the surface's (intersectMedium).
+  SceneDesc d = slabScene();
+  MeshDesc ground;
+  ground.name = "ground";
+  ground.mesh = makeBox(Vec3(-20, -20, -1), Vec3(20, 20, 0));
+  d.meshes.push_back(ground);
+  auto scene = Scene::build(d);
+  scene->setMedium(0, mediumFromRte(Vec3(4.0f), Vec3(0.9f), PhaseTable::isotropic()));
+  Rng rng(11);
+  int decided = 0, atGround = 0;
+  for (int i = 0; i < 4000; ++i) {
+    const Vec3 o(20 * rng.next1D() - 10, 20 * rng.next1D() - 10, kSlab * (0.02f + 0.96f * rng.next1D()));
+    const Vec3 dir = sampleUniformSphere(rng.next1D(), rng.next1D());
+    const Ray ray{o, dir};
+    Hit full;
+    const bool foundFull = scene->intersectMedium(ray, full);
+    ASSERT_TRUE(foundFull);  // inside a closed boundary
+    // Flights short of, about and past the first hit, and within rounding of it.
+    std::vector<float> ts = {full.t * rng.next1D(), full.t * (1 + rng.next1D()), full.t};
+    for (int k = 1; k <= 4; ++k) {
+      ts.push_back(std::nextafter(full.t, 0.0f) * (1 - 1e-7f * float(k)));
+      ts.push_back(full.t * (1 + 1e-7f * float(k)));
+    }
+    atGround += full.kind == Hit::Surface;
+    for (float t : ts) {
+      Ray query = ray;
+      query.tmax = scene->flightReach(o, t);
+      Hit hit;
+      const bool found = scene->intersectMedium(query, hit);
+      const bool scatters = !found || t < hit.t, scattersFull = t < full.t;
+      ASSERT_EQ(scatters, scattersFull) << "o " << o.x << " " << o.y << " " << o.z << " t " << t;
+      if (!scatters) {
+        EXPECT_EQ(hit.kind, full.kind);
+        EXPECT_EQ(hit.t, full.t);
+      }
+      ++decided;
+    }
+  }
+  EXPECT_GT(atGround, 500);  // flights toward the ground end on it, not at the crossing
+  EXPECT_EQ(decided, 4000 * 11);
+}
+
+TEST(Vpt, DeepShadowRaysLeftByRouletteAddNoBias) {
+  // mediumNee traces the shadow ray of a scattering deep in its aggregate with a chance
+  // set by the distance field's depth (vpt.cpp) and divides by it. Under a delta sun each
+  // traced estimate is exactly β f T L, so the mean of many calls must be it.
+  SceneDesc d = slabScene();
+  d.settings.physicalSun = false;
+  LightDesc sun;
+  sun.name = "sun";
+  sun.type = LightType::Distant;
+  sun.angle = 0;
+  const Vec3 toSun = normalize(Vec3(0.5f, 0.0f, 1.0f));
+  sun.xf = Transform::lookAt(Vec3(0.0f), -toSun, Vec3(0, 1, 0));
+  sun.intensity = 2.0f;
+  d.lights.push_back(sun);
+  auto scene = Scene::build(d);
+  scene->setMedium(0, mediumFromRte(Vec3(12.0f), Vec3(0.9f), PhaseTable::isotropic()));
+  const HomogeneousMedium& med = scene->medium(0);
+  const Vec3 wi = normalize(Vec3(0.2f, 0.3f, -1.0f));
+  auto exact = [&](const Vec3& p) {
+    LightSample ls;
+    EXPECT_TRUE(scene->lights()[0].sampleLi(p, 0.5f, 0.5f, ls));
+    return med.phase(wi, ls.wi) * scene->transmittance(p, ls.wi, kInf) * ls.Li;
+  };
+  auto nee = [&](const Vec3& p, uint64_t seed) {
+    PathState path = startPath(Ray{p, wi}, seed);
+    path.mode = path.credit = kVpt;
+    path.medium = 0;
+    mediumNee(*scene, path, med, p);
+    return path.radiance();
+  };
+  // Near the top face every shadow ray is traced: each call gives the exact value.
+  const Vec3 shallow(0.3f, -0.2f, kSlab - 0.02f);
+  const Vec3 e0 = exact(shallow);
+  ASSERT_GT(e0.x, 0.1f * med.phase(wi, toSun).x * 2.0f);
+  for (uint64_t i = 0; i < 64; ++i) EXPECT_NEAR(nee(shallow, i).x, e0.x, 1e-5f * e0.x);
+  // In the middle, 6 mean free paths from either face, most are left.
+  const Vec3 deep(0.3f, -0.2f, 0.5f * kSlab);
+  const float e = exact(deep).x;
+  ASSERT_GT(e, 0.0f);
+  const int n = 40000;
+  double s = 0, s2 = 0;
+  int traced = 0;
+  for (int i = 0; i < n; ++i) {
+    const double L = nee(deep, hashInts(7, uint64_t(i))).x;
+    s += L;
+    s2 += L * L;
+    traced += L > 0;
+  }
+  const double mean = s / n, se = std::sqrt(std::max(0.0, s2 / n - mean * mean) / (n - 1));
+  EXPECT_GT(traced, n / 100);
+  EXPECT_LT(traced, n / 2);
+  EXPECT_NEAR(mean, e, 4 * se) << "traced " << traced << " of " << n;
 }
