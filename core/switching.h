@@ -105,8 +105,11 @@ struct SwitchOptions {
   // error near the tolerance (above). The view measurement's (viewSwitchOptions) is 1.
   float margin = 0.0f;
   // Walk steps (proxy spheres entered, medium events) after which no batch starts: nearly
-  // clear grains walk hundreds of steps per path.
-  int64_t eventBudget = int64_t(1) << 22;
+  // clear grains walk hundreds of steps per path. Enough for paths of up to 128 steps to
+  // reach `paths`: a measurement cut short leaves its least candidate at the edge of the
+  // precision asked, and the choice then errs toward more visits, which cost a render
+  // time and variance (bench/README.md, "Hybrid speed-up").
+  int64_t eventBudget = int64_t(1) << 23;
   // False (reports): every candidate forks in every path and all `paths` are traced, the
   // budget and the decisions notwithstanding.
   bool stopEarly = true;
