@@ -452,13 +452,16 @@ int chooseSwitchVisits(const SwitchMeasure& m, const SwitchOptions& o) {
 }
 
 int switchVisitsShownNeeded(const SwitchMeasure& m, const SwitchOptions& o) {
-  for (int c = 0; c < int(m.bias.size()); ++c) {
-    bool shown = false;
+  auto shown = [&](int c) {
     for (int ch = 0; ch < 3; ++ch)
-      shown = shown || std::fabs(m.bias[size_t(c)][ch]) - o.margin * m.biasSE[size_t(c)][ch] > o.tolerance;
-    if (!shown) return kSwitchVisits[c];
-  }
-  return kSwitchVisits[kSwitchCandidates - 1];
+      if (std::fabs(m.bias[size_t(c)][ch]) - o.margin * m.biasSE[size_t(c)][ch] > o.tolerance) return true;
+    return false;
+  };
+  // The bias falls with visits: a candidate shown biased shows the earlier ones so too,
+  // however noisy their own estimates. So the one after the last shown.
+  int c = int(m.bias.size());
+  while (c > 0 && !shown(c - 1)) --c;
+  return kSwitchVisits[std::min(c, kSwitchCandidates - 1)];
 }
 
 namespace {

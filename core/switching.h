@@ -136,8 +136,10 @@ std::string switchCacheName(uint64_t cacheKey, const ProxyTables& tables, const 
 // Chooses the visits from bias and biasSE as the contract says.
 int chooseSwitchVisits(const SwitchMeasure& m, const SwitchOptions& o);
 
-// The visits a measurement shows to be needed: the least candidate none of whose channels
-// is beyond the tolerance by more than margin standard errors (K when every one is). Where
+// The visits a measurement shows to be needed: the candidate after the last one with a
+// channel beyond the tolerance by more than margin standard errors (0 when none is, K when
+// K is): the bias falls with visits, so a noisy early estimate does not undo what a later
+// one shows. Where
 // chooseSwitchVisits asks a choice to be measured within the tolerance, and errs toward K
 // when it is not, this errs toward fewer visits: what a noisy measurement (radiance toward
 // one direction) adds to another's choice is only what it resolves.

@@ -147,6 +147,12 @@ TEST(Switching, WhatAMeasurementShowsNeededErrsTowardFewerVisits) {
   EXPECT_EQ(chooseSwitchVisits(m, o), kSwitchVisits[2]) << "the choice proper wants it measured within";
   set(1, 0.03f, 0.01f);  // 3% ± 1%: shown
   EXPECT_EQ(switchVisitsShownNeeded(m, o), kSwitchVisits[2]);
+  // A noisy estimate before one shown biased does not end the search there (a sun's
+  // measurement: −4.6 ± 12.5% after 0 visits, +19.6 ± 4.9% after 2).
+  set(0, -0.046f, 0.125f);
+  set(1, 0.0f, 0.0f);
+  set(2, 0.196f, 0.049f);
+  EXPECT_EQ(switchVisitsShownNeeded(m, o), kSwitchVisits[3]);
   for (Vec3& b : m.bias) b = Vec3(0.05f);
   for (Vec3& e : m.biasSE) e = Vec3(0.001f);
   EXPECT_EQ(switchVisitsShownNeeded(m, o), kSwitchVisits[kSwitchCandidates - 1]) << "every one shown: the largest";
