@@ -1393,8 +1393,8 @@ Vec3 Scene::beforeSurfaces(const Vec3& from, const Vec3& to, float time) const {
 }
 
 float Scene::flightReach(const Vec3& o, float t) const {
-  // Ten times surfaceOffset at any point of the flight, in a unit direction.
-  return t + 1e-4f * std::max({maxComponent(vabs(o)) + t, t, 1e-3f * sceneScale_});
+  // Ten times surfaceOffset at any point of the flight (|p| ≤ |o| + t), in a unit direction.
+  return t + 10.0f * surfaceOffset(vabs(o) + Vec3(t), t);
 }
 
 bool Scene::intersectMedium(const Ray& ray, Hit& hit) const {
