@@ -1063,10 +1063,11 @@ void Scene::measureSwitching(size_t a) {
       inArena(settings_.threads, [&] { return measureSwitch(agg, *entry.proxies, media_[a], {}, key); }));
 }
 
-std::shared_ptr<const SwitchMeasure> Scene::measureViewSwitching(size_t a, const SwitchView& view) const {
+std::shared_ptr<const SwitchMeasure> Scene::measureViewSwitching(size_t a, const SwitchView& view,
+                                                                 const SwitchOptions& options) const {
   const BuiltAggregate& entry = built_[a];
   return std::make_shared<const SwitchMeasure>(inArena(settings_.threads, [&] {
-    return measureViewSwitch(*aggregates_[a], *entry.proxies, media_[a], view, viewSwitchOptions(), entry.switchKey);
+    return measureViewSwitch(*aggregates_[a], *entry.proxies, media_[a], view, options, entry.switchKey);
   }));
 }
 
@@ -1095,16 +1096,18 @@ void Scene::updateSwitching() {
     if (measure) {
       measureSwitching(a);
       switching_[a] = built_[a].switching;
-      if (!suns.empty() && int(suns[a].entries.size()) >= kMinViewEntries) {
+      // Not where the dome's choice is the most visits already: it could add nothing.
+      if (!suns.empty() && int(suns[a].entries.size()) >= kMinViewEntries &&
+          switching_[a]->visits < kSwitchVisits[kSwitchCandidates - 1]) {
         // It adds to the dome's choice what it shows to be needed: toward the sun, nearly
         // clear grains' radiance is too noisy to resolve within its paths, and erring toward
         // the most visits there would make their renders noisier, not more accurate.
-        SwitchMeasure sun = *measureViewSwitching(a, suns[a]);
-        sun.visits = switchVisitsShownNeeded(sun, viewSwitchOptions());
+        SwitchMeasure sun = *measureViewSwitching(a, suns[a], sunSwitchOptions());
+        sun.visits = switchVisitsShownNeeded(sun, sunSwitchOptions());
         sunSwitching_[a] = std::make_shared<const SwitchMeasure>(std::move(sun));
       }
       if (!views.empty() && int(views[a].entries.size()) >= kMinViewEntries)
-        viewSwitching_[a] = measureViewSwitching(a, views[a]);
+        viewSwitching_[a] = measureViewSwitching(a, views[a], viewSwitchOptions());
     }
     int k = switching_[a] ? switching_[a]->visits : -1;
     if (const SwitchMeasure* sun = sunSwitchMeasure(int(a))) k = std::max(k, sun->visits);

@@ -180,7 +180,8 @@ class Scene {
   // anyway: under a wide one the nearly clear scenes need no proxies, and the measurement
   // would cost seconds to ask for some. Made once per scene (and per setMedium), cached on
   // disk. Null when not made: no switching measurement, no narrow sun, no distant light of
-  // non-zero radiance, or fewer than kMinViewEntries entries.
+  // non-zero radiance, fewer than kMinViewEntries entries, or the dome's choice the most
+  // visits already (kSwitchVisits' last).
   const SwitchMeasure* sunSwitchMeasure(int aggregate) const {
     return size_t(aggregate) < sunSwitching_.size() && !switching_.empty() && switching_[size_t(aggregate)]
                ? sunSwitching_[size_t(aggregate)].get()
@@ -521,7 +522,8 @@ class Scene {
   void updateProxyTables();
   void updateInstancedProxyTables();
   void measureSwitching(size_t aggregate);
-  std::shared_ptr<const SwitchMeasure> measureViewSwitching(size_t aggregate, const SwitchView& view) const;
+  std::shared_ptr<const SwitchMeasure> measureViewSwitching(size_t aggregate, const SwitchView& view,
+                                                            const SwitchOptions& options) const;
   bool useProxies_ = false, proxyLightSampling_ = false;
   std::vector<TriangleMesh> worldMeshes_;   // per Embree geometry id (moving: at the shutter's open)
   std::vector<TriangleMesh> worldMeshesAtClose_;  // per geometry id: at the shutter's close; empty when still

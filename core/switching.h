@@ -110,6 +110,11 @@ struct SwitchOptions {
   // precision asked, and the choice then errs toward more visits, which cost a render
   // time and variance (bench/README.md, "Hybrid speed-up").
   int64_t eventBudget = int64_t(1) << 23;
+  // Paths traced before the measurement may stop for being settled or decide a candidate
+  // (the budget still ends it): where single paths carry rare large contributions, the
+  // standard error of a few thousand is too small more often than a normal estimate's
+  // (sunSwitchOptions).
+  int64_t minPaths = 0;
   // False (reports): every candidate forks in every path and all `paths` are traced, the
   // budget and the decisions notwithstanding.
   bool stopEarly = true;
@@ -137,9 +142,10 @@ std::string switchCacheName(uint64_t cacheKey, const ProxyTables& tables, const 
 int chooseSwitchVisits(const SwitchMeasure& m, const SwitchOptions& o);
 
 // The visits a measurement shows to be needed: the candidate after the last one with a
-// channel beyond the tolerance by more than margin standard errors (0 when none is, K when
+// channel beyond the tolerance by more than three standard errors (0 when none is, K when
 // K is): the bias falls with visits, so a noisy early estimate does not undo what a later
-// one shows. Where
+// one shows; and three, whatever the margin, because all the candidates' channels are
+// looked at (at one, a few of eighteen would show a bias by chance). Where
 // chooseSwitchVisits asks a choice to be measured within the tolerance, and errs toward K
 // when it is not, this errs toward fewer visits: what a noisy measurement (radiance toward
 // one direction) adds to another's choice is only what it resolves.
@@ -179,6 +185,14 @@ struct SwitchView {
 // paths stop at 2^17: where a choice needs more, a visit more costs the render less than
 // the paths would cost the measurement, so it errs toward the largest candidate.
 SwitchOptions viewSwitchOptions();
+
+// The sun measurement's (Scene::sunSwitchMeasure): the view's, read by
+// switchVisitsShownNeeded, at least 2^14 paths before it may stop and a budget of 2^26
+// steps for them. Radiance scattered back toward a 0.53° sun is heavy-tailed: on the
+// paper castle's beach, 2048 paths read the medium after 2 visits +20 ± 4% bright toward
+// the sun in some seeds, where 2^17 paths read −2.7 ± 1.5% (bench/README.md, "The sun's
+// rule").
+SwitchOptions sunSwitchOptions();
 
 SwitchMeasure measureViewSwitch(const Aggregate& aggregate, const ProxyTables& tables, const HomogeneousMedium& medium,
                                 const SwitchView& view, const SwitchOptions& options = viewSwitchOptions(),

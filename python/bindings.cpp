@@ -1090,26 +1090,28 @@ PYBIND11_MODULE(granular_core, m) {
           "albedo: the radiance the camera sees there)")
       .def(
           "measure_view_switch",
-          [](const PyScene& s, int a, int64_t paths, bool stopEarly, uint64_t seed) {
+          [](const PyScene& s, int a, int64_t paths, bool stopEarly, uint64_t seed, bool sun) {
             const Scene& sc = measuredAggregate(s, a, "measure_view_switch");
-            const SwitchView view = sc.switchViews()[size_t(a)];
+            const SwitchView view = (sun ? sc.sunSwitchViews() : sc.switchViews())[size_t(a)];
             if (view.entries.size() < size_t(Scene::kMinViewEntries))
-              throw std::invalid_argument(str("measure_view_switch: the camera sees aggregate ", a, " in ",
-                                              view.entries.size(), " of its ", Scene::kViewGrid * Scene::kViewGrid,
-                                              " entry rays (", Scene::kMinViewEntries,
-                                              " needed), or no distant light or dome lights it"));
-            py::dict d = measuredAnew(viewSwitchOptions(), paths, stopEarly, seed, [&](const SwitchOptions& o) {
+              throw std::invalid_argument(str("measure_view_switch: the ", sun ? "distant lights see" : "camera sees",
+                                              " aggregate ", a, " in ", view.entries.size(), " of its ",
+                                              Scene::kViewGrid * Scene::kViewGrid, " entry rays (",
+                                              Scene::kMinViewEntries, " needed), or no distant light or dome lights it"));
+            py::dict d = measuredAnew(sun ? sunSwitchOptions() : viewSwitchOptions(), paths, stopEarly, seed,
+                                      [&](const SwitchOptions& o) {
               return measureViewSwitch(*sc.aggregates()[size_t(a)], sc.proxyTables(a), sc.medium(a), view, o);
             });
             d["entries"] = view.entries.size();
             return d;
           },
           py::arg("aggregate"), py::arg("paths") = viewSwitchOptions().paths, py::arg("stop_early") = true,
-          py::arg("seed") = uint64_t(1),
+          py::arg("seed") = uint64_t(1), py::arg("sun") = false,
           "the view measurement of aggregate a (switching.h: measureViewSwitch; Scene::switchViews) from the scene's camera "
           "and lights, uncached: the fields of `switching` (albedo: the radiance the camera sees there), and entries "
-          "(the camera's rays that meet the aggregate); ValueError when the camera sees too little of it (fewer than 16 "
-          "entries) or no distant light or dome lights it")
+          "(the camera's rays that meet the aggregate); sun=True: the sun measurement's instead (Scene::sunSwitchViews: "
+          "the aggregate as each distant light sees it); ValueError when the camera (the lights) see too little of it "
+          "(fewer than 16 entries) or no distant light or dome lights it")
       .def(
           "measure_switch",
           [](const PyScene& s, int a, int64_t paths, bool stopEarly, uint64_t seed) {

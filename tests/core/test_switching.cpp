@@ -129,9 +129,10 @@ TEST(Switching, TheChoiceIsTheLeastVisitsWithinToleranceInEveryChannel) {
 }
 
 TEST(Switching, WhatAMeasurementShowsNeededErrsTowardFewerVisits) {
-  // Candidates beyond the tolerance by more than margin standard errors in some channel are
-  // shown biased; the least other one is taken. A noisy estimate is not shown biased, where
-  // the choice proper (within the tolerance, measured to its precision) passes it over.
+  // Candidates beyond the tolerance by more than three standard errors in some channel are
+  // shown biased, whatever the margin; the one after the last shown is taken. A noisy
+  // estimate is not shown biased, where the choice proper (within the tolerance, measured
+  // to its precision) passes it over.
   SwitchMeasure m = unbiasedMeasure();
   SwitchOptions o;
   o.tolerance = 0.005f;
@@ -145,13 +146,22 @@ TEST(Switching, WhatAMeasurementShowsNeededErrsTowardFewerVisits) {
   set(1, 0.03f, 0.03f);   // 3% ± 3%: beyond the tolerance by 2.5%, less than its error
   EXPECT_EQ(switchVisitsShownNeeded(m, o), kSwitchVisits[1]);
   EXPECT_EQ(chooseSwitchVisits(m, o), kSwitchVisits[2]) << "the choice proper wants it measured within";
-  set(1, 0.03f, 0.01f);  // 3% ± 1%: shown
+  set(1, 0.03f, 0.01f);  // 3% ± 1%: beyond by 2.5 errors, which chance shows among many
+  EXPECT_EQ(switchVisitsShownNeeded(m, o), kSwitchVisits[1]);
+  set(1, 0.04f, 0.01f);  // 4% ± 1%: beyond by 3.5, shown
   EXPECT_EQ(switchVisitsShownNeeded(m, o), kSwitchVisits[2]);
   // A noisy estimate before one shown biased does not end the search there (a sun's
   // measurement: −4.6 ± 12.5% after 0 visits, +19.6 ± 4.9% after 2).
   set(0, -0.046f, 0.125f);
   set(1, 0.0f, 0.0f);
   set(2, 0.196f, 0.049f);
+  EXPECT_EQ(switchVisitsShownNeeded(m, o), kSwitchVisits[3]);
+  // Later candidates beyond the tolerance by one or two standard errors of their own, as
+  // noisy estimates of radiance toward one direction read by chance, do not add their
+  // visits (each would have at one standard error).
+  set(3, 0.02f, 0.01f);
+  set(4, -0.012f, 0.005f);
+  set(5, 0.09f, 0.05f);
   EXPECT_EQ(switchVisitsShownNeeded(m, o), kSwitchVisits[3]);
   for (Vec3& b : m.bias) b = Vec3(0.05f);
   for (Vec3& e : m.biasSE) e = Vec3(0.001f);
@@ -196,6 +206,20 @@ TEST(Switching, IsDeterministicCachedAndRecomputesADamagedEntry) {
   EXPECT_EQ(recomputed.bias[3].x, first.bias[3].x);
 }
 
+namespace {
+
+// A tolerance of 3% and a precision of a tenth of it: on the IOR 2.4 ball the first
+// candidates are decided within a few thousand paths, the others measured on.
+SwitchOptions decidingOptions(int64_t paths) {
+  SwitchOptions o;
+  o.paths = paths;
+  o.tolerance = 0.03f;
+  o.precision = 0.1f;
+  return o;
+}
+
+}  // namespace
+
 TEST(Switching, DecidedCandidatesStopForkingAndKeepTheirEstimate) {
   // The IOR 2.4 ball with a tolerance of 3% and a precision of a tenth of it: the medium
   // right after the first grain is about 6% off, decided once its standard error is below
@@ -204,10 +228,7 @@ TEST(Switching, DecidedCandidatesStopForkingAndKeepTheirEstimate) {
   // beyond by 3 standard errors of its own paths (it can never be chosen), and is before
   // the chosen one.
   auto scene = ballScene(2.4f, Vec3(0.05f));
-  SwitchOptions o;
-  o.paths = 1 << 16;
-  o.tolerance = 0.03f;
-  o.precision = 0.1f;
+  const SwitchOptions o = decidingOptions(1 << 16);
   const SwitchMeasure m = measure(*scene, o);
   print(m);
   ASSERT_EQ(m.candidatePaths.size(), size_t(kSwitchCandidates));
@@ -224,6 +245,33 @@ TEST(Switching, DecidedCandidatesStopForkingAndKeepTheirEstimate) {
   std::printf("%lld paths; per candidate:", (long long)m.paths);
   for (int64_t n : m.candidatePaths) std::printf(" %lld", (long long)n);
   std::printf("\n");
+}
+
+TEST(Switching, NothingStopsOrIsDecidedBeforeItsMinimumOfPaths) {
+  // The measurement above, which decides candidates after a few thousand paths, asked for
+  // a minimum of paths beyond that: every candidate forks in all of them.
+  auto scene = ballScene(2.4f, Vec3(0.05f));
+  SwitchOptions o = decidingOptions(1 << 15);
+  const SwitchMeasure decides = measure(*scene, o);
+  const int64_t minPaths = int64_t(1) << 14;
+  ASSERT_LT(*std::min_element(decides.candidatePaths.begin(), decides.candidatePaths.end()), minPaths);
+  o.minPaths = minPaths;
+  SwitchMeasure m = measure(*scene, o);
+  for (int64_t n : m.candidatePaths) EXPECT_GE(n, minPaths);
+  EXPECT_LT(*std::min_element(m.candidatePaths.begin(), m.candidatePaths.end()), m.paths) << "then it decides";
+  // One that would settle after its first batch (EndsEarlyWhenNoCandidateCanReachThePrecision)
+  // traces the minimum, and no more; the budget still ends it.
+  auto clear = ballScene(1.55f, Vec3(0.1f));
+  o = SwitchOptions();
+  o.paths = 1 << 15;
+  o.precision = 0.02f;
+  ASSERT_LT(measure(*clear, o).paths, 1 << 12);
+  o.minPaths = 1 << 13;
+  m = measure(*clear, o);
+  EXPECT_GE(m.paths, o.minPaths);
+  EXPECT_LT(m.paths, o.paths);
+  o.eventBudget = m.events / 2;
+  EXPECT_LT(measure(*clear, o).paths, o.minPaths) << "the budget still ends it";
 }
 
 TEST(Switching, IsTheSameWhateverTheThreads) {
@@ -324,6 +372,9 @@ TEST(Switching, OptionsOutOfRangeAreRefused) {
   EXPECT_THROW(measureSwitch(*scene->aggregates()[0], scene->proxyTables(0), scene->medium(0), o), InputError);
   o = SwitchOptions();
   o.margin = -1;
+  EXPECT_THROW(measureSwitch(*scene->aggregates()[0], scene->proxyTables(0), scene->medium(0), o), InputError);
+  o = SwitchOptions();
+  o.minPaths = -1;
   EXPECT_THROW(measureSwitch(*scene->aggregates()[0], scene->proxyTables(0), scene->medium(0), o), InputError);
 }
 
@@ -553,7 +604,7 @@ TEST(Switching, TheSceneMeasuresTowardANarrowSunAndTakesTheLargerChoice) {
   const SwitchMeasure* sun = scene->sunSwitchMeasure(0);
   ASSERT_NE(sun, nullptr);
   print(*sun);
-  EXPECT_EQ(sun->visits, switchVisitsShownNeeded(*sun, viewSwitchOptions()));  // what it shows, not its own choice
+  EXPECT_EQ(sun->visits, switchVisitsShownNeeded(*sun, sunSwitchOptions()));  // what it shows, not its own choice
   EXPECT_EQ(scene->proxyVisits(0), std::max(scene->switchMeasure(0)->visits, sun->visits));
   EXPECT_NE(scene->lowOrdersText(0).find("toward the sun"), std::string::npos) << scene->lowOrdersText(0);
   for (int c = 0; c < 3; ++c) EXPECT_GT(sun->albedo[c], 0.0f);  // the radiance sent back toward the sun

@@ -171,10 +171,12 @@ def test_under_a_narrow_sun_the_switch_is_measured_toward_the_sun_too(tmp_path, 
     # Under a narrow sun each aggregate is also measured as the sun sees it (core/scene.h:
     # sunSwitchMeasure), whatever the camera: its visits are the larger choice, said on the
     # low-orders line that granular render prints and hdGranular reports. A wide sun: not.
-    built = {}
+    # The same measurement through Scene.measure_view_switch(sun=True).
+    built, scenes = {}, {}
     for angle in (0.53, 20.0):
         stage = small_scene(tmp_path / f"sun{angle}.usda", _sun_angle(angle))
-        built[angle] = core.Scene.build(_ept_vpt_desc(stage, width=24, height=16)).switching[0]
+        scenes[angle] = core.Scene.build(_ept_vpt_desc(stage, width=24, height=16))
+        built[angle] = scenes[angle].switching[0]
         rc, _, err = run_cli(["render", stage, "-o", tmp_path / "s.exr", *OPTIONS], capsys)
         assert rc == 0, err
         line = _low_orders(err)
@@ -184,4 +186,6 @@ def test_under_a_narrow_sun_the_switch_is_measured_toward_the_sun_too(tmp_path, 
     assert narrow["proxy_visits"] == max(narrow["chosen"], sun["chosen"])
     assert sun["candidates"] == narrow["candidates"] and np.isfinite(sun["bias"]).all()
     assert min(sun["albedo"]) > 0  # the radiance scattered back toward the sun
+    again = scenes[0.53].measure_view_switch(0, sun=True)
+    assert again["bias"] == sun["bias"] and again["paths"] == sun["paths"] >= 2**14
     assert "sun" not in built[20.0]
