@@ -187,8 +187,8 @@ struct SwitchView {
 SwitchOptions viewSwitchOptions();
 
 // The sun measurement's (Scene::sunSwitchMeasure): the view's, read by
-// switchVisitsShownNeeded, at least 2^14 paths before it may stop and a budget of 2^26
-// steps for them. Radiance scattered back toward a 0.53° sun is heavy-tailed: on the
+// switchVisitsShownNeeded, at least 2^14 paths before it may stop or decide a candidate,
+// and a budget of 2^26 steps for them. Radiance scattered back toward a 0.53° sun is heavy-tailed: on the
 // paper castle's beach, 2048 paths read the medium after 2 visits +20 ± 4% bright toward
 // the sun in some seeds, where 2^17 paths read −2.7 ± 1.5% (bench/README.md, "The sun's
 // rule").
