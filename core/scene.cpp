@@ -1102,8 +1102,9 @@ void Scene::updateSwitching() {
         // It adds to the dome's choice what it shows to be needed: toward the sun, nearly
         // clear grains' radiance is too noisy to resolve within its paths, and erring toward
         // the most visits there would make their renders noisier, not more accurate.
-        SwitchMeasure sun = *measureViewSwitching(a, suns[a], sunSwitchOptions());
-        sun.visits = switchVisitsShownNeeded(sun, sunSwitchOptions());
+        const SwitchOptions options = sunSwitchOptions();
+        SwitchMeasure sun = *measureViewSwitching(a, suns[a], options);
+        sun.visits = switchVisitsShownNeeded(sun, options);
         sunSwitching_[a] = std::make_shared<const SwitchMeasure>(std::move(sun));
       }
       if (!views.empty() && int(views[a].entries.size()) >= kMinViewEntries)

@@ -458,11 +458,10 @@ int switchVisitsShownNeeded(const SwitchMeasure& m, const SwitchOptions& o) {
   // looked at, and at one standard error a few of them would show a bias within the
   // tolerance by chance (each with a chance of up to 16%), where at three all of them
   // together do with a chance of at most 18 × 0.13% ≈ 2.4%.
-  auto shown = [&](int c) { return beyond(m, c, o, kDecided); };
   // The bias falls with visits: a candidate shown biased shows the earlier ones so too,
   // however noisy their own estimates. So the one after the last shown.
   int c = int(m.bias.size());
-  while (c > 0 && !shown(c - 1)) --c;
+  while (c > 0 && !beyond(m, c - 1, o, kDecided)) --c;
   return kSwitchVisits[std::min(c, kSwitchCandidates - 1)];
 }
 
@@ -497,10 +496,11 @@ SwitchMeasure measure(const Aggregate& agg, const ProxyTables& tables, const Hom
     m.visits = chooseSwitchVisits(m, options);
     if (!options.stopEarly) continue;
     if (s.events >= options.eventBudget) break;
-    // Decisions wait for minPaths too: a decided candidate keeps the estimate it had.
-    if (m.paths >= options.minPaths)
-      for (int c = 0; c + 1 < kSwitchCandidates; ++c)  // the last one is the reference
-        if (beyond(m, c, options, kDecided)) forking &= ~(1u << c);
+    // Neither decisions nor a stop before minPaths: a decided candidate keeps the estimate
+    // it had.
+    if (m.paths < options.minPaths) continue;
+    for (int c = 0; c + 1 < kSwitchCandidates; ++c)  // the last one is the reference
+      if (beyond(m, c, options, kDecided)) forking &= ~(1u << c);
     // The most paths still to come: batches start until the budget is spent (at this
     // batch's steps per path, less those of the forks just stopped; the last batch may
     // overrun it) or options.paths are traced.
@@ -509,7 +509,7 @@ SwitchMeasure measure(const Aggregate& agg, const ProxyTables& tables, const Hom
       if (!(forking & (1u << c))) steps -= s.forkEvents[c] - before.forkEvents[c];
     const double perPath = std::max(1.0, double(steps)) / double(end - done);
     const int64_t more = int64_t(std::ceil(double(options.eventBudget - s.events) / perPath)) + kBatch;
-    if (m.paths >= options.minPaths && settled(m, options, std::min(options.paths - m.paths, more))) break;
+    if (settled(m, options, std::min(options.paths - m.paths, more))) break;
   }
   m.events = s.events;
   m.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();

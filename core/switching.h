@@ -188,10 +188,10 @@ SwitchOptions viewSwitchOptions();
 
 // The sun measurement's (Scene::sunSwitchMeasure): the view's, read by
 // switchVisitsShownNeeded, at least 2^14 paths before it may stop or decide a candidate,
-// and a budget of 2^26 steps for them. Radiance scattered back toward a 0.53° sun is heavy-tailed: on the
-// paper castle's beach, 2048 paths read the medium after 2 visits +20 ± 4% bright toward
-// the sun in some seeds, where 2^17 paths read −2.7 ± 1.5% (bench/README.md, "The sun's
-// rule").
+// and a budget of 2^26 steps for them. Radiance scattered back toward a narrow sun is
+// heavy-tailed (the grains' forward lobe met by next-event estimation), and a few thousand
+// paths that miss its rare large values show a bias that is not there (bench/README.md,
+// "The sun's rule").
 SwitchOptions sunSwitchOptions();
 
 SwitchMeasure measureViewSwitch(const Aggregate& aggregate, const ProxyTables& tables, const HomogeneousMedium& medium,

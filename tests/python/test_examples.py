@@ -26,9 +26,12 @@ def test_example_renders_without_nan(name):
     built = core.Scene.build(scene.desc)
     for info in built.aggregates:
         assert info["approx_grains"] > 1000
-    for sw in built.switching:  # no sun measurement where it could add nothing (the paper castle's towers)
-        if sw["measured"] and sw["chosen"] == sw["candidates"][-1]:
-            assert "sun" not in sw
+    # No sun measurement where it could add nothing: the dome's choice the most visits
+    # already (the paper castle's towers; its beach, at fewer, is measured).
+    most = [sw for sw in built.switching if sw["measured"] and sw["chosen"] == sw["candidates"][-1]]
+    assert all("sun" not in sw for sw in most)
+    if name == "sandcastle_paper.usda":
+        assert most and "sun" in built.switching[-1]
     r = core.Renderer(built)
     assert r.render(1)
     px = r.image().pixels
