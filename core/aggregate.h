@@ -119,6 +119,9 @@ class Aggregate {
   // the answer, without the walk.
   bool intersectProxy(const Vec3& o, const Vec3& d, float tmin, float tmax, GrainHit& hit,
                       const GrainHit* skip = nullptr) const;
+  // The centre of the tile sphere of a grain an explicit ray met (intersect's hit: its
+  // cell and sphere), as intersectProxy() gives it.
+  Vec3 grainCenter(const GrainHit& g) const { return sphereCenter(g.cell, g.sphere); }
   // Light along [tmin, tmax] through the proxies' spheres (ProxyShadow, proxy.h): the
   // products over the spheres it crosses (but `skip`), from each grain's prototype's table
   // at its size, with proxyRoulette() from `seed` below kProxyRoulette.

@@ -75,6 +75,9 @@ class PosedAggregate {
                       const GrainHit* skip = nullptr) const;
   ProxyShadow proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax, const ProxyTables& tables,
                                  const GrainHit* skip, uint64_t seed) const;
+  Vec3 grainCenter(const GrainHit& g) const {
+    return pose_.still ? agg_->grainCenter(g) : pose_.pointToWorld(agg_->grainCenter(g));
+  }
   bool insideBoundary(const Vec3& p) const { return agg_->insideBoundary(toBuild(p)); }
   bool intersectBoundary(const Vec3& o, const Vec3& d, float tmin, float tmax, float& t, Vec3& ng) const;
   float closestBoundaryPoint(const Vec3& p, Vec3& closest) const;

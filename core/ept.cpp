@@ -239,8 +239,8 @@ void eptStep(const Scene& scene, PathState& path) {
         path.mode = path.credit = kPpt;
         path.from = GrainStart();
         path.proxyVisits = -1;
-        // The ray is known to meet this grain (and to miss those before it): the walk
-        // meets its proxy for sure, not by the chance hit(b) (ppt.h).
+        // The ray is known to meet this grain (and to miss those before it): its proxy is
+        // met for sure, not by the chance hit(b), and without a walk to it (ppt.h).
         path.firstGrain.aggregate = hit.aggregate;
         path.firstGrain.grain = hit.grain;
         path.firstGrain.instancer = hit.instancer;

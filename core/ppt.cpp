@@ -140,8 +140,12 @@ void pptStep(const Scene& scene, PathState& path) {
   for (int crossing = 0; crossing < kMaxCrossings; ++crossing) {
     Hit hit;
     const bool starts = path.from.aggregate >= 0 || path.from.instancer >= 0;
-    const bool found = scene.intersectProxies(path.ray, hit, starts ? &path.from : nullptr);
-    path.cost[0] += 1;
+    // The shortcut's first grain, known from the explicit ray (ept.h): no walk to it.
+    bool found = crossing == 0 && path.firstGrainAt >= 0 && scene.firstGrainProxy(path.ray, path.firstGrain, hit);
+    if (!found) {
+      found = scene.intersectProxies(path.ray, hit, starts ? &path.from : nullptr);
+      path.cost[0] += 1;
+    }
     if (endsAtLight(scene, path, found, hit)) return;
     if (hit.kind != Hit::Proxy) {  // a surface, or an explicit grain of an instancer without proxies
       path.firstGrainAt = -1;

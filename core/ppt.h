@@ -10,7 +10,9 @@
 // PathState::from). At a sphere, the ray meets its grain with the table's chance hit(b),
 // else it crosses the sphere unchanged and the walk goes on. A path the level-of-detail
 // shortcut sent here (ept.h; PathState::firstGrain) meets the grain its explicit ray met for
-// sure and crosses the spheres before it: the ray is known to meet that grain.
+// sure, where the ray enters that grain's sphere, without walking the spheres before it
+// (Scene::firstGrainProxy; the walk where that cannot be had): the ray is known to meet that
+// grain and to miss those before it.
 // A grain met scatters:
 //  - next-event estimation: one light, sampled from the sphere's centre; the table's f_c
 //    toward it, the shadow ray leaving from that direction's exit point and crossing other

@@ -1479,6 +1479,24 @@ bool Scene::intersectProxies(const Ray& ray, Hit& hit, const GrainStart* from) c
   return true;
 }
 
+bool Scene::firstGrainProxy(const Ray& ray, const GrainStart& met, Hit& hit) const {
+  if (met.aggregate < 0 || met.grain.sphere < 0) return false;
+  GrainHit g = met.grain;
+  g.center = aggregateAt(met.aggregate, ray.time).grainCenter(g);
+  // Entry by the closest approach, as the walk computes it (Aggregate::walkCell).
+  const Vec3 oc = ray.o - g.center;
+  const float along = dot(oc, ray.d);
+  const Vec3 w = oc - ray.d * along;
+  const float disc = g.radius * g.radius - length2(w);
+  if (!(disc >= 0)) return false;
+  g.t = -along - std::sqrt(disc);
+  if (!(g.t > ray.tmin) || !(g.t < ray.tmax)) return false;
+  g.ng = normalize(oc + ray.d * g.t);
+  grainHit(Hit::Proxy, met.aggregate, g, hit);
+  finishHit(ray, hit);
+  return true;
+}
+
 ProxyShadow Scene::proxyTransmittance(const Vec3& p, const Vec3& dir, float dist, const GrainStart* from,
                                       uint64_t seed, float time) const {
   if (surfacesOccluded(p, dir, dist, time, false, true)) return ProxyShadow{Vec3(0.0f), 0.0f};

@@ -111,6 +111,12 @@ class Scene {
   // area light or proxy sphere entered (Hit::Proxy; its grain's prototype in hit.grain, p
   // on the sphere, ng the sphere's outward normal there). from: the sphere the ray leaves.
   bool intersectProxies(const Ray& ray, Hit& hit, const GrainStart* from = nullptr) const;
+  // The proxy of the aggregate grain `met` that ray met explicitly first (the level-of-detail
+  // shortcut's first grain, ept.h): as intersectProxies() would give it, where the ray
+  // enters that grain's sphere — met with nothing before it (the explicit hit was the
+  // nearest), so without a walk. False where the ray starts inside the sphere, or the
+  // grain is an instancer's: the walk answers.
+  bool firstGrainProxy(const Ray& ray, const GrainStart& met, Hit& hit) const;
   // Where a walk among proxies may place a path (ppt.h) on its way from `from` (a grain's
   // centre, or a point already placed) to `to` (on that grain's bounding sphere): `to`, or,
   // where a surface lies between, a little before the first one. A bounding sphere reaches

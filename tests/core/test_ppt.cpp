@@ -326,3 +326,64 @@ TEST(Ppt, AHeapOnTheGroundLetsNoLightThroughIt) {
   const granular::testing::ChannelEstimate e = granular::testing::renderEstimate(d);
   for (int c = 0; c < 3; ++c) EXPECT_EQ(e.mean[c], 0.0) << "light through the ground in channel " << c;
 }
+
+TEST(Ppt, TheShortcutsFirstGrainIsMetWhereTheWalkWouldMeetIt) {
+  // The level-of-detail shortcut's first grain (ept.h) is the grain the camera's explicit
+  // ray met. Scene::firstGrainProxy gives its proxy without walking the spheres before it:
+  // the same sphere, entered at the same t, as the proxies' walk finds from just before
+  // that entry; still, and moving (sliding and turning while the shutter is open).
+  for (const bool moving : {false, true}) {
+    SceneDesc d = granular::testing::sandBallScene(Vec3(0.2f, 0.3f, 4.0f), 30.0f, 0.02f, 1);
+    d.settings.technique = Technique::EptVpt;
+    d.settings.proxies = ProxyUse::On;
+    d.settings.explicitBounces = 2;
+    if (moving) {
+      Transform turn;  // 6 degrees about y
+      const double a = 6.0 * kPiD / 180.0;
+      turn.m[0][0] = turn.m[2][2] = std::cos(a);
+      turn.m[0][2] = std::sin(a);
+      turn.m[2][0] = -std::sin(a);
+      d.aggregates[0].shutterXf = std::make_pair(Transform::translate(Vec3(-0.1f, 0.0f, 0.0f)),
+                                                 Transform::translate(Vec3(0.1f, 0.05f, 0.0f)) * turn);
+      d.camera.shutterOpen = -0.02f;
+      d.camera.shutterClose = 0.02f;
+    }
+    auto scene = Scene::build(d);
+    ASSERT_TRUE(scene->useProxies());
+    const Vec3 eye(0.2f, 0.3f, 4.0f);
+    Rng rng(11, 0);
+    int met = 0;
+    for (int i = 0; i < 3000; ++i) {
+      // Toward a point of the disk the ball shows the eye, at a time of the shutter.
+      const float r = 0.95f * std::sqrt(rng.next1D()), phi = 2.0f * kPi * rng.next1D();
+      Ray ray{eye, normalize(Vec3(r * std::cos(phi), r * std::sin(phi), 0.0f) - eye), 0.0f, kInf};
+      ray.time = moving ? -0.02f + 0.04f * rng.next1D() : 0.0f;
+      Hit grain;
+      if (!scene->intersect(ray, grain) || grain.kind != Hit::Grain) continue;
+      GrainStart first;
+      first.aggregate = grain.aggregate;
+      first.grain = grain.grain;
+      Hit proxy;
+      ASSERT_TRUE(scene->firstGrainProxy(ray, first, proxy)) << "ray " << i;
+      EXPECT_EQ(proxy.kind, Hit::Proxy);
+      EXPECT_LE(proxy.t, grain.t * (1.0f + 1e-6f)) << "the grain lies in its sphere";
+      Ray from = ray;
+      from.tmin = proxy.t - 1e-3f * proxy.grain.radius;
+      Hit walked;
+      ASSERT_TRUE(scene->intersectProxies(from, walked)) << "ray " << i;
+      ASSERT_EQ(walked.kind, Hit::Proxy);
+      EXPECT_EQ(walked.grain.sphere, proxy.grain.sphere) << "ray " << i;
+      for (int a = 0; a < 3; ++a) EXPECT_EQ(walked.grain.cell[a], proxy.grain.cell[a]);
+      EXPECT_EQ(walked.grain.prototype, proxy.grain.prototype);
+      EXPECT_EQ(walked.grain.radius, proxy.grain.radius);
+      // Moving, the walk runs in the build, along the ray mapped there by a blend of two
+      // poses, which is not quite rigid: it meets the sphere within a hundredth of its radius.
+      const float tTol = moving ? 0.01f * proxy.grain.radius : 1e-5f * proxy.t;
+      EXPECT_NEAR(walked.t, proxy.t, tTol) << (moving ? "moving" : "still");
+      EXPECT_LT(length(walked.grain.center - proxy.grain.center), 1e-5f * length(eye));
+      EXPECT_LT(length(walked.ng - proxy.ng), moving ? 0.01f : 1e-3f);
+      ++met;
+    }
+    EXPECT_GT(met, 2000) << (moving ? "moving" : "still");
+  }
+}
