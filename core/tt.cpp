@@ -158,6 +158,7 @@ bool deserialise(const std::vector<char>& in, uint64_t key, const TTOptions& opt
     for (float v : p.density)
       if (!std::isfinite(v) || v < 0) return false;
     if (p.cdf.front() != 0.0f || p.cdf.back() != 1.0f || !std::isfinite(p.g)) return false;
+    p.buildGuide();
   }
   for (double v : {g.beta, g.betaSE, g.lambdaDelta, g.lambdaDeltaSE})
     if (!std::isfinite(v)) return false;
@@ -298,10 +299,17 @@ Vec3 PhaseTable::sample(const Vec3& wi, float u1, float u2, float* pdf) const {
     if (pdf) *pdf = float(1.0 / kFourPi);
   } else {
     // Largest i with cdf[i] <= u1: a bin of non-zero mass (u1 < 1 = cdf[bins]).
-    int lo = 0, hi = bins() - 1;
-    while (lo < hi) {
-      int mid = (lo + hi + 1) / 2;
-      if (cdf[mid] <= u1) lo = mid; else hi = mid - 1;
+    int lo = 0;
+    if (!guide.empty()) {
+      lo = guide[size_t(std::min(int(u1 * float(bins())), bins() - 1))];
+      while (lo > 0 && cdf[size_t(lo)] > u1) --lo;  // u1 · bins rounded up to the next j
+      while (lo + 1 < bins() && cdf[size_t(lo) + 1] <= u1) ++lo;
+    } else {
+      int hi = bins() - 1;
+      while (lo < hi) {
+        int mid = (lo + hi + 1) / 2;
+        if (cdf[mid] <= u1) lo = mid; else hi = mid - 1;
+      }
     }
     float width = cdf[lo + 1] - cdf[lo];
     float du = width > 0 ? (u1 - cdf[lo]) / width : 0.5f;
@@ -344,7 +352,19 @@ PhaseTable PhaseTable::fromHistogram(const std::vector<double>& weights) {
   }
   p.cdf[size_t(n)] = 1.0f;
   p.g = float(std::min(1.0, std::max(-1.0, g)));
+  p.buildGuide();
   return p;
+}
+
+void PhaseTable::buildGuide() {
+  const int n = bins();
+  guide.assign(size_t(n), 0);
+  int i = 0;
+  for (int j = 0; j < n; ++j) {
+    const float u = float(j) / float(n);
+    while (i + 1 < n && cdf[size_t(i) + 1] <= u) ++i;
+    guide[size_t(j)] = uint16_t(i);
+  }
 }
 
 // --- estimation -------------------------------------------------------------------------

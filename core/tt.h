@@ -58,6 +58,10 @@ struct PhaseTable {
   std::vector<float> density;  // p(μ) per bin, per steradian
   std::vector<float> cdf;      // size bins+1, cdf[0] = 0, cdf[bins] = 1
   float g = 0;                 // mean cosine
+  // guide[j]: the bin of u = j / bins (below), from which sample() finds u's bin in a step
+  // or two instead of a binary search, the same bin; made by fromHistogram() and
+  // the cache's reader (buildGuide()). Empty: the binary search.
+  std::vector<uint16_t> guide;
 
   int bins() const { return int(density.size()); }
   // p(ω_i·ω_o), per steradian.
@@ -75,6 +79,8 @@ struct PhaseTable {
   // own mean cosine (bin centres), i.e. what sampling it reproduces. Negative or
   // non-finite weights count as 0; all-zero weights give the isotropic table.
   static PhaseTable fromHistogram(const std::vector<double>& weights);
+  // guide from density and cdf.
+  void buildGuide();
 };
 
 // One prototype's intra-grain statistics, in units of the bounding radius.

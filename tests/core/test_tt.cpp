@@ -176,6 +176,36 @@ TEST(TTPhaseTable, SamplingMatchesEval) {
   EXPECT_NEAR(s / n, p.g, 4.0 * std::sqrt(1.0 / n));
 }
 
+TEST(TTPhaseTable, TheGuideFindsTheBinTheBinarySearchFinds) {
+  // sample() starts from the guide (tt.h) where it has one: the same direction, bit for bit,
+  // as the binary search of a table without it — on a table with empty bins, a forward
+  // peak, and at u on the guide's steps and the cdf's own values.
+  std::vector<double> w(64);
+  for (int i = 0; i < 64; ++i) w[size_t(i)] = (i % 7 == 3 || i < 5) ? 0.0 : std::exp(0.15 * i);
+  const PhaseTable guided = PhaseTable::fromHistogram(w);
+  ASSERT_EQ(guided.guide.size(), size_t(64));
+  PhaseTable searched = guided;
+  searched.guide.clear();
+  std::vector<float> us;
+  Rng rng(21);
+  for (int i = 0; i < 20000; ++i) us.push_back(rng.next1D());
+  for (int j = 0; j < 64; ++j) us.push_back(float(j) / 64.0f);
+  for (float c : guided.cdf)
+    if (c < 1.0f) {
+      us.push_back(c);
+      us.push_back(std::nextafter(c, 0.0f));
+      us.push_back(std::nextafter(c, 1.0f));
+    }
+  const Vec3 wi = normalize(Vec3(0.3f, -0.2f, 0.9f));
+  for (float u : us) {
+    float pg = 0, ps = 0;
+    const Vec3 a = guided.sample(wi, u, 0.37f, &pg), b = searched.sample(wi, u, 0.37f, &ps);
+    ASSERT_EQ(pg, ps) << "u " << u;
+    ASSERT_TRUE(a.x == b.x && a.y == b.y && a.z == b.z) << "u " << u;
+    EXPECT_GT(pg, 0.0f) << "an empty bin sampled at u " << u;
+  }
+}
+
 // ---------------------------------------------------------------------------------------
 TEST(TTEstimate, CentredSphereHasClosedFormHitProbabilityAndMissChord) {
   // A sphere of radius a in the unit bounding sphere, not normalised into it.
