@@ -1102,9 +1102,9 @@ void Scene::updateSwitching() {
         // It adds to the dome's choice what it shows to be needed: toward the sun, nearly
         // clear grains' radiance is too noisy to resolve within its paths, and erring toward
         // the most visits there would make their renders noisier, not more accurate.
-        const SwitchOptions options = sunSwitchOptions();
+        const SwitchOptions options = sunSwitchOptionsFor(int(a));
         SwitchMeasure sun = *measureViewSwitching(a, suns[a], options);
-        sun.visits = switchVisitsShownNeeded(sun, options);
+        sun.visits = std::max(switchVisitsShownNeeded(sun, options), kSwitchVisits[options.firstCandidate]);
         sunSwitching_[a] = std::make_shared<const SwitchMeasure>(std::move(sun));
       }
       if (!views.empty() && int(views[a].entries.size()) >= kMinViewEntries)
@@ -1198,6 +1198,14 @@ uint32_t Scene::distantLightsReaching(const Hit& hit) const {
     if (!intersectMedium(shadow, blocker)) lit |= 1u << l;
   }
   return lit;
+}
+
+SwitchOptions Scene::sunSwitchOptionsFor(int aggregate) const {
+  SwitchOptions o = sunSwitchOptions();
+  const SwitchMeasure* dome = size_t(aggregate) < switching_.size() ? switching_[size_t(aggregate)].get() : nullptr;
+  if (dome)
+    while (o.firstCandidate + 1 < kSwitchCandidates && kSwitchVisits[o.firstCandidate] < dome->visits) ++o.firstCandidate;
+  return o;
 }
 
 std::vector<SwitchView> Scene::sunSwitchViews() const {
@@ -1300,9 +1308,12 @@ std::string Scene::lowOrdersText(int a) const {
     // The measurements toward one direction are noisy: their first-grain figure with its error.
     auto directional = [&](const char* what, const SwitchMeasure& v) {
       at(v, bias, sizeof bias);
+      std::snprintf(buf, sizeof buf, "; %s %s", what, bias);
+      text += buf;
+      if (!v.measured(0)) return;  // (sunSwitchOptionsFor)
       const int w = worst(v.bias[0]);
-      std::snprintf(buf, sizeof buf, "; %s %s, right after the first grain %+.1f%% ± %.1f%%", what, bias,
-                    100.0 * v.bias[0][w], 100.0 * v.biasSE[0][w]);
+      std::snprintf(buf, sizeof buf, ", right after the first grain %+.1f%% ± %.1f%%", 100.0 * v.bias[0][w],
+                    100.0 * v.biasSE[0][w]);
       text += buf;
     };
     if (const SwitchMeasure* v = sunSwitchMeasure(a)) directional("toward the sun", *v);

@@ -318,6 +318,7 @@ void summarise(const Sums& s, SwitchMeasure& m) {
   m.exitBiasSE.assign(m.exitBias.size(), Vec3(0.0f));
   for (int c = 0; c < kSwitchCandidates; ++c) {
     const double nc = double(m.candidatePaths[size_t(c)]);
+    if (nc < 2) continue;  // not measured (SwitchOptions::firstCandidate): 0
     relative(s.d[c], s.d2[c], nc, s.a, m.bias[size_t(c)], m.biasSE[size_t(c)]);
     for (int j = 0; j < kSwitchExitBins; ++j) {
       const size_t i = size_t(c * kSwitchExitBins + j);
@@ -329,6 +330,7 @@ void summarise(const Sums& s, SwitchMeasure& m) {
 // Candidate c's estimate is beyond the tolerance by more than `errors` standard errors in
 // some channel.
 bool beyond(const SwitchMeasure& m, int c, const SwitchOptions& o, double errors) {
+  if (!m.measured(c)) return false;  // nothing shown
   for (int ch = 0; ch < 3; ++ch)
     if (std::fabs(m.bias[size_t(c)][ch]) - errors * m.biasSE[size_t(c)][ch] > o.tolerance) return true;
   return false;
@@ -357,7 +359,7 @@ bool outOfReach(const SwitchMeasure& m, int c, const SwitchOptions& o, int64_t m
 bool settled(const SwitchMeasure& m, const SwitchOptions& o, int64_t more) {
   const double errors = m.paths < kBatch ? kDecided : 1.0;
   for (int j = 0; kSwitchVisits[j] < m.visits; ++j)
-    if (!beyond(m, j, o, errors) && !outOfReach(m, j, o, more)) return false;
+    if (m.measured(j) && !beyond(m, j, o, errors) && !outOfReach(m, j, o, more)) return false;
   return true;
 }
 
@@ -370,6 +372,7 @@ uint64_t recordKey(uint64_t key, const SwitchOptions& o) {
                  uint64_t(o.eventBudget), uint64_t(o.stopEarly));
   // These move where a measurement stops.
   if (o.minPaths > 0) key = hashInts(key, uint64_t(o.minPaths));
+  if (o.firstCandidate > 0) key = hashInts(key, uint64_t(o.firstCandidate), 0xf1c4ULL);
   return o.margin > 0 ? hashBytes(key, &o.margin, sizeof o.margin) : key;
 }
 
@@ -404,7 +407,8 @@ bool deserialise(const std::vector<char>& in, uint64_t key, SwitchMeasure& m) {
       !r.getArray(m.candidatePaths) || !r.getI64(m.events) || !r.getF64(m.seconds) || !r.finish())
     return false;
   for (int64_t n : m.candidatePaths)
-    if (n < 2 || n > m.paths) return false;
+    if ((n != 0 && n < 2) || n > m.paths) return false;  // 0: not measured
+  if (m.candidatePaths.back() != m.paths) return false;  // the reference forks in every path
   m.albedo = a[0];
   m.albedoSE = a[1];
   for (size_t c = 0; c < m.bias.size(); ++c)
@@ -422,6 +426,7 @@ namespace {
 
 // Candidate c's estimate is within the tolerance and measured to the precision asked.
 bool passes(const SwitchMeasure& m, int c, const SwitchOptions& o) {
+  if (!m.measured(c)) return false;
   for (int ch = 0; ch < 3; ++ch)
     if (!(std::fabs(m.bias[size_t(c)][ch]) + o.margin * m.biasSE[size_t(c)][ch] <= o.tolerance &&
           m.biasSE[size_t(c)][ch] <= o.precision * o.tolerance))
@@ -477,7 +482,7 @@ SwitchMeasure measure(const Aggregate& agg, const ProxyTables& tables, const Hom
   SwitchMeasure m;
   m.candidatePaths.assign(kSwitchCandidates, 0);
   Sums s;
-  uint32_t forking = (1u << kSwitchCandidates) - 1;
+  uint32_t forking = ((1u << kSwitchCandidates) - 1) & ~((1u << options.firstCandidate) - 1);
   while (m.paths < options.paths) {
     // A batch of paths, in blocks summed in order: the same sums whatever the threads.
     const int64_t done = m.paths, end = std::min(options.paths, done + batchAfter(done));
@@ -539,6 +544,9 @@ void checkOptions(const SwitchOptions& options) {
   if (!(options.precision > 0)) throw InputError("switching", "precision", str(options.precision, " is not > 0"));
   if (!(options.margin >= 0)) throw InputError("switching", "margin", str(options.margin, " is not >= 0"));
   if (options.minPaths < 0) throw InputError("switching", "minPaths", str(options.minPaths, " is < 0"));
+  if (options.firstCandidate < 0 || options.firstCandidate >= kSwitchCandidates)
+    throw InputError("switching", "firstCandidate",
+                     str(options.firstCandidate, " is outside [0, ", kSwitchCandidates - 1, "]"));
 }
 
 }  // namespace

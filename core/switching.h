@@ -115,6 +115,13 @@ struct SwitchOptions {
   // standard error of a few thousand is too small more often than a normal estimate's
   // (sunSwitchOptions).
   int64_t minPaths = 0;
+  // The first candidate (an index of kSwitchVisits) that forks: those before it are not
+  // measured (candidatePaths 0, bias and biasSE 0), never chosen, shown or waited for. For
+  // a caller that takes at least kSwitchVisits[firstCandidate] visits whatever they would
+  // show (Scene's sun measurement, which adds to the dome's choice). A fork draws its own
+  // random numbers, so the others' estimates are those of a measurement of every candidate
+  // over the same paths.
+  int firstCandidate = 0;
   // False (reports): every candidate forks in every path and all `paths` are traced, the
   // budget and the decisions notwithstanding.
   bool stopEarly = true;
@@ -128,7 +135,10 @@ struct SwitchMeasure {
   // as bias and biasSE are of S_k; exitReference[j] = mean(S_Kj) (they sum to albedo).
   std::vector<Vec3> exitBias, exitBiasSE, exitReference;
   int64_t paths = 0;          // traced (at most SwitchOptions::paths; fewer once settled)
-  std::vector<int64_t> candidatePaths;  // per candidate: the paths that forked it (≤ paths)
+  std::vector<int64_t> candidatePaths;  // per candidate: the paths that forked it (≤ paths; 0: not measured)
+  // Candidate c was measured (SwitchOptions::firstCandidate); a measurement made by hand,
+  // without candidatePaths, measured them all.
+  bool measured(int c) const { return size_t(c) >= candidatePaths.size() || candidatePaths[size_t(c)] > 0; }
   int64_t events = 0;         // walk steps taken
   int visits = kSwitchVisits[kSwitchCandidates - 1];  // the chosen k
   double seconds = 0;

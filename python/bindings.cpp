@@ -261,6 +261,7 @@ void addSwitchMeasure(const SwitchMeasure& m, py::dict& d) {
   d["chosen"] = m.visits;
   d["seconds"] = m.seconds;
   d["paths"] = m.paths;
+  d["candidate_paths"] = m.candidatePaths;
   d["events"] = m.events;
   d["from_cache"] = m.fromCache;
 }
@@ -1084,9 +1085,10 @@ PYBIND11_MODULE(granular_core, m) {
           "explicit bounces without proxies) before the medium, and the measurement they come from (switching.h): "
           "candidates (visits tried), bias and bias_se per candidate (relative, RGB), exit_bias and exit_bias_se "
           "per candidate and exit bin (index candidate * len(switch_exit_bins()) + bin), exit_reference per bin, "
-          "albedo, chosen, seconds, paths, events (walk steps), from_cache; under `sun` the same fields of the sun "
+          "albedo, chosen, seconds, paths, candidate_paths (per candidate, the paths that forked it: 0 where it was not "
+          "measured, its bias 0), events (walk steps), from_cache; under `sun` the same fields of the sun "
           "measurement where it was made (Scene::sunSwitchMeasure: the radiance scattered back toward the distant "
-          "lights); with switch_for_view, under `view` those of the view measurement where it was made (its "
+          "lights; from the dome's choice on); with switch_for_view, under `view` those of the view measurement where it was made (its "
           "albedo: the radiance the camera sees there)")
       .def(
           "measure_view_switch",
@@ -1098,7 +1100,7 @@ PYBIND11_MODULE(granular_core, m) {
                                               " aggregate ", a, " in ", view.entries.size(), " of its ",
                                               Scene::kViewGrid * Scene::kViewGrid, " entry rays (",
                                               Scene::kMinViewEntries, " needed), or no distant light or dome lights it"));
-            py::dict d = measuredAnew(sun ? sunSwitchOptions() : viewSwitchOptions(), paths, stopEarly, seed,
+            py::dict d = measuredAnew(sun ? sc.sunSwitchOptionsFor(a) : viewSwitchOptions(), paths, stopEarly, seed,
                                       [&](const SwitchOptions& o) {
               return measureViewSwitch(*sc.aggregates()[size_t(a)], sc.proxyTables(a), sc.medium(a), view, o);
             });
@@ -1110,7 +1112,7 @@ PYBIND11_MODULE(granular_core, m) {
           "the view measurement of aggregate a (switching.h: measureViewSwitch; Scene::switchViews) from the scene's camera "
           "and lights, uncached: the fields of `switching` (albedo: the radiance the camera sees there), and entries "
           "(the camera's rays that meet the aggregate); sun=True: the sun measurement's instead (Scene::sunSwitchViews: "
-          "the aggregate as each distant light sees it); ValueError when the camera (the lights) see too little of it "
+          "the aggregate as each distant light sees it; its candidates from the dome's choice on, as the scene's); ValueError when the camera (the lights) see too little of it "
           "(fewer than 16 entries) or no distant light or dome lights it")
       .def(
           "measure_switch",
