@@ -1310,7 +1310,7 @@ std::string Scene::lowOrdersText(int a) const {
       at(v, bias, sizeof bias);
       std::snprintf(buf, sizeof buf, "; %s %s", what, bias);
       text += buf;
-      if (!v.measured(0)) return;  // (sunSwitchOptionsFor)
+      if (!v.measured(0)) return;  // measured from the dome's choice on (sunSwitchOptionsFor)
       const int w = worst(v.bias[0]);
       std::snprintf(buf, sizeof buf, ", right after the first grain %+.1f%% ± %.1f%%", 100.0 * v.bias[0][w],
                     100.0 * v.biasSE[0][w]);

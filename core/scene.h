@@ -183,21 +183,20 @@ class Scene {
   // direction is noisy, and nearly clear grains' too noisy to resolve), at least the dome's
   // choice: the candidates below that are not measured (sunSwitchOptionsFor), since they
   // could not raise it. The aggregate takes the largest of the dome's, the sun's and
-  // (switchForView) the camera's choices. Only
-  // under a narrow sun, where every path goes on among proxies after its first grain
-  // anyway: under a wide one the nearly clear scenes need no proxies, and the measurement
-  // would cost seconds to ask for some. Made once per scene (and per setMedium), cached on
-  // disk. Null when not made: no switching measurement, no narrow sun, no distant light of
+  // (switchForView) the camera's choices. Only under a narrow sun, where every path goes on
+  // among proxies after its first grain anyway: under a wide one the nearly clear scenes
+  // need no proxies, and the measurement would cost seconds to ask for some. Made once per
+  // scene (and per setMedium), cached on disk. Null when not made: no switching measurement, no narrow sun, no distant light of
   // non-zero radiance, fewer than kMinViewEntries entries, or the dome's choice the most
   // visits already (kSwitchVisits' last).
-  // The sun measurement's options for a measured aggregate: sunSwitchOptions(), its first
-  // candidate the dome's choice (SwitchOptions::firstCandidate).
-  SwitchOptions sunSwitchOptionsFor(int aggregate) const;
   const SwitchMeasure* sunSwitchMeasure(int aggregate) const {
     return size_t(aggregate) < sunSwitching_.size() && !switching_.empty() && switching_[size_t(aggregate)]
                ? sunSwitching_[size_t(aggregate)].get()
                : nullptr;
   }
+  // The sun measurement's options for a measured aggregate: sunSwitchOptions(), its first
+  // candidate the dome's choice (SwitchOptions::firstCandidate).
+  SwitchOptions sunSwitchOptionsFor(int aggregate) const;
   // Per aggregate, the sun measurement's entries: per distant light of non-zero radiance, a
   // kViewGrid² orthographic grid of rays from the light over the aggregate's bounds, those
   // that meet its boundary first (grains unseen), with the distant lights that reach them

@@ -79,7 +79,7 @@ struct PhaseTable {
   // own mean cosine (bin centres), i.e. what sampling it reproduces. Negative or
   // non-finite weights count as 0; all-zero weights give the isotropic table.
   static PhaseTable fromHistogram(const std::vector<double>& weights);
-  // guide from density and cdf.
+  // Makes guide from cdf.
   void buildGuide();
 };
 
