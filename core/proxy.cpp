@@ -112,16 +112,9 @@ bool ProxyTable::sample(int b, float uBin, float u1, float u2, float uSide, Prox
     return out.pdf > 0;
   }
   out.straight = false;
-  // Largest i with cdf[i] <= u (u < cdf[nd]) and a bin of non-zero mass: from the guide
-  // of u's share of the total forward (a step back guards against rounding).
+  // u's direction bin, from the guide of u's share of the total forward.
   u = std::min(u - passMass, cdf[nd]);
-  const float uc = u / cdf[nd];
-  const int j = std::clamp(int(uc * float(kGuides)), 0, kGuides);
-  int i = int(guide_[size_t(b) * size_t(kGuides + 1) + size_t(j)]);
-  while (i > 0 && cdf[i] > u) --i;
-  while (i < nd && cdf[i + 1] <= u) ++i;
-  i = std::clamp(i, 0, nd - 1);
-  while (i > 0 && !(cdf[i + 1] > cdf[i])) --i;
+  const int i = guidedBin(cdf, nd, &guide_[size_t(b) * size_t(kGuides + 1)], kGuides, u);
   const int mu = i / nphi_, ph = i % nphi_;
   const float z0 = muEdge_[size_t(mu)], z1 = muEdge_[size_t(mu) + 1];
   const float z = z0 + (z1 - z0) * std::clamp(u1, 1e-4f, 1.0f - 1e-4f);
@@ -173,14 +166,8 @@ void ProxyTable::buildSamplingTables() {
       phiStart_.push_back(float(std::sin(phi)));
     }
   guide_.assign(size_t(nb_) * size_t(kGuides + 1), 0);
-  for (int b = 0; b < nb_; ++b) {
-    const float* cdf = &cdf_[size_t(b) * size_t(nd + 1)];
-    for (int j = 0; j <= kGuides; ++j) {
-      const float u = float(j) / float(kGuides) * cdf[nd];
-      const int i = int(std::upper_bound(cdf, cdf + nd + 1, u) - cdf) - 1;
-      guide_[size_t(b) * size_t(kGuides + 1) + size_t(j)] = uint32_t(std::clamp(i, 0, nd));
-    }
-  }
+  for (int b = 0; b < nb_; ++b)
+    cdfGuide(&cdf_[size_t(b) * size_t(nd + 1)], nd, kGuides, &guide_[size_t(b) * size_t(kGuides + 1)]);
 }
 
 void ProxyTable::setValue(int b, ProxyDirection& d) const {

@@ -101,6 +101,12 @@ inline float sphereFarSide(const Vec3& oc, const Vec3& d, float r) {
   const float along = dot(oc, d);
   return std::max(0.0f, -along + std::sqrt(std::max(0.0f, r * r - length2(oc - d * along))));
 }
+// Where it enters that sphere: the near root (as a walk finds it), false where it misses.
+inline bool sphereNearSide(const Vec3& oc, const Vec3& d, float r, float& t) {
+  const float along = dot(oc, d), disc = r * r - length2(oc - d * along);
+  t = -along - std::sqrt(std::max(0.0f, disc));
+  return disc >= 0;
+}
 
 // A shadow ray's passage through proxies (Aggregate::proxyTransmittance): per channel the
 // chance that light crosses the spheres on its line — the product of crossing_c(b), grains

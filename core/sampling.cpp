@@ -1,6 +1,26 @@
 #include "sampling.h"
 
+#include <algorithm>
+
 namespace granular {
+
+void cdfGuide(const float* cdf, int n, int g, uint32_t* guide) {
+  for (int j = 0; j <= g; ++j) {
+    const float u = float(j) / float(g) * cdf[n];
+    const int i = int(std::upper_bound(cdf, cdf + n + 1, u) - cdf) - 1;
+    guide[j] = uint32_t(std::clamp(i, 0, n));
+  }
+}
+
+int guidedBin(const float* cdf, int n, const uint32_t* guide, int g, float u) {
+  const int j = std::clamp(int(u / cdf[n] * float(g)), 0, g);
+  int i = int(guide[j]);
+  while (i > 0 && cdf[i] > u) --i;  // u · g rounded up to the next step
+  while (i < n && cdf[i + 1] <= u) ++i;
+  i = std::clamp(i, 0, n - 1);
+  while (i > 0 && !(cdf[i + 1] > cdf[i])) --i;
+  return i;
+}
 
 Distribution1D::Distribution1D(const std::vector<float>& f) : func_(f), cdf_(f.size() + 1) {
   int n = int(f.size());

@@ -6,11 +6,21 @@
 #pragma once
 
 #include <cmath>
+#include <cstdint>
 #include <vector>
 
 #include "math.h"
 
 namespace granular {
+
+// A guide table (Chen & Asau 1974) for inverting a piecewise-constant cdf of n bins
+// (cdf[0] = 0 ≤ … ≤ cdf[n], the total): g + 1 starting points, guide[j] the last bin
+// whose cdf is at most j/g of the total, from which a step or two finds u's bin instead of
+// a binary search. cdfGuide() writes them to guide (g + 1 entries).
+void cdfGuide(const float* cdf, int n, int g, uint32_t* guide);
+// u's bin in [0, cdf[n]]: the largest i < n with cdf[i] ≤ u whose bin has mass (u = cdf[n]:
+// the last such bin), as a binary search would find it.
+int guidedBin(const float* cdf, int n, const uint32_t* guide, int g, float u);
 
 // Cosine-weighted hemisphere around +Z (Malley). pdf = cos(theta) / pi.
 inline Vec3 sampleCosineHemisphere(float u1, float u2) {

@@ -1494,14 +1494,8 @@ bool Scene::firstGrainProxy(const Ray& ray, const GrainStart& met, Hit& hit) con
   if (met.aggregate < 0 || met.grain.sphere < 0) return false;
   GrainHit g = met.grain;
   g.center = aggregateAt(met.aggregate, ray.time).grainCenter(g);
-  // Entry by the closest approach, as the walk computes it (Aggregate::walkCell).
   const Vec3 oc = ray.o - g.center;
-  const float along = dot(oc, ray.d);
-  const Vec3 w = oc - ray.d * along;
-  const float disc = g.radius * g.radius - length2(w);
-  if (!(disc >= 0)) return false;
-  g.t = -along - std::sqrt(disc);
-  if (!(g.t > ray.tmin) || !(g.t < ray.tmax)) return false;
+  if (!sphereNearSide(oc, ray.d, g.radius, g.t) || !(g.t > ray.tmin) || !(g.t < ray.tmax)) return false;
   g.ng = normalize(oc + ray.d * g.t);
   grainHit(Hit::Proxy, met.aggregate, g, hit);
   finishHit(ray, hit);

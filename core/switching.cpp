@@ -317,8 +317,8 @@ void summarise(const Sums& s, SwitchMeasure& m) {
   m.exitBias.assign(size_t(kSwitchCandidates * kSwitchExitBins), Vec3(0.0f));
   m.exitBiasSE.assign(m.exitBias.size(), Vec3(0.0f));
   for (int c = 0; c < kSwitchCandidates; ++c) {
+    if (!m.measured(c)) continue;  // SwitchOptions::firstCandidate: 0
     const double nc = double(m.candidatePaths[size_t(c)]);
-    if (nc < 2) continue;  // not measured (SwitchOptions::firstCandidate): 0
     relative(s.d[c], s.d2[c], nc, s.a, m.bias[size_t(c)], m.biasSE[size_t(c)]);
     for (int j = 0; j < kSwitchExitBins; ++j) {
       const size_t i = size_t(c * kSwitchExitBins + j);

@@ -301,9 +301,7 @@ Vec3 PhaseTable::sample(const Vec3& wi, float u1, float u2, float* pdf) const {
     // Largest i with cdf[i] <= u1: a bin of non-zero mass (u1 < 1 = cdf[bins]).
     int lo = 0;
     if (!guide.empty()) {
-      lo = guide[size_t(std::min(int(u1 * float(bins())), bins() - 1))];
-      while (lo > 0 && cdf[size_t(lo)] > u1) --lo;  // u1 · bins rounded up to the next j
-      while (lo + 1 < bins() && cdf[size_t(lo) + 1] <= u1) ++lo;
+      lo = guidedBin(cdf.data(), bins(), guide.data(), bins(), u1);
     } else {
       int hi = bins() - 1;
       while (lo < hi) {
@@ -357,14 +355,8 @@ PhaseTable PhaseTable::fromHistogram(const std::vector<double>& weights) {
 }
 
 void PhaseTable::buildGuide() {
-  const int n = bins();
-  guide.assign(size_t(n), 0);
-  int i = 0;
-  for (int j = 0; j < n; ++j) {
-    const float u = float(j) / float(n);
-    while (i + 1 < n && cdf[size_t(i) + 1] <= u) ++i;
-    guide[size_t(j)] = uint16_t(i);
-  }
+  guide.assign(size_t(bins()) + 1, 0);
+  cdfGuide(cdf.data(), bins(), bins(), guide.data());
 }
 
 // --- estimation -------------------------------------------------------------------------

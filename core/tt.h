@@ -58,10 +58,10 @@ struct PhaseTable {
   std::vector<float> density;  // p(μ) per bin, per steradian
   std::vector<float> cdf;      // size bins+1, cdf[0] = 0, cdf[bins] = 1
   float g = 0;                 // mean cosine
-  // guide[j]: the bin of u = j / bins (below), from which sample() finds u's bin in a step
-  // or two instead of a binary search, the same bin; made by fromHistogram() and
-  // the cache's reader (buildGuide()). Empty: the binary search.
-  std::vector<uint16_t> guide;
+  // sample()'s guide to the cdf (sampling.h: cdfGuide, bins + 1 entries): the same bin as
+  // a binary search, in a step or two. Made by fromHistogram() and the cache's reader
+  // (buildGuide()); empty: the binary search.
+  std::vector<uint32_t> guide;
 
   int bins() const { return int(density.size()); }
   // p(ω_i·ω_o), per steradian.

@@ -1085,11 +1085,11 @@ PYBIND11_MODULE(granular_core, m) {
           "explicit bounces without proxies) before the medium, and the measurement they come from (switching.h): "
           "candidates (visits tried), bias and bias_se per candidate (relative, RGB), exit_bias and exit_bias_se "
           "per candidate and exit bin (index candidate * len(switch_exit_bins()) + bin), exit_reference per bin, "
-          "albedo, chosen, seconds, paths, candidate_paths (per candidate, the paths that forked it: 0 where it was not "
-          "measured, its bias 0), events (walk steps), from_cache; under `sun` the same fields of the sun "
+          "albedo, chosen, seconds, paths, candidate_paths (per candidate, the paths that forked it: 0 where it "
+          "was not measured, its bias 0), events (walk steps), from_cache; under `sun` the same fields of the sun "
           "measurement where it was made (Scene::sunSwitchMeasure: the radiance scattered back toward the distant "
-          "lights; from the dome's choice on); with switch_for_view, under `view` those of the view measurement where it was made (its "
-          "albedo: the radiance the camera sees there)")
+          "lights; from the dome's choice on); with switch_for_view, under `view` those of the view measurement "
+          "where it was made (its albedo: the radiance the camera sees there)")
       .def(
           "measure_view_switch",
           [](const PyScene& s, int a, int64_t paths, bool stopEarly, uint64_t seed, bool sun) {
@@ -1112,8 +1112,9 @@ PYBIND11_MODULE(granular_core, m) {
           "the view measurement of aggregate a (switching.h: measureViewSwitch; Scene::switchViews) from the scene's camera "
           "and lights, uncached: the fields of `switching` (albedo: the radiance the camera sees there), and entries "
           "(the camera's rays that meet the aggregate); sun=True: the sun measurement's instead (Scene::sunSwitchViews: "
-          "the aggregate as each distant light sees it; its candidates from the dome's choice on, as the scene's); ValueError when the camera (the lights) see too little of it "
-          "(fewer than 16 entries) or no distant light or dome lights it")
+          "the aggregate as each distant light sees it; its candidates from the dome's choice on, as the scene's); "
+          "ValueError when the camera (the lights) see too little of it (fewer than 16 entries) or no distant light "
+          "or dome lights it")
       .def(
           "measure_switch",
           [](const PyScene& s, int a, int64_t paths, bool stopEarly, uint64_t seed) {

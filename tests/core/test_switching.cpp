@@ -208,6 +208,14 @@ TEST(Switching, IsDeterministicCachedAndRecomputesADamagedEntry) {
 
 namespace {
 
+// A report's options: every candidate forks in every one of `paths` paths.
+SwitchOptions everyPath(int64_t paths) {
+  SwitchOptions o;
+  o.paths = paths;
+  o.stopEarly = false;
+  return o;
+}
+
 // A tolerance of 3% and a precision of a tenth of it: on the IOR 2.4 ball the first
 // candidates are decided within a few thousand paths, the others measured on.
 SwitchOptions decidingOptions(int64_t paths) {
@@ -279,9 +287,7 @@ TEST(Switching, CandidatesBeforeTheFirstAreNotMeasuredAndTheOthersAreTheSame) {
   // bit, those of the measurement of every candidate (a fork draws its own random numbers);
   // cached and read back the same, under a key of its own.
   auto scene = ballScene(2.4f, Vec3(0.05f));
-  SwitchOptions o;
-  o.paths = 1 << 12;
-  o.stopEarly = false;
+  SwitchOptions o = everyPath(1 << 12);
   const SwitchMeasure all = measure(*scene, o);
   constexpr int kFirst = 3;
   o.firstCandidate = kFirst;
@@ -306,8 +312,10 @@ TEST(Switching, CandidatesBeforeTheFirstAreNotMeasuredAndTheOthersAreTheSame) {
   // by the measurement of all, not by one that never measured it.
   ASSERT_TRUE(beyondBy(all, 0, o.tolerance, 3.0f));
   EXPECT_GT(switchVisitsShownNeeded(all, o), 0);
+  // Nothing measured shown, and a bias where nothing was measured (which a measurement never
+  // writes there): still nothing shown.
   SwitchMeasure none = from;
-  for (int c = kFirst; c + 1 < kSwitchCandidates; ++c) none.bias[size_t(c)] = Vec3(0.0f);
+  for (int c = 0; c + 1 < kSwitchCandidates; ++c) none.bias[size_t(c)] = Vec3(c < kFirst ? 0.5f : 0.0f);
   EXPECT_EQ(switchVisitsShownNeeded(none, o), 0);
   // Cached: its own entry, read back as measured.
   const uint64_t key = 0xf125c4ULL;
@@ -361,9 +369,7 @@ TEST(Switching, ExitBinsSplitTheAlbedoAndItsBias) {
   // each candidate's bias, weighted by the bins' share, to its bias in all. Without
   // stopping early every candidate forks in every path and all the paths are traced.
   auto scene = ballScene(2.4f, Vec3(0.05f));
-  SwitchOptions o;
-  o.paths = 1 << 12;
-  o.stopEarly = false;
+  const SwitchOptions o = everyPath(1 << 12);
   const SwitchMeasure m = measure(*scene, o);
   EXPECT_EQ(m.paths, o.paths);
   for (int64_t n : m.candidatePaths) EXPECT_EQ(n, o.paths);
