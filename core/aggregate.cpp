@@ -155,10 +155,21 @@ void Aggregate::build(const AggregateDesc& desc, const EmbreeDevice& device, con
                          " grains exceed the limit of ", kMaxCells, " (raise grainRadius or tileSpheres)"));
   for (int a = 0; a < 3; ++a) bounds_.hi[a] = origin_[a] + float(n_[a]) * L_;
 
-  // Distance field: voxels of half a cell (or coarser for huge grids), band covering the margin.
-  float extent = maxComponent(mb.extent());
+  // Distance field: voxels of a quarter cell where such a field stays under
+  // desc.fineFieldBytes (paper-scale boundaries would need hundreds of MiB), else half a
+  // cell (or coarser for huge grids); the band covers the margin. The finer field classes
+  // more cells inside and leaves fewer spheres near the boundary to a ray cast
+  // (sphereIsInside), which shortens the walk where rays first meet the aggregate. Which
+  // spheres are grains does not depend on it.
+  const float extent = maxComponent(mb.extent());
+  auto marginFor = [&](float v) { return 0.8661f * L_ + Rmax_ + 1.5f * v; };
+  const float fine = 0.25f * L_;
   float voxel = std::max(0.5f * L_, extent / 1024.0f);
-  float margin = 0.8661f * L_ + Rmax_ + 1.5f * voxel;
+  if (fine > extent / 1024.0f &&
+      DistanceField::estimateBytes(boundary_.area(), fine, marginFor(fine) + fine) <= desc.fineFieldBytes)
+    voxel = fine;
+  stats_.fieldVoxel = voxel;
+  const float margin = marginFor(voxel);
   stats_.cells = int64_t(cells);
 
   // The tile's spheres plus every periodic image that reaches into the unit cell.

@@ -71,6 +71,7 @@ struct AggregateStats {
   // Largest depth below the boundary of a cell centre (a lower bound of the object's
   // half thickness, exact to about a cell): decides whether VPT and DA can pay off.
   float maxInteriorDepth = 0;
+  float fieldVoxel = 0;          // the distance field's voxel edge (world units)
   bool fromCache = false;        // the products above came from the build cache (build_cache.h)
 };
 

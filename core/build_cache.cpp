@@ -328,6 +328,7 @@ uint64_t buildKey(const AggregateDesc& desc, const TriangleMesh& worldBoundary, 
   h = hashValue(h, desc.packingRate);
   h = hashValue(h, desc.seed);
   h = hashValue(h, int32_t(desc.tileSpheres));
+  h = hashValue(h, desc.fineFieldBytes);  // which voxel the field takes
   h = hashValue(h, desc.sizeSpread);
   h = hashBytes(h, desc.sizes.data(), desc.sizes.size() * sizeof(float));
   h = hashBytes(h, desc.weights.data(), desc.weights.size() * sizeof(float));

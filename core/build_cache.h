@@ -28,7 +28,7 @@
 
 namespace granular {
 
-constexpr uint32_t kBuildFormatVersion = 2;  // 2: the distance field's anchor
+constexpr uint32_t kBuildFormatVersion = 3;  // 2: the distance field's anchor; 3: fields of a quarter tile
 
 struct BuildProducts {
   // The grid the products belong to: the loading build computes these itself and takes

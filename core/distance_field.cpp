@@ -309,6 +309,19 @@ float DistanceField::bandVoxels(float voxelSize, float minBand) {
   return std::max(3.0f, std::ceil(minBand / voxelSize) + 1.0f);
 }
 
+double DistanceField::estimateBytes(double area, float voxelSize, float minBand) {
+  using Tree = openvdb::FloatTree;
+  using Leaf = Tree::LeafNodeType;
+  using Lower = Tree::RootNodeType::ChildNodeType::ChildNodeType;  // blocks of 128³ voxels
+  using Upper = Tree::RootNodeType::ChildNodeType;                  // blocks of 4096³ voxels
+  const double edge = double(Leaf::DIM) * voxelSize, lowerEdge = double(Lower::DIM) * voxelSize;
+  const double layers = 2.0 * bandVoxels(voxelSize, minBand) / double(Leaf::DIM) + 1.0;
+  const double leaves = area / (edge * edge) * layers, lowers = 2.0 * area / (lowerEdge * lowerEdge) + 8.0;
+  // The upper nodes: up to eight where the mesh straddles its anchor's octants.
+  return leaves * double(sizeof(Leaf) + Leaf::SIZE * sizeof(float)) + lowers * double(sizeof(Lower)) +
+         8.0 * double(sizeof(Upper));
+}
+
 bool DistanceField::empty() const { return !impl_ || !impl_->grid; }
 
 void DistanceField::write(std::ostream& out) const {

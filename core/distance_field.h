@@ -43,6 +43,10 @@ class DistanceField {
   void buildAnchored(const TriangleMesh& local, const Vec3d& anchor, float voxelSize, float minBand);
   // build()'s band in voxels (a whole number, at least 3): bandWidth() is it times the voxel size.
   static float bandVoxels(float voxelSize, float minBand);
+  // About what build() of a mesh of this surface area takes in memory: the leaves (blocks
+  // of 8³ voxels) that tile the band on both sides of the surface, and the tree's nodes
+  // above them.
+  static double estimateBytes(double area, float voxelSize, float minBand);
   // The field of an axis-aligned box, its exact distance written straight into the grid:
   // the layout build() gives the box's mesh (index space, the same band, ±band beyond it),
   // at a few nanoseconds a voxel instead of mesh-to-level-set's search of the triangles.

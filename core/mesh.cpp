@@ -47,6 +47,15 @@ Bounds3 TriangleMesh::bounds() const {
 
 double TriangleMesh::signedVolume() const { return volumeAbout(*this, centreOf(*this)); }
 
+double TriangleMesh::area() const {
+  double a = 0;
+  for (size_t t = 0; t + 2 < indices.size(); t += 3) {
+    const Vec3 &p0 = points[indices[t]], &p1 = points[indices[t + 1]], &p2 = points[indices[t + 2]];
+    a += 0.5 * double(length(cross(p1 - p0, p2 - p0)));
+  }
+  return a;
+}
+
 TriangleMesh TriangleMesh::transformed(const Transform& xf) const {
   TriangleMesh r;
   r.points.reserve(points.size());

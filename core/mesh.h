@@ -25,6 +25,7 @@ struct TriangleMesh {
   Bounds3 bounds() const;
   // Signed volume (positive for outward-facing, counter-clockwise winding).
   double signedVolume() const;
+  double area() const;
   TriangleMesh transformed(const Transform& xf) const;
   // Flips the winding of every triangle (and its corners' uvs).
   void flip();

@@ -106,7 +106,7 @@ bool sameAggregate(const AggregateDesc& a, const AggregateDesc& b) {
   if (a.name != b.name || !sameMesh(a.boundary, b.boundary) || !sameTransform(a.xf, b.xf) || a.weights != b.weights ||
       a.grainRadius != b.grainRadius || a.packingRate != b.packingRate || a.seed != b.seed ||
       a.tileSpheres != b.tileSpheres || a.sizes != b.sizes || a.sizeSpread != b.sizeSpread ||
-      a.prototypes.size() != b.prototypes.size())
+      a.fineFieldBytes != b.fineFieldBytes || a.prototypes.size() != b.prototypes.size())
     return false;
   for (size_t i = 0; i < a.prototypes.size(); ++i)
     if (a.prototypes[i].name != b.prototypes[i].name || a.prototypes[i].material != b.prototypes[i].material ||

@@ -589,7 +589,7 @@ static_assert(fieldCount<MaterialDesc>() == 13, "compare the new field in sameMa
 static_assert(fieldCount<LightDesc>() == 12, "compare the new field in sameLight");
 static_assert(fieldCount<MeshDesc>() == 8, "compare the new field in sameMeshDesc");
 static_assert(fieldCount<GrainPrototypeDesc>() == 3, "compare the new field in sameAggregateInputs");
-static_assert(fieldCount<AggregateDesc>() == 14, "compare the new field in sameAggregateInputs (or the id check)");
+static_assert(fieldCount<AggregateDesc>() == 15, "compare the new field in sameAggregateInputs (or the id check)");
 static_assert(fieldCount<RenderSettings>() == 27, "compare the new field in sameViewSettings or settingsNeedBuild");
 static_assert(fieldCount<SceneDesc>() == 7, "compare the new part in compareScenes");
 static_assert(fieldCount<InstancedGrainsDesc>() == 10, "compare the new field in sameInstancedGrains (or the id check)");
@@ -684,7 +684,8 @@ bool sameAggregateInputs(const SceneDesc& da, const Vec3d& oa, const AggregateDe
   if (a.name != b.name || !sameTransform(toRenderSpace(a.xf, oa), toRenderSpace(b.xf, ob)) || a.weights != b.weights ||
       !(a.grainRadius == b.grainRadius) || a.sizes != b.sizes || !(a.sizeSpread == b.sizeSpread) ||
       !(a.packingRate == b.packingRate) || a.seed != b.seed || a.tileSpheres != b.tileSpheres ||
-      a.prototypes.size() != b.prototypes.size() || !sameMesh(a.boundary, b.boundary))
+      a.fineFieldBytes != b.fineFieldBytes || a.prototypes.size() != b.prototypes.size() ||
+      !sameMesh(a.boundary, b.boundary))
     return false;
   for (size_t i = 0; i < a.prototypes.size(); ++i) {
     const GrainPrototypeDesc &pa = a.prototypes[i], &pb = b.prototypes[i];

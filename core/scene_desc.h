@@ -172,6 +172,10 @@ struct AggregateDesc {
   float packingRate = 0.6f;    // f in (0, 0.64]
   uint64_t seed = 1;
   int tileSpheres = 512;       // spheres per periodic tile
+  // The memory a distance field of a quarter tile may take (Aggregate::build, by
+  // DistanceField::estimateBytes); past it, half a tile. No front end sets it: tests set 0
+  // to build the coarser field.
+  double fineFieldBytes = 32.0 * 1024 * 1024;
   int id = -1;                 // the front end's id, reported by the primId AOV
   int instanceId = -1;         // as MeshDesc::instanceId
   // Transform motion blur, as MeshDesc::shutterXf: the object-to-world transforms at the

@@ -365,7 +365,7 @@ bool settled(const SwitchMeasure& m, const SwitchOptions& o, int64_t more) {
 
 // Cache record (cache.h: RecordWriter) of a measurement.
 constexpr RecordMagic kMagic = {'G', 'R', 'S', 'W', '\0', '\0', '\0', '\0'};
-constexpr uint32_t kFormatVersion = 7;  // 7: the exit bins
+constexpr uint32_t kFormatVersion = 8;  // 7: the exit bins; 8: distance fields of a quarter cell
 
 uint64_t recordKey(uint64_t key, const SwitchOptions& o) {
   key = hashInts(key, uint64_t(kFormatVersion), uint64_t(o.paths), o.seed, uint64_t(kSwitchCandidates),

@@ -225,6 +225,7 @@ py::dict aggregateInfo(const Aggregate& a, int tileSpheres, const Vec3d& renderO
   d["setup_seconds"] = s.setupSeconds;
   d["tile_seconds"] = s.tileSeconds;
   d["sdf_seconds"] = s.sdfSeconds;
+  d["field_voxel"] = s.fieldVoxel;
   d["grain_radius"] = a.grainRadius();
   d["max_grain_radius"] = a.maxGrainRadius();
   d["cell_size"] = a.cellSize();

@@ -142,6 +142,70 @@ void checkRaysAgainstBruteForce(const AggregateDesc& d) {
 
 TEST(Aggregate, RayIntersectionMatchesBruteForceOverEveryGrain) { checkRaysAgainstBruteForce(smallAggregate(0.1f, 0.5f)); }
 
+namespace {
+
+AggregateDesc withCoarseField(AggregateDesc d) {
+  d.fineFieldBytes = 0;  // no field of a quarter tile fits: half a tile
+  return d;
+}
+
+}  // namespace
+
+TEST(Aggregate, RayIntersectionMatchesBruteForceWithTheCoarserField) {
+  checkRaysAgainstBruteForce(withCoarseField(smallAggregate(0.1f, 0.5f)));
+}
+
+TEST(Aggregate, SmallFieldsAreAQuarterTileAndLargeOnesHalf) {
+  const AggregateDesc d = smallAggregate(0.02f);
+  Built fine(d), coarse(withCoarseField(d));
+  const float L = fine.agg.cellSize();
+  EXPECT_EQ(fine.agg.stats().fieldVoxel, 0.25f * L);
+  EXPECT_EQ(coarse.agg.stats().fieldVoxel, 0.5f * L);
+  EXPECT_EQ(fine.agg.distanceField().voxelSize(), 0.25f * L);
+  // What the finer field is for: fewer cells near the boundary left partial.
+  EXPECT_EQ(fine.agg.stats().cells, coarse.agg.stats().cells);
+  EXPECT_GT(fine.agg.stats().insideCells, coarse.agg.stats().insideCells);
+  EXPECT_LT(fine.agg.stats().partialCells, coarse.agg.stats().partialCells);
+}
+
+TEST(Aggregate, TheFieldsVoxelChangesNoGrain) {
+  // The same grains, and every ray meets the same one at the same place, whichever field
+  // decides the cells and the walk's jumps.
+  const AggregateDesc d = smallAggregate(0.02f);
+  Built fine(d), coarse(withCoarseField(d));
+  std::vector<std::tuple<int64_t, int64_t, int64_t, int, int>> grains[2];
+  int k = 0;
+  for (const Aggregate* a : {&fine.agg, &coarse.agg}) {
+    a->forEachGrain(a->bounds(), [&](const GrainInstance& g) {
+      grains[k].emplace_back(g.cell[0], g.cell[1], g.cell[2], g.sphere, g.prototype);
+    });
+    std::sort(grains[k].begin(), grains[k].end());
+    ++k;
+  }
+  EXPECT_EQ(grains[0], grains[1]);
+  ASSERT_GT(grains[0].size(), 10000u);
+  Rng rng(23);
+  const Bounds3 bb = fine.agg.bounds();
+  int hits = 0;
+  for (int r = 0; r < 4000; ++r) {
+    const Vec3 target = bb.lo + Vec3(rng.next1D(), rng.next1D(), rng.next1D()) * bb.extent();
+    const Vec3 dir = sampleUniformSphere(rng.next1D(), rng.next1D());
+    const Vec3 o = (r % 2) ? target - dir * (2.0f * length(bb.extent())) : target;
+    GrainHit a, b;
+    const bool ha = fine.agg.intersect(o, dir, 0.0f, kInf, a), hb = coarse.agg.intersect(o, dir, 0.0f, kInf, b);
+    ASSERT_EQ(ha, hb) << "ray " << r;
+    EXPECT_EQ(fine.agg.occluded(o, dir, 0.0f, kInf), ha) << "ray " << r;
+    EXPECT_EQ(coarse.agg.occluded(o, dir, 0.0f, kInf), hb) << "ray " << r;
+    if (!ha) continue;
+    ++hits;
+    EXPECT_EQ(a.sphere, b.sphere) << "ray " << r;
+    EXPECT_EQ(a.prim, b.prim) << "ray " << r;
+    for (int ax = 0; ax < 3; ++ax) EXPECT_EQ(a.cell[ax], b.cell[ax]) << "ray " << r;
+    EXPECT_NEAR(a.t, b.t, 1e-5f * (1.0f + a.t)) << "ray " << r;
+  }
+  EXPECT_GT(hits, 1000);
+}
+
 TEST(Aggregate, JumpsOverEmptySubCellsMissNoGrain) {
   // Smaller grains: the band of partial cells is many sub-cells deep, and rays from
   // outside jump through it by the distance field (sphere tracing) before the surface.

@@ -134,10 +134,15 @@ TEST(DistanceFieldRows, RowsGiveDistanceBitForBit) {
 TEST(AggregateColdBuild, ClassesAndDepthAreThePerCellClassification) {
   NoBuildCache off;
   const EmbreeDevice device = makeEmbreeDevice();
+  // Each boundary with its field of a quarter tile and with the coarser one of half a tile.
+  for (const bool fine : {true, false})
   for (const Boundary& b : boundaries()) {
+    AggregateDesc desc = aggregateOf(b);
+    if (!fine) desc.fineFieldBytes = 0;
     Aggregate a;
-    a.build(aggregateOf(b), device, {0});
+    a.build(desc, device, {0});
     ASSERT_FALSE(a.stats().fromCache);
+    ASSERT_EQ(a.distanceField().voxelSize(), (fine ? 0.25f : 0.5f) * a.cellSize()) << b.name;
     // The classification of build() as it was, cell by cell through distance().
     const DistanceField& f = a.distanceField();
     const float L = a.cellSize(), margin = 0.8661f * L + a.maxGrainRadius() + 1.5f * f.voxelSize();
@@ -175,11 +180,12 @@ TEST(AggregateColdBuild, ClassesAndDepthAreThePerCellClassification) {
     EXPECT_TRUE(sameBits(a.stats().maxInteriorDepth, depth))
         << b.name << ": " << a.stats().maxInteriorDepth << " vs " << depth;
     // Inside and partial cells everywhere, outside ones where the grid does not hug the
-    // boundary (not the boxes), and depths beyond the band but in the thin slab.
+    // boundary (not the boxes), and depths beyond the band: everywhere with the finer
+    // field's narrower band, but in the thin slab with the coarser one.
     EXPECT_GT(inside, 0) << b.name;
     EXPECT_GT(partial, 0) << b.name;
     if (b.name == "sphere" || b.name == "L-shape") EXPECT_LT(inside + partial, cells) << b.name;
-    EXPECT_EQ(clamped.empty(), b.name == "thin slab") << b.name;
+    EXPECT_EQ(clamped.empty(), !fine && b.name == "thin slab") << b.name;
   }
 }
 
@@ -289,6 +295,25 @@ TEST(DistanceFieldBox, ClassesAreMeshToLevelSetsButAtAFewCellsOnTheMargin) {
     EXPECT_GT(partial, cells / 10) << b.name;
     EXPECT_LT(differ * 1000, cells) << b.name << ": " << differ << " of " << cells;
   }
+}
+
+// ---- the memory a field will take, before it is built (DistanceField::estimateBytes) ----
+
+TEST(DistanceFieldMemory, TheEstimateIsNearWhatTheBuiltFieldTakes) {
+  // Meshes of one surface and of many faces, edges and corners, at voxels from a tenth to
+  // a fortieth of their size: the aggregate picks its field by this estimate.
+  struct Case { const char* name; TriangleMesh mesh; };
+  const Case cases[] = {{"sphere", makeIcosphere(4)}, {"L prism", makeLPrism(0.6f)},
+                        {"rock", makeRock(3, 0.25f, 5)}};
+  for (const Case& c : cases)
+    for (float voxel : {0.1f, 0.05f, 0.025f}) {
+      const float minBand = 3.7f * voxel;
+      DistanceField f;
+      f.build(c.mesh, voxel, minBand);
+      const double built = double(f.memoryBytes()), estimate = DistanceField::estimateBytes(c.mesh.area(), voxel, minBand);
+      EXPECT_GT(estimate, 0.5 * built) << c.name << " voxel " << voxel;
+      EXPECT_LT(estimate, 2.0 * built) << c.name << " voxel " << voxel;
+    }
 }
 
 // ---- congruent boundaries share one field (DistanceField::buildShared) ------------------

@@ -81,6 +81,16 @@ TEST(Mesh, SignedVolumes) {
   EXPECT_DOUBLE_EQ(flipped.signedVolume(), -1.0);
 }
 
+TEST(Mesh, Areas) {
+  EXPECT_DOUBLE_EQ(makeBox({-1, 0, 2}, {1, 3, 6}).area(), 2.0 * (2.0 * 3.0 + 3.0 * 4.0 + 2.0 * 4.0));
+  EXPECT_DOUBLE_EQ(unitCubeQuads().area(), 6.0);
+  // A fine icosphere approaches the sphere's 4π from below (its triangles are inscribed).
+  const double sphere = 4.0 * 3.14159265358979323846, ico = makeIcosphere(5).area();
+  EXPECT_LT(ico, sphere);
+  EXPECT_GT(ico, 0.995 * sphere);
+  EXPECT_EQ(TriangleMesh().area(), 0.0);
+}
+
 TEST(Mesh, TransformedKeepsOutwardWinding) {
   TriangleMesh box = makeBox({0, 0, 0}, {1, 2, 3});
   TriangleMesh mirrored = box.transformed(Transform::scale({-2, 1, 1}));
