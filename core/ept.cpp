@@ -7,17 +7,13 @@
 
 namespace granular {
 
-float lightPickProb(const Scene& scene) {
-  return scene.lights().empty() ? 0.0f : 1.0f / float(scene.lights().size());
-}
-
 void addAreaLightHit(const Scene& scene, PathState& path, const Hit& hit) {
   const Vec3& dir = path.ray.d;
   const Light& light = scene.lights()[hit.light];
   float w = 1.0f;
   if (!path.lastDelta)
     w = powerHeuristic(path.lastPdf,
-                       light.pdfLi(path.lastP, dir, length(hit.p - path.lastP)) * lightPickProb(scene) * path.lastNeeChance);
+                       light.pdfLi(path.lastP, dir, length(hit.p - path.lastP)) * scene.lightPick(hit.light) * path.lastNeeChance);
   path.L[path.credit] += path.beta * light.areaLe(dir) * w;
 }
 
@@ -68,7 +64,6 @@ PathState startPath(const Ray& ray, uint64_t rngSeed, float spread, float width)
 }
 
 Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir) {
-  const float lightPick = lightPickProb(scene);
   Vec3 L(0.0f);
   const bool camera = path.depth == 0;
   // A smooth chain from a grain sees narrow suns widened (RenderSettings::sunRegularization).
@@ -81,7 +76,7 @@ Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir)
     Vec3 Le = widen ? light.escapedLeWidened(dir, cosWide, sin2Wide) : light.escapedLe(dir);
     if (isBlack(Le)) continue;
     float w = 1.0f;
-    if (!path.lastDelta) w = powerHeuristic(path.lastPdf, light.pdfLi(path.lastP, dir, kInf) * lightPick * path.lastNeeChance);
+    if (!path.lastDelta) w = powerHeuristic(path.lastPdf, light.pdfLi(path.lastP, dir, kInf) * scene.lightPick(li) * path.lastNeeChance);
     L += Le * w;
   }
   return L;
@@ -109,7 +104,6 @@ bool russianRoulette(const Scene& scene, PathState& path) {
 
 void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool mediaMode) {
   const auto& lights = scene.lights();
-  const float lightPick = lightPickProb(scene);
   const Ray& ray = path.ray;
   // Ray cone: the footprint here (|·|: a lens's cone crosses its focus), the texture
   // filter's width and the next segment's starting width.
@@ -128,8 +122,9 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
   double& cost = path.cost[path.mode == kVpt ? 1 : 0];
 
   if (!m.isDelta() && !lights.empty() && (wo.z > 0 || m.twoSided())) {
-    // Next-event estimation: one light, chosen uniformly.
-    int li = std::min(int(path.rng.next1D() * lights.size()), int(lights.size()) - 1);
+    // Next-event estimation: one light, picked by Scene::lightPick.
+    int li = scene.pickLight(path.nextLightU());
+    const float lightPick = scene.lightPick(li);
     LightSample ls;
     float u1 = path.rng.next1D(), u2 = path.rng.next1D();
     if (lights[li].sampleLi(hit.p, u1, u2, ls) && !isBlack(ls.Li)) {

@@ -61,9 +61,6 @@ void addAreaLightHit(const Scene& scene, PathState& path, const Hit& hit);
 // light sampling when the last bounce could have sampled them.
 Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir);
 
-// The chance of picking each light for next-event estimation (uniform).
-float lightPickProb(const Scene& scene);
-
 // A ray's end at no hit (the infinite lights' radiance) or at an area light (its
 // emission): adds it, ends the path and returns true; else false (the path goes on).
 bool endsAtLight(const Scene& scene, PathState& path, bool found, const Hit& hit);

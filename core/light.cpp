@@ -21,7 +21,9 @@ Vec3 uvToDir(float u, float v) {
 
 // A sun's half-angle, and whether it is so small that the sun is a delta light.
 float sunHalfAngle(const LightDesc& d) { return 0.5f * d.angle * kPi / 180.0f; }
-bool pointLikeSun(float half) { return std::cos(half) > 1.0f - 1e-7f; }
+// A sun whose 1 − cos of its half-angle is below this is a delta light.
+constexpr float kPointLikeSunOneMinusCos = 1e-7f;
+bool pointLikeSun(float half) { return std::cos(half) > 1.0f - kPointLikeSunOneMinusCos; }
 
 }  // namespace
 
@@ -114,11 +116,48 @@ Light Light::fromDesc(const LightDesc& d) {
           }
         }
         l.dist_ = std::make_shared<Distribution2D>(f, l.texW_, l.texH_);
+        double sumL2 = 0, sumA = 0;
+        for (int y = 0; y < l.texH_; ++y) {
+          const double a = std::sin(kPiD * (y + 0.5) / l.texH_);  // each texel's solid angle, to a factor
+          for (int x = 0; x < l.texW_; ++x) {
+            const float* t = &(*l.texels_)[(size_t(y) * l.texW_ + x) * 3];
+            const double v = average(L * Vec3(t[0], t[1], t[2]));
+            sumL2 += v * v * a;
+            sumA += a;
+          }
+        }
+        l.domeRms_ = sumA > 0 ? std::sqrt(sumL2 / sumA) : 0.0;
       }
       break;
     }
   }
   return l;
+}
+
+double Light::pickWeight(const Vec3& ref) const {
+  const double L = std::max(0.0, double(average(radiance_)));
+  // E √(4π/Ω) = L √(4π Ω) for a light of uniform radiance L over Ω.
+  auto cone = [L](double omega) { return L * std::sqrt(4.0 * kPiD * omega); };
+  switch (type_) {
+    case LightType::Distant: {
+      if (cosMax_ < 1.0f) return cone(2.0 * kPiD * coneOneMinusCos(sunSin2_));
+      return L * std::sqrt(4.0 * kPiD / (2.0 * kPiD * double(kPointLikeSunOneMinusCos)));  // delta: L is E
+    }
+    case LightType::Sphere: {
+      const double d2 = double(length2(center_ - ref)), r2 = double(radius_) * radius_;
+      return cone(2.0 * kPiD * coneOneMinusCos(d2 > r2 ? r2 / d2 : 1.0));
+    }
+    case LightType::Rect: {
+      const Vec3 c = corner_ + (edgeU_ + edgeV_) * 0.5f, d = ref - c;
+      const double d2 = double(length2(d));
+      const double omega = d2 > 0 ? double(area_) * std::fabs(double(dot(normal_, d))) / (d2 * std::sqrt(d2)) : 2.0 * kPiD;
+      return cone(std::min(omega, 2.0 * kPiD));
+    }
+    case LightType::Dome:
+      // E = π × mean radiance, Ω = 4π mean² / mean square: E √(4π/Ω) = π × the rms radiance.
+      return kPiD * (texels_ ? domeRms_ : L);
+  }
+  return 0.0;
 }
 
 Vec3 Light::domeLookup(const Vec3& localDir) const {

@@ -51,6 +51,13 @@ class Light {
   bool intersect(const Ray& r, float& t) const;
   // Radiance leaving the area light at a hit point towards -dir.
   Vec3 areaLe(const Vec3& dir) const;
+  // This light's weight in light sampling (Scene::lightPick): the irradiance E it gives a
+  // point at `ref` facing it, times √(4π/Ω), Ω the solid angle its light arrives from there
+  // (a textured dome's effective one, (∫L dω)² / ∫L² dω; a delta sun's, that of the widest
+  // sun that is still one). E alone would be right were light sampling the only strategy:
+  // a light spread over many directions is found as well by BSDF and phase sampling under
+  // MIS, a small one by light sampling alone. 0 for a black light.
+  double pickWeight(const Vec3& ref) const;
 
  private:
   LightType type_ = LightType::Distant;
@@ -70,6 +77,7 @@ class Light {
   std::shared_ptr<const std::vector<float>> texels_;  // RGB
   int texW_ = 0, texH_ = 0;
   std::shared_ptr<const Distribution2D> dist_;
+  double domeRms_ = 0;  // a textured dome's root mean square radiance over the sphere (channel mean)
   Vec3 domeLookup(const Vec3& localDir) const;
 };
 

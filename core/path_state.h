@@ -44,6 +44,16 @@ struct PathState {
   float lastPdf = 0;       // solid-angle pdf of the last sampled direction
   Vec3 lastP;              // where that direction was sampled (for area-light MIS)
   float lastNeeChance = 1; // the chance that next-event estimation was made there (MIS)
+  // The uniform number that picks the light of the path's first next-event estimate, or
+  // < 0 (then the generator's): a pixel's samples take theirs stratified (Renderer), so that
+  // a light picked seldom (Scene::lightPick) is picked as often as its chance in every
+  // pixel, not in none of its first samples (which adaptive sampling reads as no noise).
+  float firstLightU = -1;
+  float nextLightU() {
+    const float u = firstLightU;
+    firstLightU = -1;
+    return u >= 0 ? u : rng.next1D();
+  }
   bool inGrain = false;    // between entering and leaving a grain (EPT)
   GrainStart from;         // the grain the ray starts at (EPT: Scene::intersect's hint)
   Transport mode = kEpt;   // kEpt: explicit grains; kPpt: proxies; kVpt: equivalent media

@@ -56,8 +56,8 @@ void scatter(const Scene& scene, PathState& path, const Hit& hit, const ProxyTab
     }
   }
   if (!lights.empty() && q > 0 && (q >= 1.0f || path.rng.next1D() < q)) {
-    const float lightPick = lightPickProb(scene) * q;
-    const int li = std::min(int(path.rng.next1D() * float(lights.size())), int(lights.size()) - 1);
+    const int li = scene.pickLight(path.nextLightU());
+    const float lightPick = scene.lightPick(li) * q;
     LightSample ls;
     const float u1 = path.rng.next1D(), u2 = path.rng.next1D(), uExit = path.rng.next1D();
     if (lights[li].sampleLi(g.center, u1, u2, ls) && !isBlack(ls.Li)) {

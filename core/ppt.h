@@ -14,12 +14,12 @@
 // (Scene::firstGrainProxy; the walk where that cannot be had): the ray is known to meet that
 // grain and to miss those before it.
 // A grain met scatters:
-//  - next-event estimation: one light, sampled from the sphere's centre; the table's f_c
-//    toward it, the shadow ray leaving from that direction's exit point and crossing other
-//    proxies with their chance of letting it through (Scene::proxyTransmittance: grains
-//    missed, or met and left straight on); MIS by the power heuristic against the table's
-//    pdf, delta lights unweighted. Smooth grains' tables are smooth in direction, so delta
-//    and narrow suns are reached like any light;
+//  - next-event estimation: one light (Scene::pickLight), sampled from the sphere's
+//    centre; the table's f_c toward it, the shadow ray leaving from that direction's exit
+//    point and crossing other proxies with their chance of letting it through
+//    (Scene::proxyTransmittance: grains missed, or met and left straight on); MIS by the
+//    power heuristic against the table's pdf, delta lights unweighted. Smooth grains'
+//    tables are smooth in direction, so delta and narrow suns are reached like any light;
 //  - the next direction from the table (weight f_c / pdf), leaving from its exit point; or
 //    the straight lobe (proxy.h): on along the same line, a delta event that is not a visit
 //    and keeps the last scattering's pdf for MIS (its next-event estimate counted the lobe).

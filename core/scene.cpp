@@ -277,7 +277,7 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& worldDesc, const Scene* pre
                      detail == SceneDetail::StandIns && desc.settings.technique != Technique::Ept, log);
   s->buildInstancedGrains(desc, defaults.grain, previous, all);
   s->sceneScale_ = all.empty() ? 1.0f : std::max(1e-6f, maxComponent(vmax(vabs(all.lo), vabs(all.hi))));
-  const std::vector<LightDesc> lights = s->buildLights(desc);
+  const std::vector<LightDesc> lights = s->buildLights(desc, all);
   s->buildIdentities(desc, lights);
   s->findEmittersInside(desc, lights);
   s->updateDiffusionDepths();
@@ -693,7 +693,7 @@ void Scene::addMedium(const AggregateDesc& a, BuiltAggregate& entry) {
   if (2.0f * agg.stats().maxInteriorDepth > maxComponent(mediumParams_.back().lambdaT)) mediaNeeded_ = true;
 }
 
-std::vector<LightDesc> Scene::buildLights(const SceneDesc& desc) {
+std::vector<LightDesc> Scene::buildLights(const SceneDesc& desc, const Bounds3& all) {
   std::vector<LightDesc> lights = desc.lights;
   if (lights.empty() && desc.settings.defaultLight && !hasEmissiveSurface(desc)) {
     LightDesc dome;  // a uniform white dome of radiance 1 (RenderSettings::defaultLight)
@@ -715,9 +715,48 @@ std::vector<LightDesc> Scene::buildLights(const SceneDesc& desc) {
     if (l.type != LightType::Dome) proxyLightSampling_ = true;
     int idx = int(lights_.size());
     lights_.push_back(Light::fromDesc(l));
+    lightNames_.push_back(l.name);
     (lights_.back().isInfinite() ? infiniteLights_ : areaLights_).push_back(idx);
   }
+  const Vec3 ref = all.empty() ? Vec3(0.0f) : all.center();
+  std::vector<double> w;
+  double total = 0;
+  for (const Light& l : lights_) {
+    const double x = l.pickWeight(ref);
+    w.push_back(std::isfinite(x) && x > 0 ? x : 0.0);
+    total += w.back();
+  }
+  if (!(total > 0) || !std::isfinite(total)) {
+    w.assign(lights_.size(), 1.0);
+    total = double(lights_.size());
+  }
+  lightCdf_.assign(1, 0.0f);
+  double acc = 0;
+  for (double x : w) {
+    lightPick_.push_back(float(x / total));
+    acc += x;
+    lightCdf_.push_back(float(acc / total));
+  }
+  if (!lights_.empty()) lightCdf_.back() = 1.0f;
   return lights;
+}
+
+std::string Scene::lightPicksText() const {
+  if (lights_.size() < 2) return "";
+  std::string text;
+  for (size_t i = 0; i < lights_.size(); ++i) {
+    char chance[32];
+    std::snprintf(chance, sizeof chance, " %.1f%%", 100.0 * lightPick_[i]);
+    text += (i ? ", " : "") + lightNames_[i] + chance;
+  }
+  return text;
+}
+
+int Scene::pickLight(float u) const {
+  // The first light whose cdf passes u (a light of weight 0 is never picked).
+  const int n = int(lights_.size());
+  const int i = int(std::upper_bound(lightCdf_.begin() + 1, lightCdf_.end(), u) - (lightCdf_.begin() + 1));
+  return std::min(i, n - 1);
 }
 
 // DA stands for light that entered an aggregate through its boundary from outside and

@@ -300,6 +300,13 @@ class Scene {
   // Warnings from textures (texture.h) for the front ends to show.
   const std::vector<std::string>& textureWarnings() const;
   const std::vector<Light>& lights() const { return lights_; }
+  // Light sampling picks light i with probability lightPick(i), in proportion to its
+  // weight from the centre of the scene's surfaces and aggregates (Light::pickWeight);
+  // pickLight(u) is that choice for a uniform u. Every light equally when no weight is > 0.
+  float lightPick(int i) const { return lightPick_[size_t(i)]; }
+  int pickLight(float u) const;
+  // Those chances for the front ends' logs, "sun 87.6%, sky 12.4%"; "" with one light or none.
+  std::string lightPicksText() const;
   const std::vector<int>& infiniteLights() const { return infiniteLights_; }
   const std::vector<std::shared_ptr<const Aggregate>>& aggregates() const { return aggregates_; }
   // Explicit grains from simulations (SceneDesc::instancedGrains), in render space. A
@@ -424,6 +431,8 @@ class Scene {
   RenderSettings settings_;
   std::vector<Material> materials_;
   std::vector<Light> lights_;
+  std::vector<float> lightPick_, lightCdf_;  // lightCdf_: lights_.size() + 1 entries, from 0 to 1
+  std::vector<std::string> lightNames_;
   std::vector<int> infiniteLights_, areaLights_;
   std::vector<std::shared_ptr<const Aggregate>> aggregates_;
   // Per aggregate: its motion over the shutter, and its world bounds over it (culling).
@@ -472,7 +481,7 @@ class Scene {
   // Explicit grains: lent by the previous scene when their description and materials are
   // unchanged, else built (their grid in parallel); extends `all` by their bounds.
   void buildInstancedGrains(const SceneDesc& desc, int defaultGrain, const Scene* previous, Bounds3& all);  // derived by TT unless lent
-  std::vector<LightDesc> buildLights(const SceneDesc& desc);      // returns them as built
+  std::vector<LightDesc> buildLights(const SceneDesc& desc, const Bounds3& all);  // returns them as built
   void findEmittersInside(const SceneDesc& desc, const std::vector<LightDesc>& lights);  // emitterInside_
   std::vector<BuiltAggregate> built_;
   struct InstancedMedium {

@@ -124,8 +124,8 @@ void mediumNee(const Scene& scene, PathState& path, const HomogeneousMedium& med
   const float chance = !boundary && path.medium >= 0 ? shadowChance(scene, path, med, p) : 1.0f;
   if (chance < 1.0f && path.rng.next1D() >= chance) return;
   if (!lights.empty()) {
-    const float lightPick = 1.0f / float(lights.size());
-    int li = std::min(int(path.rng.next1D() * lights.size()), int(lights.size()) - 1);
+    int li = scene.pickLight(path.nextLightU());
+    const float lightPick = scene.lightPick(li);
     LightSample ls;
     float u1 = path.rng.next1D(), u2 = path.rng.next1D();
     if (lights[li].sampleLi(p, u1, u2, ls) && !isBlack(ls.Li)) {

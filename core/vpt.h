@@ -68,11 +68,11 @@ class DiffusionBoundary;
 void vptStep(const Scene& scene, PathState& path);
 
 // Next-event estimation at a scattering at p in med for a path arriving along path.ray.d:
-// one light, its transmittance through the media, the phase function, MIS against phase
-// sampling (power heuristic; delta lights unweighted). Adds to path.L[path.credit]. Deep
-// in the path's aggregate, where the distance field bounds the transmittance below 1/32,
-// the shadow ray is traced by Russian roulette with a chance in proportion to that bound
-// (unbiased).
+// one light (Scene::pickLight), its transmittance through the media, the phase function,
+// MIS against phase sampling (power heuristic; delta lights unweighted). Adds to
+// path.L[path.credit]. Deep in the path's aggregate, where the distance field bounds the
+// transmittance below 1/2 (vpt.cpp: kShadowRouletteBelow), the shadow ray is traced by
+// Russian roulette with a chance in proportion to that bound (unbiased).
 // boundary: the flight up to its first crossing of it is in a medium of extinction
 // reducedBy less than the media's (DA's reduced medium, σ_t − σ'_t given back: diffusion.h).
 void mediumNee(const Scene& scene, PathState& path, const HomogeneousMedium& med, const Vec3& p,

@@ -1048,6 +1048,8 @@ PYBIND11_MODULE(granular_core, m) {
                              "what the textures could not do as asked (texture.h), one line each")
       .def_property_readonly("widened_suns_warning", [](const PyScene& s) { return s.scene->widenedSunsWarning(); },
                              "the warning about delta suns rendered as the physical sun (\"\" when none)")
+      .def_property_readonly("light_picks", [](const PyScene& s) { return s.scene->lightPicksText(); },
+                             "each light's chance in light sampling, \"sun 87.6%, sky 12.4%\" (\"\" with one light)")
       .def_property_readonly("has_media", [](const PyScene& s) { return s.scene->hasMedia(); },
                              "whether the integrator uses the equivalent media (VPT, DA) in this scene")
       .def_property_readonly("use_proxies", [](const PyScene& s) { return s.scene->useProxies(); },

@@ -138,6 +138,8 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "\n  mean luminance by transport: EPT %.4g, PPT %.4g, VPT %.4g, DA %.4g; level of detail: %.1f%% of paths entered a medium directly\n",
                    part[0] / n, part[3] / n, part[1] / n, part[2] / n, 100.0 * renderer.shortcutFraction());
     }
+    if (!quiet && !scene->lightPicksText().empty())
+      std::fprintf(stderr, "  light sampling picks: %s\n", scene->lightPicksText().c_str());
     writeImage(out, img);
     if (!png.empty()) writePngSrgb(png, img, exposure);
     if (!quiet) std::fprintf(stderr, "wrote %s%s%s\n", out.c_str(), png.empty() ? "" : " and ", png.c_str());

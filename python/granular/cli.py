@@ -464,6 +464,8 @@ def _log_transports(args, built, renderer, image):
         _log(args, f"  technique {args.technique}, bundles of {renderer.bundle_size}, P_a {rt['pa']:.3f}{tuned}; "
                    f"mean luminance by transport: EPT {means[0]:.4g}, PPT {means[1]:.4g}, VPT {means[2]:.4g}, "
                    f"DA {means[3]:.4g}{da}{lod}")
+    if built.light_picks:
+        _log(args, f"  light sampling picks: {built.light_picks}")
     if args.technique != "ept":
         for line in _low_orders(built):
             _log(args, "  " + line)

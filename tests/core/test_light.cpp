@@ -4,6 +4,7 @@
 
 #include <cmath>
 
+#include "core/image_io.h"
 #include "core/light.h"
 #include "core/render.h"
 #include "core/sampling.h"
@@ -104,6 +105,149 @@ TEST(Light, NormalisedTinyLightsOfZeroIntensityAreBlackNotNaN) {
   d.intensity = kPi;
   Light unit = Light::fromDesc(d);
   EXPECT_NEAR(unit.areaLe(Vec3(0, -1, 0)).x, 1.0f, 1e-6f);  // π / (4π 0.25)
+}
+
+// ---- which light next-event estimation samples (Light::pickWeight, Scene::lightPick) ----
+
+TEST(LightPick, WeightsAreIrradianceTimesTheRootOfConcentration) {
+  const double pi = kPiD, ref = 1e-6;
+  auto weight = [](const LightDesc& d, const Vec3& at) { return Light::fromDesc(d).pickWeight(at); };
+  // A sun of 20°, radiance 14 (grey): E = 14 Ω, Ω = 2π (1 − cos 10°).
+  LightDesc sun;
+  sun.type = LightType::Distant;
+  sun.angle = 20;
+  sun.intensity = 14;
+  const double omegaSun = 2 * pi * (1 - std::cos(10 * pi / 180));
+  EXPECT_NEAR(weight(sun, Vec3(0.0f)), 14 * omegaSun * std::sqrt(4 * pi / omegaSun), ref * 14);
+  // The same irradiance normalised over the 0.53° sun: its weight grows as 1/√Ω.
+  sun.angle = 0.53f;
+  sun.normalize = true;
+  const double omegaNarrow = 2 * pi * (1 - std::cos(0.265 * pi / 180));
+  EXPECT_NEAR(weight(sun, Vec3(0.0f)) / (14 * std::sqrt(4 * pi / omegaNarrow)), 1.0, 1e-4);
+  // A delta sun: its intensity is E, its Ω the widest cone still a delta (1 − cos = 1e-7).
+  sun.angle = 0;
+  EXPECT_NEAR(weight(sun, Vec3(0.0f)) / (14 * std::sqrt(4 * pi / (2 * pi * 1e-7))), 1.0, 1e-6);
+  sun.intensity = 0;
+  EXPECT_EQ(weight(sun, Vec3(0.0f)), 0.0);
+  // A sphere of radius 0.5 seen from 10 away, and from inside (Ω = 2π, the half space).
+  LightDesc bulb;
+  bulb.type = LightType::Sphere;
+  bulb.radius = 0.5f;
+  bulb.intensity = 3;
+  bulb.xf = Transform::translate(Vec3(0, 10, 0));
+  const double omegaBulb = 2 * pi * (1 - std::sqrt(1 - 0.25 / 100));
+  EXPECT_NEAR(weight(bulb, Vec3(0.0f)) / (3 * std::sqrt(4 * pi * omegaBulb)), 1.0, 1e-4);
+  EXPECT_NEAR(weight(bulb, Vec3(0, 10.1f, 0)) / (3 * std::sqrt(4 * pi * 2 * pi)), 1.0, 1e-6);
+  // A rect of 2 × 1 facing a point 5 away: Ω ≈ area / d².
+  LightDesc panel;
+  panel.type = LightType::Rect;
+  panel.width = 2;
+  panel.height = 1;
+  panel.intensity = 2;
+  panel.xf = Transform::translate(Vec3(0, 0, 5));
+  EXPECT_NEAR(weight(panel, Vec3(0.0f)) / (2 * std::sqrt(4 * pi * 2.0 / 25)), 1.0, 1e-5);
+  // A uniform dome: E = π L over Ω = 4π.
+  LightDesc sky;
+  sky.type = LightType::Dome;
+  sky.color = Vec3(0.6f, 0.75f, 1.0f);
+  sky.intensity = 0.8f;
+  EXPECT_NEAR(weight(sky, Vec3(0.0f)), pi * 0.8 * (0.6 + 0.75 + 1.0) / 3, ref);
+  // A textured dome lit over its upper half: mean L/2, mean square L²/2, so Ω = 2π and
+  // E √(4π/Ω) = π L / √2, the rms radiance's π.
+  const std::string file = ::testing::TempDir() + "half_sky.exr";
+  Image half(16, 8, {"R", "G", "B"});
+  for (int y = 0; y < 4; ++y)
+    for (int x = 0; x < 16; ++x)
+      for (int c = 0; c < 3; ++c) half.at(x, y)[c] = 1.0f;
+  writeExr(file, half);  // throws on failure
+  sky.color = Vec3(1.0f);
+  sky.intensity = 2;
+  sky.textureFile = file;
+  EXPECT_NEAR(weight(sky, Vec3(0.0f)), pi * 2 / std::sqrt(2.0), 1e-5);
+}
+
+namespace {
+
+// A Lambert floor of albedo 0.5 under a 20° sun at the zenith (radiance 10) and a uniform
+// dome of radiance 0.5, nothing else: the floor's radiance is ρ/π (E_sun + π L_dome),
+// E_sun = L_sun π sin²(10°) (a cone about the normal); a zero-intensity bulb under the
+// floor, where it hides nothing (a shadow ray crosses an area light, a BSDF ray ends on it).
+SceneDesc sunSkyAndBlackBulb() {
+  SceneDesc d;
+  d.settings.width = d.settings.height = 8;
+  d.settings.spp = 64;
+  d.settings.technique = Technique::Ept;
+  d.camera.cameraToWorld = Transform::lookAt(Vec3(0, 2, 0), Vec3(0.0f), Vec3(0, 0, -1));
+  d.camera.horizontalAperture = d.camera.verticalAperture = 10;
+  MaterialDesc white;
+  white.name = "white";
+  white.albedo = Vec3(0.5f);
+  d.materials.push_back(white);
+  MeshDesc floor;
+  floor.name = "floor";
+  floor.mesh = makeBox(Vec3(-5, -0.1f, -5), Vec3(5, 0, 5));
+  floor.material = 0;
+  d.meshes.push_back(floor);
+  LightDesc sun;
+  sun.name = "sun";
+  sun.type = LightType::Distant;
+  sun.angle = 20;
+  sun.intensity = 10;
+  sun.xf = Transform::lookAt(Vec3(0.0f), Vec3(0, -1, 0), Vec3(0, 0, 1));
+  LightDesc sky;
+  sky.name = "sky";
+  sky.type = LightType::Dome;
+  sky.intensity = 0.5f;
+  LightDesc bulb;
+  bulb.name = "black bulb";
+  bulb.type = LightType::Sphere;
+  bulb.radius = 0.5f;
+  bulb.intensity = 0;
+  bulb.xf = Transform::translate(Vec3(0, -3, 0));
+  d.lights = {sun, sky, bulb};
+  return d;
+}
+
+}  // namespace
+
+TEST(LightPick, TheScenePicksInProportionAndNeverABlackLight) {
+  SceneDesc d = sunSkyAndBlackBulb();
+  auto scene = Scene::build(d);
+  const Vec3 ref = Vec3(0.0f, -0.05f, 0.0f);  // the floor's centre
+  const double w0 = scene->lights()[0].pickWeight(ref), w1 = scene->lights()[1].pickWeight(ref);
+  EXPECT_NEAR(scene->lightPick(0), w0 / (w0 + w1), 1e-6);
+  EXPECT_NEAR(scene->lightPick(1), w1 / (w0 + w1), 1e-6);
+  EXPECT_EQ(scene->lightPick(2), 0.0f);
+  EXPECT_GT(scene->lightPick(0), 0.5f);  // the sun: 10 × √(4π Ω) = 3.9 against the sky's π/2
+  // pickLight over a fine grid of u: each light as often as its chance, the black bulb never.
+  const int n = 1 << 16;
+  int count[3] = {0, 0, 0};
+  for (int i = 0; i < n; ++i) ++count[scene->pickLight((i + 0.5f) / n)];
+  for (int l = 0; l < 3; ++l) EXPECT_NEAR(double(count[l]) / n, scene->lightPick(l), 2.0 / n) << "light " << l;
+  // No light with a weight: every one alike.
+  for (auto& l : d.lights) l.intensity = 0;
+  auto dark = Scene::build(d);
+  for (int l = 0; l < 3; ++l) EXPECT_NEAR(dark->lightPick(l), 1.0f / 3, 1e-6f);
+}
+
+TEST(LightPick, AFloorUnderASunAndADomeHasTheAnalyticRadiance) {
+  // Light sampling by the weights, BSDF sampling, and their MIS weights (which use the same
+  // chances) add up to the exact radiance: ρ/π (L_sun π sin²(10°) + π L_dome).
+  SceneDesc d = sunSkyAndBlackBulb();
+  auto scene = Scene::build(d);
+  Renderer r(*scene);
+  ASSERT_TRUE(r.render(d.settings.spp));
+  EXPECT_EQ(r.nonFiniteSamples(), 0);
+  const double s = std::sin(10 * kPiD / 180), expected = 0.5 / kPiD * (10 * kPiD * s * s + kPiD * 0.5);
+  double sum = 0, var = 0;
+  for (int y = 0; y < 8; ++y)
+    for (int x = 0; x < 8; ++x) {
+      sum += r.film().mean(x, y).x;
+      var += double(r.film().stdError(x, y)) * r.film().stdError(x, y);
+    }
+  const double mean = sum / 64, se = std::sqrt(var) / 64;
+  EXPECT_GT(se, 0.0);
+  EXPECT_NEAR(mean, expected, 4 * se + 1e-6) << "se " << se;
 }
 
 // ---- the default light of a stage without any ------------------------------------------
