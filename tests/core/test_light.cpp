@@ -110,7 +110,7 @@ TEST(Light, NormalisedTinyLightsOfZeroIntensityAreBlackNotNaN) {
 // ---- which light next-event estimation samples (Light::pickWeight, Scene::lightPick) ----
 
 TEST(LightPick, WeightsAreIrradianceTimesTheRootOfConcentration) {
-  const double pi = kPiD, ref = 1e-6;
+  const double pi = kPiD, tol = 1e-6;  // float radiance and cone angles against double
   auto weight = [](const LightDesc& d, const Vec3& at) { return Light::fromDesc(d).pickWeight(at); };
   // A sun of 20°, radiance 14 (grey): E = 14 Ω, Ω = 2π (1 − cos 10°).
   LightDesc sun;
@@ -118,7 +118,7 @@ TEST(LightPick, WeightsAreIrradianceTimesTheRootOfConcentration) {
   sun.angle = 20;
   sun.intensity = 14;
   const double omegaSun = 2 * pi * (1 - std::cos(10 * pi / 180));
-  EXPECT_NEAR(weight(sun, Vec3(0.0f)), 14 * omegaSun * std::sqrt(4 * pi / omegaSun), ref * 14);
+  EXPECT_NEAR(weight(sun, Vec3(0.0f)), 14 * omegaSun * std::sqrt(4 * pi / omegaSun), tol * 14);
   // The same irradiance normalised over the 0.53° sun: its weight grows as 1/√Ω.
   sun.angle = 0.53f;
   sun.normalize = true;
@@ -151,7 +151,7 @@ TEST(LightPick, WeightsAreIrradianceTimesTheRootOfConcentration) {
   sky.type = LightType::Dome;
   sky.color = Vec3(0.6f, 0.75f, 1.0f);
   sky.intensity = 0.8f;
-  EXPECT_NEAR(weight(sky, Vec3(0.0f)), pi * 0.8 * (0.6 + 0.75 + 1.0) / 3, ref);
+  EXPECT_NEAR(weight(sky, Vec3(0.0f)), pi * 0.8 * (0.6 + 0.75 + 1.0) / 3, tol);
   // A textured dome lit over its upper half: mean L/2, mean square L²/2, so Ω = 2π and
   // E √(4π/Ω) = π L / √2, the rms radiance's π.
   const std::string file = ::testing::TempDir() + "half_sky.exr";
