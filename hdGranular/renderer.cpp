@@ -278,6 +278,8 @@ VtDictionary HdGranularRenderer::GetStats() const {
     stats["granular:lodFraction"] = VtValue(_lodFraction.load());
     stats["granular:defaultLight"] = VtValue(_scene->defaultLightAdded());
     stats["granular:widenedSuns"] = VtValue(int(_scene->widenedSuns().size()));
+    // Each light's chance in light sampling, in granular render's words ("" with one light).
+    stats["granular:lightPicks"] = VtValue(_scene->lightPicksText());
     // What carries the low orders: proxies (granular:proxies), and how many bounces before
     // the medium.
     stats["granular:proxies"] = VtValue(_scene->useProxies());

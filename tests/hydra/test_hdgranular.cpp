@@ -348,6 +348,11 @@ TEST(HdGranular, EveryDocumentedRenderStatIsReported) {
   EXPECT_GT(stat<double>(stats, "granular:firstImageSeconds"), 0.0);
   EXPECT_GT(stat<double>(stats, "granular:firstPassSeconds"), 0.0);
   EXPECT_EQ(stat<int>(stats, "granular:widenedSuns"), 0);  // its sun has an angle of 5°
+  // Its sun and sky, by their prim paths, with their chances (core: Scene::lightPicksText).
+  const std::string picks = stat<std::string>(stats, "granular:lightPicks");
+  EXPECT_NE(picks.find("/World/Sun "), std::string::npos) << picks;
+  EXPECT_NE(picks.find("/World/Sky "), std::string::npos) << picks;
+  EXPECT_NE(picks.find('%'), std::string::npos) << picks;
   EXPECT_EQ(stat<int>(stats, "granular:sceneBuilds"), 1);
   EXPECT_EQ(stat<int>(stats, "granular:aggregatesBuilt"), 1);
   EXPECT_EQ(stat<int>(stats, "granular:aggregatesReused"), 0);
