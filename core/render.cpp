@@ -71,6 +71,9 @@ void Renderer::tracePixel(int x, int y, long first, int count, Film& film, int f
   const Camera& cam = scene_.camera();
   thread_local std::vector<PathState> paths;
   const long minSamples = adaptive ? minAdaptiveSamples() : 0;
+  // The first light pick of each sample: a Kronecker sequence over the pixel's samples
+  // (golden-ratio steps), rotated per pixel and seed; each one uniform.
+  const double rotation = double(toUnitFloat(hashInts(rs.seed, uint64_t(x), uint64_t(y), 0x11647ULL)));
   for (int b = 0; b < count; b += bundle_) {
     if (adaptive && first + b >= minSamples && film.pixelBelowNoiseThreshold(fx, fy, threshold_)) break;
     paths.clear();
@@ -80,9 +83,6 @@ void Renderer::tracePixel(int x, int y, long first, int count, Film& film, int f
       Ray ray = cam.sampleRay(x, y, rng);
       PathState p = startPath(ray, 0, cam.coneSpread(), cam.coneWidth());
       p.rng = rng;
-      // The first light pick: a Kronecker sequence over the pixel's samples (golden-ratio
-      // steps), rotated per pixel and seed; each one uniform.
-      const double rotation = double(toUnitFloat(hashInts(rs.seed, uint64_t(x), uint64_t(y), 0x11647ULL)));
       const double k = rotation + double(index) * 0.6180339887498949;
       p.firstLightU = std::min(float(k - std::floor(k)), 0x1.fffffep-1f);
       if (scene_.standIns()) startInMedia(scene_, p);

@@ -90,7 +90,8 @@ inline float powerHeuristic(float pdfA, float pdfB) {
 }
 
 // Piecewise-constant density on [0, 1) with n bins. sampleContinuous returns x with
-// pdf(x) = f(bin) / integral(f); sampleDiscrete returns bin i with probability f_i / sum f.
+// pdf(x) = f(bin) / integral(f); sampleDiscrete returns bin i with probability f_i / sum f
+// (never a bin of f_i = 0 while some f_i > 0).
 class Distribution1D {
  public:
   Distribution1D() = default;

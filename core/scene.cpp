@@ -715,48 +715,26 @@ std::vector<LightDesc> Scene::buildLights(const SceneDesc& desc, const Bounds3& 
     if (l.type != LightType::Dome) proxyLightSampling_ = true;
     int idx = int(lights_.size());
     lights_.push_back(Light::fromDesc(l));
-    lightNames_.push_back(l.name);
     (lights_.back().isInfinite() ? infiniteLights_ : areaLights_).push_back(idx);
   }
   const Vec3 ref = all.empty() ? Vec3(0.0f) : all.center();
-  std::vector<double> w;
-  double total = 0;
+  // Weights relative to the largest (in double: a bright delta sun's would overflow a float).
+  std::vector<double> x;
+  double largest = 0;
   for (const Light& l : lights_) {
-    const double x = l.pickWeight(ref);
-    w.push_back(std::isfinite(x) && x > 0 ? x : 0.0);
-    total += w.back();
+    const double v = l.pickWeight(ref);
+    x.push_back(std::isfinite(v) && v > 0 ? v : 0.0);
+    largest = std::max(largest, x.back());
   }
-  if (!(total > 0) || !std::isfinite(total)) {
-    w.assign(lights_.size(), 1.0);
-    total = double(lights_.size());
-  }
-  lightCdf_.assign(1, 0.0f);
-  double acc = 0;
-  for (double x : w) {
-    lightPick_.push_back(float(x / total));
-    acc += x;
-    lightCdf_.push_back(float(acc / total));
-  }
-  if (!lights_.empty()) lightCdf_.back() = 1.0f;
-  return lights;
-}
-
-std::string Scene::lightPicksText() const {
-  if (lights_.size() < 2) return "";
-  std::string text;
-  for (size_t i = 0; i < lights_.size(); ++i) {
+  std::vector<float> w;
+  for (double v : x) w.push_back(largest > 0 ? float(v / largest) : 1.0f);  // none weighs: all alike
+  lightPick_ = Distribution1D(w);
+  for (size_t i = 0; i < lights_.size() && lights_.size() > 1; ++i) {
     char chance[32];
-    std::snprintf(chance, sizeof chance, " %.1f%%", 100.0 * lightPick_[i]);
-    text += (i ? ", " : "") + lightNames_[i] + chance;
+    std::snprintf(chance, sizeof chance, " %.1f%%", 100.0 * lightPick(int(i)));
+    lightPicksText_ += (i ? ", " : "") + lights[i].name + chance;
   }
-  return text;
-}
-
-int Scene::pickLight(float u) const {
-  // The first light whose cdf passes u (a light of weight 0 is never picked).
-  const int n = int(lights_.size());
-  const int i = int(std::upper_bound(lightCdf_.begin() + 1, lightCdf_.end(), u) - (lightCdf_.begin() + 1));
-  return std::min(i, n - 1);
+  return lights;
 }
 
 // DA stands for light that entered an aggregate through its boundary from outside and

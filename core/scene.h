@@ -303,10 +303,10 @@ class Scene {
   // Light sampling picks light i with probability lightPick(i), in proportion to its
   // weight from the centre of the scene's surfaces and aggregates (Light::pickWeight);
   // pickLight(u) is that choice for a uniform u. Every light equally when no weight is > 0.
-  float lightPick(int i) const { return lightPick_[size_t(i)]; }
-  int pickLight(float u) const;
+  float lightPick(int i) const { return lightPick_.discreteProb(i); }
+  int pickLight(float u) const { return lightPick_.sampleDiscrete(u); }
   // Those chances for the front ends' logs, "sun 87.6%, sky 12.4%"; "" with one light or none.
-  std::string lightPicksText() const;
+  const std::string& lightPicksText() const { return lightPicksText_; }
   const std::vector<int>& infiniteLights() const { return infiniteLights_; }
   const std::vector<std::shared_ptr<const Aggregate>>& aggregates() const { return aggregates_; }
   // Explicit grains from simulations (SceneDesc::instancedGrains), in render space. A
@@ -431,8 +431,8 @@ class Scene {
   RenderSettings settings_;
   std::vector<Material> materials_;
   std::vector<Light> lights_;
-  std::vector<float> lightPick_, lightCdf_;  // lightCdf_: lights_.size() + 1 entries, from 0 to 1
-  std::vector<std::string> lightNames_;
+  Distribution1D lightPick_;
+  std::string lightPicksText_;
   std::vector<int> infiniteLights_, areaLights_;
   std::vector<std::shared_ptr<const Aggregate>> aggregates_;
   // Per aggregate: its motion over the shutter, and its world bounds over it (culling).

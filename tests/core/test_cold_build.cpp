@@ -301,18 +301,19 @@ TEST(DistanceFieldBox, ClassesAreMeshToLevelSetsButAtAFewCellsOnTheMargin) {
 
 TEST(DistanceFieldMemory, TheEstimateIsNearWhatTheBuiltFieldTakes) {
   // Meshes of one surface and of many faces, edges and corners, at voxels from a tenth to
-  // a fortieth of their size: the aggregate picks its field by this estimate.
+  // an eightieth of their size (the tree's upper nodes weigh most in the coarsest, the
+  // leaves in the finest): the aggregate picks its field by this estimate, within a third.
   struct Case { const char* name; TriangleMesh mesh; };
   const Case cases[] = {{"sphere", makeIcosphere(4)}, {"L prism", makeLPrism(0.6f)},
                         {"rock", makeRock(3, 0.25f, 5)}};
   for (const Case& c : cases)
-    for (float voxel : {0.1f, 0.05f, 0.025f}) {
+    for (float voxel : {0.1f, 0.05f, 0.025f, 0.0125f}) {
       const float minBand = 3.7f * voxel;
       DistanceField f;
       f.build(c.mesh, voxel, minBand);
       const double built = double(f.memoryBytes()), estimate = DistanceField::estimateBytes(c.mesh.area(), voxel, minBand);
-      EXPECT_GT(estimate, 0.5 * built) << c.name << " voxel " << voxel;
-      EXPECT_LT(estimate, 2.0 * built) << c.name << " voxel " << voxel;
+      EXPECT_GT(estimate, 0.75 * built) << c.name << " voxel " << voxel;
+      EXPECT_LT(estimate, 1.33 * built) << c.name << " voxel " << voxel;
     }
 }
 

@@ -13,6 +13,8 @@
 #include "test_helpers.h"
 
 using namespace granular;
+using granular::testing::ChannelEstimate;
+using granular::testing::imageEstimates;
 using granular::testing::renderImage;
 
 TEST(Light, PowerHeuristicSurvivesHugePdfs) {
@@ -50,12 +52,14 @@ TEST(Light, SmallSphereFarAwaySamplesFiniteAndConsistent) {
   }
 }
 
-TEST(Light, FloorUnderASmallSphereFarAwayHasTheAnalyticRadiance) {
-  // A Lambert floor (albedo ρ) straight under a sphere of radiance L, radius r, at
-  // height h: E = L π r²/h², so the floor's radiance is ρ L r²/h² (here 0.5 x 1e8 x 1e-8).
+namespace {
+
+// An 8 × 8 EPT image, spp samples, of a floor (10 × 10, its top at y = 0; the default
+// surface, Lambert of albedo 0.5) straight below the camera, whose view it fills. No light.
+SceneDesc floorFromAbove(int spp) {
   SceneDesc s;
   s.settings.width = s.settings.height = 8;
-  s.settings.spp = 16;
+  s.settings.spp = spp;
   s.settings.technique = Technique::Ept;
   s.camera.cameraToWorld = Transform::lookAt(Vec3(0, 2, 0), Vec3(0.0f), Vec3(0, 0, -1));
   s.camera.horizontalAperture = s.camera.verticalAperture = 10;
@@ -63,6 +67,15 @@ TEST(Light, FloorUnderASmallSphereFarAwayHasTheAnalyticRadiance) {
   floor.name = "floor";
   floor.mesh = makeBox(Vec3(-5, -0.1f, -5), Vec3(5, 0, 5));
   s.meshes.push_back(floor);
+  return s;
+}
+
+}  // namespace
+
+TEST(Light, FloorUnderASmallSphereFarAwayHasTheAnalyticRadiance) {
+  // A Lambert floor (albedo ρ) straight under a sphere of radiance L, radius r, at
+  // height h: E = L π r²/h², so the floor's radiance is ρ L r²/h² (here 0.5 x 1e8 x 1e-8).
+  SceneDesc s = floorFromAbove(16);
   LightDesc bulb;
   bulb.name = "far bulb";
   bulb.type = LightType::Sphere;
@@ -168,26 +181,12 @@ TEST(LightPick, WeightsAreIrradianceTimesTheRootOfConcentration) {
 
 namespace {
 
-// A Lambert floor of albedo 0.5 under a 20° sun at the zenith (radiance 10) and a uniform
-// dome of radiance 0.5, nothing else: the floor's radiance is ρ/π (E_sun + π L_dome),
-// E_sun = L_sun π sin²(10°) (a cone about the normal); a zero-intensity bulb under the
-// floor, where it hides nothing (a shadow ray crosses an area light, a BSDF ray ends on it).
+// The floor (albedo 0.5) under a 20° sun at the zenith (radiance 10) and a uniform dome of
+// radiance 0.5, nothing else: its radiance is ρ/π (E_sun + π L_dome), E_sun = L_sun π
+// sin²(10°) (a cone about the normal); a zero-intensity bulb under the floor, where it hides
+// nothing (a shadow ray crosses an area light, a BSDF ray ends on it).
 SceneDesc sunSkyAndBlackBulb() {
-  SceneDesc d;
-  d.settings.width = d.settings.height = 8;
-  d.settings.spp = 64;
-  d.settings.technique = Technique::Ept;
-  d.camera.cameraToWorld = Transform::lookAt(Vec3(0, 2, 0), Vec3(0.0f), Vec3(0, 0, -1));
-  d.camera.horizontalAperture = d.camera.verticalAperture = 10;
-  MaterialDesc white;
-  white.name = "white";
-  white.albedo = Vec3(0.5f);
-  d.materials.push_back(white);
-  MeshDesc floor;
-  floor.name = "floor";
-  floor.mesh = makeBox(Vec3(-5, -0.1f, -5), Vec3(5, 0, 5));
-  floor.material = 0;
-  d.meshes.push_back(floor);
+  SceneDesc d = floorFromAbove(64);
   LightDesc sun;
   sun.name = "sun";
   sun.type = LightType::Distant;
@@ -239,15 +238,9 @@ TEST(LightPick, AFloorUnderASunAndADomeHasTheAnalyticRadiance) {
   ASSERT_TRUE(r.render(d.settings.spp));
   EXPECT_EQ(r.nonFiniteSamples(), 0);
   const double s = std::sin(10 * kPiD / 180), expected = 0.5 / kPiD * (10 * kPiD * s * s + kPiD * 0.5);
-  double sum = 0, var = 0;
-  for (int y = 0; y < 8; ++y)
-    for (int x = 0; x < 8; ++x) {
-      sum += r.film().mean(x, y).x;
-      var += double(r.film().stdError(x, y)) * r.film().stdError(x, y);
-    }
-  const double mean = sum / 64, se = std::sqrt(var) / 64;
-  EXPECT_GT(se, 0.0);
-  EXPECT_NEAR(mean, expected, 4 * se + 1e-6) << "se " << se;
+  const ChannelEstimate e = imageEstimates(r.film().toImage(), {{0, 8, 0, 8}})[0];
+  EXPECT_GT(e.se[0], 0.0);
+  EXPECT_NEAR(e.mean[0], expected, 4 * e.se[0]) << "se " << e.se[0];
 }
 
 // ---- the default light of a stage without any ------------------------------------------
