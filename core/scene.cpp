@@ -868,6 +868,17 @@ bool Scene::intersectAreaLights(const Ray& ray, Hit& hit, float& tmax) const {
   return found;
 }
 
+bool Scene::areaLightsOccluded(const Vec3& p, const Vec3& dir, float dist) const {
+  Ray r;
+  r.o = p;
+  r.d = dir;
+  r.tmax = dist;
+  float t;
+  for (int li : areaLights_)
+    if (lights_[li].intersect(r, t)) return true;
+  return false;
+}
+
 void Scene::buildIdentities(const SceneDesc& desc, const std::vector<LightDesc>& lights) {
   // The scene's materials in buildMaterials' order, the defaults after the description's.
   std::vector<std::string> materialNames;
@@ -1548,6 +1559,7 @@ ProxyShadow Scene::proxyTransmittance(const Vec3& p, const Vec3& dir, float dist
 bool Scene::surfacesOccluded(const Vec3& p, const Vec3& dir, float dist, float time, bool mediaMode,
                              bool proxyMode) const {
   if (!traceable(p, dir, 0.0f, dist)) return false;
+  if (areaLightsOccluded(p, dir, dist)) return true;
   if (!instanced_.empty()) {
     const Vec3 invD(1.0f / dir.x, 1.0f / dir.y, 1.0f / dir.z);
     float t0, t1;
@@ -1620,7 +1632,6 @@ bool Scene::occluded(const Vec3& p, const Vec3& dir, float dist, float time) con
   if (surfacesOccluded(p, dir, dist, time)) return true;
   for (size_t a = 0; a < aggregates_.size(); ++a)
     if (!missesMoving(a, p, dir, 0.0f, dist) && aggregateAt(int(a), time).occluded(p, dir, 0.0f, dist)) return true;
-  // Area lights do not block each other's light: they are emitters, not occluders.
   return false;
 }
 

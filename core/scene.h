@@ -92,7 +92,10 @@ class Scene {
 
   // Explicit grains (EPT): nearest surface, grain or area light.
   bool intersect(const Ray& ray, Hit& hit, const GrainStart* from = nullptr) const;
-  // time: the ray's (Ray::time), where moving grains are.
+  // time: the ray's (Ray::time), where moving grains are. Every shadow ray (occluded,
+  // transmittance, proxyTransmittance) is blocked by what would end a ray of intersect():
+  // surfaces, grains, and area lights hit from their emitting side (Light::intersect), so
+  // light sampling sees what BSDF and phase sampling see and their MIS weights agree.
   bool occluded(const Vec3& p, const Vec3& dir, float dist, float time = 0) const;
 
   // The equivalent media (VPT, DA): nearest surface, area light or aggregate boundary
@@ -408,6 +411,9 @@ class Scene {
   bool intersectSurfaces(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax,
                          bool mediaMode = false, bool proxyMode = false) const;  // invD: 1 / ray.d
   bool intersectAreaLights(const Ray& ray, Hit& hit, float& tmax) const;
+  // Some area light within (0, dist) of p along dir (a shadow ray to a light's own surface
+  // stops short of it: its dist is shortened by the caller).
+  bool areaLightsOccluded(const Vec3& p, const Vec3& dir, float dist) const;
   void finishHit(const Ray& ray, Hit& hit) const;  // position and ray-offset scale
   // A surface hit's ray offset at p, reached over t (finishHit).
   float surfaceOffset(const Vec3& p, float t) const;
@@ -415,8 +421,8 @@ class Scene {
   // An instancer's grain (Grain) or its sphere (Proxy): all but the normal and centre.
   void instancedHit(Hit::Kind kind, int instancer, int64_t instance, int prototype, float t, float radius,
                     Hit& hit) const;
-  // Meshes and explicit grains from instancers (which every transport sees as surfaces).
-  // mediaMode: instancers with a medium are that medium (transmittance), not grains.
+  // Meshes, explicit grains from instancers (which every transport sees as surfaces) and
+  // area lights (areaLightsOccluded). mediaMode: instancers with a medium are that medium (transmittance), not grains.
   bool surfacesOccluded(const Vec3& p, const Vec3& dir, float dist, float time, bool mediaMode = false,
                         bool proxyMode = false) const;
   bool intersectMeshes(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax) const;

@@ -184,7 +184,7 @@ namespace {
 // The floor (albedo 0.5) under a 20° sun at the zenith (radiance 10) and a uniform dome of
 // radiance 0.5, nothing else: its radiance is ρ/π (E_sun + π L_dome), E_sun = L_sun π
 // sin²(10°) (a cone about the normal); a zero-intensity bulb under the floor, where it hides
-// nothing (a shadow ray crosses an area light, a BSDF ray ends on it).
+// nothing.
 SceneDesc sunSkyAndBlackBulb() {
   SceneDesc d = floorFromAbove(64);
   LightDesc sun;
@@ -238,6 +238,90 @@ TEST(LightPick, AFloorUnderASunAndADomeHasTheAnalyticRadiance) {
   ASSERT_TRUE(r.render(d.settings.spp));
   EXPECT_EQ(r.nonFiniteSamples(), 0);
   const double s = std::sin(10 * kPiD / 180), expected = 0.5 / kPiD * (10 * kPiD * s * s + kPiD * 0.5);
+  const ChannelEstimate e = imageEstimates(r.film().toImage(), {{0, 8, 0, 8}})[0];
+  EXPECT_GT(e.se[0], 0.0);
+  EXPECT_NEAR(e.mean[0], expected, 4 * e.se[0]) << "se " << e.se[0];
+}
+
+// ---- area lights block shadow rays as they end BSDF rays --------------------------------
+
+TEST(AreaLightOcclusion, EveryShadowRayStopsWhereARayWouldEnd) {
+  // A black bulb (sphere, radius 1, at y = 2) and a rect light at z = 5 emitting toward −z.
+  SceneDesc d = floorFromAbove(4);
+  LightDesc bulb;
+  bulb.name = "bulb";
+  bulb.type = LightType::Sphere;
+  bulb.radius = 1;
+  bulb.intensity = 0;
+  bulb.xf = Transform::translate(Vec3(0, 2, 0));
+  LightDesc panel;
+  panel.name = "panel";
+  panel.type = LightType::Rect;
+  panel.width = panel.height = 2;
+  panel.xf = Transform::translate(Vec3(0, 1.5f, 5));
+  d.lights = {bulb, panel};
+  auto scene = Scene::build(d);
+  const Vec3 up(0, 1, 0), along(0, 0, 1);
+  // Through the bulb from the floor: blocked for every kind of shadow ray; beside it, not.
+  EXPECT_TRUE(scene->occluded(Vec3(0, 0.01f, 0), up, kInf));
+  EXPECT_TRUE(isBlack(scene->transmittance(Vec3(0, 0.01f, 0), up, kInf)));
+  EXPECT_EQ(scene->proxyTransmittance(Vec3(0, 0.01f, 0), up, kInf, nullptr, 1).unscattered, 0.0f);
+  EXPECT_FALSE(scene->occluded(Vec3(1.5f, 0.01f, 0), up, kInf));
+  // Short of the bulb: not blocked.
+  EXPECT_FALSE(scene->occluded(Vec3(0, 0.01f, 0), up, 0.9f));
+  // The panel blocks from its emitting side only (its back neither emits nor blocks).
+  EXPECT_TRUE(scene->occluded(Vec3(0, 1.5f, 0), along, 10));
+  EXPECT_FALSE(scene->occluded(Vec3(0, 1.5f, 10), -along, 6));
+  // A shadow ray toward a point sampled on a light, shortened as the integrators shorten
+  // it, is not blocked by that light itself.
+  for (int i = 0; i < 64; ++i) {
+    LightSample ls;
+    const Vec3 p(0.3f, 0.01f, -0.2f);
+    ASSERT_TRUE(scene->lights()[1].sampleLi(p, (i + 0.5f) / 64, ((i * 37) % 64 + 0.5f) / 64, ls));
+    EXPECT_FALSE(scene->occluded(p, ls.wi, ls.dist * (1.0f - 1e-4f))) << i;
+  }
+}
+
+TEST(AreaLightOcclusion, AFloorUnderADomeASunAndABlackBulbHasTheAnalyticRadiance) {
+  // The floor (albedo ρ = 0.5) under a uniform dome of radiance 1 and a 20° sun at the
+  // zenith, with a black bulb of radius r = 1 centred on the camera, 2 above the floor (a
+  // camera ray starts inside the sphere, which does not stop it). From every floor point in
+  // view the bulb hides the whole sun (its half-angle is 30°, the sun's 10°, 8° off at
+  // most) and the projected solid angle π (r/δ)² cos θ of the dome (a sphere wholly above
+  // the horizon; δ the distance to its centre, cos θ = 2/δ), so the floor's radiance is
+  // ρ (1 − (r/δ)² cos θ): 0.375 under the bulb's centre. With shadow rays crossing the bulb
+  // and BSDF rays stopping on it, light sampling found the sun through it.
+  SceneDesc d = floorFromAbove(256);
+  LightDesc sky;
+  sky.name = "sky";
+  sky.type = LightType::Dome;
+  LightDesc sun;
+  sun.name = "sun";
+  sun.type = LightType::Distant;
+  sun.angle = 20;
+  sun.intensity = 10;
+  sun.xf = Transform::lookAt(Vec3(0.0f), Vec3(0, -1, 0), Vec3(0, 0, 1));
+  LightDesc bulb;
+  bulb.name = "bulb";
+  bulb.type = LightType::Sphere;
+  bulb.radius = 1;
+  bulb.intensity = 0;
+  bulb.xf = Transform::translate(Vec3(0, 2, 0));
+  d.lights = {sky, sun, bulb};
+  auto scene = Scene::build(d);
+  Renderer r(*scene);
+  ASSERT_TRUE(r.render(d.settings.spp));
+  EXPECT_EQ(r.nonFiniteSamples(), 0);
+  // The camera (focal length 50, aperture 10) sees the floor over [−0.2, 0.2]²; the exact
+  // image mean by the midpoint rule over it (its integrand is smooth: error < 1e-6).
+  double expected = 0;
+  const int n = 200;
+  for (int i = 0; i < n; ++i)
+    for (int j = 0; j < n; ++j) {
+      const double x = -0.2 + 0.4 * (i + 0.5) / n, z = -0.2 + 0.4 * (j + 0.5) / n;
+      const double delta = std::sqrt(x * x + z * z + 4);
+      expected += 0.5 * (1 - 2 / (delta * delta * delta)) / (n * n);
+    }
   const ChannelEstimate e = imageEstimates(r.film().toImage(), {{0, 8, 0, 8}})[0];
   EXPECT_GT(e.se[0], 0.0);
   EXPECT_NEAR(e.mean[0], expected, 4 * e.se[0]) << "se " << e.se[0];
