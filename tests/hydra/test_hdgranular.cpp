@@ -843,6 +843,68 @@ TEST(HdGranular, ADeltaSunOverSmoothGrainsIsThePhysicalSunUnlessTurnedOff) {
   EXPECT_EQ(stat<int>(engine->GetRenderStats(), "granular:sceneBuilds"), 2);  // a setting that rebuilds
 }
 
+TEST(HdGranular, AnAreaLightHidesWhatLiesBehindItFromShadowRaysAsFromEveryRay) {
+  // A floor facing the camera (10 away) under the dome and a 20° sun behind the camera, and
+  // a black sphere light of radius 5 centred on the camera (its rays start inside it, which
+  // does not stop them). From the floor in view the bulb hides the whole sun and the
+  // projected solid angle π (r/δ)² cos θ of the dome (δ to its centre, cos θ = 10/δ), as
+  // in core's AreaLightOcclusion test: the floor's radiance is that under the dome alone
+  // times 1 − 250/δ³. When shadow rays crossed area lights, light sampling found the sun.
+  const std::string floor = R"(
+  def Mesh "Floor" {
+    point3f[] points = [(-20, -20, 0), (20, -20, 0), (20, 20, 0), (-20, 20, 0)]
+    int[] faceVertexCounts = [4]
+    int[] faceVertexIndices = [0, 1, 2, 3]
+  }
+)";
+  UsdStageRefPtr hidden = domeLitStage(4, floor + R"(
+  def DistantLight "Sun" {
+    float inputs:angle = 20
+    float inputs:intensity = 10
+  }
+  def SphereLight "Bulb" {
+    float inputs:radius = 5
+    float inputs:intensity = 0
+    double3 xformOp:translate = (0, 0, 10)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+  }
+)");
+  UsdStageRefPtr open = domeLitStage(4, floor);
+  const int size = 16;
+  // The image's mean radiance and the variance of that mean (the variance AOV: per pixel,
+  // the variance of its mean; the pixels are independent). An engine per stage.
+  auto estimate = [&](UsdStageRefPtr const& stage, double& variance) {
+    auto engine = makeEngine(64);
+    Frame c = render(*engine, stage, HdAovTokens->color, size, size);
+    EXPECT_TRUE(c.converged);
+    Frame v = render(*engine, stage, TfToken("variance"), size, size);
+    variance = 0;
+    for (size_t p = 0; p < v.values.size(); p += 3) variance += v.values[p];
+    const double n = double(size) * size;
+    variance /= n * n;
+    return mean(c, 0);
+  };
+  double varHidden = 0, varOpen = 0;
+  const double withBulb = estimate(hidden, varHidden), underDome = estimate(open, varOpen);
+  ASSERT_GT(underDome, 0.0);
+  // The camera (focal length 50, aperture 4) sees the floor over [−0.4, 0.4]²: the mean of
+  // 1 − 250/δ³ over it by the midpoint rule (a smooth integrand: error < 1e-6).
+  double fraction = 0;
+  const int n = 200;
+  for (int i = 0; i < n; ++i)
+    for (int j = 0; j < n; ++j) {
+      const double x = -0.4 + 0.8 * (i + 0.5) / n, y = -0.4 + 0.8 * (j + 0.5) / n;
+      const double delta = std::sqrt(x * x + y * y + 100);
+      fraction += (1 - 250 / (delta * delta * delta)) / (n * n);
+    }
+  // The ratio's standard error from both means' (their relative errors added in quadrature).
+  const double ratio = withBulb / underDome;
+  const double se = ratio * std::hypot(std::sqrt(varHidden) / withBulb, std::sqrt(varOpen) / underDome);
+  EXPECT_GT(se, 0.0);
+  EXPECT_NEAR(ratio, fraction, 4 * se) << "se " << se;
+  std::printf("under the black bulb / under the dome alone: %.4f (exact %.4f, se %.4f)\n", ratio, fraction, se);
+}
+
 TEST(HdGranular, SunRegularizationShowsSmoothChainsTheNarrowSunAsTheWiderDiskAsInGranularRender) {
   // The snow slab's grains alone (ground and sky hidden) under its 0.53° sun, explicit grains:
   // nothing samples the sun, so regularised to 5° the image is the one of a normalised 5° sun

@@ -1,11 +1,15 @@
 """Next-event estimation picks each light by its weight (core: Light::pickWeight,
-Scene::lightPick); `granular render` says the chances it took, by the lights' prim paths."""
+Scene::lightPick); `granular render` says the chances it took, by the lights' prim paths.
+Shadow rays stop at area lights as every other ray does (core: Scene::occluded)."""
+import math
 import re
 
-from pxr import UsdLux
+import numpy as np
+from pxr import Gf, UsdGeom, UsdLux
 
-from conftest import run_cli, small_scene
+from conftest import dome_world, run_cli, small_scene
 from granular import api, usd_reader
+from noise_check import rgb_and_variance
 
 OPTIONS = ["--width", "16", "--height", "12", "--spp", "1"]
 
@@ -45,3 +49,50 @@ def test_one_light_says_nothing(tmp_path, capsys):
     rc, _, err = run_cli(["render", stage, "-o", tmp_path / "sun.exr", *OPTIONS], capsys)
     assert rc == 0, err
     assert "light sampling picks" not in err
+
+
+def _floor_under(path, bulb):
+    """A floor facing the camera 15 below it under the uniform dome; with `bulb`, a 20° sun
+    behind the camera and a black sphere light of radius 7.5 centred on the camera."""
+    stage = dome_world(path)
+    UsdGeom.Camera(stage.GetPrimAtPath("/World/Camera")).CreateHorizontalApertureAttr(4.0)
+    UsdGeom.Camera(stage.GetPrimAtPath("/World/Camera")).CreateVerticalApertureAttr(4.0)
+    floor = UsdGeom.Mesh.Define(stage, "/World/Floor")
+    floor.CreatePointsAttr([(-30, -30, 0), (30, -30, 0), (30, 30, 0), (-30, 30, 0)])
+    floor.CreateFaceVertexCountsAttr([4])
+    floor.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    if bulb:
+        sun = UsdLux.DistantLight.Define(stage, "/World/Sun")
+        sun.CreateAngleAttr(20.0)
+        sun.CreateIntensityAttr(10.0)
+        light = UsdLux.SphereLight.Define(stage, "/World/Bulb")
+        light.CreateRadiusAttr(7.5)
+        light.CreateIntensityAttr(0.0)
+        UsdGeom.Xformable(light).AddTranslateOp().Set(Gf.Vec3d(0, 0, 15))
+    stage.Save()
+    return str(path)
+
+
+def test_a_black_sphere_light_hides_the_sun_and_part_of_the_dome_from_shadow_rays(tmp_path, capsys):
+    # The camera's rays start inside the bulb, which does not stop them. From the floor in
+    # view (15 away, aperture 4 at focal length 50: [-0.6, 0.6]^2) the bulb hides the whole
+    # sun and the projected solid angle pi (r/d)^2 cos(theta) of the dome (d to its centre,
+    # cos(theta) = 15/d): the floor's radiance is that under the dome alone times
+    # 1 - r^2 15 / d^3, as core's AreaLightOcclusion and hdGranular's tests have it.
+    means, variances = [], []
+    for bulb in (True, False):
+        stage = _floor_under(tmp_path / f"floor{int(bulb)}.usda", bulb)
+        out = tmp_path / f"floor{int(bulb)}.exr"
+        rc, _, err = run_cli(["render", stage, "-o", out, "--width", "16", "--height", "16", "--spp", "64"], capsys)
+        assert rc == 0, err
+        rgb, var = rgb_and_variance(out)
+        means.append(rgb[..., 0].mean())
+        variances.append(var[..., 0].sum() / rgb[..., 0].size ** 2)
+    n = 200
+    x = -0.6 + 1.2 * (np.arange(n) + 0.5) / n
+    d = np.sqrt(x[:, None] ** 2 + x[None, :] ** 2 + 225.0)
+    exact = float(np.mean(1.0 - 7.5 ** 2 * 15.0 / d ** 3))
+    ratio = means[0] / means[1]
+    se = ratio * math.hypot(math.sqrt(variances[0]) / means[0], math.sqrt(variances[1]) / means[1])
+    assert se > 0
+    assert abs(ratio - exact) < 4 * se, (ratio, exact, se)
