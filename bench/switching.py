@@ -19,8 +19,16 @@ in every path (Scene.measure_switch, stop_early=False), and a table per aggregat
 bias after each candidate's visits in all and per exit bin (switching.h: the exit
 direction's cosine from the entry's normal, back toward the entry side or forward).
 
+With --seeds N, each aggregate's dome measurement is made again on seeds 1 … N as the
+scene makes it (Scene.measure_switch), and once on --truth-paths paths (2^20 by default)
+with every candidate forking in every path, seed 1000: a table gives the choice on each
+seed, each candidate's bias on the long measurement (the worst channel), and the largest
+of those among the seeds' choices — how far the choice's noise can take the bias the
+medium leaves.
+
 Usage: python3 bench/switching.py [--build build] [--examples a,b] [--no-bench-scenes]
          [--scene extra.json ...] [--exit-bins N] [--view] [--view-paths N]
+         [--seeds N [--truth-paths M]]
 Prints markdown tables.
 """
 import argparse
@@ -59,7 +67,18 @@ def view_table(built, a, label, name, paths):
     return "\n".join(lines)
 
 
-def rows_of(core, desc, label, exit_paths, tables, view=False, view_paths=0):
+def stability_row(built, a, label, name, seeds, truth_paths):
+    """The dome's choice on seeds 1 … seeds against each candidate's bias on truth_paths."""
+    chosen = [built.measure_switch(a, seed=s)["chosen"] for s in range(1, seeds + 1)]
+    t = built.measure_switch(a, paths=truth_paths, stop_early=False, seed=1000)
+    bias = {c: (worst(b), 100 * max(se)) for c, b, se in zip(t["candidates"], t["bias"], t["bias_se"])}
+    reached = max(chosen, key=lambda c: abs(bias[c][0]))
+    return (f"| {label} | {name} | {', '.join(map(str, chosen))} | " +
+            " | ".join(f"{bias[c][0]:+.2f} ± {bias[c][1]:.2f}" for c in t["candidates"][:-1]) +
+            f" | {bias[reached][0]:+.2f} (after {reached}) | {t['seconds']:.1f} |")
+
+
+def rows_of(core, desc, label, exit_paths, tables, view=False, view_paths=0, seeds=0, truth_paths=0, stability=None):
     s = desc.settings
     s.technique = core.Technique.EptVpt
     s.switch_for_view = view or view_paths > 0
@@ -74,6 +93,8 @@ def rows_of(core, desc, label, exit_paths, tables, view=False, view_paths=0):
         out.append((label, info["name"], sw["chosen"], sw["uses_proxies"], worst(sw["bias"][0]),
                     worst(sw["bias"][k]), 100 * max(sw["bias_se"][k]), worst_bin(sw, k, bins), sw["seconds"],
                     sw["paths"], sw["events"], sw.get("view"), sw["proxy_visits"]))
+        if seeds:
+            stability.append(stability_row(built, a, label, info["name"], seeds, truth_paths))
         if view_paths and "view" in sw:
             tables.append(view_table(built, a, label, info["name"], view_paths))
         if exit_paths:
@@ -103,18 +124,24 @@ def main():
     ap.add_argument("--view", action="store_true", help="measure the switch for each example's view too")
     ap.add_argument("--view-paths", type=int, default=0, metavar="N",
                     help="measure each aggregate the camera sees again with N paths, for the view and the dome")
+    ap.add_argument("--seeds", type=int, default=0, metavar="N",
+                    help="measure each aggregate's dome switch on seeds 1..N and against a long measurement")
+    ap.add_argument("--truth-paths", type=int, default=1 << 20, metavar="M",
+                    help="paths of the long measurement --seeds compares with (default 2^20)")
     a = ap.parse_args()
     sys.path[:0] = [os.path.join(a.build, "python"), os.path.join(ROOT, "python"), HERE]
     os.environ["GRANULAR_CACHE_DIR"] = tempfile.mkdtemp(prefix="granular-switching-")
     import granular_core as core
     from granular.usd_reader import read_stage
 
-    rows, tables = [], []
+    rows, tables, stability = [], [], []
+    extra = dict(seeds=a.seeds, truth_paths=a.truth_paths, stability=stability)
     for name in filter(None, a.examples.split(",")):
         rows += rows_of(core, read_stage(os.path.join(ROOT, "examples", name + ".usda"), width=64).desc, name,
-                        a.exit_bins, tables, a.view, a.view_paths)
+                        a.exit_bins, tables, a.view, a.view_paths, **extra)
     for path in a.scene:
-        rows += rows_of(core, core.load_scene_json(path), os.path.basename(path), a.exit_bins, tables, a.view, a.view_paths)
+        rows += rows_of(core, core.load_scene_json(path), os.path.basename(path), a.exit_bins, tables, a.view,
+                        a.view_paths, **extra)
     if not a.no_bench_scenes:
         import json
         from hybrid_speedup import scenes
@@ -122,7 +149,8 @@ def main():
             for name, desc in scenes().items():
                 path = os.path.join(tmp, "scene.json")
                 json.dump(desc, open(path, "w"))
-                rows += rows_of(core, core.load_scene_json(path), name, a.exit_bins, tables, a.view, a.view_paths)
+                rows += rows_of(core, core.load_scene_json(path), name, a.exit_bins, tables, a.view, a.view_paths,
+                                **extra)
     view = a.view or a.view_paths > 0
     print("| scene | aggregate | visits chosen | proxies | medium after the first grain, bias % | "
           "after the chosen visits, bias % ± s.e. | its worst exit bin, bias % ± s.e. | paths | walk steps | "
@@ -143,6 +171,16 @@ def main():
     for t in tables:
         print()
         print(t)
+    if stability:
+        print()
+        print(f"**The dome's choice on seeds 1 … {a.seeds}** against each candidate's bias on {a.truth_paths} paths "
+              "(bias %, the worst channel, ± s.e.)")
+        print()
+        print("| scene | aggregate | chosen, seed by seed | " +
+              " | ".join(f"after {k}" for k in (0, 1, 2, 4, 8, 16)) + " | the largest chosen | long measurement, s |")
+        print("|---" * 11 + "|")
+        for line in stability:
+            print(line)
 
 
 if __name__ == "__main__":

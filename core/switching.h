@@ -27,7 +27,11 @@
 // The chosen visits: the least k whose |bias_k| ≤ tolerance with s.e._k ≤ precision ·
 // tolerance in every channel (K when none is): an estimate within the tolerance, measured
 // well enough to tell. (A bound |bias_k| + 2 s.e. would be decided by noise in nearly
-// clear grains, whose long walks leave a standard error near the tolerance.) Paths are
+// clear grains, whose long walks leave a standard error near the tolerance.) A candidate
+// whose bias lies within a standard error of the tolerance is taken or passed over as the
+// noise falls, so the chosen one may leave up to about twice the tolerance; tighter rules
+// cost bright and clear grains visits they do not need (bench/README.md, "The dome's
+// choice and its noise, measured"). Paths are
 // traced in batches (512, 512, 1024, then 2048 paths). After each, a candidate beyond the
 // tolerance by more than 3 standard errors in some channel is decided (it fails the choice
 // whatever more paths say): it forks no more and keeps the estimate of the paths that
