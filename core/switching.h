@@ -41,9 +41,9 @@
 // to the most paths the measurement may still trace (the budget left at the last batch's
 // steps per path, and one batch more; options.paths), above 1.25 · precision · tolerance
 // in some channel, so that it could not pass —, options.paths are traced, or the walks
-// have taken options.eventBudget steps; then, if no candidate is measured to the
-// precision asked, the least whose estimate is within the tolerance is chosen (K when
-// none). A candidate taken for decided or out of reach by chance is passed over: the
+// have taken options.eventBudget steps. The reference always passes (its bias is 0 by
+// construction), so where no earlier candidate is measured to the precision asked the
+// choice is K. A candidate taken for decided or out of reach by chance is passed over: the
 // error is towards more visits (less bias, a slower render).
 // Walks end by Russian roulette (unbiased) or after a cap of events (leaks).
 // Deterministic for a seed, whatever the number of threads. With a cacheKey (everything
