@@ -422,7 +422,8 @@ class Scene {
   void instancedHit(Hit::Kind kind, int instancer, int64_t instance, int prototype, float t, float radius,
                     Hit& hit) const;
   // Meshes, explicit grains from instancers (which every transport sees as surfaces) and
-  // area lights (areaLightsOccluded). mediaMode: instancers with a medium are that medium (transmittance), not grains.
+  // area lights (areaLightsOccluded). mediaMode: instancers with a medium are that medium
+  // (transmittance), not grains.
   bool surfacesOccluded(const Vec3& p, const Vec3& dir, float dist, float time, bool mediaMode = false,
                         bool proxyMode = false) const;
   bool intersectMeshes(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax) const;
