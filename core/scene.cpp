@@ -869,14 +869,12 @@ bool Scene::intersectAreaLights(const Ray& ray, Hit& hit, float& tmax) const {
 }
 
 bool Scene::areaLightsOccluded(const Vec3& p, const Vec3& dir, float dist) const {
+  if (areaLights_.empty()) return false;
   Ray r;
   r.o = p;
   r.d = dir;
-  r.tmax = dist;
-  float t;
-  for (int li : areaLights_)
-    if (lights_[li].intersect(r, t)) return true;
-  return false;
+  Hit hit;
+  return intersectAreaLights(r, hit, dist);
 }
 
 void Scene::buildIdentities(const SceneDesc& desc, const std::vector<LightDesc>& lights) {

@@ -70,19 +70,44 @@ SceneDesc floorFromAbove(int spp) {
   return s;
 }
 
+// A sun of `angle` degrees at the zenith, shining down on the floor.
+LightDesc zenithSun(float angle, float intensity) {
+  LightDesc sun;
+  sun.name = "sun";
+  sun.type = LightType::Distant;
+  sun.angle = angle;
+  sun.intensity = intensity;
+  sun.xf = Transform::lookAt(Vec3(0.0f), Vec3(0, -1, 0), Vec3(0, 0, 1));
+  return sun;
+}
+
+// A uniform dome.
+LightDesc uniformSky(float intensity) {
+  LightDesc sky;
+  sky.name = "sky";
+  sky.type = LightType::Dome;
+  sky.intensity = intensity;
+  return sky;
+}
+
+// A sphere light centred at `at`.
+LightDesc sphereLight(const std::string& name, float radius, float intensity, const Vec3& at) {
+  LightDesc bulb;
+  bulb.name = name;
+  bulb.type = LightType::Sphere;
+  bulb.radius = radius;
+  bulb.intensity = intensity;
+  bulb.xf = Transform::translate(at);
+  return bulb;
+}
+
 }  // namespace
 
 TEST(Light, FloorUnderASmallSphereFarAwayHasTheAnalyticRadiance) {
   // A Lambert floor (albedo ρ) straight under a sphere of radiance L, radius r, at
   // height h: E = L π r²/h², so the floor's radiance is ρ L r²/h² (here 0.5 x 1e8 x 1e-8).
   SceneDesc s = floorFromAbove(16);
-  LightDesc bulb;
-  bulb.name = "far bulb";
-  bulb.type = LightType::Sphere;
-  bulb.radius = 0.5f;
-  bulb.intensity = 1e8f;
-  bulb.xf = Transform::translate(Vec3(0, 5000, 0));
-  s.lights.push_back(bulb);
+  s.lights.push_back(sphereLight("far bulb", 0.5f, 1e8f, Vec3(0, 5000, 0)));
   auto scene = Scene::build(s);
   Renderer r(*scene);
   ASSERT_TRUE(r.render(16));
@@ -143,11 +168,7 @@ TEST(LightPick, WeightsAreIrradianceTimesTheRootOfConcentration) {
   sun.intensity = 0;
   EXPECT_EQ(weight(sun, Vec3(0.0f)), 0.0);
   // A sphere of radius 0.5 seen from 10 away, and from inside (Ω = 2π, the half space).
-  LightDesc bulb;
-  bulb.type = LightType::Sphere;
-  bulb.radius = 0.5f;
-  bulb.intensity = 3;
-  bulb.xf = Transform::translate(Vec3(0, 10, 0));
+  const LightDesc bulb = sphereLight("", 0.5f, 3, Vec3(0, 10, 0));
   const double omegaBulb = 2 * pi * (1 - std::sqrt(1 - 0.25 / 100));
   EXPECT_NEAR(weight(bulb, Vec3(0.0f)) / (3 * std::sqrt(4 * pi * omegaBulb)), 1.0, 1e-4);
   EXPECT_NEAR(weight(bulb, Vec3(0, 10.1f, 0)) / (3 * std::sqrt(4 * pi * 2 * pi)), 1.0, 1e-6);
@@ -187,23 +208,7 @@ namespace {
 // nothing.
 SceneDesc sunSkyAndBlackBulb() {
   SceneDesc d = floorFromAbove(64);
-  LightDesc sun;
-  sun.name = "sun";
-  sun.type = LightType::Distant;
-  sun.angle = 20;
-  sun.intensity = 10;
-  sun.xf = Transform::lookAt(Vec3(0.0f), Vec3(0, -1, 0), Vec3(0, 0, 1));
-  LightDesc sky;
-  sky.name = "sky";
-  sky.type = LightType::Dome;
-  sky.intensity = 0.5f;
-  LightDesc bulb;
-  bulb.name = "black bulb";
-  bulb.type = LightType::Sphere;
-  bulb.radius = 0.5f;
-  bulb.intensity = 0;
-  bulb.xf = Transform::translate(Vec3(0, -3, 0));
-  d.lights = {sun, sky, bulb};
+  d.lights = {zenithSun(20, 10), uniformSky(0.5f), sphereLight("black bulb", 0.5f, 0, Vec3(0, -3, 0))};
   return d;
 }
 
@@ -248,18 +253,12 @@ TEST(LightPick, AFloorUnderASunAndADomeHasTheAnalyticRadiance) {
 TEST(AreaLightOcclusion, EveryShadowRayStopsWhereARayWouldEnd) {
   // A black bulb (sphere, radius 1, at y = 2) and a rect light at z = 5 emitting toward −z.
   SceneDesc d = floorFromAbove(4);
-  LightDesc bulb;
-  bulb.name = "bulb";
-  bulb.type = LightType::Sphere;
-  bulb.radius = 1;
-  bulb.intensity = 0;
-  bulb.xf = Transform::translate(Vec3(0, 2, 0));
   LightDesc panel;
   panel.name = "panel";
   panel.type = LightType::Rect;
   panel.width = panel.height = 2;
   panel.xf = Transform::translate(Vec3(0, 1.5f, 5));
-  d.lights = {bulb, panel};
+  d.lights = {sphereLight("bulb", 1, 0, Vec3(0, 2, 0)), panel};
   auto scene = Scene::build(d);
   const Vec3 up(0, 1, 0), along(0, 0, 1);
   // Through the bulb from the floor: blocked for every kind of shadow ray; beside it, not.
@@ -292,22 +291,7 @@ TEST(AreaLightOcclusion, AFloorUnderADomeASunAndABlackBulbHasTheAnalyticRadiance
   // ρ (1 − (r/δ)² cos θ): 0.375 under the bulb's centre. With shadow rays crossing the bulb
   // and BSDF rays stopping on it, light sampling found the sun through it.
   SceneDesc d = floorFromAbove(256);
-  LightDesc sky;
-  sky.name = "sky";
-  sky.type = LightType::Dome;
-  LightDesc sun;
-  sun.name = "sun";
-  sun.type = LightType::Distant;
-  sun.angle = 20;
-  sun.intensity = 10;
-  sun.xf = Transform::lookAt(Vec3(0.0f), Vec3(0, -1, 0), Vec3(0, 0, 1));
-  LightDesc bulb;
-  bulb.name = "bulb";
-  bulb.type = LightType::Sphere;
-  bulb.radius = 1;
-  bulb.intensity = 0;
-  bulb.xf = Transform::translate(Vec3(0, 2, 0));
-  d.lights = {sky, sun, bulb};
+  d.lights = {uniformSky(1), zenithSun(20, 10), sphereLight("bulb", 1, 0, Vec3(0, 2, 0))};
   auto scene = Scene::build(d);
   Renderer r(*scene);
   ASSERT_TRUE(r.render(d.settings.spp));

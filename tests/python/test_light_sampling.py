@@ -55,8 +55,9 @@ def _floor_under(path, bulb):
     """A floor facing the camera 15 below it under the uniform dome; with `bulb`, a 20° sun
     behind the camera and a black sphere light of radius 7.5 centred on the camera."""
     stage = dome_world(path)
-    UsdGeom.Camera(stage.GetPrimAtPath("/World/Camera")).CreateHorizontalApertureAttr(4.0)
-    UsdGeom.Camera(stage.GetPrimAtPath("/World/Camera")).CreateVerticalApertureAttr(4.0)
+    camera = UsdGeom.Camera(stage.GetPrimAtPath("/World/Camera"))
+    camera.CreateHorizontalApertureAttr(4.0)
+    camera.CreateVerticalApertureAttr(4.0)
     floor = UsdGeom.Mesh.Define(stage, "/World/Floor")
     floor.CreatePointsAttr([(-30, -30, 0), (30, -30, 0), (30, 30, 0), (-30, 30, 0)])
     floor.CreateFaceVertexCountsAttr([4])
