@@ -19,12 +19,14 @@ from a free-path error (flat).
 Usage: python3 bench/sun_matrix.py [--build build] [--materials quartz_sand,ice,sucrose,glass_mixture]
          [--shapes ball,slab] [--suns 20,5] [--elevations 15,45,80] [--phases 0,30,60,90,120,150]
          [--spp 64] [--seeds 2] [--width 32] [--height 24] [--techniques proxies,medium,medium-only]
-         [--json out/bench/sun_matrix.json]
+         [--set KEY=VALUE ...] [--json out/bench/sun_matrix.json]
          [--plot out/bench/sun_matrix.png]
 Prints a markdown table; --plot draws the medium-only and proxy biases against phase angle.
 `default` is the hybrid as a user gets it, `view` the same with switch_for_view (the switch
 measured for the camera and the sun too); `visits-K` (e.g. visits-16) proxies for K visits
 after the first grain, nothing measured: how the bias falls with the switch to the medium.
+--set applies a render setting to every technique but EPT: `--set lod=0` keeps the first
+grain explicit where the level-of-detail shortcut would make it a proxy.
 """
 import argparse
 import json
@@ -121,6 +123,8 @@ def run_case(core, material, shape, sun, elevation, phase, args, tmp):
         if bounces is not None:
             case["render"]["explicit_bounces"] = bounces
         case["render"]["switch_for_view"] = name == "view"
+        if name != "ept":
+            case["render"].update(args.overrides)
         variances = []
         means, _, _, seconds = accuracy_matrix.measure(core, case, technique, None, args.spp, args.seeds, args.threads,
                                                        tmp, proxies, variances)
@@ -196,9 +200,20 @@ def main():
     ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--techniques", default="proxies,medium,medium-only",
                     help="compared with EPT, of " + ", ".join(TECHNIQUES) + ", visits-K (proxies for K visits)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a render setting (JSON value) for every technique but the EPT reference, e.g. --set lod=0")
     ap.add_argument("--json")
     ap.add_argument("--plot")
     args = ap.parse_args()
+    args.overrides = {}
+    for kv in args.set:
+        key, sep, value = kv.partition("=")
+        try:
+            args.overrides[key] = json.loads(value)
+        except json.JSONDecodeError:
+            sep = ""
+        if not sep or not key:
+            ap.error(f"--set {kv!r}: expected KEY=VALUE with a JSON value")
     args.techniques = [t for t in args.techniques.split(",") if t]
     for t in args.techniques:  # visits-K: proxies on for K visits after the first grain, measured nothing
         if t.startswith("visits-") and t[7:].isdigit():
