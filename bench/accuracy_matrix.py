@@ -211,6 +211,24 @@ def measure(core, scene, technique, lod, spp, seeds, threads, tmp, proxies="Auto
     return means, pixels, build_seconds, render_seconds
 
 
+def render_settings(ap, pairs, reserved=()):
+    """The render settings of repeated --set KEY=VALUE options (JSON values), as a dict; a
+    usage error (ap.error) for a pair without '=', a value that is not JSON, or a key the
+    benchmark sets itself (reserved)."""
+    out = {}
+    for kv in pairs:
+        key, sep, value = kv.partition("=")
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            sep = ""
+        if not sep or not key:
+            ap.error(f"--set {kv!r}: expected KEY=VALUE with a JSON value")
+        if key in reserved:
+            ap.error(f"--set {key}: set by the benchmark itself ({', '.join(sorted(reserved))})")
+    return out
+
+
 def stats(values, variances=None):
     """Mean and standard error of the mean of a list of RGB arrays. Given the renders' own
     variances of each value (measure()), the standard error is the larger of the two

@@ -87,10 +87,8 @@ def main():
                     help="a render setting for every scene (JSON value), e.g. --set da_min_order=8; the EPT "
                          "reference is rendered without it")
     a = ap.parse_args()
-    overrides = {}
-    for kv in a.set:
-        key, _, value = kv.partition("=")
-        overrides[key] = json.loads(value)
+    from accuracy_matrix import render_settings
+    overrides = render_settings(ap, a.set)
     render_exe = os.path.join(a.build, "core", "granular-render")
     compare_exe = os.path.join(a.build, "bench", "granular-compare")
     for e in (render_exe, compare_exe):

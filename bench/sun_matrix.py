@@ -205,15 +205,10 @@ def main():
     ap.add_argument("--json")
     ap.add_argument("--plot")
     args = ap.parse_args()
-    args.overrides = {}
-    for kv in args.set:
-        key, sep, value = kv.partition("=")
-        try:
-            args.overrides[key] = json.loads(value)
-        except json.JSONDecodeError:
-            sep = ""
-        if not sep or not key:
-            ap.error(f"--set {kv!r}: expected KEY=VALUE with a JSON value")
+    # What measure() and the techniques set on every render would silently win over --set.
+    args.overrides = accuracy_matrix.render_settings(
+        ap, args.set, reserved=("technique", "proxies", "spp", "seed", "threads", "sun_regularization",
+                                "switch_for_view", "width", "height"))
     args.techniques = [t for t in args.techniques.split(",") if t]
     for t in args.techniques:  # visits-K: proxies on for K visits after the first grain, measured nothing
         if t.startswith("visits-") and t[7:].isdigit():

@@ -73,9 +73,9 @@ def stability_row(built, a, label, name, seeds, truth_paths):
     t = built.measure_switch(a, paths=truth_paths, stop_early=False, seed=1000)
     bias = {c: (worst(b), 100 * max(se)) for c, b, se in zip(t["candidates"], t["bias"], t["bias_se"])}
     reached = max(chosen, key=lambda c: abs(bias[c][0]))
-    return (f"| {label} | {name} | {', '.join(map(str, chosen))} | " +
-            " | ".join(f"{bias[c][0]:+.2f} ± {bias[c][1]:.2f}" for c in t["candidates"][:-1]) +
-            f" | {bias[reached][0]:+.2f} (after {reached}) | {t['seconds']:.1f} |")
+    return t["candidates"][:-1], (f"| {label} | {name} | {', '.join(map(str, chosen))} | " +
+                                  " | ".join(f"{bias[c][0]:+.2f} ± {bias[c][1]:.2f}" for c in t["candidates"][:-1]) +
+                                  f" | {bias[reached][0]:+.2f} (after {reached}) | {t['seconds']:.1f} |")
 
 
 def rows_of(core, desc, label, exit_paths, tables, view=False, view_paths=0, seeds=0, truth_paths=0, stability=None):
@@ -176,10 +176,11 @@ def main():
         print(f"**The dome's choice on seeds 1 … {a.seeds}** against each candidate's bias on {a.truth_paths} paths "
               "(bias %, the worst channel, ± s.e.)")
         print()
-        print("| scene | aggregate | chosen, seed by seed | " +
-              " | ".join(f"after {k}" for k in (0, 1, 2, 4, 8, 16)) + " | the largest chosen | long measurement, s |")
-        print("|---" * 11 + "|")
-        for line in stability:
+        candidates = stability[0][0]  # every measurement's, all but the reference
+        print("| scene | aggregate | chosen, seed by seed | " + " | ".join(f"after {k}" for k in candidates) +
+              " | the largest chosen | long measurement, s |")
+        print("|---" * (len(candidates) + 5) + "|")
+        for _, line in stability:
             print(line)
 
 
