@@ -12,13 +12,19 @@ a dim sky (radiance 0.1). The camera looks at the object from elevation 30°; th
 azimuth is chosen so that the angle between the directions to the sun and to the camera
 is the phase angle (combinations no azimuth gives are skipped). The mean over the
 object's pixels, per seed; bias = (technique − EPT) / EPT with a standard error from the
-seeds and the renders' variance AOV (accuracy_matrix.stats()). The medium-only column
+seeds and the renders' variance AOV (accuracy_matrix.stats()). One slab is one draw of its
+grains (packing, prototypes, rotations): explicit grains show all of it, proxies average
+over the rotations, and the seeds' standard error does not count it (bench/README.md, "The
+proxies' own error on the sunlit sucrose slab"). --realisations N renders N draws
+(aggregate seeds 3, 4, ...) and reports the mean of each draw's bias against EPT of the
+same draw, its standard error from their spread. The medium-only column
 against the phase angle tells the shadow hiding (a deficit that grows towards phase 0)
 from a free-path error (flat).
 
 Usage: python3 bench/sun_matrix.py [--build build] [--materials quartz_sand,ice,sucrose,glass_mixture]
          [--shapes ball,slab] [--suns 20,5] [--elevations 15,45,80] [--phases 0,30,60,90,120,150]
-         [--spp 64] [--seeds 2] [--width 32] [--height 24] [--techniques proxies,medium,medium-only]
+         [--spp 64] [--seeds 2] [--realisations 1] [--width 32] [--height 24]
+         [--techniques proxies,medium,medium-only]
          [--set KEY=VALUE ...] [--json out/bench/sun_matrix.json]
          [--plot out/bench/sun_matrix.png]
 Prints a markdown table; --plot draws the medium-only and proxy biases against phase angle.
@@ -81,7 +87,7 @@ def unit(elevation, azimuth):
     return [math.cos(e) * math.sin(a), math.sin(e), math.cos(e) * math.cos(a)]
 
 
-def scene(material, shape, sun_angle, elevation, azimuth):
+def scene(material, shape, sun_angle, elevation, azimuth, aggregate_seed=3):
     mats, protos, weights, f = material_block(material)
     mats["floor"] = {"type": "lambert", "albedo": [0.5, 0.5, 0.5]}
     to_cam = unit(VIEW_ELEVATION, 0.0)
@@ -104,7 +110,7 @@ def scene(material, shape, sun_angle, elevation, azimuth):
         "lights": [{"name": "sky", "type": "dome", "color": [1, 1, 1], "intensity": 0.1},
                    {"name": "sun", "type": "distant", "direction": [-x for x in to_sun], "angle": sun_angle,
                     "intensity": 1.0, "normalize": True}],
-        "aggregates": [{"name": shape, "boundary": boundary, "grain_radius": 0.01, "packing_rate": f, "seed": 3,
+        "aggregates": [{"name": shape, "boundary": boundary, "grain_radius": 0.01, "packing_rate": f, "seed": aggregate_seed,
                         "tile_spheres": 512, "prototypes": protos, "weights": weights}],
     }
 
@@ -116,29 +122,47 @@ def run_case(core, material, shape, sun, elevation, phase, args, tmp):
         return None
     out = {"material": material, "shape": shape, "sun": sun, "elevation": elevation, "phase": phase,
            "azimuth": azimuth, "techniques": {}}
-    ref = None
+    draws = [3 + k for k in range(args.realisations)]  # aggregate seeds: 3 is the single draw's
+    ref = {}  # per draw: EPT's mean and standard error
     for name, (technique, proxies, bounces) in [("ept", ("Ept", "Off", None))] + [(n, TECHNIQUES[n]) for n in args.techniques]:
-        case = scene(material, shape, sun, elevation, azimuth)
-        case["render"].update(width=args.width, height=args.height)
-        if bounces is not None:
-            case["render"]["explicit_bounces"] = bounces
-        case["render"]["switch_for_view"] = name == "view"
-        if name != "ept":
-            case["render"].update(args.overrides)
-        variances = []
-        means, _, _, seconds = accuracy_matrix.measure(core, case, technique, None, args.spp, args.seeds, args.threads,
-                                                       tmp, proxies, variances)
-        mean, se = accuracy_matrix.stats(means, variances)
-        entry = {"mean": mean.tolist(), "se": se.tolist(), "seconds": seconds,
-                 "seed_means": [m.tolist() for m in means], "seed_variances": [v.tolist() for v in variances]}
-        if ref is None:
-            ref = (mean, se)
-        else:
-            entry["bias_pct"] = (100 * (mean - ref[0]) / ref[0]).tolist()
-            entry["bias_se_pct"] = (100 * np.hypot(se, ref[1]) / ref[0]).tolist()
+        entry = {"seconds": 0.0, "draws": []}
+        biases, bias_ses, all_means, all_ses = [], [], [], []
+        for draw in draws:
+            case = scene(material, shape, sun, elevation, azimuth, draw)
+            case["render"].update(width=args.width, height=args.height)
+            if bounces is not None:
+                case["render"]["explicit_bounces"] = bounces
+            case["render"]["switch_for_view"] = name == "view"
+            if name != "ept":
+                case["render"].update(args.overrides)
+            variances = []
+            means, _, _, seconds = accuracy_matrix.measure(core, case, technique, None, args.spp, args.seeds,
+                                                           args.threads, tmp, proxies, variances)
+            mean, se = accuracy_matrix.stats(means, variances)
+            entry["seconds"] += seconds
+            entry["draws"].append({"aggregate_seed": draw, "mean": mean.tolist(), "se": se.tolist(),
+                                   "seed_means": [m.tolist() for m in means],
+                                   "seed_variances": [v.tolist() for v in variances]})
+            all_means.append(mean)
+            all_ses.append(se)
+            if name == "ept":
+                ref[draw] = (mean, se)
+            else:
+                biases.append(100 * (mean - ref[draw][0]) / ref[draw][0])
+                bias_ses.append(100 * np.hypot(se, ref[draw][1]) / ref[draw][0])
+            print(f"{material:14s} {shape:5s} sun {sun:4g} elev {elevation:3g} phase {phase:4g} {name:12s} "
+                  f"draw {draw} mean {np.round(mean, 4)} ({seconds:.1f} s)", file=sys.stderr, flush=True)
+        n = len(draws)
+        entry["mean"] = np.mean(all_means, axis=0).tolist()
+        entry["se"] = (np.sqrt(np.sum(np.square(all_ses), axis=0)) / n).tolist()
+        if biases:
+            # Each draw's bias against EPT of the same draw; the standard error of their mean:
+            # the renders' own, or with several draws the larger of it and their spread's.
+            within = np.sqrt(np.sum(np.square(bias_ses), axis=0)) / n
+            spread = np.std(biases, axis=0, ddof=1) / math.sqrt(n) if n > 1 else np.zeros_like(within)
+            entry["bias_pct"] = np.mean(biases, axis=0).tolist()
+            entry["bias_se_pct"] = np.maximum(within, spread).tolist()
         out["techniques"][name] = entry
-        print(f"{material:14s} {shape:5s} sun {sun:4g} elev {elevation:3g} phase {phase:4g} {name:12s} "
-              f"mean {np.round(mean, 4)} ({seconds:.1f} s)", file=sys.stderr, flush=True)
     return out
 
 
@@ -195,6 +219,8 @@ def main():
     ap.add_argument("--phases", default="0,30,60,90,120,150")
     ap.add_argument("--spp", type=int, default=64)
     ap.add_argument("--seeds", type=int, default=2)
+    ap.add_argument("--realisations", type=int, default=1,
+                    help="draws of the grains (aggregate seeds 3, 4, ...): the bias is the mean of each draw's")
     ap.add_argument("--width", type=int, default=32)
     ap.add_argument("--height", type=int, default=24)
     ap.add_argument("--threads", type=int, default=0)
@@ -218,6 +244,8 @@ def main():
         ap.error(f"--techniques: {', '.join(unknown) or 'none given'}; choose from {', '.join(TECHNIQUES)}")
     if args.seeds < 2:
         ap.error("--seeds must be at least 2 (the standard error comes from their spread)")
+    if args.realisations < 1:
+        ap.error("--realisations must be at least 1")
     sys.path[:0] = [os.path.join(args.build, "python"), os.path.join(ROOT, "python")]
     import granular_core as core
     floats = lambda s: [float(x) for x in s.split(",") if x]
@@ -232,13 +260,15 @@ def main():
                             r = run_case(core, material, shape, sun, elevation, phase, args, tmp)
                             if r is not None:
                                 results.append(r)
-    print(f"spp {args.spp} x {args.seeds} seeds, {args.width}x{args.height}; bias = (technique − EPT) / EPT over "
-          f"the object's pixels; s.e.: the larger of the seeds' spread and the renders' variance AOV\n")
+    print(f"spp {args.spp} x {args.seeds} seeds x {args.realisations} draws of the grains, {args.width}x{args.height}; "
+          f"bias = (technique − EPT) / EPT over the object's pixels, averaged over the draws; s.e.: the larger of the "
+          f"seeds' spread and the renders' variance AOV, and with several draws of the draws' spread\n")
     print(table(results, args.techniques))
     if args.json:
         os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
         with open(args.json, "w") as f:
-            json.dump({"spp": args.spp, "seeds": args.seeds, "results": results}, f, indent=1)
+            json.dump({"spp": args.spp, "seeds": args.seeds, "realisations": args.realisations, "results": results},
+                      f, indent=1)
     if args.plot and results:
         plot(results, args.plot)
 
