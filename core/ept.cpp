@@ -63,17 +63,27 @@ PathState startPath(const Ray& ray, uint64_t rngSeed, float spread, float width)
   return p;
 }
 
+namespace {
+
+// What a path escaping in dir sees of an infinite light: narrow suns widened to halfAngle
+// (> 0; RenderSettings::sunRegularization) after a smooth bounce from a grain, else as they are.
+Vec3 escapedLeSeen(const Light& light, const Vec3& dir, float halfAngle) {
+  if (!(halfAngle > 0)) return light.escapedLe(dir);
+  const double s = std::sin(double(halfAngle));
+  return light.escapedLeWidened(dir, std::cos(halfAngle), s * s);
+}
+
+}  // namespace
+
 Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir) {
   Vec3 L(0.0f);
   const bool camera = path.depth == 0;
   // A smooth chain from a grain sees narrow suns widened (RenderSettings::sunRegularization).
-  const bool widen = path.lastDelta && path.sunHalfAngle > 0;
-  const float cosWide = widen ? std::cos(path.sunHalfAngle) : 1.0f;
-  const double sin2Wide = widen ? std::sin(double(path.sunHalfAngle)) * std::sin(double(path.sunHalfAngle)) : 0.0;
+  const float halfAngle = path.lastDelta ? path.sunHalfAngle : 0.0f;
   for (int li : scene.infiniteLights()) {
     const Light& light = scene.lights()[li];
     if (camera && light.type() == LightType::Dome && !scene.settings().domeCameraVisible) continue;
-    Vec3 Le = widen ? light.escapedLeWidened(dir, cosWide, sin2Wide) : light.escapedLe(dir);
+    Vec3 Le = escapedLeSeen(light, dir, halfAngle);
     if (isBlack(Le)) continue;
     float w = 1.0f;
     if (!path.lastDelta) w = powerHeuristic(path.lastPdf, light.pdfLi(path.lastP, dir, kInf) * scene.lightPick(li) * path.lastNeeChance);
@@ -81,6 +91,41 @@ Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir)
   }
   return L;
 }
+
+namespace {
+
+// Whether a path whose last bounce was smooth and that leaves in world direction dir would
+// find a sun there (escapedRadiance).
+bool escapesToSun(const Scene& scene, const PathState& path, const Vec3& dir) {
+  for (int li : scene.infiniteLights()) {
+    const Light& light = scene.lights()[li];
+    if (light.type() == LightType::Distant && !isBlack(escapedLeSeen(light, dir, path.sunHalfAngle))) return true;
+  }
+  return false;
+}
+
+// A smooth dielectric's choice between reflection and refraction, made toward the suns.
+// A smooth chain reaches a sun only by leaving in its disk, and of the two branches one
+// leaves the object: the mirror from outside, the refraction from inside. Chosen with the
+// chance F (or 1 − F) it arrives rarely and bright — a glint off a grain's face is taken
+// one sample in 1/F ≈ 25 —, the fireflies of a narrow sun. Where that branch's direction
+// lies in a sun's disk it is chosen with probability at least ½, weighted by its Fresnel
+// chance over that (Material::sampleSmooth): the same expectation, the sun's light spread
+// over more samples. Elsewhere the choice is F's, bit for bit.
+bool sampleSmoothTowardSuns(const Scene& scene, const PathState& path, const Material& m, const Frame& frame,
+                            const Vec3& wo, float uLobe, BsdfSample& bs) {
+  Vec3 reflected, refracted;
+  const float F = m.smoothBranches(wo, reflected, refracted);
+  float pReflect = F;
+  if (F > 0 && F < 1) {
+    const bool outside = wo.z > 0;
+    const Vec3 leaving = frame.toWorld(outside ? reflected : refracted);
+    if (escapesToSun(scene, path, leaving)) pReflect = outside ? std::max(F, 0.5f) : std::min(F, 0.5f);
+  }
+  return m.sampleSmooth(wo, pReflect, uLobe, bs);
+}
+
+}  // namespace
 
 bool endsAtLight(const Scene& scene, PathState& path, bool found, const Hit& hit) {
   if (found && hit.kind != Hit::AreaLight) return false;
@@ -151,9 +196,18 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
     }
   }
 
+  if (hit.kind == Hit::Grain && path.sunHalfAngle < 0) {
+    // A footprint w on a grain of radius R spans normals over w/R and reflections over
+    // 2w/R: the pixel already spreads the sun's glint over that angle (a half-angle of
+    // w/R), so widening the sun up to it only moves light within the footprint (a grain
+    // the pixels resolve keeps its sharp glint).
+    const float radius = hit.grain.radius;
+    path.sunHalfAngle = std::min(0.5f * scene.settings().sunRegularization * kPi / 180.0f,
+                                 radius > 0 ? footprint / radius : 0.0f);
+  }
   BsdfSample bs;
   float uLobe = path.rng.next1D(), u1 = path.rng.next1D(), u2 = path.rng.next1D();
-  if (!m.sample(wo, uLobe, u1, u2, bs)) {
+  if (!(m.isDelta() ? sampleSmoothTowardSuns(scene, path, m, frame, wo, uLobe, bs) : m.sample(wo, uLobe, u1, u2, bs))) {
     path.alive = false;
     return;
   }
@@ -165,15 +219,6 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
   if (!bs.delta) path.coneSpread = std::max(path.coneSpread, std::min(kDiffuseConeSpread, m.lobeSpread()));
   path.lastDelta = bs.delta;
   path.lastPdf = bs.pdf;
-  if (hit.kind == Hit::Grain && path.sunHalfAngle < 0) {
-    // A footprint w on a grain of radius R spans normals over w/R and reflections over
-    // 2w/R: the pixel already spreads the sun's glint over that angle (a half-angle of
-    // w/R), so widening the sun up to it only moves light within the footprint (a grain
-    // the pixels resolve keeps its sharp glint).
-    const float radius = hit.grain.radius;
-    path.sunHalfAngle = std::min(0.5f * scene.settings().sunRegularization * kPi / 180.0f,
-                                 radius > 0 ? footprint / radius : 0.0f);
-  }
   path.lastP = hit.p;
   path.lastNeeChance = 1;
   // Inside a grain after this bounce when the new direction heads into it.

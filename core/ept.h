@@ -3,8 +3,10 @@
 //
 // Contract: eptStep() advances a path by one interaction with the explicit scene:
 // unidirectional path tracing with next-event estimation and MIS (power heuristic) at
-// non-delta surfaces, delta scattering at grain interfaces, Beer–Lambert absorption
-// inside grains and Russian roulette on the throughput after rrDepth bounces. Radiance
+// non-delta surfaces, delta scattering at grain interfaces (the Fresnel choice guided
+// toward suns: a branch that leaves for a sun's disk is taken half the time, weighted),
+// Beer–Lambert absorption inside grains and Russian roulette on the throughput after
+// rrDepth bounces. Radiance
 // is added to PathState::L[technique that produced it], so the EPT, VPT, DA and PPT parts
 // of an image are separate AOVs that sum to the beauty. All randomness comes from the
 // path's Rng, so a path is a pure function of its seed. The EPT-only reference is the

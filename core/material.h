@@ -5,7 +5,8 @@
 // direction, its pdf (solid angle; 0 marks a delta lobe) and weight = f cos / pdf,
 // already multiplied by the choice probability of a lobe. Lambert: f = albedo / pi.
 // Dielectric: smooth interface with exact Fresnel reflectance, reflection chosen with
-// probability F and refraction with 1 - F, so the weight is 1. The radiance scale
+// probability F and refraction with 1 - F, so the weight is 1 (sampleSmooth: another
+// choice, weighted). The radiance scale
 // 1/eta^2 of refraction (Veach 1997 §5.2) is left out on purpose: cameras and lights
 // sit outside every grain, so each entry is undone by an exit, and leaving it out keeps
 // throughput at 1 inside clear grains (no Russian-roulette noise there). A rough
@@ -72,6 +73,16 @@ struct Material {
   Vec3 eval(const Vec3& wo, const Vec3& wi, float* pdfOut = nullptr) const;
   float pdf(const Vec3& wo, const Vec3& wi) const;
   bool sample(const Vec3& wo, float uLobe, float u1, float u2, BsdfSample& s) const;
+  // A smooth dielectric (isDelta) from wo: its Fresnel reflectance F, the mirror direction
+  // and the refracted one (none under total internal reflection, where F = 1).
+  float smoothBranches(const Vec3& wo, Vec3& reflected, Vec3& refracted) const;
+  // Its delta sample with reflection chosen with probability pReflect instead of F (in
+  // (0, 1) where 0 < F < 1; F itself is sample()'s choice): weight F / pReflect, or
+  // (1 − F) / (1 − pReflect) for the refraction — the same expectation, any choice of pReflect.
+  bool sampleSmooth(const Vec3& wo, float pReflect, float uLobe, BsdfSample& s) const;
+
+ private:
+  bool sampleSmoothWith(const Vec3& wo, float F, float pReflect, float uLobe, BsdfSample& s) const;
 };
 
 }  // namespace granular

@@ -515,6 +515,49 @@ TEST(SunRegularization, ASmoothChainFromAGrainSeesTheNarrowSunAsTheWiderDisk) {
   EXPECT_GT(differs, 0);                 // and the setting changed what they saw
 }
 
+TEST(SunGuidedFresnel, AGlintIsTheSunsFresnelShareInHalfTheSamples) {
+  // A smooth glass plane (one open face: what refracts in never comes back) seen at 45° in
+  // the mirror direction of a 20° sun, through a field of view of 1.1°: every pixel's
+  // expectation is F(45°) L_sun. Chosen with the chance F, a sample would hold L_sun one
+  // time in 1/F ≈ 20, a pixel's relative spread √((1 − F) / F) / √spp = 0.54 at 64 samples;
+  // toward the sun the mirror is chosen half the time, weighted 2F: a spread of 1 / √spp
+  // = 0.125.
+  SceneDesc d = unlitGround();
+  d.materials[0].type = MaterialType::Dielectric;
+  d.materials[0].ior = 1.5f;
+  d.settings.width = d.settings.height = 16;
+  d.settings.spp = 64;
+  d.settings.technique = Technique::Ept;
+  d.camera.cameraToWorld = Transform::lookAt(Vec3(0, 5, 5), Vec3(0.0f), Vec3(0, 1, 0));
+  d.camera.horizontalAperture = d.camera.verticalAperture = 1.0f;  // mm, at 50 mm
+  LightDesc sun;
+  sun.name = "sun";
+  sun.type = LightType::Distant;
+  sun.angle = 20;
+  sun.intensity = 3;
+  sun.normalize = true;  // irradiance 3: L_sun = 3 / (π sin² 10°)
+  sun.xf = Transform::lookAt(Vec3(0.0f), Vec3(0, -1, 1), Vec3(0, 0, 1));
+  d.lights.push_back(sun);
+  auto scene = Scene::build(d);
+  Renderer r(*scene);
+  ASSERT_TRUE(r.render(d.settings.spp));
+  const double h = 10.0 * kPiD / 180, Lsun = 3.0 / (kPiD * std::sin(h) * std::sin(h));
+  const double expected = fresnelDielectric(std::cos(float(kPiD / 4)), 1.5f) * Lsun;
+  double sum = 0, sum2 = 0;
+  for (int y = 0; y < 16; ++y)
+    for (int x = 0; x < 16; ++x) {
+      const double v = r.film().mean(x, y).x;
+      ASSERT_TRUE(std::isfinite(v));
+      sum += v;
+      sum2 += v * v;
+    }
+  const double mean = sum / 256, spread = std::sqrt(std::max(0.0, sum2 / 256 - mean * mean)) / mean;
+  // F varies by ±2% over the view's ±0.55°, evenly about its middle.
+  EXPECT_NEAR(mean, expected, expected * (4 * spread / 16 + 0.005));
+  EXPECT_LT(spread, 0.2);  // 0.125 expected; 0.54 with the choice left to F
+  EXPECT_GT(spread, 0.06);
+}
+
 TEST(SunRegularization, WhatTheCameraSeesOfTheSunStaysExact) {
   // The camera looks straight at the 0.53° sun (a field of view of 1.1°, the heap out of
   // sight): its pixels hold the sun's own radiance, regularised or not, and none beyond its

@@ -174,6 +174,49 @@ TEST(RoughDielectric, StaysFiniteAtGrazingAnglesAndTheSmallestAlpha) {
     }
 }
 
+TEST(SmoothDielectric, AnyChoiceOfBranchKeepsTheExpectation) {
+  // sampleSmooth with reflection chosen with probability p: weight F / p for the mirror,
+  // (1 − F) / (1 − p) for the refraction, the directions those of sample(). Over a uniform
+  // grid of uLobe each branch's mean weight is its Fresnel share, whatever p; at p = F the
+  // samples are sample()'s, bit for bit.
+  const float ior = 1.5f;
+  const Material smooth = rough(ior, 0.0f);
+  ASSERT_TRUE(smooth.isDelta());
+  for (float cosO : {0.95f, 0.3f, -0.9f, -0.75f}) {  // outside, grazing, inside, inside near TIR
+    const Vec3 wo = direction(cosO, 0.7f);
+    Vec3 reflected, refracted;
+    const float F = smooth.smoothBranches(wo, reflected, refracted);
+    ASSERT_NEAR(F, fresnelDielectric(cosO, ior), 1e-7f);
+    ASSERT_GT(F, 0.0f);
+    ASSERT_LT(F, 1.0f);
+    EXPECT_NEAR(dot(reflected, Vec3(-wo.x, -wo.y, wo.z)), 1.0f, 1e-6f);
+    EXPECT_LT(refracted.z * wo.z, 0.0f);  // through the interface
+    for (float p : {F, 0.5f, 0.9f, 0.05f}) {
+      const int n = 10000;
+      double r = 0, t = 0;
+      for (int i = 0; i < n; ++i) {
+        const float u = (float(i) + 0.5f) / float(n);
+        BsdfSample s, ref;
+        ASSERT_TRUE(smooth.sampleSmooth(wo, p, u, s));
+        ASSERT_TRUE(s.delta);
+        (s.transmitted ? t : r) += s.weight.x;
+        EXPECT_EQ(s.weight.x, s.weight.z);
+        const Vec3& expected = s.transmitted ? refracted : reflected;
+        ASSERT_NEAR(dot(s.wi, expected), 1.0f, 1e-6f);
+        if (p == F) {
+          ASSERT_TRUE(smooth.sample(wo, u, 0.5f, 0.5f, ref));
+          EXPECT_EQ(granular::testing::bitsOf(s.wi.x), granular::testing::bitsOf(ref.wi.x));
+          EXPECT_EQ(granular::testing::bitsOf(s.wi.z), granular::testing::bitsOf(ref.wi.z));
+          EXPECT_EQ(s.weight.x, 1.0f);
+        }
+      }
+      // The grid puts round(p n) samples on the mirror: the means are within 1/n of exact.
+      EXPECT_NEAR(r / n, F, 2.0 / n * std::max(1.0, double(F) / p)) << cosO << " " << p;
+      EXPECT_NEAR(t / n, 1.0 - F, 2.0 / n * std::max(1.0, (1.0 - F) / (1.0 - double(p)))) << cosO << " " << p;
+    }
+  }
+}
+
 TEST(RoughDielectric, ApproachesTheSmoothInterfaceAsRoughnessVanishes) {
   // At α 1.6e-3 nearly all sampled directions lie within 0.05 rad of the smooth
   // interface's (GGX's tail, P(tan θ_m > t) ≈ α² / t², leaves ~0.4% beyond), and
