@@ -94,14 +94,34 @@ Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir)
 
 namespace {
 
-// Whether a path whose last bounce was smooth and that leaves in world direction dir would
-// find a sun there (escapedRadiance).
-bool escapesToSun(const Scene& scene, const PathState& path, const Vec3& dir) {
+// Whether a smooth chain that leaves in world direction dir, seeing narrow suns widened to
+// halfAngle, would find a sun there (escapedRadiance).
+bool escapesToSun(const Scene& scene, const Vec3& dir, float halfAngle) {
   for (int li : scene.infiniteLights()) {
     const Light& light = scene.lights()[li];
-    if (light.type() == LightType::Distant && !isBlack(escapedLeSeen(light, dir, path.sunHalfAngle))) return true;
+    if (light.type() == LightType::Distant && !isBlack(escapedLeSeen(light, dir, halfAngle))) return true;
   }
   return false;
+}
+
+// The sun a smooth chain sees (RenderSettings::sunRegularization): as wide as the setting,
+// or as the spread of the chain's direction over the pixel's footprint, whichever is less.
+// A footprint w on a grain of radius R spans normals over w / R; a reflection turns its
+// ray by twice the normal's turn, a refraction by |1 − cos θ_i / (η cos θ_t)| of it
+// (Snell's law differentiated), and a chain's turns add up. The pixel already spreads the
+// chain's light over that angle, so widening the sun up to it only moves light within the
+// footprint: a grain the pixels resolve keeps its sharp glint. At least the first grain's
+// w / R (its mirror's half-spread), as the rule was before it counted the chain's bends.
+float chainHalfAngle(const Scene& scene, float firstSpread, float chainSpread) {
+  return std::min(0.5f * scene.settings().sunRegularization * kPi / 180.0f, std::max(firstSpread, 0.5f * chainSpread));
+}
+
+// How much a smooth interface turns a ray per turn of its normal (above): 2 for the mirror,
+// |1 − cos θ_i / (η cos θ_t)| for the refraction (η = n_t / n_i), large at grazing exits.
+float bendPerNormalTurn(const Material& m, const Vec3& wo, const Vec3& wi, bool transmitted) {
+  if (!transmitted) return 2.0f;
+  const float eta = wo.z > 0 ? m.ior : 1.0f / m.ior;
+  return std::fabs(1.0f - std::fabs(wo.z) / (eta * std::max(std::fabs(wi.z), 1e-4f)));
 }
 
 // A smooth dielectric's choice between reflection and refraction, made toward the suns.
@@ -109,18 +129,24 @@ bool escapesToSun(const Scene& scene, const PathState& path, const Vec3& dir) {
 // leaves the object: the mirror from outside, the refraction from inside. Chosen with the
 // chance F (or 1 − F) it arrives rarely and bright — a glint off a grain's face is taken
 // one sample in 1/F ≈ 25 —, the fireflies of a narrow sun. Where that branch's direction
-// lies in a sun's disk it is chosen with probability at least ½, weighted by its Fresnel
-// chance over that (Material::sampleSmooth): the same expectation, the sun's light spread
-// over more samples. Elsewhere the choice is F's, bit for bit.
+// lies in a sun's disk (as widened after it: spreadHere, the footprint's w / R on a grain)
+// it is chosen with probability at least ½, weighted by its Fresnel chance over that
+// (Material::sampleSmooth): the same expectation, the sun's light spread over more
+// samples. Elsewhere the choice is F's, bit for bit.
 bool sampleSmoothTowardSuns(const Scene& scene, const PathState& path, const Material& m, const Frame& frame,
-                            const Vec3& wo, float uLobe, BsdfSample& bs) {
+                            const Vec3& wo, float spreadHere, float uLobe, BsdfSample& bs) {
   Vec3 reflected, refracted;
   const float F = m.smoothBranches(wo, reflected, refracted);
   float pReflect = F;
-  if (F > 0 && F < 1) {
+  if (F > 0 && F < 1 && !scene.infiniteLights().empty()) {
     const bool outside = wo.z > 0;
-    const Vec3 leaving = frame.toWorld(outside ? reflected : refracted);
-    if (escapesToSun(scene, path, leaving)) pReflect = outside ? std::max(F, 0.5f) : std::min(F, 0.5f);
+    const Vec3& leaving = outside ? reflected : refracted;
+    const float half =
+        path.sunHalfAngle < 0
+            ? 0.0f
+            : chainHalfAngle(scene, path.sunFirstSpread,
+                             path.sunChainSpread + spreadHere * bendPerNormalTurn(m, wo, leaving, !outside));
+    if (escapesToSun(scene, frame.toWorld(leaving), half)) pReflect = outside ? std::max(F, 0.5f) : std::min(F, 0.5f);
   }
   return m.sampleSmooth(wo, pReflect, uLobe, bs);
 }
@@ -196,18 +222,15 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
     }
   }
 
+  // A grain's footprint in normals (chainHalfAngle); the first grain sets the least widening.
+  const float spreadHere = hit.kind == Hit::Grain && hit.grain.radius > 0 ? footprint / hit.grain.radius : 0.0f;
   if (hit.kind == Hit::Grain && path.sunHalfAngle < 0) {
-    // A footprint w on a grain of radius R spans normals over w/R and reflections over
-    // 2w/R: the pixel already spreads the sun's glint over that angle (a half-angle of
-    // w/R), so widening the sun up to it only moves light within the footprint (a grain
-    // the pixels resolve keeps its sharp glint).
-    const float radius = hit.grain.radius;
-    path.sunHalfAngle = std::min(0.5f * scene.settings().sunRegularization * kPi / 180.0f,
-                                 radius > 0 ? footprint / radius : 0.0f);
+    path.sunFirstSpread = spreadHere;
+    path.sunHalfAngle = chainHalfAngle(scene, path.sunFirstSpread, path.sunChainSpread);
   }
   BsdfSample bs;
   float uLobe = path.rng.next1D(), u1 = path.rng.next1D(), u2 = path.rng.next1D();
-  if (!(m.isDelta() ? sampleSmoothTowardSuns(scene, path, m, frame, wo, uLobe, bs) : m.sample(wo, uLobe, u1, u2, bs))) {
+  if (!(m.isDelta() ? sampleSmoothTowardSuns(scene, path, m, frame, wo, spreadHere, uLobe, bs) : m.sample(wo, uLobe, u1, u2, bs))) {
     path.alive = false;
     return;
   }
@@ -219,6 +242,10 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
   if (!bs.delta) path.coneSpread = std::max(path.coneSpread, std::min(kDiffuseConeSpread, m.lobeSpread()));
   path.lastDelta = bs.delta;
   path.lastPdf = bs.pdf;
+  if (hit.kind == Hit::Grain && bs.delta) {
+    path.sunChainSpread += spreadHere * bendPerNormalTurn(m, wo, bs.wi, bs.transmitted);
+    path.sunHalfAngle = chainHalfAngle(scene, path.sunFirstSpread, path.sunChainSpread);
+  }
   path.lastP = hit.p;
   path.lastNeeChance = 1;
   // Inside a grain after this bounce when the new direction heads into it.

@@ -90,10 +90,13 @@ struct PathState {
   // spread angle; for the level-of-detail shortcut (RenderSettings::lod).
   float coneWidth = 0, coneSpread = 0;
   bool touchedAggregate = false;  // a grain has been hit (the LOD test is at first contact)
-  // The half-angle (radians) of the disk a smooth chain from the first explicit grain the
-  // path met sees a narrower sun as (RenderSettings::sunRegularization; 0: exact; -1: no
-  // grain met yet).
+  // The half-angle (radians) of the disk a smooth chain from the explicit grains the path
+  // met sees a narrower sun as (RenderSettings::sunRegularization; 0: exact; -1: no grain
+  // met yet), from the spread of its direction over the pixel's footprint (ept.cpp,
+  // chainHalfAngle): at least the first grain's w / R (sunFirstSpread), more as the chain
+  // bends through more faces (sunChainSpread, summed over its smooth grain interfaces).
   float sunHalfAngle = -1;
+  float sunFirstSpread = 0, sunChainSpread = 0;
   bool shortcut = false;          // took the LOD shortcut: to the medium after this grain
   bool lost = false;              // ended by a numerical failure (a leak, endless crossings): counted
   bool daRefused = false;         // the curvature guard refused DA once: VPT to the end (vpt.cpp)

@@ -296,9 +296,10 @@ struct RenderSettings {
   // through grains reaches a sun only by hitting its disk, with a chance ~ its solid angle:
   // under the 0.53° sun a few such paths carry the chain's light, as fireflies. Paths whose
   // last bounce was smooth and that met a grain see a sun narrower than this angle as a disk
-  // of the same irradiance, as wide as this angle or as the spread of the first grain's
-  // reflections over the path's footprint there (2 w / R), whichever is less: a grain the
-  // pixels resolve keeps its sharp glint (Kaplanyan and Dachsbacher 2013 widen the BSDF
+  // of the same irradiance, as wide as this angle or as the spread of the chain's direction
+  // over the path's footprint (at least the first grain's reflections', 2 w / R; more as the
+  // chain bends through more faces), whichever is less: a grain the pixels resolve keeps
+  // its sharp glint (Kaplanyan and Dachsbacher 2013 widen the BSDF
   // instead; a wider light is the same trade). Biased: glints of grains smaller than the
   // footprint are blurred to this size. Light that next-event estimation reaches (rough
   // grains, proxies, the medium, meshes) and what the camera or a smooth mesh shows of the
