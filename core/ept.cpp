@@ -63,30 +63,21 @@ PathState startPath(const Ray& ray, uint64_t rngSeed, float spread, float width)
   return p;
 }
 
-namespace {
-
-// What a path escaping in dir sees of an infinite light: narrow suns widened to halfAngle
-// (> 0; RenderSettings::sunRegularization) after a smooth bounce from a grain, else as they are.
-Vec3 escapedLeSeen(const Light& light, const Vec3& dir, float halfAngle) {
-  if (!(halfAngle > 0)) return light.escapedLe(dir);
-  const double s = std::sin(double(halfAngle));
-  return light.escapedLeWidened(dir, std::cos(halfAngle), s * s);
-}
-
-}  // namespace
-
 Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir) {
   Vec3 L(0.0f);
   const bool camera = path.depth == 0;
-  // A smooth chain from a grain sees narrow suns widened (RenderSettings::sunRegularization).
-  const float halfAngle = path.lastDelta ? path.sunHalfAngle : 0.0f;
+  // A smooth chain from a grain, and a proxy's scattering, see narrow suns widened
+  // (RenderSettings::sunRegularization); MIS against the light sampling they saw (ppt.cpp).
+  const float halfAngle = path.lastDelta || path.lastProxy ? path.sunHalfAngle : 0.0f;
   for (int li : scene.infiniteLights()) {
     const Light& light = scene.lights()[li];
     if (camera && light.type() == LightType::Dome && !scene.settings().domeCameraVisible) continue;
-    Vec3 Le = escapedLeSeen(light, dir, halfAngle);
+    Vec3 Le = light.escapedLeSeen(dir, halfAngle);
     if (isBlack(Le)) continue;
     float w = 1.0f;
-    if (!path.lastDelta) w = powerHeuristic(path.lastPdf, light.pdfLi(path.lastP, dir, kInf) * scene.lightPick(li) * path.lastNeeChance);
+    if (!path.lastDelta)
+      w = powerHeuristic(path.lastPdf,
+                         light.pdfLiSeen(path.lastP, dir, kInf, halfAngle) * scene.lightPick(li) * path.lastNeeChance);
     L += Le * w;
   }
   return L;
@@ -99,7 +90,7 @@ namespace {
 bool escapesToSun(const Scene& scene, const Vec3& dir, float halfAngle) {
   for (int li : scene.infiniteLights()) {
     const Light& light = scene.lights()[li];
-    if (light.type() == LightType::Distant && !isBlack(escapedLeSeen(light, dir, halfAngle))) return true;
+    if (light.type() == LightType::Distant && !isBlack(light.escapedLeSeen(dir, halfAngle))) return true;
   }
   return false;
 }
@@ -230,7 +221,9 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
   }
   BsdfSample bs;
   float uLobe = path.rng.next1D(), u1 = path.rng.next1D(), u2 = path.rng.next1D();
-  if (!(m.isDelta() ? sampleSmoothTowardSuns(scene, path, m, frame, wo, spreadHere, uLobe, bs) : m.sample(wo, uLobe, u1, u2, bs))) {
+  const bool sampled = m.isDelta() ? sampleSmoothTowardSuns(scene, path, m, frame, wo, spreadHere, uLobe, bs)
+                                    : m.sample(wo, uLobe, u1, u2, bs);
+  if (!sampled) {
     path.alive = false;
     return;
   }
@@ -242,6 +235,7 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
   if (!bs.delta) path.coneSpread = std::max(path.coneSpread, std::min(kDiffuseConeSpread, m.lobeSpread()));
   path.lastDelta = bs.delta;
   path.lastPdf = bs.pdf;
+  path.lastProxy = false;
   if (hit.kind == Hit::Grain && bs.delta) {
     path.sunChainSpread += spreadHere * bendPerNormalTurn(m, wo, bs.wi, bs.transmitted);
     path.sunHalfAngle = chainHalfAngle(scene, path.sunFirstSpread, path.sunChainSpread);

@@ -250,11 +250,47 @@ Vec3 Light::escapedLe(const Vec3& dir) const {
   return Vec3(0.0f);
 }
 
-Vec3 Light::escapedLeWidened(const Vec3& dir, float cosWide, double sin2Wide) const {
-  if (type_ != LightType::Distant || cosMax_ >= 1.0f || cosMax_ <= cosWide) return escapedLe(dir);
+namespace {
+
+// The cone a sun narrower than halfAngle is seen as: its cosine and sin², or false where
+// the light is seen as it is.
+bool widenedCone(LightType type, float cosMax, float halfAngle, float& cosWide, double& sin2Wide) {
+  if (type != LightType::Distant || cosMax >= 1.0f || !(halfAngle > 0)) return false;
+  cosWide = std::cos(halfAngle);
+  if (cosMax <= cosWide) return false;
+  const double s = std::sin(double(halfAngle));
+  sin2Wide = s * s;
+  return true;
+}
+
+}  // namespace
+
+Vec3 Light::escapedLeSeen(const Vec3& dir, float halfAngle) const {
+  float cosWide;
+  double sin2Wide;
+  if (!widenedCone(type_, cosMax_, halfAngle, cosWide, sin2Wide)) return escapedLe(dir);
   if (dot(dir, dir_) < cosWide) return Vec3(0.0f);
   // Irradiance L π sin²(half-angle) (normalizationArea), spread over the wider disk.
   return radiance_ * float(sunSin2_ / sin2Wide);
+}
+
+bool Light::sampleLiSeen(const Vec3& p, float u1, float u2, float halfAngle, LightSample& s) const {
+  float cosWide;
+  double sin2Wide;
+  if (!widenedCone(type_, cosMax_, halfAngle, cosWide, sin2Wide)) return sampleLi(p, u1, u2, s);
+  s.wi = Frame(dir_).toWorld(sampleUniformConeSin2(u1, u2, sin2Wide));
+  s.pdf = uniformConePdfSin2(sin2Wide);
+  s.Li = radiance_ * float(sunSin2_ / sin2Wide);
+  s.delta = false;
+  s.dist = kInf;
+  return true;
+}
+
+float Light::pdfLiSeen(const Vec3& p, const Vec3& wi, float dist, float halfAngle) const {
+  float cosWide;
+  double sin2Wide;
+  if (!widenedCone(type_, cosMax_, halfAngle, cosWide, sin2Wide)) return pdfLi(p, wi, dist);
+  return dot(wi, dir_) >= cosWide ? uniformConePdfSin2(sin2Wide) : 0.0f;
 }
 
 float Light::pdfLi(const Vec3& p, const Vec3& wi, float dist) const {

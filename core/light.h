@@ -42,10 +42,14 @@ class Light {
   bool sampleLi(const Vec3& p, float u1, float u2, LightSample& s) const;
   // For infinite lights: radiance and solid-angle pdf for an escaping direction.
   Vec3 escapedLe(const Vec3& dir) const;
-  // escapedLe() with a sun narrower than the cone of cosine cosWide (sin² sin2Wide) seen as
-  // that cone, of uniform radiance and the same irradiance (RenderSettings::sunRegularization).
-  // Other lights, delta suns and wider suns: escapedLe().
-  Vec3 escapedLeWidened(const Vec3& dir, float cosWide, double sin2Wide) const;
+  // A sun narrower than the cone of half-angle halfAngle (radians, > 0) seen as that cone,
+  // of uniform radiance and the same irradiance (RenderSettings::sunRegularization), by the
+  // paths that see it so (ept.cpp): its radiance toward dir, a direction sampled uniformly in
+  // the cone with its pdf, and that pdf. Other lights, delta suns, wider suns and
+  // halfAngle ≤ 0: escapedLe(), sampleLi(), pdfLi().
+  Vec3 escapedLeSeen(const Vec3& dir, float halfAngle) const;
+  bool sampleLiSeen(const Vec3& p, float u1, float u2, float halfAngle, LightSample& s) const;
+  float pdfLiSeen(const Vec3& p, const Vec3& wi, float dist, float halfAngle) const;
   float pdfLi(const Vec3& p, const Vec3& wi, float dist) const;
   // For area lights: nearest hit of the emitting shape in (tmin, tmax).
   bool intersect(const Ray& r, float& t) const;

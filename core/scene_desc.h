@@ -301,9 +301,11 @@ struct RenderSettings {
   // chain bends through more faces), whichever is less: a grain the pixels resolve keeps
   // its sharp glint (Kaplanyan and Dachsbacher 2013 widen the BSDF
   // instead; a wider light is the same trade). Biased: glints of grains smaller than the
-  // footprint are blurred to this size. Light that next-event estimation reaches (rough
-  // grains, proxies, the medium, meshes) and what the camera or a smooth mesh shows of the
-  // sun stay exact. Delta suns kept delta (physicalSun false) are left alone.
+  // footprint are blurred to this size. Proxies see it as their grains' chains do (their
+  // tables' densest cells toward a narrow sun are fireflies too; next-event estimation and
+  // the escapes after a proxy alike, so MIS stays whole). Light that next-event estimation
+  // reaches elsewhere (rough grains, the medium, meshes) and what the camera or a smooth
+  // mesh shows of the sun stay exact. Delta suns kept delta (physicalSun false) are left alone.
   float sunRegularization = 10.0f;
   static constexpr float kMaxSunRegularization = 45.0f;
   // The switch from proxies to the medium measured for this view too (switching.h:
