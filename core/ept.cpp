@@ -126,20 +126,18 @@ float bendPerNormalTurn(const Material& m, const Vec3& wo, const Vec3& wi, bool 
 // samples. Elsewhere the choice is F's, bit for bit.
 bool sampleSmoothTowardSuns(const Scene& scene, const PathState& path, const Material& m, const Frame& frame,
                             const Vec3& wo, float spreadHere, float uLobe, BsdfSample& bs) {
-  Vec3 reflected, refracted;
-  const float F = m.smoothBranches(wo, reflected, refracted);
+  const Material::SmoothBranches b = m.smoothBranches(wo);
+  const float F = b.F;
   float pReflect = F;
   if (F > 0 && F < 1 && !scene.infiniteLights().empty()) {
     const bool outside = wo.z > 0;
-    const Vec3& leaving = outside ? reflected : refracted;
-    const float half =
-        path.sunHalfAngle < 0
-            ? 0.0f
-            : chainHalfAngle(scene, path.sunFirstSpread,
-                             path.sunChainSpread + spreadHere * bendPerNormalTurn(m, wo, leaving, !outside));
+    const Vec3& leaving = outside ? b.reflected : b.refracted;
+    // The disk the branch would see: 0 (exact) before any grain, where spreadHere is 0 too.
+    const float half = chainHalfAngle(scene, path.sunFirstSpread,
+                                      path.sunChainSpread + spreadHere * bendPerNormalTurn(m, wo, leaving, !outside));
     if (escapesToSun(scene, frame.toWorld(leaving), half)) pReflect = outside ? std::max(F, 0.5f) : std::min(F, 0.5f);
   }
-  return m.sampleSmooth(wo, pReflect, uLobe, bs);
+  return Material::sampleSmooth(b, pReflect, uLobe, bs);
 }
 
 }  // namespace

@@ -213,15 +213,14 @@ bool Material::sample(const Vec3& wo, float uLobe, float u1, float u2, BsdfSampl
     return false;
   }
   // Smooth dielectric.
-  const float F = fresnelDielectric(wo.z, ior);
-  return sampleSmoothWith(wo, F, F, uLobe, s);
+  const SmoothBranches b = smoothBranches(wo);
+  return sampleSmooth(b, b.F, uLobe, s);
 }
 
-namespace {
-
-// The refraction of wo through a smooth interface of index ior (wo.z < 0: from inside);
-// meaningless under total internal reflection.
-Vec3 refractedDirection(const Vec3& wo, float ior) {
+Material::SmoothBranches Material::smoothBranches(const Vec3& wo) const {
+  SmoothBranches b;
+  b.F = fresnelDielectric(wo.z, ior);
+  b.reflected = Vec3(-wo.x, -wo.y, wo.z);
   const bool entering = wo.z > 0;
   const float eta = entering ? ior : 1.0f / ior;  // n_t / n_i
   const float cosA = std::fabs(wo.z);
@@ -229,35 +228,18 @@ Vec3 refractedDirection(const Vec3& wo, float ior) {
   const float cosT = std::sqrt(std::max(0.0f, 1.0f - sin2T));
   // wi = -wo / eta + (cosA / eta - cosT) n, with n on wo's side.
   const Vec3 n(0, 0, entering ? 1.0f : -1.0f);
-  return normalize(-wo / eta + n * (cosA / eta - cosT));
+  b.refracted = normalize(-wo / eta + n * (cosA / eta - cosT));
+  return b;
 }
 
-}  // namespace
-
-float Material::smoothBranches(const Vec3& wo, Vec3& reflected, Vec3& refracted) const {
-  reflected = Vec3(-wo.x, -wo.y, wo.z);
-  refracted = refractedDirection(wo, ior);
-  return fresnelDielectric(wo.z, ior);
-}
-
-bool Material::sampleSmooth(const Vec3& wo, float pReflect, float uLobe, BsdfSample& s) const {
-  return sampleSmoothWith(wo, fresnelDielectric(wo.z, ior), pReflect, uLobe, s);
-}
-
-bool Material::sampleSmoothWith(const Vec3& wo, float F, float pReflect, float uLobe, BsdfSample& s) const {
+bool Material::sampleSmooth(const SmoothBranches& b, float pReflect, float uLobe, BsdfSample& s) {
   s.delta = true;
   s.pdf = 0;
-  if (uLobe < pReflect) {
-    s.wi = Vec3(-wo.x, -wo.y, wo.z);
-    s.weight = Vec3(F / pReflect);  // 1 where pReflect is F
-    s.transmitted = false;
-    return F > 0;
-  }
-  s.wi = refractedDirection(wo, ior);
-  // 1 where pReflect is F; the 1/eta^2 radiance scale is left out (see the header).
-  s.weight = Vec3((1.0f - F) / (1.0f - pReflect));
-  s.transmitted = true;
-  return F < 1;
+  s.transmitted = !(uLobe < pReflect);
+  s.wi = s.transmitted ? b.refracted : b.reflected;
+  // 1 where pReflect is F; the refraction's 1/eta^2 radiance scale is left out (see the header).
+  s.weight = Vec3(s.transmitted ? (1.0f - b.F) / (1.0f - pReflect) : b.F / pReflect);
+  return s.transmitted ? b.F < 1 : b.F > 0;
 }
 
 }  // namespace granular

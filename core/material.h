@@ -73,16 +73,17 @@ struct Material {
   Vec3 eval(const Vec3& wo, const Vec3& wi, float* pdfOut = nullptr) const;
   float pdf(const Vec3& wo, const Vec3& wi) const;
   bool sample(const Vec3& wo, float uLobe, float u1, float u2, BsdfSample& s) const;
-  // A smooth dielectric (isDelta) from wo: its Fresnel reflectance F, the mirror direction
-  // and the refracted one (none under total internal reflection, where F = 1).
-  float smoothBranches(const Vec3& wo, Vec3& reflected, Vec3& refracted) const;
-  // Its delta sample with reflection chosen with probability pReflect instead of F (in
-  // (0, 1) where 0 < F < 1; F itself is sample()'s choice): weight F / pReflect, or
-  // (1 − F) / (1 − pReflect) for the refraction — the same expectation, any choice of pReflect.
-  bool sampleSmooth(const Vec3& wo, float pReflect, float uLobe, BsdfSample& s) const;
-
- private:
-  bool sampleSmoothWith(const Vec3& wo, float F, float pReflect, float uLobe, BsdfSample& s) const;
+  // A smooth dielectric (isDelta) seen from wo: its Fresnel reflectance F, the mirror
+  // direction and the refracted one (meaningless under total internal reflection, F = 1).
+  struct SmoothBranches {
+    float F;
+    Vec3 reflected, refracted;
+  };
+  SmoothBranches smoothBranches(const Vec3& wo) const;
+  // Its delta sample with reflection chosen with probability pReflect (F: sample()'s
+  // choice; else in (0, 1) where 0 < F < 1): weight F / pReflect, or (1 − F) / (1 − pReflect)
+  // for the refraction — the same expectation, any choice of pReflect.
+  static bool sampleSmooth(const SmoothBranches& b, float pReflect, float uLobe, BsdfSample& s);
 };
 
 }  // namespace granular
