@@ -312,7 +312,7 @@ void diffusionStep(const Scene& scene, PathState& path, const Vec3& x, const Dif
     // MIS with the NEE at x (its weights were computed against this phase pdf).
     path.lastDelta = false;
     path.lastPdf = phasePdf;
-    path.lastProxy = false;
+    path.lastSunHalfAngle = 0;
     path.lastP = x;
     path.lastNeeChance = 1;
     leaveAt(scene, path, boundary.exitPoint(x + w * s, ngS), ngS, w);

@@ -66,9 +66,9 @@ PathState startPath(const Ray& ray, uint64_t rngSeed, float spread, float width)
 Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir) {
   Vec3 L(0.0f);
   const bool camera = path.depth == 0;
-  // A smooth chain from a grain, and a proxy's scattering, see narrow suns widened
-  // (RenderSettings::sunRegularization); MIS against the light sampling they saw (ppt.cpp).
-  const float halfAngle = path.lastDelta || path.lastProxy ? path.sunHalfAngle : 0.0f;
+  // A smooth chain from a grain sees narrow suns widened (RenderSettings::sunRegularization);
+  // after a rough grain or a proxy, as their light sampling saw them, for MIS.
+  const float halfAngle = path.lastDelta ? path.sunHalfAngle : path.lastSunHalfAngle;
   for (int li : scene.infiniteLights()) {
     const Light& light = scene.lights()[li];
     if (camera && light.type() == LightType::Dome && !scene.settings().domeCameraVisible) continue;
@@ -181,13 +181,28 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
   Vec3 wo = frame.toLocal(-ray.d);
   double& cost = path.cost[path.mode == kVpt ? 1 : 0];
 
+  // A grain's footprint in normals (chainHalfAngle); the first grain sets the least widening.
+  const float spreadHere = hit.kind == Hit::Grain && hit.grain.radius > 0 ? footprint / hit.grain.radius : 0.0f;
+  if (hit.kind == Hit::Grain && path.sunHalfAngle < 0) {
+    path.sunFirstSpread = spreadHere;
+    path.sunHalfAngle = chainHalfAngle(scene, path.sunFirstSpread, path.sunChainSpread);
+  }
+  // A rough grain's highlight moves across the footprint with its normal as a mirror's
+  // does (twice the normal's turn), so it sees a narrow sun as a smooth chain that bounced
+  // here would: a grain below the pixel's size shows its highlight as a few bright samples
+  // under the 0.53° sun otherwise. Independent of the light's direction, so that an escape
+  // after this vertex finds the same disk (lastSunHalfAngle). Meshes see the sun exact.
+  const float roughHalfAngle =
+      hit.kind == Hit::Grain && !m.isDelta()
+          ? chainHalfAngle(scene, path.sunFirstSpread, path.sunChainSpread + 2.0f * spreadHere)
+          : 0.0f;
   if (!m.isDelta() && !lights.empty() && (wo.z > 0 || m.twoSided())) {
     // Next-event estimation: one light, picked by Scene::lightPick.
     int li = scene.pickLight(path.nextLightU());
     const float lightPick = scene.lightPick(li);
     LightSample ls;
     float u1 = path.rng.next1D(), u2 = path.rng.next1D();
-    if (lights[li].sampleLi(hit.p, u1, u2, ls) && !isBlack(ls.Li)) {
+    if (lights[li].sampleLiSeen(hit.p, u1, u2, roughHalfAngle, ls) && !isBlack(ls.Li)) {
       Vec3 wiLocal = frame.toLocal(ls.wi);
       float bsdfPdf;
       Vec3 f = m.eval(wo, wiLocal, &bsdfPdf);
@@ -211,12 +226,6 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
     }
   }
 
-  // A grain's footprint in normals (chainHalfAngle); the first grain sets the least widening.
-  const float spreadHere = hit.kind == Hit::Grain && hit.grain.radius > 0 ? footprint / hit.grain.radius : 0.0f;
-  if (hit.kind == Hit::Grain && path.sunHalfAngle < 0) {
-    path.sunFirstSpread = spreadHere;
-    path.sunHalfAngle = chainHalfAngle(scene, path.sunFirstSpread, path.sunChainSpread);
-  }
   BsdfSample bs;
   float uLobe = path.rng.next1D(), u1 = path.rng.next1D(), u2 = path.rng.next1D();
   const bool sampled = m.isDelta() ? sampleSmoothTowardSuns(scene, path, m, frame, wo, spreadHere, uLobe, bs)
@@ -233,7 +242,7 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
   if (!bs.delta) path.coneSpread = std::max(path.coneSpread, std::min(kDiffuseConeSpread, m.lobeSpread()));
   path.lastDelta = bs.delta;
   path.lastPdf = bs.pdf;
-  path.lastProxy = false;
+  path.lastSunHalfAngle = roughHalfAngle;
   if (hit.kind == Hit::Grain && bs.delta) {
     path.sunChainSpread += spreadHere * bendPerNormalTurn(m, wo, bs.wi, bs.transmitted);
     path.sunHalfAngle = chainHalfAngle(scene, path.sunFirstSpread, path.sunChainSpread);

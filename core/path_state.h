@@ -42,7 +42,10 @@ struct PathState {
   bool alive = true;
   bool lastDelta = true;   // camera rays and delta bounces see emitters unweighted
   float lastPdf = 0;       // solid-angle pdf of the last sampled direction
-  bool lastProxy = false;  // the last scattering was a proxy's (ppt.h): it sees narrow suns widened
+  // The half-angle (radians) of the disk the last scattering's next-event estimation saw a
+  // narrow sun as (0: exact): a rough grain's and a proxy's see it widened (ept.cpp,
+  // chainHalfAngle), and an escape after them sees the same disk, so MIS stays whole.
+  float lastSunHalfAngle = 0;
   Vec3 lastP;              // where that direction was sampled (for area-light MIS)
   float lastNeeChance = 1; // the chance that next-event estimation was made there (MIS)
   // The uniform number that picks the light of the path's first next-event estimate, or

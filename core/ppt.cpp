@@ -101,7 +101,7 @@ void scatter(const Scene& scene, PathState& path, const Hit& hit, const ProxyTab
   const Vec3 wi = normalize(frame.toWorld(d.w));
   path.lastDelta = false;
   path.lastPdf = d.pdf;
-  path.lastProxy = true;
+  path.lastSunHalfAngle = std::max(0.0f, path.sunHalfAngle);
   path.lastP = g.center;
   path.lastNeeChance = q;
   path.inGrain = false;

@@ -21,7 +21,7 @@
 //    power heuristic against the table's pdf, delta lights unweighted. Smooth grains'
 //    tables are smooth in direction, so delta and narrow suns are reached like any light;
 //    a narrow sun as the path's smooth chains see it (PathState::sunHalfAngle,
-//    RenderSettings::sunRegularization), and so do escapes after a proxy (lastProxy);
+//    RenderSettings::sunRegularization), and so do escapes after a proxy (lastSunHalfAngle);
 //  - the next direction from the table (weight f_c / pdf), leaving from its exit point; or
 //    the straight lobe (proxy.h): on along the same line, a delta event that is not a visit
 //    and keeps the last scattering's pdf for MIS (its next-event estimate counted the lobe).

@@ -294,19 +294,22 @@ struct RenderSettings {
   bool physicalSun = true;
   // Path regularisation of narrow suns (degrees; 0: off). A chain of smooth bounces off or
   // through grains reaches a sun only by hitting its disk, with a chance ~ its solid angle:
-  // under the 0.53° sun a few such paths carry the chain's light, as fireflies. Paths whose
-  // last bounce was smooth and that met a grain see a sun narrower than this angle as a disk
-  // of the same irradiance, as wide as this angle or as the spread of the chain's direction
-  // over the path's footprint (at least the first grain's reflections', 2 w / R; more as the
-  // chain bends through more faces), whichever is less: a grain the pixels resolve keeps
+  // under the 0.53° sun a few such paths carry the chain's light, as fireflies; a rough
+  // grain smaller than a pixel shows its highlight in a few samples likewise. Paths whose
+  // last bounce was smooth and that met a grain, and the light samples of rough grains, see
+  // a sun narrower than this angle as a disk of the same irradiance, as wide as this angle
+  // or as the spread of the chain's direction over the path's footprint (at least the first
+  // grain's reflections', 2 w / R; more as the chain bends through more faces, or turns
+  // off a rough grain as its mirror would), whichever is less: a grain the pixels resolve keeps
   // its sharp glint (Kaplanyan and Dachsbacher 2013 widen the BSDF
   // instead; a wider light is the same trade). Biased: glints of grains smaller than the
   // footprint are blurred to this size. Proxies see it as their grains' chains do (their
   // tables' densest cells toward a narrow sun are fireflies too; next-event estimation and
   // the escapes after a proxy alike, so MIS stays whole). Light that next-event estimation
-  // reaches elsewhere (rough grains, the medium, meshes) and what the camera or a smooth
-  // mesh shows of the sun stay exact. Delta suns kept delta (physicalSun false) are left alone.
-  float sunRegularization = 10.0f;
+  // reaches elsewhere (the medium, meshes) and what the camera or a smooth mesh shows of
+  // the sun stay exact. Delta suns kept delta (physicalSun false) are left alone.
+  // 20°: the noise of a 20° sun's glints (bench/README.md, "Rough grains and the 20° default").
+  float sunRegularization = 20.0f;
   static constexpr float kMaxSunRegularization = 45.0f;
   // The switch from proxies to the medium measured for this view too (switching.h:
   // measureViewSwitch): each aggregate the camera sees takes the larger of the dome's

@@ -207,7 +207,7 @@ void scatterInMedium(const Scene& scene, PathState& path, const HomogeneousMediu
   path.beta *= weight;
   path.lastDelta = false;
   path.lastPdf = pdf;
-  path.lastProxy = false;
+  path.lastSunHalfAngle = 0;
   path.lastP = p;
   path.lastNeeChance = 1;
   path.ray.o = p;

@@ -205,11 +205,11 @@ def _render_options(r):
                         "grains, they are rendered as the physical 0.53 degree sun of the same irradiance, "
                         "with a warning")
     r.add_argument("--sun-regularization", type=_sun_regularization, default=None, metavar="DEGREES",
-                   help="paths whose last bounce was smooth and that met a grain see a sun narrower than "
-                        "this as a disk of this angle with the same irradiance: the glints and caustics "
-                        "of smooth grains under the 0.53 degree sun without their fireflies, blurred to "
-                        "this size, or to the spread of the first grain's reflections over the pixel if less "
-                        "(biased; default 10, 0: exact)")
+                   help="paths whose last bounce was smooth and that met a grain, and the light samples "
+                        "of rough grains, see a sun narrower than this as a disk of this angle with the same "
+                        "irradiance: the glints and caustics of grains under the 0.53 degree sun without "
+                        "their fireflies, blurred to this size, or to the spread of the grain's reflections "
+                        "over the pixel if less (biased; default 20, 0: exact)")
     r.add_argument("--switch-for-view", action="store_true",
                    help="measure when paths leave the proxies for the medium for this camera and these lights "
                         "too, not only for a dome: each aggregate the camera sees keeps its proxies as long as "

@@ -905,14 +905,19 @@ TEST(HdGranular, AnAreaLightHidesWhatLiesBehindItFromShadowRaysAsFromEveryRay) {
   std::printf("under the black bulb / under the dome alone: %.4f (exact %.4f, se %.4f)\n", ratio, fraction, se);
 }
 
-TEST(HdGranular, SunRegularizationShowsSmoothChainsTheNarrowSunAsTheWiderDiskAsInGranularRender) {
-  // The snow slab's grains alone (ground and sky hidden) under its 0.53° sun, explicit grains:
-  // nothing samples the sun, so regularised to 5° the image is the one of a normalised 5° sun
-  // with the setting at 0, as granular render's (tests/python/test_physical_sun.py); 0 keeps
-  // the 0.53° disk exact. A change of view.
+// The snow slab's grains alone (ground and sky hidden) under its 0.53° sun, explicit grains
+// of the given roughness: regularised to 5°, the image is the one of a normalised 5° sun with
+// the setting at 0, as granular render's (tests/python/test_physical_sun.py); 0 keeps the
+// 0.53° disk exact. A change of view.
+namespace {
+void expectTheRegularisedSunIsTheWiderDisk(float roughness) {
   UsdStageRefPtr stage = UsdStage::Open(kExamples + "/snowslab.usda");
   ASSERT_TRUE(stage->GetPrimAtPath(SdfPath("/World/Ground")).SetActive(false));
   ASSERT_TRUE(stage->GetPrimAtPath(SdfPath("/World/Sky")).SetActive(false));
+  for (const char* grain : {"/World/Grains/Flake", "/World/Grains/Pellet"}) {
+    UsdAttribute attr = stage->GetPrimAtPath(SdfPath(grain)).GetAttribute(TfToken("primvars:granular:roughness"));
+    ASSERT_TRUE(attr.Set(roughness)) << grain;
+  }
   UsdPrim sun = stage->GetPrimAtPath(SdfPath("/World/Sun"));  // normalised in the example
   auto engine = makeEngine(16);
   engine->SetRendererSetting(TfToken("granular:technique"), VtValue(std::string("ept")));
@@ -934,6 +939,17 @@ TEST(HdGranular, SunRegularizationShowsSmoothChainsTheNarrowSunAsTheWiderDiskAsI
   }
   EXPECT_GT(sum, 0);
   EXPECT_TRUE(differs);
+}
+}  // namespace
+
+TEST(HdGranular, SunRegularizationShowsSmoothChainsTheNarrowSunAsTheWiderDiskAsInGranularRender) {
+  // Smooth grains: nothing samples the sun, their chains meet the 5° disk.
+  expectTheRegularisedSunIsTheWiderDisk(0.0f);
+}
+
+TEST(HdGranular, SunRegularizationShowsRoughGrainsTheNarrowSunAsTheWiderDiskAsInGranularRender) {
+  // Rough grains sample the 5° disk, and their escapes meet it with its MIS weights.
+  expectTheRegularisedSunIsTheWiderDisk(0.3f);
 }
 
 TEST(HdGranular, SwitchForViewMeasuresTheSwitchForThisViewAsGranularRenderDoes) {
