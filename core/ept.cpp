@@ -104,7 +104,7 @@ bool escapesToSun(const Scene& scene, const Vec3& dir, float halfAngle) {
 // footprint: a grain the pixels resolve keeps its sharp glint. At least the first grain's
 // w / R (its mirror's half-spread), as the rule was before it counted the chain's bends.
 float chainHalfAngle(const Scene& scene, float firstSpread, float chainSpread) {
-  return std::min(0.5f * scene.settings().sunRegularization * kPi / 180.0f, std::max(firstSpread, 0.5f * chainSpread));
+  return std::min(scene.settings().sunRegularizationHalfAngle(), std::max(firstSpread, 0.5f * chainSpread));
 }
 
 // How much a smooth interface turns a ray per turn of its normal (above): 2 for the mirror,

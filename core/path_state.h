@@ -44,7 +44,7 @@ struct PathState {
   float lastPdf = 0;       // solid-angle pdf of the last sampled direction
   // The half-angle (radians) of the disk the last scattering's next-event estimation saw a
   // narrow sun as (0: exact): a rough grain's and a proxy's see it widened (ept.cpp,
-  // chainHalfAngle), and an escape after them sees the same disk, so MIS stays whole.
+  // chainHalfAngle; ppt.cpp), and an escape after them sees the same disk, so MIS stays whole.
   float lastSunHalfAngle = 0;
   Vec3 lastP;              // where that direction was sampled (for area-light MIS)
   float lastNeeChance = 1; // the chance that next-event estimation was made there (MIS)

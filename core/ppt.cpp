@@ -41,6 +41,7 @@ void scatter(const Scene& scene, PathState& path, const Hit& hit, const ProxyTab
   own.instancer = hit.instancer;
   own.instance = hit.instance;
   const auto& lights = scene.lights();
+  const float seenSun = scene.settings().sunRegularizationHalfAngle();
   // Next-event estimation where light can still arrive: a shadow ray from deep inside
   // crosses about depth / λ grains, so it is made with probability q = exp(−depth / 4R),
   // at least kMinNeeChance, and weighted 1/q (unbiased; depth from the distance field).
@@ -60,10 +61,12 @@ void scatter(const Scene& scene, PathState& path, const Hit& hit, const ProxyTab
     const float lightPick = scene.lightPick(li) * q;
     LightSample ls;
     const float u1 = path.rng.next1D(), u2 = path.rng.next1D(), uExit = path.rng.next1D();
-    // Narrow suns as the path's smooth chains see them (PathState::sunHalfAngle): a table's
+    // Narrow suns as the setting's disk (RenderSettings::sunRegularization): a table's
     // densest cells (a near-sphere's refraction, f ~ 50 sr⁻¹) met by a 0.53° sun are
-    // fireflies; escapes after a proxy see the same (escapedRadiance), so MIS stays whole.
-    if (lights[li].sampleLiSeen(g.center, u1, u2, path.sunHalfAngle, ls) && !isBlack(ls.Li)) {
+    // fireflies, and a proxy's grain, drawn anew at each visit, holds no glint a pixel could
+    // resolve, behind an explicit grain or not. Escapes after a proxy see the same disk
+    // (escapedRadiance), so MIS stays whole.
+    if (lights[li].sampleLiSeen(g.center, u1, u2, seenSun, ls) && !isBlack(ls.Li)) {
       const ProxyDirection d = table.eval(b, frame.toLocal(ls.wi));
       if (d.pdf > 0) {
         const Vec3 from = scene.beforeSurfaces(g.center, onSphere(g, frame, table.exitPoint(b, d, uExit)),
@@ -101,7 +104,7 @@ void scatter(const Scene& scene, PathState& path, const Hit& hit, const ProxyTab
   const Vec3 wi = normalize(frame.toWorld(d.w));
   path.lastDelta = false;
   path.lastPdf = d.pdf;
-  path.lastSunHalfAngle = std::max(0.0f, path.sunHalfAngle);
+  path.lastSunHalfAngle = seenSun;
   path.lastP = g.center;
   path.lastNeeChance = q;
   path.inGrain = false;

@@ -20,8 +20,8 @@
 //    (Scene::proxyTransmittance: grains missed, or met and left straight on); MIS by the
 //    power heuristic against the table's pdf, delta lights unweighted. Smooth grains'
 //    tables are smooth in direction, so delta and narrow suns are reached like any light;
-//    a narrow sun as the path's smooth chains see it (PathState::sunHalfAngle,
-//    RenderSettings::sunRegularization), and so do escapes after a proxy (lastSunHalfAngle);
+//    a narrow sun as the setting's disk (RenderSettings::sunRegularization: a proxy holds
+//    no glint a pixel could resolve), and so do escapes after a proxy (lastSunHalfAngle);
 //  - the next direction from the table (weight f_c / pdf), leaving from its exit point; or
 //    the straight lobe (proxy.h): on along the same line, a delta event that is not a visit
 //    and keeps the last scattering's pdf for MIS (its next-event estimate counted the lobe).

@@ -303,14 +303,16 @@ struct RenderSettings {
   // off a rough grain as its mirror would), whichever is less: a grain the pixels resolve keeps
   // its sharp glint (Kaplanyan and Dachsbacher 2013 widen the BSDF
   // instead; a wider light is the same trade). Biased: glints of grains smaller than the
-  // footprint are blurred to this size. Proxies see it as their grains' chains do (their
-  // tables' densest cells toward a narrow sun are fireflies too; next-event estimation and
-  // the escapes after a proxy alike, so MIS stays whole). Light that next-event estimation
+  // footprint are blurred to this size. Proxies see the disk of this angle (their tables'
+  // densest cells toward a narrow sun are fireflies too, and a proxy's grain, drawn anew at
+  // each visit, holds no glint a pixel could resolve; next-event estimation and the
+  // escapes after a proxy alike, so MIS stays whole). Light that next-event estimation
   // reaches elsewhere (the medium, meshes) and what the camera or a smooth mesh shows of
   // the sun stay exact. Delta suns kept delta (physicalSun false) are left alone.
   // 20°: the noise of a 20° sun's glints (bench/README.md, "Rough grains and the 20° default").
   float sunRegularization = 20.0f;
   static constexpr float kMaxSunRegularization = 45.0f;
+  float sunRegularizationHalfAngle() const { return 0.5f * sunRegularization * kPi / 180.0f; }  // radians
   // The switch from proxies to the medium measured for this view too (switching.h:
   // measureViewSwitch): each aggregate the camera sees takes the larger of the dome's
   // choice and the view's. The dome's albedo averages over where light leaves; the

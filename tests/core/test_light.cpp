@@ -580,39 +580,46 @@ TEST(SunGuidedFresnel, AGlintIsTheSunsFresnelShareInHalfTheSamples) {
   EXPECT_GT(spread, 0.06);
 }
 
-TEST(SunRegularization, ProxiesSeeTheNarrowSunAsTheirGrainsChainsDo) {
-  // The glass heap with proxies after the first grain, to the end of the path (no medium):
-  // the proxies' next-event estimation samples the 0.53° sun regularised to 10° as that
-  // disk, and their sampled directions that escape meet it there, with the MIS weights of
-  // that disk. The same paths as under a 10° sun of the same irradiance, unregularised,
-  // so the images agree to float rounding. (With escapes after a proxy seeing the sun as
-  // it is, the two strategies disagree: the image read 3% dark, two standard errors.)
-  auto proxies = [](float angle, float regularization) {
-    SceneDesc d = glassUnderSun(angle, regularization);
-    d.settings.technique = Technique::EptVpt;
-    d.settings.proxies = ProxyUse::On;
-    d.settings.explicitBounces = 1 << 20;  // never the medium
-    d.settings.spp = 64;
-    return d;
-  };
-  auto scene = Scene::build(proxies(0.53f, 10.0f));
-  ASSERT_TRUE(scene->useProxies());
-  ASSERT_TRUE(scene->proxyLightSampling());
-  Renderer r(*scene);
-  ASSERT_TRUE(r.render(64));
-  const Image regularised = r.film().toImage();
-  const Image wide = renderImage(proxies(10.0f, 0.0f));
-  double proxyLight = 0, total = 0;
-  for (int y = 0; y < 16; ++y)
-    for (int x = 0; x < 16; ++x) {
-      for (int c = 0; c < 3; ++c) {
-        const float a = regularised.at(x, y)[c], b = wide.at(x, y)[c];
-        ASSERT_NEAR(a, b, 1e-5f * std::max(1.0f, b)) << x << ", " << y;
+TEST(SunRegularization, ProxiesSeeTheSettingsDisk) {
+  // The glass heap among proxies to the end of the path (no medium), its first grain
+  // explicit or, through the level-of-detail shortcut, a proxy too: the proxies' next-event
+  // estimation samples the 0.53° sun regularised to 10° as that disk, and their sampled
+  // directions that escape meet it there, with the MIS weights of that disk. The same paths
+  // as under a 10° sun of the same irradiance, unregularised, so the images agree to float
+  // rounding. (With escapes after a proxy seeing the sun as it is, the two strategies
+  // disagree: the image read 3% dark, two standard errors; before proxies saw the disk
+  // where the first grain took the shortcut, that image was the exact sun's.)
+  for (const float lod : {0.0f, 1000.0f}) {
+    auto proxies = [lod](float angle, float regularization) {
+      SceneDesc d = glassUnderSun(angle, regularization);
+      d.settings.technique = Technique::EptVpt;
+      d.settings.proxies = ProxyUse::On;
+      d.settings.explicitBounces = 1 << 20;  // never the medium
+      d.settings.lod = lod;                  // 1000: every first grain is below the footprint
+      d.settings.spp = 64;
+      return d;
+    };
+    auto scene = Scene::build(proxies(0.53f, 10.0f));
+    ASSERT_TRUE(scene->useProxies());
+    ASSERT_TRUE(scene->proxyLightSampling());
+    Renderer r(*scene);
+    ASSERT_TRUE(r.render(64));
+    const Image regularised = r.film().toImage();
+    const Image wide = renderImage(proxies(10.0f, 0.0f));
+    double proxyLight = 0, explicitLight = 0, total = 0;
+    for (int y = 0; y < 16; ++y)
+      for (int x = 0; x < 16; ++x) {
+        for (int c = 0; c < 3; ++c) {
+          const float a = regularised.at(x, y)[c], b = wide.at(x, y)[c];
+          ASSERT_NEAR(a, b, 1e-5f * std::max(1.0f, b)) << x << ", " << y << " lod " << lod;
+        }
+        proxyLight += regularised.at(x, y)[regularised.channelIndex("ppt.G")];
+        explicitLight += regularised.at(x, y)[regularised.channelIndex("ept.G")];
+        total += regularised.at(x, y)[1];
       }
-      proxyLight += regularised.at(x, y)[regularised.channelIndex("ppt.G")];
-      total += regularised.at(x, y)[1];
-    }
-  EXPECT_GT(proxyLight, 0.5 * total) << "the test would not exercise the proxies";
+    EXPECT_GT(proxyLight, 0.5 * total) << "the test would not exercise the proxies; lod " << lod;
+    if (lod > 0) EXPECT_EQ(explicitLight, 0.0) << "a first grain stayed explicit";
+  }
 }
 
 TEST(SunRegularization, WhatTheCameraSeesOfTheSunStaysExact) {
