@@ -16,7 +16,8 @@ Usage: .venv/bin/python bench/fireflies.py [--examples macro,frosted] [--variant
        [--out out/bench/fireflies]
 Variants: `default` (the example as users render it), `reg-D` (`--sun-regularization D`),
 `sun-A` (the example's distant light set to A degrees; its normalize attribute keeps the
-irradiance), `sun-A+reg-D` (both). Images are kept under --out and reused when present:
+irradiance), `sun-A+reg-D` (both); the reference is `sun-5+ept` (explicit grains, the
+regularisation off). Images are kept under --out and reused when present:
 delete them after a change to the renderer. Prints a markdown table per example.
 """
 import argparse

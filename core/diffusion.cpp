@@ -310,11 +310,7 @@ void diffusionStep(const Scene& scene, PathState& path, const Vec3& x, const Dif
     // Uncollided: probability e^{−σ'_t s} per channel, sampled as e^{−σ̄ s}.
     path.beta *= phaseWeight * vexp((prof.sigmaTReduced - Vec3(sigmaBar)) * -s);
     // MIS with the NEE at x (its weights were computed against this phase pdf).
-    path.lastDelta = false;
-    path.lastPdf = phasePdf;
-    path.lastSunHalfAngle = 0;
-    path.lastP = x;
-    path.lastNeeChance = 1;
+    path.scattered(false, phasePdf, x, 1.0f, 0.0f);
     leaveAt(scene, path, boundary.exitPoint(x + w * s, ngS), ngS, w);
     ++path.depth;
     if (!isFinite(path.beta) || isBlack(path.beta)) path.alive = false;

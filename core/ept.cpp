@@ -72,12 +72,11 @@ Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir)
   for (int li : scene.infiniteLights()) {
     const Light& light = scene.lights()[li];
     if (camera && light.type() == LightType::Dome && !scene.settings().domeCameraVisible) continue;
-    Vec3 Le = light.escapedLeSeen(dir, halfAngle);
+    float lightPdf = 0;
+    Vec3 Le = light.escapedLeSeen(dir, halfAngle, path.lastDelta ? nullptr : &lightPdf);
     if (isBlack(Le)) continue;
     float w = 1.0f;
-    if (!path.lastDelta)
-      w = powerHeuristic(path.lastPdf,
-                         light.pdfLiSeen(path.lastP, dir, kInf, halfAngle) * scene.lightPick(li) * path.lastNeeChance);
+    if (!path.lastDelta) w = powerHeuristic(path.lastPdf, lightPdf * scene.lightPick(li) * path.lastNeeChance);
     L += Le * w;
   }
   return L;
@@ -240,15 +239,11 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
   // (flat-interface approximation), others widen it.
   path.coneWidth = footprint;
   if (!bs.delta) path.coneSpread = std::max(path.coneSpread, std::min(kDiffuseConeSpread, m.lobeSpread()));
-  path.lastDelta = bs.delta;
-  path.lastPdf = bs.pdf;
-  path.lastSunHalfAngle = roughHalfAngle;
+  path.scattered(bs.delta, bs.pdf, hit.p, 1.0f, roughHalfAngle);
   if (hit.kind == Hit::Grain && bs.delta) {
     path.sunChainSpread += spreadHere * bendPerNormalTurn(m, wo, bs.wi, bs.transmitted);
     path.sunHalfAngle = chainHalfAngle(scene, path.sunFirstSpread, path.sunChainSpread);
   }
-  path.lastP = hit.p;
-  path.lastNeeChance = 1;
   // Inside a grain after this bounce when the new direction heads into it.
   path.inGrain = hit.kind == Hit::Grain && dot(wi, hit.ng) < 0;
   path.from.aggregate = hit.kind == Hit::Grain ? hit.aggregate : -1;

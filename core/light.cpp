@@ -265,13 +265,17 @@ bool widenedCone(LightType type, float cosMax, float halfAngle, float& cosWide, 
 
 }  // namespace
 
-Vec3 Light::escapedLeSeen(const Vec3& dir, float halfAngle) const {
+Vec3 Light::escapedLeSeen(const Vec3& dir, float halfAngle, float* pdf) const {
   float cosWide;
   double sin2Wide;
-  if (!widenedCone(type_, cosMax_, halfAngle, cosWide, sin2Wide)) return escapedLe(dir);
-  if (dot(dir, dir_) < cosWide) return Vec3(0.0f);
+  if (!widenedCone(type_, cosMax_, halfAngle, cosWide, sin2Wide)) {
+    if (pdf) *pdf = pdfLi(Vec3(0.0f), dir, kInf);  // an infinite light's: independent of the point
+    return escapedLe(dir);
+  }
+  const bool inside = dot(dir, dir_) >= cosWide;
+  if (pdf) *pdf = inside ? uniformConePdfSin2(sin2Wide) : 0.0f;
   // Irradiance L π sin²(half-angle) (normalizationArea), spread over the wider disk.
-  return radiance_ * float(sunSin2_ / sin2Wide);
+  return inside ? radiance_ * float(sunSin2_ / sin2Wide) : Vec3(0.0f);
 }
 
 bool Light::sampleLiSeen(const Vec3& p, float u1, float u2, float halfAngle, LightSample& s) const {
@@ -284,13 +288,6 @@ bool Light::sampleLiSeen(const Vec3& p, float u1, float u2, float halfAngle, Lig
   s.delta = false;
   s.dist = kInf;
   return true;
-}
-
-float Light::pdfLiSeen(const Vec3& p, const Vec3& wi, float dist, float halfAngle) const {
-  float cosWide;
-  double sin2Wide;
-  if (!widenedCone(type_, cosMax_, halfAngle, cosWide, sin2Wide)) return pdfLi(p, wi, dist);
-  return dot(wi, dir_) >= cosWide ? uniformConePdfSin2(sin2Wide) : 0.0f;
 }
 
 float Light::pdfLi(const Vec3& p, const Vec3& wi, float dist) const {

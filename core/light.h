@@ -44,12 +44,12 @@ class Light {
   Vec3 escapedLe(const Vec3& dir) const;
   // A sun narrower than the cone of half-angle halfAngle (radians, > 0) seen as that cone,
   // of uniform radiance and the same irradiance (RenderSettings::sunRegularization), by the
-  // paths that see it so (ept.cpp): its radiance toward dir, a direction sampled uniformly in
-  // the cone with its pdf, and that pdf. Other lights, delta suns, wider suns and
-  // halfAngle ≤ 0: escapedLe(), sampleLi(), pdfLi().
-  Vec3 escapedLeSeen(const Vec3& dir, float halfAngle) const;
+  // paths that see it so (ept.cpp, ppt.cpp): its radiance toward an escaping dir (and, given
+  // pdf, the solid-angle pdf sampleLiSeen has for dir, for MIS), and a direction sampled
+  // uniformly in the cone with its pdf. Other lights, delta suns, wider suns and
+  // halfAngle ≤ 0: escapedLe() (and pdfLi()), sampleLi().
+  Vec3 escapedLeSeen(const Vec3& dir, float halfAngle, float* pdf = nullptr) const;
   bool sampleLiSeen(const Vec3& p, float u1, float u2, float halfAngle, LightSample& s) const;
-  float pdfLiSeen(const Vec3& p, const Vec3& wi, float dist, float halfAngle) const;
   float pdfLi(const Vec3& p, const Vec3& wi, float dist) const;
   // For area lights: nearest hit of the emitting shape in (tmin, tmax).
   bool intersect(const Ray& r, float& t) const;

@@ -40,6 +40,8 @@ struct PathState {
   int depth = 0;           // scattering events so far (a proxy's counts kProxyOrders, ppt.h)
   int proxyVisits = 0;     // grains met among proxies after the first (ppt.h: lowOrdersDone)
   bool alive = true;
+  // What the last scattering leaves for the emitter its sampled direction may meet (MIS
+  // against that scattering's next-event estimation), set together by scattered().
   bool lastDelta = true;   // camera rays and delta bounces see emitters unweighted
   float lastPdf = 0;       // solid-angle pdf of the last sampled direction
   // The half-angle (radians) of the disk the last scattering's next-event estimation saw a
@@ -48,6 +50,13 @@ struct PathState {
   float lastSunHalfAngle = 0;
   Vec3 lastP;              // where that direction was sampled (for area-light MIS)
   float lastNeeChance = 1; // the chance that next-event estimation was made there (MIS)
+  void scattered(bool delta, float pdf, const Vec3& at, float neeChance, float sunHalfAngle) {
+    lastDelta = delta;
+    lastPdf = pdf;
+    lastP = at;
+    lastNeeChance = neeChance;
+    lastSunHalfAngle = sunHalfAngle;
+  }
   // The uniform number that picks the light of the path's first next-event estimate, or
   // < 0 (then the generator's): a pixel's samples take theirs stratified (Renderer), so that
   // a light picked seldom (Scene::lightPick) is picked as often as its chance in every

@@ -102,11 +102,7 @@ void scatter(const Scene& scene, PathState& path, const Hit& hit, const ProxyTab
     return;
   }
   const Vec3 wi = normalize(frame.toWorld(d.w));
-  path.lastDelta = false;
-  path.lastPdf = d.pdf;
-  path.lastSunHalfAngle = seenSun;
-  path.lastP = g.center;
-  path.lastNeeChance = q;
+  path.scattered(false, d.pdf, g.center, q, seenSun);
   path.inGrain = false;
   path.from = own;
   path.ray.o = scene.beforeSurfaces(g.center, onSphere(g, frame, table.exitPoint(b, d, uExit)), path.ray.time);

@@ -205,11 +205,7 @@ void scatterInMedium(const Scene& scene, PathState& path, const HomogeneousMediu
   float uc = path.rng.next1D(), u1 = path.rng.next1D(), u2 = path.rng.next1D();
   Vec3 wo = med.samplePhase(wi, uc, u1, u2, weight, pdf);
   path.beta *= weight;
-  path.lastDelta = false;
-  path.lastPdf = pdf;
-  path.lastSunHalfAngle = 0;
-  path.lastP = p;
-  path.lastNeeChance = 1;
+  path.scattered(false, pdf, p, 1.0f, 0.0f);
   path.ray.o = p;
   path.ray.d = wo;
   path.ray.tmin = 0;

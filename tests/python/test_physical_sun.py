@@ -82,27 +82,17 @@ def _ept(tmp_path, capsys, name, angle, *extra, roughness=None):
     return _rgb(tmp_path / f"{name}.exr")
 
 
-def test_sun_regularization_shows_smooth_chains_the_narrow_sun_as_the_wider_disk(tmp_path, capsys):
-    """With --sun-regularization 5 a smooth chain from a grain sees the 0.53° sun as a 5° disk
-    of the same irradiance (the castle's grains are far smaller than a pixel: the footprint
-    does not bound it): the glass castle (no other surface, so nothing samples the sun)
-    renders as under a 5° sun with the regularisation off; 0 keeps it exact."""
-    regularised = _ept(tmp_path, capsys, "regularised", 0.53, "--sun-regularization", "5")
-    wide = _ept(tmp_path, capsys, "wide", 5.0, "--sun-regularization", "0")
-    exact = _ept(tmp_path, capsys, "exact", 0.53, "--sun-regularization", "0")
-    assert regularised.mean() > 0.01
-    np.testing.assert_allclose(regularised, wide, rtol=1e-5, atol=1e-6)
-    assert not np.array_equal(regularised, exact)
-
-
-def test_sun_regularization_shows_rough_grains_the_narrow_sun_as_the_wider_disk(tmp_path, capsys):
-    """Rough grains far smaller than a pixel sample the 0.53° sun regularised to 5° as a 5°
-    disk of the same irradiance, and a direction their lobe samples that escapes meets that
-    disk with its MIS weights: the rough castle renders as under a 5° sun with the
+@pytest.mark.parametrize("roughness", [None, 0.3], ids=["smooth chains", "rough grains"])
+def test_sun_regularization_shows_the_grains_the_narrow_sun_as_the_wider_disk(tmp_path, capsys, roughness):
+    """With --sun-regularization 5 the castle's grains (far smaller than a pixel: the
+    footprint does not bound it) see the 0.53° sun as a 5° disk of the same irradiance:
+    a smooth chain from a grain meets that disk where it escapes; a rough grain samples it,
+    and a direction its lobe samples that escapes meets it with that disk's MIS weights. So
+    the castle alone (no other surface samples the sun) renders as under a 5° sun with the
     regularisation off; 0 keeps it exact."""
-    regularised = _ept(tmp_path, capsys, "regularised", 0.53, "--sun-regularization", "5", roughness=0.3)
-    wide = _ept(tmp_path, capsys, "wide", 5.0, "--sun-regularization", "0", roughness=0.3)
-    exact = _ept(tmp_path, capsys, "exact", 0.53, "--sun-regularization", "0", roughness=0.3)
+    regularised = _ept(tmp_path, capsys, "regularised", 0.53, "--sun-regularization", "5", roughness=roughness)
+    wide = _ept(tmp_path, capsys, "wide", 5.0, "--sun-regularization", "0", roughness=roughness)
+    exact = _ept(tmp_path, capsys, "exact", 0.53, "--sun-regularization", "0", roughness=roughness)
     assert regularised.mean() > 0.01
     np.testing.assert_allclose(regularised, wide, rtol=1e-5, atol=1e-6)
     assert not np.array_equal(regularised, exact)
