@@ -18,6 +18,14 @@
 //     at each interface) or as a proxy (intersectProxy, hit(b), a table sample and its exit
 //     point), the proxy also with one shadow ray (proxyTransmittance) per visit, as
 //     next-event estimation casts near the surface. One JSON line.
+//   granular-bench bulk [--rays N] [--absorption A] [--ior N]
+//     The equivalent medium's transport deep inside, with no surface, against proxies and
+//     explicit grains: N walks from the centre of a ball of 100 grain radii (rock grains,
+//     f = 0.6, IOR N, absorption A per radius), each in one direction drawn for all three:
+//     the medium (aggregateMedium, vpt.h's flights and phase), proxies (ppt.h's walk) and
+//     explicit grains (Aggregate::intersect, Material::sample, Beer–Lambert inside). The
+//     energy each brings to its first passage through spheres of radius 2, 4, ..., 64 R
+//     about the start, with standard errors. One JSON line.
 //   granular-bench instanced --grains N [--density 1]
 //     Explicit grains from a simulation (instanced_grains.h): N grains on a jittered cubic
 //     lattice (icosphere and rock prototypes, random rotations and scales, bounding spheres
@@ -60,6 +68,7 @@
 #include "core/proxy.h"
 #include "core/shapes.h"
 #include "core/tt.h"
+#include "core/vpt.h"
 
 using namespace granular;
 using Clock = std::chrono::steady_clock;
@@ -439,6 +448,148 @@ int visits(double budget, float absorption) {
   return 0;
 }
 
+// The medium's transport against the proxies' deep inside, with no surface: walks from the
+// centre of a ball of 100 grain radii, each direction drawn once for both, scoring the
+// energy each brings to its first passage through spheres of radius 2, 4, ..., 64 R.
+int bulk(long walks, float absorption, float ior) {
+  EmbreeDevice dev = makeEmbreeDevice();
+  Aggregate agg;
+  const AggregateDesc desc = sphereAggregate(1.0f, 0.01f, 512);
+  agg.build(desc, dev, {0});
+  agg.prepareProxies();
+  MaterialDesc md;
+  md.type = MaterialType::Dielectric;
+  md.ior = ior;
+  md.absorption = Vec3(absorption);
+  const Material m = Material::fromDesc(md);
+  ProxyTables tables;
+  tables.add(0, 1.0f, estimateProxyTable(agg.prototypes()[0].mesh, m, ProxyOptions()));
+  const MediumParams mp = aggregateMedium({&agg.prototypes()[0].mesh}, {m}, desc, 1.0);
+  const HomogeneousMedium med(mp);
+  const float R = agg.grainRadius();
+  constexpr int kRadii = 6;
+  const float radii[kRadii] = {2, 4, 8, 16, 32, 64};
+  struct Passages {
+    double sum[kRadii] = {}, sum2[kRadii] = {};
+    double walk[kRadii] = {};
+    int next = 0;
+    long events = 0;
+    // Scores what reaches each radius x has passed (the material is grey: one channel);
+    // false once past the last.
+    bool reach(const Vec3& x, float w, const float* r, float R) {
+      while (next < kRadii && length(x) > r[next] * R) walk[next++] = w;
+      return next < kRadii;
+    }
+    void endWalk() {
+      for (int k = 0; k < kRadii; ++k) sum[k] += walk[k], sum2[k] += walk[k] * walk[k], walk[k] = 0;
+      next = 0;
+    }
+  } viaMedium, viaProxies, viaGrains;
+  auto survive = [](float& w, Rng& r) {
+    const float q = std::min(1.0f, w);
+    if (q <= 0 || r.next1D() >= q) return false;
+    w /= q;
+    return true;
+  };
+  for (long i = 0; i < walks; ++i) {
+    Rng r(hashInts(uint64_t(i), 0xb01cULL), 0);
+    const Vec3 d0 = sampleUniformSphere(r.next1D(), r.next1D());
+    {  // the medium: vpt.h's flights and phase sampling
+      Vec3 o(0.0f), d = d0;
+      float w = 1;
+      for (int e = 0; e < 1 << 16; ++e) {
+        ++viaMedium.events;
+        const float t = med.sampleDistance(r.next1D(), r.next1D());
+        w *= (med.transmittance(t) * med.sigmaT() * med.albedo() / med.distancePdf(t))[0];
+        o = o + d * t;
+        if (!viaMedium.reach(o, w, radii, R)) break;
+        Vec3 pw;
+        float pdf;
+        d = normalize(med.samplePhase(d, r.next1D(), r.next1D(), r.next1D(), pw, pdf));
+        w *= pw[0];
+        if (e >= 3 && !survive(w, r)) break;
+      }
+      viaMedium.endWalk();
+    }
+    {  // proxies: ppt.h's walk
+      Vec3 o(0.0f), d = d0;
+      float w = 1;
+      int visits = 0;
+      GrainHit from;
+      bool started = false;
+      for (int e = 0; e < 1 << 18; ++e) {
+        ++viaProxies.events;
+        GrainHit h;
+        if (!agg.intersectProxy(o, d, 0.0f, kInf, h, started ? &from : nullptr)) break;
+        const ProxyTable& t = tables.at(h.prototype, h.radius / R);
+        const ProxyFrame frame(d, (o + d * h.t - h.center) / h.radius);
+        const int b = t.bBin(frame.b);
+        from = h;
+        started = true;
+        if (r.next1D() >= t.hitProbability(b)) {  // crossed: on from its far side
+          o = o + d * std::max(sphereFarSide(o - h.center, d, h.radius), h.t);
+          if (!viaProxies.reach(o, w, radii, R)) break;
+          continue;
+        }
+        if (!viaProxies.reach(o + d * h.t, w, radii, R)) break;
+        ProxyDirection s;
+        if (!t.sample(b, r.next1D(), r.next1D(), r.next1D(), r.next1D(), s)) break;
+        w *= (s.f / s.pdf)[0];
+        o = h.center + frame.toWorld(t.exitPoint(b, s, r.next1D())) * h.radius;
+        if (!viaProxies.reach(o, w, radii, R)) break;
+        if (s.straight) continue;
+        d = normalize(frame.toWorld(s.w));
+        if (++visits >= 3 && !survive(w, r)) break;
+      }
+      viaProxies.endWalk();
+    }
+    {  // explicit grains, the reference: EPT's interfaces and Beer–Lambert inside a grain
+      Vec3 o(0.0f), d = d0;
+      float w = 1;
+      int visits = 0;
+      GrainHit from;
+      bool hinted = false, inside = false;
+      for (int e = 0; e < 1 << 18; ++e) {
+        ++viaGrains.events;
+        GrainHit h;
+        if (!agg.intersect(o, d, 0.0f, kInf, h, hinted ? &from : nullptr, inside)) break;
+        if (inside) w *= std::exp(-absorption * h.t / h.radius);
+        const Vec3 p = o + d * h.t;
+        if (!viaGrains.reach(p, w, radii, R)) break;
+        Frame frame(h.ng);
+        BsdfSample bs;
+        if (!m.sample(frame.toLocal(-d), r.next1D(), r.next1D(), r.next1D(), bs)) break;
+        w *= bs.weight[0];
+        d = normalize(frame.toWorld(bs.wi));
+        inside = dot(d, h.ng) < 0;
+        o = offsetRayOrigin(p, h.ng, d, kGrainEps * h.radius);
+        from = h;
+        hinted = true;
+        if (!inside && ++visits >= 3 && !survive(w, r)) break;
+      }
+      viaGrains.endWalk();
+    }
+  }
+  auto list = [&](const Passages& p, bool se) {
+    std::string out;
+    for (int k = 0; k < kRadii; ++k) {
+      const double mean = p.sum[k] / double(walks);
+      const double v = std::sqrt(std::max(0.0, p.sum2[k] / double(walks) - mean * mean) / double(walks));
+      out += str(k ? ", " : "", se ? v : mean);
+    }
+    return out;
+  };
+  std::printf("{\"absorption\": %g, \"ior\": %g, \"walks\": %ld, \"sigma_t_R\": %g, \"albedo\": %g, \"g\": %g, "
+              "\"medium_events_per_walk\": %.2f, \"proxy_spheres_per_walk\": %.2f, \"radii_R\": [2, 4, 8, 16, 32, 64], "
+              "\"medium\": [%s], \"medium_se\": [%s], \"proxies\": [%s], \"proxies_se\": [%s], "
+              "\"grains\": [%s], \"grains_se\": [%s]}\n",
+              absorption, ior, walks, mp.sigmaT[0] * R, mp.albedo[0], mp.g[0],
+              double(viaMedium.events) / double(walks), double(viaProxies.events) / double(walks),
+              list(viaMedium, false).c_str(), list(viaMedium, true).c_str(), list(viaProxies, false).c_str(),
+              list(viaProxies, true).c_str(), list(viaGrains, false).c_str(), list(viaGrains, true).c_str());
+  return 0;
+}
+
 // CPU seconds of this process, all threads.
 double cpuSeconds() {
   struct rusage ru;
@@ -507,7 +658,8 @@ int main(int argc, char** argv) {
     std::fprintf(stderr,
                  "usage: granular-bench throughput [--grain-radius R] [--seconds S] [--raw-seconds S] | setup --grains N "
                  "[--tile-spheres T] | instanced --grains N [--density 1] | "
-                 "tt [--rays N] | peaks [--rays N] | visits [--seconds S] [--absorption A]\n");
+                 "tt [--rays N] | peaks [--rays N] | visits [--seconds S] [--absorption A] |\n"
+                 "  bulk [--rays N] [--absorption A] [--ior N]\n");
     return 2;
   }
   std::string mode = argv[1];
@@ -515,7 +667,7 @@ int main(int argc, char** argv) {
   double secs = 2.0, rawSecs = -1, grains = 1e6;
   long rays = 1L << 18;
   int tileSpheres = 512;
-  float absorption = 0.05f;
+  float absorption = 0.05f, ior = 1.55f;
   bool density = false;
   for (int i = 2; i + 1 < argc; i += 2) {
     std::string a = argv[i];
@@ -526,6 +678,7 @@ int main(int argc, char** argv) {
     else if (a == "--rays") rays = std::strtol(argv[i + 1], nullptr, 10);
     else if (a == "--tile-spheres") tileSpheres = int(std::strtol(argv[i + 1], nullptr, 10));
     else if (a == "--absorption") absorption = std::strtof(argv[i + 1], nullptr);
+    else if (a == "--ior") ior = std::strtof(argv[i + 1], nullptr);
     else if (a == "--density") density = std::strtol(argv[i + 1], nullptr, 10) != 0;
   }
   try {
@@ -535,6 +688,7 @@ int main(int argc, char** argv) {
     if (mode == "peaks") return peaks(rays);
     if (mode == "instanced") return instanced(grains, density);
     if (mode == "visits") return visits(secs, absorption);
+    if (mode == "bulk") return bulk(rays, absorption, ior);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "error: %s\n", e.what());
     return 1;
