@@ -345,6 +345,25 @@ int peaks(long rays) {
   return 0;
 }
 
+// A proxy walk's next sphere entered from o along d (not the one it leaves, once started):
+// the grain, its entry frame, its table and b bin. False when no sphere is ahead.
+struct ProxyEntry {
+  GrainHit h;
+  ProxyFrame frame{Vec3(0, 0, 1), Vec3(0.0f)};
+  const ProxyTable* table = nullptr;
+  int b = 0;
+};
+bool enterProxy(const Aggregate& agg, const ProxyTables& tables, const Vec3& o, const Vec3& d, GrainHit& from,
+                bool& started, ProxyEntry& e) {
+  if (!agg.intersectProxy(o, d, 0.0f, kInf, e.h, started ? &from : nullptr)) return false;
+  e.table = &tables.at(e.h.prototype, e.h.radius / agg.grainRadius());
+  e.frame = ProxyFrame(d, (o + d * e.h.t - e.h.center) / e.h.radius);
+  e.b = e.table->bBin(e.frame.b);
+  from = e.h;
+  started = true;
+  return true;
+}
+
 // A start of a walk: a random point of the ball's inner half, a random direction.
 void walkStart(Rng& rng, Vec3& o, Vec3& d) {
   o = sampleUniformSphere(rng.next1D(), rng.next1D()) * (0.5f * std::cbrt(rng.next1D()));
@@ -407,14 +426,13 @@ int visits(double budget, float absorption) {
       GrainHit from;
       bool started = false;
       for (int v = 0; v < kVisitsPerWalk;) {
-        GrainHit h;
-        if (!agg.intersectProxy(o, d, 0.0f, kInf, h, started ? &from : nullptr)) break;
+        ProxyEntry e;
+        if (!enterProxy(agg, tables, o, d, from, started, e)) break;
         ++crossings;
-        const ProxyTable& t = tables.at(h.prototype, h.radius / R);
-        const ProxyFrame frame(d, (o + d * h.t - h.center) / h.radius);
-        const int b = t.bBin(frame.b);
-        from = h;
-        started = true;
+        const GrainHit& h = e.h;
+        const ProxyTable& t = *e.table;
+        const ProxyFrame& frame = e.frame;
+        const int b = e.b;
         if (r.next1D() >= t.hitProbability(b)) {  // crossed: on from its far side
           o = o + d * sphereFarSide(o - h.center, d, h.radius);
           continue;
@@ -517,15 +535,14 @@ int bulk(long walks, float absorption, float ior) {
       int visits = 0;
       GrainHit from;
       bool started = false;
-      for (int e = 0; e < 1 << 18; ++e) {
+      for (int event = 0; event < 1 << 18; ++event) {
         ++viaProxies.events;
-        GrainHit h;
-        if (!agg.intersectProxy(o, d, 0.0f, kInf, h, started ? &from : nullptr)) break;
-        const ProxyTable& t = tables.at(h.prototype, h.radius / R);
-        const ProxyFrame frame(d, (o + d * h.t - h.center) / h.radius);
-        const int b = t.bBin(frame.b);
-        from = h;
-        started = true;
+        ProxyEntry e;
+        if (!enterProxy(agg, tables, o, d, from, started, e)) break;
+        const GrainHit& h = e.h;
+        const ProxyTable& t = *e.table;
+        const ProxyFrame& frame = e.frame;
+        const int b = e.b;
         if (r.next1D() >= t.hitProbability(b)) {  // crossed: on from its far side
           o = o + d * std::max(sphereFarSide(o - h.center, d, h.radius), h.t);
           if (!viaProxies.reach(o, w, radii, R)) break;
