@@ -85,6 +85,12 @@ def render_set(example, variant, seeds, spp, width, out):
     return images
 
 
+def aggregate_pixels(images):
+    """The pixels an aggregate covers in the first image of a set."""
+    px, ch = images[0]
+    return px[..., ch.index("aggregateId")] >= 0
+
+
 def tails(rgb, mask):
     """Per image and pixel, luminance over the mean of the other images': the percentiles,
     the largest, and the counts per image above 2.5 and 4."""
@@ -114,8 +120,7 @@ def main():
         if not a.no_ref:
             images = render_set(example, "sun-5+ept", a.ref_seeds, a.ref_spp, a.width, a.out)
             ref = np.array([px[..., :3] for px, _ in images])
-            px, ch = images[0]
-            mask = px[..., ch.index("aggregateId")] >= 0
+            mask = aggregate_pixels(images)
             ref_means = ref[:, mask].mean(axis=1)
             ref_lum = ref.mean(axis=0) @ LUMINANCE
         print(f"\n{name}: {a.width} px, {a.spp} spp, seeds 1–{a.seeds}" +
@@ -127,8 +132,7 @@ def main():
             images = render_set(example, variant, a.seeds, a.spp, a.width, a.out)
             rgb = np.array([px[..., :3] for px, _ in images])
             if ref is None:
-                px, ch = images[0]
-                mask = px[..., ch.index("aggregateId")] >= 0
+                mask = aggregate_pixels(images)
             (p99, p999, p9999), largest, above25, above4 = tails(rgb, mask)
             bias = rms = "—"
             if ref is not None:

@@ -364,6 +364,55 @@ bool enterProxy(const Aggregate& agg, const ProxyTables& tables, const Vec3& o, 
   return true;
 }
 
+// A grain met at a proxy entry scatters by its table: the direction and its weight in s,
+// the point it leaves from in o. False when nothing leaves the grain.
+bool scatterByTable(const ProxyEntry& e, Rng& r, ProxyDirection& s, Vec3& o) {
+  if (!e.table->sample(e.b, r.next1D(), r.next1D(), r.next1D(), r.next1D(), s)) return false;
+  o = e.h.center + e.frame.toWorld(e.table->exitPoint(e.b, s, r.next1D())) * e.h.radius;
+  return true;
+}
+
+// An explicit walk through the grains as EPT makes it: the next interface from o along d
+// (with the hints EPT gives), where Material::sample turns the ray.
+struct ExplicitWalk {
+  Vec3 o, d;
+  GrainHit from;
+  bool hinted = false, inside = false;
+  // One interface: h the grain met (h.t travelled, inside it where `inside` was true
+  // before), at its point, bs the sample taken there; false when none is met or sampled.
+  bool step(const Aggregate& agg, const Material& m, Rng& rng, GrainHit& h, Vec3& at, BsdfSample& bs) {
+    if (!agg.intersect(o, d, 0.0f, kInf, h, hinted ? &from : nullptr, inside)) return false;
+    at = o + d * h.t;
+    const Frame frame(h.ng);
+    if (!m.sample(frame.toLocal(-d), rng.next1D(), rng.next1D(), rng.next1D(), bs)) return false;
+    d = normalize(frame.toWorld(bs.wi));
+    inside = dot(d, h.ng) < 0;
+    o = offsetRayOrigin(at, h.ng, d, kGrainEps * h.radius);
+    from = h;
+    hinted = true;
+    return true;
+  }
+};
+
+// The walks' ball: radius 1, rock grains of R = 0.01 packed at f = 0.6, a dielectric of the
+// given IOR and absorption per radius, proxies prepared and the prototype's table.
+struct RockBall {
+  AggregateDesc desc = sphereAggregate(1.0f, 0.01f, 512);
+  Aggregate agg;
+  Material m;
+  ProxyTables tables;
+  RockBall(float ior, float absorption) {
+    agg.build(desc, makeEmbreeDevice(), {0});
+    agg.prepareProxies();
+    MaterialDesc md;
+    md.type = MaterialType::Dielectric;
+    md.ior = ior;
+    md.absorption = Vec3(absorption);
+    m = Material::fromDesc(md);
+    tables.add(0, 1.0f, estimateProxyTable(agg.prototypes()[0].mesh, m, ProxyOptions()));
+  }
+};
+
 // A start of a walk: a random point of the ball's inner half, a random direction.
 void walkStart(Rng& rng, Vec3& o, Vec3& d) {
   o = sampleUniformSphere(rng.next1D(), rng.next1D()) * (0.5f * std::cbrt(rng.next1D()));
@@ -371,18 +420,9 @@ void walkStart(Rng& rng, Vec3& o, Vec3& d) {
 }
 
 int visits(double budget, float absorption) {
-  EmbreeDevice dev = makeEmbreeDevice();
-  Aggregate agg;
-  agg.build(sphereAggregate(1.0f, 0.01f, 512), dev, {0});
-  agg.prepareProxies();
-  MaterialDesc md;
-  md.type = MaterialType::Dielectric;
-  md.ior = 1.5f;
-  md.absorption = Vec3(absorption);
-  const Material m = Material::fromDesc(md);
-  ProxyOptions po;
-  ProxyTables tables;
-  tables.add(0, 1.0f, estimateProxyTable(agg.prototypes()[0].mesh, m, po));
+  const RockBall ball(1.5f, absorption);
+  const Aggregate& agg = ball.agg;
+  const ProxyTables& tables = ball.tables;
   const float R = agg.grainRadius();
   constexpr int kVisitsPerWalk = 32;
 
@@ -391,24 +431,15 @@ int visits(double budget, float absorption) {
   Rng rng(7);
   const double t0 = threadSeconds();
   while (threadSeconds() - t0 < budget) {
-    Vec3 o, d;
-    walkStart(rng, o, d);
-    GrainHit from;
-    bool hinted = false, inside = false;
+    ExplicitWalk walk;
+    walkStart(rng, walk.o, walk.d);
     for (int v = 0; v < kVisitsPerWalk;) {
       GrainHit h;
-      if (!agg.intersect(o, d, 0.0f, kInf, h, hinted ? &from : nullptr, inside)) break;
-      ++events;
-      const Vec3 p = o + d * h.t;
-      Frame frame(h.ng);
+      Vec3 at;
       BsdfSample bs;
-      if (!m.sample(frame.toLocal(-d), rng.next1D(), rng.next1D(), rng.next1D(), bs)) break;
-      d = normalize(frame.toWorld(bs.wi));
-      inside = dot(d, h.ng) < 0;
-      o = offsetRayOrigin(p, h.ng, d, kGrainEps * h.radius);
-      from = h;
-      hinted = true;
-      if (!inside) ++v, ++explicitVisits;
+      if (!walk.step(agg, ball.m, rng, h, at, bs)) break;
+      ++events;
+      if (!walk.inside) ++v, ++explicitVisits;
     }
   }
   const double explicitSeconds = threadSeconds() - t0;
@@ -443,8 +474,7 @@ int visits(double budget, float absorption) {
           agg.proxyTransmittance(exit, sun, 0.0f, kInf, tables, &h, r.nextU32());
         }
         ProxyDirection s;
-        if (!t.sample(b, r.next1D(), r.next1D(), r.next1D(), r.next1D(), s)) break;
-        o = h.center + frame.toWorld(t.exitPoint(b, s, r.next1D())) * h.radius;
+        if (!scatterByTable(e, r, s, o)) break;
         d = normalize(frame.toWorld(s.w));
         ++v, ++visited;
       }
@@ -470,39 +500,29 @@ int visits(double budget, float absorption) {
 // centre of a ball of 100 grain radii, each direction drawn once for both, scoring the
 // energy each brings to its first passage through spheres of radius 2, 4, ..., 64 R.
 int bulk(long walks, float absorption, float ior) {
-  EmbreeDevice dev = makeEmbreeDevice();
-  Aggregate agg;
-  const AggregateDesc desc = sphereAggregate(1.0f, 0.01f, 512);
-  agg.build(desc, dev, {0});
-  agg.prepareProxies();
-  MaterialDesc md;
-  md.type = MaterialType::Dielectric;
-  md.ior = ior;
-  md.absorption = Vec3(absorption);
-  const Material m = Material::fromDesc(md);
-  ProxyTables tables;
-  tables.add(0, 1.0f, estimateProxyTable(agg.prototypes()[0].mesh, m, ProxyOptions()));
-  const MediumParams mp = aggregateMedium({&agg.prototypes()[0].mesh}, {m}, desc, 1.0);
+  const RockBall ball(ior, absorption);
+  const Aggregate& agg = ball.agg;
+  const MediumParams mp = aggregateMedium({&agg.prototypes()[0].mesh}, {ball.m}, ball.desc, 1.0);
   const HomogeneousMedium med(mp);
   const float R = agg.grainRadius();
-  constexpr int kRadii = 6;
-  const float radii[kRadii] = {2, 4, 8, 16, 32, 64};
+  constexpr int kRadii = 6;  // spheres of 2, 4, ..., 64 R
   struct Passages {
+    float R;
     double sum[kRadii] = {}, sum2[kRadii] = {};
     double walk[kRadii] = {};
     int next = 0;
     long events = 0;
     // Scores what reaches each radius x has passed (the material is grey: one channel);
     // false once past the last.
-    bool reach(const Vec3& x, float w, const float* r, float R) {
-      while (next < kRadii && length(x) > r[next] * R) walk[next++] = w;
+    bool reach(const Vec3& x, float w) {
+      while (next < kRadii && length(x) > float(2 << next) * R) walk[next++] = w;
       return next < kRadii;
     }
     void endWalk() {
       for (int k = 0; k < kRadii; ++k) sum[k] += walk[k], sum2[k] += walk[k] * walk[k], walk[k] = 0;
       next = 0;
     }
-  } viaMedium, viaProxies, viaGrains;
+  } viaMedium{R}, viaProxies{R}, viaGrains{R};
   auto survive = [](float& w, Rng& r) {
     const float q = std::min(1.0f, w);
     if (q <= 0 || r.next1D() >= q) return false;
@@ -520,7 +540,7 @@ int bulk(long walks, float absorption, float ior) {
         const float t = med.sampleDistance(r.next1D(), r.next1D());
         w *= (med.transmittance(t) * med.sigmaT() * med.albedo() / med.distancePdf(t))[0];
         o = o + d * t;
-        if (!viaMedium.reach(o, w, radii, R)) break;
+        if (!viaMedium.reach(o, w)) break;
         Vec3 pw;
         float pdf;
         d = normalize(med.samplePhase(d, r.next1D(), r.next1D(), r.next1D(), pw, pdf));
@@ -538,22 +558,21 @@ int bulk(long walks, float absorption, float ior) {
       for (int event = 0; event < 1 << 18; ++event) {
         ++viaProxies.events;
         ProxyEntry e;
-        if (!enterProxy(agg, tables, o, d, from, started, e)) break;
+        if (!enterProxy(agg, ball.tables, o, d, from, started, e)) break;
         const GrainHit& h = e.h;
         const ProxyTable& t = *e.table;
         const ProxyFrame& frame = e.frame;
         const int b = e.b;
         if (r.next1D() >= t.hitProbability(b)) {  // crossed: on from its far side
           o = o + d * std::max(sphereFarSide(o - h.center, d, h.radius), h.t);
-          if (!viaProxies.reach(o, w, radii, R)) break;
+          if (!viaProxies.reach(o, w)) break;
           continue;
         }
-        if (!viaProxies.reach(o + d * h.t, w, radii, R)) break;
+        if (!viaProxies.reach(o + d * h.t, w)) break;
         ProxyDirection s;
-        if (!t.sample(b, r.next1D(), r.next1D(), r.next1D(), r.next1D(), s)) break;
+        if (!scatterByTable(e, r, s, o)) break;
         w *= (s.f / s.pdf)[0];
-        o = h.center + frame.toWorld(t.exitPoint(b, s, r.next1D())) * h.radius;
-        if (!viaProxies.reach(o, w, radii, R)) break;
+        if (!viaProxies.reach(o, w)) break;
         if (s.straight) continue;
         d = normalize(frame.toWorld(s.w));
         if (++visits >= 3 && !survive(w, r)) break;
@@ -561,28 +580,22 @@ int bulk(long walks, float absorption, float ior) {
       viaProxies.endWalk();
     }
     {  // explicit grains, the reference: EPT's interfaces and Beer–Lambert inside a grain
-      Vec3 o(0.0f), d = d0;
+      ExplicitWalk walk;
+      walk.o = Vec3(0.0f);
+      walk.d = d0;
       float w = 1;
       int visits = 0;
-      GrainHit from;
-      bool hinted = false, inside = false;
       for (int e = 0; e < 1 << 18; ++e) {
         ++viaGrains.events;
+        const bool wasInside = walk.inside;
         GrainHit h;
-        if (!agg.intersect(o, d, 0.0f, kInf, h, hinted ? &from : nullptr, inside)) break;
-        if (inside) w *= std::exp(-absorption * h.t / h.radius);
-        const Vec3 p = o + d * h.t;
-        if (!viaGrains.reach(p, w, radii, R)) break;
-        Frame frame(h.ng);
+        Vec3 at;
         BsdfSample bs;
-        if (!m.sample(frame.toLocal(-d), r.next1D(), r.next1D(), r.next1D(), bs)) break;
+        if (!walk.step(agg, ball.m, r, h, at, bs)) break;
+        if (wasInside) w *= std::exp(-absorption * h.t / h.radius);
+        if (!viaGrains.reach(at, w)) break;
         w *= bs.weight[0];
-        d = normalize(frame.toWorld(bs.wi));
-        inside = dot(d, h.ng) < 0;
-        o = offsetRayOrigin(p, h.ng, d, kGrainEps * h.radius);
-        from = h;
-        hinted = true;
-        if (!inside && ++visits >= 3 && !survive(w, r)) break;
+        if (!walk.inside && ++visits >= 3 && !survive(w, r)) break;
       }
       viaGrains.endWalk();
     }
