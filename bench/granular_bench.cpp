@@ -26,6 +26,13 @@
 //     explicit grains (Aggregate::intersect, Material::sample, Beer–Lambert inside). The
 //     energy each brings to its first passage through spheres of radius 2, 4, ..., 64 R
 //     about the start, with standard errors. One JSON line.
+//   granular-bench exits [--rays N] [--absorption A] [--ior N]
+//     Where a grain lets light out, by the angle it turns it: N rays into the bounding
+//     sphere of the walks' rock grain (IOR N, absorption A per radius), traced as TT
+//     traces them (tt.h); per bin of the exit's cosine μ from the entering direction, the
+//     energy share and the mean move from where the ray entered the sphere to where its
+//     exit line leaves it, along the entering direction and across toward the exit's side,
+//     in grain radii; beside TT's λ_s (which the medium adds to every flight). One JSON line.
 //   granular-bench instanced --grains N [--density 1]
 //     Explicit grains from a simulation (instanced_grains.h): N grains on a jittered cubic
 //     lattice (icosphere and rock prototypes, random rotations and scales, bounding spheres
@@ -620,6 +627,44 @@ int bulk(long walks, float absorption, float ior) {
   return 0;
 }
 
+// Where a grain lets light out, by the angle it turns it (the usage above).
+int exits(long rays, float absorption, float ior) {
+  const RockBall ball(ior, absorption);
+  const TriangleMesh& mesh = ball.agg.prototypes()[0].mesh;
+  EmbreeDevice device = makeEmbreeDevice();
+  EmbreeScene bvh = buildTriangleScene(device, mesh);
+  constexpr int kBins = 16;
+  double energy[kBins] = {}, along[kBins] = {}, across[kBins] = {};
+  for (long i = 0; i < rays; ++i) {
+    Rng rng(hashInts(uint64_t(i), 0xe715ULL), 0);
+    Vec3 xi, wi;
+    sampleSphereEntry(rng, xi, wi);
+    const GrainPassage g = traceGrainPassage(bvh.get(), mesh, ball.m, 4096, xi, wi, rng);
+    if (!g.hit || !(g.weight[0] > 0)) continue;
+    const float mu = dot(wi, g.d), w = g.weight[0];
+    const int k = std::clamp(int((mu + 1.0f) * 0.5f * kBins), 0, kBins - 1);
+    const Vec3 move = g.o + g.d * sphereFarSide(g.o, g.d, 1.0f) - xi;
+    const Vec3 side = g.d - wi * mu;
+    energy[k] += w;
+    along[k] += w * dot(move, wi);
+    if (length2(side) > 1e-12f) across[k] += w * dot(move, normalize(side));
+  }
+  TTOptions tto;
+  tto.useCache = false;
+  const GrainTransport tt = estimateGrainTransport(mesh, ball.m, tto);
+  double total = 0, totalAlong = 0;
+  for (int k = 0; k < kBins; ++k) total += energy[k], totalAlong += along[k];
+  std::string bins;
+  for (int k = 0; k < kBins; ++k)
+    bins += str(k ? ", " : "", "{\"mu\": ", -1.0 + (k + 0.5) * 2.0 / kBins, ", \"share\": ", energy[k] / total,
+                ", \"along\": ", energy[k] > 0 ? along[k] / energy[k] : 0.0, ", \"across\": ",
+                energy[k] > 0 ? across[k] / energy[k] : 0.0, "}");
+  std::printf("{\"ior\": %g, \"absorption\": %g, \"rays\": %ld, \"tt_lambda_s\": %.4f, \"mean_along\": %.4f, "
+              "\"bins\": [%s]}\n",
+              ior, absorption, rays, tt.lambdaS[0], totalAlong / total, bins.c_str());
+  return 0;
+}
+
 // CPU seconds of this process, all threads.
 double cpuSeconds() {
   struct rusage ru;
@@ -689,7 +734,7 @@ int main(int argc, char** argv) {
                  "usage: granular-bench throughput [--grain-radius R] [--seconds S] [--raw-seconds S] | setup --grains N "
                  "[--tile-spheres T] | instanced --grains N [--density 1] | "
                  "tt [--rays N] | peaks [--rays N] | visits [--seconds S] [--absorption A] |\n"
-                 "  bulk [--rays N] [--absorption A] [--ior N]\n");
+                 "  bulk [--rays N] [--absorption A] [--ior N] | exits [--rays N] [--absorption A] [--ior N]\n");
     return 2;
   }
   std::string mode = argv[1];
@@ -719,6 +764,7 @@ int main(int argc, char** argv) {
     if (mode == "instanced") return instanced(grains, density);
     if (mode == "visits") return visits(secs, absorption);
     if (mode == "bulk") return bulk(rays, absorption, ior);
+    if (mode == "exits") return exits(rays, absorption, ior);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "error: %s\n", e.what());
     return 1;
