@@ -401,21 +401,25 @@ struct ExplicitWalk {
   }
 };
 
-// The walks' ball: radius 1, rock grains of R = 0.01 packed at f = 0.6, a dielectric of the
-// given IOR and absorption per radius, proxies prepared and the prototype's table.
+// The walks' grain material: a smooth dielectric of the given IOR and absorption per radius.
+Material rockMaterial(float ior, float absorption) {
+  MaterialDesc md;
+  md.type = MaterialType::Dielectric;
+  md.ior = ior;
+  md.absorption = Vec3(absorption);
+  return Material::fromDesc(md);
+}
+
+// The walks' ball: radius 1, rock grains of R = 0.01 packed at f = 0.6 (sphereAggregate), of
+// rockMaterial, proxies prepared and the prototype's table.
 struct RockBall {
   AggregateDesc desc = sphereAggregate(1.0f, 0.01f, 512);
   Aggregate agg;
   Material m;
   ProxyTables tables;
-  RockBall(float ior, float absorption) {
+  RockBall(float ior, float absorption) : m(rockMaterial(ior, absorption)) {
     agg.build(desc, makeEmbreeDevice(), {0});
     agg.prepareProxies();
-    MaterialDesc md;
-    md.type = MaterialType::Dielectric;
-    md.ior = ior;
-    md.absorption = Vec3(absorption);
-    m = Material::fromDesc(md);
     tables.add(0, 1.0f, estimateProxyTable(agg.prototypes()[0].mesh, m, ProxyOptions()));
   }
 };
@@ -629,17 +633,18 @@ int bulk(long walks, float absorption, float ior) {
 
 // Where a grain lets light out, by the angle it turns it (the usage above).
 int exits(long rays, float absorption, float ior) {
-  const RockBall ball(ior, absorption);
-  const TriangleMesh& mesh = ball.agg.prototypes()[0].mesh;
-  EmbreeDevice device = makeEmbreeDevice();
-  EmbreeScene bvh = buildTriangleScene(device, mesh);
+  // The walks' grain alone (its prototype as the ball's aggregate makes it, and that
+  // prototype's BVH): no packing, no proxies.
+  const GrainPrototype grain = makeGrainPrototype(makeEmbreeDevice(), sphereAggregate(1.0f, 0.01f, 512).prototypes[0]);
+  const TriangleMesh& mesh = grain.mesh;
+  const Material m = rockMaterial(ior, absorption);
   constexpr int kBins = 16;
   double energy[kBins] = {}, along[kBins] = {}, across[kBins] = {};
   for (long i = 0; i < rays; ++i) {
     Rng rng(hashInts(uint64_t(i), 0xe715ULL), 0);
     Vec3 xi, wi;
     sampleSphereEntry(rng, xi, wi);
-    const GrainPassage g = traceGrainPassage(bvh.get(), mesh, ball.m, 4096, xi, wi, rng);
+    const GrainPassage g = traceGrainPassage(grain.bvh.get(), mesh, m, 4096, xi, wi, rng);
     if (!g.hit || !(g.weight[0] > 0)) continue;
     const float mu = dot(wi, g.d), w = g.weight[0];
     const int k = std::clamp(int((mu + 1.0f) * 0.5f * kBins), 0, kBins - 1);
@@ -649,9 +654,7 @@ int exits(long rays, float absorption, float ior) {
     along[k] += w * dot(move, wi);
     if (length2(side) > 1e-12f) across[k] += w * dot(move, normalize(side));
   }
-  TTOptions tto;
-  tto.useCache = false;
-  const GrainTransport tt = estimateGrainTransport(mesh, ball.m, tto);
+  const GrainTransport tt = estimateGrainTransport(mesh, m);  // what aggregateMedium uses (cached)
   double total = 0, totalAlong = 0;
   for (int k = 0; k < kBins; ++k) total += energy[k], totalAlong += along[k];
   std::string bins;
