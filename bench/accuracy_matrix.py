@@ -16,11 +16,13 @@ is (its mean − EPT's) / EPT's, with a standard error from both: per technique 
 of the seeds' spread and the renders' own variance AOV (stats()).
 
 Usage: python3 bench/accuracy_matrix.py [--build build] [--spp 256] [--seeds 4] [--threads 0]
-         [--cases base,ior-2.4,size-25/absorption-0.0,...] [--techniques ept+vpt,hybrid,lod0] [--json out/accuracy.json]
+         [--cases base,ior-2.4,size-25/absorption-0.0,...] [--techniques ept+vpt,hybrid,lod0]
+         [--set KEY=VALUE ...] [--json out/accuracy.json]
          [--plot out/bench/accuracy_matrix.png]
        python3 bench/accuracy_matrix.py --replot out/accuracy.json --plot out/bench/accuracy_matrix.png
 Prints a markdown table; --json keeps every number, --plot writes a heat map (matplotlib);
---replot draws (and tabulates) a saved --json without rendering.
+--replot draws (and tabulates) a saved --json without rendering. --set applies a render
+setting (a JSON value) to every technique but EPT: `--set 'medium_model="exits"'`.
 """
 import argparse
 import copy
@@ -243,14 +245,18 @@ def stats(values, variances=None):
     return a.mean(axis=0), se
 
 
-def run_case(core, case, techniques, spp, seeds, threads, tmp, log, explicit_bounces=None):
+def run_case(core, case, techniques, spp, seeds, threads, tmp, log, explicit_bounces=None, overrides=None):
     scene = scene_for(case)
     if explicit_bounces is not None:
         scene["render"]["explicit_bounces"] = explicit_bounces
     out = {"case": case, "techniques": {}}
     for name, (technique, lod, proxies) in [("ept", ("Ept", None, "Auto"))] + [(t, TECHNIQUES[t]) for t in techniques]:
         variances = []
-        means, pixels, build_s, render_s = measure(core, scene, technique, lod, spp, seeds, threads, tmp, proxies,
+        rendered = scene
+        if overrides and name != "ept":  # --set: every technique but the reference
+            rendered = copy.deepcopy(scene)
+            rendered["render"].update(overrides)
+        means, pixels, build_s, render_s = measure(core, rendered, technique, lod, spp, seeds, threads, tmp, proxies,
                                                    variances)
         mean, se = stats(means, variances)
         out["techniques"][name] = {"mean": mean.tolist(), "se": se.tolist(), "seconds": render_s,
@@ -322,6 +328,9 @@ def main():
     ap.add_argument("--techniques", default="ept+vpt,hybrid,lod0")
     ap.add_argument("--explicit-bounces", type=int, default=None,
                     help="render setting explicit_bounces for every case (default: the renderer's, automatic)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a render setting (JSON value) for every technique but the EPT reference, e.g. "
+                         "--set 'medium_model=\"exits\"'")
     ap.add_argument("--json")
     ap.add_argument("--plot")
     ap.add_argument("--replot", metavar="JSON", help="table and plot of a saved --json; renders nothing")
@@ -348,8 +357,10 @@ def main():
             ap.error(f"unknown technique {t!r} (one of {', '.join(TECHNIQUES)})")
     tmp = os.path.join(args.build, "accuracy_matrix_scene.json")
     log = lambda m: print(m, file=sys.stderr, flush=True)
-    results = [run_case(core, c, techniques, args.spp, args.seeds, args.threads, tmp, log, args.explicit_bounces)
-               for c in cases]
+    overrides = render_settings(ap, args.set, reserved=("technique", "proxies", "lod", "spp", "seed", "threads",
+                                                        "sun_regularization", "explicit_bounces"))
+    results = [run_case(core, c, techniques, args.spp, args.seeds, args.threads, tmp, log, args.explicit_bounces,
+                        overrides) for c in cases]
     print(f"spp {args.spp} x {args.seeds} seeds per technique; bias = (technique − EPT) / EPT over the ball's pixels; "
           "s.e.: the larger of the seeds' spread and the renders' variance AOV\n")
     print(table(results, techniques))

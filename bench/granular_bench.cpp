@@ -23,8 +23,8 @@
 //     explicit grains: N walks from the centre of a ball of 100 grain radii (rock grains,
 //     f = 0.6, IOR N, absorption A per radius), each in one direction drawn for all three:
 //     the medium (aggregateMedium, vpt.h's flights and phase), proxies (ppt.h's walk) and
-//     explicit grains (Aggregate::intersect, Material::sample, Beer–Lambert inside). The
-//     energy each brings to its first passage through spheres of radius 2, 4, ..., 64 R
+//     explicit grains (Aggregate::intersect, Material::sample, Beer–Lambert inside); and the
+//     exits model's medium (vpt.h), on random numbers of its own. The energy each brings to its first passage through spheres of radius 2, 4, ..., 64 R
 //     about the start, with standard errors. One JSON line.
 //   granular-bench exits [--rays N] [--absorption A] [--ior N]
 //     Where a grain lets light out, by the angle it turns it: N rays into the bounding
@@ -509,12 +509,13 @@ int visits(double budget, float absorption) {
 
 // The medium's transport against the proxies' deep inside, with no surface: walks from the
 // centre of a ball of 100 grain radii, each direction drawn once for both, scoring the
-// energy each brings to its first passage through spheres of radius 2, 4, ..., 64 R.
+// energy each brings to its first passage through spheres of radius 2, 4, ..., 64 R. The
+// exits model's medium (vpt.h) walks too, on random numbers of its own.
 int bulk(long walks, float absorption, float ior) {
   const RockBall ball(ior, absorption);
   const Aggregate& agg = ball.agg;
   const MediumParams mp = aggregateMedium({&agg.prototypes()[0].mesh}, {ball.m}, ball.desc, 1.0);
-  const HomogeneousMedium med(mp);
+  const HomogeneousMedium med(mp), exitsMed(mp, MediumModel::Exits);
   const float R = agg.grainRadius();
   constexpr int kRadii = 6;  // spheres of 2, 4, ..., 64 R
   struct Passages {
@@ -533,33 +534,42 @@ int bulk(long walks, float absorption, float ior) {
       for (int k = 0; k < kRadii; ++k) sum[k] += walk[k], sum2[k] += walk[k] * walk[k], walk[k] = 0;
       next = 0;
     }
-  } viaMedium{R}, viaProxies{R}, viaGrains{R};
+  } viaMedium{R}, viaExits{R}, viaProxies{R}, viaGrains{R};
   auto survive = [](float& w, Rng& r) {
     const float q = std::min(1.0f, w);
     if (q <= 0 || r.next1D() >= q) return false;
     w /= q;
     return true;
   };
+  // vpt.h's flights and phase sampling (in the exits model, each scattering's move too).
+  auto mediumWalk = [&](const HomogeneousMedium& m, Passages& p, Vec3 d, Rng& r) {
+    Vec3 o(0.0f);
+    float w = 1;
+    for (int e = 0; e < 1 << 16; ++e) {
+      ++p.events;
+      const float t = m.sampleDistance(r.next1D(), r.next1D());
+      w *= (m.transmittance(t) * m.sigmaT() * m.albedo() / m.distancePdf(t))[0];
+      o = o + d * t;
+      if (!p.reach(o, w)) break;
+      Vec3 pw;
+      float pdf;
+      const Vec3 wi = d;
+      d = normalize(m.samplePhase(d, r.next1D(), r.next1D(), r.next1D(), pw, pdf));
+      w *= pw[0];
+      if (m.movesLight()) {
+        o = o + m.exitMove(wi, d, r.next1D(), r.next1D());
+        if (!p.reach(o, w)) break;
+      }
+      if (e >= 3 && !survive(w, r)) break;
+    }
+    p.endWalk();
+  };
   for (long i = 0; i < walks; ++i) {
     Rng r(hashInts(uint64_t(i), 0xb01cULL), 0);
     const Vec3 d0 = sampleUniformSphere(r.next1D(), r.next1D());
-    {  // the medium: vpt.h's flights and phase sampling
-      Vec3 o(0.0f), d = d0;
-      float w = 1;
-      for (int e = 0; e < 1 << 16; ++e) {
-        ++viaMedium.events;
-        const float t = med.sampleDistance(r.next1D(), r.next1D());
-        w *= (med.transmittance(t) * med.sigmaT() * med.albedo() / med.distancePdf(t))[0];
-        o = o + d * t;
-        if (!viaMedium.reach(o, w)) break;
-        Vec3 pw;
-        float pdf;
-        d = normalize(med.samplePhase(d, r.next1D(), r.next1D(), r.next1D(), pw, pdf));
-        w *= pw[0];
-        if (e >= 3 && !survive(w, r)) break;
-      }
-      viaMedium.endWalk();
-    }
+    mediumWalk(med, viaMedium, d0, r);
+    Rng re(hashInts(uint64_t(i), 0xe817ULL), 0);
+    mediumWalk(exitsMed, viaExits, d0, re);
     {  // proxies: ppt.h's walk
       Vec3 o(0.0f), d = d0;
       float w = 1;
@@ -622,11 +632,12 @@ int bulk(long walks, float absorption, float ior) {
   };
   std::printf("{\"absorption\": %g, \"ior\": %g, \"walks\": %ld, \"sigma_t_R\": %g, \"albedo\": %g, \"g\": %g, "
               "\"medium_events_per_walk\": %.2f, \"proxy_spheres_per_walk\": %.2f, \"radii_R\": [2, 4, 8, 16, 32, 64], "
-              "\"medium\": [%s], \"medium_se\": [%s], \"proxies\": [%s], \"proxies_se\": [%s], "
-              "\"grains\": [%s], \"grains_se\": [%s]}\n",
+              "\"medium\": [%s], \"medium_se\": [%s], \"exits\": [%s], \"exits_se\": [%s], \"proxies\": [%s], "
+              "\"proxies_se\": [%s], \"grains\": [%s], \"grains_se\": [%s]}\n",
               absorption, ior, walks, mp.sigmaT[0] * R, mp.albedo[0], mp.g[0],
               double(viaMedium.events) / double(walks), double(viaProxies.events) / double(walks),
-              list(viaMedium, false).c_str(), list(viaMedium, true).c_str(), list(viaProxies, false).c_str(),
+              list(viaMedium, false).c_str(), list(viaMedium, true).c_str(), list(viaExits, false).c_str(),
+              list(viaExits, true).c_str(), list(viaProxies, false).c_str(),
               list(viaProxies, true).c_str(), list(viaGrains, false).c_str(), list(viaGrains, true).c_str());
   return 0;
 }

@@ -396,6 +396,7 @@ void Scene::buildAggregates(const SceneDesc& desc, int defaultGrain, const Scene
     mediumParams_.clear();
     media_.clear();
     diffusionProfiles_.clear();
+    daDepthUnit_.clear();
   }
 }
 
@@ -423,7 +424,9 @@ Scene::BuiltAggregate Scene::lend(const SceneDesc& desc, const AggregateDesc& a,
     entry.medium = old->medium;
     entry.mediumSauterSize = old->mediumSauterSize;
     entry.proxies = old->proxies;
-    if (!old->mediumReplaced) entry.switching = old->switching;
+    // Measured with the medium it had: kept where that medium's model is this scene's.
+    if (!old->mediumReplaced && previous->settings_.mediumModel == desc.settings.mediumModel)
+      entry.switching = old->switching;
     ++aggregatesReused_;
   }
   return entry;
@@ -686,8 +689,10 @@ void Scene::addMedium(const AggregateDesc& a, BuiltAggregate& entry) {
     ++mediaDerived_;
   }
   mediumParams_.push_back(entry.medium);
-  media_.emplace_back(mediumParams_.back());
-  diffusionProfiles_.emplace_back(mediumParams_.back());
+  media_.emplace_back(mediumParams_.back(), settings_.mediumModel);
+  diffusionProfiles_.emplace_back();
+  daDepthUnit_.push_back(kInf);
+  setDiffusion(media_.size() - 1);
   // VPT pays off only where paths scatter many times: an object thinner than its
   // mean free path is left to EPT alone (no bundles, no pre-render).
   if (2.0f * agg.stats().maxInteriorDepth > maxComponent(mediumParams_.back().lambdaT)) mediaNeeded_ = true;
@@ -1043,6 +1048,8 @@ void Scene::setView(const CameraDesc& camera, const RenderSettings& settings) {
   if ((settings.technique == Technique::Ept) != (settings_.technique == Technique::Ept) &&
       (!aggregates_.empty() || !instanced_.empty()))
     throw InputError("render", "technique", "a change between ept and the hybrid needs the scene built anew");
+  if (settings.mediumModel != settings_.mediumModel && !aggregates_.empty())
+    throw InputError("render", "medium_model", "a change of the medium model needs the scene built anew");
   settings_ = settings;
   textureFilterScale_ = textureFilterScale(settings.spp);
   camera_ = Camera(toRenderSpace(camera, renderOrigin_), settings.width, settings.height);
@@ -1083,6 +1090,7 @@ void Scene::measureSwitching(size_t a) {
   for (size_t i = 0; i < agg.prototypes().size(); ++i)
     key = hashGrainInputs(key, agg.prototypes()[i].mesh, materials_[size_t(entry.materials[i])]);
   for (const Vec3* v : {&m.sigmaT, &m.albedo, &m.g}) key = hashBytes(key, v, sizeof(Vec3));
+  if (media_[a].movesLight()) key = hashInts(key, 0x45584954 /* "EXIT" */, uint64_t(kExitFlight * 1e6f));
   entry.switchKey = key;
   // As many threads as the render may use (the result does not depend on them).
   entry.switching = std::make_shared<const SwitchMeasure>(
@@ -1312,6 +1320,8 @@ std::string Scene::lowOrdersText(int a) const {
                      : explicitBounces(a) > 0 ? str("explicit grains to bounce ", explicitBounces(a))
                                               : std::string();
   text += text.empty() ? "the medium" : ", then the medium";
+  // The exits model (vpt.h) where it moves the light; TT's medium is the one unnamed.
+  if (!media_.empty() && media_[size_t(a)].movesLight()) text += " (exits)";
   auto worst = [](const Vec3& v) {
     int w = 0;
     for (int ch = 1; ch < 3; ++ch) w = std::fabs(v[ch]) > std::fabs(v[w]) ? ch : w;
@@ -1394,7 +1404,7 @@ void Scene::updateDiffusionDepths() {
   for (size_t a = 0; a < media_.size(); ++a) {
     // No DA where the object is too thin for it (its depth criterion is never met), nor
     // where an emitter or the camera is inside (above).
-    float depth = granular::diffusionDepth(mediumParams_[a], settings_.daDepthFactor);
+    float depth = settings_.daDepthFactor * daDepthUnit_[a];
     // A moving aggregate: the camera within its sweep (DaRegion, as for emitters).
     const Vec3 eye = camera_.position();
     const bool cameraInside =
@@ -1404,11 +1414,17 @@ void Scene::updateDiffusionDepths() {
   }
 }
 
+void Scene::setDiffusion(size_t a) {
+  const MediumParams da = media_[a].movesLight() ? exitsDiffusionMedium(mediumParams_[a]) : mediumParams_[a];
+  diffusionProfiles_[a] = DiffusionProfile(da);
+  daDepthUnit_[a] = granular::diffusionDepth(da, 1.0f);
+}
+
 void Scene::setMedium(int aggregate, const MediumParams& params) {
   if (media_.empty()) return;  // technique Ept, or no aggregate thick enough: no media
   mediumParams_[aggregate] = params;
-  media_[aggregate] = HomogeneousMedium(params);
-  diffusionProfiles_[aggregate] = DiffusionProfile(params);
+  media_[aggregate] = HomogeneousMedium(params, settings_.mediumModel);
+  setDiffusion(size_t(aggregate));
   built_[size_t(aggregate)].switching.reset();  // measured with the medium it replaces
   built_[size_t(aggregate)].mediumReplaced = true;
   sunSwitching_.clear();
@@ -1618,6 +1634,17 @@ Vec3 Scene::transmittance(const Vec3& p, const Vec3& dir, float dist, float time
     if (inside > 0) opticalDepth += media_[a].sigmaT() * inside;
   }
   return tr * vexp(-opticalDepth);
+}
+
+Vec3 Scene::movedLight(const Vec3& p, const Vec3& move, float time) const {
+  const float len = length(move);
+  if (!(len > 0)) return p;
+  return surfacesOccluded(p, move / len, len, time, true) ? p : p + move;
+}
+
+int Scene::mediumAfterMove(int m, const Vec3& q, float time, float R) const {
+  if (m >= 0 && aggregateAt(m, time).boundaryDistance(q) < -4.0f * R) return m;
+  return mediumAt(q, time);
 }
 
 int Scene::mediumAt(const Vec3& p, float time) const {

@@ -208,7 +208,7 @@ class Scene {
   // What carries the aggregate's low orders after its first grain, in words both front ends
   // print: "proxies for 8 visits, then the medium (measured: the medium's bias there −0.11%
   // ± 0.14%, right after the first grain −6.8%)", "explicit grains to bounce 16, then the
-  // medium", "the medium".
+  // medium", "the medium"; the medium followed by " (exits)" in the exits model (vpt.h).
   std::string lowOrdersText(int aggregate) const;
   // Whether proxies make next-event estimation (ppt.h): for every light but domes.
   bool proxyLightSampling() const { return proxyLightSampling_; }
@@ -219,6 +219,12 @@ class Scene {
   const ProxyTables& proxyTables(int aggregate) const { return *proxyTables_[size_t(aggregate)]; }
   // Index of the aggregate whose boundary contains p at time (Ray::time), or -1.
   int mediumAt(const Vec3& p, float time = 0) const;
+  // The exits model's move of a scattering's light (vpt.h): p + move, or p where a surface
+  // lies between them (no grain lets light through a wall).
+  Vec3 movedLight(const Vec3& p, const Vec3& move, float time) const;
+  // The medium a path in medium m is in after such a move to q, of grains of radius R: m
+  // where the distance field puts q deeper than 4 R (the move is at most 2 R), else mediumAt.
+  int mediumAfterMove(int m, const Vec3& q, float time, float R) const;
   // Aggregate a as it stands at a ray's time (aggregate_motion.h: AggregateDesc::shutterXf):
   // its queries on world (render-space) rays and points. What depends on where it is asks
   // this, not aggregates().
@@ -532,6 +538,10 @@ class Scene {
   std::vector<float> diffusionDepth_;
   std::vector<bool> emitterInside_;        // an emitter reaches into the aggregate: no DA there
   std::vector<DiffusionProfile> diffusionProfiles_;
+  // DA's medium per aggregate: its medium's, or in the exits model the medium that diffuses
+  // as that walk does (tt.h: exitsDiffusionMedium).
+  std::vector<float> daDepthUnit_;  // diffusionDepth() at factor 1
+  void setDiffusion(size_t aggregate);
   int diffusionExitMaterial_ = -1;
   bool mediaNeeded_ = false;
   float maxGrainRadius_ = 0;

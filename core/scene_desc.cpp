@@ -555,6 +555,14 @@ const char* proxyUseName(ProxyUse p) {
   return "?";
 }
 
+MediumModel mediumModelFromName(const std::string& name, const std::string& obj) {
+  if (name == "tt") return MediumModel::Tt;
+  if (name == "exits") return MediumModel::Exits;
+  throw InputError(obj, "medium_model", str("\"", name, "\" is not one of tt, exits"));
+}
+
+const char* mediumModelName(MediumModel m) { return m == MediumModel::Exits ? "exits" : "tt"; }
+
 // ---- change detection ------------------------------------------------------------------
 
 namespace {
@@ -590,7 +598,7 @@ static_assert(fieldCount<LightDesc>() == 12, "compare the new field in sameLight
 static_assert(fieldCount<MeshDesc>() == 8, "compare the new field in sameMeshDesc");
 static_assert(fieldCount<GrainPrototypeDesc>() == 3, "compare the new field in sameAggregateInputs");
 static_assert(fieldCount<AggregateDesc>() == 15, "compare the new field in sameAggregateInputs (or the id check)");
-static_assert(fieldCount<RenderSettings>() == 27, "compare the new field in sameViewSettings or settingsNeedBuild");
+static_assert(fieldCount<RenderSettings>() == 28, "compare the new field in sameViewSettings or settingsNeedBuild");
 static_assert(fieldCount<SceneDesc>() == 7, "compare the new part in compareScenes");
 static_assert(fieldCount<InstancedGrainsDesc>() == 10, "compare the new field in sameInstancedGrains (or the id check)");
 
@@ -733,15 +741,16 @@ SceneChange SceneChanges::level() const {
 }
 
 bool settingsNeedBuild(const RenderSettings& a, const RenderSettings& b) {
-  return (a.technique == Technique::Ept) != (b.technique == Technique::Ept) || a.defaultLight != b.defaultLight ||
-         a.physicalSun != b.physicalSun;
+  return (a.technique == Technique::Ept) != (b.technique == Technique::Ept) || a.mediumModel != b.mediumModel ||
+         a.defaultLight != b.defaultLight || a.physicalSun != b.physicalSun;
 }
 
 SceneChanges compareScenes(const SceneDesc& before, const SceneDesc& after) {
   SceneChanges c;
   c.camera = !sameCamera(before.camera, after.camera);
   c.settings = !sameViewSettings(before.settings, after.settings);
-  c.media = (before.settings.technique == Technique::Ept) != (after.settings.technique == Technique::Ept);
+  c.media = (before.settings.technique == Technique::Ept) != (after.settings.technique == Technique::Ept) ||
+            before.settings.mediumModel != after.settings.mediumModel;
   c.lights = !sameList(before.lights, after.lights, sameLight) ||
              before.settings.defaultLight != after.settings.defaultLight ||
              before.settings.physicalSun != after.settings.physicalSun;
@@ -826,7 +835,7 @@ std::string describeChanges(const SceneChanges& c) {
     std::vector<std::string> why;
     if (c.meshes) why.push_back("meshes");
     if (c.materials) why.push_back("materials");
-    if (c.media) why.push_back("technique");
+    if (c.media) why.push_back("media");
     if (c.renderSpace) why.push_back("render space");
     parts.push_back("everything (" + join(why) + ")");
   }

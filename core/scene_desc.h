@@ -227,6 +227,13 @@ enum class Technique { Ept, EptVpt, Hybrid };
 // always (On). Techniques ept+vpt and hybrid; EPT, the reference, never uses them.
 enum class ProxyUse { Off, Auto, On };
 
+// The equivalent medium's transport (vpt.h). Tt: Meng et al. 2015's teleportation
+// transport — flights of λ_t, each scattering where its flight ends. Exits: flights to the
+// next grain met (λ_β, tt.h's kExitFlight), each scattering's light then moved as the grain
+// moves light it turns by that angle (tt.h, ExitMoves): light sent back leaves near where it
+// came in, light sent on about a diameter further.
+enum class MediumModel { Tt, Exits };
+
 struct RenderSettings {
   int width = 640, height = 480;
   int spp = 16;
@@ -281,6 +288,9 @@ struct RenderSettings {
   // above) scatter off the grains' bounding spheres at their true positions by tabulated
   // grain scattering instead of tracing the grains.
   ProxyUse proxies = ProxyUse::Auto;
+  // The equivalent medium's transport (MediumModel); Tt is what the benches' tables measure
+  // unless they say otherwise.
+  MediumModel mediumModel = MediumModel::Tt;
   // Whether camera rays see dome lights (Hydra hosts may hide the background while its
   // light still illuminates the scene).
   bool domeCameraVisible = true;
@@ -396,6 +406,9 @@ Technique techniqueFromName(const std::string& name, const std::string& obj);
 const char* techniqueName(Technique t);
 ProxyUse proxyUseFromName(const std::string& name, const std::string& obj);
 const char* proxyUseName(ProxyUse p);
+// "tt", "exits"; anything else is an InputError on obj.medium_model.
+MediumModel mediumModelFromName(const std::string& name, const std::string& obj);
+const char* mediumModelName(MediumModel m);
 
 // What a front end that keeps a built scene (render --frames, the farm's workers, the
 // Hydra delegate) must redo for a new description of the same stage, as the most work it
@@ -418,7 +431,7 @@ struct SceneChanges {
   bool aggregateMotion = false;
   bool meshes = false;         // any MeshDesc, or their count
   bool materials = false;      // a material that is not a grain's alone (a surface's, an unused one), or their count
-  bool media = false;          // the technique to or from ept: every aggregate's medium derived or dropped
+  bool media = false;          // the technique to or from ept, or the medium model: every aggregate's medium made anew or dropped
   bool renderSpace = false;    // renderOrigin() moved: surfaces and lights in render space (aggregates compare there)
   bool instancedGrains = false;  // an instancer's grains, prototypes or id, or their count (Scene::build lends the rest)
   SceneChange level() const;
@@ -435,7 +448,7 @@ bool sameInstancedGrains(const InstancedGrainsDesc& a, const InstancedGrainsDesc
 // Compares every field of two descriptions (floats by value: a NaN always differs).
 SceneChanges compareScenes(const SceneDesc& before, const SceneDesc& after);
 // Whether new settings need Scene::build rather than Scene::setView: the technique to or
-// from ept (media or none), defaultLight or physicalSun (the lights built).
+// from ept (media or none), the medium model, defaultLight or physicalSun (the lights built).
 bool settingsNeedBuild(const RenderSettings& before, const RenderSettings& after);
 // For logs: "unchanged", "new camera", "new camera and settings", "lights changed",
 // "lights and 2 aggregates changed", "everything (meshes and materials) changed".

@@ -414,6 +414,7 @@ void parseRender(const Obj& o, RenderSettings& s) {
   s.sunRegularization = o.num("sun_regularization", s.sunRegularization);
   s.switchForView = o.flag("switch_for_view", s.switchForView);
   if (o.has("proxies")) s.proxies = proxyUseFromName(o.string("proxies", ""), o.label());
+  if (o.has("medium_model")) s.mediumModel = mediumModelFromName(o.string("medium_model", ""), o.label());
   if (o.has("technique")) s.technique = techniqueFromName(o.string("technique", ""), o.label());
   if (const json* c = o.find("crop")) {  // [x0, x1, y0, y1], pixels
     const json& a = toArray(*c, o.label(), "crop");
@@ -896,7 +897,7 @@ SceneDesc parseSceneJson(const std::string& text, const std::string& sourceName)
             {"render", "camera", "materials", "meshes", "lights", "aggregates", "instanced_grains"});
     bool motionBlur = true;
     if (const json* r = top.find("render")) {
-      Obj ro(*r, "scene", "render", "render", {"width", "height", "spp", "seed", "max_depth", "rr_depth", "threads", "technique", "bundle_size", "tau", "explicit_bounces", "da_depth_factor", "da_min_order", "da_instanced", "roulette", "lod", "proxies", "default_light", "physical_sun", "sun_regularization", "switch_for_view", "crop", "motion_blur"});
+      Obj ro(*r, "scene", "render", "render", {"width", "height", "spp", "seed", "max_depth", "rr_depth", "threads", "technique", "bundle_size", "tau", "explicit_bounces", "da_depth_factor", "da_min_order", "da_instanced", "roulette", "lod", "proxies", "medium_model", "default_light", "physical_sun", "sun_regularization", "switch_for_view", "crop", "motion_blur"});
       parseRender(ro, desc.settings);
       motionBlur = ro.flag("motion_blur", true);
     }

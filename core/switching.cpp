@@ -156,7 +156,12 @@ Vec3 mediumEscape(const Aggregate& agg, const HomogeneousMedium& med, const Ligh
     }
     flyTo(med, t, o, d, w);
     gathered += w * light.atScatter(o, d, rng);
+    const Vec3 wi = d;
     if (!scatter(med, d, w, rng)) return gathered;
+    if (med.movesLight()) {  // the exits model (vpt.h): on from where the grain lets the light out
+      o = o + med.exitMove(wi, d, rng.next1D(), rng.next1D());
+      inside = agg.boundaryDistance(o) < -4.0f * med.moveRadius() || agg.insideBoundary(o);
+    }
     if (event >= kRouletteAfter && !survive(w, rng)) return gathered;
   }
   return gathered;
@@ -607,9 +612,15 @@ struct ViewLighting {
       LightSample ls;
       const float u1 = rng.next1D(), u2 = rng.next1D();
       if (!(*view.lights)[i].sampleLi(o, u1, u2, ls) || isBlack(ls.Li)) continue;
-      float tb;
+      float tb = 0;
       Vec3 ng;
-      if (!agg.intersectBoundary(o, ls.wi, eps, kInf, tb, ng)) continue;
+      Vec3 from = o;
+      bool out = false;  // moved out of the boundary: nothing of the medium left to cross
+      if (med.movesLight()) {  // the exits model (vpt.h): from where the grain lets the light out
+        from = o + med.exitMove(d, ls.wi, rng.next1D(), rng.next1D());
+        out = !(agg.boundaryDistance(from) < -4.0f * med.moveRadius()) && !agg.insideBoundary(from);
+      }
+      if (!out && !agg.intersectBoundary(from, ls.wi, eps, kInf, tb, ng)) continue;
       L += med.phase(d, ls.wi) * med.transmittance(tb) * ls.Li / (ls.delta ? 1.0f : ls.pdf);
     }
     return L;

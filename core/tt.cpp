@@ -5,6 +5,7 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
+#include <algorithm>
 #include <cfloat>
 #include <cmath>
 
@@ -46,6 +47,8 @@ struct Sums {
   // Per channel, over hits: w (exit energy), w², w d, (w d)², w² d, and the same for μ.
   double w[3] = {}, w2[3] = {}, wd[3] = {}, wd2[3] = {}, w2d[3] = {}, wm[3] = {}, wm2[3] = {}, w2m[3] = {};
   std::vector<double> hist[3];
+  std::array<ExitMoves, 3> exits;  // the first kPerBin drawn per bin (tt.h)
+  double wIn[3] = {}, wOut[3] = {}, wSq[3] = {};  // w Δ·ω_i, w Δ·ω_o, w |Δ|²
 
   void add(const Sums& o) {
     rays += o.rays; hits += o.hits; truncated += o.truncated;
@@ -53,7 +56,13 @@ struct Sums {
     for (int c = 0; c < 3; ++c) {
       w[c] += o.w[c]; w2[c] += o.w2[c]; wd[c] += o.wd[c]; wd2[c] += o.wd2[c]; w2d[c] += o.w2d[c];
       wm[c] += o.wm[c]; wm2[c] += o.wm2[c]; w2m[c] += o.w2m[c];
+      wIn[c] += o.wIn[c]; wOut[c] += o.wOut[c]; wSq[c] += o.wSq[c];
       for (size_t i = 0; i < hist[c].size(); ++i) hist[c][i] += o.hist[c][i];
+      for (int b = 0; b < ExitMoves::kBins; ++b) {
+        std::vector<Vec3>& m = exits[size_t(c)].moves[size_t(b)];
+        const std::vector<Vec3>& om = o.exits[size_t(c)].moves[size_t(b)];
+        for (size_t i = 0; i < om.size() && m.size() < size_t(ExitMoves::kPerBin); ++i) m.push_back(om[i]);
+      }
     }
   }
 };
@@ -109,12 +118,28 @@ void traceChunk(RTCScene bvh, const TriangleMesh& mesh, const Material& m, const
       s.wm[c] += wc * mu; s.wm2[c] += wc * mu * wc * mu; s.w2m[c] += wc * wc * mu;
       s.hist[c][bin] += wc;
     }
+    // The exit's move (tt.h, ExitMoves), kept per channel with its energy as the chance, by a
+    // generator of its own so that the statistics above draw the same numbers as ever.
+    const Vec3 dx = xo - xi;
+    Vec3 across = d - wi * float(mu);
+    across = length2(across) > 1e-12f ? normalize(across) : Frame(wi).s;
+    const Vec3 move(dot(dx, wi), dot(dx, across), dot(dx, cross(wi, across)));
+    const int eb = ExitMoves::bin(float(mu));
+    Rng pick(hashInts(opt.seed, 0x4558 /* "EX" */, uint64_t(first + k)));
+    const double in = dot(dx, wi), out = dot(dx, d), sq = length2(dx);
+    for (int c = 0; c < 3; ++c) {
+      s.wIn[c] += w[c] * in;
+      s.wOut[c] += w[c] * out;
+      s.wSq[c] += w[c] * sq;
+      std::vector<Vec3>& m = s.exits[size_t(c)].moves[size_t(eb)];
+      if (pick.next1D() < w[c] && m.size() < size_t(ExitMoves::kPerBin)) m.push_back(move);
+    }
   }
 }
 
 // --- cache -------------------------------------------------------------------------------
 constexpr RecordMagic kMagic = {'G', 'R', 'T', 'T', '\0', '\0', '\0', '\0'};
-constexpr uint32_t kTTFormatVersion = 2;  // 2: one generator per ray
+constexpr uint32_t kTTFormatVersion = 3;  // 2: one generator per ray; 3: the exits' moves
 
 uint64_t cacheKey(const TriangleMesh& mesh, const Material& m, const TTOptions& o) {
   uint64_t h = hashGrainInputs(hashInts(0x47525454 /* "GRTT" */, kTTFormatVersion), mesh, m);
@@ -128,7 +153,9 @@ std::vector<char> serialise(const GrainTransport& g, uint64_t key) {
   RecordWriter w(kMagic);
   w.putHeader(kTTFormatVersion, key);
   for (double v : {g.beta, g.betaSE, g.lambdaDelta, g.lambdaDeltaSE}) w.putF64(v);
-  for (const auto* a : {&g.lambdaS, &g.lambdaSSE, &g.albedo, &g.albedoSE, &g.g, &g.gSE}) w.putArray(*a);
+  for (const auto* a : {&g.lambdaS, &g.lambdaSSE, &g.albedo, &g.albedoSE, &g.g, &g.gSE, &g.moveIn, &g.moveOut,
+                        &g.moveSquared})
+    w.putArray(*a);
   w.putI64(g.rays);
   w.putI64(g.truncated);
   w.putI32(int32_t(g.phase[0].bins()));
@@ -137,6 +164,11 @@ std::vector<char> serialise(const GrainTransport& g, uint64_t key) {
     w.putArray(p.cdf);
     w.putF32(p.g);
   }
+  for (const ExitMoves& e : g.exits)
+    for (const std::vector<Vec3>& m : e.moves) {
+      w.putI32(int32_t(m.size()));
+      w.putArray(m);
+    }
   return w.finish();
 }
 
@@ -147,7 +179,8 @@ bool deserialise(const std::vector<char>& in, uint64_t key, const TTOptions& opt
   if (!r.getHeader(kTTFormatVersion, key)) return false;
   for (double* v : {&g.beta, &g.betaSE, &g.lambdaDelta, &g.lambdaDeltaSE})
     if (!r.getF64(*v)) return false;
-  for (auto* a : {&g.lambdaS, &g.lambdaSSE, &g.albedo, &g.albedoSE, &g.g, &g.gSE})
+  for (auto* a : {&g.lambdaS, &g.lambdaSSE, &g.albedo, &g.albedoSE, &g.g, &g.gSE, &g.moveIn, &g.moveOut,
+                  &g.moveSquared})
     if (!r.getArray(*a)) return false;
   if (!r.getI64(g.rays) || !r.getI64(g.truncated) || !r.getI32(storedBins)) return false;
   if (storedBins != bins || g.rays != opt.rays) return false;
@@ -160,9 +193,19 @@ bool deserialise(const std::vector<char>& in, uint64_t key, const TTOptions& opt
     if (p.cdf.front() != 0.0f || p.cdf.back() != 1.0f || !std::isfinite(p.g)) return false;
     p.buildGuide();
   }
+  for (ExitMoves& e : g.exits)
+    for (std::vector<Vec3>& m : e.moves) {
+      int32_t count = 0;
+      if (!r.getI32(count) || count < 0 || count > ExitMoves::kPerBin) return false;
+      m.resize(size_t(count));
+      if (!r.getArray(m)) return false;
+      for (const Vec3& v : m)
+        if (!isFinite(v) || length2(v) > 16.0f) return false;  // a move stays within the sphere's diameter
+    }
   for (double v : {g.beta, g.betaSE, g.lambdaDelta, g.lambdaDeltaSE})
     if (!std::isfinite(v)) return false;
-  for (const auto* a : {&g.lambdaS, &g.lambdaSSE, &g.albedo, &g.albedoSE, &g.g, &g.gSE})
+  for (const auto* a : {&g.lambdaS, &g.lambdaSSE, &g.albedo, &g.albedoSE, &g.g, &g.gSE, &g.moveIn, &g.moveOut,
+                        &g.moveSquared})
     for (double v : *a)
       if (!std::isfinite(v)) return false;
   return r.finish();
@@ -207,11 +250,52 @@ GrainTransport trace(const TriangleMesh& mesh, const Material& m, const TTOption
       g.lambdaS[c] = t.wd[c] / t.w[c];
       g.lambdaSSE[c] = ratioSE(t.w[c], t.w2[c], t.wd[c], t.wd2[c], t.w2d[c], hits);
       g.g[c] = std::min(1.0, std::max(-1.0, t.wm[c] / t.w[c]));
+      g.moveIn[c] = t.wIn[c] / t.w[c];
+      g.moveOut[c] = t.wOut[c] / t.w[c];
+      g.moveSquared[c] = t.wSq[c] / t.w[c];
       g.gSE[c] = ratioSE(t.w[c], t.w2[c], t.wm[c], t.wm2[c], t.w2m[c], hits);
     }  // else no energy exits: λ_s = g = 0 and the table is isotropic (tt.h)
     g.phase[c] = PhaseTable::fromHistogram(t.hist[c]);
   }
+  g.exits = std::move(t.exits);
   return g;
+}
+
+// The mixture's moves (tt.h, ExitMoves), in the mixture's unit radius: per bin, kPerBin
+// of them taken from the kinds in proportion to the energy each sends into the bin (the
+// largest remainders get the counts' rest), each kind's scaled by its size.
+ExitMoves mixExits(const std::vector<GrainTransport>& kinds, const std::vector<double>& exitWeights,
+                   const std::vector<double>& sizes, int c) {
+  ExitMoves mix;
+  const int K = ExitMoves::kPerBin;
+  for (int b = 0; b < ExitMoves::kBins; ++b) {
+    const double lo = -1.0 + 2.0 * b / ExitMoves::kBins, hi = -1.0 + 2.0 * (b + 1) / ExitMoves::kBins;
+    std::vector<double> share(kinds.size(), 0.0);
+    double total = 0;
+    for (size_t i = 0; i < kinds.size(); ++i) {
+      if (kinds[i].exits[size_t(c)].moves[size_t(b)].empty() || !(exitWeights[i] > 0)) continue;
+      share[i] = exitWeights[i] * kinds[i].phase[size_t(c)].mass(lo, hi);
+      total += share[i];
+    }
+    if (!(total > 0)) continue;
+    std::vector<int> count(kinds.size(), 0);
+    std::vector<std::pair<double, size_t>> rest;
+    int given = 0;
+    for (size_t i = 0; i < kinds.size(); ++i) {
+      const double exact = K * share[i] / total;
+      count[i] = int(exact);
+      given += count[i];
+      rest.push_back({exact - count[i], i});
+    }
+    std::stable_sort(rest.begin(), rest.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
+    for (size_t k = 0; given < K && k < rest.size(); ++k, ++given) ++count[rest[k].second];
+    std::vector<Vec3>& out = mix.moves[size_t(b)];
+    for (size_t i = 0; i < kinds.size(); ++i) {
+      const std::vector<Vec3>& m = kinds[i].exits[size_t(c)].moves[size_t(b)];
+      for (int k = 0; k < count[i]; ++k) out.push_back(m[size_t(k) % m.size()] * float(sizes[i]));
+    }
+  }
+  return mix;
 }
 
 float clampToFloat(double v) { return float(std::min(std::max(v, 0.0), double(FLT_MAX))); }
@@ -361,6 +445,22 @@ void PhaseTable::buildGuide() {
 
 // --- estimation -------------------------------------------------------------------------
 
+bool ExitMoves::empty() const {
+  for (const std::vector<Vec3>& m : moves)
+    if (!m.empty()) return false;
+  return true;
+}
+
+Vec3 ExitMoves::sample(const Vec3& wi, const Vec3& wo, float u) const {
+  const float mu = dot(wi, wo);
+  const std::vector<Vec3>& m = moves[size_t(bin(mu))];
+  if (m.empty()) return Vec3(0.0f);
+  Vec3 across = wo - wi * mu;
+  across = length2(across) > 1e-12f ? normalize(across) : Frame(wi).s;
+  const Vec3& x = m[std::min(m.size() - 1, size_t(u * float(m.size())))];
+  return wi * x.x + across * x.y + cross(wi, across) * x.z;
+}
+
 std::string grainTransportCacheName(const TriangleMesh& mesh, const Material& material, const TTOptions& options) {
   return str("tt-v", kTTFormatVersion, "-", std::hex, cacheKey(mesh, material, options), ".bin");
 }
@@ -462,6 +562,9 @@ MediumParams deriveMedium(const std::vector<GrainTransport>& prototypes, const s
       sVar += std::pow(ew * p.lambdaSSE[c] * sz[i], 2);
       g += ew * p.g[c];
       gVar += std::pow(ew * p.gSE[c], 2);
+      mix.moveIn[c] += ew * p.moveIn[c] * sz[i];
+      mix.moveOut[c] += ew * p.moveOut[c] * sz[i];
+      mix.moveSquared[c] += ew * p.moveSquared[c] * sz[i] * sz[i];
       if (ew > 0)
         for (int j = 0; j < bins; ++j)
           hist[size_t(j)] += ew * p.phase[c].mass(-1.0 + 2.0 * j / bins, -1.0 + 2.0 * (j + 1) / bins);
@@ -475,8 +578,16 @@ MediumParams deriveMedium(const std::vector<GrainTransport>& prototypes, const s
       mix.lambdaSSE[c] = std::sqrt(sVar) / exitW;
       mix.g[c] = std::min(1.0, std::max(-1.0, g / exitW));
       mix.gSE[c] = std::sqrt(gVar) / exitW;
+      mix.moveIn[c] /= exitW;
+      mix.moveOut[c] /= exitW;
+      mix.moveSquared[c] /= exitW;
     }
     mix.phase[c] = PhaseTable::fromHistogram(hist);  // all zero → isotropic
+    std::vector<double> exitWeights(np);
+    for (size_t i = 0; i < np; ++i)
+      exitWeights[i] = w[i] * std::min(1.0, std::max(0.0, prototypes[i].beta)) *
+                       std::min(1.0, std::max(0.0, prototypes[i].albedo[c]));
+    mix.exits[size_t(c)] = mixExits(prototypes, exitWeights, sz, c);
   }
 
   MediumParams mp;
@@ -522,6 +633,31 @@ MediumParams deriveMedium(const std::vector<GrainTransport>& prototypes, const s
   mp.phase = mix.phase;
   mp.combined = mix;
   return mp;
+}
+
+MediumParams exitsDiffusionMedium(const MediumParams& p) {
+  MediumParams d = p;
+  const double R = p.grainRadius;
+  for (int c = 0; c < 3; ++c) {
+    const double g = p.phase[size_t(c)].g, alpha = p.albedo[c];  // the table's g: what the walk samples
+    if (p.combined.exits[size_t(c)].empty() || !(p.lambdaBeta[c] < FLT_MAX) || !(g < 1.0 - 1e-6) || !(R > 0))
+      continue;
+    const double L = double(kExitFlight) * p.lambdaBeta[c];
+    const double in = R * p.combined.moveIn[c], out = R * p.combined.moveOut[c];
+    const double step2 = R * R * p.combined.moveSquared[c] + 2.0 * L * out + 2.0 * L * L;
+    const double M = step2 + 2.0 * (in + L * g) * (out + L) / (1.0 - g);
+    if (!(M > 0)) continue;
+    const double sigmaT = std::sqrt(2.0 / (M * (1.0 - g)));
+    const double sigmaSr = (1.0 - g) * alpha * sigmaT, sigmaA = (1.0 - alpha) * sigmaT, sigmaTr = sigmaSr + sigmaA;
+    d.sigmaT[c] = clampToFloat(sigmaT);
+    d.lambdaT[c] = clampToFloat(1.0 / sigmaT);
+    d.sigmaSReduced[c] = clampToFloat(sigmaSr);
+    d.sigmaTReduced[c] = clampToFloat(sigmaTr);
+    d.albedoReduced[c] = sigmaTr > 0 ? float(sigmaSr / sigmaTr) : float(alpha);
+    d.sigmaA[c] = clampToFloat(sigmaA);
+    d.sigmaTr[c] = clampToFloat(std::sqrt(3.0 * sigmaA * sigmaTr));
+  }
+  return d;
 }
 
 MediumParams aggregateMedium(const std::vector<const TriangleMesh*>& prototypeMeshes,

@@ -83,6 +83,24 @@ struct PhaseTable {
   void buildGuide();
 };
 
+// Where a grain lets light out, by the angle it turns it: the moves the equivalent medium's
+// exits model (vpt.h, MediumModel::Exits) applies at a scattering. Per bin of μ = ω_i·ω_o
+// (kBins equal bins over [−1, 1]) up to kPerBin moves, drawn in proportion to the energy
+// that exits in that bin (one channel's), each from where the ray entered the bounding
+// sphere to where its exit line leaves it, in units of the radius and in the frame
+// (ω_i, u, ω_i × u), u the unit part of ω_o across ω_i. Light a grain sends back leaves
+// near where it came in; light it sends on, about a diameter further (bench/README.md,
+// "Where a grain lets light out"): TT's single λ_s cannot tell them apart.
+struct ExitMoves {
+  static constexpr int kBins = 16, kPerBin = 256;
+  std::array<std::vector<Vec3>, kBins> moves;
+  static int bin(float mu) { return std::min(kBins - 1, std::max(0, int((mu + 1.0f) * 0.5f * kBins))); }
+  bool empty() const;
+  // A move for the turn ω_i → ω_o (unit vectors), in world directions, of unit radius: the
+  // sample u ∈ [0, 1) picks of μ's bin; zero where the bin holds none.
+  Vec3 sample(const Vec3& wi, const Vec3& wo, float u) const;
+};
+
 // One prototype's intra-grain statistics, in units of the bounding radius.
 struct GrainTransport {
   double beta = 1, betaSE = 0;                // P(ray entering the bounding sphere hits the grain)
@@ -91,6 +109,10 @@ struct GrainTransport {
   std::array<double, 3> albedo{}, albedoSE{};    // α_s: exiting fraction of the energy of a hit
   std::array<PhaseTable, 3> phase;               // exit distribution over cos θ, per channel
   std::array<double, 3> g{}, gSE{};              // mean cosine of the exits (exact μ, not bin centres)
+  std::array<ExitMoves, 3> exits;                // where the exits leave, per channel
+  // Energy-weighted means over the exits of the move Δ (ExitMoves): Δ·ω_i, Δ·ω_o and |Δ|²,
+  // per channel; what the exits model's diffusion needs (exitsDiffusionMedium).
+  std::array<double, 3> moveIn{}, moveOut{}, moveSquared{};
   int64_t rays = 0;                              // rays traced
   int64_t truncated = 0;   // hits still inside after maxBounces (their energy counts as absorbed)
   bool fromCache = false;  // read back from the disk cache rather than traced
@@ -168,6 +190,24 @@ MediumParams deriveMedium(const std::vector<GrainTransport>& prototypes, const s
 MediumParams deriveMedium(const std::vector<GrainTransport>& kinds, const std::vector<float>& weights,
                           const std::vector<float>& sizes, float grainRadius, float packingRate,
                           double sauterSize = 0);
+
+// The exits model's flights between grains, in λ_β (vpt.h): 1.0 carries light too short
+// deep inside an aggregate, as flights between grains in a dense packing are not
+// memoryless; 1.03 makes the walk's transport over distance explicit grains' for quartz
+// rocks (bench/README.md, "Where a grain lets light out"; about 1.05 for IOR 2.4).
+constexpr float kExitFlight = 1.03f;
+
+// The standard medium (TT's phase functions and α_s) whose walk spreads as far per
+// scattering as the exits model's (vpt.h), for DA after it: per channel, a scattering's
+// step s = Δ + ℓ ω_o (the grain's move, then a flight ℓ of mean L = kExitFlight λ_β) has
+// E|s|² = E|Δ|² + 2 L E[Δ·ω_o] + 2 L², and along the walk E[s_k | ω_k] = (E[Δ·ω_i] + L g) ω_k
+// with E[ω_k | ω_1] = g^(k−1) ω_1, so the mean square distance grows per scattering by
+//   M = E|s|² + 2 (E[Δ·ω_i] + L g)(E[Δ·ω_o] + L) / (1 − g);
+// a standard medium's grows by 2 / (σ_t² (1 − g)), whence σ_t = sqrt(2 / (M (1 − g))), and
+// σ'_s, σ'_t, σ_a, σ_tr from it as deriveMedium does (both walks lose 1 − α_s per
+// scattering). Without moves (a medium given directly), or where g ≥ 1 (index-matched
+// grains: nothing to diffuse), p's own.
+MediumParams exitsDiffusionMedium(const MediumParams& p);
 
 // An aggregate's medium (what Scene::build derives): its prototypes (meshes normalised into
 // their unit bounding spheres, and materials) as grain kinds — each prototype at its size,

@@ -1,5 +1,6 @@
 #include "vpt.h"
 
+#include <cfloat>
 #include <cmath>
 
 #include "diffusion.h"
@@ -25,9 +26,22 @@ MediumParams mediumFromRte(const Vec3& sigmaT, const Vec3& albedo, const PhaseTa
   return m;
 }
 
-HomogeneousMedium::HomogeneousMedium(const MediumParams& p)
+HomogeneousMedium::HomogeneousMedium(const MediumParams& p, MediumModel model)
     : sigmaT_(p.sigmaT), albedo_(p.albedo), phase_(p.phase) {
   samePhase_ = phase_[0].density == phase_[1].density && phase_[0].density == phase_[2].density;
+  bool moves = model == MediumModel::Exits && p.grainRadius > 0;
+  for (const ExitMoves& e : p.combined.exits) moves = moves && !e.empty();
+  for (int c = 0; c < 3; ++c) moves = moves && p.lambdaBeta[c] > 0 && p.lambdaBeta[c] < FLT_MAX;
+  if (!moves) return;  // TT's medium (no grain met, or no moves estimated: a medium given directly)
+  for (int c = 0; c < 3; ++c) sigmaT_[c] = 1.0f / (kExitFlight * p.lambdaBeta[c]);
+  exits_ = std::make_shared<const std::array<ExitMoves, 3>>(p.combined.exits);
+  moveRadius_ = p.grainRadius;
+}
+
+Vec3 HomogeneousMedium::exitMove(const Vec3& wi, const Vec3& wo, float uChannel, float u) const {
+  if (!exits_) return Vec3(0.0f);
+  const int c = std::min(int(uChannel * 3.0f), 2);
+  return (*exits_)[size_t(c)].sample(wi, wo, u) * moveRadius_;
 }
 
 HomogeneousMedium::HomogeneousMedium(const Vec3& sigmaT, const Vec3& albedo, const PhaseTable& phase)
@@ -131,7 +145,15 @@ void mediumNee(const Scene& scene, PathState& path, const HomogeneousMedium& med
     if (lights[li].sampleLi(p, u1, u2, ls) && !isBlack(ls.Li)) {
       Vec3 f = med.phase(wi, ls.wi);
       float dist = std::isfinite(ls.dist) ? ls.dist * (1.0f - 1e-4f) : kInf;
-      Vec3 Tr = scene.transmittance(p, ls.wi, dist, path.ray.time, &path.rng);
+      Vec3 from = p;
+      if (med.movesLight() && !boundary) {
+        // The exits model: the light leaves where the grain lets it out for this turn; the
+        // shadow ray stops short of the light by the move (it may not pass the light).
+        const Vec3 move = med.exitMove(wi, ls.wi, path.rng.next1D(), path.rng.next1D());
+        from = scene.movedLight(p, move, path.ray.time);
+        if (std::isfinite(dist)) dist = std::max(0.0f, dist - length(move));
+      }
+      Vec3 Tr = scene.transmittance(from, ls.wi, dist, path.ray.time, &path.rng);
       path.cost[1] += 1;
       if (boundary && !isBlack(Tr)) {
         // The flight to the own medium's boundary in the reduced medium (diffusion.h).
@@ -207,6 +229,10 @@ void scatterInMedium(const Scene& scene, PathState& path, const HomogeneousMediu
   path.beta *= weight;
   path.scattered(false, pdf, p, 1.0f, 0.0f);
   path.ray.o = p;
+  if (med.movesLight()) {  // the exits model: on from where the grain lets the light out
+    path.ray.o = scene.movedLight(p, med.exitMove(wi, wo, path.rng.next1D(), path.rng.next1D()), path.ray.time);
+    path.medium = scene.mediumAfterMove(path.medium, path.ray.o, path.ray.time, med.moveRadius());
+  }
   path.ray.d = wo;
   path.ray.tmin = 0;
   path.ray.tmax = kInf;

@@ -10,9 +10,17 @@
 // and the path weight of a scattering at t is α σ_t exp(−σ_t t) / p(t) (per channel), of
 // passing the boundary at s it is exp(−σ_t s) / P(flight ≥ s). Phase directions are drawn
 // likewise from one channel's table, with pdf the mean of the three tables' pdfs.
+//
+// The exits model (MediumModel::Exits): flights of kExitFlight λ_β (tt.h), to the next
+// grain met rather than TT's λ_t, and each scattering's light moved by a sample of the grain's move for
+// the angle it turned (tt.h, ExitMoves), before its next flight and before a next-event
+// estimate's shadow ray (the move's law depends on ω_o only through μ, so both strategies
+// see it alike and MIS keeps its weights). The same α_s and phase functions as TT's; DA
+// after it diffuses as its walk does (tt.h, exitsDiffusionMedium).
 #pragma once
 
 #include <array>
+#include <memory>
 
 #include "math.h"
 #include "medium.h"
@@ -27,7 +35,8 @@ MediumParams mediumFromRte(const Vec3& sigmaT, const Vec3& albedo, const PhaseTa
 class HomogeneousMedium {
  public:
   HomogeneousMedium() = default;
-  explicit HomogeneousMedium(const MediumParams& p);
+  // model Exits with p's exits' moves (p.combined.exits): the exits model above; else TT.
+  explicit HomogeneousMedium(const MediumParams& p, MediumModel model = MediumModel::Tt);
   // For tests and hand-made media: σ_t, α_s and one phase table for all channels.
   HomogeneousMedium(const Vec3& sigmaT, const Vec3& albedo, const PhaseTable& phase);
 
@@ -48,10 +57,20 @@ class HomogeneousMedium {
   // Returns ω_o; pdf = phasePdf(wi, ω_o); weight = phase / pdf per channel.
   Vec3 samplePhase(const Vec3& wi, float uChannel, float u1, float u2, Vec3& weight, float& pdf) const;
 
+  // Whether scatterings move light (the exits model).
+  bool movesLight() const { return exits_ != nullptr; }
+  float moveRadius() const { return moveRadius_; }  // the grain radius the moves scale by
+  // The move of a scattering's light that turns ω_i → ω_o, a world vector of length at most
+  // the grain's diameter: a channel's moves by uChannel (uniform; the channels' moves differ
+  // only by what absorption inside the grain keeps), one of them by u; zero without moves.
+  Vec3 exitMove(const Vec3& wi, const Vec3& wo, float uChannel, float u) const;
+
  private:
   Vec3 sigmaT_, albedo_;
   std::array<PhaseTable, 3> phase_;
   bool samePhase_ = true;  // one table serves all channels (cheaper evaluation)
+  std::shared_ptr<const std::array<ExitMoves, 3>> exits_;  // the exits model's, in grain radii
+  float moveRadius_ = 0;                                  // the grain radius they scale by
 };
 
 struct PathState;

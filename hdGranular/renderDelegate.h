@@ -25,6 +25,7 @@ PXR_NAMESPACE_OPEN_SCOPE
   ((daInstanced, "granular:daInstanced"))             \
   ((lod, "granular:lod"))                             \
   ((proxies, "granular:proxies"))                     \
+  ((mediumModel, "granular:mediumModel"))             \
   ((roulette, "granular:roulette"))                   \
   ((bundleSize, "granular:bundleSize"))               \
   ((defaultLight, "granular:defaultLight"))           \

@@ -174,6 +174,9 @@ granular::RenderSettings renderSettings(HdRenderDelegate* d, int width, int heig
   rs.proxies = granular::proxyUseFromName(
       setting<std::string>(d, HdGranularSettingsTokens->proxies, granular::proxyUseName(rs.proxies)),
       "render settings granular:proxies");
+  rs.mediumModel = granular::mediumModelFromName(
+      setting<std::string>(d, HdGranularSettingsTokens->mediumModel, granular::mediumModelName(rs.mediumModel)),
+      "render settings granular:mediumModel");
   rs.roulette = setting<float>(d, HdGranularSettingsTokens->roulette, -1.0f);
   rs.bundleSize = setting<int>(d, HdGranularSettingsTokens->bundleSize, 16);
   rs.domeCameraVisible = setting<bool>(d, HdRenderSettingsTokens->domeLightCameraVisibility, true);

@@ -546,6 +546,9 @@ PYBIND11_MODULE(granular_core, m) {
       .value("Off", ProxyUse::Off)
       .value("Auto", ProxyUse::Auto)
       .value("On", ProxyUse::On);
+  py::enum_<MediumModel>(m, "MediumModel")
+      .value("Tt", MediumModel::Tt)
+      .value("Exits", MediumModel::Exits);
   py::enum_<Technique>(m, "Technique")
       .value("Ept", Technique::Ept)
       .value("EptVpt", Technique::EptVpt)
@@ -560,6 +563,9 @@ PYBIND11_MODULE(granular_core, m) {
   m.def("proxy_use_from_name", &proxyUseFromName, py::arg("name"), py::arg("object"),
         "\"off\", \"auto\" or \"on\"; else InputError on object.proxies");
   m.def("proxy_use_name", &proxyUseName, py::arg("proxies"));
+  m.def("medium_model_from_name", &mediumModelFromName, py::arg("name"), py::arg("object"),
+        "\"tt\" or \"exits\"; else InputError on object.medium_model");
+  m.def("medium_model_name", &mediumModelName, py::arg("medium_model"));
 
   py::class_<RenderSettings>(m, "RenderSettings")
       .def(py::init<>())
@@ -580,6 +586,7 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("roulette", &RenderSettings::roulette)
       .def_readwrite("lod", &RenderSettings::lod)
       .def_readwrite("proxies", &RenderSettings::proxies)
+      .def_readwrite("medium_model", &RenderSettings::mediumModel)
       .def_readwrite("default_light", &RenderSettings::defaultLight)
       .def_readwrite("physical_sun", &RenderSettings::physicalSun)
       .def_readwrite("sun_regularization", &RenderSettings::sunRegularization)

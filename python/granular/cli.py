@@ -197,6 +197,11 @@ def _render_options(r):
                         "with tabulated grain scattering (proxies) instead of the grains themselves: on, off, "
                         "or auto (default): where the medium could not see the light, under a sun narrower "
                         "than 5 degrees (ept+vpt and hybrid)")
+    r.add_argument("--medium-model", choices=["tt", "exits"], default="tt",
+                   help="the equivalent medium's transport: tt (default), Meng et al. 2015's teleportation "
+                        "transport; or exits, flights to the next grain met and each scattering's light moved "
+                        "as the grain moves light it turns by that angle (light sent back leaves near where it "
+                        "came in)")
     r.add_argument("--no-default-light", action="store_true",
                    help="a stage without any light (no UsdLux light, no emissive surface) renders black; "
                         "by default it is lit by a uniform white dome of radiance 1, with a warning")

@@ -130,6 +130,8 @@ def apply_options(args, scene):
     s.roulette = args.roulette
     s.lod = args.lod
     s.proxies = core.proxy_use_from_name(args.proxies, "command line")
+    if getattr(args, "medium_model", None):
+        s.medium_model = core.medium_model_from_name(args.medium_model, "command line")
     s.default_light = not args.no_default_light
     s.physical_sun = not args.no_physical_sun
     if getattr(args, "sun_regularization", None) is not None:

@@ -189,7 +189,7 @@ def render_tile(job, frame, window):
 
 
 # Options a task needs; everything else (outputs, scheduling) stays on the client.
-_JOB_OPTIONS = ("scene", "camera", "width", "height", "spp", "seed", "threads", "technique", "roulette", "lod", "proxies",
+_JOB_OPTIONS = ("scene", "camera", "width", "height", "spp", "seed", "threads", "technique", "roulette", "lod", "proxies", "medium_model",
                 "no_default_light", "no_physical_sun", "sun_regularization", "switch_for_view", "no_motion_blur",
                 "instanced_da")
 

@@ -89,8 +89,10 @@ TEST(Hybrid, AovsAddUpToTheBeauty) {
   EXPECT_GT(parts[3], 0);
 }
 
-TEST(Hybrid, ClearGrainsInAWhiteFurnaceReturnTheEnvironment) {
-  // Non-absorbing grains: α_s = 1, so VPT and DA must conserve energy as EPT does.
+namespace {
+// Non-absorbing grains under a white dome: α_s = 1, so VPT and DA must conserve energy as
+// EPT does, whatever the medium's model.
+void expectClearGrainsReturnTheWhiteFurnace(MediumModel model) {
   SceneDesc d = ballScene(Technique::Hybrid, 16);
   d.materials[0].absorption = Vec3(0.0f);
   d.lights.clear();
@@ -100,7 +102,9 @@ TEST(Hybrid, ClearGrainsInAWhiteFurnaceReturnTheEnvironment) {
   d.lights.push_back(dome);
   d.settings.tau = 0.5f;
   d.settings.maxDepth = 1 << 20;
+  d.settings.mediumModel = model;
   auto scene = Scene::build(d);
+  EXPECT_EQ(scene->medium(0).movesLight(), model == MediumModel::Exits);
   Renderer r(*scene);
   ASSERT_TRUE(r.render(16));
   Image img = r.film().toImage();
@@ -113,9 +117,17 @@ TEST(Hybrid, ClearGrainsInAWhiteFurnaceReturnTheEnvironment) {
       high += img.at(x, y)[img.channelIndex("vpt.G")] + img.at(x, y)[img.channelIndex("da.G")];
     }
   double mean = s / n, se = std::sqrt(std::max(0.0, s2 / n - mean * mean) / (n - 1));
-  std::printf("furnace: mean %.4f ± %.4f, high-order share %.2f\n", mean, se, high / s);
+  std::printf("furnace (%s): mean %.4f ± %.4f, high-order share %.2f\n", mediumModelName(model), mean, se, high / s);
   EXPECT_GT(high / s, 0.2);
   EXPECT_NEAR(mean, 1.0, 4 * se + 1e-4);
+}
+}  // namespace
+
+TEST(Hybrid, ClearGrainsInAWhiteFurnaceReturnTheEnvironment) { expectClearGrainsReturnTheWhiteFurnace(MediumModel::Tt); }
+
+// The exits model (vpt.h) moves where a scattering's light goes on, never how much of it.
+TEST(Hybrid, ClearGrainsInAWhiteFurnaceReturnTheEnvironmentInTheExitsModel) {
+  expectClearGrainsReturnTheWhiteFurnace(MediumModel::Exits);
 }
 
 TEST(Hybrid, MatchesTheEptReferenceWithinNoise) {
@@ -494,3 +506,4 @@ TEST(HybridAccuracy, InstancersExplicitBouncesFollowTheirMediumsAlbedoAggregates
   d.settings.technique = Technique::Ept;
   EXPECT_EQ(Scene::build(d)->explicitBounces(), 0);
 }
+

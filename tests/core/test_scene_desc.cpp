@@ -183,7 +183,7 @@ TEST(SceneChanges, SettingsThatBuildReadsAreNotAView) {
   EXPECT_TRUE(c.media && c.settings);
   EXPECT_TRUE(c.aggregates.empty());
   EXPECT_TRUE(settingsNeedBuild(base.settings, d.settings));
-  EXPECT_EQ(describeChanges(c), "everything (technique) changed");
+  EXPECT_EQ(describeChanges(c), "everything (media) changed");
 }
 
 TEST(SceneChanges, EveryLightFieldIsLights) {

@@ -17,6 +17,7 @@
 #include "core/sampling.h"
 #include "core/shapes.h"
 #include "core/tt.h"
+#include "core/vpt.h"
 
 #include "test_helpers.h"
 
@@ -85,6 +86,11 @@ void expectSameTransport(const GrainTransport& a, const GrainTransport& b) {
     EXPECT_EQ(a.phase[c].density, b.phase[c].density);
     EXPECT_EQ(a.phase[c].cdf, b.phase[c].cdf);
     EXPECT_EQ(a.phase[c].g, b.phase[c].g);
+    for (int k = 0; k < ExitMoves::kBins; ++k) {
+      const std::vector<Vec3>&ma = a.exits[c].moves[k], &mb = b.exits[c].moves[k];
+      ASSERT_EQ(ma.size(), mb.size());
+      for (size_t i = 0; i < ma.size(); ++i) EXPECT_TRUE(ma[i].x == mb[i].x && ma[i].y == mb[i].y && ma[i].z == mb[i].z);
+    }
   }
 }
 
@@ -248,6 +254,25 @@ TEST(TTEstimate, IndexMatchedGrainIsAForwardDelta) {
     ASSERT_EQ(p.bins(), 64);
     EXPECT_EQ(p.cdf[63], 0.0f);  // all the mass in the last bin
     EXPECT_NEAR(tableIntegral(p), 1.0, 1e-5);
+    // Where it lets the light out: straight on, moved by the chord along ω_i (mean 4/3).
+    const ExitMoves& e = g.exits[c];
+    for (int k = 0; k + 1 < ExitMoves::kBins; ++k) EXPECT_TRUE(e.moves[k].empty()) << k;
+    const std::vector<Vec3>& fwd = e.moves[ExitMoves::kBins - 1];
+    ASSERT_EQ(int(fwd.size()), ExitMoves::kPerBin);
+    double along = 0;
+    for (const Vec3& m : fwd) {
+      EXPECT_LE(m.x, 2.0f + 1e-5f);
+      EXPECT_NEAR(m.y, 0.0f, 1e-3f);
+      EXPECT_NEAR(m.z, 0.0f, 1e-3f);
+      along += m.x;
+    }
+    along /= double(fwd.size());
+    EXPECT_NEAR(along, 4.0 / 3.0, 4.0 * std::sqrt(2.0 / 9.0 / double(fwd.size())));
+    // Sampled in a world frame: along ω_i.
+    const Vec3 wi = normalize(Vec3(0.2f, -0.3f, 0.9f));
+    const Vec3 m = e.sample(wi, wi, 0.5f);
+    EXPECT_NEAR(length(cross(m, wi)), 0.0f, 2e-3f);
+    EXPECT_GT(dot(m, wi), 0.0f);
   }
 }
 
@@ -784,4 +809,141 @@ TEST(TTAggregate, RocksOfTwoSizesMatchTT) {
 TEST(TTAggregate, RocksOfTwoSizesAndASpreadMatchTT) {
   // The same with every grain's size spread by ±25%.
   checkAgainstTT({makeRock(2, 0.35f, 5), 0.55f, "polydisperse rocks", 0.01f, 0.6f, 0.4f, 0.25f, 0.02}, 300, 150);
+}
+
+// Where a grain lets light out by the angle it turns it (ExitMoves): each bin's moves are
+// drawn in proportion to each channel's exiting energy, so their mean is the energy-weighted
+// mean move of the exits in that bin, per channel, as traced here directly with other rays.
+TEST(TTExits, MovesAreDrawnByEachChannelsExitingEnergy) {
+  TriangleMesh rock = prototypeOf(makeRock(2, 0.2f, 1));
+  const Material m = dielectric(1.55f, Vec3(0.02f, 0.5f, 3.0f));
+  GrainTransport g = estimateGrainTransport(rock, m, opts(1 << 17, 8));
+  EmbreeDevice dev = makeEmbreeDevice();
+  EmbreeScene bvh = buildTriangleScene(dev, rock);
+  const int kBins = ExitMoves::kBins;
+  std::vector<std::array<double, 3>> w(kBins), wx(kBins), wxx(kBins);
+  for (int i = 0; i < (1 << 17); ++i) {
+    Rng rng(hashInts(99, uint64_t(i)));
+    Vec3 xi, wi;
+    sampleSphereEntry(rng, xi, wi);
+    const GrainPassage p = traceGrainPassage(bvh.get(), rock, m, 4096, xi, wi, rng);
+    if (!p.hit) continue;
+    const float b = dot(p.o, p.d), tOut = -b + std::sqrt(std::max(0.0f, b * b - (length2(p.o) - 1.0f)));
+    const double along = dot(p.o + p.d * tOut - xi, wi);
+    const int k = ExitMoves::bin(dot(wi, p.d));
+    for (int c = 0; c < 3; ++c) {
+      w[k][c] += p.weight[c];
+      wx[k][c] += p.weight[c] * along;
+      wxx[k][c] += p.weight[c] * along * along;
+    }
+  }
+  double backRed = 0, fwdRed = 0;
+  for (int c = 0; c < 3; ++c)
+    for (int k : {0, kBins - 1}) {  // straight back, straight on
+      const std::vector<Vec3>& moves = g.exits[c].moves[k];
+      ASSERT_EQ(int(moves.size()), ExitMoves::kPerBin) << c << " " << k;
+      double mean = 0;
+      for (const Vec3& x : moves) {
+        EXPECT_LE(length(x), 2.0f + 1e-4f);
+        mean += x.x;
+      }
+      mean /= double(moves.size());
+      const double want = wx[k][c] / w[k][c];
+      const double sd = std::sqrt(std::max(0.0, wxx[k][c] / w[k][c] - want * want));
+      EXPECT_NEAR(mean, want, 4.0 * sd / std::sqrt(double(moves.size()))) << "channel " << c << " bin " << k;
+      if (c == 0) (k == 0 ? backRed : fwdRed) = mean;
+    }
+  // Light a grain sends back leaves near where it came in, light it sends on a diameter on.
+  EXPECT_LT(backRed, 0.6);
+  EXPECT_GT(fwdRed, 1.2);
+  // Absorption shifts the draws: blue keeps the short paths through the grain.
+  double fwdBlue = 0;
+  for (const Vec3& x : g.exits[2].moves[kBins - 1]) fwdBlue += x.x;
+  EXPECT_LT(fwdBlue / ExitMoves::kPerBin, fwdRed);
+}
+
+// The mixture's moves: per bin, a kind's share of the kPerBin moves is its share of the
+// energy exiting into that bin (to a count's rounding), its moves scaled by its size.
+TEST(TTExits, AMixturesMovesComeFromEachKindByItsExitingEnergy) {
+  GrainTransport a = handMade(0.5, 0.8, {1.0, 1.0, 1.0}, {1.0, 1.0, 1.0}, {0.0, 0.0, 0.0});
+  GrainTransport b = handMade(1.0, 0.0, {0.5, 0.5, 0.5}, {2.0, 2.0, 2.0}, {0.9, 0.9, 0.9});
+  std::vector<double> fwd(4, 0.0);
+  fwd[3] = 1.0;
+  for (int c = 0; c < 3; ++c) {
+    b.phase[c] = PhaseTable::fromHistogram(fwd);  // all in μ > 0.5
+    for (int k = 0; k < ExitMoves::kBins; ++k) {
+      a.exits[c].moves[k].assign(7, Vec3(0.1f, 0.0f, 0.0f));
+      if (k >= 12) b.exits[c].moves[k].assign(5, Vec3(1.0f, 0.5f, 0.0f));
+    }
+  }
+  // Weights by number 1 : 3, sizes 1 and 2: a flight meets b with w_b = 3·4 / (1 + 3·4).
+  MediumParams m = deriveMedium({a, b}, {1.0f, 3.0f}, {1.0f, 2.0f}, 0.01f, 0.5f);
+  const double wa = 1.0 / 13.0, wb = 12.0 / 13.0;
+  const double exA = wa * 0.5 * 1.0, exB = wb * 1.0 * 0.5;  // w β α
+  for (int c = 0; c < 3; ++c)
+    for (int k = 0; k < ExitMoves::kBins; ++k) {
+      const std::vector<Vec3>& mv = m.combined.exits[c].moves[k];
+      ASSERT_EQ(int(mv.size()), ExitMoves::kPerBin);
+      int fromB = 0;
+      for (const Vec3& x : mv) {
+        const bool isB = x.x == 2.0f && x.y == 1.0f && x.z == 0.0f;  // b's move at size 2
+        EXPECT_TRUE(isB || (x.x == 0.1f && x.y == 0.0f)) << x.x;
+        fromB += isB;
+      }
+      const double massA = 1.0 / ExitMoves::kBins, massB = k >= 12 ? 0.25 : 0.0;
+      const double want = ExitMoves::kPerBin * exB * massB / (exA * massA + exB * massB);
+      EXPECT_NEAR(fromB, want, 1.0) << "bin " << k;
+    }
+}
+
+// The exits model's diffusion (exitsDiffusionMedium): its σ_t makes a standard medium's
+// spread per scattering, 2 / (σ_t² (1 − g)), the exits walk's own. Walked here with the
+// medium's own sampling (vpt.h: flights, phase, moves) in an unbounded medium of clear
+// rocks: the growth of the mean square distance per scattering, between the 100th and the
+// 300th, against M = 2 / (σ_t² (1 − g)). Without moves, the flights' own exponential
+// medium: σ_t = 1 / (kExitFlight λ_β).
+TEST(TTExits, TheExitsModelsDiffusionSpreadsAsItsWalkDoes) {
+  TriangleMesh rock = prototypeOf(makeRock(2, 0.2f, 1));
+  GrainTransport g = estimateGrainTransport(rock, dielectric(1.55f), opts(1 << 17, 9));
+  const MediumParams p = deriveMedium({g}, {1.0f}, 1.0f, 0.6f);
+  const MediumParams da = exitsDiffusionMedium(p);
+  const HomogeneousMedium walk(p, MediumModel::Exits);
+  ASSERT_TRUE(walk.movesLight());
+  const double gt = p.phase[0].g;
+  const double M = 2.0 / (double(da.sigmaT.x) * da.sigmaT.x * (1.0 - gt));
+  const int walks = 1 << 16, first = 100, last = 300;
+  double s1 = 0, s2 = 0;
+  for (int i = 0; i < walks; ++i) {
+    Rng rng(hashInts(77, uint64_t(i)));
+    Vec3 x(0.0f), d = sampleUniformSphere(rng.next1D(), rng.next1D());
+    double at100 = 0;
+    for (int k = 1; k <= last; ++k) {
+      x += d * walk.sampleDistance(rng.next1D(), rng.next1D());
+      Vec3 weight;
+      float pdf;
+      const Vec3 wo = walk.samplePhase(d, rng.next1D(), rng.next1D(), rng.next1D(), weight, pdf);
+      x += walk.exitMove(d, wo, rng.next1D(), rng.next1D());
+      d = wo;
+      if (k == first) at100 = length2(x);
+    }
+    const double growth = (length2(x) - at100) / double(last - first);
+    s1 += growth;
+    s2 += growth * growth;
+  }
+  const double mean = s1 / walks, se = std::sqrt(std::max(0.0, s2 / walks - mean * mean) / (walks - 1));
+  std::printf("exits walk: spread per scattering %.3f ± %.3f R², the diffusion's %.3f, TT's %.3f\n", mean, se, M,
+              2.0 / (double(p.sigmaT.x) * p.sigmaT.x * (1.0 - gt)));
+  EXPECT_NEAR(mean, M, 4.0 * se + 0.005 * M);
+  EXPECT_LT(se, 0.01 * M);  // tight enough to tell TT's spread apart where they differ by a few %
+  // Without moves: the flights' own medium.
+  MediumParams still = p;
+  for (int c = 0; c < 3; ++c) {
+    still.combined.moveIn[c] = still.combined.moveOut[c] = still.combined.moveSquared[c] = 0;
+    for (std::vector<Vec3>& m : still.combined.exits[c].moves) std::fill(m.begin(), m.end(), Vec3(0.0f));
+  }
+  const MediumParams flights = exitsDiffusionMedium(still);
+  for (int c = 0; c < 3; ++c) EXPECT_NEAR(flights.sigmaT[c], 1.0f / (kExitFlight * p.lambdaBeta[c]), 1e-5f * flights.sigmaT[c]);
+  // A medium without moves (given directly) keeps its own parameters.
+  const MediumParams rte = mediumFromRte(Vec3(2.0f), Vec3(0.9f), PhaseTable::isotropic());
+  EXPECT_EQ(exitsDiffusionMedium(rte).sigmaTReduced.x, rte.sigmaTReduced.x);
 }

@@ -237,3 +237,60 @@ TEST(Vpt, DeepShadowRaysLeftByRouletteAddNoBias) {
   EXPECT_LT(traced, n / 50);
   EXPECT_NEAR(mean, e, 4 * se) << "traced " << traced << " of " << n;
 }
+
+// The exits model (vpt.h): flights of kExitFlight λ_β to the next grain met, and each
+// scattering's light moved by the grain's move for the angle it turned (tt.h, ExitMoves),
+// never further than a grain's diameter and never through a surface. TT's medium, and a
+// medium given directly, move nothing.
+TEST(Vpt, TheExitsModelFliesToTheNextGrainMetAndMovesLightAsTheGrainLetsItOut) {
+  SceneDesc d = slabScene();
+  MeshDesc floor;  // just under the slab: a wall the moves must not pass
+  floor.name = "floor";
+  floor.mesh = makeBox(Vec3(-10, -10, -0.5f), Vec3(10, 10, -0.01f));
+  floor.material = 0;
+  d.meshes.push_back(floor);
+  auto tt = Scene::build(d);
+  d.settings.mediumModel = MediumModel::Exits;
+  auto exits = Scene::build(d);
+  const MediumParams& p = exits->mediumParams(0);
+  EXPECT_FALSE(tt->medium(0).movesLight());
+  EXPECT_EQ(tt->medium(0).sigmaT().x, p.sigmaT.x);
+  const HomogeneousMedium& m = exits->medium(0);
+  ASSERT_TRUE(m.movesLight());
+  EXPECT_EQ(m.moveRadius(), 0.1f);
+  for (int c = 0; c < 3; ++c) {
+    EXPECT_NEAR(m.sigmaT()[c], 1.0f / (kExitFlight * p.lambdaBeta[c]), 1e-6f * m.sigmaT()[c]);
+    EXPECT_GT(m.sigmaT()[c], p.sigmaT[c]);  // λ_β < λ_t = λ_β + α_s λ_s
+    EXPECT_EQ(m.albedo()[c], p.albedo[c]);
+  }
+  EXPECT_NE(exits->lowOrdersText(0).find("the medium (exits)"), std::string::npos) << exits->lowOrdersText(0);
+  EXPECT_EQ(tt->lowOrdersText(0).find("exits"), std::string::npos);
+  // Moves: at most a diameter; light sent on moves further along ω_i than light sent back.
+  Rng rng(5);
+  const Vec3 wi = normalize(Vec3(0.1f, 0.2f, -1.0f));
+  double on = 0, back = 0;
+  int nOn = 0, nBack = 0;
+  for (int i = 0; i < 16384; ++i) {
+    const Vec3 wo = sampleUniformSphere(rng.next1D(), rng.next1D());
+    const Vec3 move = m.exitMove(wi, wo, rng.next1D(), rng.next1D());
+    ASSERT_LE(length(move), 2.0f * 0.1f * (1.0f + 1e-4f));
+    if (dot(wi, wo) > 0.9f) on += dot(move, wi), ++nOn;
+    if (dot(wi, wo) < -0.9f) back += dot(move, wi), ++nBack;
+  }
+  ASSERT_GT(nOn, 100);
+  ASSERT_GT(nBack, 100);
+  // Clear spheres (IOR 1.5) of radius 0.1: light sent on crosses about a diameter, light
+  // sent back (reflected near where it came in) about a tenth of one.
+  EXPECT_GT(on / nOn, 0.1);
+  EXPECT_LT(back / nBack, 0.5 * on / nOn);
+  // Never through a surface: from just above the floor, a move across it stays put.
+  const Vec3 above(0, 0, 0.05f);
+  EXPECT_EQ(exits->movedLight(above, Vec3(0, 0, -0.15f), 0.0f).z, above.z);
+  EXPECT_NEAR(exits->movedLight(above, Vec3(0, 0, 0.15f), 0.0f).z, 0.2f, 1e-6f);
+  EXPECT_EQ(exits->mediumAfterMove(0, Vec3(0, 0, 0.5f), 0.0f, 0.1f), 0);
+  EXPECT_EQ(exits->mediumAfterMove(0, Vec3(0, 0, 1.05f), 0.0f, 0.1f), -1);
+  // A medium given directly has no moves: TT's transport, whatever the model.
+  exits->setMedium(0, mediumFromRte(Vec3(1.0f), Vec3(0.9f), PhaseTable::isotropic()));
+  EXPECT_FALSE(exits->medium(0).movesLight());
+  EXPECT_EQ(exits->medium(0).sigmaT().x, 1.0f);
+}

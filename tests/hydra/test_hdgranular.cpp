@@ -972,6 +972,32 @@ TEST(HdGranular, SwitchForViewMeasuresTheSwitchForThisViewAsGranularRenderDoes) 
   for (float v : view.values) ASSERT_TRUE(std::isfinite(v));
 }
 
+TEST(HdGranular, MediumModelMakesTheMediaAnewAsGranularRendersMediumModelDoes) {
+  // granular:mediumModel, as granular render's --medium-model (core/vpt.h): "exits" makes
+  // every aggregate's medium anew, a new build, and granular:switching says so in granular
+  // render's words; unknown words are refused by name.
+  UsdStageRefPtr stage = UsdStage::Open(kExamples + "/snowslab.usda");
+  auto engine = makeEngine(4);
+  Frame tt = render(*engine, stage, HdAovTokens->color, 32, 20);
+  EXPECT_EQ(stat<std::string>(engine->GetRenderStats(), "granular:switching").find("exits"), std::string::npos);
+  engine->SetRendererSetting(TfToken("granular:mediumModel"), VtValue(std::string("exits")));
+  Frame exits = render(*engine, stage, HdAovTokens->color, 32, 20);
+  const std::string switching = stat<std::string>(engine->GetRenderStats(), "granular:switching");
+  EXPECT_NE(switching.find("the medium (exits)"), std::string::npos) << switching;
+  EXPECT_EQ(stat<int>(engine->GetRenderStats(), "granular:sceneBuilds"), 2);
+  ASSERT_TRUE(tt.converged && exits.converged);
+  bool differs = false;
+  for (size_t i = 0; i < exits.values.size(); ++i) {
+    ASSERT_TRUE(std::isfinite(exits.values[i]));
+    differs = differs || exits.values[i] != tt.values[i];
+  }
+  EXPECT_TRUE(differs);
+  engine->SetRendererSetting(TfToken("granular:mediumModel"), VtValue(std::string("teleport")));
+  Frame refused = render(*engine, stage, HdAovTokens->color, 32, 20);
+  EXPECT_TRUE(refused.converged);
+  EXPECT_NE(stat<std::string>(engine->GetRenderStats(), "granular:error").find("medium_model"), std::string::npos);
+}
+
 TEST(HdGranular, ProxiesCarryTheLowOrdersUnderANarrowSunAsInGranularRender) {
   // The snow slab's 0.53° sun: the setting's default (auto) uses proxies there, as
   // granular render does; "off" turns them off as a change of view (no rebuild). Their
