@@ -33,6 +33,16 @@
 //     energy share and the mean move from where the ray entered the sphere to where its
 //     exit line leaves it, along the entering direction and across toward the exit's side,
 //     in grain radii; beside TT's λ_s (which the medium adds to every flight). One JSON line.
+//   granular-bench flights [--rays N] [--absorption A] [--ior N]
+//     The flight after a grain, explicitly: N walks through the ball of bulk's rock grains
+//     (IOR N, absorption A per radius) from its inner half, each grain's exit (reflected at
+//     its surface or refracted out) followed to the next grain met, within 50 R of the
+//     centre; per bin of the turn μ (from the direction the light met the grain in to the
+//     one it leaves in), the exits, the mean flight from where the exit line leaves the
+//     grain's sphere to where it enters the sphere of the next grain met (what the exits
+//     model's flights stand for) and its standard error, and the mean of the flight that
+//     brought the light to the grain; beside TT's λ_β, and over all exits the mean flight and
+//     the mean of the exponential flight of the same mean square. One JSON line.
 //   granular-bench instanced --grains N [--density 1]
 //     Explicit grains from a simulation (instanced_grains.h): N grains on a jittered cubic
 //     lattice (icosphere and rock prototypes, random rotations and scales, bounding spheres
@@ -642,6 +652,80 @@ int bulk(long walks, float absorption, float ior) {
   return 0;
 }
 
+// The flight after a grain, by the angle the grain turned the light (the usage above).
+int flights(long walks, float absorption, float ior) {
+  const RockBall ball(ior, absorption);
+  const Aggregate& agg = ball.agg;
+  const MediumParams mp = aggregateMedium({&agg.prototypes()[0].mesh}, {ball.m}, ball.desc, 1.0);
+  const float R = agg.grainRadius();
+  constexpr int kBins = 8;  // μ in eighths of [−1, 1]
+  double n[kBins] = {}, sum[kBins] = {}, sum2[kBins] = {}, prevN[kBins] = {}, prevSum[kBins] = {};
+  // Where a line from o along d enters (first) or leaves (second) a sphere; NaN when it misses.
+  auto sphere = [](const Vec3& o, const Vec3& d, const Vec3& c, float r, bool leave) {
+    const Vec3 oc = o - c;
+    const float b = dot(oc, d), q = length2(oc) - r * r, disc = b * b - q;
+    if (disc < 0) return std::nanf("");
+    return leave ? -b + std::sqrt(disc) : -b - std::sqrt(disc);
+  };
+  for (long i = 0; i < walks; ++i) {
+    Rng r(hashInts(uint64_t(i), 0xf11eULL), 0);
+    ExplicitWalk walk;
+    walkStart(r, walk.o, walk.d);
+    Vec3 entryDir(0.0f), exitPoint(0.0f), exitDir(0.0f);
+    float lastFlight = -1;   // the flight (sphere to sphere) that brought the light to the grain it is in
+    int exitBin = -1;        // set while a flight from a grain's exit is under way
+    for (int e = 0; e < 4096; ++e) {
+      const bool wasInside = walk.inside;
+      const Vec3 before = walk.d;
+      GrainHit h;
+      Vec3 at;
+      BsdfSample bs;
+      if (!walk.step(agg, ball.m, r, h, at, bs)) break;
+      if (length(at) > 0.5f) break;  // deep inside only: no surface within 50 R
+      if (!wasInside) {  // a grain met from outside: the flight from the last exit ends at its sphere
+        const Vec3 c = agg.grainCenter(h);
+        const float enter = sphere(exitPoint, exitDir, c, h.radius, false);
+        float flight = -1;
+        if (exitBin >= 0 && std::isfinite(enter)) {
+          flight = std::max(0.0f, enter) / R;
+          n[exitBin] += 1;
+          sum[exitBin] += flight;
+          sum2[exitBin] += double(flight) * flight;
+          if (lastFlight >= 0) prevN[exitBin] += 1, prevSum[exitBin] += lastFlight;
+        }
+        lastFlight = flight;
+        exitBin = -1;
+        entryDir = before;
+      }
+      if (!walk.inside) {  // out of the grain (reflected at its surface, or refracted out): an exit
+        const Vec3 c = agg.grainCenter(h);
+        const float leave = sphere(walk.o, walk.d, c, h.radius, true);
+        exitPoint = walk.o + walk.d * std::max(0.0f, std::isfinite(leave) ? leave : 0.0f);
+        exitDir = walk.d;
+        exitBin = std::clamp(int((dot(entryDir, walk.d) + 1.0f) * 0.5f * kBins), 0, kBins - 1);
+      }
+    }
+  }
+  std::string rows;
+  double all = 0, allSum = 0, allSum2 = 0;
+  for (int k = 0; k < kBins; ++k) all += n[k], allSum += sum[k], allSum2 += sum2[k];
+  for (int k = 0; k < kBins; ++k) {
+    const double m = n[k] > 0 ? sum[k] / n[k] : 0;
+    const double se = n[k] > 1 ? std::sqrt(std::max(0.0, sum2[k] / n[k] - m * m) / (n[k] - 1)) : 0;
+    rows += str(k ? ", " : "", "{\"mu\": [", -1.0 + 2.0 * k / kBins, ", ", -1.0 + 2.0 * (k + 1) / kBins, "], \"exits\": ",
+                int64_t(n[k]), ", \"flight_R\": ", m, ", \"flight_se\": ", se, ", \"flight_square_R2\": ",
+                n[k] > 0 ? sum2[k] / n[k] : 0.0, ", \"previous_flight_R\": ",
+                prevN[k] > 0 ? prevSum[k] / prevN[k] : 0.0, "}");
+  }
+  // The exponential flight of the same mean square: what the walk's spread depends on (tt.h,
+  // exitsDiffusionMedium: 2 L² for flights of mean L).
+  const double mean = all > 0 ? allSum / all : 0, rms = all > 0 ? std::sqrt(0.5 * allSum2 / all) : 0;
+  std::printf("{\"absorption\": %g, \"ior\": %g, \"walks\": %ld, \"lambda_beta_R\": %g, \"flight_R\": %g, "
+              "\"exponential_of_the_same_mean_square_R\": %g, \"bins\": [%s]}\n",
+              absorption, ior, walks, mp.lambdaBeta[0] / R, mean, rms, rows.c_str());
+  return 0;
+}
+
 // Where a grain lets light out, by the angle it turns it (the usage above).
 int exits(long rays, float absorption, float ior) {
   // The walks' grain alone (its prototype as the ball's aggregate makes it, and that
@@ -748,7 +832,8 @@ int main(int argc, char** argv) {
                  "usage: granular-bench throughput [--grain-radius R] [--seconds S] [--raw-seconds S] | setup --grains N "
                  "[--tile-spheres T] | instanced --grains N [--density 1] | "
                  "tt [--rays N] | peaks [--rays N] | visits [--seconds S] [--absorption A] |\n"
-                 "  bulk [--rays N] [--absorption A] [--ior N] | exits [--rays N] [--absorption A] [--ior N]\n");
+                 "  bulk [--rays N] [--absorption A] [--ior N] | exits [--rays N] [--absorption A] [--ior N] |\n"
+                 "  flights [--rays N] [--absorption A] [--ior N]\n");
     return 2;
   }
   std::string mode = argv[1];
@@ -779,6 +864,7 @@ int main(int argc, char** argv) {
     if (mode == "visits") return visits(secs, absorption);
     if (mode == "bulk") return bulk(rays, absorption, ior);
     if (mode == "exits") return exits(rays, absorption, ior);
+    if (mode == "flights") return flights(rays, absorption, ior);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "error: %s\n", e.what());
     return 1;

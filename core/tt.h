@@ -191,10 +191,12 @@ MediumParams deriveMedium(const std::vector<GrainTransport>& kinds, const std::v
                           const std::vector<float>& sizes, float grainRadius, float packingRate,
                           double sauterSize = 0);
 
-// The exits model's flights between grains, in λ_β (vpt.h): 1.0 carries light too short
-// deep inside an aggregate, as flights between grains in a dense packing are not
-// memoryless; 1.03 makes the walk's transport over distance explicit grains' for quartz
-// rocks (bench/README.md, "Where a grain lets light out"; about 1.05 for IOR 2.4).
+// The exits model's flights between grains, in λ_β (vpt.h). A flight between grains in a
+// dense packing has λ_β's mean but is more spread than an exponential one, and a walk's
+// spread goes with the flights' mean square (exitsDiffusionMedium: 2 L²): the exponential
+// flight of explicit grains' mean square is 1.026 λ_β for rocks of IOR 1.55 and 1.032 for
+// IOR 2.4 (bench/README.md, "The exits model"), and 1.03 makes the walk's transport over
+// distance explicit grains'.
 constexpr float kExitFlight = 1.03f;
 
 // The standard medium (TT's phase functions and α_s) whose walk spreads as far per
