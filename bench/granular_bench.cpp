@@ -24,8 +24,9 @@
 //     f = 0.6, IOR N, absorption A per radius), each in one direction drawn for all three:
 //     the medium (aggregateMedium, vpt.h's flights and phase), proxies (ppt.h's walk) and
 //     explicit grains (Aggregate::intersect, Material::sample, Beer–Lambert inside); and the
-//     exits model's medium (vpt.h), on random numbers of its own. The energy each brings to its first passage through spheres of radius 2, 4, ..., 64 R
-//     about the start, with standard errors. One JSON line.
+//     exits model's medium (vpt.h), on random numbers of its own. The energy each brings to
+//     its first passage through spheres of radius 2, 4, ..., 64 R about the start, with
+//     standard errors. One JSON line.
 //   granular-bench exits [--rays N] [--absorption A] [--ior N]
 //     Where a grain lets light out, by the angle it turns it: N rays into the bounding
 //     sphere of the walks' rock grain (IOR N, absorption A per radius), traced as TT
@@ -660,13 +661,6 @@ int flights(long walks, float absorption, float ior) {
   const float R = agg.grainRadius();
   constexpr int kBins = 8;  // μ in eighths of [−1, 1]
   double n[kBins] = {}, sum[kBins] = {}, sum2[kBins] = {}, prevN[kBins] = {}, prevSum[kBins] = {};
-  // Where a line from o along d enters (first) or leaves (second) a sphere; NaN when it misses.
-  auto sphere = [](const Vec3& o, const Vec3& d, const Vec3& c, float r, bool leave) {
-    const Vec3 oc = o - c;
-    const float b = dot(oc, d), q = length2(oc) - r * r, disc = b * b - q;
-    if (disc < 0) return std::nanf("");
-    return leave ? -b + std::sqrt(disc) : -b - std::sqrt(disc);
-  };
   for (long i = 0; i < walks; ++i) {
     Rng r(hashInts(uint64_t(i), 0xf11eULL), 0);
     ExplicitWalk walk;
@@ -683,10 +677,8 @@ int flights(long walks, float absorption, float ior) {
       if (!walk.step(agg, ball.m, r, h, at, bs)) break;
       if (length(at) > 0.5f) break;  // deep inside only: no surface within 50 R
       if (!wasInside) {  // a grain met from outside: the flight from the last exit ends at its sphere
-        const Vec3 c = agg.grainCenter(h);
-        const float enter = sphere(exitPoint, exitDir, c, h.radius, false);
-        float flight = -1;
-        if (exitBin >= 0 && std::isfinite(enter)) {
+        float enter = 0, flight = -1;
+        if (exitBin >= 0 && sphereNearSide(exitPoint - agg.grainCenter(h), exitDir, h.radius, enter)) {
           flight = std::max(0.0f, enter) / R;
           n[exitBin] += 1;
           sum[exitBin] += flight;
@@ -698,9 +690,7 @@ int flights(long walks, float absorption, float ior) {
         entryDir = before;
       }
       if (!walk.inside) {  // out of the grain (reflected at its surface, or refracted out): an exit
-        const Vec3 c = agg.grainCenter(h);
-        const float leave = sphere(walk.o, walk.d, c, h.radius, true);
-        exitPoint = walk.o + walk.d * std::max(0.0f, std::isfinite(leave) ? leave : 0.0f);
+        exitPoint = walk.o + walk.d * sphereFarSide(walk.o - agg.grainCenter(h), walk.d, h.radius);
         exitDir = walk.d;
         exitBin = std::clamp(int((dot(entryDir, walk.d) + 1.0f) * 0.5f * kBins), 0, kBins - 1);
       }

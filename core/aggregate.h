@@ -137,6 +137,12 @@ class Aggregate {
   // Exact inside test of a world point against the boundary mesh (ray parity by the
   // orientation of the first hit).
   bool insideBoundary(const Vec3& p) const;
+  // The same answer, cheaply where it can: the distance field (accurate to about a voxel)
+  // where it puts p deeper than a voxel, insideBoundary() elsewhere and for a stand-in (no
+  // field). For points asked often near where a path already is (the exits model's moves).
+  bool insideBoundaryFast(const Vec3& p) const {
+    return (!standIn_ && boundaryDistance(p) < -sdf_.voxelSize()) || insideBoundary(p);
+  }
   // Nearest crossing of the boundary mesh in (tmin, tmax): its t and outward unit normal.
   // The medium of VPT/DA is bounded by it (an index-matched interface).
   bool intersectBoundary(const Vec3& o, const Vec3& d, float tmin, float tmax, float& t, Vec3& ng) const;

@@ -79,6 +79,7 @@ class PosedAggregate {
     return pose_.still ? agg_->grainCenter(g) : pose_.pointToWorld(agg_->grainCenter(g));
   }
   bool insideBoundary(const Vec3& p) const { return agg_->insideBoundary(toBuild(p)); }
+  bool insideBoundaryFast(const Vec3& p) const { return agg_->insideBoundaryFast(toBuild(p)); }
   bool intersectBoundary(const Vec3& o, const Vec3& d, float tmin, float tmax, float& t, Vec3& ng) const;
   float closestBoundaryPoint(const Vec3& p, Vec3& closest) const;
   float boundaryDistance(const Vec3& p) const { return agg_->boundaryDistance(toBuild(p)); }

@@ -1415,9 +1415,14 @@ void Scene::updateDiffusionDepths() {
 }
 
 void Scene::setDiffusion(size_t a) {
-  const MediumParams da = media_[a].movesLight() ? exitsDiffusionMedium(mediumParams_[a]) : mediumParams_[a];
-  diffusionProfiles_[a] = DiffusionProfile(da);
-  daDepthUnit_[a] = granular::diffusionDepth(da, 1.0f);
+  auto set = [&](const MediumParams& da) {
+    diffusionProfiles_[a] = DiffusionProfile(da);
+    daDepthUnit_[a] = granular::diffusionDepth(da, 1.0f);
+  };
+  if (media_[a].movesLight())
+    set(exitsDiffusionMedium(mediumParams_[a]));
+  else
+    set(mediumParams_[a]);  // TT's: its own parameters, not a copy
 }
 
 void Scene::setMedium(int aggregate, const MediumParams& params) {
@@ -1642,9 +1647,8 @@ Vec3 Scene::movedLight(const Vec3& p, const Vec3& move, float time) const {
   return surfacesOccluded(p, move / len, len, time, true) ? p : p + move;
 }
 
-int Scene::mediumAfterMove(int m, const Vec3& q, float time, float R) const {
-  if (m >= 0 && aggregateAt(m, time).boundaryDistance(q) < -4.0f * R) return m;
-  return mediumAt(q, time);
+int Scene::mediumAfterMove(int m, const Vec3& q, float time) const {
+  return m >= 0 && aggregateAt(m, time).insideBoundaryFast(q) ? m : mediumAt(q, time);
 }
 
 int Scene::mediumAt(const Vec3& p, float time) const {

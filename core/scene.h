@@ -222,9 +222,9 @@ class Scene {
   // The exits model's move of a scattering's light (vpt.h): p + move, or p where a surface
   // lies between them (no grain lets light through a wall).
   Vec3 movedLight(const Vec3& p, const Vec3& move, float time) const;
-  // The medium a path in medium m is in after such a move to q, of grains of radius R: m
-  // where the distance field puts q deeper than 4 R (the move is at most 2 R), else mediumAt.
-  int mediumAfterMove(int m, const Vec3& q, float time, float R) const;
+  // The medium a path in medium m is in after such a move to q: m where q is still inside
+  // its boundary (Aggregate::insideBoundaryFast), else mediumAt.
+  int mediumAfterMove(int m, const Vec3& q, float time) const;
   // Aggregate a as it stands at a ray's time (aggregate_motion.h: AggregateDesc::shutterXf):
   // its queries on world (render-space) rays and points. What depends on where it is asks
   // this, not aggregates().

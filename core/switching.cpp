@@ -160,7 +160,7 @@ Vec3 mediumEscape(const Aggregate& agg, const HomogeneousMedium& med, const Ligh
     if (!scatter(med, d, w, rng)) return gathered;
     if (med.movesLight()) {  // the exits model (vpt.h): on from where the grain lets the light out
       o = o + med.exitMove(wi, d, rng.next1D(), rng.next1D());
-      inside = agg.boundaryDistance(o) < -4.0f * med.moveRadius() || agg.insideBoundary(o);
+      inside = agg.insideBoundaryFast(o);
     }
     if (event >= kRouletteAfter && !survive(w, rng)) return gathered;
   }
@@ -618,7 +618,7 @@ struct ViewLighting {
       bool out = false;  // moved out of the boundary: nothing of the medium left to cross
       if (med.movesLight()) {  // the exits model (vpt.h): from where the grain lets the light out
         from = o + med.exitMove(d, ls.wi, rng.next1D(), rng.next1D());
-        out = !(agg.boundaryDistance(from) < -4.0f * med.moveRadius()) && !agg.insideBoundary(from);
+        out = !agg.insideBoundaryFast(from);
       }
       if (!out && !agg.intersectBoundary(from, ls.wi, eps, kInf, tb, ng)) continue;
       L += med.phase(d, ls.wi) * med.transmittance(tb) * ls.Li / (ls.delta ? 1.0f : ls.pdf);

@@ -26,6 +26,13 @@ constexpr double kTwoPi = 2.0 * kPiD;
 constexpr int64_t kChunk = 4096;  // rays per chunk: fixed, so results ignore the thread count
 constexpr int kMaxBins = 1 << 16;
 
+// ExitMoves' frame: the unit part of ω_o across ω_i (any side where ω_o is along ±ω_i).
+// Where the trace writes a move and where the medium reads it back: the same frame.
+Vec3 acrossOf(const Vec3& wi, const Vec3& wo) {
+  const Vec3 across = wo - wi * dot(wi, wo);
+  return length2(across) > 1e-12f ? normalize(across) : Frame(wi).s;
+}
+
 int binOf(double mu, int bins) {
   if (!(mu > -1.0)) return 0;  // also NaN
   int b = int((mu + 1.0) * 0.5 * bins);
@@ -121,8 +128,7 @@ void traceChunk(RTCScene bvh, const TriangleMesh& mesh, const Material& m, const
     // The exit's move (tt.h, ExitMoves), kept per channel with its energy as the chance, by a
     // generator of its own so that the statistics above draw the same numbers as ever.
     const Vec3 dx = xo - xi;
-    Vec3 across = d - wi * float(mu);
-    across = length2(across) > 1e-12f ? normalize(across) : Frame(wi).s;
+    const Vec3 across = acrossOf(wi, d);
     const Vec3 move(dot(dx, wi), dot(dx, across), dot(dx, cross(wi, across)));
     const int eb = ExitMoves::bin(float(mu));
     Rng pick(hashInts(opt.seed, 0x4558 /* "EX" */, uint64_t(first + k)));
@@ -452,11 +458,9 @@ bool ExitMoves::empty() const {
 }
 
 Vec3 ExitMoves::sample(const Vec3& wi, const Vec3& wo, float u) const {
-  const float mu = dot(wi, wo);
-  const std::vector<Vec3>& m = moves[size_t(bin(mu))];
+  const std::vector<Vec3>& m = moves[size_t(bin(dot(wi, wo)))];
   if (m.empty()) return Vec3(0.0f);
-  Vec3 across = wo - wi * mu;
-  across = length2(across) > 1e-12f ? normalize(across) : Frame(wi).s;
+  const Vec3 across = acrossOf(wi, wo);
   const Vec3& x = m[std::min(m.size() - 1, size_t(u * float(m.size())))];
   return wi * x.x + across * x.y + cross(wi, across) * x.z;
 }

@@ -231,7 +231,7 @@ void scatterInMedium(const Scene& scene, PathState& path, const HomogeneousMediu
   path.ray.o = p;
   if (med.movesLight()) {  // the exits model: on from where the grain lets the light out
     path.ray.o = scene.movedLight(p, med.exitMove(wi, wo, path.rng.next1D(), path.rng.next1D()), path.ray.time);
-    path.medium = scene.mediumAfterMove(path.medium, path.ray.o, path.ray.time, med.moveRadius());
+    path.medium = scene.mediumAfterMove(path.medium, path.ray.o, path.ray.time);
   }
   path.ray.d = wo;
   path.ray.tmin = 0;

@@ -138,3 +138,20 @@ TEST(StandIn, TheFirstImageAgreesWithTheHybridOnAverage) {
     EXPECT_LE(std::fabs(rel), 0.03 + 4 * noise) << "grain radius " << R;
   }
 }
+
+// A stand-in has no distance field: the exits model's moves ask whether they stayed inside
+// by the boundary itself there (Aggregate::insideBoundaryFast), never by a field it lacks.
+TEST(StandIn, TheExitsModelRendersStandIns) {
+  SceneDesc d = sandBall(0.02f, 4, 0);
+  d.settings.mediumModel = MediumModel::Exits;
+  auto standIn = Scene::build(d, nullptr, SceneDetail::StandIns);
+  ASSERT_TRUE(standIn->medium(0).movesLight());
+  const Image img = render(*standIn);
+  double sum = 0;
+  for (int y = 0; y < img.height; ++y)
+    for (int x = 0; x < img.width; ++x) {
+      for (int c = 0; c < 3; ++c) ASSERT_TRUE(std::isfinite(img.at(x, y)[c]));
+      sum += luminance(Vec3(img.at(x, y)[0], img.at(x, y)[1], img.at(x, y)[2]));
+    }
+  EXPECT_GT(sum, 0.0);
+}

@@ -287,8 +287,8 @@ TEST(Vpt, TheExitsModelFliesToTheNextGrainMetAndMovesLightAsTheGrainLetsItOut) {
   const Vec3 above(0, 0, 0.05f);
   EXPECT_EQ(exits->movedLight(above, Vec3(0, 0, -0.15f), 0.0f).z, above.z);
   EXPECT_NEAR(exits->movedLight(above, Vec3(0, 0, 0.15f), 0.0f).z, 0.2f, 1e-6f);
-  EXPECT_EQ(exits->mediumAfterMove(0, Vec3(0, 0, 0.5f), 0.0f, 0.1f), 0);
-  EXPECT_EQ(exits->mediumAfterMove(0, Vec3(0, 0, 1.05f), 0.0f, 0.1f), -1);
+  EXPECT_EQ(exits->mediumAfterMove(0, Vec3(0, 0, 0.5f), 0.0f), 0);
+  EXPECT_EQ(exits->mediumAfterMove(0, Vec3(0, 0, 1.05f), 0.0f), -1);
   // A medium given directly has no moves: TT's transport, whatever the model.
   exits->setMedium(0, mediumFromRte(Vec3(1.0f), Vec3(0.9f), PhaseTable::isotropic()));
   EXPECT_FALSE(exits->medium(0).movesLight());
