@@ -807,6 +807,29 @@ bool Aggregate::intersectProxy(const Vec3& o, const Vec3& d, float tmin, float t
   return walk(r, t0, t1);
 }
 
+float Aggregate::flightToGrain(Vec3 o, const Vec3& d, const ProxyTables& tables, const GrainHit* from, Rng& rng,
+                               int& steps, GrainHit* met) const {
+  GrainHit h, left;
+  if (from) left = *from;
+  float flown = 0;
+  for (int crossed = 0; crossed < kMaxProxyCrossings; ++crossed) {
+    ++steps;
+    if (!intersectProxy(o, d, 0.0f, kInf, h, from ? &left : nullptr)) return kInf;
+    const ProxyTable& table = tables.at(h.prototype, h.radius / grainRadius());
+    const ProxyFrame frame(d, (o + d * h.t - h.center) / h.radius);
+    if (rng.next1D() < table.hitProbability(table.bBin(frame.b))) {
+      if (met) *met = h;
+      return flown + h.t;
+    }
+    const float advance = std::max(sphereFarSide(o - h.center, d, h.radius), h.t);  // crossed: on from its far side
+    o = o + d * advance;
+    flown += advance;
+    left = h;
+    from = &left;
+  }
+  return kInf;
+}
+
 ProxyShadow Aggregate::proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax,
                                           const ProxyTables& tables, const GrainHit* skip, uint64_t seed) const {
   if (!isFinite(o) || !isFinite(d) || standIn_) return ProxyShadow();

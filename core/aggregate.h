@@ -120,6 +120,13 @@ class Aggregate {
   // the answer, without the walk.
   bool intersectProxy(const Vec3& o, const Vec3& d, float tmin, float tmax, GrainHit& hit,
                       const GrainHit* skip = nullptr) const;
+  // The packing's flight (vpt.h: the medium takes over at a grain): from o along d past
+  // the sphere `from` (null: none), the spheres the ray enters, each grain met with its
+  // table's chance hit(b) (proxy.h) and else crossed, until one is met. Returns the
+  // distance to where the ray enters that grain's sphere, kInf when it leaves the packing
+  // first; `met` gets the grain, `steps` counts the spheres asked (a walk's cost).
+  float flightToGrain(Vec3 o, const Vec3& d, const ProxyTables& tables, const GrainHit* from, Rng& rng, int& steps,
+                      GrainHit* met = nullptr) const;
   // The centre of the tile sphere of a grain an explicit ray met (intersect's hit: its
   // cell and sphere), as intersectProxy() gives it.
   Vec3 grainCenter(const GrainHit& g) const { return sphereCenter(g.cell, g.sphere); }

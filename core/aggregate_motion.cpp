@@ -133,6 +133,13 @@ ProxyShadow PosedAggregate::proxyTransmittance(const Vec3& o, const Vec3& d, flo
   return agg_->proxyTransmittance(r.o, r.d, tmin * r.scale, tmax * r.scale, tables, skip, seed);
 }
 
+float PosedAggregate::flightToGrain(const Vec3& o, const Vec3& d, const ProxyTables& tables, const GrainHit* from,
+                                    Rng& rng, int& steps) const {
+  if (pose_.still) return agg_->flightToGrain(o, d, tables, from, rng, steps);
+  const BuildRay r = toBuildRay(o, d);
+  return agg_->flightToGrain(r.o, r.d, tables, from, rng, steps) / r.scale;
+}
+
 bool PosedAggregate::intersectBoundary(const Vec3& o, const Vec3& d, float tmin, float tmax, float& t,
                                        Vec3& ng) const {
   if (pose_.still) return agg_->intersectBoundary(o, d, tmin, tmax, t, ng);

@@ -75,6 +75,8 @@ class PosedAggregate {
                       const GrainHit* skip = nullptr) const;
   ProxyShadow proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax, const ProxyTables& tables,
                                  const GrainHit* skip, uint64_t seed) const;
+  float flightToGrain(const Vec3& o, const Vec3& d, const ProxyTables& tables, const GrainHit* from, Rng& rng,
+                      int& steps) const;
   Vec3 grainCenter(const GrainHit& g) const {
     return pose_.still ? agg_->grainCenter(g) : pose_.pointToWorld(agg_->grainCenter(g));
   }

@@ -335,8 +335,7 @@ void eptStep(const Scene& scene, PathState& path) {
   // The shortcut keeps the first grain and the low orders explicit (ppt.h, lowOrdersDone:
   // the medium misses the packing's shadow hiding), then leaves for the medium.
   if (path.shortcut && path.alive && !path.inGrain && lowOrdersDone(scene, path)) {
-    path.mode = path.credit = kVpt;
-    path.medium = scene.mediumAt(path.ray.o, path.ray.time);
+    enterMedia(scene, path);
   }
 }
 

@@ -48,9 +48,7 @@ void switchToMedia(const Scene& scene, std::vector<PathState>& paths, size_t i, 
   PathState& p = paths[i];
   p.switchPending = false;
   p.pendingStraight = Vec3(0.0f);  // the media count those grains as scatterings (ppt.h)
-  p.mode = kVpt;
-  p.credit = kVpt;
-  p.medium = scene.mediumAt(p.ray.o, p.ray.time);
+  enterMedia(scene, p);
   continueIntoMedia(paths, i, pa, split);
 }
 

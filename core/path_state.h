@@ -72,6 +72,7 @@ struct PathState {
   Transport mode = kEpt;   // kEpt: explicit grains; kPpt: proxies; kVpt: equivalent media
   Transport credit = kEpt; // which AOV the path's radiance goes to (kDa after a DA step)
   int medium = -1;         // aggregate whose medium holds the path (kVpt), or -1
+  bool grainFlight = false;  // its next flight is the packing's, from the grain `from` (vpt.h: enterMedia)
   bool switchPending = false;  // switch to kVpt once out of the current grain
   // Light the last next-event estimate among proxies found through grains' straight lobes
   // (ProxyShadow, proxy.h): added once the path goes on among proxies or ends, dropped if it

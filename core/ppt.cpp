@@ -6,14 +6,12 @@
 
 #include "ept.h"
 #include "sampling.h"
+#include "vpt.h"
 
 namespace granular {
 
 namespace {
 
-// Crossings of proxy spheres whose grains the ray misses, per event: far more than any
-// packing puts along one ray before a grain is met (hit chances are ~0.5–0.9).
-constexpr int kMaxCrossings = 1 << 16;
 constexpr float kMinNeeChance = 0.125f;
 
 // Whether a proxy hit is the grain g (the same sphere of the same aggregate's cell, or the
@@ -140,7 +138,7 @@ void pptStep(const Scene& scene, PathState& path) {
     path.alive = false;
     return;
   }
-  for (int crossing = 0; crossing < kMaxCrossings; ++crossing) {
+  for (int crossing = 0; crossing < kMaxProxyCrossings; ++crossing) {
     Hit hit;
     const bool starts = path.from.aggregate >= 0 || path.from.instancer >= 0;
     // The shortcut's first grain, known from the explicit ray (ept.h): no walk to it.
@@ -193,8 +191,7 @@ void pptStep(const Scene& scene, PathState& path) {
   // The level-of-detail shortcut leaves for the medium after the low orders (ept.h).
   if (path.shortcut && path.alive && scene.hasMedia() && lowOrdersDone(scene, path)) {
     path.pendingStraight = Vec3(0.0f);  // the medium counts those grains as scatterings
-    path.mode = path.credit = kVpt;
-    path.medium = scene.mediumAt(path.ray.o, path.ray.time);
+    enterMedia(scene, path);
   }
 }
 

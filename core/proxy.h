@@ -65,6 +65,11 @@ namespace granular {
 // Parallel faces send rays exactly straight, so it need only be small.
 constexpr double kStraightOnDegrees = 0.25;
 
+// Crossings of proxy spheres whose grains a ray misses, per grain met, at most (a walk
+// among proxies): far more than any packing puts along one ray before a grain is met (hit
+// chances are ~0.5–0.9).
+constexpr int kMaxProxyCrossings = 1 << 16;
+
 struct ProxyOptions {
   int64_t rays = 1 << 20;
   int bBins = 8, muBins = 32, phiBins = 16;

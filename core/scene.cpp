@@ -1090,7 +1090,9 @@ void Scene::measureSwitching(size_t a) {
   for (size_t i = 0; i < agg.prototypes().size(); ++i)
     key = hashGrainInputs(key, agg.prototypes()[i].mesh, materials_[size_t(entry.materials[i])]);
   for (const Vec3* v : {&m.sigmaT, &m.albedo, &m.g}) key = hashBytes(key, v, sizeof(Vec3));
-  if (media_[a].movesLight()) key = hashInts(key, 0x45584954 /* "EXIT" */, uint64_t(kExitFlight * 1e6f));
+  // The exits model: its flight, and that it takes over at a grain (vpt.h: enterMedia).
+  if (media_[a].movesLight())
+    key = hashInts(key, 0x45584954 /* "EXIT" */, uint64_t(kExitFlight * 1e6f), 0x47524149 /* "GRAI" */);
   entry.switchKey = key;
   // As many threads as the render may use (the result does not depend on them).
   entry.switching = std::make_shared<const SwitchMeasure>(

@@ -217,6 +217,19 @@ class Scene {
     return proxyTables_[size_t(aggregate)]->at(prototype, size);
   }
   const ProxyTables& proxyTables(int aggregate) const { return *proxyTables_[size_t(aggregate)]; }
+  // Whether the medium of aggregate a takes a path over at a grain (vpt.h: enterMedia): the
+  // exits model's (not a medium given directly, setMedium, whose flights the packing's would
+  // not be), with its proxy tables made.
+  bool takesOverAtGrains(int a) const {
+    return a >= 0 && size_t(a) < proxyTables_.size() && size_t(a) < media_.size() && media_[size_t(a)].movesLight();
+  }
+  // The packing's flight in aggregate a (Aggregate::flightToGrain) along ray from the grain
+  // `from` (one of a's, or none): the distance to the next grain met, kInf: none before
+  // the ray leaves the packing.
+  float flightToGrain(int a, const Ray& ray, const GrainStart& from, Rng& rng, int& steps) const {
+    return aggregateAt(a, ray.time).flightToGrain(ray.o, ray.d, *proxyTables_[size_t(a)],
+                                                  from.aggregate == a ? &from.grain : nullptr, rng, steps);
+  }
   // Index of the aggregate whose boundary contains p at time (Ray::time), or -1.
   int mediumAt(const Vec3& p, float time = 0) const;
   // The exits model's move of a scattering's light (vpt.h): p + move, or p where a surface

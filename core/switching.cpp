@@ -122,39 +122,64 @@ struct WhiteDome {
 // The energy (or, with a lighting policy of lights, the radiance) a walk in the equivalent
 // medium carries out of the boundary, from o along d (vpt.h's flight and phase sampling;
 // the boundary index-matched, so a ray that leaves may enter again where the boundary is
-// concave); exitBin gets the bin it leaves in.
+// concave); exitBin gets the bin it leaves in. In the exits model it takes over from the
+// grain `from` as the renderer's medium does (vpt.h: enterMedia): its first flight is the
+// packing's, to the next grain met.
 template <typename Lighting>
-Vec3 mediumEscape(const Aggregate& agg, const HomogeneousMedium& med, const Lighting& light, const ExitBins& bins,
-                  Vec3 o, Vec3 d, int& exitBin, Rng& rng, int64_t& events) {
+Vec3 mediumEscape(const Aggregate& agg, const ProxyTables& tables, const HomogeneousMedium& med,
+                  const Lighting& light, const ExitBins& bins, const GrainHit& from, Vec3 o, Vec3 d, int& exitBin,
+                  Rng& rng, int64_t& events) {
   const float eps = 1e-4f * agg.grainRadius();
   bool inside = agg.insideBoundary(o);
+  // The packing's flight (vpt.h: enterMedia): the grain it meets at grainT, past the
+  // boundary too (a grain of the surface layer standing out of it); none: kInf.
+  bool atGrain = med.movesLight() && inside;
+  float grainT = kInf;
+  if (atGrain) {
+    int steps = 0;
+    grainT = agg.flightToGrain(o, d, tables, &from, rng, steps);
+    events += steps;
+  }
   Vec3 w(1.0f), gathered(0.0f);
   for (int event = 0; event < kMaxWalkEvents; ++event) {
     ++events;
     float tb;
     Vec3 ng;
     if (!inside) {
-      if (!agg.intersectBoundary(o, d, eps, kInf, tb, ng)) {  // out, for good
-        exitBin = bins.bin(d);
-        return gathered + w * light.escaped(d);
+      const bool enters = agg.intersectBoundary(o, d, eps, kInf, tb, ng);
+      if (!atGrain || (enters && tb < grainT) || !std::isfinite(grainT)) {
+        atGrain = false;
+        if (!enters) {  // out, for good
+          exitBin = bins.bin(d);
+          return gathered + w * light.escaped(d);
+        }
+        o = o + d * tb;
+        inside = true;
+        continue;
       }
-      o = o + d * tb;
-      inside = true;
-      continue;
     }
     // Deep inside, a flight shorter than half the distance field's depth cannot reach
     // the boundary: no ray query (most events of a long walk in nearly clear grains).
-    const float t = med.sampleDistance(rng.next1D(), rng.next1D());
-    if (!(t < -0.5f * agg.boundaryDistance(o))) {
+    const float t = atGrain ? grainT : med.sampleDistance(rng.next1D(), rng.next1D());
+    if (inside && !(t < -0.5f * agg.boundaryDistance(o))) {
       if (!agg.intersectBoundary(o, d, eps, kInf, tb, ng)) return gathered;  // a leak: the renderer ends it
       if (t >= tb) {
-        w *= med.transmittance(tb) / med.survivalProbability(tb);
+        if (atGrain)
+          grainT -= tb;  // the packing's flight holds on past the boundary
+        else
+          w *= med.transmittance(tb) / med.survivalProbability(tb);
         o = o + d * tb;
         inside = false;
         continue;
       }
     }
-    flyTo(med, t, o, d, w);
+    if (atGrain) {  // a grain met: its albedo (the flight is the packing's own chance)
+      w *= med.albedo();
+      o = o + d * t;
+      atGrain = false;
+    } else {
+      flyTo(med, t, o, d, w);
+    }
     gathered += w * light.atScatter(o, d, rng);
     const Vec3 wi = d;
     if (!scatter(med, d, w, rng)) return gathered;
@@ -258,7 +283,7 @@ void tracePath(const Aggregate& agg, const ProxyTables& tables, const Homogeneou
       if (forking & (1u << forks)) {
         Rng forkRng(hashInts(seed, uint64_t(index), uint64_t(forks), 0xf02cULL), 1);
         const int64_t before = sums.events;
-        fork[forks] = w * mediumEscape(agg, med, light, bins, o, d, forkBin[forks], forkRng, sums.events);
+        fork[forks] = w * mediumEscape(agg, tables, med, light, bins, h, o, d, forkBin[forks], forkRng, sums.events);
         sums.forkEvents[forks] += sums.events - before;
       }
       escapedAtFork[forks] = escaped - straight;  // the medium counts those grains as scatterings

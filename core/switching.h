@@ -15,9 +15,10 @@
 // renderer's explicit first grain), scoring the energy that leaves the aggregate. After
 // visit k + 1 (k in kSwitchVisits) the path forks a walk in the medium (vpt.h: the same
 // flight and phase sampling; the boundary an index-matched interface) from the proxy's
-// exit point and direction: S_k = what left before the fork + what the fork carries out,
-// an estimate of the aggregate's albedo to a dome when the medium takes over after k
-// visits. The reference is S_K of the last candidate K (the proxy walk ends with its fork):
+// exit point and direction, in the exits model taking the path over at a grain as the
+// renderer does (vpt.h: enterMedia; the packing's first flight): S_k = what left
+// before the fork + what the fork carries out, an estimate of the aggregate's albedo to a
+// dome when the medium takes over after k visits. The reference is S_K of the last candidate K (the proxy walk ends with its fork):
 //     bias_k = mean(S_k − S_K) / mean(S_K)   per channel,
 // with its standard error from the spread of S_k − S_K, which holds the noise of the walks
 // after fork k only (they share every random number before it). Against S_K rather than

@@ -242,29 +242,51 @@ void scatterInMedium(const Scene& scene, PathState& path, const HomogeneousMediu
 
 }  // namespace
 
+void enterMedia(const Scene& scene, PathState& path) {
+  path.mode = path.credit = kVpt;
+  path.medium = scene.mediumAt(path.ray.o, path.ray.time);
+  path.grainFlight = path.from.aggregate == path.medium && scene.takesOverAtGrains(path.medium);
+}
+
 void vptStep(const Scene& scene, PathState& path) {
   if (path.depth >= scene.settings().maxDepth) {
     path.alive = false;
     return;
   }
+  // The packing's flight (enterMedia): the aggregate whose grain it meets, at grainT along
+  // the ray. It holds across its own boundary: a grain of the surface layer may stand out
+  // of it, and the packing's flight meets it there too.
+  int grainOf = -1;
+  float grainT = kInf;
+  if (path.grainFlight && path.medium >= 0) {
+    int steps = 0;
+    grainOf = path.medium;
+    grainT = scene.flightToGrain(grainOf, path.ray, path.from, path.rng, steps);
+    path.cost[1] += steps;
+  }
+  path.grainFlight = false;
   // Boundary crossings are null events (index-matched interface): loop over them.
   for (int crossing = 0; crossing < 256; ++crossing) {
     // In a homogeneous medium the flight is drawn first: what lies past it cannot change
     // the event, so the scene is searched only that far (Scene::flightReach).
-    float t = kInf;
-    if (path.medium >= 0) t = scene.medium(path.medium).sampleDistance(path.rng.next1D(), path.rng.next1D());
+    const bool atGrain = grainOf >= 0;
+    const int m = atGrain ? grainOf : path.medium;
+    float t = atGrain ? grainT : kInf;
+    if (!atGrain && m >= 0) t = scene.medium(m).sampleDistance(path.rng.next1D(), path.rng.next1D());
     Ray query = path.ray;
     if (std::isfinite(t)) query.tmax = std::min(query.tmax, scene.flightReach(query.o, t));
     Hit hit;
     bool found = scene.intersectMedium(query, hit);
     path.cost[1] += 1;
-    if (path.medium >= 0) {
-      const HomogeneousMedium& med = scene.medium(path.medium);
+    if (m >= 0) {
+      const HomogeneousMedium& med = scene.medium(m);
       float tHit = found ? hit.t : kInf;
       if (t < tHit) {
-        // Scattering at t: weight α σ_t T(t) / p(t) per channel (vpt.h).
+        // Scattering at t: weight α σ_t T(t) / p(t) per channel (vpt.h); at a grain the
+        // packing's flight met, α alone.
         Vec3 p = path.ray.o + path.ray.d * t;
-        path.beta *= med.transmittance(t) * med.sigmaT() * med.albedo() / med.distancePdf(t);
+        path.beta *= atGrain ? med.albedo() : med.transmittance(t) * med.sigmaT() * med.albedo() / med.distancePdf(t);
+        path.medium = m;
         if (takesDiffusion(scene, path, p)) {
           diffusionStep(scene, path, p);
           return;
@@ -277,8 +299,8 @@ void vptStep(const Scene& scene, PathState& path) {
         path.lost = true;
         return;
       }
-      // Passing to the hit: weight T(s) / P(flight >= s).
-      path.beta *= med.transmittance(tHit) / med.survivalProbability(tHit);
+      // Passing to the hit: weight T(s) / P(flight >= s) (the packing's flight: 1).
+      if (!atGrain) path.beta *= med.transmittance(tHit) / med.survivalProbability(tHit);
     } else if (scene.hasMedia()) {
       // An instancer's heterogeneous medium (Scene::instancedGrains): spectral tracking
       // through it up to the hit or the end of its bounds, whose weight carries α_s at a
@@ -313,6 +335,10 @@ void vptStep(const Scene& scene, PathState& path) {
     if (hit.kind == Hit::Boundary) {
       if (path.depth == 0) recordPrimary(scene, path, hit);  // a camera ray entering a medium (LOD)
       path.medium = dot(path.ray.d, hit.ng) < 0 ? hit.aggregate : -1;
+      // The packing's flight goes on past its own boundary to the grain it met; with none
+      // ahead, or at another aggregate's boundary, the media's flights take over.
+      if (hit.aggregate != grainOf || !std::isfinite(grainT)) grainOf = -1;
+      grainT -= hit.t;
       path.ray.o = offsetRayOrigin(hit.p, hit.ng, path.ray.d, hit.eps);
       path.ray.tmin = 0;
       continue;

@@ -16,7 +16,8 @@
 // the angle it turned (tt.h, ExitMoves), before its next flight and before a next-event
 // estimate's shadow ray (the move's law depends on ω_o only through μ, so both strategies
 // see it alike and MIS keeps its weights). The same α_s and phase functions as TT's; DA
-// after it diffuses as its walk does (tt.h, exitsDiffusionMedium).
+// after it diffuses as its walk does (tt.h, exitsDiffusionMedium). It takes a path over at
+// a grain, its first flight the packing's (enterMedia, below).
 #pragma once
 
 #include <array>
@@ -76,6 +77,21 @@ class HomogeneousMedium {
 struct PathState;
 class Scene;
 class DiffusionBoundary;
+
+// A path leaves the discrete levels (explicit grains, proxies) for the media: the hybrid's
+// switch (hybrid.h), the level-of-detail shortcut (ept.h, ppt.h); the medium it stands in
+// takes it. In the exits model it takes it over at a grain, not in the gap it stands in:
+// where the path leaves a grain of that aggregate (Scene::takesOverAtGrains), its first
+// flight is the packing's (Aggregate::flightToGrain: the proxy spheres at their true
+// positions, each grain met with its table's chance), past the boundary too (a grain of
+// the surface layer may stand out of it); the grain it meets scatters as the medium does,
+// its weight α_s alone (the flight's chance is the packing's own). Why: the line the path
+// came in by runs through the packing's gaps, and light a grain sends back along it leaves
+// through the gap it came in by; a memoryless first flight closes that gap, and the medium
+// right after a grain was too dark by what it kept (bench/README.md, "The exits model
+// takes over at a grain"). TT's medium keeps its own first flight: its excess deep inside
+// made up for that deficit, and its bias at the first grain would turn positive.
+void enterMedia(const Scene& scene, PathState& path);
 
 // One event of a path in the media (VPT): flights through boundaries (null crossings),
 // then a scattering in a medium (next-event estimation with transmittance, phase

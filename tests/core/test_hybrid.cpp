@@ -105,6 +105,9 @@ void expectClearGrainsReturnTheWhiteFurnace(MediumModel model) {
   d.settings.mediumModel = model;
   auto scene = Scene::build(d);
   EXPECT_EQ(scene->medium(0).movesLight(), model == MediumModel::Exits);
+  // The exits model takes paths over at a grain (vpt.h: enterMedia), the packing's flight
+  // weighted by α_s = 1 here.
+  EXPECT_EQ(scene->takesOverAtGrains(0), model == MediumModel::Exits);
   Renderer r(*scene);
   ASSERT_TRUE(r.render(16));
   Image img = r.film().toImage();

@@ -10,6 +10,7 @@
 #include "core/scene.h"
 #include "core/shapes.h"
 #include "core/vpt.h"
+#include "test_helpers.h"
 
 using namespace granular;
 
@@ -293,4 +294,47 @@ TEST(Vpt, TheExitsModelFliesToTheNextGrainMetAndMovesLightAsTheGrainLetsItOut) {
   exits->setMedium(0, mediumFromRte(Vec3(1.0f), Vec3(0.9f), PhaseTable::isotropic()));
   EXPECT_FALSE(exits->medium(0).movesLight());
   EXPECT_EQ(exits->medium(0).sigmaT().x, 1.0f);
+}
+
+TEST(Vpt, TheExitsModelTakesOverAtAGrainWhoseWayBackOutThePackingKeeps) {
+  // Rays from above into the accuracy matrix's ball of grains meet a first grain by the
+  // packing's flight (Aggregate::flightToGrain, as the exits model's first flight after a
+  // grain walks it: vpt.h, enterMedia). Sent straight back from where it met that grain, a
+  // ray crosses the spheres it came through again: the packing leaves it out far more often
+  // than a memoryless flight of λ_β from that depth would, and never meets a grain beyond
+  // where it started (outside every sphere).
+  SceneDesc d = granular::testing::matrixBall(false, 1.55f);
+  d.settings.technique = Technique::EptVpt;
+  d.settings.proxies = ProxyUse::On;
+  d.settings.explicitBounces = 0;
+  EXPECT_FALSE(Scene::build(d)->takesOverAtGrains(0));  // TT's medium: a flight of its own
+  d.settings.mediumModel = MediumModel::Exits;
+  auto scene = Scene::build(d);
+  ASSERT_TRUE(scene->takesOverAtGrains(0));
+  const Aggregate& agg = *scene->aggregates()[0];
+  const ProxyTables& tables = scene->proxyTables(0);
+  const float lambdaBeta = scene->mediumParams(0).lambdaBeta[0];
+  Rng rng(11);
+  const int n = 4096;
+  int out = 0, met = 0, steps = 0;
+  double memoryless = 0;
+  for (int i = 0; i < n; ++i) {
+    const float r = 0.5f * std::sqrt(rng.next1D()), phi = 2.0f * kPi * rng.next1D();
+    const Vec3 o(r * std::cos(phi), r * std::sin(phi), 3.0f), down(0, 0, -1);
+    GrainHit first;
+    const float L = agg.flightToGrain(o, down, tables, nullptr, rng, steps, &first);
+    ASSERT_TRUE(std::isfinite(L));
+    ++met;
+    const float depth = std::max(0.0f, L - (3.0f - std::sqrt(1.0f - r * r)));
+    memoryless += std::exp(-depth / lambdaBeta);
+    const float back = agg.flightToGrain(o + down * L, -down, tables, &first, rng, steps);
+    ASSERT_TRUE(!std::isfinite(back) || back <= L) << back << " " << L;
+    if (!(back < L)) ++out;
+  }
+  const double pOut = double(out) / met, pMemoryless = memoryless / met;
+  const double se = std::sqrt(pOut * (1 - pOut) / met);
+  std::printf("way back out: the packing %.3f ± %.3f, a memoryless flight %.3f (λ_β %.4f)\n", pOut, se, pMemoryless,
+              lambdaBeta);
+  EXPECT_GT(pOut, pMemoryless + 0.1);
+  EXPECT_GT(pOut - 4 * se, pMemoryless);
 }
