@@ -43,7 +43,9 @@
 //     grain's sphere to where it enters the sphere of the next grain met (what the exits
 //     model's flights stand for) and its standard error, and the mean of the flight that
 //     brought the light to the grain; beside TT's λ_β, and over all exits the mean flight and
-//     the mean of the exponential flight of the same mean square. One JSON line.
+//     the mean of the exponential flight of the same mean square; the same two for walks
+//     among the ball's proxies (each grain met scattering by its table, the flight to the
+//     next grain met the packing's, Aggregate::flightToGrain). One JSON line.
 //   granular-bench instanced --grains N [--density 1]
 //     Explicit grains from a simulation (instanced_grains.h): N grains on a jittered cubic
 //     lattice (icosphere and rock prototypes, random rotations and scales, bounding spheres
@@ -710,9 +712,37 @@ int flights(long walks, float absorption, float ior) {
   // The exponential flight of the same mean square: what the walk's spread depends on (tt.h,
   // exitsDiffusionMedium: 2 L² for flights of mean L).
   const double mean = all > 0 ? allSum / all : 0, rms = all > 0 ? std::sqrt(0.5 * allSum2 / all) : 0;
+  // The same among proxies: each grain met scatters by its table (the straight lobe too: a
+  // grain met), the flight from its exit point to the next grain met by the packing's flight
+  // (Aggregate::flightToGrain, the exits model's first flight).
+  double pN = 0, pSum = 0, pSum2 = 0;
+  for (long i = 0; i < walks; ++i) {
+    Rng r(hashInts(uint64_t(i), 0xf12eULL), 0);
+    Vec3 o, d;
+    walkStart(r, o, d);
+    int steps = 0;
+    GrainHit h;
+    float t = agg.flightToGrain(o, d, ball.tables, nullptr, r, steps, &h);
+    for (int e = 0; e < 256 && std::isfinite(t); ++e) {
+      ProxyEntry entry;
+      entry.h = h;
+      entry.table = &ball.tables.at(h.prototype, h.radius / R);
+      entry.frame = ProxyFrame(d, (o + d * t - h.center) / h.radius);
+      entry.b = entry.table->bBin(entry.frame.b);
+      ProxyDirection s;
+      if (!scatterByTable(entry, r, s, o)) break;
+      if (length(o) > 0.5f) break;  // deep inside only, as above
+      if (!s.straight) d = normalize(entry.frame.toWorld(s.w));
+      t = agg.flightToGrain(o, d, ball.tables, &entry.h, r, steps, &h);
+      if (!std::isfinite(t)) break;
+      pN += 1, pSum += t / R, pSum2 += double(t / R) * (t / R);
+    }
+  }
+  const double pMean = pN > 0 ? pSum / pN : 0, pRms = pN > 0 ? std::sqrt(0.5 * pSum2 / pN) : 0;
   std::printf("{\"absorption\": %g, \"ior\": %g, \"walks\": %ld, \"lambda_beta_R\": %g, \"flight_R\": %g, "
-              "\"exponential_of_the_same_mean_square_R\": %g, \"bins\": [%s]}\n",
-              absorption, ior, walks, mp.lambdaBeta[0] / R, mean, rms, rows.c_str());
+              "\"exponential_of_the_same_mean_square_R\": %g, \"proxies_flight_R\": %g, "
+              "\"proxies_exponential_of_the_same_mean_square_R\": %g, \"bins\": [%s]}\n",
+              absorption, ior, walks, mp.lambdaBeta[0] / R, mean, rms, pMean, pRms, rows.c_str());
   return 0;
 }
 
