@@ -720,22 +720,21 @@ int flights(long walks, float absorption, float ior) {
     Rng r(hashInts(uint64_t(i), 0xf12eULL), 0);
     Vec3 o, d;
     walkStart(r, o, d);
-    int steps = 0;
-    GrainHit h;
-    float t = agg.flightToGrain(o, d, ball.tables, nullptr, r, steps, &h);
-    for (int e = 0; e < 256 && std::isfinite(t); ++e) {
+    GrainFlight f = agg.flightToGrain(o, d, ball.tables, nullptr, r);
+    for (int e = 0; e < 256 && f.met(); ++e) {
       ProxyEntry entry;
-      entry.h = h;
-      entry.table = &ball.tables.at(h.prototype, h.radius / R);
-      entry.frame = ProxyFrame(d, (o + d * t - h.center) / h.radius);
+      entry.h = f.grain;
+      entry.table = &ball.tables.at(f.grain.prototype, f.grain.radius / R);
+      entry.frame = ProxyFrame(d, (f.entry - f.grain.center) / f.grain.radius);
       entry.b = entry.table->bBin(entry.frame.b);
       ProxyDirection s;
       if (!scatterByTable(entry, r, s, o)) break;
       if (length(o) > 0.5f) break;  // deep inside only, as above
       if (!s.straight) d = normalize(entry.frame.toWorld(s.w));
-      t = agg.flightToGrain(o, d, ball.tables, &entry.h, r, steps, &h);
-      if (!std::isfinite(t)) break;
-      pN += 1, pSum += t / R, pSum2 += double(t / R) * (t / R);
+      f = agg.flightToGrain(o, d, ball.tables, &entry.h, r);
+      if (!f.met()) break;
+      const double t = f.t / R;
+      pN += 1, pSum += t, pSum2 += t * t;
     }
   }
   const double pMean = pN > 0 ? pSum / pN : 0, pRms = pN > 0 ? std::sqrt(0.5 * pSum2 / pN) : 0;

@@ -807,19 +807,22 @@ bool Aggregate::intersectProxy(const Vec3& o, const Vec3& d, float tmin, float t
   return walk(r, t0, t1);
 }
 
-float Aggregate::flightToGrain(Vec3 o, const Vec3& d, const ProxyTables& tables, const GrainHit* from, Rng& rng,
-                               int& steps, GrainHit* met) const {
+GrainFlight Aggregate::flightToGrain(Vec3 o, const Vec3& d, const ProxyTables& tables, const GrainHit* from,
+                                     Rng& rng) const {
+  GrainFlight f;
   GrainHit h, left;
   if (from) left = *from;
   float flown = 0;
   for (int crossed = 0; crossed < kMaxProxyCrossings; ++crossed) {
-    ++steps;
-    if (!intersectProxy(o, d, 0.0f, kInf, h, from ? &left : nullptr)) return kInf;
+    ++f.steps;
+    if (!intersectProxy(o, d, 0.0f, kInf, h, from ? &left : nullptr)) return f;
     const ProxyTable& table = tables.at(h.prototype, h.radius / grainRadius());
-    const ProxyFrame frame(d, (o + d * h.t - h.center) / h.radius);
-    if (rng.next1D() < table.hitProbability(table.bBin(frame.b))) {
-      if (met) *met = h;
-      return flown + h.t;
+    const Vec3 entry = o + d * h.t;
+    if (rng.next1D() < table.hitProbability(table.bBin(ProxyFrame(d, (entry - h.center) / h.radius).b))) {
+      f.t = flown + h.t;
+      f.entry = entry;
+      f.grain = h;
+      return f;
     }
     const float advance = std::max(sphereFarSide(o - h.center, d, h.radius), h.t);  // crossed: on from its far side
     o = o + d * advance;
@@ -827,7 +830,7 @@ float Aggregate::flightToGrain(Vec3 o, const Vec3& d, const ProxyTables& tables,
     left = h;
     from = &left;
   }
-  return kInf;
+  return f;
 }
 
 ProxyShadow Aggregate::proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax,

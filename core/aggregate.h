@@ -52,6 +52,17 @@ struct GrainHit {
   Vec3 center;             // proxies (intersectProxy): the sphere's centre
 };
 
+// A flight through the packing to the next grain met (Aggregate::flightToGrain): its length
+// (kInf: no grain ahead, the ray leaves the packing), where the ray enters that grain's
+// sphere, the grain, and the spheres asked on the way (the walk's cost).
+struct GrainFlight {
+  float t = kInf;
+  Vec3 entry;
+  GrainHit grain;
+  int steps = 0;
+  bool met() const { return t < kInf; }
+};
+
 // One grain, as the brute-force reference and the exporters see it.
 struct GrainInstance {
   Vec3 center;
@@ -120,13 +131,11 @@ class Aggregate {
   // the answer, without the walk.
   bool intersectProxy(const Vec3& o, const Vec3& d, float tmin, float tmax, GrainHit& hit,
                       const GrainHit* skip = nullptr) const;
-  // The packing's flight (vpt.h: the medium takes over at a grain): from o along d past
-  // the sphere `from` (null: none), the spheres the ray enters, each grain met with its
-  // table's chance hit(b) (proxy.h) and else crossed, until one is met. Returns the
-  // distance to where the ray enters that grain's sphere, kInf when it leaves the packing
-  // first; `met` gets the grain, `steps` counts the spheres asked (a walk's cost).
-  float flightToGrain(Vec3 o, const Vec3& d, const ProxyTables& tables, const GrainHit* from, Rng& rng, int& steps,
-                      GrainHit* met = nullptr) const;
+  // The packing's flight (vpt.h: the medium takes over at a grain; switching.h's proxy
+  // walk): from o along d past the sphere `from` (null: none), the spheres the ray enters,
+  // each grain met with its table's chance hit(b) (proxy.h) — one random number per sphere
+  // — and else crossed from its far side, until one is met or none is ahead (GrainFlight).
+  GrainFlight flightToGrain(Vec3 o, const Vec3& d, const ProxyTables& tables, const GrainHit* from, Rng& rng) const;
   // The centre of the tile sphere of a grain an explicit ray met (intersect's hit: its
   // cell and sphere), as intersectProxy() gives it.
   Vec3 grainCenter(const GrainHit& g) const { return sphereCenter(g.cell, g.sphere); }

@@ -133,11 +133,16 @@ ProxyShadow PosedAggregate::proxyTransmittance(const Vec3& o, const Vec3& d, flo
   return agg_->proxyTransmittance(r.o, r.d, tmin * r.scale, tmax * r.scale, tables, skip, seed);
 }
 
-float PosedAggregate::flightToGrain(const Vec3& o, const Vec3& d, const ProxyTables& tables, const GrainHit* from,
-                                    Rng& rng, int& steps) const {
-  if (pose_.still) return agg_->flightToGrain(o, d, tables, from, rng, steps);
+GrainFlight PosedAggregate::flightToGrain(const Vec3& o, const Vec3& d, const ProxyTables& tables,
+                                          const GrainHit* from, Rng& rng) const {
+  if (pose_.still) return agg_->flightToGrain(o, d, tables, from, rng);
   const BuildRay r = toBuildRay(o, d);
-  return agg_->flightToGrain(r.o, r.d, tables, from, rng, steps) / r.scale;
+  GrainFlight f = agg_->flightToGrain(r.o, r.d, tables, from, rng);
+  if (f.met()) {
+    f.t /= r.scale;
+    f.entry = pose_.pointToWorld(f.entry);
+  }
+  return f;
 }
 
 bool PosedAggregate::intersectBoundary(const Vec3& o, const Vec3& d, float tmin, float tmax, float& t,

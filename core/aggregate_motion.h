@@ -75,8 +75,9 @@ class PosedAggregate {
                       const GrainHit* skip = nullptr) const;
   ProxyShadow proxyTransmittance(const Vec3& o, const Vec3& d, float tmin, float tmax, const ProxyTables& tables,
                                  const GrainHit* skip, uint64_t seed) const;
-  float flightToGrain(const Vec3& o, const Vec3& d, const ProxyTables& tables, const GrainHit* from, Rng& rng,
-                      int& steps) const;
+  // t and entry in the world; the grain as the build names it (its cell and sphere).
+  GrainFlight flightToGrain(const Vec3& o, const Vec3& d, const ProxyTables& tables, const GrainHit* from,
+                            Rng& rng) const;
   Vec3 grainCenter(const GrainHit& g) const {
     return pose_.still ? agg_->grainCenter(g) : pose_.pointToWorld(agg_->grainCenter(g));
   }

@@ -223,12 +223,11 @@ class Scene {
   bool takesOverAtGrains(int a) const {
     return a >= 0 && size_t(a) < proxyTables_.size() && size_t(a) < media_.size() && media_[size_t(a)].movesLight();
   }
-  // The packing's flight in aggregate a (Aggregate::flightToGrain) along ray from the grain
-  // `from` (one of a's, or none): the distance to the next grain met, kInf: none before
-  // the ray leaves the packing.
-  float flightToGrain(int a, const Ray& ray, const GrainStart& from, Rng& rng, int& steps) const {
+  // The packing's flight in aggregate a (Aggregate::flightToGrain) along ray, past the grain
+  // `from` where it is one of a's.
+  GrainFlight flightToGrain(int a, const Ray& ray, const GrainStart& from, Rng& rng) const {
     return aggregateAt(a, ray.time).flightToGrain(ray.o, ray.d, *proxyTables_[size_t(a)],
-                                                  from.aggregate == a ? &from.grain : nullptr, rng, steps);
+                                                  from.aggregate == a ? &from.grain : nullptr, rng);
   }
   // Index of the aggregate whose boundary contains p at time (Ray::time), or -1.
   int mediumAt(const Vec3& p, float time = 0) const;

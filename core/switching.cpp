@@ -136,9 +136,9 @@ Vec3 mediumEscape(const Aggregate& agg, const ProxyTables& tables, const Homogen
   bool atGrain = med.movesLight() && inside;
   float grainT = kInf;
   if (atGrain) {
-    int steps = 0;
-    grainT = agg.flightToGrain(o, d, tables, &from, rng, steps);
-    events += steps;
+    const GrainFlight f = agg.flightToGrain(o, d, tables, &from, rng);
+    grainT = f.t;
+    events += f.steps;
   }
   Vec3 w(1.0f), gathered(0.0f);
   for (int event = 0; event < kMaxWalkEvents; ++event) {
@@ -248,24 +248,23 @@ void tracePath(const Aggregate& agg, const ProxyTables& tables, const Homogeneou
   int forks = 0, visits = 0;
   GrainHit from;
   bool started = false;
-  for (int event = 0; event < kMaxWalkEvents; ++event) {
-    ++sums.events;
-    GrainHit h;
-    if (!agg.intersectProxy(o, d, 0.0f, kInf, h, started ? &from : nullptr)) {
+  for (int event = 0; event < kMaxWalkEvents;) {
+    // To the next grain met, the spheres whose grains are missed crossed (the packing's flight).
+    const GrainFlight flight = agg.flightToGrain(o, d, tables, started ? &from : nullptr, rng);
+    sums.events += flight.steps;
+    event += flight.steps;
+    if (!flight.met()) {
       const Vec3 out = w * light.escaped(d);  // no grain ahead: the light leaves the aggregate
       escaped += out;
       escapedIn[bins.bin(d)] += out;
       break;
     }
+    const GrainHit& h = flight.grain;
     const ProxyTable& table = tables.at(h.prototype, h.radius / R);
-    const ProxyFrame frame(d, (o + d * h.t - h.center) / h.radius);
+    const ProxyFrame frame(d, (flight.entry - h.center) / h.radius);
     const int b = table.bBin(frame.b);
     from = h;
     started = true;
-    if (rng.next1D() >= table.hitProbability(b)) {  // the grain missed: on from the far side
-      o = o + d * std::max(sphereFarSide(o - h.center, d, h.radius), h.t);
-      continue;
-    }
     Vec3 straight;
     escaped += w * light.atProxy(h, table, frame, b, rng, straight);
     straight *= w;

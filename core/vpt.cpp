@@ -259,10 +259,10 @@ void vptStep(const Scene& scene, PathState& path) {
   int grainOf = -1;
   float grainT = kInf;
   if (path.grainFlight && path.medium >= 0) {
-    int steps = 0;
+    const GrainFlight f = scene.flightToGrain(path.medium, path.ray, path.from, path.rng);
     grainOf = path.medium;
-    grainT = scene.flightToGrain(grainOf, path.ray, path.from, path.rng, steps);
-    path.cost[1] += steps;
+    grainT = f.t;
+    path.cost[1] += f.steps;
   }
   path.grainFlight = false;
   // Boundary crossings are null events (index-matched interface): loop over them.
@@ -337,8 +337,10 @@ void vptStep(const Scene& scene, PathState& path) {
       path.medium = dot(path.ray.d, hit.ng) < 0 ? hit.aggregate : -1;
       // The packing's flight goes on past its own boundary to the grain it met; with none
       // ahead, or at another aggregate's boundary, the media's flights take over.
-      if (hit.aggregate != grainOf || !std::isfinite(grainT)) grainOf = -1;
-      grainT -= hit.t;
+      if (hit.aggregate != grainOf || !std::isfinite(grainT))
+        grainOf = -1;
+      else
+        grainT -= hit.t;
       path.ray.o = offsetRayOrigin(hit.p, hit.ng, path.ray.d, hit.eps);
       path.ray.tmin = 0;
       continue;

@@ -19,10 +19,8 @@ using namespace granular;
 
 namespace {
 
-// A scene of one ball of grains with its proxy tables and medium, not yet measured.
-std::unique_ptr<Scene> ballScene(float ior, const Vec3& absorption) {
-  SceneDesc d = granular::testing::matrixBall(false, ior);
-  d.materials[0].absorption = absorption;
+// The scene of a ball of grains with its proxy tables and medium, not yet measured.
+std::unique_ptr<Scene> unmeasured(SceneDesc d) {
   d.settings.technique = Technique::EptVpt;
   d.settings.proxies = ProxyUse::On;
   d.settings.explicitBounces = 0;  // no measurement by the scene: the tests make theirs
@@ -30,6 +28,13 @@ std::unique_ptr<Scene> ballScene(float ior, const Vec3& absorption) {
   EXPECT_TRUE(scene->hasMedia());
   EXPECT_EQ(scene->switchMeasure(0), nullptr);
   return scene;
+}
+
+// The matrix ball of rocks, of the given index and absorption.
+std::unique_ptr<Scene> ballScene(float ior, const Vec3& absorption) {
+  SceneDesc d = granular::testing::matrixBall(false, ior);
+  d.materials[0].absorption = absorption;
+  return unmeasured(d);
 }
 
 SwitchMeasure measure(const Scene& s, int64_t paths, uint64_t key = 0) {
@@ -104,12 +109,9 @@ TEST(Switching, TheExitsModelTakesOverAtAGrainAndKeepsTheWayBackOut) {
   // takes the path over at a grain (vpt.h: enterMedia): the packing's first flight keeps
   // that gap, −1.6 / −2.3 / −2.1%. Over the channels' mean, beyond the noise of both.
   SceneDesc d = granular::testing::matrixBall(true);
-  d.settings.technique = Technique::EptVpt;
-  d.settings.proxies = ProxyUse::On;
-  d.settings.explicitBounces = 0;
-  auto tt = Scene::build(d);
+  auto tt = unmeasured(d);
   d.settings.mediumModel = MediumModel::Exits;
-  auto exits = Scene::build(d);
+  auto exits = unmeasured(d);
   ASSERT_FALSE(tt->takesOverAtGrains(0));
   ASSERT_TRUE(exits->takesOverAtGrains(0));
   SwitchOptions o;

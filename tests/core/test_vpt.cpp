@@ -316,23 +316,21 @@ TEST(Vpt, TheExitsModelTakesOverAtAGrainWhoseWayBackOutThePackingKeeps) {
   const float lambdaBeta = scene->mediumParams(0).lambdaBeta[0];
   Rng rng(11);
   const int n = 4096;
-  int out = 0, met = 0, steps = 0;
+  int out = 0;
   double memoryless = 0;
   for (int i = 0; i < n; ++i) {
     const float r = 0.5f * std::sqrt(rng.next1D()), phi = 2.0f * kPi * rng.next1D();
     const Vec3 o(r * std::cos(phi), r * std::sin(phi), 3.0f), down(0, 0, -1);
-    GrainHit first;
-    const float L = agg.flightToGrain(o, down, tables, nullptr, rng, steps, &first);
-    ASSERT_TRUE(std::isfinite(L));
-    ++met;
-    const float depth = std::max(0.0f, L - (3.0f - std::sqrt(1.0f - r * r)));
+    const GrainFlight in = agg.flightToGrain(o, down, tables, nullptr, rng);
+    ASSERT_TRUE(in.met());
+    const float depth = std::max(0.0f, in.t - (3.0f - std::sqrt(1.0f - r * r)));
     memoryless += std::exp(-depth / lambdaBeta);
-    const float back = agg.flightToGrain(o + down * L, -down, tables, &first, rng, steps);
-    ASSERT_TRUE(!std::isfinite(back) || back <= L) << back << " " << L;
-    if (!(back < L)) ++out;
+    const GrainFlight back = agg.flightToGrain(in.entry, -down, tables, &in.grain, rng);
+    ASSERT_TRUE(!back.met() || back.t <= in.t) << back.t << " " << in.t;
+    if (!back.met()) ++out;
   }
-  const double pOut = double(out) / met, pMemoryless = memoryless / met;
-  const double se = std::sqrt(pOut * (1 - pOut) / met);
+  const double pOut = double(out) / n, pMemoryless = memoryless / n;
+  const double se = std::sqrt(pOut * (1 - pOut) / n);
   std::printf("way back out: the packing %.3f ± %.3f, a memoryless flight %.3f (λ_β %.4f)\n", pOut, se, pMemoryless,
               lambdaBeta);
   EXPECT_GT(pOut, pMemoryless + 0.1);
