@@ -113,9 +113,11 @@ void validateInstancedGrains(const InstancedGrainsDesc& desc) {
     throw InputError(name, "scales", str("instance ", i, " has scale ", desc.scales[size_t(i)], " (must be > 0 and finite)"));
   const std::pair<const char*, const SharedArray<Vec3>*> motion[] = {{"velocities", &desc.velocities},
                                                                       {"angularVelocities", &desc.angularVelocities}};
-  for (const auto& [attr, values] : motion)
-    if ((i = firstBadInstance(values->size(), [&](size_t k) { return !isFinite((*values)[k]); })) >= 0)
-      throw InputError(name, attr, str("instance ", i, " has ", text((*values)[size_t(i)]), " (not finite)"));
+  for (const auto& m : motion) {
+    const SharedArray<Vec3>& values = *m.second;  // a structured binding cannot be captured before C++20
+    if ((i = firstBadInstance(values.size(), [&](size_t k) { return !isFinite(values[k]); })) >= 0)
+      throw InputError(name, m.first, str("instance ", i, " has ", text(values[size_t(i)]), " (not finite)"));
+  }
   if (n > 0) rememberChecked(key);
 }
 

@@ -667,7 +667,7 @@ void assignSizes(int n, const TileSizes& z, uint64_t seed, Tile& t) {
   t.sizes.clear();
   t.classes.clear();
   for (size_t c = 0; c < nc; ++c) {
-    std::vector<int> order(size_t(count[c]));
+    std::vector<int> order(static_cast<size_t>(count[c]));
     for (int k = 0; k < count[c]; ++k) order[size_t(k)] = k;
     for (int k = count[c] - 1; k > 0; --k) {  // Fisher–Yates, seeded
       const uint64_t h = hashInts(seed, 0x53495a45u /* "SIZE" */, c, uint64_t(k));

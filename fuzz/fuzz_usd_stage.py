@@ -734,7 +734,7 @@ def _cells(a):
     return cells
 
 
-def _bounded_build_scene(scene, previous=None):
+def _bounded_build_scene(scene, previous=None, log=None):
     usd_reader.validate(scene)  # the values as read, before any cost decision
     d = scene.desc
     triangles = sum(m.mesh.num_triangles for m in d.meshes)
@@ -749,7 +749,7 @@ def _bounded_build_scene(scene, previous=None):
         raise TooCostly(f"{triangles} triangles")
     if _pixels(d.settings) > MAX_PIXELS:
         raise TooCostly("pixels")
-    return _build_scene(scene, previous)
+    return _build_scene(scene, previous, log=log)
 
 
 def _checked_render_image(args, built):

@@ -107,3 +107,21 @@ def test_a_transform2d_fed_by_its_own_output_is_a_cycle(scene_file, tmp_path, ca
     rc, lines, out = _render(scene_file, tmp_path, capsys, mutate)
     assert rc == 2 and lines[-1] == "error: /World/Look/Xf.inputs:in: is connected in a cycle (to its own output)", lines
     assert not out.exists()
+
+
+def test_the_stage_fuzzers_stand_ins_take_the_arguments_of_what_they_replace():
+    # fuzz/fuzz_usd_stage.py puts bounded, checked stand-ins in place of api.build_scene and
+    # cli._render_image; the command calls them as it calls those. A parameter added to one
+    # and not to its stand-in stopped every fuzz run on its first input.
+    import ast
+    import inspect
+
+    from conftest import ROOT
+    from granular import api, cli
+
+    tree = ast.parse((ROOT / "fuzz" / "fuzz_usd_stage.py").read_text())
+    defs = {f.name: f for f in tree.body if isinstance(f, ast.FunctionDef)}
+    for stand_in, original in (("_bounded_build_scene", api.build_scene), ("_checked_render_image", cli._render_image)):
+        a = defs[stand_in].args
+        assert [p.arg for p in a.posonlyargs + a.args + a.kwonlyargs] == list(inspect.signature(original).parameters), \
+            stand_in
