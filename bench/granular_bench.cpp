@@ -373,12 +373,21 @@ struct ProxyEntry {
   const ProxyTable* table = nullptr;
   int b = 0;
 };
+// The entry of a ray along d into grain h's sphere at `at`.
+ProxyEntry proxyEntry(const Aggregate& agg, const ProxyTables& tables, const GrainHit& h, const Vec3& d,
+                      const Vec3& at) {
+  ProxyEntry e;
+  e.h = h;
+  e.table = &tables.at(h.prototype, h.radius / agg.grainRadius());
+  e.frame = ProxyFrame(d, (at - h.center) / h.radius);
+  e.b = e.table->bBin(e.frame.b);
+  return e;
+}
 bool enterProxy(const Aggregate& agg, const ProxyTables& tables, const Vec3& o, const Vec3& d, GrainHit& from,
                 bool& started, ProxyEntry& e) {
-  if (!agg.intersectProxy(o, d, 0.0f, kInf, e.h, started ? &from : nullptr)) return false;
-  e.table = &tables.at(e.h.prototype, e.h.radius / agg.grainRadius());
-  e.frame = ProxyFrame(d, (o + d * e.h.t - e.h.center) / e.h.radius);
-  e.b = e.table->bBin(e.frame.b);
+  GrainHit h;
+  if (!agg.intersectProxy(o, d, 0.0f, kInf, h, started ? &from : nullptr)) return false;
+  e = proxyEntry(agg, tables, h, d, o + d * h.t);
   from = e.h;
   started = true;
   return true;
@@ -722,11 +731,7 @@ int flights(long walks, float absorption, float ior) {
     walkStart(r, o, d);
     GrainFlight f = agg.flightToGrain(o, d, ball.tables, nullptr, r);
     for (int e = 0; e < 256 && f.met(); ++e) {
-      ProxyEntry entry;
-      entry.h = f.grain;
-      entry.table = &ball.tables.at(f.grain.prototype, f.grain.radius / R);
-      entry.frame = ProxyFrame(d, (f.entry - f.grain.center) / f.grain.radius);
-      entry.b = entry.table->bBin(entry.frame.b);
+      const ProxyEntry entry = proxyEntry(agg, ball.tables, f.grain, d, f.entry);
       ProxyDirection s;
       if (!scatterByTable(entry, r, s, o)) break;
       if (length(o) > 0.5f) break;  // deep inside only, as above

@@ -1,10 +1,12 @@
 """Stages that fuzz/fuzz_usd_stage.py found to escape the front end's contract (exit status
 2 with one line naming the prim and the attribute, or a finite image): each renders here
 through the command, as small as the finding allows."""
+import ast
+import inspect
 import re
 
 import numpy as np
-from conftest import run_cli
+from conftest import ROOT, run_cli
 from pxr import Gf, Sdf, UsdGeom, UsdRender, UsdShade, Vt
 
 import granular_core as core
@@ -113,10 +115,6 @@ def test_the_stage_fuzzers_stand_ins_take_the_arguments_of_what_they_replace():
     # fuzz/fuzz_usd_stage.py puts bounded, checked stand-ins in place of api.build_scene and
     # cli._render_image; the command calls them as it calls those. A parameter added to one
     # and not to its stand-in stopped every fuzz run on its first input.
-    import ast
-    import inspect
-
-    from conftest import ROOT
     from granular import api, cli
 
     tree = ast.parse((ROOT / "fuzz" / "fuzz_usd_stage.py").read_text())
