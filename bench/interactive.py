@@ -3,7 +3,12 @@
 drives it), for each example at 640×480 on this machine: from opening the stage to the
 first image covering the viewport (the coarsest preview) and to the first
 full-resolution pass, with the teleportation-transport (TT) and tile caches cold and
-warm; and from a camera move to the next first image and first pass.
+warm; and from a camera move to the next first image and first pass. --set KEY=VALUE sets
+a renderer setting (a JSON value), e.g. --set granular:switchForView=true, which adds a
+column: from the camera move to the view's own switch taking over (its measurement is made
+apart: granular:viewSwitchPending), with the cache cold (warm, the view was measured
+before). "Longest frame": the longest engine.Render call after the move in either run,
+what a viewport's camera waits for.
 
 --usdview: a real usdview instead (testusdview under Xvfb, the Granular renderer, the
 stage's camera, its 597×540 viewport): seconds from the usdview process's start to the
@@ -127,19 +132,39 @@ def usdview_table(examples, runs, testusdview, limit):
               f"{cell(cached, 'script_called')} | {cell(cached, 'first_image')} |", flush=True)
 
 
-def _until(engine, stage, params, key, limit=600.0):
-    """Renders frames until the stat `key` is set (>= 0), at most `limit` seconds."""
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < limit:
+def _watch(engine, stage, params, t0, events, limit=600.0):
+    """Renders frames until every event (a name and a test of the render stats) has been
+    seen, at most `limit` seconds; returns the seconds from t0 to each, and the longest
+    frame (one engine.Render call: what a viewport's camera waits for)."""
+    seen, longest = {}, 0.0
+    while len(seen) < len(events) and time.monotonic() - t0 < limit:
+        t = time.monotonic()
         engine.Render(stage.GetPseudoRoot(), params)
-        if engine.GetRenderStats().get(key, -1.0) >= 0:
-            return
+        longest = max(longest, time.monotonic() - t)
+        stats = engine.GetRenderStats()
+        for name, test in events.items():
+            if name not in seen and test(stats):
+                seen[name] = time.monotonic() - t0
         time.sleep(0.002)
-    raise SystemExit(f"{key} not reported within {limit} s")
+    missing = sorted(set(events) - set(seen))
+    if missing:
+        raise SystemExit(f"{', '.join(missing)} not seen within {limit} s")
+    return seen, longest
 
 
-def measure(path, width, height):
-    """One process: open, first image, first pass; camera move, first image, first pass."""
+def _set(key):
+    return lambda stats: stats.get(key, -1.0) >= 0
+
+
+# The view's switch measured apart has landed (a build that measures it at each camera
+# move has no such stat: at once).
+_VIEW_SWITCH = {"view_switch": lambda stats: stats.get("granular:viewSwitchPending", False) is False}
+_IMAGE_AND_PASS = {"image": _set("granular:firstImageSeconds"), "pass": _set("granular:firstPassSeconds")}
+
+
+def measure(path, width, height, settings):
+    """One process: open, first image, first pass; camera move, first image, first pass
+    (and the view's switch, when it is measured)."""
     from pxr import CameraUtil, Gf, Usd, UsdGeom, UsdImagingGL
     t_open = time.monotonic()
     stage = Usd.Stage.Open(path)
@@ -149,6 +174,8 @@ def measure(path, width, height):
     if not engine.SetRendererPlugin("HdGranularRendererPlugin"):
         raise SystemExit("the Granular delegate was not found (PXR_PLUGINPATH_NAME)")
     engine.SetRendererSetting("convergedSamplesPerPixel", 16)
+    for key, value in settings.items():
+        engine.SetRendererSetting(key, value)
     engine.SetRenderBufferSize(Gf.Vec2i(width, height))
     engine.SetFraming(CameraUtil.Framing(Gf.Rect2i(Gf.Vec2i(0, 0), width, height)))
     engine.SetRendererAov("color")
@@ -159,21 +186,20 @@ def measure(path, width, height):
     engine.SetCameraState(frustum.ComputeViewMatrix(), frustum.ComputeProjectionMatrix())
     params = UsdImagingGL.RenderParams()
 
-    def first_image_and_pass(t0):
-        """Seconds from t0 to the first image and to the first full pass of this view."""
-        _until(engine, stage, params, "granular:firstImageSeconds")
-        image = time.monotonic() - t0
-        _until(engine, stage, params, "granular:firstPassSeconds")
-        return image, time.monotonic() - t0
-
-    first, full = first_image_and_pass(t_open)
+    first, _ = _watch(engine, stage, params, t_open, _IMAGE_AND_PASS)
     # A small orbit step: the camera moves 0.05 units sideways.
     moved = Gf.Camera(camera)
     moved.transform = camera.transform * Gf.Matrix4d().SetTranslate(Gf.Vec3d(0.05, 0, 0))
     f = moved.frustum
     engine.SetCameraState(f.ComputeViewMatrix(), f.ComputeProjectionMatrix())
-    move_first, move_full = first_image_and_pass(time.monotonic())
-    return {"first_image": first, "first_pass": full, "move_first_image": move_first, "move_first_pass": move_full}
+    view = bool(settings.get("granular:switchForView"))
+    events = dict(_IMAGE_AND_PASS, **(_VIEW_SWITCH if view else {}))
+    move, longest = _watch(engine, stage, params, time.monotonic(), events)
+    out = {"first_image": first["image"], "first_pass": first["pass"], "move_first_image": move["image"],
+           "move_first_pass": move["pass"], "move_longest_frame": longest}
+    if view:
+        out["move_view_switch"] = move["view_switch"]
+    return out
 
 
 def main():
@@ -184,30 +210,48 @@ def main():
     ap.add_argument("--testusdview", default=TESTUSDVIEW)
     ap.add_argument("--runs", type=int, default=1, help="--usdview: cold and cached runs (median, range)")
     ap.add_argument("--limit", type=float, default=600.0, help="--usdview: seconds to wait for an image")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a renderer setting, its value JSON (e.g. granular:switchForView=true)")
     ap.add_argument("--measure", help=argparse.SUPPRESS)  # internal: one process's measurement
     a = ap.parse_args()
+    settings = {}
+    for kv in a.set:
+        key, sep, value = kv.partition("=")
+        try:
+            settings[key] = json.loads(value)
+        except ValueError:
+            sep = ""
+        if not sep or not key:
+            ap.error(f"--set {kv}: expected KEY=VALUE with a JSON value")
     if a.usdview:
         usdview_table(a.examples or USDVIEW_EXAMPLES, a.runs, a.testusdview, a.limit)
         return 0
     width, height = (int(v) for v in a.size.split("x"))
     if a.measure:
-        print(json.dumps(measure(a.measure, width, height)))
+        print(json.dumps(measure(a.measure, width, height, settings)))
         return 0
+    view = bool(settings.get("granular:switchForView"))
     print(f"| example ({width}×{height}) | open → first image, TT cold (s) | open → first image, TT cached (s) | "
-          "open → first full pass, cached (s) | camera move → first image (s) | camera move → first full pass (s) |")
-    print("|---|---|---|---|---|---|")
+          "open → first full pass, cached (s) | camera move → first image (s) | camera move → first full pass (s) |"
+          " camera move → longest frame (s) |" + (" camera move → the view's switch, cold (s) |" if view else ""))
+    print("|---|---|---|---|---|---|---|" + ("---|" if view else ""))
     for name in a.examples or EXAMPLES:
         path = os.path.join(ROOT, "examples", name + ".usda")
         runs = {}
         with tempfile.TemporaryDirectory() as cache:
             for label in ("cold", "warm"):  # the second run finds what the first cached
                 env = dict(os.environ, GRANULAR_CACHE_DIR=cache)
-                out = subprocess.run([sys.executable, __file__, "--measure", path, "--size", a.size], env=env,
-                                     check=True, capture_output=True, text=True).stdout
+                cmd = [sys.executable, __file__, "--measure", path, "--size", a.size]
+                for kv in a.set:
+                    cmd += ["--set", kv]
+                out = subprocess.run(cmd, env=env, check=True, capture_output=True, text=True).stdout
                 runs[label] = json.loads(out.strip().splitlines()[-1])
         c, w = runs["cold"], runs["warm"]
         print(f"| {name} | {c['first_image']:.2f} | {w['first_image']:.2f} | {w['first_pass']:.2f} | "
-              f"{w['move_first_image']:.3f} | {w['move_first_pass']:.2f} |")
+              f"{w['move_first_image']:.3f} | {w['move_first_pass']:.2f} | "
+              f"{max(c['move_longest_frame'], w['move_longest_frame']):.3f} |"
+              # The cold run's: the warm one finds the moved view's measurement cached.
+              + (f" {c['move_view_switch']:.2f} |" if view else ""))
     return 0
 
 

@@ -1,5 +1,6 @@
 #include "scene.h"
 
+#include <atomic>
 #include <condition_variable>
 #include <cstdlib>
 #include <mutex>
@@ -256,6 +257,12 @@ const Scene::BuiltAggregate* Scene::findBuilt(const AggregateDesc& desc, const s
   return nullptr;
 }
 
+namespace {
+// Views are named over every scene, so that work made for one scene's view is never taken
+// for another's.
+std::atomic<uint64_t> gViewIds{0};
+}  // namespace
+
 std::unique_ptr<Scene> Scene::build(const SceneDesc& worldDesc, const Scene* previous, SceneDetail detail,
                                     const BuildLog& log) {
   auto t0 = std::chrono::steady_clock::now();
@@ -281,6 +288,7 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& worldDesc, const Scene* pre
   s->buildIdentities(desc, lights);
   s->findEmittersInside(desc, lights);
   s->updateDiffusionDepths();
+  s->viewId_ = ++gViewIds;
   s->updateSwitching();
   s->buildSeconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return s;
@@ -1040,7 +1048,7 @@ bool Scene::intersect(const Ray& ray, Hit& hit, const GrainStart* from) const {
   return true;
 }
 
-void Scene::setView(const CameraDesc& camera, const RenderSettings& settings) {
+void Scene::setView(const CameraDesc& camera, const RenderSettings& settings, ViewSwitchTiming timing) {
   SceneDesc check;
   check.camera = camera;
   check.settings = settings;
@@ -1054,7 +1062,29 @@ void Scene::setView(const CameraDesc& camera, const RenderSettings& settings) {
   textureFilterScale_ = textureFilterScale(settings.spp);
   camera_ = Camera(toRenderSpace(camera, renderOrigin_), settings.width, settings.height);
   updateDiffusionDepths();  // the camera may have moved into or out of an aggregate
-  updateSwitching();
+  viewId_ = ++gViewIds;
+  viewMeasured_.clear();
+  updateSwitching(timing);
+}
+
+std::vector<std::shared_ptr<const SwitchMeasure>> Scene::ViewSwitchWork::measure() const {
+  std::vector<std::shared_ptr<const SwitchMeasure>> out;
+  for (const Item& i : items)
+    out.push_back(std::make_shared<const SwitchMeasure>(inArena(threads, [&] {
+      return measureViewSwitch(*i.aggregate, *i.tables, i.medium, i.view, viewSwitchOptions(), i.cacheKey);
+    })));
+  return out;
+}
+
+bool Scene::applyViewSwitch(const ViewSwitchWork& work,
+                            const std::vector<std::shared_ptr<const SwitchMeasure>>& measures) {
+  if (work.empty() || work.view != viewId_ || work.view != pendingViewSwitch_.view ||
+      measures.size() != work.items.size())
+    return false;
+  viewMeasured_.assign(aggregates_.size(), nullptr);
+  for (size_t i = 0; i < measures.size(); ++i) viewMeasured_[work.items[i].index] = measures[i];
+  updateSwitching(ViewSwitchTiming::Now);  // takes viewMeasured_ where it would measure
+  return true;
 }
 
 void Scene::updateProxyTables() {
@@ -1107,8 +1137,11 @@ std::shared_ptr<const SwitchMeasure> Scene::measureViewSwitching(size_t a, const
   }));
 }
 
-void Scene::updateSwitching() {
+void Scene::updateSwitching(ViewSwitchTiming timing) {
   const size_t n = aggregates_.size();
+  pendingViewSwitch_ = ViewSwitchWork{};
+  pendingViewSwitch_.view = viewId_;
+  pendingViewSwitch_.threads = settings_.threads;
   aggregateProxies_.assign(n, 0);
   proxyVisits_.assign(n, 0);
   aggregateBounces_.assign(n, 0);
@@ -1143,8 +1176,15 @@ void Scene::updateSwitching() {
         sun.visits = std::max(switchVisitsShownNeeded(sun, options), kSwitchVisits[options.firstCandidate]);
         sunSwitching_[a] = std::make_shared<const SwitchMeasure>(std::move(sun));
       }
-      if (!views.empty() && int(views[a].entries.size()) >= kMinViewEntries)
-        viewSwitching_[a] = measureViewSwitching(a, views[a], viewSwitchOptions());
+      if (!views.empty() && int(views[a].entries.size()) >= kMinViewEntries) {
+        if (a < viewMeasured_.size() && viewMeasured_[a])
+          viewSwitching_[a] = viewMeasured_[a];
+        else if (timing == ViewSwitchTiming::Now)
+          viewSwitching_[a] = measureViewSwitching(a, views[a], viewSwitchOptions());
+        else
+          pendingViewSwitch_.items.push_back(
+              {a, aggregates_[a], built_[a].proxies, media_[a], views[a], built_[a].switchKey});
+      }
     }
     int k = switching_[a] ? switching_[a]->visits : -1;
     if (const SwitchMeasure* sun = sunSwitchMeasure(int(a))) k = std::max(k, sun->visits);
@@ -1435,6 +1475,7 @@ void Scene::setMedium(int aggregate, const MediumParams& params) {
   built_[size_t(aggregate)].switching.reset();  // measured with the medium it replaces
   built_[size_t(aggregate)].mediumReplaced = true;
   sunSwitching_.clear();
+  viewMeasured_.clear();  // measured with the medium it replaces
   updateDiffusionDepths();
   updateSwitching();
 }

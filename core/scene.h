@@ -164,7 +164,7 @@ class Scene {
   const SwitchMeasure* switchMeasure(int aggregate) const { return switching_[size_t(aggregate)].get(); }
   // With RenderSettings::switchForView, the view measurement (switching.h:
   // measureViewSwitch) of each measured aggregate the camera sees, made at setView (from the
-  // disk cache for a view measured before); the visits are then the larger of the two
+  // disk cache for a view measured before) or given by applyViewSwitch; the visits are then the larger of the two
   // choices (the dome's keeps what lights the rest of the scene). Null when not made: off,
   // not measured, or fewer than kMinViewEntries entries (switchViews).
   const SwitchMeasure* viewSwitchMeasure(int aggregate) const { return viewSwitching_[size_t(aggregate)].get(); }
@@ -275,7 +275,41 @@ class Scene {
   // A new view or new settings without rebuilding geometry, tiles, distance fields or TT
   // (a camera move in an interactive host). Not thread-safe: no render may be running.
   // The technique must keep needing media or not (else build anew); InputError on bad values.
-  void setView(const CameraDesc& camera, const RenderSettings& settings);
+  // With RenderSettings::switchForView the view measurement is made at once (Now: the
+  // command line's, whose render waits for it) or left to be made apart (Apart: a
+  // viewport's, whose camera must not wait seconds per move): the scene then renders with
+  // the dome's and the sun's choices (provisional) until applyViewSwitch gives it the view's.
+  enum class ViewSwitchTiming { Now, Apart };
+  void setView(const CameraDesc& camera, const RenderSettings& settings,
+               ViewSwitchTiming timing = ViewSwitchTiming::Now);
+  // The view measurement setView(..., Apart) left to make: per aggregate the camera sees,
+  // what measureViewSwitch reads, held by value or shared ownership, so that measure() may
+  // run on any thread while this scene renders or takes another view (the scene itself must
+  // outlive it: the views point at its lights). `view` names the view it was made for,
+  // unique over every scene. Empty when nothing is left to measure.
+  struct ViewSwitchWork {
+    struct Item {
+      size_t index = 0;  // the aggregate's
+      std::shared_ptr<const Aggregate> aggregate;
+      std::shared_ptr<const ProxyTables> tables;
+      HomogeneousMedium medium;
+      SwitchView view;
+      uint64_t cacheKey = 0;
+    };
+    uint64_t view = 0;
+    int threads = 0;  // RenderSettings::threads
+    std::vector<Item> items;
+    bool empty() const { return items.empty(); }
+    // The measurements, one per item, in its order (as setView(..., Now) makes them).
+    std::vector<std::shared_ptr<const SwitchMeasure>> measure() const;
+  };
+  const ViewSwitchWork& pendingViewSwitch() const { return pendingViewSwitch_; }
+  // Takes the measurements work.measure() made, when work was made for the view this scene
+  // has now: the visits are chosen again with them, as setView(..., Now) would have chosen
+  // (the same measurements, the same choice), nothing is left pending, and true is
+  // returned. Else (a later view, another scene's work) nothing changes: false. Not
+  // thread-safe, as setView.
+  bool applyViewSwitch(const ViewSwitchWork& work, const std::vector<std::shared_ptr<const SwitchMeasure>>& measures);
   // Replaces an aggregate's TT-derived medium by given RTE parameters, before rendering
   // (validation against other renderers, closed-form tests). Not thread-safe.
   void setMedium(int aggregate, const MediumParams& params);
@@ -566,7 +600,12 @@ class Scene {
   uint32_t distantLightsReaching(const Hit& hit) const;
   // Proxies and switching per aggregate, from the settings and the media: the tables and
   // measurements they need (lent by an unchanged aggregate, else cached on disk or made).
-  void updateSwitching();
+  void updateSwitching(ViewSwitchTiming timing = ViewSwitchTiming::Now);
+  // The view's measurements applyViewSwitch took for viewId_ (per aggregate; empty: none),
+  // and what setView(..., Apart) left to measure.
+  std::vector<std::shared_ptr<const SwitchMeasure>> viewMeasured_;
+  ViewSwitchWork pendingViewSwitch_;
+  uint64_t viewId_ = 0;  // this view's, unique over every scene (setView, build)
   void updateProxyTables();
   void updateInstancedProxyTables();
   void measureSwitching(size_t aggregate);

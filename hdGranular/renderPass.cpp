@@ -195,9 +195,10 @@ HdGranularRenderPass::HdGranularRenderPass(HdRenderIndex* index, HdRprimCollecti
 
 HdGranularRenderPass::~HdGranularRenderPass() { _renderer->Stop(); }
 
-// Not while a full build is still to replace the stand-ins being rendered.
+// Not while a full build is still to replace the stand-ins being rendered, nor while the
+// view's switch measurement is still to choose its visits.
 bool HdGranularRenderPass::IsConverged() const {
-  return _renderer->IsConverged() && !_renderer->GetBuilder().Pending();
+  return _renderer->IsConverged() && !_renderer->GetBuilder().Pending() && !_renderer->GetViewSwitch().Pending();
 }
 
 void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfTokenVector const&) {
@@ -239,11 +240,15 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
   // The full build behind stand-ins has ended (renderer.h): its scene takes their place.
   HdGranularSceneBuilder& builder = _renderer->GetBuilder();
   const bool landed = builder.Ready();
+  // The view's switch measurement has ended (viewSwitch.h): its choice takes over.
+  HdGranularViewSwitch& viewSwitch = _renderer->GetViewSwitch();
+  const bool measured = viewSwitch.Ready();
   // A render buffer reallocated or freed under the loop stopped it (renderBuffer.h).
   const bool rebind = reframe || bindings != _bindings || _renderer->WasInterrupted();
-  if (!rebind && !landed) return;  // the loop goes on
-  // Only the full scene replacing its stand-ins: their image stays until its tiles come.
-  bool keepImage = landed && !rebind;
+  if (!rebind && !landed && !measured) return;  // the loop goes on
+  // Only the full scene replacing its stand-ins, or the view's choice the provisional one:
+  // the image stays until the new render's tiles (or finer previews: renderer.h) come.
+  bool keepImage = (landed || measured) && !rebind;
 
   _renderer->Stop();
   _started = true;
@@ -282,9 +287,16 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
         TF_WARN("hdGranular: the stage has no light (no UsdLux light, no emissive surface): it is lit by the "
                 "default white dome of radiance 1 (render setting granular:defaultLight false renders it black)");
     };
+    if (measured) {
+      HdGranularViewSwitch::Measured m = viewSwitch.Take();  // rethrows what the measurement threw
+      // Refused when the scene has taken another view, or been replaced, meanwhile.
+      if (granular::Scene* s = _renderer->GetScene()) s->applyViewSwitch(m.work, m.measures);
+    }
+    // A camera move never waits for the view's switch measurement: it is made apart.
+    constexpr auto apart = granular::Scene::ViewSwitchTiming::Apart;
     if (landed) {
       std::unique_ptr<granular::Scene> full = builder.Take();  // rethrows what the build threw
-      full->setView(cam, rs);  // the view as it is now: the camera may have moved meanwhile
+      full->setView(cam, rs, apart);  // the view as it is now: the camera may have moved meanwhile
       _renderer->SetScene(std::move(full));
     }
     granular::Scene* const scene = _renderer->GetScene();  // none: the last attempt failed (e.g. a bad camera)
@@ -325,7 +337,7 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
           !scene || !_built || granular::compareScenes(*_built, desc).level() > granular::SceneChange::View;
       _built.reset();  // until the scene matches desc again
       if (!build) {
-        scene->setView(cam, rs);
+        scene->setView(cam, rs, apart);
       } else {
         // The scene before lends its unchanged aggregates (a light or mesh edit voxelises
         // nothing; a deformed boundary, only its aggregate). With stand-ins, aggregates it
@@ -341,7 +353,7 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
       _built = std::move(desc);
       _param->SetRenderError("");
     } else if (reframe || rs.cryptomatte != _built->settings.cryptomatte) {
-      scene->setView(cam, rs);
+      scene->setView(cam, rs, apart);
       _built->camera = cam;
       _built->settings = rs;
     }
@@ -349,19 +361,23 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
     TF_RUNTIME_ERROR("hdGranular: %s", e.what());
     _param->SetRenderError(e.what());
     builder.Abandon();
+    viewSwitch.Abandon();
     _renderer->SetScene(nullptr);
     _built.reset();
     keepImage = false;
   }
-  if (!keepImage)
+  if (!keepImage) {
     for (auto const& b : bindings)
       if (auto* rb = dynamic_cast<HdGranularRenderBuffer*>(b.renderBuffer)) rb->Clear(b.clearValue);
+    _renderer->BuffersCleared();
+  }
   _renderer->SetAovBindings(bindings);
   _renderer->SetProjection(proj);
   _renderer->SetNoiseThreshold(setting<float>(delegate, HdRenderSettingsTokens->convergedVariance, 0.0f));
   _renderer->SetDenoise(setting<bool>(delegate, HdGranularSettingsTokens->denoise, false));
-  _renderer->SetPreview(!keepImage && setting<bool>(delegate, HdGranularSettingsTokens->preview, true));
-  _renderer->SetProvisional(builder.Pending());
+  _renderer->SetPreview(setting<bool>(delegate, HdGranularSettingsTokens->preview, true));
+  viewSwitch.Update(_renderer->GetSharedScene());  // what the scene's view left to measure
+  _renderer->SetProvisional(builder.Pending() || viewSwitch.Pending());
   _renderer->Start();
 }
 

@@ -24,6 +24,7 @@ HdGranularRenderer::~HdGranularRenderer() {
   Stop();
   _thread.StopThread();
   _builder.Abandon();  // its destructor waits for the build still running
+  _viewSwitch.Abandon();  // likewise the view's measurement
 }
 
 void HdGranularRenderer::SetScene(std::unique_ptr<granular::Scene> scene) {
@@ -47,7 +48,7 @@ void HdGranularRenderer::Start() {
   _cancel = false;
   _converged = false;
   _interrupted = false;
-  _firstImageSeconds = -1;
+  _firstImageSeconds = _shownStride > 0 ? 0.0 : -1.0;  // an image kept on screen is there at once
   _firstPassSeconds = -1;
   _startTime = std::chrono::steady_clock::now();
   _SetBuffersConverged(false);
@@ -173,10 +174,12 @@ void HdGranularRenderer::_Render() {
     std::vector<int> strides = {16, 4};
     if (width >= 384 && height >= 256) strides.insert(strides.begin(), 32);
     for (int stride : strides) {
+      if (_shownStride > 0 && stride >= _shownStride) continue;  // no coarser than the image kept
       granular::Film preview;
       // The first image does not wait for the roulette's pre-render (core/render.h).
       if (!_renderer->renderPreview(stride, preview, &_cancel, /*tuned=*/stride != strides.front())) return;
       _WriteRegion(preview, stride, 0, width, 0, height);
+      _shownStride = stride;
       if (_firstImageSeconds < 0) _firstImageSeconds = _SecondsSinceStart();
       if (_thread.IsStopRequested()) return;
     }
@@ -197,6 +200,7 @@ void HdGranularRenderer::_Render() {
     if (!finished) return;  // stopped mid-pass
     done = _renderer->samplesPerPixel();
     _samplesDone = done;
+    _shownStride = 1;
     if (_firstPassSeconds < 0) _firstPassSeconds = _SecondsSinceStart();
     if (_firstImageSeconds < 0) _firstImageSeconds = _firstPassSeconds.load();
     _lodFraction = _renderer->shortcutFraction();
@@ -311,6 +315,8 @@ VtDictionary HdGranularRenderer::GetStats() const {
     for (auto const& g : _scene->instancedGrains()) instancedGrains += g->stats().grains;
   stats["granular:instancedGrains"] = VtValue(instancedGrains);
   stats["granular:fullBuildPending"] = VtValue(_builder.Pending());
+  // granular:switchForView: the view's measurement runs (the image is the dome's choice's meanwhile).
+  stats["granular:viewSwitchPending"] = VtValue(_viewSwitch.Pending());
   stats["granular:nonFiniteSamples"] = VtValue(int(_nonFinite.load()));
   // Paths ended by a numerical failure (core/render.h, lostPaths): 0 unless something is wrong.
   stats["granular:lostPaths"] = VtValue(int(_lostPaths.load()));

@@ -15,10 +15,12 @@
 // the buffers within a fraction of a pass, then every full-resolution tile is written as soon as it is done.
 // A render stopped by something else than the render pass (a render buffer being
 // reallocated or freed: StopForEdit) is remembered, so that the next Execute restarts it.
-// Stand-ins (core/scene.h): while the scene's full build runs (GetBuilder()), the render
-// of its stand-ins is provisional: it never marks the buffers converged nor writes render
-// products, and the full scene's render that follows keeps its image on screen until its
-// own tiles replace it (no clearing, no coarse previews).
+// Stand-ins (core/scene.h): while the scene's full build runs (GetBuilder()), or the
+// view's switch measurement (GetViewSwitch(), granular:switchForView), the render is
+// provisional: it never marks the buffers converged nor writes render products, and the
+// render that follows (the full scene's, the view's choice) keeps its image on screen
+// until its own tiles replace it (no clearing; only previews finer than what is shown:
+// none after a full pass, all of them when the build landed before the first).
 // granular:denoise (SetDenoise): after every complete pass the color AOV shows the beauty
 // denoised by core (core/denoise.h, guided by the film's albedo and normal), and keeps it
 // while the next pass's raw tiles come (they would flicker over it); the film and every
@@ -41,6 +43,7 @@
 #include "core/render.h"
 #include "core/scene.h"
 #include "sceneBuilder.h"
+#include "viewSwitch.h"
 
 PXR_NAMESPACE_OPEN_SCOPE
 
@@ -54,6 +57,7 @@ class HdGranularRenderer {
   granular::Scene* GetScene() { return _scene.get(); }
   std::shared_ptr<const granular::Scene> GetSharedScene() const { return _scene; }
   HdGranularSceneBuilder& GetBuilder() { return _builder; }
+  HdGranularViewSwitch& GetViewSwitch() { return _viewSwitch; }
   void SetAovBindings(HdRenderPassAovBindingVector const& bindings) { _bindings = bindings; }
   HdRenderPassAovBindingVector const& GetAovBindings() const { return _bindings; }
   void SetProjection(GfMatrix4d const& projection) { _projection = projection; }
@@ -63,6 +67,8 @@ class HdGranularRenderer {
   void SetPreview(bool enabled) { _preview = enabled; }
   // The scene's render stands in for one being built (above).
   void SetProvisional(bool provisional) { _provisional = provisional; }
+  // The render pass has cleared the buffers: nothing is shown (see _shownStride).
+  void BuffersCleared() { _shownStride = 0; }
 
   void Start();
   void Stop();
@@ -89,6 +95,7 @@ class HdGranularRenderer {
   HdRenderThread _thread;
   std::shared_ptr<granular::Scene> _scene;  // shared with a full build that borrows from it
   HdGranularSceneBuilder _builder;
+  HdGranularViewSwitch _viewSwitch;
   std::unique_ptr<granular::Renderer> _renderer;
   HdRenderPassAovBindingVector _bindings;
   GfMatrix4d _projection{1.0};
@@ -97,6 +104,10 @@ class HdGranularRenderer {
   std::atomic<bool> _colorHeld{false};  // the color AOV holds a denoised image
   bool _preview = true, _provisional = false;
   std::atomic<bool> _cancel{false}, _converged{false}, _interrupted{false};
+  // What the buffers show of this view since they were last cleared: 0 nothing, else the
+  // finest preview stride written over the whole image (1: a full pass). A render that
+  // keeps the image previews only finer than that.
+  std::atomic<int> _shownStride{0};
   std::atomic<long> _nonFinite{0}, _lostPaths{0};
   // Since the delegate was made: core scenes built, aggregates voxelised in them or reused
   // from the scene before, equivalent media derived from TT (Scene::build's counts).

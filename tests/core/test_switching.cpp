@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <thread>
 
 #include <tbb/task_arena.h>
 
@@ -634,6 +635,69 @@ TEST(Switching, TheSceneMeasuresTheViewWhenAskedAndTakesTheLargerChoice) {
   scene->setView(d.camera, s);
   EXPECT_EQ(scene->viewSwitchMeasure(0), nullptr);
   EXPECT_EQ(scene->proxyVisits(0), dome);
+}
+
+TEST(Switching, TheViewMeasuredApartIsTheSameChoiceAndOnlyForItsView) {
+  // A viewport's camera must not wait for the view measurement: setView(..., Apart) leaves
+  // it to be made on another thread, the scene rendering the dome's choice meanwhile, and
+  // applyViewSwitch then makes the choice setView(..., Now) makes, from the same
+  // measurement. Work made for another view, or another scene, is refused; the work holds
+  // what it reads, so the scene may take other views while it is measured.
+  SceneDesc d = granular::testing::matrixBall(false, 1.55f);
+  d.settings.technique = Technique::EptVpt;
+  RenderSettings s = d.settings;
+  s.switchForView = true;
+  auto now = Scene::build(d);
+  now->setView(d.camera, s);
+  ASSERT_NE(now->viewSwitchMeasure(0), nullptr);
+  EXPECT_TRUE(now->pendingViewSwitch().empty());
+
+  auto apart = Scene::build(d);
+  const int dome = apart->proxyVisits(0);
+  apart->setView(d.camera, s, Scene::ViewSwitchTiming::Apart);
+  EXPECT_EQ(apart->viewSwitchMeasure(0), nullptr);
+  EXPECT_EQ(apart->proxyVisits(0), dome);
+  const Scene::ViewSwitchWork work = apart->pendingViewSwitch();
+  ASSERT_EQ(work.items.size(), 1u);
+  EXPECT_EQ(work.items[0].index, 0u);
+  // Measured on a thread of its own while the scene takes another view and back.
+  std::vector<std::shared_ptr<const SwitchMeasure>> measures;
+  std::thread measuring([&] { measures = work.measure(); });
+  CameraDesc away = d.camera;
+  away.cameraToWorld = Transform::lookAt(Vec3(0.3f, 0.7f, 2.6f), Vec3(0.3f, 0.7f, 5.0f), Vec3(0, 1, 0));
+  apart->setView(away, s, Scene::ViewSwitchTiming::Apart);
+  EXPECT_TRUE(apart->pendingViewSwitch().empty());  // it sees no aggregate
+  measuring.join();
+  ASSERT_EQ(measures.size(), 1u);
+  EXPECT_FALSE(apart->applyViewSwitch(work, measures));  // made for the view before
+  EXPECT_EQ(apart->viewSwitchMeasure(0), nullptr);
+  EXPECT_EQ(apart->proxyVisits(0), dome);
+
+  apart->setView(d.camera, s, Scene::ViewSwitchTiming::Apart);
+  const Scene::ViewSwitchWork again = apart->pendingViewSwitch();
+  ASSERT_EQ(again.items.size(), 1u);
+  EXPECT_NE(again.view, work.view);
+  EXPECT_FALSE(now->applyViewSwitch(again, again.measure()));  // another scene's view
+  ASSERT_TRUE(apart->applyViewSwitch(again, again.measure()));
+  EXPECT_TRUE(apart->pendingViewSwitch().empty());
+  const SwitchMeasure* a = apart->viewSwitchMeasure(0);
+  const SwitchMeasure* n = now->viewSwitchMeasure(0);
+  ASSERT_NE(a, nullptr);
+  EXPECT_EQ(a->visits, n->visits);
+  ASSERT_EQ(a->bias.size(), n->bias.size());
+  for (size_t c = 0; c < a->bias.size(); ++c) {
+    EXPECT_EQ(a->bias[c].x, n->bias[c].x);
+    EXPECT_EQ(a->biasSE[c].z, n->biasSE[c].z);
+  }
+  // The work measured while the scene looked away reads the same: it held its inputs.
+  EXPECT_EQ(measures[0]->bias.back().y, n->bias.back().y);
+  EXPECT_EQ(apart->proxyVisits(0), now->proxyVisits(0));
+  EXPECT_EQ(apart->proxyVisits(0), std::max(dome, n->visits));
+  EXPECT_EQ(apart->lowOrdersText(0), now->lowOrdersText(0));
+  // A new view drops the view's choice until its own is applied.
+  apart->setView(away, s, Scene::ViewSwitchTiming::Apart);
+  EXPECT_EQ(apart->viewSwitchMeasure(0), nullptr);
+  EXPECT_EQ(apart->proxyVisits(0), dome);
 }
 
 namespace {
