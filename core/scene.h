@@ -164,9 +164,10 @@ class Scene {
   const SwitchMeasure* switchMeasure(int aggregate) const { return switching_[size_t(aggregate)].get(); }
   // With RenderSettings::switchForView, the view measurement (switching.h:
   // measureViewSwitch) of each measured aggregate the camera sees, made at setView (from the
-  // disk cache for a view measured before) or given by applyViewSwitch; the visits are then the larger of the two
-  // choices (the dome's keeps what lights the rest of the scene). Null when not made: off,
-  // not measured, or fewer than kMinViewEntries entries (switchViews).
+  // disk cache for a view measured before) or given by applyViewSwitch; the visits are then
+  // the larger of the two choices (the dome's keeps what lights the rest of the scene). Null
+  // when not made: off, not measured, not yet applied, or fewer than kMinViewEntries entries
+  // (switchViews).
   const SwitchMeasure* viewSwitchMeasure(int aggregate) const { return viewSwitching_[size_t(aggregate)].get(); }
   static constexpr int kMinViewEntries = 16;
   // Per aggregate, the camera's entries into it for its view measurement (switching.h:
@@ -309,7 +310,8 @@ class Scene {
   // (the same measurements, the same choice), nothing is left pending, and true is
   // returned. Else (a later view, another scene's work) nothing changes: false. Not
   // thread-safe, as setView.
-  bool applyViewSwitch(const ViewSwitchWork& work, const std::vector<std::shared_ptr<const SwitchMeasure>>& measures);
+  bool applyViewSwitch(const ViewSwitchWork& work,
+                       const std::vector<std::shared_ptr<const SwitchMeasure>>& measures);
   // Replaces an aggregate's TT-derived medium by given RTE parameters, before rendering
   // (validation against other renderers, closed-form tests). Not thread-safe.
   void setMedium(int aggregate, const MediumParams& params);
