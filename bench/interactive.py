@@ -3,7 +3,8 @@
 drives it), for each example at 640×480 on this machine: from opening the stage to the
 first image covering the viewport (the coarsest preview) and to the first
 full-resolution pass, with the teleportation-transport (TT) and tile caches cold and
-warm; and from a camera move to the next first image and first pass. --set KEY=VALUE sets
+warm; and from a camera move (once the full build has landed) to the next first image and
+first pass. --set KEY=VALUE sets
 a renderer setting (a JSON value), e.g. --set granular:switchForView=true, which adds a
 column: from the camera move to the view's own switch taking over (its measurement is made
 apart: granular:viewSwitchPending), with the cache cold (warm, the view was measured
@@ -187,7 +188,10 @@ def measure(path, width, height, settings):
     engine.SetCameraState(frustum.ComputeViewMatrix(), frustum.ComputeProjectionMatrix())
     params = UsdImagingGL.RenderParams()
 
-    first, _ = _watch(engine, stage, params, t_open, _IMAGE_AND_PASS)
+    # The move comes once the full build has landed (not on stand-ins: a cold paper castle
+    # finishes the stand-ins' first pass long before its build).
+    built = {"built": lambda stats: stats.get("granular:fullBuildPending", False) is False}
+    first, _ = _watch(engine, stage, params, t_open, dict(_IMAGE_AND_PASS, **built))
     # A small orbit step: the camera moves 0.05 units sideways.
     moved = Gf.Camera(camera)
     moved.transform = camera.transform * Gf.Matrix4d().SetTranslate(Gf.Vec3d(0.05, 0, 0))
