@@ -3,16 +3,16 @@
 // ViewSwitchTiming::Apart, pendingViewSwitch, applyViewSwitch).
 //
 // Contract: Update(scene) starts measuring what the scene's view left to measure, as a
-// background job (backgroundJob.h) holding the scene alive, unless that very view is being
-// measured already; with nothing left to measure it abandons any measurement under way.
-// Ready() says the latest one has ended; Take() returns the work and its measurements (or
-// rethrows what the measurement threw) for Scene::applyViewSwitch, which refuses them if
-// the scene has taken another view meanwhile. Until then the scene renders with the
-// dome's and the sun's choices, and the render is provisional (renderer.h).
+// background job (backgroundJob.h) holding the scene alive, unless a measurement is under
+// way or has ended untaken: one at a time, so that a moving camera never piles them up.
+// Ready() says it has ended; Take() returns the work and its measurements (or rethrows
+// what the measurement threw) for Scene::applyViewSwitch, which refuses them if the scene
+// has taken another view meanwhile; the next Update then measures the view it has. Until
+// its own measurement is taken the scene renders with the dome's and the sun's choices,
+// and the render is provisional (renderer.h).
 #ifndef HDGRANULAR_VIEW_SWITCH_H
 #define HDGRANULAR_VIEW_SWITCH_H
 
-#include <cstdint>
 #include <memory>
 #include <vector>
 
@@ -36,7 +36,6 @@ class HdGranularViewSwitch {
 
  private:
   HdGranularBackgroundJob<Measured> _job;
-  uint64_t _view = 0;  // the view of the job under way
 };
 
 PXR_NAMESPACE_CLOSE_SCOPE
