@@ -154,14 +154,14 @@ def _watch(engine, stage, params, t0, events, limit=600.0):
     return seen, longest
 
 
-def _set(key):
+def _reported(key):
     return lambda stats: stats.get(key, -1.0) >= 0
 
 
 # The view's switch measured apart has landed (a build that measures it at each camera
 # move has no such stat: at once).
 _VIEW_SWITCH = {"view_switch": lambda stats: stats.get("granular:viewSwitchPending", False) is False}
-_IMAGE_AND_PASS = {"image": _set("granular:firstImageSeconds"), "pass": _set("granular:firstPassSeconds")}
+_IMAGE_AND_PASS = {"image": _reported("granular:firstImageSeconds"), "pass": _reported("granular:firstPassSeconds")}
 
 
 def measure(path, width, height, settings):
@@ -219,15 +219,9 @@ def main():
                     help="a renderer setting, its value JSON (e.g. granular:switchForView=true)")
     ap.add_argument("--measure", help=argparse.SUPPRESS)  # internal: one process's measurement
     a = ap.parse_args()
-    settings = {}
-    for kv in a.set:
-        key, sep, value = kv.partition("=")
-        try:
-            settings[key] = json.loads(value)
-        except ValueError:
-            sep = ""
-        if not sep or not key:
-            ap.error(f"--set {kv}: expected KEY=VALUE with a JSON value")
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from accuracy_matrix import render_settings  # the benches' one --set parser
+    settings = render_settings(ap, a.set)
     if a.usdview:
         usdview_table(a.examples or USDVIEW_EXAMPLES, a.runs, a.testusdview, a.limit)
         return 0

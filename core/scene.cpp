@@ -1067,23 +1067,25 @@ void Scene::setView(const CameraDesc& camera, const RenderSettings& settings, Vi
   updateSwitching(timing);
 }
 
+std::shared_ptr<const SwitchMeasure> Scene::ViewSwitchWork::Item::measure(int threads,
+                                                                         const SwitchOptions& options) const {
+  return std::make_shared<const SwitchMeasure>(
+      inArena(threads, [&] { return measureViewSwitch(*aggregate, *tables, medium, view, options, cacheKey); }));
+}
+
 std::vector<std::shared_ptr<const SwitchMeasure>> Scene::ViewSwitchWork::measure() const {
   std::vector<std::shared_ptr<const SwitchMeasure>> out;
-  for (const Item& i : items)
-    out.push_back(std::make_shared<const SwitchMeasure>(inArena(threads, [&] {
-      return measureViewSwitch(*i.aggregate, *i.tables, i.medium, i.view, viewSwitchOptions(), i.cacheKey);
-    })));
+  for (const Item& i : items) out.push_back(i.measure(threads));
   return out;
 }
 
 bool Scene::applyViewSwitch(const ViewSwitchWork& work,
                             const std::vector<std::shared_ptr<const SwitchMeasure>>& measures) {
-  if (work.empty() || work.view != viewId_ || work.view != pendingViewSwitch_.view ||
-      measures.size() != work.items.size())
+  if (work.empty() || work.view != viewId_ || measures.size() != work.items.size())
     return false;
   viewMeasured_.assign(aggregates_.size(), nullptr);
   for (size_t i = 0; i < measures.size(); ++i) viewMeasured_[work.items[i].index] = measures[i];
-  updateSwitching(ViewSwitchTiming::Now);  // takes viewMeasured_ where it would measure
+  updateSwitching(ViewSwitchTiming::Now);  // takes viewMeasured_ instead of the camera's entries
   return true;
 }
 
@@ -1129,12 +1131,13 @@ void Scene::measureSwitching(size_t a) {
       inArena(settings_.threads, [&] { return measureSwitch(agg, *entry.proxies, media_[a], {}, key); }));
 }
 
+Scene::ViewSwitchWork::Item Scene::viewSwitchItem(size_t a, const SwitchView& view) const {
+  return {a, aggregates_[a], built_[a].proxies, media_[a], view, built_[a].switchKey};
+}
+
 std::shared_ptr<const SwitchMeasure> Scene::measureViewSwitching(size_t a, const SwitchView& view,
                                                                  const SwitchOptions& options) const {
-  const BuiltAggregate& entry = built_[a];
-  return std::make_shared<const SwitchMeasure>(inArena(settings_.threads, [&] {
-    return measureViewSwitch(*aggregates_[a], *entry.proxies, media_[a], view, options, entry.switchKey);
-  }));
+  return viewSwitchItem(a, view).measure(settings_.threads, options);
 }
 
 void Scene::updateSwitching(ViewSwitchTiming timing) {
@@ -1150,7 +1153,9 @@ void Scene::updateSwitching(ViewSwitchTiming timing) {
   const bool canUse = settings_.technique != Technique::Ept && !standIns_ && n > 0;
   const bool measure = canUse && !media_.empty() && settings_.explicitBounces < 0;
   const ProxyUse use = settings_.proxies;
-  const std::vector<SwitchView> views = measure && settings_.switchForView ? switchViews() : std::vector<SwitchView>();
+  // The camera's entries, unless applyViewSwitch has given this view's measurements.
+  const std::vector<SwitchView> views =
+      measure && settings_.switchForView && viewMeasured_.empty() ? switchViews() : std::vector<SwitchView>();
   proxyTables_.clear();
   if (canUse && (measure || use == ProxyUse::On || (use == ProxyUse::Auto && narrowSun_))) updateProxyTables();
   // The sun measurements depend on the aggregates, their media and the lights only: made
@@ -1176,14 +1181,13 @@ void Scene::updateSwitching(ViewSwitchTiming timing) {
         sun.visits = std::max(switchVisitsShownNeeded(sun, options), kSwitchVisits[options.firstCandidate]);
         sunSwitching_[a] = std::make_shared<const SwitchMeasure>(std::move(sun));
       }
-      if (!views.empty() && int(views[a].entries.size()) >= kMinViewEntries) {
-        if (a < viewMeasured_.size() && viewMeasured_[a])
-          viewSwitching_[a] = viewMeasured_[a];
-        else if (timing == ViewSwitchTiming::Now)
+      if (!viewMeasured_.empty()) {
+        viewSwitching_[a] = viewMeasured_[a];
+      } else if (!views.empty() && int(views[a].entries.size()) >= kMinViewEntries) {
+        if (timing == ViewSwitchTiming::Now)
           viewSwitching_[a] = measureViewSwitching(a, views[a], viewSwitchOptions());
         else
-          pendingViewSwitch_.items.push_back(
-              {a, aggregates_[a], built_[a].proxies, media_[a], views[a], built_[a].switchKey});
+          pendingViewSwitch_.items.push_back(viewSwitchItem(a, views[a]));
       }
     }
     int k = switching_[a] ? switching_[a]->visits : -1;

@@ -296,6 +296,9 @@ class Scene {
       HomogeneousMedium medium;
       SwitchView view;
       uint64_t cacheKey = 0;
+      // measureViewSwitch on what it holds (the sun measurement's too, with its options).
+      std::shared_ptr<const SwitchMeasure> measure(int threads,
+                                                   const SwitchOptions& options = viewSwitchOptions()) const;
     };
     uint64_t view = 0;
     int threads = 0;  // RenderSettings::threads
@@ -611,6 +614,7 @@ class Scene {
   void updateProxyTables();
   void updateInstancedProxyTables();
   void measureSwitching(size_t aggregate);
+  ViewSwitchWork::Item viewSwitchItem(size_t aggregate, const SwitchView& view) const;
   std::shared_ptr<const SwitchMeasure> measureViewSwitching(size_t aggregate, const SwitchView& view,
                                                             const SwitchOptions& options) const;
   bool useProxies_ = false, proxyLightSampling_ = false;

@@ -24,7 +24,6 @@ HdGranularRenderer::~HdGranularRenderer() {
   Stop();
   _thread.StopThread();
   _builder.Abandon();  // its destructor waits for the build still running
-  _viewSwitch.Abandon();  // likewise the view's measurement
 }
 
 void HdGranularRenderer::SetScene(std::unique_ptr<granular::Scene> scene) {

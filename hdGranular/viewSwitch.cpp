@@ -10,10 +10,8 @@ void HdGranularViewSwitch::Update(std::shared_ptr<const granular::Scene> scene) 
   // needs. The one under way ends (refused by applyViewSwitch if its view has gone), then
   // the view the scene has by then is measured.
   if (_job.Pending() || !scene || scene->pendingViewSwitch().empty()) return;
-  const granular::Scene::ViewSwitchWork& work = scene->pendingViewSwitch();
   // The work's views point at the scene's lights: the job keeps the scene alive.
-  auto shared = std::make_shared<const granular::Scene::ViewSwitchWork>(work);
-  _job.Start([shared, scene = std::move(scene)] { return Measured{*shared, shared->measure()}; });
+  _job.Start([work = scene->pendingViewSwitch(), scene] { return Measured{work, work.measure()}; });
 }
 
 PXR_NAMESPACE_CLOSE_SCOPE
