@@ -14,7 +14,7 @@ void addAreaLightHit(const Scene& scene, PathState& path, const Hit& hit) {
   if (!path.lastDelta)
     w = powerHeuristic(path.lastPdf,
                        light.pdfLi(path.lastP, dir, length(hit.p - path.lastP)) * scene.lightPick(hit.light) * path.lastNeeChance);
-  path.L[path.credit] += path.beta * light.areaLe(dir) * w;
+  path.L[path.credit] += path.beta * light.areaLe(hit.p, dir) * w;
 }
 
 Vec3 primaryAlbedo(const Scene& scene, const Hit& hit) {

@@ -40,12 +40,18 @@ double normalizationArea(const LightDesc& d) {
       float r = d.radius * length(d.xf.vector(Vec3(1, 0, 0)));  // uniform scale scales the radius
       return 4.0 * kPiD * double(r) * r;
     }
-    case LightType::Rect: {
-      Vec3 u = d.xf.vector(Vec3(d.width, 0, 0)), v = d.xf.vector(Vec3(0, d.height, 0));
+    case LightType::Rect:
+    case LightType::Disk: {
+      // |u × v| of its edges (rect) or semi-axes (disk), π times that for the disk.
+      const bool rect = d.type == LightType::Rect;
+      Vec3 u = d.xf.vector(Vec3(rect ? d.width : d.radius, 0, 0)), v = d.xf.vector(Vec3(0, rect ? d.height : d.radius, 0));
       double cx = double(u.y) * v.z - double(u.z) * v.y, cy = double(u.z) * v.x - double(u.x) * v.z,
              cz = double(u.x) * v.y - double(u.y) * v.x;
-      return std::sqrt(cx * cx + cy * cy + cz * cz);
+      return (rect ? 1.0 : kPiD) * std::sqrt(cx * cx + cy * cy + cz * cz);
     }
+    case LightType::Cylinder:  // its side: the caps do not emit
+      return 2.0 * kPiD * double(d.radius) * length(d.xf.vector(Vec3(0, 1, 0))) * double(d.length) *
+             length(d.xf.vector(Vec3(1, 0, 0)));
     case LightType::Dome: break;
   }
   return 1.0;
@@ -82,6 +88,30 @@ Light Light::fromDesc(const LightDesc& d) {
       Vec3 c = cross(l.edgeU_, l.edgeV_);
       l.area_ = length(c);
       l.normal_ = normalize(d.xf.vector(Vec3(0, 0, -1)));
+      l.radiance_ = L;
+      break;
+    }
+    case LightType::Disk: {
+      l.center_ = d.xf.point(Vec3(0.0f));
+      l.edgeU_ = d.xf.vector(Vec3(d.radius, 0, 0));
+      l.edgeV_ = d.xf.vector(Vec3(0, d.radius, 0));
+      l.area_ = kPi * length(cross(l.edgeU_, l.edgeV_));
+      l.normal_ = normalize(d.xf.vector(Vec3(0, 0, -1)));
+      l.radiance_ = L;
+      break;
+    }
+    case LightType::Cylinder: {
+      // Its cross-section a circle: a scale across the axis is taken from local Y.
+      l.center_ = d.xf.point(Vec3(0.0f));
+      const Vec3 along = d.xf.vector(Vec3(d.length, 0, 0));
+      l.halfLength_ = 0.5f * length(along);
+      l.axis_ = normalize(along);
+      l.radius_ = d.radius * length(d.xf.vector(Vec3(0, 1, 0)));
+      Vec3 y = d.xf.vector(Vec3(0, 1, 0));
+      y = y - l.axis_ * dot(y, l.axis_);
+      l.across1_ = length2(y) > 0 ? normalize(y) : Frame(l.axis_).s;
+      l.across2_ = cross(l.axis_, l.across1_);
+      l.area_ = 2.0f * kPi * l.radius_ * (2.0f * l.halfLength_);
       l.radiance_ = L;
       break;
     }
@@ -131,7 +161,49 @@ Light Light::fromDesc(const LightDesc& d) {
       break;
     }
   }
+  if (d.shaping.enabled && d.type != LightType::Distant && d.type != LightType::Dome) {
+    l.shaped_ = true;
+    l.shapeAxis_ = normalize(d.xf.vector(Vec3(0, 0, -1)));
+    l.coneAngle_ = std::clamp(d.shaping.coneAngle, 0.0f, 180.0f) * (kPi / 180.0f);
+    l.coneSmooth_ = l.coneAngle_ * (1.0f - std::clamp(d.shaping.coneSoftness, 0.0f, 1.0f));
+    l.focus_ = std::max(d.shaping.focus, 0.0f);
+    l.focusTint_ = d.shaping.focusTint;
+  }
   return l;
+}
+
+float Light::facingHalf(const Vec3& p) const {
+  const Vec3 r = p - center_;
+  return std::atan2(dot(r, across2_), dot(r, across1_));
+}
+
+Vec3 Light::surfaceNormal(const Vec3& q) const {
+  switch (type_) {
+    case LightType::Sphere: {
+      const Vec3 n = q - center_;
+      return length2(n) > 0 ? normalize(n) : shapeAxis_;
+    }
+    case LightType::Cylinder: {
+      const Vec3 r = q - center_, across = r - axis_ * dot(r, axis_);
+      return length2(across) > 0 ? normalize(across) : across1_;
+    }
+    default: return normal_;
+  }
+}
+
+Vec3 Light::emitted(const Vec3& q, const Vec3& w) const {
+  if (!shaped_) return radiance_;
+  // The cone (LightShaping): 1 up to coneSmooth_, smoothstep down to 0 at coneAngle_.
+  const float theta = std::acos(std::clamp(dot(shapeAxis_, w), -1.0f, 1.0f));
+  if (theta > coneAngle_) return Vec3(0.0f);
+  float cone = 1.0f;
+  if (theta > coneSmooth_) {
+    const float x = (coneAngle_ - theta) / (coneAngle_ - coneSmooth_);
+    cone = x * x * (3.0f - 2.0f * x);
+  }
+  if (focus_ <= 0) return radiance_ * cone;
+  const float f = std::pow(std::fabs(dot(surfaceNormal(q), w)), focus_);
+  return radiance_ * (focusTint_ + (Vec3(1.0f) - focusTint_) * f) * cone;
 }
 
 double Light::pickWeight(const Vec3& ref) const {
@@ -147,11 +219,20 @@ double Light::pickWeight(const Vec3& ref) const {
       const double d2 = double(length2(center_ - ref)), r2 = double(radius_) * radius_;
       return cone(2.0 * kPiD * coneOneMinusCos(d2 > r2 ? r2 / d2 : 1.0));
     }
-    case LightType::Rect: {
-      const Vec3 c = corner_ + (edgeU_ + edgeV_) * 0.5f, d = ref - c;
+    case LightType::Rect:
+    case LightType::Disk: {
+      const Vec3 c = type_ == LightType::Rect ? corner_ + (edgeU_ + edgeV_) * 0.5f : center_, d = ref - c;
       const double d2 = double(length2(d));
       const double omega = d2 > 0 ? double(area_) * std::fabs(double(dot(normal_, d))) / (d2 * std::sqrt(d2)) : 2.0 * kPiD;
       return cone(std::min(omega, 2.0 * kPiD));
+    }
+    case LightType::Cylinder: {
+      // Its silhouette from ref: 2 r × length × the sine between the axis and the view.
+      const Vec3 d = ref - center_;
+      const double d2 = double(length2(d));
+      if (!(d2 > 0)) return cone(2.0 * kPiD);
+      const double c = double(dot(axis_, d)) / std::sqrt(d2), sine = std::sqrt(std::max(0.0, 1.0 - c * c));
+      return cone(std::min(4.0 * double(radius_) * halfLength_ * sine / d2, 2.0 * kPiD));
     }
     case LightType::Dome:
       // E = π × mean radiance, Ω = 4π mean² / mean square: E √(4π/Ω) = π × the rms radiance.
@@ -201,7 +282,7 @@ bool Light::sampleLi(const Vec3& p, float u1, float u2, LightSample& s) const {
       if (!intersect(r, t)) t = d * float(std::sqrt(std::max(0.0, 1.0 - sin2)));  // grazing the silhouette
       s.dist = t;
       s.pdf = uniformConePdfSin2(sin2);
-      s.Li = radiance_;
+      s.Li = emitted(p + s.wi * t, -s.wi);
       s.delta = false;
       return true;
     }
@@ -217,7 +298,34 @@ bool Light::sampleLi(const Vec3& p, float u1, float u2, LightSample& s) const {
       s.wi = w;
       s.dist = d;
       s.pdf = d2 / (cosL * area_);
-      s.Li = radiance_;
+      s.Li = emitted(q, -w);
+      s.delta = false;
+      return true;
+    }
+    case LightType::Disk:
+    case LightType::Cylinder: {
+      Vec3 q, n;
+      if (type_ == LightType::Disk) {
+        const Vec3 c = sampleConcentricDisk(u1, u2);
+        q = center_ + edgeU_ * c.x + edgeV_ * c.y;
+        n = normal_;
+      } else {
+        // The half of the side that faces p (facingHalf): every point p sees lies in it.
+        const float phi = facingHalf(p) + kPi * (u2 - 0.5f);
+        n = across1_ * std::cos(phi) + across2_ * std::sin(phi);
+        q = center_ + axis_ * ((2.0f * u1 - 1.0f) * halfLength_) + n * radius_;
+      }
+      Vec3 w = q - p;
+      const float d2 = length2(w);
+      if (!(d2 > 0)) return false;
+      const float d = std::sqrt(d2);
+      w /= d;
+      const float cosL = -dot(w, n);
+      if (cosL <= 0) return false;  // its back (a disk) or its far side (a cylinder)
+      s.wi = w;
+      s.dist = d;
+      s.pdf = d2 / (cosL * (type_ == LightType::Cylinder ? 0.5f * area_ : area_));
+      s.Li = emitted(q, -w);
       s.delta = false;
       return true;
     }
@@ -299,9 +407,14 @@ float Light::pdfLi(const Vec3& p, const Vec3& wi, float dist) const {
       if (d2 <= r2 * 1.0001f) return 0.0f;
       return uniformConePdfSin2(double(r2) / double(d2));
     }
-    case LightType::Rect: {
+    case LightType::Rect:
+    case LightType::Disk: {
       float cosL = -dot(wi, normal_);
       return cosL > 0 ? dist * dist / (cosL * area_) : 0.0f;
+    }
+    case LightType::Cylinder: {
+      float cosL = -dot(wi, surfaceNormal(p + wi * dist));
+      return cosL > 0 ? dist * dist / (cosL * 0.5f * area_) : 0.0f;
     }
     case LightType::Dome: {
       if (!dist_) return kUniformSpherePdf;
@@ -327,20 +440,62 @@ bool Light::intersect(const Ray& r, float& t) const {
     if (t1 > r.tmin && t1 < r.tmax && c > 0) { t = t1; return true; }
     return false;
   }
-  if (type_ == LightType::Rect) {
-    float denom = dot(r.d, normal_);
-    if (denom >= 0) return false;  // back side is not emitting and does not block
-    float tt = dot(corner_ - r.o, normal_) / denom;
+  if (type_ == LightType::Rect || type_ == LightType::Disk) {
+    // One-sided: the back neither emits nor blocks. (a, b): the hit in units of the edges
+    // from the corner (rect) or of the semi-axes from the centre (disk).
+    const float denom = dot(r.d, normal_);
+    if (denom >= 0) return false;
+    const Vec3 o = type_ == LightType::Rect ? corner_ : center_;
+    const float tt = dot(o - r.o, normal_) / denom;
     if (!(tt > r.tmin && tt < r.tmax)) return false;
-    Vec3 q = r.o + r.d * tt - corner_;
-    float a = dot(q, edgeU_) / length2(edgeU_), b = dot(q, edgeV_) / length2(edgeV_);
-    if (a < 0 || a > 1 || b < 0 || b > 1) return false;
+    const Vec3 q = r.o + r.d * tt - o;
+    const float a = dot(q, edgeU_) / length2(edgeU_), b = dot(q, edgeV_) / length2(edgeV_);
+    if (type_ == LightType::Rect ? (a < 0 || a > 1 || b < 0 || b > 1) : a * a + b * b > 1) return false;
+    t = tt;
+    return true;
+  }
+  if (type_ == LightType::Cylinder) {
+    // The side's outer surface only: where the ray enters the infinite cylinder (the near
+    // root, by the closest approach as for spheres), within its length.
+    const Vec3 oc = r.o - center_;
+    const Vec3 o2 = oc - axis_ * dot(oc, axis_), d2 = r.d - axis_ * dot(r.d, axis_);
+    const float a = length2(d2);
+    if (!(a > 0)) return false;  // along the axis
+    const float along = -dot(o2, d2) / a;
+    const Vec3 closest = o2 + d2 * along;
+    const float disc = radius_ * radius_ - length2(closest);
+    if (disc < 0) return false;
+    const float tt = along - std::sqrt(disc / a);
+    if (!(tt > r.tmin && tt < r.tmax)) return false;
+    if (std::fabs(dot(oc + r.d * tt, axis_)) > halfLength_) return false;
     t = tt;
     return true;
   }
   return false;
 }
 
-Vec3 Light::areaLe(const Vec3& dir) const { return radiance_; }
+bool Light::endsOn(const Vec3& e, float tol) const {
+  switch (type_) {
+    case LightType::Sphere: return std::fabs(length(e - center_) - radius_) <= tol;
+    case LightType::Rect:
+    case LightType::Disk: {
+      const Vec3 o = type_ == LightType::Rect ? corner_ : center_, q = e - o;
+      if (std::fabs(dot(q, normal_)) > tol) return false;
+      const float lu = length(edgeU_), lv = length(edgeV_);
+      const float a = dot(q, edgeU_) / (lu * lu), b = dot(q, edgeV_) / (lv * lv);
+      const float ta = tol / lu, tb = tol / lv;
+      if (type_ == LightType::Rect) return a >= -ta && a <= 1 + ta && b >= -tb && b <= 1 + tb;
+      return a * a + b * b <= (1 + std::max(ta, tb)) * (1 + std::max(ta, tb));
+    }
+    case LightType::Cylinder: {
+      const Vec3 q = e - center_;
+      const float along = dot(q, axis_);
+      return std::fabs(along) <= halfLength_ + tol && std::fabs(length(q - axis_ * along) - radius_) <= tol;
+    }
+    default: return false;
+  }
+}
+
+Vec3 Light::areaLe(const Vec3& q, const Vec3& dir) const { return emitted(q, -dir); }
 
 }  // namespace granular

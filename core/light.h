@@ -1,11 +1,18 @@
-// light.h — the UsdLux lights: distant (with angular size), sphere, rect and dome.
+// light.h — the UsdLux lights: distant (with angular size), sphere, rect, disk, cylinder
+// and dome, the area lights shaped by UsdLuxShapingAPI (LightShaping, scene_desc.h).
 //
 // Contract: sampleLi() picks a direction from a shading point towards the light and
 // returns its radiance and pdf in solid angle (delta lights: pdf 0, radiance is the
-// irradiance). Le()/pdfLi() evaluate the same quantities for a direction found by BSDF
-// sampling, so that the integrator can weight both strategies by MIS. Area lights
-// (sphere, rect) are one-sided emitters hit by intersectLight(); distant and dome lights
-// are seen by rays that escape the scene (escapedLe()).
+// irradiance). areaLe()/escapedLe() and pdfLi() evaluate the same quantities for a
+// direction found by BSDF sampling, so that the integrator can weight both strategies by
+// MIS. Area lights are emitters hit by intersect(): a sphere outward, a rect and a disk on
+// their −Z side, a cylinder outward from its side (not its caps); a light's back side and
+// inside neither emit nor block. Distant and dome lights are seen by rays that escape the
+// scene (escapedLe()). Sampling draws points uniformly over the emitting area (the sphere:
+// directions uniformly in the cone it subtends), so pdf = d² / (cos θ_light · area); a
+// cylinder's over the half of its side that faces the point (every point it sees lies
+// there; those facing away are rejected: sampleLi false), area / 2; a shaping's cone is
+// not sampled (its zero radiance is).
 #pragma once
 
 #include <memory>
@@ -53,8 +60,14 @@ class Light {
   float pdfLi(const Vec3& p, const Vec3& wi, float dist) const;
   // For area lights: nearest hit of the emitting shape in (tmin, tmax).
   bool intersect(const Ray& r, float& t) const;
-  // Radiance leaving the area light at a hit point towards -dir.
-  Vec3 areaLe(const Vec3& dir) const;
+  // Whether point e lies on this area light's emitting surface, within tol: a shadow ray
+  // that ends there was aimed at this light, which (convex, and sampled only where it
+  // faces the ray) cannot block it — though intersect() may meet it a little short of e,
+  // since the ray leaves from an origin offset off its surface (a 2e-5 offset read up to
+  // 3e-4 of the distance short on a thin cylinder: 9% of a floor's shadow rays blocked).
+  bool endsOn(const Vec3& e, float tol) const;
+  // Radiance leaving the area light at its point q towards -dir (q: intersect()'s hit).
+  Vec3 areaLe(const Vec3& q, const Vec3& dir) const;
   // This light's weight in light sampling (Scene::lightPick): the irradiance E it gives a
   // point at `ref` facing it, times √(4π/Ω), Ω the solid angle its light arrives from there
   // (a textured dome's effective one, (∫L dω)² / ∫L² dω; a delta sun's, that of the widest
@@ -70,12 +83,25 @@ class Light {
   Vec3 dir_;            // towards the light
   float cosMax_ = 1;
   double sunSin2_ = 0;  // sin² of a distant light's half-angle (its cone's pdf)
-  // sphere
+  // sphere, disk, cylinder
   Vec3 center_;
-  float radius_ = 0;
-  // rect
+  float radius_ = 0;  // sphere, cylinder (world)
+  // rect: corner and edges; disk: centre and semi-axes (local X and Y, scaled)
   Vec3 corner_, edgeU_, edgeV_, normal_;  // emits along normal_
   float area_ = 0;
+  // cylinder: its axis (unit, local X), half its length, and two unit vectors across it
+  Vec3 axis_, across1_, across2_;
+  float halfLength_ = 0;
+  // shaping (LightShaping): the light's axis (local −Z), the cone's angles in radians
+  bool shaped_ = false;
+  Vec3 shapeAxis_, focusTint_;
+  float coneAngle_ = 0, coneSmooth_ = 0, focus_ = 0;
+  Vec3 surfaceNormal(const Vec3& q) const;
+  // A cylinder's side sampled for p: the half centred on p's side of the axis (the angle
+  // about the axis from across1_ toward across2_), uniform in area, pdf 2 / area there.
+  float facingHalf(const Vec3& p) const;
+  // radiance_ leaving point q of the light in direction w (unit), shaped.
+  Vec3 emitted(const Vec3& q, const Vec3& w) const;
   // dome
   Transform toLocal_, toWorld_;
   std::shared_ptr<const std::vector<float>> texels_;  // RGB

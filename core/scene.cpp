@@ -83,7 +83,8 @@ bool meshReachesInto(const DaRegion& region, const TriangleMesh& m) {
 }
 
 // Does an area light reach into the region (sphere: centre inside or the surface closer
-// than its radius; rect: a corner inside or an edge or diagonal crossing)?
+// than its radius; rect: a corner inside or an edge or diagonal crossing; disk: likewise
+// its rim as a polygon; cylinder: a point of its axis within its radius)?
 bool emitterReachesInto(const DaRegion& region, const LightDesc& l) {
   if (l.type == LightType::Sphere) {
     Vec3 c = l.xf.point(Vec3(0.0f));
@@ -97,6 +98,25 @@ bool emitterReachesInto(const DaRegion& region, const LightDesc& l) {
     for (int i = 0; i < 4; ++i)
       if (segmentReachesInto(region, p[i], p[(i + 1) % 4])) return true;
     return segmentReachesInto(region, p[0], p[2]) || segmentReachesInto(region, p[1], p[3]);
+  }
+  if (l.type == LightType::Disk) {  // its rim, as a polygon of 16 sides, and two diameters
+    Vec3 p[16];
+    for (int i = 0; i < 16; ++i) {
+      const float phi = 2.0f * kPi * float(i) / 16.0f;
+      p[i] = l.xf.point(Vec3(l.radius * std::cos(phi), l.radius * std::sin(phi), 0));
+    }
+    for (int i = 0; i < 16; ++i)
+      if (segmentReachesInto(region, p[i], p[(i + 1) % 16])) return true;
+    return segmentReachesInto(region, p[0], p[8]) || segmentReachesInto(region, p[4], p[12]);
+  }
+  if (l.type == LightType::Cylinder) {  // its axis, widened by its radius
+    const Vec3 a = l.xf.point(Vec3(-0.5f * l.length, 0, 0)), b = l.xf.point(Vec3(0.5f * l.length, 0, 0));
+    const float r = l.radius * length(l.xf.vector(Vec3(0, 1, 0)));
+    for (int i = 0; i <= 8; ++i) {
+      const Vec3 c = a + (b - a) * (float(i) / 8.0f);
+      if (region.contains(c) || region.distance(c) < r + 0.0625f * length(b - a)) return true;
+    }
+    return false;
   }
   return false;  // distant and dome lights are outside everything
 }
@@ -757,8 +777,8 @@ std::vector<LightDesc> Scene::buildLights(const SceneDesc& desc, const Bounds3& 
 // see nothing but DA's planar-boundary model of the deep interior (60% too dark), both
 // measured by bench/stress.py against EPT.
 void Scene::findEmittersInside(const SceneDesc& desc, const std::vector<LightDesc>& lights) {
-  // An instancer's medium likewise: a sphere light's centre, a rect light's corner or an
-  // emissive mesh's vertex where its packing rate is > 0 (within the grains' reach).
+  // An instancer's medium likewise: a sphere, disk or cylinder light's centre, a rect
+  // light's corner or an emissive mesh's vertex where its packing rate is > 0 (within the grains' reach).
   instancedEmitterInside_.assign(builtInstanced_.size(), 0);
   for (size_t i = 0; i < builtInstanced_.size(); ++i) {
     if (!builtInstanced_[i].medium) continue;
@@ -770,6 +790,7 @@ void Scene::findEmittersInside(const SceneDesc& desc, const std::vector<LightDes
       if (l.type == LightType::Rect)
         for (float sx : {-0.5f, 0.5f})
           for (float sy : {-0.5f, 0.5f}) found = found || inside(l.xf.point(Vec3(sx * l.width, sy * l.height, 0)));
+      if (l.type == LightType::Disk || l.type == LightType::Cylinder) found = found || inside(l.xf.point(Vec3(0.0f)));
     }
     for (const auto& m : desc.meshes)
       if (isEmitter(desc, m))
@@ -886,8 +907,16 @@ bool Scene::areaLightsOccluded(const Vec3& p, const Vec3& dir, float dist) const
   Ray r;
   r.o = p;
   r.d = dir;
-  Hit hit;
-  return intersectAreaLights(r, hit, dist);
+  r.tmax = dist;
+  // A shadow ray aimed at an area light ends on it (Light::endsOn): that light is not asked.
+  const bool aimed = std::isfinite(dist);
+  const Vec3 end = aimed ? p + dir * dist : Vec3(0.0f);
+  const float tol = 1e-3f * dist;
+  for (int li : areaLights_) {
+    float t;
+    if (lights_[li].intersect(r, t) && t < dist && !(aimed && lights_[li].endsOn(end, tol))) return true;
+  }
+  return false;
 }
 
 void Scene::buildIdentities(const SceneDesc& desc, const std::vector<LightDesc>& lights) {
@@ -942,7 +971,7 @@ void Scene::buildIdentities(const SceneDesc& desc, const std::vector<LightDesc>&
   for (const auto& l : lights) {
     HitIdentity id;
     id.cryptomatte[0] = id.cryptomatte[1] = cryptomatteId(l.name);
-    if (l.type == LightType::Sphere || l.type == LightType::Rect) {  // only these are hit
+    if (l.type != LightType::Distant && l.type != LightType::Dome) {  // only area lights are hit
       names[0].insert(l.name);
       names[1].insert(l.name);
     }

@@ -165,7 +165,24 @@ void validateLightDesc(const LightDesc& l, const std::string& obj) {
       checkSize(length(l.xf.vector(Vec3(l.width, 0, 0))), obj, "width");  // in world units
       checkSize(length(l.xf.vector(Vec3(0, l.height, 0))), obj, "height");
       break;
+    case LightType::Disk:
+      checkSize(l.radius, obj, "radius");
+      checkSize(l.radius * length(l.xf.vector(Vec3(1, 0, 0))), obj, "radius");  // in world units
+      checkSize(l.radius * length(l.xf.vector(Vec3(0, 1, 0))), obj, "radius");
+      break;
+    case LightType::Cylinder:
+      checkSize(l.radius, obj, "radius");
+      checkSize(l.length, obj, "length");
+      checkSize(l.radius * length(l.xf.vector(Vec3(0, 1, 0))), obj, "radius");  // in world units
+      checkSize(l.length * length(l.xf.vector(Vec3(1, 0, 0))), obj, "length");
+      break;
     case LightType::Dome: break;
+  }
+  if (l.shaping.enabled) {
+    checkFinite(l.shaping.coneAngle, obj, "shaping_cone_angle");
+    checkFinite(l.shaping.coneSoftness, obj, "shaping_cone_softness");
+    checkFinite(l.shaping.focus, obj, "shaping_focus");
+    checkNonNegative(l.shaping.focusTint, obj, "shaping_focus_tint");
   }
   {
     // The radiance color * intensity * 2^exposure, divided by the light's area when it
@@ -594,7 +611,8 @@ static_assert(fieldCount<TriangleMesh>() == 3, "compare the new field in sameMes
 static_assert(fieldCount<CameraDesc>() == 12, "compare the new field in sameCamera");
 static_assert(fieldCount<TextureDesc>() == 14, "compare the new field in sameTexture (scale, bias: 4 each)");
 static_assert(fieldCount<MaterialDesc>() == 13, "compare the new field in sameMaterial");
-static_assert(fieldCount<LightDesc>() == 12, "compare the new field in sameLight");
+static_assert(fieldCount<LightDesc>() == 14, "compare the new field in sameLight");
+static_assert(fieldCount<LightShaping>() == 5, "compare the new field in sameLight");
 static_assert(fieldCount<MeshDesc>() == 8, "compare the new field in sameMeshDesc");
 static_assert(fieldCount<GrainPrototypeDesc>() == 3, "compare the new field in sameAggregateInputs");
 static_assert(fieldCount<AggregateDesc>() == 15, "compare the new field in sameAggregateInputs (or the id check)");
@@ -646,7 +664,10 @@ namespace {
 bool sameLight(const LightDesc& a, const LightDesc& b) {
   return a.name == b.name && a.type == b.type && sameTransform(a.xf, b.xf) && a.color == b.color &&
          a.intensity == b.intensity && a.exposure == b.exposure && a.normalize == b.normalize && a.angle == b.angle &&
-         a.radius == b.radius && a.width == b.width && a.height == b.height && a.textureFile == b.textureFile;
+         a.radius == b.radius && a.width == b.width && a.height == b.height && a.length == b.length &&
+         a.shaping.enabled == b.shaping.enabled && a.shaping.coneAngle == b.shaping.coneAngle &&
+         a.shaping.coneSoftness == b.shaping.coneSoftness && a.shaping.focus == b.shaping.focus &&
+         a.shaping.focusTint == b.shaping.focusTint && a.textureFile == b.textureFile;
 }
 
 // Transforms at the shutter's open and close (MeshDesc::shutterXf, AggregateDesc::shutterXf).

@@ -117,7 +117,19 @@ struct MaterialDesc {
   bool hasCutouts() const { return type == MaterialType::Lambert && (opacity < 1 || opacityTexture.enabled()); }
 };
 
-enum class LightType { Distant, Sphere, Rect, Dome };
+enum class LightType { Distant, Sphere, Rect, Dome, Disk, Cylinder };
+
+// UsdLuxShapingAPI on an area light: its radiance toward an emission direction ω scaled by
+// the cone (off the light's axis, its local −Z, by θ: 1 up to θ_c (1 − softness), then
+// falling smoothly to 0 at θ_c, 0 beyond) and tinted by focus (lerp(focusTint, 1,
+// |n·ω|^focus), n the emitting surface's normal). The fallbacks are UsdLux's.
+struct LightShaping {
+  bool enabled = false;       // ShapingAPI applied (its inputs authored or given)
+  float coneAngle = 90.0f;    // θ_c, degrees
+  float coneSoftness = 0.0f;  // clamped to [0, 1]
+  float focus = 0.0f;         // below 0: 0
+  Vec3 focusTint{0.0f};
+};
 
 struct LightDesc {
   std::string name;
@@ -128,8 +140,10 @@ struct LightDesc {
   float exposure = 0.0f;     // radiance = color * intensity * 2^exposure
   bool normalize = false;    // divide by the light's area (or cone solid angle)
   float angle = 0.53f;       // Distant: angular diameter in degrees
-  float radius = 0.5f;       // Sphere
+  float radius = 0.5f;       // Sphere, Disk (in its local XY plane), Cylinder
   float width = 1.0f, height = 1.0f;  // Rect, in its local XY plane
+  float length = 1.0f;       // Cylinder, along its local X axis
+  LightShaping shaping;      // Sphere, Rect, Disk, Cylinder
   std::string textureFile;   // Dome: lat-long EXR (empty: constant)
 };
 

@@ -614,9 +614,12 @@ void parseLights(const json& v, SceneDesc& desc, const Context& ctx) {
   for (size_t i = 0; i < a.size(); ++i) {
     std::string label = itemLabel(a[i], "lights", i);
     if (!a[i].is_object()) throw InputError("lights", str("[", i, "]"), "expected an object, got " + describe(a[i]));
-    if (!a[i].contains("type")) throw InputError(label, "type", "is required (distant, sphere, rect or dome)");
+    if (!a[i].contains("type"))
+      throw InputError(label, "type", "is required (distant, sphere, rect, disk, cylinder or dome)");
     std::string type = toString(a[i].at("type"), label, "type");
     std::vector<std::string> keys = {"name", "type", "color", "intensity", "exposure", "normalize", "transform"};
+    const std::vector<std::string> shapingKeys = {"shaping_cone_angle", "shaping_cone_softness", "shaping_focus",
+                                                  "shaping_focus_tint"};
     LightDesc l;
     if (type == "distant") {
       l.type = LightType::Distant;
@@ -627,12 +630,21 @@ void parseLights(const json& v, SceneDesc& desc, const Context& ctx) {
     } else if (type == "rect") {
       l.type = LightType::Rect;
       keys.insert(keys.end(), {"width", "height"});
+    } else if (type == "disk") {
+      l.type = LightType::Disk;
+      keys.push_back("radius");
+    } else if (type == "cylinder") {
+      l.type = LightType::Cylinder;
+      keys.insert(keys.end(), {"position", "radius", "length"});
     } else if (type == "dome") {
       l.type = LightType::Dome;
       keys.push_back("texture_file");
     } else {
-      throw InputError(label, "type", str("unknown light type \"", type, "\" (expected distant, sphere, rect or dome)"));
+      throw InputError(label, "type",
+                       str("unknown light type \"", type, "\" (expected distant, sphere, rect, disk, cylinder or dome)"));
     }
+    if (l.type != LightType::Distant && l.type != LightType::Dome)
+      keys.insert(keys.end(), shapingKeys.begin(), shapingKeys.end());
     Obj o(a[i], "lights", str("[", i, "]"), label, keys);
     checkUnique(seen, label, "lights", i);
     l.name = label;
@@ -655,6 +667,12 @@ void parseLights(const json& v, SceneDesc& desc, const Context& ctx) {
     l.radius = o.num("radius", l.radius);
     l.width = o.num("width", l.width);
     l.height = o.num("height", l.height);
+    l.length = o.num("length", l.length);
+    for (const std::string& k : shapingKeys) l.shaping.enabled = l.shaping.enabled || o.has(k);
+    l.shaping.coneAngle = o.num("shaping_cone_angle", l.shaping.coneAngle);
+    l.shaping.coneSoftness = o.num("shaping_cone_softness", l.shaping.coneSoftness);
+    l.shaping.focus = o.num("shaping_focus", l.shaping.focus);
+    l.shaping.focusTint = o.vec3("shaping_focus_tint", l.shaping.focusTint, true);
     if (o.has("texture_file")) {
       std::string file = toString(*o.find("texture_file"), label, "texture_file");
       if (!file.empty()) {

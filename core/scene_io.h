@@ -23,9 +23,14 @@
 //  "lights": [{"type"*:"distant", "direction":[0,-1,-1], "angle":0.53},   // or "transform": T
 //             {"type"*:"sphere", "position":[0,3,0], "radius":0.5},         // or "transform": T
 //             {"type"*:"rect", "transform":T, "width":1, "height":1},
+//             {"type"*:"disk", "transform":T, "radius":0.5},                // emits along its -Z
+//             {"type"*:"cylinder", "transform":T, "radius":0.5, "length":1}, // along its X, from its side
 //             {"type"*:"dome", "texture_file":"sky.exr", "transform":T}],
 //             // every light also takes "name", "color":[1,1,1], "intensity":1, "exposure":0,
-//             // "normalize":false; radiance = color * intensity * 2^exposure
+//             // "normalize":false; radiance = color * intensity * 2^exposure; the area
+//             // lights also "shaping_cone_angle":90, "shaping_cone_softness":0,
+//             // "shaping_focus":0, "shaping_focus_tint":[0,0,0] (UsdLuxShapingAPI; any of
+//             // them turns shaping on)
 //  "aggregates": [{"name":"castle", "boundary"*: S, "transform": T, "grain_radius":0.01,
 //                  "packing_rate":0.6, "seed":1, "tile_spheres":512,
 //                  "prototypes"*: [{"name":"rock", "shape"*: S, "material":"sand"}],

@@ -23,7 +23,14 @@ const char* const kTextureFormat = "inputs:texture:format";
 const char* const kWidth = "inputs:width";
 const char* const kHeight = "inputs:height";
 const char* const kRadius = "inputs:radius";
+const char* const kLength = "inputs:length";
 const char* const kTreatAsPoint = "treatAsPoint";
+const char* const kTreatAsLine = "treatAsLine";
+const char* const kConeAngle = "inputs:shaping:cone:angle";
+const char* const kConeSoftness = "inputs:shaping:cone:softness";
+const char* const kFocus = "inputs:shaping:focus";
+const char* const kFocusTint = "inputs:shaping:focusTint";
+const char* const kIesFile = "inputs:shaping:ies:file";
 
 // One lobe of the fit: a Gaussian with different widths below and above its mean.
 double lobe(double lambda, double mean, double below, double above) {
@@ -52,9 +59,10 @@ void orderUsdLights(std::vector<LightDesc>& lights) {
 }
 
 const std::vector<std::string>& usdLightAttributeNames() {
-  static const std::vector<std::string> names = {kIntensity, kExposure,    kColor,         kNormalize, kEnableTemperature,
-                                                 kTemperature, kAngle,     kTextureFile,   kTextureFormat,
-                                                 kWidth,     kHeight,      kRadius,        kTreatAsPoint};
+  static const std::vector<std::string> names = {
+      kIntensity, kExposure, kColor,        kNormalize,   kEnableTemperature, kTemperature, kAngle,
+      kTextureFile, kTextureFormat, kWidth, kHeight,      kRadius,            kLength,      kTreatAsPoint,
+      kTreatAsLine, kConeAngle, kConeSoftness, kFocus,    kFocusTint,         kIesFile};
   return names;
 }
 
@@ -104,6 +112,15 @@ std::optional<LightDesc> lightFromUsd(const UsdPrimRecord& r, UsdWarnings& warni
     l.radius = usdFloat(r, kRadius, 0.5f);
     if (usdBool(r, kTreatAsPoint, false))
       warnings.push_back(str(path, ".", kTreatAsPoint, ": not supported; rendered as a sphere of inputs:radius"));
+  } else if (type == "DiskLight") {
+    l.type = LightType::Disk;
+    l.radius = usdFloat(r, kRadius, 0.5f);
+  } else if (type == "CylinderLight") {
+    l.type = LightType::Cylinder;
+    l.radius = usdFloat(r, kRadius, 0.5f);
+    l.length = usdFloat(r, kLength, 1.0f);
+    if (usdBool(r, kTreatAsLine, false))
+      warnings.push_back(str(path, ".", kTreatAsLine, ": not supported; rendered as a cylinder of inputs:radius"));
   } else if (type == "Mesh" || type == "MeshLight" || isUsdImplicitSurface(type)) {
     warnings.push_back(str(path, ": light emission of a surface (MeshLightAPI) is not supported; drawn as an "
                                  "ordinary surface"));
@@ -123,8 +140,26 @@ std::optional<LightDesc> lightFromUsd(const UsdPrimRecord& r, UsdWarnings& warni
     l.color = Vec3(l.color.x * bb.x, l.color.y * bb.y, l.color.z * bb.z);
   }
   l.normalize = usdBool(r, kNormalize, false);
+  // ShapingAPI: on where any of its inputs has a value (applied, or authored).
+  const bool shaping = r.attributes.count(kConeAngle) || r.attributes.count(kConeSoftness) ||
+                       r.attributes.count(kFocus) || r.attributes.count(kFocusTint);
+  if (shaping && (l.type == LightType::Distant || l.type == LightType::Dome)) {
+    warnings.push_back(str(path, ": ShapingAPI on a ", type, " is not supported; ignored"));
+  } else if (shaping) {
+    l.shaping.enabled = true;
+    l.shaping.coneAngle = usdFloat(r, kConeAngle, 90.0f);
+    l.shaping.coneSoftness = usdFloat(r, kConeSoftness, 0.0f);
+    l.shaping.focus = usdFloat(r, kFocus, 0.0f);
+    l.shaping.focusTint = usdColor(r, kFocusTint, Vec3(0.0f));
+  }
+  if (!usdAsset(r, kIesFile).first.empty())
+    warnings.push_back(str(path, ".", kIesFile, ": IES profiles are not supported; ignored"));
   // Core's checks, in USD's names (a light's SceneDesc fields are its inputs).
   checkInUsdNames(path, [&] { validateLightDesc(l, path); }, [](const std::string& field) {
+    if (field == "shaping_cone_angle") return std::string(kConeAngle);
+    if (field == "shaping_cone_softness") return std::string(kConeSoftness);
+    if (field == "shaping_focus") return std::string(kFocus);
+    if (field == "shaping_focus_tint") return std::string(kFocusTint);
     return field == "transform" || field.empty() ? field : "inputs:" + field;
   });
   return l;

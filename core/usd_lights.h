@@ -9,9 +9,15 @@
 //    inputs:texture:format (automatic or latlong; others refused);
 //  - RectLight: inputs:width, inputs:height (1); a texture is warned about and ignored;
 //  - SphereLight: inputs:radius (0.5); treatAsPoint is warned about (a sphere is drawn);
+//  - DiskLight: inputs:radius (0.5);
+//  - CylinderLight: inputs:radius (0.5), inputs:length (1); treatAsLine is warned about;
+//  - ShapingAPI on the area lights above: inputs:shaping:cone:angle (90),
+//    inputs:shaping:cone:softness (0), inputs:shaping:focus (0), inputs:shaping:focusTint
+//    (0, 0, 0) (LightShaping, scene_desc.h), on where any of them has a value; on a distant
+//    or dome light it is warned about and ignored, as is inputs:shaping:ies:file;
 //  - a surface with MeshLightAPI (Mesh, an implicit surface): one warning; the front end
 //    draws it as an ordinary surface, as Hydra hosts do;
-//  - any other light type (DiskLight, CylinderLight, PortalLight, ...): one warning, skipped.
+//  - any other light type (PortalLight, a GeometryLight, ...): one warning, skipped.
 // Every light: inputs:intensity (1), inputs:exposure (0), inputs:color (1, 1, 1),
 // inputs:normalize (false), and inputs:colorTemperature (6500 K, > 0) when
 // inputs:enableColorTemperature is true: the colour is multiplied by blackbodyRgb of it.

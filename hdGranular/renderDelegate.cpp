@@ -24,8 +24,9 @@ const TfTokenVector kRprimTypes = {HdPrimTypeTokens->mesh};
 const TfTokenVector kSprimTypes = {HdPrimTypeTokens->camera,      HdPrimTypeTokens->material,
                                    HdPrimTypeTokens->distantLight, HdPrimTypeTokens->domeLight,
                                    HdPrimTypeTokens->rectLight,    HdPrimTypeTokens->sphereLight,
-                                   // Not rendered: synced so that core warns about them by name.
-                                   HdPrimTypeTokens->diskLight,    HdPrimTypeTokens->cylinderLight};
+                                   HdPrimTypeTokens->diskLight,    HdPrimTypeTokens->cylinderLight,
+                                   // Not rendered: synced so that core warns about it by name.
+                                   HdPrimTypeTokens->pluginLight};
 const TfTokenVector kBprimTypes = {HdPrimTypeTokens->renderBuffer, HdPrimTypeTokens->renderSettings};
 }  // namespace
 

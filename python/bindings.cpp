@@ -490,7 +490,16 @@ PYBIND11_MODULE(granular_core, m) {
       .value("Distant", LightType::Distant)
       .value("Sphere", LightType::Sphere)
       .value("Rect", LightType::Rect)
-      .value("Dome", LightType::Dome);
+      .value("Dome", LightType::Dome)
+      .value("Disk", LightType::Disk)
+      .value("Cylinder", LightType::Cylinder);
+  py::class_<LightShaping>(m, "LightShaping")
+      .def(py::init<>())
+      .def_readwrite("enabled", &LightShaping::enabled)
+      .def_readwrite("cone_angle", &LightShaping::coneAngle)
+      .def_readwrite("cone_softness", &LightShaping::coneSoftness)
+      .def_readwrite("focus", &LightShaping::focus)
+      .def_readwrite("focus_tint", &LightShaping::focusTint);
   py::class_<LightDesc>(m, "LightDesc")
       .def(py::init<>())
       .def_readwrite("name", &LightDesc::name)
@@ -504,6 +513,8 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("radius", &LightDesc::radius)
       .def_readwrite("width", &LightDesc::width)
       .def_readwrite("height", &LightDesc::height)
+      .def_readwrite("length", &LightDesc::length)
+      .def_readwrite("shaping", &LightDesc::shaping)
       .def_readwrite("texture_file", &LightDesc::textureFile);
 
   py::class_<MeshDesc>(m, "MeshDesc")

@@ -228,6 +228,22 @@ def sphere_light(extra="", intensity=6.0, radius=0.15):
 """
 
 
+def disk_light(extra="", api=""):
+    """A DiskLight of radius 0.3 facing down; api: its apiSchemas metadata line."""
+    meta = f" (\n        {api}\n    )" if api else ""
+    return f"""
+    def DiskLight "Disk"{meta}
+    {{
+        float inputs:intensity = 10
+        float inputs:radius = 0.3
+        double3 xformOp:translate = (0, 1.2, 0)
+        float3 xformOp:rotateXYZ = (-90, 0, 0)
+        uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:rotateXYZ"]
+{extra}
+    }}
+"""
+
+
 def preview_material(name, inputs, nodes=""):
     """A Material /World/Looks/<name> of one UsdPreviewSurface with `inputs` (lines)."""
     body = "\n".join("                " + i for i in inputs)
@@ -397,21 +413,12 @@ def _():
     return scene(lights=sphere_light(radius=-0.1))
 
 
-@stage("disk_light", "a disk light (unsupported: a warning) next to a dim sky")
+@stage("disk_light", "a disk light of radius 0.3 facing down, next to a dim sky")
 def _():
-    return scene(lights=sky(0.3) + """
-    def DiskLight "Disk"
-    {
-        float inputs:intensity = 10
-        float inputs:radius = 0.3
-        double3 xformOp:translate = (0, 1.2, 0)
-        float3 xformOp:rotateXYZ = (-90, 0, 0)
-        uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:rotateXYZ"]
-    }
-""")
+    return scene(lights=sky(0.3) + disk_light())
 
 
-@stage("cylinder_light", "a cylinder light (unsupported: a warning) next to a dim sky")
+@stage("cylinder_light", "a cylinder light of radius 0.05 and length 1, next to a dim sky")
 def _():
     return scene(lights=sky(0.3) + """
     def CylinderLight "Tube"
@@ -480,6 +487,26 @@ def _():
         extra="        float inputs:shaping:cone:angle = 20\n        float inputs:shaping:cone:softness = 0.1"
     ).replace('def SphereLight "Bulb"', 'def SphereLight "Bulb" (\n        prepend apiSchemas = ["ShapingAPI"]\n    )')
                  + sky(0.1))
+
+
+@stage("disk_light_focus", "a disk light with ShapingAPI: a soft 40° cone, focus 4 tinted blue")
+def _():
+    return scene(lights=sky(0.1) + disk_light(
+        extra="        float inputs:shaping:cone:angle = 40\n        float inputs:shaping:cone:softness = 0.5\n"
+              "        float inputs:shaping:focus = 4\n        color3f inputs:shaping:focusTint = (0.1, 0.2, 0.6)",
+        api='prepend apiSchemas = ["ShapingAPI"]'))
+
+
+@stage("cylinder_light_length_zero", "a cylinder light of length 0 (invalid)")
+def _():
+    return scene(lights=sky(0.3) + """
+    def CylinderLight "Tube"
+    {
+        float inputs:length = 0
+        double3 xformOp:translate = (0, 1.2, 0)
+        uniform token[] xformOpOrder = ["xformOp:translate"]
+    }
+""")
 
 
 @stage("light_diffuse_zero", "a sun of inputs:diffuse 0 (no diffuse contribution)")

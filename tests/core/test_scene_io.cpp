@@ -638,3 +638,39 @@ TEST(SceneIo, BadMotionBlurAndInstancedGrainsNameTheObjectAndKey) {
   EXPECT_CONTAINS(errorIn([&](json& j) { j["instanced_grains"].push_back(grains(j)); }),
                   "instanced_grains[1].name: \"pile\" is used by another entry of instanced_grains");
 }
+
+TEST(SceneIo, DiskAndCylinderLightsAndShapingParse) {
+  SceneDesc d = parseSceneJson(R"({"lights": [
+      {"name": "disk", "type": "disk", "radius": 0.3, "shaping_cone_angle": 30, "shaping_cone_softness": 0.2},
+      {"name": "tube", "type": "cylinder", "position": [0, 2, 0], "radius": 0.05, "length": 2,
+       "shaping_focus": 3, "shaping_focus_tint": [0.1, 0.2, 0.3]},
+      {"name": "plain", "type": "disk"}]})",
+                               "x.json");
+  ASSERT_EQ(d.lights.size(), 3u);
+  EXPECT_EQ(d.lights[0].type, LightType::Disk);
+  EXPECT_FLOAT_EQ(d.lights[0].radius, 0.3f);
+  EXPECT_TRUE(d.lights[0].shaping.enabled);
+  EXPECT_FLOAT_EQ(d.lights[0].shaping.coneAngle, 30);
+  EXPECT_FLOAT_EQ(d.lights[0].shaping.coneSoftness, 0.2f);
+  EXPECT_FLOAT_EQ(d.lights[0].shaping.focus, 0);  // UsdLux's fallback
+  EXPECT_EQ(d.lights[1].type, LightType::Cylinder);
+  expectNear(d.lights[1].xf.point({0, 0, 0}), {0, 2, 0});
+  EXPECT_FLOAT_EQ(d.lights[1].length, 2);
+  EXPECT_FLOAT_EQ(d.lights[1].shaping.coneAngle, 90);
+  EXPECT_FLOAT_EQ(d.lights[1].shaping.focus, 3);
+  EXPECT_EQ(d.lights[1].shaping.focusTint, Vec3(0.1f, 0.2f, 0.3f));
+  EXPECT_FALSE(d.lights[2].shaping.enabled);
+  // Errors name the light and the key.
+  auto error = [](const std::string& text) {
+    try {
+      parseSceneJson(text, "x.json");
+    } catch (const InputError& e) {
+      return std::string(e.what());
+    }
+    return std::string("NO ERROR");
+  };
+  EXPECT_CONTAINS(error(R"({"lights": [{"name": "t", "type": "cylinder", "length": 0}]})"), "t.length");
+  EXPECT_CONTAINS(error(R"({"lights": [{"name": "t", "type": "disk", "shaping_focus_tint": [-1, 0, 0]}]})"),
+                  "t.shaping_focus_tint");
+  EXPECT_CONTAINS(error(R"({"lights": [{"name": "s", "type": "distant", "shaping_focus": 1}]})"), "s.shaping_focus");
+}

@@ -55,11 +55,68 @@ TEST(UsdLights, AuthoredValuesAreRead) {
   EXPECT_TRUE(d.normalize);
 }
 
+TEST(UsdLights, DisksCylindersAndShapingTakeUsdLuxFallbacksAndAuthoredValues) {
+  UsdWarnings w;
+  const LightDesc disk = *lightFromUsd(usdRecord("/Disk", "DiskLight"), w);
+  EXPECT_EQ(disk.type, LightType::Disk);
+  EXPECT_FLOAT_EQ(disk.radius, 0.5f);
+  EXPECT_FALSE(disk.shaping.enabled);
+  const LightDesc tube = *lightFromUsd(
+      usdRecord("/Tube", "CylinderLight",
+                {{"inputs:radius", usdNumbers("float", {0.1})}, {"inputs:length", usdNumbers("float", {3})}}),
+      w);
+  EXPECT_EQ(tube.type, LightType::Cylinder);
+  EXPECT_FLOAT_EQ(tube.radius, 0.1f);
+  EXPECT_FLOAT_EQ(tube.length, 3.0f);
+  EXPECT_FLOAT_EQ(lightFromUsd(usdRecord("/Tube", "CylinderLight"), w)->length, 1.0f);
+  EXPECT_TRUE(w.empty());
+  // ShapingAPI: on where any of its inputs has a value, the others at UsdLux's fallbacks.
+  const LightDesc spot =
+      *lightFromUsd(usdRecord("/Spot", "SphereLight", {{"inputs:shaping:cone:angle", usdNumbers("float", {20})}}), w);
+  EXPECT_TRUE(spot.shaping.enabled);
+  EXPECT_FLOAT_EQ(spot.shaping.coneAngle, 20.0f);
+  EXPECT_FLOAT_EQ(spot.shaping.coneSoftness, 0.0f);
+  EXPECT_FLOAT_EQ(spot.shaping.focus, 0.0f);
+  EXPECT_FLOAT_EQ(spot.shaping.focusTint.x, 0.0f);
+  const LightDesc focused = *lightFromUsd(
+      usdRecord("/Panel", "RectLight",
+                {{"inputs:shaping:focus", usdNumbers("float", {4})},
+                 {"inputs:shaping:focusTint", usdNumbers("color3f", {0.1, 0.2, 0.3})},
+                 {"inputs:shaping:cone:softness", usdNumbers("float", {0.5})}}),
+      w);
+  EXPECT_TRUE(focused.shaping.enabled);
+  EXPECT_FLOAT_EQ(focused.shaping.coneAngle, 90.0f);
+  EXPECT_FLOAT_EQ(focused.shaping.coneSoftness, 0.5f);
+  EXPECT_FLOAT_EQ(focused.shaping.focus, 4.0f);
+  EXPECT_FLOAT_EQ(focused.shaping.focusTint.z, 0.3f);
+  EXPECT_TRUE(w.empty());
+  EXPECT_EQ(errorOf(usdRecord("/Tube", "CylinderLight", {{"inputs:length", usdNumbers("float", {0})}}))
+                .rfind("/Tube.inputs:length: ", 0),
+            0u);
+  EXPECT_EQ(errorOf(usdRecord("/Spot", "DiskLight", {{"inputs:shaping:focusTint", usdNumbers("color3f", {-1, 0, 0})}}))
+                .rfind("/Spot.inputs:shaping:focusTint: ", 0),
+            0u);
+}
+
 TEST(UsdLights, OtherTypesAndUnsupportedAttributesAreWarnedAbout) {
   UsdWarnings w;
-  EXPECT_FALSE(lightFromUsd(usdRecord("/Disk", "DiskLight"), w));
+  EXPECT_FALSE(lightFromUsd(usdRecord("/Portal", "PortalLight"), w));
   ASSERT_EQ(w.size(), 1u);
-  EXPECT_EQ(w[0], "/Disk: DiskLight lights are not supported; skipped");
+  EXPECT_EQ(w[0], "/Portal: PortalLight lights are not supported; skipped");
+  w.clear();
+  EXPECT_TRUE(lightFromUsd(usdRecord("/Tube", "CylinderLight", {{"treatAsLine", usdNumbers("bool", {1})}}), w));
+  ASSERT_EQ(w.size(), 1u);
+  EXPECT_EQ(w[0], "/Tube.treatAsLine: not supported; rendered as a cylinder of inputs:radius");
+  w.clear();
+  const LightDesc sun =
+      *lightFromUsd(usdRecord("/Sun", "DistantLight", {{"inputs:shaping:cone:angle", usdNumbers("float", {20})}}), w);
+  EXPECT_FALSE(sun.shaping.enabled);
+  ASSERT_EQ(w.size(), 1u);
+  EXPECT_EQ(w[0], "/Sun: ShapingAPI on a DistantLight is not supported; ignored");
+  w.clear();
+  EXPECT_TRUE(lightFromUsd(usdRecord("/Spot", "SphereLight", {{"inputs:shaping:ies:file", usdText("asset", "a.ies")}}), w));
+  ASSERT_EQ(w.size(), 1u);
+  EXPECT_EQ(w[0], "/Spot.inputs:shaping:ies:file: IES profiles are not supported; ignored");
   w.clear();
   EXPECT_TRUE(lightFromUsd(usdRecord("/Bulb", "SphereLight", {{"treatAsPoint", usdNumbers("bool", {1})}}), w));
   ASSERT_EQ(w.size(), 1u);

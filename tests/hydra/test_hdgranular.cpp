@@ -569,7 +569,7 @@ TEST(HdGranular, CryptomatteAovsDecodeWithTheReportedManifest) {
 // the render stats granular:warnings, and the error that refused the image in granular:error.
 TEST(HdGranular, CoresWarningsAndErrorsAreRenderStats) {
   UsdStageRefPtr stage = domeLitStage(40, R"(
-  def DiskLight "Disk" {
+  def PluginLight "Plugin" {
   }
   def SphereLight "Bulb" {
     bool treatAsPoint = 1
@@ -581,7 +581,7 @@ TEST(HdGranular, CoresWarningsAndErrorsAreRenderStats) {
   VtDictionary stats = engine->GetRenderStats();
   VtStringArray warnings = stat<VtStringArray>(stats, "granular:warnings");
   std::set<std::string> given(warnings.begin(), warnings.end());
-  EXPECT_EQ(given.count("/World/Disk: DiskLight lights are not supported; skipped"), 1u);
+  EXPECT_EQ(given.count("/World/Plugin: PluginLight lights are not supported; skipped"), 1u);
   EXPECT_EQ(given.count("/World/Bulb.treatAsPoint: not supported; rendered as a sphere of inputs:radius"), 1u);
   EXPECT_EQ(warnings.size(), given.size());  // each once
   EXPECT_EQ(stat<std::string>(stats, "granular:error"), "");

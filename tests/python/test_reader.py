@@ -123,7 +123,12 @@ def test_camera_lights_and_render_settings(tmp_path):
         ball = UsdLux.SphereLight.Define(stage, "/World/Bulb")
         ball.CreateRadiusAttr(0.25)
         ball.CreateColorAttr((1.0, 0.5, 0.25))
-        UsdLux.DiskLight.Define(stage, "/World/Disk")
+        disk = UsdLux.DiskLight.Define(stage, "/World/Disk")
+        disk.CreateRadiusAttr(0.2)
+        UsdLux.ShapingAPI.Apply(disk.GetPrim()).CreateShapingConeAngleAttr(30.0)
+        tube = UsdLux.CylinderLight.Define(stage, "/World/Tube")
+        tube.CreateLengthAttr(2.0)
+        UsdLux.PluginLight.Define(stage, "/World/Plugin")
         UsdGeom.Scope.Define(stage, "/Render")
         rs = UsdRender.Settings.Define(stage, "/Render/Settings")
         rs.CreateResolutionAttr(Gf.Vec2i(320, 100))
@@ -147,7 +152,7 @@ def test_camera_lights_and_render_settings(tmp_path):
     assert read_stage(path).desc.camera.lens_radius == 0  # /World/Second has no fStop: a pinhole
     assert (scene.desc.settings.width, scene.desc.settings.height) == (300, 150)
     lights = {l.name: l for l in scene.desc.lights}
-    assert sorted(lights) == ["/World/Bulb", "/World/Panel", "/World/Sky", "/World/Sun"]
+    assert sorted(lights) == ["/World/Bulb", "/World/Disk", "/World/Panel", "/World/Sky", "/World/Sun", "/World/Tube"]
     sun = lights["/World/Sun"]
     assert sun.type == core.LightType.Distant and sun.angle == pytest.approx(12) and sun.exposure == pytest.approx(1)
     assert sun.color[2] < sun.color[0]  # 3000 K is reddish
@@ -157,7 +162,14 @@ def test_camera_lights_and_render_settings(tmp_path):
     bulb = lights["/World/Bulb"]
     assert bulb.type == core.LightType.Sphere and bulb.radius == pytest.approx(0.25)
     assert bulb.color == pytest.approx((1.0, 0.5, 0.25))
-    assert any("DiskLight lights are not supported" in w for w in scene.warnings)
+    disk = lights["/World/Disk"]
+    assert (disk.type, disk.radius) == (core.LightType.Disk, pytest.approx(0.2))
+    # ShapingAPI applied: its authored cone, the schema's fallbacks for the rest.
+    assert disk.shaping.enabled and (disk.shaping.cone_angle, disk.shaping.cone_softness) == (30.0, 0.0)
+    tube = lights["/World/Tube"]
+    assert (tube.type, tube.radius, tube.length) == (core.LightType.Cylinder, 0.5, 2.0)
+    assert not tube.shaping.enabled and not bulb.shaping.enabled
+    assert any("PluginLight lights are not supported" in w for w in scene.warnings)
 
 
 def test_info_mode_needs_no_camera_and_reads_no_surfaces(tmp_path):

@@ -22,7 +22,9 @@ def test_light_attribute_names_are_usdlux_attributes():
     from pxr import Usd
     stage = Usd.Stage.CreateInMemory()
     prims = [UsdLux.DistantLight.Define(stage, "/D"), UsdLux.DomeLight.Define(stage, "/Dome"),
-             UsdLux.RectLight.Define(stage, "/R"), UsdLux.SphereLight.Define(stage, "/S")]
+             UsdLux.RectLight.Define(stage, "/R"), UsdLux.SphereLight.Define(stage, "/S"),
+             UsdLux.DiskLight.Define(stage, "/Disk"), UsdLux.CylinderLight.Define(stage, "/C")]
+    UsdLux.ShapingAPI.Apply(prims[3].GetPrim())
     names = set()
     for p in prims:
         names |= {a.GetName() for a in p.GetPrim().GetAttributes()}
