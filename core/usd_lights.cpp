@@ -31,6 +31,10 @@ const char* const kConeSoftness = "inputs:shaping:cone:softness";
 const char* const kFocus = "inputs:shaping:focus";
 const char* const kFocusTint = "inputs:shaping:focusTint";
 const char* const kIesFile = "inputs:shaping:ies:file";
+// Non-physical controls a path tracer of grains has no meaning for: warned about when set.
+const char* const kDiffuse = "inputs:diffuse";
+const char* const kSpecular = "inputs:specular";
+const char* const kShadowEnable = "inputs:shadow:enable";
 
 // One lobe of the fit: a Gaussian with different widths below and above its mean.
 double lobe(double lambda, double mean, double below, double above) {
@@ -62,7 +66,8 @@ const std::vector<std::string>& usdLightAttributeNames() {
   static const std::vector<std::string> names = {
       kIntensity, kExposure, kColor,        kNormalize,   kEnableTemperature, kTemperature, kAngle,
       kTextureFile, kTextureFormat, kWidth, kHeight,      kRadius,            kLength,      kTreatAsPoint,
-      kTreatAsLine, kConeAngle, kConeSoftness, kFocus,    kFocusTint,         kIesFile};
+      kTreatAsLine, kConeAngle, kConeSoftness, kFocus,    kFocusTint,         kIesFile,     kDiffuse,
+      kSpecular,    kShadowEnable};
   return names;
 }
 
@@ -154,6 +159,11 @@ std::optional<LightDesc> lightFromUsd(const UsdPrimRecord& r, UsdWarnings& warni
   }
   if (!usdAsset(r, kIesFile).first.empty())
     warnings.push_back(str(path, ".", kIesFile, ": IES profiles are not supported; ignored"));
+  for (const char* multiplier : {kDiffuse, kSpecular})
+    if (usdFloat(r, multiplier, 1.0f) != 1.0f)
+      warnings.push_back(str(path, ".", multiplier, ": not supported (light reaches every surface as it is); ignored"));
+  if (!usdBool(r, kShadowEnable, true))
+    warnings.push_back(str(path, ".", kShadowEnable, ": not supported (every light casts shadows); ignored"));
   // Core's checks, in USD's names (a light's SceneDesc fields are its inputs).
   checkInUsdNames(path, [&] { validateLightDesc(l, path); }, [](const std::string& field) {
     if (field == "shaping_cone_angle") return std::string(kConeAngle);

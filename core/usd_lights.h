@@ -15,6 +15,8 @@
 //    inputs:shaping:cone:softness (0), inputs:shaping:focus (0), inputs:shaping:focusTint
 //    (0, 0, 0) (LightShaping, scene_desc.h), on where any of them has a value; on a distant
 //    or dome light it is warned about and ignored, as is inputs:shaping:ies:file;
+//  - inputs:diffuse and inputs:specular other than 1 and inputs:shadow:enable false
+//    (non-physical controls): one warning each, ignored;
 //  - a surface with MeshLightAPI (Mesh, an implicit surface): one warning; the front end
 //    draws it as an ordinary surface, as Hydra hosts do;
 //  - any other light type (PortalLight, a GeometryLight, ...): one warning, skipped.

@@ -509,7 +509,7 @@ def _():
 """)
 
 
-@stage("light_diffuse_zero", "a sun of inputs:diffuse 0 (no diffuse contribution)")
+@stage("light_diffuse_zero", "a sun of inputs:diffuse 0 (not supported: a warning)")
 def _():
     return scene(lights=sky() + sun(extra="        float inputs:diffuse = 0"))
 

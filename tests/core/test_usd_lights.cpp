@@ -118,6 +118,15 @@ TEST(UsdLights, OtherTypesAndUnsupportedAttributesAreWarnedAbout) {
   ASSERT_EQ(w.size(), 1u);
   EXPECT_EQ(w[0], "/Spot.inputs:shaping:ies:file: IES profiles are not supported; ignored");
   w.clear();
+  EXPECT_TRUE(lightFromUsd(usdRecord("/Sun", "DistantLight",
+                                     {{"inputs:diffuse", usdNumbers("float", {0})},
+                                      {"inputs:specular", usdNumbers("float", {1})},
+                                      {"inputs:shadow:enable", usdNumbers("bool", {0})}}),
+                           w));
+  ASSERT_EQ(w.size(), 2u);
+  EXPECT_EQ(w[0], "/Sun.inputs:diffuse: not supported (light reaches every surface as it is); ignored");
+  EXPECT_EQ(w[1], "/Sun.inputs:shadow:enable: not supported (every light casts shadows); ignored");
+  w.clear();
   EXPECT_TRUE(lightFromUsd(usdRecord("/Bulb", "SphereLight", {{"treatAsPoint", usdNumbers("bool", {1})}}), w));
   ASSERT_EQ(w.size(), 1u);
   EXPECT_EQ(w[0], "/Bulb.treatAsPoint: not supported; rendered as a sphere of inputs:radius");

@@ -25,6 +25,7 @@ def test_light_attribute_names_are_usdlux_attributes():
              UsdLux.RectLight.Define(stage, "/R"), UsdLux.SphereLight.Define(stage, "/S"),
              UsdLux.DiskLight.Define(stage, "/Disk"), UsdLux.CylinderLight.Define(stage, "/C")]
     UsdLux.ShapingAPI.Apply(prims[3].GetPrim())
+    UsdLux.ShadowAPI.Apply(prims[3].GetPrim())
     names = set()
     for p in prims:
         names |= {a.GetName() for a in p.GetPrim().GetAttributes()}
