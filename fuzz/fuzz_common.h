@@ -85,9 +85,10 @@ inline MaterialDesc readMaterial(Reader& r, const std::string& name) {
 }
 
 // 16 floats camera matrix; floats focalLength, horizontal/verticalAperture, their
-// offsets, clipping near/far; u8 light type (distant, sphere, rect, dome), 16 floats
-// matrix, float3 color, floats intensity, exposure, angle, radius, width, height,
-// u8 normalize; u8 width, u8 height (1 + value % 8).
+// offsets, clipping near/far; u8 light type (distant, sphere, rect, dome, disk,
+// cylinder), 16 floats matrix, float3 color, floats intensity, exposure, angle, radius,
+// width, height, u8 normalize, float length, u8 shaping (odd: on), floats cone angle, cone
+// softness, focus, float3 focus tint; u8 width, u8 height (1 + value % 8).
 inline void readViewAndLight(Reader& r, SceneDesc& d) {
   d.camera.cameraToWorld = r.matrix();
   d.camera.focalLength = r.f();
@@ -99,7 +100,7 @@ inline void readViewAndLight(Reader& r, SceneDesc& d) {
   d.camera.clipFar = r.f();
   LightDesc l;
   l.name = "/World/Light";
-  l.type = LightType(r.get<uint8_t>() % 4);
+  l.type = LightType(r.get<uint8_t>() % 6);
   l.xf = r.matrix();
   l.color = r.v3();
   l.intensity = r.f();
@@ -109,6 +110,12 @@ inline void readViewAndLight(Reader& r, SceneDesc& d) {
   l.width = r.f();
   l.height = r.f();
   l.normalize = r.get<uint8_t>() & 1;
+  l.length = r.f();
+  l.shaping.enabled = r.get<uint8_t>() & 1;
+  l.shaping.coneAngle = r.f();
+  l.shaping.coneSoftness = r.f();
+  l.shaping.focus = r.f();
+  l.shaping.focusTint = r.v3();
   d.lights.push_back(l);
   d.settings.width = 1 + r.get<uint8_t>() % 8;
   d.settings.height = 1 + r.get<uint8_t>() % 8;
