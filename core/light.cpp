@@ -7,16 +7,18 @@ namespace granular {
 
 namespace {
 
-// Lat-long mapping of a dome direction (dome space, +Y up): u runs with the azimuth
-// from -Z towards +X, v from the zenith (0) to the nadir (1).
+// Lat-long mapping of a dome direction (dome space, +Y up), as UsdLuxDomeLight states it
+// after the OpenEXR specification (and as Storm draws it): longitude λ = atan2(x, z), 0
+// toward +Z and π/2 toward +X, runs from +π at u = 0 to −π at u = 1, so +Z is the
+// image's middle column and +X its first quarter; v runs from the zenith (0) to the nadir (1).
 void dirToUV(const Vec3& d, float& u, float& v) {
-  u = 0.5f + std::atan2(d.x, -d.z) * (0.5f * kInvPi);
+  u = 0.5f - std::atan2(d.x, d.z) * (0.5f * kInvPi);
   v = std::acos(std::min(1.0f, std::max(-1.0f, d.y))) * kInvPi;
 }
 Vec3 uvToDir(float u, float v) {
-  float phi = (u - 0.5f) * 2.0f * kPi, theta = v * kPi;
+  float lambda = (0.5f - u) * 2.0f * kPi, theta = v * kPi;
   float s = std::sin(theta);
-  return {s * std::sin(phi), std::cos(theta), -s * std::cos(phi)};
+  return {s * std::sin(lambda), std::cos(theta), s * std::cos(lambda)};
 }
 
 // A sun's half-angle, and whether it is so small that the sun is a delta light.

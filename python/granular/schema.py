@@ -9,7 +9,7 @@ primvars only) and gives the values their meaning (core/granular_prims.h).
 """
 import re
 
-from pxr import Gf, Sdf, Usd, UsdGeom, Vt
+from pxr import Gf, Sdf, Tf, Usd, UsdGeom, Vt
 
 from .errors import UserError
 
@@ -164,6 +164,22 @@ def authored_type(attr):
     return str(attr.GetTypeName())
 
 
+def flattened(pv, time=Usd.TimeCode.Default()):
+    """pv.ComputeFlattened(time), an error naming the attribute where usd-core cannot: its
+    indices of another type than int[] (usd-core raised a bare Tf error, "No indices
+    authored for indexed primvar"), or any other failure to flatten."""
+    indices = pv.GetIndicesAttr()
+    if indices and indices.HasAuthoredValue() and authored_type(indices) != "int[]":
+        raise UserError(str(indices.GetPrim().GetPath()), indices.GetName(),
+                        f"has a {authored_type(indices)} value, expected int[]")
+    try:
+        return pv.ComputeFlattened(time)
+    except Tf.ErrorException as e:
+        attr = pv.GetAttr()
+        detail = str(e).strip().splitlines()[-1].split(" : ")[-1].strip(" '.")
+        raise UserError(str(attr.GetPrim().GetPath()), attr.GetName(), f"cannot be read: {detail}") from None
+
+
 def numbers(v):
     """Numbers of a scalar, vector or array value, flattened; [] when there are none."""
     if isinstance(v, (bool, int, float)):
@@ -182,7 +198,7 @@ def primvar_value(pv, time=Usd.TimeCode.Default()):
     authored on, values as found), or None without a value."""
     import granular_core as core
     attr = pv.GetAttr()
-    v = pv.ComputeFlattened(time)
+    v = flattened(pv, time)
     type_name = authored_type(attr)
     # USD reads no value of a type that contradicts the schema's: core still gets the type
     # to report it.

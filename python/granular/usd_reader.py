@@ -307,7 +307,7 @@ def read_st(scene, prim, name, time, topology):
     attr = pv.GetAttr()
     src, attr_name = _where(attr)
     try:
-        v = np.asarray(pv.ComputeFlattened(time), dtype=np.float64)
+        v = np.asarray(schema.flattened(pv, time), dtype=np.float64)
         if v.ndim != 2 or v.shape[1] != 2:
             raise TypeError
     except (TypeError, ValueError):
@@ -396,7 +396,7 @@ def _display_color(scene, prim, time, topology=()):
     pv = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance("displayColor")
     if not (pv and pv.HasAuthoredValue()):
         return None
-    v = pv.ComputeFlattened(time)
+    v = schema.flattened(pv, time)
     if v is None:
         return None
     value = core.UsdValue()

@@ -145,6 +145,51 @@ TEST(Light, NormalisedTinyLightsOfZeroIntensityAreBlackNotNaN) {
   EXPECT_NEAR(unit.areaLe(Vec3(0, 1.5f, 0), Vec3(0, 1, 0)).x, 1.0f, 1e-6f);  // π / (4π 0.25)
 }
 
+// ---- the dome's lat-long orientation ----------------------------------------------------
+
+TEST(DomeTexture, IsOrientedAsUsdLuxStatesItAndSampledAsItIsLookedUp) {
+  // UsdLuxDomeLight (after the OpenEXR specification; Storm draws it so): the image's top row
+  // is the zenith (+Y), longitude 0 (+Z) its middle column, +π/2 (+X) its first quarter,
+  // −π/2 (−X) its third, ±π (−Z) its left and right edges. A 16 × 8 texture whose red is
+  // its column and green its row names the texel every direction reads.
+  const std::string file = ::testing::TempDir() + "columns_rows.exr";
+  Image img(16, 8, {"R", "G", "B"});
+  for (int y = 0; y < 8; ++y)
+    for (int x = 0; x < 16; ++x) {
+      img.at(x, y)[0] = float(x) + 1;
+      img.at(x, y)[1] = float(y) + 1;
+      img.at(x, y)[2] = 1;
+    }
+  writeExr(file, img);
+  LightDesc d;
+  d.type = LightType::Dome;
+  d.textureFile = file;
+  const Light dome = Light::fromDesc(d);
+  auto texel = [&](const Vec3& dir) {
+    const Vec3 L = dome.escapedLe(normalize(dir));
+    return std::make_pair(int(L.x) - 1, int(L.y) - 1);
+  };
+  EXPECT_EQ(texel(Vec3(0.1f, 1, 0.1f)).second, 0);             // the zenith: the top row
+  EXPECT_EQ(texel(Vec3(0.1f, -1, 0.1f)).second, 7);            // the nadir: the bottom row
+  EXPECT_EQ(texel(Vec3(0.1f, 0.1f, 1)), std::make_pair(7, 3));   // +Z: the middle (u 0.484)
+  EXPECT_EQ(texel(Vec3(1, 0.1f, 0.1f)), std::make_pair(4, 3));   // +X: the first quarter (0.266)
+  EXPECT_EQ(texel(Vec3(-1, 0.1f, 0.1f)), std::make_pair(11, 3)); // −X: the third (0.734)
+  EXPECT_EQ(texel(Vec3(0.1f, 0.1f, -1)), std::make_pair(0, 3));  // −Z: the edge (0.016)
+  // Light sampling draws directions by the texels' luminance and reads them back the same
+  // way: each sample's radiance is the texel of its direction, its pdf pdfLi's.
+  Rng rng(5);
+  for (int i = 0; i < 2000; ++i) {
+    LightSample s;
+    if (!dome.sampleLi(Vec3(0.0f), rng.next1D(), rng.next1D(), s)) continue;
+    const Vec3 L = dome.escapedLe(s.wi);
+    EXPECT_EQ(L.x, s.Li.x) << i;
+    EXPECT_EQ(L.y, s.Li.y) << i;
+    // The pdf's 1 / sin θ: near the poles acos loses digits on the way back, so there the
+    // round trip is only good to a few percent.
+    if (std::fabs(s.wi.y) < 0.95f) EXPECT_NEAR(dome.pdfLi(Vec3(0.0f), s.wi, kInf), s.pdf, 1e-3f * s.pdf) << i;
+  }
+}
+
 // ---- which light next-event estimation samples (Light::pickWeight, Scene::lightPick) ----
 
 TEST(LightPick, WeightsAreIrradianceTimesTheRootOfConcentration) {

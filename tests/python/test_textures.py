@@ -270,3 +270,26 @@ def test_without_a_writable_cache_an_srgb_texture_still_renders_and_the_user_is_
     rgb = np.asarray(core.read_exr(str(exr)).pixels)[..., :3]
     left, right = rgb[8:24, 2:6].reshape(-1, 3).mean(axis=0), rgb[8:24, 26:30].reshape(-1, 3).mean(axis=0)
     assert left[0] > 4 * left[1] and right[1] > 4 * right[0], (left, right)
+
+
+@pytest.mark.parametrize("name", ["st", "displayColor"])
+def test_primvar_indices_of_another_type_are_refused_naming_them(name, tmp_path, capsys):
+    # Indices of another type than int[] (fuzz_usd_stage: a matrix4d) made usd-core's
+    # ComputeFlattened raise a bare Tf error, "No indices authored for indexed primvar".
+    png = _texture_png(tmp_path / "t.png", [(1, 0, 0), (0, 1, 0)])
+
+    def mutate(stage):
+        if name == "st":
+            _textured_ground(png)(stage)
+        else:
+            UsdGeom.PrimvarsAPI(_ground(stage)).CreatePrimvar(
+                "displayColor", Sdf.ValueTypeNames.Color3fArray, UsdGeom.Tokens.constant).Set([(1, 0, 0)])
+        spec = stage.GetRootLayer().GetPrimAtPath("/World/Ground")
+        Sdf.AttributeSpec(spec, f"primvars:{name}:indices", Sdf.ValueTypeNames.Matrix4d).default = Gf.Matrix4d(1)
+    scene = small_scene(tmp_path / "s.usda", mutate)
+    rc, _, err = run_cli(["render", scene, "-o", tmp_path / "o.exr", "--width", 8, "--height", 6, "--spp", 1,
+                          "--technique", "ept"], capsys)
+    assert rc == 2
+    assert err.strip().splitlines()[-1] == \
+        f"error: /World/Ground.primvars:{name}:indices: has a matrix4d value, expected int[]", err
+    assert not (tmp_path / "o.exr").exists()
