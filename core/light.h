@@ -63,8 +63,8 @@ class Light {
   // Whether point e lies on this area light's emitting surface, within tol: a shadow ray
   // that ends there was aimed at this light, which (convex, and sampled only where it
   // faces the ray) cannot block it — though intersect() may meet it a little short of e,
-  // since the ray leaves from an origin offset off its surface (a 2e-5 offset read up to
-  // 3e-4 of the distance short on a thin cylinder: 9% of a floor's shadow rays blocked).
+  // since the ray leaves from an origin offset off its surface (bench/README.md, "Area
+  // lights").
   bool endsOn(const Vec3& e, float tol) const;
   // Radiance leaving the area light at its point q towards -dir (q: intersect()'s hit).
   Vec3 areaLe(const Vec3& q, const Vec3& dir) const;
