@@ -29,8 +29,9 @@ ROOT = os.path.dirname(HERE)
 M = 400  # quadrature cells per side of a light's parameter domain
 
 
-def grid(m=M):
-    u = (np.arange(m) + 0.5) / m
+def grid():
+    """The cells' midpoints in [0, 1]^2, M x M."""
+    u = (np.arange(M) + 0.5) / M
     return np.meshgrid(u, u, indexing="ij")
 
 
@@ -45,8 +46,8 @@ def sphere_surface(c, r):
 
 def disk_surface(c, r):  # facing down (-y)
     a, b = grid()
-    rho0, rho1 = r * np.floor(a * M) / M, r * (np.floor(a * M) + 1) / M
-    rho, phi = 0.5 * (rho0 + rho1), 2 * np.pi * b
+    rho, phi = r * a, 2 * np.pi * b  # rings of width r / M, their midpoints
+    rho0, rho1 = rho - 0.5 * r / M, rho + 0.5 * r / M
     p = np.stack([c[0] + rho * np.cos(phi), np.full_like(rho, c[1]), c[2] + rho * np.sin(phi)], -1).reshape(-1, 3)
     area = (0.5 * (rho1 ** 2 - rho0 ** 2) * 2 * np.pi / M).reshape(-1)
     return p, np.tile([0.0, -1.0, 0.0], (len(p), 1)), area

@@ -105,13 +105,12 @@ Light Light::fromDesc(const LightDesc& d) {
     case LightType::Cylinder: {
       // Its cross-section a circle: a scale across the axis is taken from local Y.
       l.center_ = d.xf.point(Vec3(0.0f));
-      const Vec3 along = d.xf.vector(Vec3(d.length, 0, 0));
+      const Vec3 along = d.xf.vector(Vec3(d.length, 0, 0)), y = d.xf.vector(Vec3(0, 1, 0));
       l.halfLength_ = 0.5f * length(along);
       l.axis_ = normalize(along);
-      l.radius_ = d.radius * length(d.xf.vector(Vec3(0, 1, 0)));
-      Vec3 y = d.xf.vector(Vec3(0, 1, 0));
-      y = y - l.axis_ * dot(y, l.axis_);
-      l.across1_ = length2(y) > 0 ? normalize(y) : Frame(l.axis_).s;
+      l.radius_ = d.radius * length(y);
+      const Vec3 across = y - l.axis_ * dot(y, l.axis_);
+      l.across1_ = length2(across) > 0 ? normalize(across) : Frame(l.axis_).s;
       l.across2_ = cross(l.axis_, l.across1_);
       l.area_ = 2.0f * kPi * l.radius_ * (2.0f * l.halfLength_);
       l.radiance_ = L;

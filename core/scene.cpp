@@ -778,7 +778,8 @@ std::vector<LightDesc> Scene::buildLights(const SceneDesc& desc, const Bounds3& 
 // measured by bench/stress.py against EPT.
 void Scene::findEmittersInside(const SceneDesc& desc, const std::vector<LightDesc>& lights) {
   // An instancer's medium likewise: a sphere, disk or cylinder light's centre, a rect
-  // light's corner or an emissive mesh's vertex where its packing rate is > 0 (within the grains' reach).
+  // light's corner or an emissive mesh's vertex where its packing rate is > 0 (within the
+  // grains' reach).
   instancedEmitterInside_.assign(builtInstanced_.size(), 0);
   for (size_t i = 0; i < builtInstanced_.size(); ++i) {
     if (!builtInstanced_[i].medium) continue;
@@ -914,7 +915,7 @@ bool Scene::areaLightsOccluded(const Vec3& p, const Vec3& dir, float dist) const
   const float tol = 1e-3f * dist;
   for (int li : areaLights_) {
     float t;
-    if (lights_[li].intersect(r, t) && t < dist && !(aimed && lights_[li].endsOn(end, tol))) return true;
+    if (lights_[li].intersect(r, t) && !(aimed && lights_[li].endsOn(end, tol))) return true;
   }
   return false;
 }

@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <utility>
 
 #include "error.h"
 #include "usd_implicit.h"
@@ -30,6 +31,11 @@ const char* const kConeAngle = "inputs:shaping:cone:angle";
 const char* const kConeSoftness = "inputs:shaping:cone:softness";
 const char* const kFocus = "inputs:shaping:focus";
 const char* const kFocusTint = "inputs:shaping:focusTint";
+// ShapingAPI's inputs by the LightDesc field names core's checks use (validateLightDesc).
+const std::pair<const char*, const char*> kShapingInputs[] = {{"shaping_cone_angle", kConeAngle},
+                                                              {"shaping_cone_softness", kConeSoftness},
+                                                              {"shaping_focus", kFocus},
+                                                              {"shaping_focus_tint", kFocusTint}};
 const char* const kIesFile = "inputs:shaping:ies:file";
 // Non-physical controls a path tracer of grains has no meaning for: warned about when set.
 const char* const kDiffuse = "inputs:diffuse";
@@ -146,16 +152,16 @@ std::optional<LightDesc> lightFromUsd(const UsdPrimRecord& r, UsdWarnings& warni
   }
   l.normalize = usdBool(r, kNormalize, false);
   // ShapingAPI: on where any of its inputs has a value (applied, or authored).
-  const bool shaping = r.attributes.count(kConeAngle) || r.attributes.count(kConeSoftness) ||
-                       r.attributes.count(kFocus) || r.attributes.count(kFocusTint);
+  bool shaping = false;
+  for (const auto& [field, name] : kShapingInputs) shaping = shaping || r.attributes.count(name);
   if (shaping && (l.type == LightType::Distant || l.type == LightType::Dome)) {
     warnings.push_back(str(path, ": ShapingAPI on a ", type, " is not supported; ignored"));
   } else if (shaping) {
-    l.shaping.enabled = true;
-    l.shaping.coneAngle = usdFloat(r, kConeAngle, 90.0f);
-    l.shaping.coneSoftness = usdFloat(r, kConeSoftness, 0.0f);
-    l.shaping.focus = usdFloat(r, kFocus, 0.0f);
-    l.shaping.focusTint = usdColor(r, kFocusTint, Vec3(0.0f));
+    l.shaping.enabled = true;  // LightShaping's defaults are UsdLux's fallbacks
+    l.shaping.coneAngle = usdFloat(r, kConeAngle, l.shaping.coneAngle);
+    l.shaping.coneSoftness = usdFloat(r, kConeSoftness, l.shaping.coneSoftness);
+    l.shaping.focus = usdFloat(r, kFocus, l.shaping.focus);
+    l.shaping.focusTint = usdColor(r, kFocusTint, l.shaping.focusTint);
   }
   if (!usdAsset(r, kIesFile).first.empty())
     warnings.push_back(str(path, ".", kIesFile, ": IES profiles are not supported; ignored"));
@@ -166,10 +172,8 @@ std::optional<LightDesc> lightFromUsd(const UsdPrimRecord& r, UsdWarnings& warni
     warnings.push_back(str(path, ".", kShadowEnable, ": not supported (every light casts shadows); ignored"));
   // Core's checks, in USD's names (a light's SceneDesc fields are its inputs).
   checkInUsdNames(path, [&] { validateLightDesc(l, path); }, [](const std::string& field) {
-    if (field == "shaping_cone_angle") return std::string(kConeAngle);
-    if (field == "shaping_cone_softness") return std::string(kConeSoftness);
-    if (field == "shaping_focus") return std::string(kFocus);
-    if (field == "shaping_focus_tint") return std::string(kFocusTint);
+    for (const auto& [shapingField, name] : kShapingInputs)
+      if (field == shapingField) return std::string(name);
     return field == "transform" || field.empty() ? field : "inputs:" + field;
   });
   return l;

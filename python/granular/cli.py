@@ -31,7 +31,7 @@ from . import __version__, api, farm
 from .common import (EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, EXIT_USER, Progress, apply_options, check_output,
                      check_outputs, claim_outputs, frame_outputs, frame_text, int_in, parse_frames, update_scene,
                      warn_if_replaced)
-from .errors import UserError
+from .errors import UserError, describe_tf_error
 
 class _Parser(argparse.ArgumentParser):
     """argparse that reports a usage error as one line `error: command line.OPTION: message`
@@ -785,7 +785,6 @@ def main(argv=None):
         print(f"error: {e}", file=sys.stderr)
         return EXIT_USER
     except Tf.ErrorException as e:
-        from .usd_reader import describe_tf_error
         print(f"error: {args.scene}: {' '.join(describe_tf_error(e).split())}", file=sys.stderr)
         return EXIT_USER
     except KeyboardInterrupt:

@@ -149,7 +149,8 @@ def render_tile(job, frame, window):
     import argparse
     import granular_core as core
     from pxr import Tf
-    from .usd_reader import read_stage, describe_tf_error
+    from .errors import describe_tf_error
+    from .usd_reader import read_stage
 
     args = argparse.Namespace(**job)
     t0 = time.monotonic()

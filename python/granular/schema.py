@@ -11,7 +11,7 @@ import re
 
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom, Vt
 
-from .errors import UserError
+from .errors import UserError, describe_tf_error
 
 AGGREGATE_API = "GranularAggregateAPI"
 GRAIN_API = "GranularGrainAPI"
@@ -176,8 +176,8 @@ def flattened(pv, time=Usd.TimeCode.Default()):
         return pv.ComputeFlattened(time)
     except Tf.ErrorException as e:
         attr = pv.GetAttr()
-        detail = str(e).strip().splitlines()[-1].split(" : ")[-1].strip(" '.")
-        raise UserError(str(attr.GetPrim().GetPath()), attr.GetName(), f"cannot be read: {detail}") from None
+        raise UserError(str(attr.GetPrim().GetPath()), attr.GetName(),
+                        "cannot be read: " + " ".join(describe_tf_error(e).split())) from None
 
 
 def numbers(v):

@@ -29,7 +29,6 @@ Every problem a user can cause raises UserError naming the prim and the attribut
 """
 import math
 import os
-import re
 
 import numpy as np
 
@@ -44,7 +43,7 @@ from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdRender, UsdShade  # noqa: 
 import granular_core as core
 
 from . import schema
-from .errors import UserError
+from .errors import UserError, describe_tf_error
 
 DEFAULT_WIDTH, DEFAULT_HEIGHT = 640, 480
 
@@ -84,20 +83,6 @@ def translate_core_error(err, scene=None):
             return UserError(prim, usd_attr, detail)
         return UserError(entry["*"][0], attr, detail)
     return UserError(obj, attr, detail)
-
-
-def describe_tf_error(e):
-    """The messages of a Tf.ErrorException on one line (without source locations)."""
-    msgs = []
-    for line in str(e).splitlines():
-        line = line.strip()
-        if not line:
-            continue
-        # "Error in 'Func' at line N in file F : 'message'"
-        if " : '" in line:
-            line = line.split(" : '", 1)[1].rstrip("'")
-        msgs.append(re.sub(r"pxrInternal_v\w+?__pxrReserved__::", "", line))
-    return " ".join(msgs[:1]) if msgs else str(e).strip()
 
 
 def open_stage(path):
