@@ -9,11 +9,13 @@ namespace granular {
 
 void addAreaLightHit(const Scene& scene, PathState& path, const Hit& hit) {
   const Vec3& dir = path.ray.d;
+  if (!scene.lightReaches(hit.light, path.linkObject)) return;
   const Light& light = scene.lights()[hit.light];
   float w = 1.0f;
   if (!path.lastDelta)
     w = powerHeuristic(path.lastPdf,
-                       light.pdfLi(path.lastP, dir, length(hit.p - path.lastP)) * scene.lightPick(hit.light) * path.lastNeeChance);
+                       light.pdfLi(path.lastP, dir, length(hit.p - path.lastP)) * scene.lightPick(hit.light, path.linkObject) *
+                           path.lastNeeChance);
   path.L[path.credit] += path.beta * light.areaLe(hit.p, dir) * w;
 }
 
@@ -72,11 +74,13 @@ Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir)
   for (int li : scene.infiniteLights()) {
     const Light& light = scene.lights()[li];
     if (camera && light.type() == LightType::Dome && !scene.settings().domeCameraVisible) continue;
+    if (!scene.lightReaches(li, path.linkObject)) continue;
     float lightPdf = 0;
     Vec3 Le = light.escapedLeSeen(dir, halfAngle, path.lastDelta ? nullptr : &lightPdf);
     if (isBlack(Le)) continue;
     float w = 1.0f;
-    if (!path.lastDelta) w = powerHeuristic(path.lastPdf, lightPdf * scene.lightPick(li) * path.lastNeeChance);
+    if (!path.lastDelta)
+      w = powerHeuristic(path.lastPdf, lightPdf * scene.lightPick(li, path.linkObject) * path.lastNeeChance);
     L += Le * w;
   }
   return L;
@@ -169,6 +173,9 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
   const float footprint = std::fabs(path.coneWidth + path.coneSpread * hit.t);
   std::optional<Material> textured;  // made only for a textured hit
   const Material& m = scene.shadingMaterial(hit, footprint, textured);
+  // The object whose light links hold here; DA's exit (a surface of no mesh) keeps the
+  // aggregate it leaves.
+  if (hit.kind != Hit::Surface || hit.geom >= 0) path.linkObject = scene.linkObjectOf(hit);
   bool inside = dot(ray.d, hit.ng) > 0;
   if (inside && m.type == MaterialType::Dielectric && !isBlack(m.absorption)) {
     // Beer–Lambert over the segment just travelled inside (object units -> world).
@@ -197,11 +204,12 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
           : 0.0f;
   if (!m.isDelta() && !lights.empty() && (wo.z > 0 || m.twoSided())) {
     // Next-event estimation: one light, picked by Scene::lightPick.
-    int li = scene.pickLight(path.nextLightU());
-    const float lightPick = scene.lightPick(li);
+    int li = scene.pickLight(path.nextLightU(), path.linkObject);
+    const float lightPick = scene.lightPick(li, path.linkObject);
     LightSample ls;
     float u1 = path.rng.next1D(), u2 = path.rng.next1D();
-    if (lights[li].sampleLiSeen(hit.p, u1, u2, roughHalfAngle, ls) && !isBlack(ls.Li)) {
+    if (scene.lightReaches(li, path.linkObject) && lights[li].sampleLiSeen(hit.p, u1, u2, roughHalfAngle, ls) &&
+        !isBlack(ls.Li)) {
       Vec3 wiLocal = frame.toLocal(ls.wi);
       float bsdfPdf;
       Vec3 f = m.eval(wo, wiLocal, &bsdfPdf);

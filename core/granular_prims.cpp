@@ -477,6 +477,7 @@ class Assembler {
     for (size_t k = 0; k < xfs.size(); ++k) {
       const Transform& xf = xfs[k];
       a.xf = xf;
+      a.linkCategories = linkCategoriesOf(prim, k);
       a.instanceId = prim.instanceIds.empty() ? -1 : prim.instanceIds[k];
       inUsdTerms(prim, [&] { validateAggregateParameters(a, path); });
       desc_.aggregates.push_back(a);
@@ -502,6 +503,19 @@ class Assembler {
       if (i < 0) throw InputError(prim.path, "instanceIds", str(i, " is not an instance index (>= 0)"));
   }
 
+  // The light-link categories of instance k: the prim's and the instance's own. A list per
+  // instance or none.
+  static std::vector<std::string> linkCategoriesOf(const MeshPrim& prim, size_t k) {
+    const size_t instances = prim.instances.empty() ? 1 : prim.instances.size();
+    if (!prim.instanceLinkCategories.empty() && prim.instanceLinkCategories.size() != instances)
+      throw InputError(prim.path, "instanceCategories",
+                       str(prim.instanceLinkCategories.size(), " category lists for ", instances, " instances"));
+    std::vector<std::string> c = prim.linkCategories;
+    if (!prim.instanceLinkCategories.empty())
+      c.insert(c.end(), prim.instanceLinkCategories[k].begin(), prim.instanceLinkCategories[k].end());
+    return c;
+  }
+
   void addMesh(const MeshPrim& prim) {
     int material = prim.material;
     if (material < 0 && prim.displayColor) {
@@ -521,6 +535,7 @@ class Assembler {
       d.xf = xfs[k];
       d.material = material;
       d.id = prim.id;
+      d.linkCategories = linkCategoriesOf(prim, k);
       d.instanceId = prim.instanceIds.empty() ? -1 : prim.instanceIds[k];
       desc_.meshes.push_back(std::move(d));
     }
@@ -653,6 +668,7 @@ InstancedGrainsDesc instancedGrainsFromUsd(const InstancerPrim& prim, const Inst
   g.name = path;
   g.xf = prim.xf;
   g.id = prim.id;
+  g.linkCategories = prim.linkCategories;
   auto per = [&](const char* attr, const NumberView& v, size_t k) {
     if (v.count % k) throw InputError(path, attr, str("has ", v.count, " numbers, not ", k, " per instance"));
     return v.count / k;

@@ -66,6 +66,13 @@ struct MeshPrim {
   // primvars decide (see above).
   std::optional<std::vector<std::string>> apiSchemas;
   int id = -1;                       // front end's id for the primId AOV (Hydra's prim id)
+  // The light-link collections that hold the prim (Hydra's categories; usd-core: each light's
+  // collection:lightLink that includes it), by the names the lights' records give them
+  // (usd_lights.h): MeshDesc::linkCategories of each of its instances, with those of the
+  // instance itself where the front end knows them per instance (Hydra's instance
+  // categories: one list per instance, or none).
+  std::vector<std::string> linkCategories;
+  std::vector<std::vector<std::string>> instanceLinkCategories;
 };
 
 // A prim that is not among the listed ones, by absolute path (a front end may list only
@@ -128,6 +135,7 @@ struct InstancerPrim {
   std::vector<int64_t> protoIndices;
   std::vector<float> velocities, angularVelocities;  // 3 per instance; empty: unauthored
   int id = -1;
+  std::vector<std::string> linkCategories;  // as MeshPrim::linkCategories
 };
 
 // The instancer's explicit grains (instanced_grains.h), its prototypes' grain materials

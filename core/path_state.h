@@ -50,6 +50,10 @@ struct PathState {
   float lastSunHalfAngle = 0;
   Vec3 lastP;              // where that direction was sampled (for area-light MIS)
   float lastNeeChance = 1; // the chance that next-event estimation was made there (MIS)
+  // The object of the path's last scattering (Scene::linkObjectOf; -1: none yet, the
+  // camera's): the lights its next-event estimate and the emitters its sampled direction
+  // meets count only where they light it (Scene::lightReaches, light linking).
+  int linkObject = -1;
   void scattered(bool delta, float pdf, const Vec3& at, float neeChance, float sunHalfAngle) {
     lastDelta = delta;
     lastPdf = pdf;

@@ -39,6 +39,7 @@ void scatter(const Scene& scene, PathState& path, const Hit& hit, const ProxyTab
   own.instancer = hit.instancer;
   own.instance = hit.instance;
   const auto& lights = scene.lights();
+  path.linkObject = scene.linkObjectOf(hit);
   const float seenSun = scene.settings().sunRegularizationHalfAngle();
   // Next-event estimation where light can still arrive: a shadow ray from deep inside
   // crosses about depth / λ grains, so it is made with probability q = exp(−depth / 4R),
@@ -55,8 +56,8 @@ void scatter(const Scene& scene, PathState& path, const Hit& hit, const ProxyTab
     }
   }
   if (!lights.empty() && q > 0 && (q >= 1.0f || path.rng.next1D() < q)) {
-    const int li = scene.pickLight(path.nextLightU());
-    const float lightPick = scene.lightPick(li) * q;
+    const int li = scene.pickLight(path.nextLightU(), path.linkObject);
+    const float lightPick = scene.lightPick(li, path.linkObject) * q;
     LightSample ls;
     const float u1 = path.rng.next1D(), u2 = path.rng.next1D(), uExit = path.rng.next1D();
     // Narrow suns as the setting's disk (RenderSettings::sunRegularization): a table's
@@ -64,7 +65,8 @@ void scatter(const Scene& scene, PathState& path, const Hit& hit, const ProxyTab
     // fireflies, and a proxy's grain, drawn anew at each visit, holds no glint a pixel could
     // resolve, behind an explicit grain or not. Escapes after a proxy see the same disk
     // (escapedRadiance), so MIS stays whole.
-    if (lights[li].sampleLiSeen(g.center, u1, u2, seenSun, ls) && !isBlack(ls.Li)) {
+    if (scene.lightReaches(li, path.linkObject) && lights[li].sampleLiSeen(g.center, u1, u2, seenSun, ls) &&
+        !isBlack(ls.Li)) {
       const ProxyDirection d = table.eval(b, frame.toLocal(ls.wi));
       if (d.pdf > 0) {
         const Vec3 from = scene.beforeSurfaces(g.center, onSphere(g, frame, table.exitPoint(b, d, uExit)),

@@ -10,6 +10,7 @@
 #include <chrono>
 #include <cstdio>
 #include <cstring>
+#include <map>
 #include <set>
 
 
@@ -306,6 +307,7 @@ std::unique_ptr<Scene> Scene::build(const SceneDesc& worldDesc, const Scene* pre
   s->sceneScale_ = all.empty() ? 1.0f : std::max(1e-6f, maxComponent(vmax(vabs(all.lo), vabs(all.hi))));
   const std::vector<LightDesc> lights = s->buildLights(desc, all);
   s->buildIdentities(desc, lights);
+  s->buildLightLinks(desc, lights);
   s->findEmittersInside(desc, lights);
   s->updateDiffusionDepths();
   s->viewId_ = ++gViewIds;
@@ -762,6 +764,7 @@ std::vector<LightDesc> Scene::buildLights(const SceneDesc& desc, const Bounds3& 
   std::vector<float> w;
   for (double v : x) w.push_back(largest > 0 ? float(v / largest) : 1.0f);  // none weighs: all alike
   lightPick_ = Distribution1D(w);
+  pickWeights_ = w;
   for (size_t i = 0; i < lights_.size() && lights_.size() > 1; ++i) {
     char chance[32];
     std::snprintf(chance, sizeof chance, " %.1f%%", 100.0 * lightPick(int(i)));
@@ -979,6 +982,58 @@ void Scene::buildIdentities(const SceneDesc& desc, const std::vector<LightDesc>&
     lightIdentity_.push_back(id);
   }
   for (int t = 0; t < kCryptomatteTypes; ++t) cryptomatteNames_[t].assign(names[t].begin(), names[t].end());
+}
+
+void Scene::buildLightLinks(const SceneDesc& desc, const std::vector<LightDesc>& lights) {
+  std::vector<const std::vector<std::string>*> categories;  // per object, in linkObjectOf's order
+  for (const auto& m : desc.meshes)
+    if (m.visible) categories.push_back(&m.linkCategories);  // as buildMeshes: one per geometry id
+  linkMeshes_ = int(categories.size());
+  for (const auto& a : desc.aggregates) categories.push_back(&a.linkCategories);
+  for (const auto& g : desc.instancedGrains) categories.push_back(&g.linkCategories);
+  linkObjects_ = int(categories.size());
+  unlit_.clear();
+  linkPicks_.clear();
+  objectPick_.clear();
+  bool linked = false;
+  for (const auto& l : lights) linked = linked || !l.lightLink.empty();
+  if (!linked) return;
+  unlit_.assign(lights.size() * categories.size(), 0);
+  for (size_t i = 0; i < lights.size(); ++i) {
+    if (lights[i].lightLink.empty()) continue;
+    for (size_t o = 0; o < categories.size(); ++o) {
+      const auto& c = *categories[o];
+      unlit_[i * categories.size() + o] = std::find(c.begin(), c.end(), lights[i].lightLink) == c.end();
+    }
+  }
+  // Each object picks among the lights that reach it (an object no light reaches, among
+  // all: its estimates are 0 either way). One pick per distinct set of lights.
+  std::map<std::vector<float>, int> picks;
+  for (size_t o = 0; o < categories.size(); ++o) {
+    std::vector<float> w = pickWeights_;
+    float sum = 0;
+    for (size_t i = 0; i < lights.size(); ++i) {
+      if (unlit_[i * categories.size() + o]) w[i] = 0;
+      sum += w[i];
+    }
+    if (!(sum > 0)) w = pickWeights_;
+    auto [it, added] = picks.emplace(w, int(linkPicks_.size()));
+    if (added) linkPicks_.emplace_back(w);
+    objectPick_.push_back(it->second);
+  }
+}
+
+int Scene::linkObjectOf(const Hit& hit) const {
+  switch (hit.kind) {
+    case Hit::Surface: return hit.geom;
+    case Hit::Grain:
+    case Hit::Proxy:
+    case Hit::Boundary:
+      if (hit.aggregate >= 0) return aggregateLinkObject(hit.aggregate);
+      return hit.instancer >= 0 ? instancerLinkObject(hit.instancer) : -1;
+    case Hit::AreaLight: return -1;
+  }
+  return -1;
 }
 
 Scene::HitIdentity Scene::identify(const Hit& hit) const {
@@ -1300,7 +1355,9 @@ uint32_t Scene::distantLightsReaching(const Hit& hit) const {
   uint32_t lit = 0;
   for (size_t l = 0; l < lights_.size(); ++l) {
     LightSample ls;
-    if (lights_[l].type() != LightType::Distant || !lights_[l].sampleLi(hit.p, 0.0f, 0.0f, ls)) continue;
+    if (lights_[l].type() != LightType::Distant || !lightReaches(int(l), aggregateLinkObject(hit.aggregate)) ||
+        !lights_[l].sampleLi(hit.p, 0.0f, 0.0f, ls))
+      continue;
     Ray shadow;
     shadow.o = hit.p + hit.ng * (1e-3f * aggregates_[size_t(hit.aggregate)]->grainRadius());
     shadow.d = ls.wi;
@@ -1327,9 +1384,9 @@ std::vector<SwitchView> Scene::sunSwitchViews() const {
     for (size_t a = 0; a < aggregates_.size(); ++a) {
       const Bounds3& b = aggregateBounds_[a];
       LightSample ls;
-      if (aggregateMotion_[a].moving() || b.empty() || !lights_[l].sampleLi(b.center(), 0.0f, 0.0f, ls) ||
-          !(maxComponent(ls.Li) > 0))
-        continue;  // a sun that adds no light asks for nothing
+      if (aggregateMotion_[a].moving() || b.empty() || !lightReaches(int(l), aggregateLinkObject(int(a))) ||
+          !lights_[l].sampleLi(b.center(), 0.0f, 0.0f, ls) || !(maxComponent(ls.Li) > 0))
+        continue;  // a sun that adds no light (or none to this aggregate: light linking) asks for nothing
       // An orthographic grid across the sun's direction over the aggregate's bounds, its rays
       // starting beyond everything in the scene.
       const Frame f(ls.wi);

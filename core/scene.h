@@ -363,11 +363,22 @@ class Scene {
   // Light sampling picks light i with probability lightPick(i), in proportion to its
   // weight from the centre of the scene's surfaces and aggregates (Light::pickWeight);
   // pickLight(u) is that choice for a uniform u. Every light equally when no weight is > 0.
-  float lightPick(int i) const { return lightPick_.discreteProb(i); }
-  int pickLight(float u) const { return lightPick_.sampleDiscrete(u); }
+  // With light linking, a vertex of `object` (linkObjectOf) picks among the lights that
+  // light it alone, in the same proportions; -1: among all.
+  float lightPick(int i, int object = -1) const { return pickFor(object).discreteProb(i); }
+  int pickLight(float u, int object = -1) const { return pickFor(object).sampleDiscrete(u); }
   // Those chances for the front ends' logs, "sun 87.6%, sky 12.4%"; "" with one light or none.
   const std::string& lightPicksText() const { return lightPicksText_; }
   const std::vector<int>& infiniteLights() const { return infiniteLights_; }
+  // Light linking (LightDesc::lightLink). The objects a path's vertices belong to: each
+  // visible mesh by its geometry id, then each aggregate, then each instancer; -1 the
+  // camera's, which sees every light. lightReaches(i, o): light i counts at a vertex of o.
+  int linkObjectOf(const Hit& hit) const;
+  int aggregateLinkObject(int a) const { return linkMeshes_ + a; }
+  int instancerLinkObject(int k) const { return linkMeshes_ + int(aggregates_.size()) + k; }
+  bool lightReaches(int light, int object) const {
+    return unlit_.empty() || object < 0 || !unlit_[size_t(light) * size_t(linkObjects_) + size_t(object)];
+  }
   const std::vector<std::shared_ptr<const Aggregate>>& aggregates() const { return aggregates_; }
   // Explicit grains from simulations (SceneDesc::instancedGrains), in render space. A
   // grain's absorption is per its prototype's bounding radius at scale 1 (the instancer's
@@ -573,6 +584,17 @@ class Scene {
   std::vector<BuiltInstanced> builtInstanced_;
   std::vector<std::shared_ptr<const InstancedGrains>> instanced_;
   std::vector<HitIdentity> instancedIdentity_;
+  // Light linking (lightReaches): per light and object, 1 where the light does not count;
+  // empty when every light lights everything. Per object, the index of its light pick among
+  // linkPicks_ (one per set of lights that reach an object).
+  std::vector<uint8_t> unlit_;
+  int linkMeshes_ = 0, linkObjects_ = 0;
+  std::vector<float> pickWeights_;  // lightPick_'s weights
+  std::vector<Distribution1D> linkPicks_;
+  std::vector<int> objectPick_;
+  const Distribution1D& pickFor(int object) const {
+    return object < 0 || objectPick_.empty() ? lightPick_ : linkPicks_[size_t(objectPick_[size_t(object)])];
+  }
   Bounds3 instancedBounds_;
   int instancedBuilt_ = 0;
   int instancedMedia_ = 0;  // instancers with a medium
@@ -648,6 +670,7 @@ class Scene {
   std::vector<int> aggregateId_;
   // identify(): per mesh (geometry id), aggregate and light, and per material the id of its name.
   void buildIdentities(const SceneDesc& desc, const std::vector<LightDesc>& lights);
+  void buildLightLinks(const SceneDesc& desc, const std::vector<LightDesc>& lights);
   std::vector<HitIdentity> meshIdentity_, aggregateIdentity_, lightIdentity_;
   std::vector<uint32_t> materialCryptomatte_;
   std::vector<std::string> cryptomatteNames_[kCryptomatteTypes];

@@ -611,14 +611,14 @@ static_assert(fieldCount<TriangleMesh>() == 3, "compare the new field in sameMes
 static_assert(fieldCount<CameraDesc>() == 12, "compare the new field in sameCamera");
 static_assert(fieldCount<TextureDesc>() == 14, "compare the new field in sameTexture (scale, bias: 4 each)");
 static_assert(fieldCount<MaterialDesc>() == 13, "compare the new field in sameMaterial");
-static_assert(fieldCount<LightDesc>() == 14, "compare the new field in sameLight");
+static_assert(fieldCount<LightDesc>() == 15, "compare the new field in sameLight");
 static_assert(fieldCount<LightShaping>() == 5, "compare the new field in sameLight");
-static_assert(fieldCount<MeshDesc>() == 8, "compare the new field in sameMeshDesc");
+static_assert(fieldCount<MeshDesc>() == 9, "compare the new field in sameMeshDesc (or linkCategories)");
 static_assert(fieldCount<GrainPrototypeDesc>() == 3, "compare the new field in sameAggregateInputs");
-static_assert(fieldCount<AggregateDesc>() == 15, "compare the new field in sameAggregateInputs (or the id check)");
+static_assert(fieldCount<AggregateDesc>() == 16, "compare the new field in sameAggregateInputs (or the id check, or linkCategories)");
 static_assert(fieldCount<RenderSettings>() == 28, "compare the new field in sameViewSettings or settingsNeedBuild");
 static_assert(fieldCount<SceneDesc>() == 7, "compare the new part in compareScenes");
-static_assert(fieldCount<InstancedGrainsDesc>() == 10, "compare the new field in sameInstancedGrains (or the id check)");
+static_assert(fieldCount<InstancedGrainsDesc>() == 11, "compare the new field in sameInstancedGrains (or the id check, or linkCategories)");
 
 bool sameCamera(const CameraDesc& a, const CameraDesc& b) {
   return sameTransform(a.cameraToWorld, b.cameraToWorld) && a.focalLength == b.focalLength &&
@@ -667,7 +667,7 @@ bool sameLight(const LightDesc& a, const LightDesc& b) {
          a.radius == b.radius && a.width == b.width && a.height == b.height && a.length == b.length &&
          a.shaping.enabled == b.shaping.enabled && a.shaping.coneAngle == b.shaping.coneAngle &&
          a.shaping.coneSoftness == b.shaping.coneSoftness && a.shaping.focus == b.shaping.focus &&
-         a.shaping.focusTint == b.shaping.focusTint && a.textureFile == b.textureFile;
+         a.shaping.focusTint == b.shaping.focusTint && a.textureFile == b.textureFile && a.lightLink == b.lightLink;
 }
 
 // Transforms at the shutter's open and close (MeshDesc::shutterXf, AggregateDesc::shutterXf).
@@ -694,6 +694,14 @@ bool sameViewSettings(const RenderSettings& a, const RenderSettings& b) {
          a.sunRegularization == b.sunRegularization && a.switchForView == b.switchForView &&
          a.cropX0 == b.cropX0 && a.cropX1 == b.cropX1 && a.cropY0 == b.cropY0 && a.cropY1 == b.cropY1 &&
          a.cryptomatte == b.cryptomatte;
+}
+
+// The objects' light-link categories, in order (an object added or removed is another change).
+template <class T>
+bool sameLinkCategories(const std::vector<T>& a, const std::vector<T>& b) {
+  for (size_t i = 0; i < std::min(a.size(), b.size()); ++i)
+    if (a[i].linkCategories != b[i].linkCategories) return false;
+  return true;
 }
 
 template <class T, class Same>
@@ -776,6 +784,10 @@ SceneChanges compareScenes(const SceneDesc& before, const SceneDesc& after) {
              before.settings.defaultLight != after.settings.defaultLight ||
              before.settings.physicalSun != after.settings.physicalSun;
   c.meshes = !sameList(before.meshes, after.meshes, sameMeshDesc);
+  // Light linking is the lights' business: the objects' categories rebuild no surface or grain.
+  c.lights = c.lights || !sameLinkCategories(before.meshes, after.meshes) ||
+             !sameLinkCategories(before.aggregates, after.aggregates) ||
+             !sameLinkCategories(before.instancedGrains, after.instancedGrains);
   c.instancedGrains = before.instancedGrains.size() != after.instancedGrains.size();
   // Moving meshes are built at the shutter's ends, and moving grains' grids cover their
   // sweep over it (Scene::build).

@@ -145,6 +145,12 @@ struct LightDesc {
   float length = 1.0f;       // Cylinder, along its local X axis
   LightShaping shaping;      // Sphere, Rect, Disk, Cylinder
   std::string textureFile;   // Dome: lat-long EXR (empty: constant)
+  // Light linking (UsdLuxLightAPI's collection:lightLink): empty, the light lights every
+  // object; else only the meshes, aggregates and instanced grains whose linkCategories hold
+  // this name. At every vertex of a path (a surface's, a grain's, a proxy's, the medium's,
+  // DA's) the light then counts only if it lights that vertex's object, sampled or met:
+  // light an excluded object passes on to others still reaches it. The camera sees it.
+  std::string lightLink;
 };
 
 struct MeshDesc {
@@ -157,6 +163,7 @@ struct MeshDesc {
   // The index of the instance this mesh is of a flattened instancer (a PointInstancer's
   // instance index), reported by the instanceId AOV; -1: not instanced. >= -1.
   int instanceId = -1;
+  std::vector<std::string> linkCategories;  // the lights' lightLink names this object is lit by (LightDesc::lightLink)
   // Transform motion blur: the object-to-world transforms at the camera's shutter open and
   // close (CameraDesc); the mesh moves vertex by vertex linearly between them over the
   // shutter (Embree's linear motion blur). Unset, or without an open shutter: still at xf.
@@ -192,6 +199,7 @@ struct AggregateDesc {
   double fineFieldBytes = 32.0 * 1024 * 1024;
   int id = -1;                 // the front end's id, reported by the primId AOV
   int instanceId = -1;         // as MeshDesc::instanceId
+  std::vector<std::string> linkCategories;  // as MeshDesc::linkCategories
   // Transform motion blur, as MeshDesc::shutterXf: the object-to-world transforms at the
   // shutter's open and close, blended linearly between them (aggregate_motion.h). The
   // aggregate is built at xf whatever its motion (no rebuild for it, no other grains).
@@ -228,6 +236,7 @@ struct InstancedGrainsDesc {
   SharedArray<Vec3> velocities;
   SharedArray<Vec3> angularVelocities;
   int id = -1;                               // the front end's id (primId AOV)
+  std::vector<std::string> linkCategories;   // as MeshDesc::linkCategories
   size_t size() const { return protoIndices.size(); }
 };
 

@@ -608,7 +608,53 @@ void parseMeshes(const json& v, SceneDesc& desc, const MaterialIndex& mats, cons
   }
 }
 
-void parseLights(const json& v, SceneDesc& desc, const Context& ctx) {
+// A light's "light_link": the objects it lights by name, every one unless "include" lists
+// them, less those "exclude" lists (UsdCollectionAPI's includes and excludes).
+struct JsonLightLink {
+  size_t light;
+  std::optional<std::vector<std::string>> include;
+  std::vector<std::string> exclude;
+};
+
+std::vector<std::string> toNames(const json& v, const std::string& obj, const std::string& key) {
+  const json& a = toArray(v, obj, key);
+  std::vector<std::string> names;
+  for (const json& n : a) names.push_back(toString(n, obj, key));
+  return names;
+}
+
+JsonLightLink parseLightLink(const json& v, size_t light, const std::string& label) {
+  Obj o(v, label, "light_link", label, {"include", "exclude"});
+  JsonLightLink link{light, std::nullopt, {}};
+  if (const json* in = o.find("include")) link.include = toNames(*in, label, "light_link.include");
+  if (const json* ex = o.find("exclude")) link.exclude = toNames(*ex, label, "light_link.exclude");
+  return link;
+}
+
+// Light links as core holds them (LightDesc::lightLink): the light's name as the category of
+// each object it lights. A name that is no mesh, aggregate or instanced grains is an error.
+void applyLightLinks(const std::vector<JsonLightLink>& links, SceneDesc& desc) {
+  for (const JsonLightLink& link : links) {
+    LightDesc& light = desc.lights[link.light];
+    std::set<std::string> known;
+    auto object = [&](const std::string& name, std::vector<std::string>& categories) {
+      known.insert(name);
+      const bool in = !link.include || std::count(link.include->begin(), link.include->end(), name);
+      if (in && !std::count(link.exclude.begin(), link.exclude.end(), name)) categories.push_back(light.name);
+    };
+    for (MeshDesc& m : desc.meshes) object(m.name, m.linkCategories);
+    for (AggregateDesc& a : desc.aggregates) object(a.name, a.linkCategories);
+    for (InstancedGrainsDesc& g : desc.instancedGrains) object(g.name, g.linkCategories);
+    for (const auto* names : {link.include ? &*link.include : nullptr, &link.exclude})
+      for (size_t k = 0; names && k < names->size(); ++k)
+        if (!known.count((*names)[k]))
+          throw InputError(light.name, str("light_link.", names == &link.exclude ? "exclude" : "include"),
+                           str("\"", (*names)[k], "\" is no mesh, aggregate or instanced grains of the scene"));
+    light.lightLink = light.name;
+  }
+}
+
+void parseLights(const json& v, SceneDesc& desc, const Context& ctx, std::vector<JsonLightLink>& links) {
   std::set<std::string> seen;
   const json& a = toArray(v, "scene", "lights");
   for (size_t i = 0; i < a.size(); ++i) {
@@ -617,7 +663,8 @@ void parseLights(const json& v, SceneDesc& desc, const Context& ctx) {
     if (!a[i].contains("type"))
       throw InputError(label, "type", "is required (distant, sphere, rect, disk, cylinder or dome)");
     std::string type = toString(a[i].at("type"), label, "type");
-    std::vector<std::string> keys = {"name", "type", "color", "intensity", "exposure", "normalize", "transform"};
+    std::vector<std::string> keys = {"name",      "type",      "color",     "intensity",
+                                     "exposure",  "normalize", "transform", "light_link"};
     const std::vector<std::string> shapingKeys = {"shaping_cone_angle", "shaping_cone_softness", "shaping_focus",
                                                   "shaping_focus_tint"};
     LightDesc l;
@@ -682,6 +729,7 @@ void parseLights(const json& v, SceneDesc& desc, const Context& ctx) {
           throw InputError(label, "texture_file", str("\"", l.textureFile, "\" does not exist"));
       }
     }
+    if (const json* link = o.find("light_link")) links.push_back(parseLightLink(*link, desc.lights.size(), label));
     desc.lights.push_back(std::move(l));
   }
 }
@@ -928,9 +976,11 @@ SceneDesc parseSceneJson(const std::string& text, const std::string& sourceName)
     MaterialIndex mats;
     if (const json* m = top.find("materials")) parseMaterials(*m, desc, mats, ctx);
     if (const json* m = top.find("meshes")) parseMeshes(*m, desc, mats, ctx);
-    if (const json* l = top.find("lights")) parseLights(*l, desc, ctx);
+    std::vector<JsonLightLink> links;
+    if (const json* l = top.find("lights")) parseLights(*l, desc, ctx, links);
     if (const json* a = top.find("aggregates")) parseAggregates(*a, desc, mats, ctx);
     if (const json* g = top.find("instanced_grains")) parseInstancedGrains(*g, desc, mats, ctx);
+    applyLightLinks(links, desc);
     if (!motionBlur) stillFrame(desc);
   } catch (const json::exception& e) {
     // Converters check types before every get<>(), so this is a safety net only.

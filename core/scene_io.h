@@ -27,7 +27,10 @@
 //             {"type"*:"cylinder", "transform":T, "radius":0.5, "length":1}, // along its X, from its side
 //             {"type"*:"dome", "texture_file":"sky.exr", "transform":T}],
 //             // every light also takes "name", "color":[1,1,1], "intensity":1, "exposure":0,
-//             // "normalize":false; radiance = color * intensity * 2^exposure; the area
+//             // "normalize":false, "light_link": {"include": [names], "exclude": [names]}
+//             // (light linking: the meshes, aggregates and instanced grains it lights,
+//             // every one unless "include" lists them, less "exclude"; LightDesc::lightLink);
+//             // radiance = color * intensity * 2^exposure; the area
 //             // lights also "shaping_cone_angle":90, "shaping_cone_softness":0,
 //             // "shaping_focus":0, "shaping_focus_tint":[0,0,0] (UsdLuxShapingAPI; any of
 //             // them turns shaping on)

@@ -170,6 +170,10 @@ std::optional<LightDesc> lightFromUsd(const UsdPrimRecord& r, UsdWarnings& warni
       warnings.push_back(str(path, ".", multiplier, ": not supported (light reaches every surface as it is); ignored"));
   if (!usdBool(r, kShadowEnable, true))
     warnings.push_back(str(path, ".", kShadowEnable, ": not supported (every light casts shadows); ignored"));
+  l.lightLink = usdToken(r, kUsdLightLink, "");
+  if (!usdToken(r, kUsdShadowLink, "").empty())
+    warnings.push_back(str(path, ".", kUsdShadowLink,
+                           ": shadow linking is not supported (every object casts shadows from every light); ignored"));
   // Core's checks, in USD's names (a light's SceneDesc fields are its inputs).
   checkInUsdNames(path, [&] { validateLightDesc(l, path); }, [](const std::string& field) {
     for (const auto& [shapingField, name] : kShapingInputs)

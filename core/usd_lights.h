@@ -20,6 +20,12 @@
 //  - a surface with MeshLightAPI (Mesh, an implicit surface): one warning; the front end
 //    draws it as an ordinary surface, as Hydra hosts do;
 //  - any other light type (PortalLight, a GeometryLight, ...): one warning, skipped.
+// Light linking: a front end gives collection:lightLink and collection:shadowLink (tokens)
+// when the light's collection of that name does not hold every prim (includeRoot with no
+// exclude): the collection's name, which each drawn prim it includes lists in its
+// linkCategories (granular_prims.h; Hydra's categories, usd-core's membership query). The
+// light then lights those objects alone (LightDesc::lightLink); a shadowLink is warned about
+// and ignored.
 // Every light: inputs:intensity (1), inputs:exposure (0), inputs:color (1, 1, 1),
 // inputs:normalize (false), and inputs:colorTemperature (6500 K, > 0) when
 // inputs:enableColorTemperature is true: the colour is multiplied by blackbodyRgb of it.
@@ -37,6 +43,10 @@ namespace granular {
 // The attributes lightFromUsd reads, by USD name; a front end reads these (and may read
 // more: unknown ones are ignored).
 const std::vector<std::string>& usdLightAttributeNames();
+// The record's entries for light linking (above): not attributes, what the front end's
+// collection machinery names the light's collections.
+inline constexpr const char* kUsdLightLink = "collection:lightLink";
+inline constexpr const char* kUsdShadowLink = "collection:shadowLink";
 
 // The LightDesc of a light prim's record (name = path, xf = record.xf), or nothing for a
 // type that is not rendered (a warning says so). InputError naming prim.attribute on a

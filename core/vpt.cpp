@@ -138,11 +138,11 @@ void mediumNee(const Scene& scene, PathState& path, const HomogeneousMedium& med
   const float chance = !boundary && path.medium >= 0 ? shadowChance(scene, path, med, p) : 1.0f;
   if (chance < 1.0f && path.rng.next1D() >= chance) return;
   if (!lights.empty()) {
-    int li = scene.pickLight(path.nextLightU());
-    const float lightPick = scene.lightPick(li);
+    int li = scene.pickLight(path.nextLightU(), path.linkObject);
+    const float lightPick = scene.lightPick(li, path.linkObject);
     LightSample ls;
     float u1 = path.rng.next1D(), u2 = path.rng.next1D();
-    if (lights[li].sampleLi(p, u1, u2, ls) && !isBlack(ls.Li)) {
+    if (scene.lightReaches(li, path.linkObject) && lights[li].sampleLi(p, u1, u2, ls) && !isBlack(ls.Li)) {
       Vec3 f = med.phase(wi, ls.wi);
       float dist = std::isfinite(ls.dist) ? ls.dist * (1.0f - 1e-4f) : kInf;
       Vec3 from = p;
@@ -287,6 +287,7 @@ void vptStep(const Scene& scene, PathState& path) {
         Vec3 p = path.ray.o + path.ray.d * t;
         path.beta *= atGrain ? med.albedo() : med.transmittance(t) * med.sigmaT() * med.albedo() / med.distancePdf(t);
         path.medium = m;
+        path.linkObject = scene.aggregateLinkObject(m);
         if (takesDiffusion(scene, path, p)) {
           diffusionStep(scene, path, p);
           return;
@@ -316,6 +317,7 @@ void vptStep(const Scene& scene, PathState& path) {
         path.beta *= flight.weight;
         if (flight.scattered) {
           const Vec3 p = path.ray.o + path.ray.d * flight.t;
+          path.linkObject = scene.instancerLinkObject(m);
           if (!instancedDiffusion(scene, path, m, p)) scatterInMedium(scene, path, med.reference(), p);
           return;
         }

@@ -88,7 +88,11 @@ inline MaterialDesc readMaterial(Reader& r, const std::string& name) {
 // offsets, clipping near/far; u8 light type (distant, sphere, rect, dome, disk,
 // cylinder), 16 floats matrix, float3 color, floats intensity, exposure, angle, radius,
 // width, height, u8 normalize, float length, u8 shaping (odd: on), floats cone angle, cone
-// softness, focus, float3 focus tint; u8 width, u8 height (1 + value % 8).
+// softness, focus, float3 focus tint; u8 light link (bit 0: linked, to every object with
+// bit 1 too, to none without: buildAndRender); u8 width, u8 height (1 + value % 8).
+// A light linked to every object of the scene (readViewAndLight, buildAndRender).
+inline const char* const kLinkEverything = "fuzz:everything";
+
 inline void readViewAndLight(Reader& r, SceneDesc& d) {
   d.camera.cameraToWorld = r.matrix();
   d.camera.focalLength = r.f();
@@ -116,6 +120,8 @@ inline void readViewAndLight(Reader& r, SceneDesc& d) {
   l.shaping.coneSoftness = r.f();
   l.shaping.focus = r.f();
   l.shaping.focusTint = r.v3();
+  const uint8_t link = r.get<uint8_t>();
+  if (link & 1) l.lightLink = link & 2 ? kLinkEverything : "fuzz:nothing";
   d.lights.push_back(l);
   d.settings.width = 1 + r.get<uint8_t>() % 8;
   d.settings.height = 1 + r.get<uint8_t>() % 8;
@@ -166,6 +172,12 @@ inline bool boundCost(SceneDesc& d) {
 // validateSceneDesc must refuse a bad description with an InputError; one that validates
 // is built and rendered.
 inline void buildAndRender(SceneDesc d) {
+  for (const LightDesc& l : d.lights)
+    if (l.lightLink == kLinkEverything) {
+      for (MeshDesc& m : d.meshes) m.linkCategories.push_back(l.lightLink);
+      for (AggregateDesc& a : d.aggregates) a.linkCategories.push_back(l.lightLink);
+      for (InstancedGrainsDesc& g : d.instancedGrains) g.linkCategories.push_back(l.lightLink);
+    }
   try {
     validateSceneDesc(d);
   } catch (const InputError& e) {

@@ -46,6 +46,8 @@ def view_and_light(light_type):
     # length; shaping on for the area lights of odd type (sphere, dome: ignored, cylinder),
     # a 60° cone of softness 0.3, focus 2, a grey tint
     b += struct.pack("<fB3f3f", 1, light_type % 2, 60, 0.3, 2, 0.2, 0.2, 0.2)
+    # light linking: none, to every object, to none, by type
+    b += struct.pack("<B", (0, 3, 1)[light_type % 3])
     b += struct.pack("<BB", 5, 4)
     return b
 
@@ -65,12 +67,13 @@ def json_seeds(out):
             with open(os.path.join(out, os.path.basename(path)), "wb") as f:
                 f.write(data)
             n += 1
-    with open(os.path.join(ROOT, "tests/core/test_scene_io.cpp")) as f:
-        src = f.read()
-    for k, m in enumerate(re.finditer(r'R"\((.*?)\)"', src, re.S)):
-        with open(os.path.join(out, f"test_scene_io_{k}.json"), "w") as f:
-            f.write(m.group(1))
-        n += 1
+    for test in ("test_scene_io", "test_light_linking"):
+        with open(os.path.join(ROOT, f"tests/core/{test}.cpp")) as f:
+            src = f.read()
+        for k, m in enumerate(re.finditer(r'R"\((.*?)\)"', src, re.S)):
+            with open(os.path.join(out, f"{test}_{k}.json"), "w") as f:
+                f.write(m.group(1))
+            n += 1
     n += copy_regressions("*.json", out)
     sys.path.insert(0, os.path.join(ROOT, "bench"))
     import stress  # noqa: E402

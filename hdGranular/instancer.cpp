@@ -111,6 +111,7 @@ void HdGranularInstancer::Sync(HdSceneDelegate* delegate, HdRenderParam* renderP
   r.angularVelocities = vectors(get(HdTokens->angularVelocities));
   r.transforms = !get(HdInstancerTokens->instanceTransforms).IsEmpty();
   r.protoIndices = integers(delegate->Get(GetId(), TfToken("protoIndices")));
+  for (TfToken const& c : delegate->GetCategories(GetId())) r.categories.push_back(c.GetString());
   static_cast<HdGranularRenderParam*>(renderParam)->SetInstancer(GetId(), std::move(r));
 }
 
@@ -163,6 +164,39 @@ VtIntArray HdGranularInstancer::ComputeInstanceIndices(SdfPath const& prototypeI
   VtIntArray all(outer * indices.size());
   for (size_t a = 0; a < outer; ++a)
     for (size_t b = 0; b < indices.size(); ++b) all[a * indices.size() + b] = indices[b];
+  return all;
+}
+
+std::vector<std::vector<std::string>> HdGranularInstancer::ComputeInstanceCategories(SdfPath const& prototypeId) {
+  HdSceneDelegate* d = GetDelegate();
+  const VtIntArray indices = d->GetInstanceIndices(GetId(), prototypeId);
+  const std::vector<VtArray<TfToken>> own = d->GetInstanceCategories(GetId());
+  bool any = false;
+  std::vector<std::vector<std::string>> out(indices.size());
+  for (size_t k = 0; k < indices.size(); ++k) {
+    const size_t i = size_t(indices[k]);
+    if (i >= own.size()) continue;
+    for (TfToken const& t : own[i]) out[k].push_back(t.GetString());
+    any = any || !own[i].empty();
+  }
+  std::vector<std::vector<std::string>> outer;
+  auto* parent = GetParentId().IsEmpty()
+                     ? nullptr
+                     : static_cast<HdGranularInstancer*>(d->GetRenderIndex().GetInstancer(GetParentId()));
+  if (parent) {
+    outer = parent->ComputeInstanceCategories(GetId());
+    if (outer.empty()) outer.resize(parent->ComputeInstanceIndices(GetId()).size());
+    else any = true;
+  }
+  if (!any) return {};
+  if (!parent) return out;
+  // The order of ComputeInstanceTransforms: outer instances, each with all of ours.
+  std::vector<std::vector<std::string>> all(outer.size() * out.size());
+  for (size_t a = 0; a < outer.size(); ++a)
+    for (size_t b = 0; b < out.size(); ++b) {
+      all[a * out.size() + b] = out[b];
+      all[a * out.size() + b].insert(all[a * out.size() + b].end(), outer[a].begin(), outer[a].end());
+    }
   return all;
 }
 

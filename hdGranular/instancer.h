@@ -26,6 +26,10 @@ class HdGranularInstancer final : public HdInstancer {
   // For each of those transforms, the index of its instance in this instancer (the
   // innermost one: a nested instancer's instances repeat it), for the instanceId AOV.
   VtIntArray ComputeInstanceIndices(SdfPath const& prototypeId);
+  // For each of those transforms, the light-link categories of its instance and of the
+  // outer instances it is in (the scene delegate's instance categories); empty when the
+  // delegate gives none at any level.
+  std::vector<std::vector<std::string>> ComputeInstanceCategories(SdfPath const& prototypeId);
 
  private:
   std::mutex _mutex;

@@ -35,6 +35,14 @@ void HdGranularLight::Sync(HdSceneDelegate* delegate, HdRenderParam* renderParam
     if (auto v = HdGranularUsdValue(delegate->GetLightParamValue(id, TfToken(hydraName))))
       record.attributes[name] = *v;
   }
+  // Light linking: UsdImaging names a collection that does not hold every prim (its
+  // collection cache's id; empty: every prim), as the categories of the prims it includes.
+  for (auto const& [hydraName, name] : {std::pair{HdTokens->lightLink, granular::kUsdLightLink},
+                                        std::pair{HdTokens->shadowLink, granular::kUsdShadowLink}}) {
+    const VtValue link = delegate->GetLightParamValue(id, hydraName);
+    if (link.IsHolding<TfToken>() && !link.UncheckedGet<TfToken>().IsEmpty())
+      if (auto v = HdGranularUsdValue(link)) record.attributes[name] = *v;
+  }
   record.xf = HdGranularToCore(delegate->GetTransform(id));
   try {
     granular::UsdWarnings warnings;

@@ -38,7 +38,7 @@ HdDirtyBits HdGranularMesh::GetInitialDirtyBitsMask() const {
   return HdChangeTracker::Clean | HdChangeTracker::InitRepr | HdChangeTracker::DirtyPoints |
          HdChangeTracker::DirtyTopology | HdChangeTracker::DirtyTransform | HdChangeTracker::DirtyVisibility |
          HdChangeTracker::DirtyPrimvar | HdChangeTracker::DirtyInstancer | HdChangeTracker::DirtyInstanceIndex |
-         HdChangeTracker::DirtyMaterialId | HdChangeTracker::DirtyPrimID;
+         HdChangeTracker::DirtyMaterialId | HdChangeTracker::DirtyPrimID | HdChangeTracker::DirtyCategories;
 }
 
 TfTokenVector const& HdGranularMesh::GetBuiltinPrimvarNames() const {
@@ -127,6 +127,8 @@ void HdGranularMesh::Sync(HdSceneDelegate* delegate, HdRenderParam* renderParam,
     if (name.rfind("primvars:", 0) == 0) name = name.substr(9);
     if (name.rfind("granular:", 0) == 0) m.prim.granular[name.substr(9)] = toPrimvarValue(delegate->Get(id, pv.name));
   }
+  // Light linking: the light-link collections that include the prim (core/usd_lights.h).
+  for (TfToken const& c : delegate->GetCategories(id)) m.prim.linkCategories.push_back(c.GetString());
   const GfMatrix4d xf = delegate->GetTransform(id);
   m.local = HdGranularToCore(xf);
   m.instancerId = GetInstancerId();
@@ -144,6 +146,8 @@ void HdGranularMesh::Sync(HdSceneDelegate* delegate, HdRenderParam* renderParam,
       for (GfMatrix4d const& i : instancer->ComputeInstanceTransforms(id))
         m.prim.instances.push_back(HdGranularToCore(xf * i));  // row vectors: mesh, then instance
       if (indices.size() == m.prim.instances.size()) m.prim.instanceIds.assign(indices.begin(), indices.end());
+      m.prim.instanceLinkCategories = instancer->ComputeInstanceCategories(id);
+      if (m.prim.instanceLinkCategories.size() != m.prim.instances.size()) m.prim.instanceLinkCategories.clear();
     }
   }
 

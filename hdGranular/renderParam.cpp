@@ -122,6 +122,7 @@ granular::InstancedGrainsDesc HdGranularRenderParam::_ReadGrains(SdfPath const& 
   prim.scales = inst.scales;
   prim.velocities = inst.velocities;
   prim.angularVelocities = inst.angularVelocities;
+  prim.linkCategories = inst.categories;
   // The primId and aggregateId AOVs' id: an instancer is no rprim; its first prototype's
   // id and a grain's instanceId are what a Hydra host resolves an instance pick from.
   prim.id = prims[prototypes.front()].id;

@@ -74,6 +74,7 @@ class HdGranularRenderParam final : public HdRenderParam {
     // protoIndices as authored where the scene delegate hands the attribute over (OpenUSD's
     // UsdImagingDelegate does; a scene index does not): empty when not.
     std::vector<int64_t> protoIndices;
+    std::vector<std::string> categories;  // light-link categories (as explicit grains: core/usd_lights.h)
   };
 
   void SetMesh(SdfPath const& id, Mesh mesh);

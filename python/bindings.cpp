@@ -515,7 +515,8 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("height", &LightDesc::height)
       .def_readwrite("length", &LightDesc::length)
       .def_readwrite("shaping", &LightDesc::shaping)
-      .def_readwrite("texture_file", &LightDesc::textureFile);
+      .def_readwrite("texture_file", &LightDesc::textureFile)
+      .def_readwrite("light_link", &LightDesc::lightLink);
 
   py::class_<MeshDesc>(m, "MeshDesc")
       .def(py::init<>())
@@ -526,6 +527,7 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("visible", &MeshDesc::visible)
       .def_readwrite("id", &MeshDesc::id)
       .def_readwrite("instance_id", &MeshDesc::instanceId)
+      .def_readwrite("link_categories", &MeshDesc::linkCategories)
       .def_readwrite("shutter_xf", &MeshDesc::shutterXf,
                      "(transform at the shutter's open, at its close) for motion blur, or None: still");
 
@@ -550,6 +552,7 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("size_spread", &AggregateDesc::sizeSpread)
       .def_readwrite("id", &AggregateDesc::id)
       .def_readwrite("instance_id", &AggregateDesc::instanceId)
+      .def_readwrite("link_categories", &AggregateDesc::linkCategories)
       .def_readwrite("shutter_xf", &AggregateDesc::shutterXf,
                      "(transform at the shutter's open, at its close) for motion blur, or None: still");
 
@@ -704,7 +707,8 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("display_color", &MeshPrim::displayColor)
       .def_readwrite("granular", &MeshPrim::granular, "a copy: assign a whole dict {name: PrimvarValue}")
       .def_readwrite("api_schemas", &MeshPrim::apiSchemas)
-      .def_readwrite("id", &MeshPrim::id);
+      .def_readwrite("id", &MeshPrim::id)
+      .def_readwrite("link_categories", &MeshPrim::linkCategories);
 
   py::class_<AggregateValues>(m, "AggregateValues")
       .def_readonly("grain_radius", &AggregateValues::grainRadius)
@@ -746,6 +750,7 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readonly("name", &InstancedGrainsDesc::name)
       .def_readonly("xf", &InstancedGrainsDesc::xf)
       .def_readonly("prototypes", &InstancedGrainsDesc::prototypes)
+      .def_readonly("link_categories", &InstancedGrainsDesc::linkCategories)
       .def_property_readonly("num_grains", [](const InstancedGrainsDesc& d) { return d.size(); })
       .def_property_readonly("positions", [](const InstancedGrainsDesc& d) { return pointsToArray(d.positions); })
       .def_property_readonly("scales", [](const InstancedGrainsDesc& d) {
@@ -762,8 +767,10 @@ PYBIND11_MODULE(granular_core, m) {
          const std::vector<std::string>& prototypes, const std::vector<Transform>& prototypeXforms,
          const py::object& positions, const py::object& orientations, const py::object& scales,
          const py::object& protoIndices, const py::object& velocities, const py::object& angularVelocities,
-         SceneDesc& desc, const py::function& lookup, int id, bool orientationsRealLast, const py::object& mask) {
+         SceneDesc& desc, const py::function& lookup, int id, bool orientationsRealLast, const py::object& mask,
+         const std::vector<std::string>& linkCategories) {
         InstancerPrim p;
+        p.linkCategories = linkCategories;
         p.path = path;
         p.typeName = typeName;
         p.xf = xf;
@@ -819,6 +826,7 @@ PYBIND11_MODULE(granular_core, m) {
       py::arg("positions"), py::arg("orientations"), py::arg("scales"), py::arg("proto_indices"),
       py::arg("velocities"), py::arg("angular_velocities"), py::arg("desc"), py::arg("lookup"), py::arg("id") = -1,
       py::arg("orientations_real_last") = false, py::arg("mask") = py::none(),
+      py::arg("link_categories") = std::vector<std::string>(),
       "A PointInstancer with GranularInstancedAggregateAPI as core's InstancedGrainsDesc (arrays of numbers, "
       "read in order: 3 per instance, orientations 4 as (w, x, y, z), or as USD's (i, j, k, real) with "
       "orientations_real_last; empty when unauthored; float and int arrays in C order are read in place, "
@@ -911,6 +919,8 @@ PYBIND11_MODULE(granular_core, m) {
   m.def("usd_implicit_attribute_names", &usdImplicitAttributeNames);
   m.def("implicit_surface_from_usd", &implicitSurfaceFromUsd, py::arg("record"));
   m.def("usd_light_attribute_names", &usdLightAttributeNames);
+  m.attr("USD_LIGHT_LINK") = kUsdLightLink;
+  m.attr("USD_SHADOW_LINK") = kUsdShadowLink;
   m.def(
       "order_usd_lights", [](SceneDesc& desc) { orderUsdLights(desc.lights); }, py::arg("desc"),
       "Sorts desc's lights by prim path, as both USD front ends sample them");

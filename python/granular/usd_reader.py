@@ -58,6 +58,7 @@ class StageScene:
         self.camera_path = None
         self.aggregates = []     # per desc.aggregates entry: {"prim", "world_boundary", "prototypes"}
         self.explicit_grains = []  # PointInstancer prims of simulated grains (read_instanced_grains)
+        self.light_links = []    # (name, membership query) of each light's collection:lightLink (read_light)
         self.warnings = []
         self.material_st = {}    # material index -> the primvar its textures read (None: none)
         # core object name -> {core attribute: (prim path, USD attribute)}, "*": prim path
@@ -542,7 +543,8 @@ def read_instanced_grains(scene, prim, xf_cache=None, material_cache=None, id=-1
             numbers(pi.GetProtoIndicesAttr(), 0, np.int64, "int[]"),
             numbers(pi.GetVelocitiesAttr(), 3, np.float32, "vector3f[]"),
             numbers(pi.GetAngularVelocitiesAttr(), 3, np.float32, "vector3f[]"),
-            scene.desc, lookup, id, orientations_real_last=True, mask=keep)
+            scene.desc, lookup, id, orientations_real_last=True, mask=keep,
+            link_categories=link_categories(scene, str(prim.GetPath())))
     except core.InputError as e:
         raise translate_core_error(e) from None
 
@@ -605,9 +607,39 @@ def read_camera(scene, prim, xf_cache):
     scene.name("camera", path, attrs)
 
 
+def _link_collection(light, name):
+    """The light's collection `name` ("lightLink", "shadowLink") as usd_lights.h names it: its
+    path and membership query, or None where it holds every prim (includeRoot alone, as
+    UsdImaging's collection cache finds it trivial and gives Hydra no category)."""
+    collection = light.GetLightLinkCollectionAPI() if name == "lightLink" else light.GetShadowLinkCollectionAPI()
+    query = collection.ComputeMembershipQuery()
+    if query.UsesPathExpansionRuleMap():
+        rules = query.GetAsPathExpansionRuleMap()
+        if len(rules) == 1 and rules.get(Sdf.Path.absoluteRootPath) == Usd.Tokens.expandPrims:
+            return None
+    return str(collection.GetCollectionPath()), query
+
+
+def _token_value(text):
+    v = core.UsdValue()
+    v.type_name = "token"
+    v.is_string = True
+    v.strings = [text]
+    return v
+
+
 def read_light(scene, prim, xf_cache):
-    """A UsdLux light through core (usd_lights.h)."""
+    """A UsdLux light through core (usd_lights.h), its light-link collections named in its
+    record (scene.light_links keeps the lightLink's query for the prims' categories)."""
     record = prim_record(prim, core.usd_light_attribute_names(), scene.time, xf_cache)
+    attrs = record.attributes
+    for name, entry in (("lightLink", core.USD_LIGHT_LINK), ("shadowLink", core.USD_SHADOW_LINK)):
+        link = _link_collection(UsdLux.LightAPI(prim), name)
+        if link is not None:
+            attrs[entry] = _token_value(link[0])
+            if name == "lightLink":
+                scene.light_links.append(link)
+    record.attributes = attrs
     light, warnings = _core_call(core.light_from_usd, record)
     for w in warnings:
         scene.warn(w)
@@ -678,6 +710,14 @@ def _motion_blur_disabled(settings):
     return disabled
 
 
+def link_categories(scene, path):
+    """The light-link collections (scene.light_links) that include the prim at path."""
+    if not scene.light_links or not Sdf.Path.IsValidPathString(path)[0]:
+        return []
+    p = Sdf.Path(path)
+    return [name for name, query in scene.light_links if query.IsPathIncluded(p)]
+
+
 def _is_light(prim):
     return prim.HasAPI(UsdLux.LightAPI)
 
@@ -738,6 +778,7 @@ def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_c
     # (Hydra's are its render index's).
     for i, mp in enumerate(prims):
         mp.id = i
+        mp.link_categories = link_categories(scene, mp.path)
     _assemble(scene, prims, xf_cache, material_cache)
     if surfaces:
         for k, prim in enumerate(scene.explicit_grains):

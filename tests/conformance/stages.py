@@ -514,6 +514,26 @@ def _():
     return scene(lights=sky() + sun(extra="        float inputs:diffuse = 0"))
 
 
+NORMALIZED = "        bool inputs:normalize = 1\n"  # a sun of irradiance 2: linking shows
+
+
+@stage("light_link_exclude", "a sun whose collection:lightLink excludes the ground (light linking)")
+def _():
+    return scene(lights=sky() + sun(extra=NORMALIZED + "        rel collection:lightLink:excludes = </World/Ground>"))
+
+
+@stage("light_link_include", "a sun that lights the aggregate alone (includeRoot 0, includes the pile)")
+def _():
+    link = NORMALIZED + "        uniform bool collection:lightLink:includeRoot = 0\n" \
+                        "        rel collection:lightLink:includes = </World/Pile>"
+    return granular_scene(lights=sky() + sun(extra=link))
+
+
+@stage("shadow_link", "a sun whose collection:shadowLink excludes the block (not supported: a warning)")
+def _():
+    return scene(lights=sky() + sun(extra="        rel collection:shadowLink:excludes = </World/Block>"))
+
+
 @stage("mesh_light", "a mesh with MeshLightAPI (a geometry light) and a dim sky")
 def _():
     card = mesh("Glow", [(-0.2, 0.9, -0.2), (0.2, 0.9, -0.2), (0.2, 0.9, 0.2), (-0.2, 0.9, 0.2)], [(0, 1, 2, 3)],
@@ -874,11 +894,11 @@ def _():
 """)
 
 
-@stage("native_instances", "two instanceable references to one prototype block (native instancing)")
-def _():
+def native_instances(lights=None):
+    """Two instanceable references /World/A and /World/B to one prototype block."""
     blk = box("Box", (-0.15, 0.0, -0.15), (0.15, 0.3, 0.15), display_color=(0.9, 0.7, 0.1))
     blk = blk.replace(chr(10) + "    ", chr(10) + "        ")
-    return scene(objects=block() + """
+    return scene(lights=lights, objects=block() + """
     def Xform "A" (
         instanceable = true
         prepend references = </Proto>
@@ -901,6 +921,16 @@ class Xform "Proto"
 {{{blk}
 }}
 """)
+
+
+@stage("native_instances", "two instanceable references to one prototype block (native instancing)")
+def _():
+    return native_instances()
+
+
+@stage("light_link_native_instances", "native_instances under a sun whose collection:lightLink excludes instance B")
+def _():
+    return native_instances(lights=sky() + sun(extra=NORMALIZED + "        rel collection:lightLink:excludes = </World/B>"))
 
 
 @stage("animated_points", "the block's points sampled (it grows), rendered at frame 2", time=2.0)

@@ -252,6 +252,22 @@ TEST(GranularPrims, OneAggregateAndOneMeshPerInstanceTransform) {
   EXPECT_DOUBLE_EQ(t.desc.aggregates.at(0).xf.m[0][0], 1.0);
 }
 
+TEST(GranularPrims, EachInstanceIsInThePrimsLightLinkCategoriesAndItsOwn) {
+  Stage s;
+  s["/World/Castle"].instances = {Transform(), Transform::translate(Vec3(5, 0, 0))};
+  s["/World/Castle"].linkCategories = {"rim"};
+  s["/World/Castle"].instanceLinkCategories = {{}, {"key", "fill"}};
+  s["/World/Ground"].linkCategories = {"key"};
+  s.assemble();
+  ASSERT_EQ(s.desc.aggregates.size(), 2u);
+  EXPECT_EQ(s.desc.aggregates[0].linkCategories, std::vector<std::string>{"rim"});
+  EXPECT_EQ(s.desc.aggregates[1].linkCategories, (std::vector<std::string>{"rim", "key", "fill"}));
+  EXPECT_EQ(s.desc.meshes.at(0).linkCategories, std::vector<std::string>{"key"});
+  Stage t;
+  t["/World/Ground"].instanceLinkCategories = {{"key"}, {"fill"}};  // one instance
+  EXPECT_EQ(errorOf([&] { t.assemble(); }), "/World/Ground.instanceCategories: 2 category lists for 1 instances");
+}
+
 TEST(GranularPrims, VisibilityAndTheGrainApiDecideWhatIsDrawn) {
   Stage s;
   s["/World/Grains/B"].visible = true;  // a visible prototype is still not drawn

@@ -751,6 +751,10 @@ TEST(Switching, TheSunsEntriesAreTheBoundaryItLights) {
   shaded.meshes.push_back(roof);
   EXPECT_TRUE(Scene::build(shaded)->sunSwitchViews()[0].entries.empty());
   EXPECT_TRUE(Scene::build(sunlitBall(0.53f, dir, 0.0f))->sunSwitchViews()[0].entries.empty());
+  // Nor does a sun linked away from the ball (light linking): it asks the ball for nothing.
+  SceneDesc unlinked = sunlitBall(0.53f, dir);
+  unlinked.lights[1].lightLink = "other";
+  EXPECT_TRUE(Scene::build(unlinked)->sunSwitchViews()[0].entries.empty());
 }
 
 TEST(Switching, TheSceneMeasuresTowardANarrowSunAndTakesTheLargerChoice) {

@@ -132,6 +132,23 @@ TEST(UsdLights, OtherTypesAndUnsupportedAttributesAreWarnedAbout) {
   EXPECT_EQ(w[0], "/Bulb.treatAsPoint: not supported; rendered as a sphere of inputs:radius");
 }
 
+TEST(UsdLights, ALightLinkCollectionNamedByTheFrontEndLinksTheLightAndAShadowLinkIsWarnedAbout) {
+  UsdWarnings w;
+  const LightDesc all = *lightFromUsd(usdRecord("/Sun", "DistantLight"), w);
+  EXPECT_EQ(all.lightLink, "");  // no collection named: it holds every prim
+  const LightDesc linked = *lightFromUsd(
+      usdRecord("/Sun", "DistantLight",
+                {{kUsdLightLink, usdText("token", "/Sun.collection:lightLink")},
+                 {kUsdShadowLink, usdText("token", "/Sun.collection:shadowLink")}}),
+      w);
+  EXPECT_EQ(linked.lightLink, "/Sun.collection:lightLink");
+  ASSERT_EQ(w.size(), 1u);
+  EXPECT_EQ(w[0], "/Sun.collection:shadowLink: shadow linking is not supported (every object casts shadows from every "
+                  "light); ignored");
+  EXPECT_EQ(errorOf(usdRecord("/Sun", "DistantLight", {{kUsdLightLink, usdNumbers("float", {1})}})),
+            "/Sun.collection:lightLink: has value 1, expected a token");
+}
+
 TEST(UsdLights, ColourTemperatureMultipliesTheColourByABlackbodyOfLuminanceOne) {
   for (float k : {1000.0f, 2700.0f, 6500.0f, 10000.0f}) {
     const Vec3 c = blackbodyRgb(k);

@@ -913,6 +913,51 @@ TEST(HdGranular, AnAreaLightHidesWhatLiesBehindItFromShadowRaysAsFromEveryRay) {
   std::printf("under the black bulb / under the dome alone: %.4f (exact %.4f, se %.4f)\n", ratio, fraction, se);
 }
 
+TEST(HdGranular, LightLinkingLightsOnlyTheLinkedPrimsAndFollowsEditsOfTheCollection) {
+  // A floor facing the camera under the dome and a normalised 20° sun from behind the camera
+  // (irradiance 3), the sun's collection:lightLink excluding the floor: the floor is as under
+  // the dome alone (nothing else is there to pass the sun's light on), as granular render
+  // renders it (tests/conformance: light_link_*). Then the exclusion is removed from the
+  // stage: the same engine renders the sunlit floor.
+  const std::string floor = R"(
+  def Mesh "Floor" {
+    point3f[] points = [(-20, -20, 0), (20, -20, 0), (20, 20, 0), (-20, 20, 0)]
+    int[] faceVertexCounts = [4]
+    int[] faceVertexIndices = [0, 1, 2, 3]
+  }
+)";
+  UsdStageRefPtr linked = domeLitStage(4, floor + R"(
+  def DistantLight "Sun" {
+    float inputs:angle = 20
+    float inputs:intensity = 3
+    bool inputs:normalize = 1
+    rel collection:lightLink:excludes = </World/Floor>
+  }
+)");
+  UsdStageRefPtr domeAlone = domeLitStage(4, floor);
+  const int size = 8;
+  auto estimate = [&](UsdImagingGLEngine& engine, UsdStageRefPtr const& stage, double& se) {
+    Frame c = render(engine, stage, HdAovTokens->color, size, size);
+    EXPECT_TRUE(c.converged);
+    Frame v = render(engine, stage, TfToken("variance"), size, size);
+    double variance = 0;
+    for (size_t p = 0; p < v.values.size(); p += 3) variance += v.values[p];
+    se = std::sqrt(variance) / (double(size) * size);
+    return mean(c, 0);
+  };
+  auto engine = makeEngine(32);
+  double seLinked = 0, seDome = 0, seSunlit = 0;
+  const double withLink = estimate(*engine, linked, seLinked);
+  const double underDome = estimate(*makeEngine(32), domeAlone, seDome);
+  EXPECT_NEAR(withLink, underDome, 4 * std::hypot(seLinked, seDome));
+  UsdRelationship excludes = linked->GetPrimAtPath(SdfPath("/World/Sun")).GetRelationship(TfToken("collection:lightLink:excludes"));
+  ASSERT_TRUE(excludes.ClearTargets(true));
+  const double sunlit = estimate(*engine, linked, seSunlit);
+  EXPECT_GT(sunlit, 1.5 * underDome);  // the sun's irradiance 3 against the dome's π
+  std::printf("floor: linked away %.4f ± %.4f, dome alone %.4f ± %.4f, sunlit %.4f\n", withLink, seLinked, underDome,
+              seDome, sunlit);
+}
+
 // The snow slab's grains alone (ground and sky hidden) under its 0.53° sun, explicit grains
 // of the given roughness: regularised to 5°, the image is the one of a normalised 5° sun with
 // the setting at 0, as granular render's (tests/python/test_physical_sun.py); 0 keeps the

@@ -172,6 +172,38 @@ def test_camera_lights_and_render_settings(tmp_path):
     assert any("PluginLight lights are not supported" in w for w in scene.warnings)
 
 
+def test_light_linking_names_each_lights_collection_and_the_prims_it_includes(tmp_path):
+    """A light's collection:lightLink that does not hold every prim is named by its path; the
+    prims it includes carry that name among their categories (core/usd_lights.h); a trivial
+    one (includeRoot alone) links nothing; a shadowLink is warned about."""
+    def mutate(stage):
+        add_mesh(stage, "/World/Ground", core.make_box((-1, -0.1, -1), (1, 0, 1)))
+        add_mesh(stage, "/World/Props/Wall", core.make_box((-1, 0, -1), (1, 1, -0.9)))
+        sun = UsdLux.LightAPI(stage.GetPrimAtPath("/World/Sun"))
+        sun.GetLightLinkCollectionAPI().GetExcludesRel().AddTarget("/World/Ground")
+        key = UsdLux.SphereLight.Define(stage, "/World/Key")
+        link = UsdLux.LightAPI(key).GetLightLinkCollectionAPI()
+        link.GetIncludeRootAttr().Set(False)
+        link.GetIncludesRel().AddTarget("/World/Props")
+        link.GetIncludesRel().AddTarget("/World/Castle")
+        UsdLux.LightAPI(key).GetShadowLinkCollectionAPI().GetExcludesRel().AddTarget("/World/Castle")
+        UsdLux.DomeLight.Define(stage, "/World/Sky")
+
+    scene = read_stage(str(small_scene(tmp_path / "s.usda", mutate)))
+    d = scene.desc
+    lights = {l.name: l.light_link for l in d.lights}
+    assert lights == {"/World/Sun": "/World/Sun.collection:lightLink",
+                      "/World/Key": "/World/Key.collection:lightLink", "/World/Sky": ""}
+    meshes = {m.name: list(m.link_categories) for m in d.meshes}
+    assert meshes == {"/World/Ground": [], "/World/Props/Wall": ["/World/Sun.collection:lightLink",
+                                                                 "/World/Key.collection:lightLink"]}
+    assert list(d.aggregates[0].link_categories) == ["/World/Sun.collection:lightLink",
+                                                     "/World/Key.collection:lightLink"]
+    assert [w for w in scene.warnings if "shadowLink" in w] == [
+        "/World/Key.collection:shadowLink: shadow linking is not supported (every object casts shadows from "
+        "every light); ignored"]
+
+
 def test_info_mode_needs_no_camera_and_reads_no_surfaces(tmp_path):
     def mutate(stage):
         stage.RemovePrim("/World/Camera")
