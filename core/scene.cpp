@@ -993,6 +993,7 @@ void Scene::buildLightLinks(const SceneDesc& desc, const std::vector<LightDesc>&
   for (const auto& g : desc.instancedGrains) categories.push_back(&g.linkCategories);
   linkObjects_ = int(categories.size());
   unlit_.clear();
+  lightLinksText_.clear();
   linkPicks_.clear();
   objectPick_.clear();
   bool linked = false;
@@ -1001,10 +1002,14 @@ void Scene::buildLightLinks(const SceneDesc& desc, const std::vector<LightDesc>&
   unlit_.assign(lights.size() * categories.size(), 0);
   for (size_t i = 0; i < lights.size(); ++i) {
     if (lights[i].lightLink.empty()) continue;
+    size_t lit = 0;
     for (size_t o = 0; o < categories.size(); ++o) {
       const auto& c = *categories[o];
       unlit_[i * categories.size() + o] = std::find(c.begin(), c.end(), lights[i].lightLink) == c.end();
+      lit += !unlit_[i * categories.size() + o];
     }
+    lightLinksText_ += str(lightLinksText_.empty() ? "" : "; ", lights[i].name, " lights ", lit, " of ",
+                           categories.size(), " objects");
   }
   // Each object picks among the lights that reach it (an object no light reaches, among
   // all: its estimates are 0 either way). One pick per distinct set of lights.

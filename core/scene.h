@@ -376,6 +376,9 @@ class Scene {
   int linkObjectOf(const Hit& hit) const;
   int aggregateLinkObject(int a) const { return linkMeshes_ + a; }
   int instancerLinkObject(int k) const { return linkMeshes_ + int(aggregates_.size()) + k; }
+  // For the front ends' logs: "/World/Rim lights 2 of 14 objects" per linked light, "; "
+  // between them; "" when no light is linked.
+  const std::string& lightLinksText() const { return lightLinksText_; }
   bool lightReaches(int light, int object) const {
     return unlit_.empty() || object < 0 || !unlit_[size_t(light) * size_t(linkObjects_) + size_t(object)];
   }
@@ -589,6 +592,7 @@ class Scene {
   // linkPicks_ (one per set of lights that reach an object).
   std::vector<uint8_t> unlit_;
   int linkMeshes_ = 0, linkObjects_ = 0;
+  std::string lightLinksText_;
   std::vector<float> pickWeights_;  // lightPick_'s weights
   std::vector<Distribution1D> linkPicks_;
   std::vector<int> objectPick_;

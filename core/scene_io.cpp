@@ -28,7 +28,7 @@ using json = nlohmann::json;
 namespace fs = std::filesystem;
 
 std::string preview(const json& v) {
-  std::string s = v.dump();
+  std::string s = v.dump(-1, ' ', /*ensure_ascii=*/true);  // cut below: never inside a character
   return s.size() > 40 ? s.substr(0, 37) + "..." : s;
 }
 std::string describe(const json& v) { return str(v.type_name(), " ", preview(v)); }

@@ -186,7 +186,7 @@ std::optional<Vec3> displayColorFromUsd(const UsdValue& v, const UsdMeshRecord* 
   const std::string& where = v.source.empty() ? prim : v.source;
   if (v.isString || v.numbers.size() % 3 != 0)
     throw InputError(where, "primvars:displayColor",
-                     str("has value ", describeUsdValue(v).substr(0, 60), " of type ", v.typeName, ", expected color3f[]"));
+                     str("has value ", describeUsdValueShort(v), " of type ", v.typeName, ", expected color3f[]"));
   if (v.numbers.empty()) return std::nullopt;
   if (mesh && v.interpolation != "constant") {
     const size_t expected = usdPrimvarElements(*mesh, v.interpolation), found = v.numbers.size() / 3;

@@ -18,8 +18,7 @@ const UsdValue* find(const UsdPrimRecord& r, const std::string& name) {
 const std::string& where(const UsdPrimRecord& r, const UsdValue& v) { return v.source.empty() ? r.path : v.source; }
 
 [[noreturn]] void wrongType(const UsdPrimRecord& r, const std::string& name, const UsdValue& v, const char* expected) {
-  std::string text = describeUsdValue(v);
-  if (text.size() > 60) text = text.substr(0, 57) + "...";
+  std::string text = describeUsdValueShort(v);
   if (v.numbers.empty() && v.strings.empty()) text = "of type " + v.typeName;
   throw InputError(where(r, v), name, str("has value ", text, ", expected ", expected));
 }
@@ -27,6 +26,14 @@ const std::string& where(const UsdPrimRecord& r, const UsdValue& v) { return v.s
 bool numeric(const UsdValue& v) { return !v.isString && v.strings.empty() && v.typeName != "bool"; }
 
 }  // namespace
+
+std::string describeUsdValueShort(const UsdValue& v, size_t limit) {
+  std::string text = describeUsdValue(v);
+  if (text.size() <= limit) return text;
+  size_t cut = limit > 3 ? limit - 3 : 0;
+  while (cut > 0 && (static_cast<unsigned char>(text[cut]) & 0xC0) == 0x80) --cut;  // a continuation byte
+  return text.substr(0, cut) + "...";
+}
 
 std::string describeUsdValue(const UsdValue& v) {
   std::string s;

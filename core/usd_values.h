@@ -81,5 +81,8 @@ void checkInUsdNames(const std::string& prim, Check&& check, Rename&& rename) {
 
 // The value as a user would write it ("0.5", "(1, 0, 0)", "['a', 'b']"), for messages.
 std::string describeUsdValue(const UsdValue& v);
+// The same, at most `limit` bytes: cut with "..." at a character's start, so that a string
+// value's multi-byte UTF-8 characters are never split (a front end decodes the message).
+std::string describeUsdValueShort(const UsdValue& v, size_t limit = 60);
 
 }  // namespace granular

@@ -397,7 +397,11 @@ ATTRS += [("/World/Sun", "inputs:angle", "float", H(0, 10)), ("/World/Sky", "inp
            H(choices=["automatic", "latlong", "mirroredBall", "angular", "cubeMapVerticalCross"])),
           ("/World/Panel", "inputs:width", "float", H(0, 2)), ("/World/Panel", "inputs:height", "float", H(0, 2)),
           ("/World/Panel", "inputs:texture:file", "asset", H()), ("/World/Bulb", "inputs:radius", "float", H(0, 0.5)),
-          ("/World/Bulb", "treatAsPoint", "bool", H()), ("/World/Sun", "inputs:radius", "float", H(0, 1))]
+          ("/World/Bulb", "treatAsPoint", "bool", H()), ("/World/Sun", "inputs:radius", "float", H(0, 1)),
+          ("/World/Sun", "collection:lightLink:includeRoot", "bool", H()),
+          ("/World/Panel", "collection:lightLink:includeRoot", "bool", H()),
+          ("/World/Sun", "collection:lightLink:expansionRule", "token",
+           H(choices=["expandPrims", "explicitOnly", "expandPrimsAndProperties", "bogus"]))]
 for _c in CAMERAS:
     ATTRS += [(_c, "focalLength", "float", H(1, 100)), (_c, "horizontalAperture", "float", H(1, 50)),
               (_c, "verticalAperture", "float", H(1, 50)), (_c, "horizontalApertureOffset", "float", H(-5, 5)),
@@ -500,10 +504,13 @@ SOURCES = [TEXTURE + ".outputs:rgb", TEXTURE + ".outputs:r", TEXTURE + ".outputs
 RELS = [("/World/Castle", "material:binding"), ("/World/Ground", "material:binding"), ("/World/Ball", "material:binding"),
         ("/World/Block", "material:binding"), ("/World/Grains/C", "material:binding"), ("/World", "material:binding"),
         ("/World/Grains/A", "material:binding"), ("/Render/Settings", "camera"), ("/Render/Settings", "products"),
-        ("/Render/Product", "camera"), ("/World/Instancer", "prototypes")]
+        ("/Render/Product", "camera"), ("/World/Instancer", "prototypes"),
+        # light linking: the collections' includes and excludes, on lights and elsewhere
+        ("/World/Sun", "collection:lightLink:excludes"), ("/World/Panel", "collection:lightLink:includes"),
+        ("/World/Bulb", "collection:shadowLink:excludes"), ("/World/Castle", "collection:lightLink:includes")]
 TARGETS = ["/World/Looks/Plain", "/World/Looks/Glass", "/World/Looks/Textured", "/World/Camera", "/World/Camera2",
            "/World/Sun", "/Render/Product", "/Render/Settings", "/Nope", "/World/Camera.focalLength",
-           "/World/Looks/Textured/Surface", "/World/Castle"]
+           "/World/Looks/Textured/Surface", "/World/Castle", "/World/Ground", "/World", "/"]
 TYPES = ["Mesh", "Cube", "Sphere", "Cylinder", "Cone", "Capsule", "Xform", "Scope", "Camera", "DistantLight",
          "DomeLight", "DomeLight_1", "RectLight", "SphereLight", "DiskLight", "CylinderLight", "PointInstancer",
          "RenderSettings", "RenderProduct", "Material", "Shader", "", "NoSuchType"]
@@ -522,6 +529,8 @@ def m_xform(stage, fdp):
     name, type_name, hint = fdp.PickValueInList(OPS)
     what = author(stage, path, name, type_name, fdp, hint)
     prim = stage.GetPrimAtPath(path)
+    if not prim:  # not composed (an ancestor made inactive, m_active): the op's spec alone
+        return what
     order = list(prim.GetAttribute("xformOpOrder").Get() or [])
     k = fdp.ConsumeIntInRange(0, 3)
     if k == 0:

@@ -283,6 +283,8 @@ VtDictionary HdGranularRenderer::GetStats() const {
     stats["granular:widenedSuns"] = VtValue(int(_scene->widenedSuns().size()));
     // Each light's chance in light sampling, in granular render's words ("" with one light).
     stats["granular:lightPicks"] = VtValue(_scene->lightPicksText());
+    // Light linking: each linked light and how many objects it lights ("" when none is linked).
+    stats["granular:lightLinks"] = VtValue(_scene->lightLinksText());
     // What carries the low orders: proxies (granular:proxies), and how many bounces before
     // the medium.
     stats["granular:proxies"] = VtValue(_scene->useProxies());

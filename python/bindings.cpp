@@ -630,6 +630,8 @@ PYBIND11_MODULE(granular_core, m) {
       .def("add_light", [](SceneDesc& d, const LightDesc& x) { d.lights.push_back(x); return int(d.lights.size()) - 1; })
       .def("add_aggregate", [](SceneDesc& d, const AggregateDesc& x) { d.aggregates.push_back(x); return int(d.aggregates.size()) - 1; })
       .def_property_readonly("num_instanced_grains", [](const SceneDesc& d) { return d.instancedGrains.size(); })
+      .def_property_readonly("instanced_grains", [](const SceneDesc& d) { return d.instancedGrains; },
+                             "a copy (the per-grain arrays are shared, not copied)")
       .def("add_instanced_grains", [](SceneDesc& d, const InstancedGrainsDesc& x) {
         d.instancedGrains.push_back(x);
         return int(d.instancedGrains.size()) - 1;
@@ -1078,6 +1080,9 @@ PYBIND11_MODULE(granular_core, m) {
                              "the warning about delta suns rendered as the physical sun (\"\" when none)")
       .def_property_readonly("light_picks", [](const PyScene& s) { return s.scene->lightPicksText(); },
                              "each light's chance in light sampling, \"sun 87.6%, sky 12.4%\" (\"\" with one light)")
+      .def_property_readonly("light_links", [](const PyScene& s) { return s.scene->lightLinksText(); },
+                             "each linked light and the objects it lights, \"/World/Rim lights 2 of 14 objects\" "
+                             "(\"\" when no light is linked)")
       .def_property_readonly("has_media", [](const PyScene& s) { return s.scene->hasMedia(); },
                              "whether the integrator uses the equivalent media (VPT, DA) in this scene")
       .def_property_readonly("use_proxies", [](const PyScene& s) { return s.scene->useProxies(); },

@@ -203,7 +203,9 @@ def usd_value(attr, time):
     if not attr or not attr.HasValue():
         return None
     v = attr.Get(time)
-    type_name = schema.authored_type(attr)
+    # A blocked value (None in a layer) is the schema's fallback, of the schema's type,
+    # whatever type the block was authored with.
+    type_name = schema.authored_type(attr) if attr.HasAuthoredValue() else str(attr.GetTypeName())
     if v is None and type_name == str(attr.GetTypeName()):
         return None
     out = core.UsdValue()

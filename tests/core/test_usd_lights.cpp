@@ -190,4 +190,14 @@ TEST(UsdLights, BadValuesNameThePrimAndItsAttribute) {
             "/Sky.inputs:texture:file: \"no/such.exr\" cannot be found");
   EXPECT_EQ(errorOf(usdRecord("/L", "SphereLight", {{"inputs:color", usdNumbers("color3f", {1, 1})}})),
             "/L.inputs:color: has value (1, 1), expected 3 numbers");
+  // A long value is cut for the message at a character's start, never inside a UTF-8
+  // character (fuzz_usd_stage: the Python front end could not decode the message).
+  const std::string word = "\xc3\xa9t\xc3\xa9";  // "été": 5 bytes, 3 characters
+  std::string longText;
+  for (int i = 0; i < 20; ++i) longText += word;
+  const std::string e = errorOf(usdRecord("/L", "SphereLight", {{"inputs:intensity", usdText("token", longText)}}));
+  const std::string shown = e.substr(e.find('\'') + 1, e.find("...") - e.find('\'') - 1);
+  EXPECT_LE(shown.size(), 56u) << e;
+  EXPECT_EQ(longText.compare(0, shown.size(), shown), 0) << e;
+  EXPECT_NE((static_cast<unsigned char>(longText[shown.size()]) & 0xC0), 0x80u) << e;  // cut before a character
 }

@@ -361,6 +361,7 @@ TEST(HdGranular, EveryDocumentedRenderStatIsReported) {
   EXPECT_NE(picks.find("/World/Sun "), std::string::npos) << picks;
   EXPECT_NE(picks.find("/World/Sky "), std::string::npos) << picks;
   EXPECT_NE(picks.find('%'), std::string::npos) << picks;
+  EXPECT_EQ(stat<std::string>(stats, "granular:lightLinks"), "");  // no light is linked
   EXPECT_EQ(stat<int>(stats, "granular:sceneBuilds"), 1);
   EXPECT_EQ(stat<int>(stats, "granular:aggregatesBuilt"), 1);
   EXPECT_EQ(stat<int>(stats, "granular:aggregatesReused"), 0);
@@ -851,6 +852,31 @@ TEST(HdGranular, ADeltaSunOverSmoothGrainsIsThePhysicalSunUnlessTurnedOff) {
   EXPECT_EQ(stat<int>(engine->GetRenderStats(), "granular:sceneBuilds"), 2);  // a setting that rebuilds
 }
 
+namespace {
+
+// A floor (40 x 40, the z = 0 plane) facing domeLitStage's camera, 10 away.
+const char* const kFloorFacingCamera = R"(
+  def Mesh "Floor" {
+    point3f[] points = [(-20, -20, 0), (20, -20, 0), (20, 20, 0), (-20, 20, 0)]
+    int[] faceVertexCounts = [4]
+    int[] faceVertexIndices = [0, 1, 2, 3]
+  }
+)";
+
+// The mean red radiance of a size x size render of the stage and its standard error, from
+// the variance AOV (per pixel, the variance of its mean; the pixels are independent).
+double meanAndError(UsdImagingGLEngine& engine, UsdStageRefPtr const& stage, int size, double& se) {
+  Frame c = render(engine, stage, HdAovTokens->color, size, size);
+  EXPECT_TRUE(c.converged);
+  Frame v = render(engine, stage, TfToken("variance"), size, size);
+  double variance = 0;
+  for (size_t p = 0; p < v.values.size(); p += 3) variance += v.values[p];
+  se = std::sqrt(variance) / (double(size) * size);
+  return mean(c, 0);
+}
+
+}  // namespace
+
 TEST(HdGranular, AnAreaLightHidesWhatLiesBehindItFromShadowRaysAsFromEveryRay) {
   // A floor facing the camera (10 away) under the dome and a 20° sun behind the camera, and
   // a black sphere light of radius 5 centred on the camera (its rays start inside it, which
@@ -858,13 +884,7 @@ TEST(HdGranular, AnAreaLightHidesWhatLiesBehindItFromShadowRaysAsFromEveryRay) {
   // projected solid angle π (r/δ)² cos θ of the dome (δ to its centre, cos θ = 10/δ), as
   // in core's AreaLightOcclusion test: the floor's radiance is that under the dome alone
   // times 1 − 250/δ³. When shadow rays crossed area lights, light sampling found the sun.
-  const std::string floor = R"(
-  def Mesh "Floor" {
-    point3f[] points = [(-20, -20, 0), (20, -20, 0), (20, 20, 0), (-20, 20, 0)]
-    int[] faceVertexCounts = [4]
-    int[] faceVertexIndices = [0, 1, 2, 3]
-  }
-)";
+  const std::string floor = kFloorFacingCamera;
   UsdStageRefPtr hidden = domeLitStage(4, floor + R"(
   def DistantLight "Sun" {
     float inputs:angle = 20
@@ -878,22 +898,10 @@ TEST(HdGranular, AnAreaLightHidesWhatLiesBehindItFromShadowRaysAsFromEveryRay) {
   }
 )");
   UsdStageRefPtr open = domeLitStage(4, floor);
-  const int size = 16;
-  // The image's mean radiance and the variance of that mean (the variance AOV: per pixel,
-  // the variance of its mean; the pixels are independent). An engine per stage.
-  auto estimate = [&](UsdStageRefPtr const& stage, double& variance) {
-    auto engine = makeEngine(64);
-    Frame c = render(*engine, stage, HdAovTokens->color, size, size);
-    EXPECT_TRUE(c.converged);
-    Frame v = render(*engine, stage, TfToken("variance"), size, size);
-    variance = 0;
-    for (size_t p = 0; p < v.values.size(); p += 3) variance += v.values[p];
-    const double n = double(size) * size;
-    variance /= n * n;
-    return mean(c, 0);
-  };
-  double varHidden = 0, varOpen = 0;
-  const double withBulb = estimate(hidden, varHidden), underDome = estimate(open, varOpen);
+  // An engine per stage.
+  double seHidden = 0, seOpen = 0;
+  const double withBulb = meanAndError(*makeEngine(64), hidden, 16, seHidden);
+  const double underDome = meanAndError(*makeEngine(64), open, 16, seOpen);
   ASSERT_GT(underDome, 0.0);
   // The camera (focal length 50, aperture 4) sees the floor over [−0.4, 0.4]²: the mean of
   // 1 − 250/δ³ over it by the midpoint rule (a smooth integrand: error < 1e-6).
@@ -907,7 +915,7 @@ TEST(HdGranular, AnAreaLightHidesWhatLiesBehindItFromShadowRaysAsFromEveryRay) {
     }
   // The ratio's standard error from both means' (their relative errors added in quadrature).
   const double ratio = withBulb / underDome;
-  const double se = ratio * std::hypot(std::sqrt(varHidden) / withBulb, std::sqrt(varOpen) / underDome);
+  const double se = ratio * std::hypot(seHidden / withBulb, seOpen / underDome);
   EXPECT_GT(se, 0.0);
   EXPECT_NEAR(ratio, fraction, 4 * se) << "se " << se;
   std::printf("under the black bulb / under the dome alone: %.4f (exact %.4f, se %.4f)\n", ratio, fraction, se);
@@ -919,13 +927,7 @@ TEST(HdGranular, LightLinkingLightsOnlyTheLinkedPrimsAndFollowsEditsOfTheCollect
   // the dome alone (nothing else is there to pass the sun's light on), as granular render
   // renders it (tests/conformance: light_link_*). Then the exclusion is removed from the
   // stage: the same engine renders the sunlit floor.
-  const std::string floor = R"(
-  def Mesh "Floor" {
-    point3f[] points = [(-20, -20, 0), (20, -20, 0), (20, 20, 0), (-20, 20, 0)]
-    int[] faceVertexCounts = [4]
-    int[] faceVertexIndices = [0, 1, 2, 3]
-  }
-)";
+  const std::string floor = kFloorFacingCamera;
   UsdStageRefPtr linked = domeLitStage(4, floor + R"(
   def DistantLight "Sun" {
     float inputs:angle = 20
@@ -935,24 +937,15 @@ TEST(HdGranular, LightLinkingLightsOnlyTheLinkedPrimsAndFollowsEditsOfTheCollect
   }
 )");
   UsdStageRefPtr domeAlone = domeLitStage(4, floor);
-  const int size = 8;
-  auto estimate = [&](UsdImagingGLEngine& engine, UsdStageRefPtr const& stage, double& se) {
-    Frame c = render(engine, stage, HdAovTokens->color, size, size);
-    EXPECT_TRUE(c.converged);
-    Frame v = render(engine, stage, TfToken("variance"), size, size);
-    double variance = 0;
-    for (size_t p = 0; p < v.values.size(); p += 3) variance += v.values[p];
-    se = std::sqrt(variance) / (double(size) * size);
-    return mean(c, 0);
-  };
   auto engine = makeEngine(32);
   double seLinked = 0, seDome = 0, seSunlit = 0;
-  const double withLink = estimate(*engine, linked, seLinked);
-  const double underDome = estimate(*makeEngine(32), domeAlone, seDome);
+  const double withLink = meanAndError(*engine, linked, 8, seLinked);
+  EXPECT_EQ(stat<std::string>(engine->GetRenderStats(), "granular:lightLinks"), "/World/Sun lights 0 of 1 objects");
+  const double underDome = meanAndError(*makeEngine(32), domeAlone, 8, seDome);
   EXPECT_NEAR(withLink, underDome, 4 * std::hypot(seLinked, seDome));
   UsdRelationship excludes = linked->GetPrimAtPath(SdfPath("/World/Sun")).GetRelationship(TfToken("collection:lightLink:excludes"));
   ASSERT_TRUE(excludes.ClearTargets(true));
-  const double sunlit = estimate(*engine, linked, seSunlit);
+  const double sunlit = meanAndError(*engine, linked, 8, seSunlit);
   EXPECT_GT(sunlit, 1.5 * underDome);  // the sun's irradiance 3 against the dome's π
   std::printf("floor: linked away %.4f ± %.4f, dome alone %.4f ± %.4f, sunlit %.4f\n", withLink, seLinked, underDome,
               seDome, sunlit);

@@ -110,8 +110,8 @@ def main():
         checks = {
             "renderer is Granular": r["renderer"] == "Granular",
             "converged": r["converged"] and r.get("ept_converged", False),
-            "menu has the three commands": r["menu"] == ["Export Coarse Density to VDB...",
-                                                         "Statistics of Selected Prim", "Toggle EPT-only Reference"],
+            "menu has the four commands": r["menu"] == ["Export Coarse Density to VDB...", "Light Links of Selected Light",
+                                                        "Statistics of Selected Prim", "Toggle EPT-only Reference"],
             "statistics name the aggregate": stats.startswith(aggregate + "\n") and "sigma_t" in stats,
             "VDB written with grid density": bool(r["vdb"]) and [g["name"] for g in core.read_vdb_grids(r["vdb"])]
             == ["density"],

@@ -51,6 +51,23 @@ def test_one_light_says_nothing(tmp_path, capsys):
     assert "light sampling picks" not in err
 
 
+def test_render_says_what_each_linked_light_lights(tmp_path, capsys):
+    """Light linking (core: Scene::lightLinksText): each linked light and how many of the
+    scene's objects it lights; nothing when no light is linked."""
+    def mutate(stage):
+        _with_sky(20.0)(stage)
+        UsdGeom.Cube.Define(stage, "/World/Block")
+        link = UsdLux.LightAPI(stage.GetPrimAtPath("/World/Sun")).GetLightLinkCollectionAPI()
+        link.GetExcludesRel().AddTarget("/World/Block")
+    stage = small_scene(tmp_path / "linked.usda", mutate)
+    rc, _, err = run_cli(["render", stage, "-o", tmp_path / "linked.exr", *OPTIONS], capsys)
+    assert rc == 0, err
+    assert "  light linking: /World/Sun lights 1 of 2 objects" in err.splitlines(), err  # the castle, not the block
+    rc, _, err = run_cli(["render", small_scene(tmp_path / "sky.usda", _with_sky(20.0)), "-o", tmp_path / "sky.exr",
+                          *OPTIONS], capsys)
+    assert rc == 0 and "light linking" not in err, err
+
+
 def _floor_under(path, bulb):
     """A floor facing the camera 15 below it under the uniform dome; with `bulb`, a 20° sun
     behind the camera and a black sphere light of radius 7.5 centred on the camera."""

@@ -204,6 +204,23 @@ def test_light_linking_names_each_lights_collection_and_the_prims_it_includes(tm
         "every light); ignored"]
 
 
+def test_a_value_blocked_with_another_type_is_the_schemas_fallback(tmp_path, capsys):
+    """`string inputs:exposure = None` (fuzz_usd_stage): a block falls back to the schema's
+    value, a float, which the reader took for the string the block was typed as and broke
+    on (a Python TypeError, exit 1). It is the fallback, as any host reads it."""
+    from conftest import run_cli
+
+    def mutate(stage):
+        spec = stage.GetRootLayer().GetPrimAtPath("/World/Sun")
+        Sdf.AttributeSpec(spec, "inputs:exposure", Sdf.ValueTypeNames.String).default = Sdf.ValueBlock()
+        Sdf.AttributeSpec(spec, "inputs:angle", Sdf.ValueTypeNames.Token).default = Sdf.ValueBlock()
+    path = small_scene(tmp_path / "s.usda", mutate)
+    sun = read_stage(str(path)).desc.lights[0]
+    assert (sun.exposure, sun.angle) == (0.0, pytest.approx(0.53))  # UsdLux's fallbacks
+    rc, _, err = run_cli(["render", path, "-o", tmp_path / "o.exr", "--width", 8, "--height", 6, "--spp", 1], capsys)
+    assert rc == 0, err
+
+
 def test_info_mode_needs_no_camera_and_reads_no_surfaces(tmp_path):
     def mutate(stage):
         stage.RemovePrim("/World/Camera")

@@ -37,6 +37,21 @@ def test_nothing_granular_selected_says_so():
     assert commands.statistics_text(stage, ["/World/Ground"]).startswith("No granular aggregate selected")
 
 
+def test_light_links_list_what_each_selected_light_lights(tmp_path):
+    from pxr import UsdGeom, UsdLux
+
+    def mutate(stage):
+        UsdGeom.Cube.Define(stage, "/World/Block")
+        UsdLux.LightAPI(stage.GetPrimAtPath("/World/Sun")).GetLightLinkCollectionAPI().GetExcludesRel().AddTarget(
+            "/World/Block")
+        UsdLux.DomeLight.Define(stage, "/World/Sky")
+    stage = Usd.Stage.Open(str(small_scene(tmp_path / "s.usda", mutate)))
+    assert commands.light_links_text(stage, ["/World/Sun", "/World/Sky"]).splitlines() == [
+        "/World/Sun lights 1 of 2 objects", "  lights /World/Castle", "  not /World/Block",
+        "/World/Sky lights every object (its collection:lightLink holds every prim)"]
+    assert commands.light_links_text(stage, ["/World/Castle"]) == "No light selected (select a UsdLux light)."
+
+
 def test_export_density_writes_a_vdb_with_sigma_t_inside(tmp_path):
     stage = Usd.Stage.Open(str(EXAMPLES / "snowslab.usda"))
     out = tmp_path / "snow.vdb"

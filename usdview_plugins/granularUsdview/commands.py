@@ -34,6 +34,35 @@ def statistics_text(stage, paths):
     return "\n".join(lines)
 
 
+def light_links_text(stage, paths):
+    """What each selected light lights (UsdLux light linking), as both front ends read it: the
+    drawn meshes, aggregates and simulated grains its collection:lightLink includes."""
+    from pxr import UsdLux
+    from granular import usd_reader
+    lights = [str(p) for p in paths if stage.GetPrimAtPath(str(p)) and
+              stage.GetPrimAtPath(str(p)).HasAPI(UsdLux.LightAPI)]
+    if not lights:
+        return "No light selected (select a UsdLux light)."
+    scene = usd_reader.read_stage(stage.GetRootLayer().realPath, stage=stage, need_camera=False)
+    d = scene.desc
+    objects = {}  # name -> its categories (a prim's instances share them here)
+    for o in list(d.meshes) + list(d.aggregates) + list(d.instanced_grains):
+        objects.setdefault(o.name, set()).update(o.link_categories)
+    links = {l.name: l.light_link for l in d.lights}
+    lines = []
+    for path in lights:
+        if path not in links:
+            lines.append(f"{path}: not rendered (see the render's warnings)")
+        elif not links[path]:
+            lines.append(f"{path} lights every object (its collection:lightLink holds every prim)")
+        else:
+            lit = sorted(n for n, c in objects.items() if links[path] in c)
+            unlit = sorted(n for n in objects if n not in lit)
+            lines.append(f"{path} lights {len(lit)} of {len(objects)} objects")
+            lines += [f"  lights {n}" for n in lit] + [f"  not {n}" for n in unlit]
+    return "\n".join(lines)
+
+
 def export_density_text(stage, prim_path, output, voxel_size=None):
     """Writes the aggregate's coarse density to an OpenVDB file; returns a summary."""
     api = _api()

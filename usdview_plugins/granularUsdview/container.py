@@ -23,6 +23,13 @@ def _statistics(usdviewApi):
         _error(usdviewApi, "Granular statistics", e)
 
 
+def _light_links(usdviewApi):
+    try:
+        _show(usdviewApi, "Light links", commands.light_links_text(usdviewApi.stage, usdviewApi.selectedPaths))
+    except Exception as e:  # a user error names the prim and attribute
+        _error(usdviewApi, "Light links", e)
+
+
 def _export(usdviewApi):
     from pxr.Usdviewq.qt import QtWidgets
     paths = [str(p) for p in usdviewApi.selectedPaths]
@@ -58,6 +65,8 @@ class GranularPluginContainer(PluginContainer):
     def registerPlugins(self, plugRegistry, usdviewApi):
         self._statistics = plugRegistry.registerCommandPlugin(
             "GranularPluginContainer.statistics", "Statistics of Selected Prim", _statistics)
+        self._links = plugRegistry.registerCommandPlugin(
+            "GranularPluginContainer.lightLinks", "Light Links of Selected Light", _light_links)
         self._export = plugRegistry.registerCommandPlugin(
             "GranularPluginContainer.exportDensity", "Export Coarse Density to VDB...", _export)
         self._reference = plugRegistry.registerCommandPlugin(
@@ -66,6 +75,7 @@ class GranularPluginContainer(PluginContainer):
     def configureView(self, plugRegistry, plugUIBuilder):
         menu = plugUIBuilder.findOrCreateMenu("Granular")
         menu.addItem(self._statistics)
+        menu.addItem(self._links)
         menu.addItem(self._export)
         menu.addSeparator()
         menu.addItem(self._reference)
