@@ -1030,7 +1030,7 @@ void Scene::buildLightLinks(const SceneDesc& desc, const std::vector<LightDesc>&
 
 int Scene::linkObjectOf(const Hit& hit) const {
   switch (hit.kind) {
-    case Hit::Surface: return hit.geom;
+    case Hit::Surface: return hit.geom >= 0 && hit.geom < linkMeshes_ ? hit.geom : -1;
     case Hit::Grain:
     case Hit::Proxy:
     case Hit::Boundary:

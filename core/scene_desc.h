@@ -148,8 +148,8 @@ struct LightDesc {
   // Light linking (UsdLuxLightAPI's collection:lightLink): empty, the light lights every
   // object; else only the meshes, aggregates and instanced grains whose linkCategories hold
   // this name. At every vertex of a path (a surface's, a grain's, a proxy's, the medium's,
-  // DA's) the light then counts only if it lights that vertex's object, sampled or met:
-  // light an excluded object passes on to others still reaches it. The camera sees it.
+  // DA's) the light then counts only if it lights that vertex's object, sampled or met;
+  // what the objects it lights pass on still reaches the others. The camera sees it.
   std::string lightLink;
 };
 
