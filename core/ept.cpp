@@ -89,11 +89,13 @@ Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir)
 namespace {
 
 // Whether a smooth chain that leaves in world direction dir, seeing narrow suns widened to
-// halfAngle, would find a sun there (escapedRadiance).
-bool escapesToSun(const Scene& scene, const Vec3& dir, float halfAngle) {
+// halfAngle, would find a sun there that counts at linkObject (escapedRadiance).
+bool escapesToSun(const Scene& scene, const Vec3& dir, float halfAngle, int linkObject) {
   for (int li : scene.infiniteLights()) {
     const Light& light = scene.lights()[li];
-    if (light.type() == LightType::Distant && !isBlack(light.escapedLeSeen(dir, halfAngle))) return true;
+    if (light.type() == LightType::Distant && scene.lightReaches(li, linkObject) &&
+        !isBlack(light.escapedLeSeen(dir, halfAngle)))
+      return true;
   }
   return false;
 }
@@ -138,7 +140,7 @@ bool sampleSmoothTowardSuns(const Scene& scene, const PathState& path, const Mat
     // The disk the branch would see: 0 (exact) before any grain, where spreadHere is 0 too.
     const float half = chainHalfAngle(scene, path.sunFirstSpread,
                                       path.sunChainSpread + spreadHere * bendPerNormalTurn(m, wo, leaving, !outside));
-    if (escapesToSun(scene, frame.toWorld(leaving), half)) pReflect = outside ? std::max(F, 0.5f) : std::min(F, 0.5f);
+    if (escapesToSun(scene, frame.toWorld(leaving), half, path.linkObject)) pReflect = outside ? std::max(F, 0.5f) : std::min(F, 0.5f);
   }
   return Material::sampleSmooth(b, pReflect, uLobe, bs);
 }

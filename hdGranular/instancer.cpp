@@ -84,6 +84,16 @@ std::vector<int64_t> integers(VtValue const& v) {
   return {};
 }
 
+// Nested instancing, in ComputeInstanceTransforms' order: outer instances, each with all
+// of ours; element (a, b) is combine(ours[b], a).
+template <class Out, class Ours, class Combine>
+Out nested(Ours const& ours, size_t outer, Combine combine) {
+  Out all(outer * ours.size());
+  for (size_t a = 0; a < outer; ++a)
+    for (size_t b = 0; b < ours.size(); ++b) all[a * ours.size() + b] = combine(ours[b], a);
+  return all;
+}
+
 }  // namespace
 
 HdGranularInstancer::HdGranularInstancer(HdSceneDelegate* delegate, SdfPath const& id) : HdInstancer(delegate, id) {}
@@ -143,28 +153,18 @@ VtMatrix4dArray HdGranularInstancer::ComputeInstanceTransforms(SdfPath const& pr
     if (transformAt(xf, i, t)) m = t * m;
     out[k] = m;
   }
-  if (GetParentId().IsEmpty()) return out;
-  auto* parent = static_cast<HdGranularInstancer*>(d->GetRenderIndex().GetInstancer(GetParentId()));
+  HdGranularInstancer* parent = _Parent();
   if (!parent) return out;
   const VtMatrix4dArray outer = parent->ComputeInstanceTransforms(GetId());
-  VtMatrix4dArray all(outer.size() * out.size());
-  for (size_t a = 0; a < outer.size(); ++a)
-    for (size_t b = 0; b < out.size(); ++b) all[a * out.size() + b] = out[b] * outer[a];
-  return all;
+  return nested<VtMatrix4dArray>(out, outer.size(), [&](GfMatrix4d const& m, size_t a) { return m * outer[a]; });
 }
 
 VtIntArray HdGranularInstancer::ComputeInstanceIndices(SdfPath const& prototypeId) {
   HdSceneDelegate* d = GetDelegate();
   const VtIntArray indices = d->GetInstanceIndices(GetId(), prototypeId);
-  if (GetParentId().IsEmpty()) return indices;
-  auto* parent = static_cast<HdGranularInstancer*>(d->GetRenderIndex().GetInstancer(GetParentId()));
+  HdGranularInstancer* parent = _Parent();
   if (!parent) return indices;
-  // The order of ComputeInstanceTransforms: outer instances, each with all of ours.
-  const size_t outer = parent->ComputeInstanceIndices(GetId()).size();
-  VtIntArray all(outer * indices.size());
-  for (size_t a = 0; a < outer; ++a)
-    for (size_t b = 0; b < indices.size(); ++b) all[a * indices.size() + b] = indices[b];
-  return all;
+  return nested<VtIntArray>(indices, parent->ComputeInstanceIndices(GetId()).size(), [](int i, size_t) { return i; });
 }
 
 std::vector<std::vector<std::string>> HdGranularInstancer::ComputeInstanceCategories(SdfPath const& prototypeId) {
@@ -179,25 +179,20 @@ std::vector<std::vector<std::string>> HdGranularInstancer::ComputeInstanceCatego
     for (TfToken const& t : own[i]) out[k].push_back(t.GetString());
     any = any || !own[i].empty();
   }
-  std::vector<std::vector<std::string>> outer;
-  auto* parent = GetParentId().IsEmpty()
-                     ? nullptr
-                     : static_cast<HdGranularInstancer*>(d->GetRenderIndex().GetInstancer(GetParentId()));
-  if (parent) {
-    outer = parent->ComputeInstanceCategories(GetId());
-    if (outer.empty()) outer.resize(parent->ComputeInstanceIndices(GetId()).size());
-    else any = true;
-  }
-  if (!any) return {};
-  if (!parent) return out;
-  // The order of ComputeInstanceTransforms: outer instances, each with all of ours.
-  std::vector<std::vector<std::string>> all(outer.size() * out.size());
-  for (size_t a = 0; a < outer.size(); ++a)
-    for (size_t b = 0; b < out.size(); ++b) {
-      all[a * out.size() + b] = out[b];
-      all[a * out.size() + b].insert(all[a * out.size() + b].end(), outer[a].begin(), outer[a].end());
-    }
-  return all;
+  HdGranularInstancer* parent = _Parent();
+  if (!parent) return any ? out : std::vector<std::vector<std::string>>();
+  std::vector<std::vector<std::string>> outer = parent->ComputeInstanceCategories(GetId());
+  if (outer.empty() && !any) return {};
+  if (outer.empty()) outer.resize(parent->ComputeInstanceIndices(GetId()).size());
+  return nested<std::vector<std::vector<std::string>>>(out, outer.size(), [&](std::vector<std::string> c, size_t a) {
+    c.insert(c.end(), outer[a].begin(), outer[a].end());
+    return c;
+  });
+}
+
+HdGranularInstancer* HdGranularInstancer::_Parent() {
+  if (GetParentId().IsEmpty()) return nullptr;
+  return static_cast<HdGranularInstancer*>(GetDelegate()->GetRenderIndex().GetInstancer(GetParentId()));
 }
 
 PXR_NAMESPACE_CLOSE_SCOPE

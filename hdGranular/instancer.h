@@ -32,6 +32,7 @@ class HdGranularInstancer final : public HdInstancer {
   std::vector<std::vector<std::string>> ComputeInstanceCategories(SdfPath const& prototypeId);
 
  private:
+  HdGranularInstancer* _Parent();  // the outer instancer of a nested one, else null
   std::mutex _mutex;
   std::map<TfToken, VtValue> _primvars;  // per-instance primvars by name
 };

@@ -609,11 +609,10 @@ def read_camera(scene, prim, xf_cache):
     scene.name("camera", path, attrs)
 
 
-def _link_collection(light, name):
-    """The light's collection `name` ("lightLink", "shadowLink") as usd_lights.h names it: its
-    path and membership query, or None where it holds every prim (includeRoot alone, as
-    UsdImaging's collection cache finds it trivial and gives Hydra no category)."""
-    collection = light.GetLightLinkCollectionAPI() if name == "lightLink" else light.GetShadowLinkCollectionAPI()
+def _link_collection(collection):
+    """A light's link collection as usd_lights.h names it: its path and membership query, or
+    None where it holds every prim (includeRoot alone, as UsdImaging's collection cache finds
+    it trivial and gives Hydra no category)."""
     query = collection.ComputeMembershipQuery()
     if query.UsesPathExpansionRuleMap():
         rules = query.GetAsPathExpansionRuleMap()
@@ -622,11 +621,10 @@ def _link_collection(light, name):
     return str(collection.GetCollectionPath()), query
 
 
-def _token_value(text):
+def _text_value(type_name, text):
+    """One string of type `type_name` ("token", "rel") as core.UsdValue."""
     v = core.UsdValue()
-    v.type_name = "token"
-    v.is_string = True
-    v.strings = [text]
+    v.type_name, v.is_string, v.strings = type_name, True, [text]
     return v
 
 
@@ -635,11 +633,13 @@ def read_light(scene, prim, xf_cache):
     record (scene.light_links keeps the lightLink's query for the prims' categories)."""
     record = prim_record(prim, core.usd_light_attribute_names(), scene.time, xf_cache)
     attrs = record.attributes
-    for name, entry in (("lightLink", core.USD_LIGHT_LINK), ("shadowLink", core.USD_SHADOW_LINK)):
-        link = _link_collection(UsdLux.LightAPI(prim), name)
+    api = UsdLux.LightAPI(prim)
+    for collection, entry in ((api.GetLightLinkCollectionAPI(), core.USD_LIGHT_LINK),
+                              (api.GetShadowLinkCollectionAPI(), core.USD_SHADOW_LINK)):
+        link = _link_collection(collection)
         if link is not None:
-            attrs[entry] = _token_value(link[0])
-            if name == "lightLink":
+            attrs[entry] = _text_value("token", link[0])
+            if entry == core.USD_LIGHT_LINK:
                 scene.light_links.append(link)
     record.attributes = attrs
     light, warnings = _core_call(core.light_from_usd, record)
@@ -883,9 +883,7 @@ def _rel_value(rel):
     targets = rel.GetForwardedTargets() if rel else []
     if not targets:
         return None
-    v = core.UsdValue()
-    v.type_name, v.is_string, v.strings = "rel", True, [str(targets[0])]
-    return v
+    return _text_value("rel", str(targets[0]))
 
 
 def _render_record(prim, names, time):

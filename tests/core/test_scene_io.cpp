@@ -248,6 +248,12 @@ TEST(SceneIo, UnknownKeyIsReported) {
 TEST(SceneIo, WrongTypeIsReported) {
   std::string e = errorAfter([](json& j) { j["aggregates"][0]["grain_radius"] = "big"; });
   EXPECT_CONTAINS(e, "castle.grain_radius: expected a number, got string \"big\"");
+  // A long value is shortened with its non-ASCII characters escaped, never cut inside one.
+  std::string accented;
+  for (int i = 0; i < 30; ++i) accented += "\xc3\xa9";  // "é" 30 times
+  e = errorAfter([&](json& j) { j["aggregates"][0]["grain_radius"] = accented; });
+  EXPECT_CONTAINS(e, "castle.grain_radius: expected a number, got string \"\\u00e9\\u00e9");
+  EXPECT_EQ(e.find('\xc3'), std::string::npos) << e;
   e = errorAfter([](json& j) { j["render"]["spp"] = 1.5; });
   EXPECT_CONTAINS(e, "render.spp: expected an integer");
   e = errorAfter([](json& j) { j["camera"]["look_at"]["eye"] = {1, 2}; });
