@@ -15,44 +15,55 @@ using granular::testing::ChannelEstimate;
 
 namespace {
 
-// A grey Lambert floor (a box's top, y = 0) seen from above under a white dome of radiance 1,
-// a sphere light beside the view and a 20° sun, 16 x 16 pixels. Nothing else: the floor's
-// light is direct.
-SceneDesc floorUnderThreeLights() {
+// One object (material 0) seen from eye toward the origin (focal length 50, aperture 20),
+// size x size pixels, under a white dome of radiance 1 and a normalised sun of irradiance 3
+// and the given angle, whose light travels along sunDir.
+SceneDesc oneObject(const Vec3& eye, int size, const std::string& name, const TriangleMesh& mesh,
+                    const MaterialDesc& material, float sunAngle, const Vec3& sunDir, const Vec3& sunUp) {
   SceneDesc d;
-  d.settings.width = d.settings.height = 16;
-  d.settings.spp = 64;
-  d.settings.seed = 5;
-  d.camera.cameraToWorld = Transform::lookAt(Vec3(0, 4, 0.01f), Vec3(0, 0, 0), Vec3(0, 1, 0));
+  d.settings.width = d.settings.height = size;
+  d.camera.cameraToWorld = Transform::lookAt(eye, Vec3(0, 0, 0), Vec3(0, 1, 0));
   d.camera.focalLength = 50;
   d.camera.horizontalAperture = d.camera.verticalAperture = 20;
+  d.materials.push_back(material);
+  MeshDesc object;
+  object.name = name;
+  object.mesh = mesh;
+  object.material = 0;
+  d.meshes.push_back(object);
+  LightDesc dome;
+  dome.name = "dome";
+  dome.type = LightType::Dome;
+  LightDesc sun;
+  sun.name = "sun";
+  sun.type = LightType::Distant;
+  sun.angle = sunAngle;
+  sun.intensity = 3;
+  sun.normalize = true;
+  sun.xf = Transform::lookAt(Vec3(0.0f), sunDir, sunUp);
+  d.lights = {dome, sun};
+  return d;
+}
+
+// A grey Lambert floor (a box's top, y = 0) seen from above under the dome, a sphere light
+// beside the view and a 20° sun, 16 x 16 pixels. Nothing else: the floor's light is direct.
+// Lights: dome, bulb, sun.
+SceneDesc floorUnderThreeLights() {
   MaterialDesc grey;
   grey.name = "grey";
   grey.type = MaterialType::Lambert;
   grey.albedo = Vec3(0.5f);
-  d.materials.push_back(grey);
-  MeshDesc floor;
-  floor.name = "floor";
-  floor.mesh = makeBox(Vec3(-3, -0.1f, -3), Vec3(3, 0, 3));
-  floor.material = 0;
-  d.meshes.push_back(floor);
-  LightDesc dome;
-  dome.name = "dome";
-  dome.type = LightType::Dome;
+  SceneDesc d = oneObject(Vec3(0, 4, 0.01f), 16, "floor", makeBox(Vec3(-3, -0.1f, -3), Vec3(3, 0, 3)), grey, 20,
+                          Vec3(-0.3f, -1.0f, -0.4f), Vec3(0, 0, 1));
+  d.settings.spp = 64;
+  d.settings.seed = 5;
   LightDesc bulb;
   bulb.name = "bulb";
   bulb.type = LightType::Sphere;
   bulb.radius = 0.3f;
   bulb.intensity = 20;
   bulb.xf = Transform::translate(Vec3(1.5f, 1.0f, 0.2f));
-  LightDesc sun;
-  sun.name = "sun";
-  sun.type = LightType::Distant;
-  sun.angle = 20;
-  sun.intensity = 3;
-  sun.normalize = true;
-  sun.xf = Transform::lookAt(Vec3(0.0f), Vec3(-0.3f, -1.0f, -0.4f), Vec3(0, 0, 1));
-  d.lights = {dome, bulb, sun};
+  d.lights.insert(d.lights.begin() + 1, bulb);
   return d;
 }
 
@@ -184,33 +195,13 @@ TEST(LightLinking, ASmoothSurfaceAimsItsFresnelChoiceOnlyAtSunsThatLightIt) {
   // toward that branch (ept.cpp, sampleSmoothTowardSuns), which is worth it only for a sun
   // that counts there: linked away, the ball's choices are its Fresnel chances, and its
   // image is that of the scene without the sun, value for value (glass samples no light).
-  SceneDesc withSun;
-  withSun.settings.width = withSun.settings.height = 12;
-  withSun.settings.spp = 16;
-  withSun.camera.cameraToWorld = Transform::lookAt(Vec3(0, 0, 4), Vec3(0, 0, 0), Vec3(0, 1, 0));
-  withSun.camera.focalLength = 50;
-  withSun.camera.horizontalAperture = withSun.camera.verticalAperture = 20;
   MaterialDesc glass;
   glass.name = "glass";
   glass.type = MaterialType::Dielectric;
   glass.ior = 1.5f;
-  withSun.materials.push_back(glass);
-  MeshDesc ball;
-  ball.name = "ball";
-  ball.mesh = makeIcosphere(3);
-  ball.material = 0;
-  withSun.meshes.push_back(ball);
-  LightDesc dome;
-  dome.name = "dome";
-  dome.type = LightType::Dome;
-  LightDesc sun;
-  sun.name = "sun";
-  sun.type = LightType::Distant;
-  sun.angle = 30;
-  sun.intensity = 3;
-  sun.normalize = true;
-  sun.xf = Transform::lookAt(Vec3(0.0f), Vec3(0, -0.2f, -1), Vec3(0, 1, 0));  // from behind the camera
-  withSun.lights = {dome, sun};
+  SceneDesc withSun = oneObject(Vec3(0, 0, 4), 12, "ball", makeIcosphere(3), glass, 30, Vec3(0, -0.2f, -1),
+                                Vec3(0, 1, 0));  // the sun from behind the camera
+  withSun.settings.spp = 16;
   SceneDesc linkedAway = withSun, withoutSun = withSun;
   linkedAway.lights[1].lightLink = "elsewhere";
   withoutSun.lights.resize(1);
