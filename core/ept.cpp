@@ -76,7 +76,7 @@ Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir)
     if (camera && light.type() == LightType::Dome && !scene.settings().domeCameraVisible) continue;
     if (!scene.lightReaches(li, path.linkObject)) continue;
     float lightPdf = 0;
-    Vec3 Le = light.escapedLeSeen(dir, halfAngle, path.lastDelta ? nullptr : &lightPdf);
+    Vec3 Le = light.escapedLeSeen(dir, halfAngle, path.lastDelta ? nullptr : &lightPdf, path.lastAbove);
     if (isBlack(Le)) continue;
     float w = 1.0f;
     if (!path.lastDelta)
@@ -204,13 +204,15 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
       hit.kind == Hit::Grain && !m.isDelta()
           ? chainHalfAngle(scene, path.sunFirstSpread, path.sunChainSpread + 2.0f * spreadHere)
           : 0.0f;
+  // A surface that only reflects sees a constant dome over its hemisphere (Light::sampleLi).
+  const Vec3 above = !m.twoSided() && wo.z > 0 ? hit.ng : Vec3(0.0f);
   if (!m.isDelta() && !lights.empty() && (wo.z > 0 || m.twoSided())) {
     // Next-event estimation: one light, picked by Scene::lightPick.
     int li = scene.pickLight(path.nextLightU(), path.linkObject);
     const float lightPick = scene.lightPick(li, path.linkObject);
     LightSample ls;
     float u1 = path.rng.next1D(), u2 = path.rng.next1D();
-    if (scene.lightReaches(li, path.linkObject) && lights[li].sampleLiSeen(hit.p, u1, u2, roughHalfAngle, ls) &&
+    if (scene.lightReaches(li, path.linkObject) && lights[li].sampleLiSeen(hit.p, u1, u2, roughHalfAngle, ls, above) &&
         !isBlack(ls.Li)) {
       Vec3 wiLocal = frame.toLocal(ls.wi);
       float bsdfPdf;
@@ -249,7 +251,7 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
   // (flat-interface approximation), others widen it.
   path.coneWidth = footprint;
   if (!bs.delta) path.coneSpread = std::max(path.coneSpread, std::min(kDiffuseConeSpread, m.lobeSpread()));
-  path.scattered(bs.delta, bs.pdf, hit.p, 1.0f, roughHalfAngle);
+  path.scattered(bs.delta, bs.pdf, hit.p, 1.0f, roughHalfAngle, above);
   if (hit.kind == Hit::Grain && bs.delta) {
     path.sunChainSpread += spreadHere * bendPerNormalTurn(m, wo, bs.wi, bs.transmitted);
     path.sunHalfAngle = chainHalfAngle(scene, path.sunFirstSpread, path.sunChainSpread);

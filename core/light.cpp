@@ -252,7 +252,7 @@ Vec3 Light::domeLookup(const Vec3& localDir) const {
   return radiance_ * Vec3(t[0], t[1], t[2]);
 }
 
-bool Light::sampleLi(const Vec3& p, float u1, float u2, LightSample& s) const {
+bool Light::sampleLi(const Vec3& p, float u1, float u2, LightSample& s, const Vec3& above) const {
   switch (type_) {
     case LightType::Distant: {
       if (cosMax_ >= 1.0f) {
@@ -332,8 +332,14 @@ bool Light::sampleLi(const Vec3& p, float u1, float u2, LightSample& s) const {
     }
     case LightType::Dome: {
       if (!dist_) {
-        s.wi = sampleUniformSphere(u1, u2);
-        s.pdf = kUniformSpherePdf;
+        if (length2(above) > 0) {
+          s.wi = Frame(above).toWorld(sampleCosineHemisphere(u1, u2));
+          s.pdf = cosineHemispherePdf(dot(s.wi, above));
+          if (!(s.pdf > 0)) return false;
+        } else {
+          s.wi = sampleUniformSphere(u1, u2);
+          s.pdf = kUniformSpherePdf;
+        }
         s.Li = radiance_;
       } else {
         float u, v, pdfUV;
@@ -374,11 +380,11 @@ bool widenedCone(LightType type, float cosMax, float halfAngle, float& cosWide, 
 
 }  // namespace
 
-Vec3 Light::escapedLeSeen(const Vec3& dir, float halfAngle, float* pdf) const {
+Vec3 Light::escapedLeSeen(const Vec3& dir, float halfAngle, float* pdf, const Vec3& above) const {
   float cosWide;
   double sin2Wide;
   if (!widenedCone(type_, cosMax_, halfAngle, cosWide, sin2Wide)) {
-    if (pdf) *pdf = pdfLi(Vec3(0.0f), dir, kInf);  // an infinite light's: independent of the point
+    if (pdf) *pdf = pdfLi(Vec3(0.0f), dir, kInf, above);  // an infinite light's: independent of the point
     return escapedLe(dir);
   }
   const bool inside = dot(dir, dir_) >= cosWide;
@@ -387,10 +393,11 @@ Vec3 Light::escapedLeSeen(const Vec3& dir, float halfAngle, float* pdf) const {
   return inside ? radiance_ * float(sunSin2_ / sin2Wide) : Vec3(0.0f);
 }
 
-bool Light::sampleLiSeen(const Vec3& p, float u1, float u2, float halfAngle, LightSample& s) const {
+bool Light::sampleLiSeen(const Vec3& p, float u1, float u2, float halfAngle, LightSample& s,
+                         const Vec3& above) const {
   float cosWide;
   double sin2Wide;
-  if (!widenedCone(type_, cosMax_, halfAngle, cosWide, sin2Wide)) return sampleLi(p, u1, u2, s);
+  if (!widenedCone(type_, cosMax_, halfAngle, cosWide, sin2Wide)) return sampleLi(p, u1, u2, s, above);
   s.wi = Frame(dir_).toWorld(sampleUniformConeSin2(u1, u2, sin2Wide));
   s.pdf = uniformConePdfSin2(sin2Wide);
   s.Li = radiance_ * float(sunSin2_ / sin2Wide);
@@ -399,7 +406,7 @@ bool Light::sampleLiSeen(const Vec3& p, float u1, float u2, float halfAngle, Lig
   return true;
 }
 
-float Light::pdfLi(const Vec3& p, const Vec3& wi, float dist) const {
+float Light::pdfLi(const Vec3& p, const Vec3& wi, float dist, const Vec3& above) const {
   switch (type_) {
     case LightType::Distant:
       return (cosMax_ < 1.0f && dot(wi, dir_) >= cosMax_) ? uniformConePdfSin2(sunSin2_) : 0.0f;
@@ -418,7 +425,7 @@ float Light::pdfLi(const Vec3& p, const Vec3& wi, float dist) const {
       return cosL > 0 ? dist * dist / (cosL * 0.5f * area_) : 0.0f;
     }
     case LightType::Dome: {
-      if (!dist_) return kUniformSpherePdf;
+      if (!dist_) return length2(above) > 0 ? cosineHemispherePdf(dot(wi, above)) : kUniformSpherePdf;
       Vec3 local = normalize(toLocal_.vector(wi));
       float u, v;
       dirToUV(local, u, v);

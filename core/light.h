@@ -12,7 +12,10 @@
 // directions uniformly in the cone it subtends), so pdf = d² / (cos θ_light · area); a
 // cylinder's over the half of its side that faces the point (every point it sees lies
 // there; those facing away are rejected: sampleLi false), area / 2; a shaping's cone is
-// not sampled (its zero radiance is).
+// not sampled (its zero radiance is). A constant dome is sampled uniformly over the
+// sphere, pdf 1/(4π), or, given `above` (a unit normal: a surface that only reflects, whose
+// BSDF is zero below it), cosine-weighted over that hemisphere, pdf cos θ / π: the
+// directions below would count nothing, and cos θ is the factor every reflection has.
 #pragma once
 
 #include <memory>
@@ -46,7 +49,8 @@ class Light {
 
   LightType type() const { return type_; }
   bool isInfinite() const { return type_ == LightType::Distant || type_ == LightType::Dome; }
-  bool sampleLi(const Vec3& p, float u1, float u2, LightSample& s) const;
+  // above: see the contract (zero vector: the whole sphere; only a constant dome uses it).
+  bool sampleLi(const Vec3& p, float u1, float u2, LightSample& s, const Vec3& above = Vec3(0.0f)) const;
   // For infinite lights: radiance and solid-angle pdf for an escaping direction.
   Vec3 escapedLe(const Vec3& dir) const;
   // A sun narrower than the cone of half-angle halfAngle (radians, > 0) seen as that cone,
@@ -54,10 +58,11 @@ class Light {
   // paths that see it so (ept.cpp, ppt.cpp): its radiance toward an escaping dir (and, given
   // pdf, the solid-angle pdf sampleLiSeen has for dir, for MIS), and a direction sampled
   // uniformly in the cone with its pdf. Other lights, delta suns, wider suns and
-  // halfAngle ≤ 0: escapedLe() (and pdfLi()), sampleLi().
-  Vec3 escapedLeSeen(const Vec3& dir, float halfAngle, float* pdf = nullptr) const;
-  bool sampleLiSeen(const Vec3& p, float u1, float u2, float halfAngle, LightSample& s) const;
-  float pdfLi(const Vec3& p, const Vec3& wi, float dist) const;
+  // halfAngle ≤ 0: escapedLe() (and pdfLi()), sampleLi(). `above` as for sampleLi().
+  Vec3 escapedLeSeen(const Vec3& dir, float halfAngle, float* pdf = nullptr, const Vec3& above = Vec3(0.0f)) const;
+  bool sampleLiSeen(const Vec3& p, float u1, float u2, float halfAngle, LightSample& s,
+                    const Vec3& above = Vec3(0.0f)) const;
+  float pdfLi(const Vec3& p, const Vec3& wi, float dist, const Vec3& above = Vec3(0.0f)) const;
   // For area lights: nearest hit of the emitting shape in (tmin, tmax).
   bool intersect(const Ray& r, float& t) const;
   // Whether point e lies on this area light's emitting surface, within tol: a shadow ray

@@ -49,15 +49,21 @@ struct PathState {
   // chainHalfAngle; ppt.cpp), and an escape after them sees the same disk, so MIS stays whole.
   float lastSunHalfAngle = 0;
   Vec3 lastP;              // where that direction was sampled (for area-light MIS)
+  // The normal above a surface that only reflects, over whose hemisphere the last
+  // scattering's next-event estimation sampled a constant dome (Light::sampleLi; zero: the
+  // whole sphere), so that an escape weighs the dome with the pdf it was sampled with.
+  Vec3 lastAbove{0.0f};
   float lastNeeChance = 1; // the chance that next-event estimation was made there (MIS)
   // The object of the path's last scattering (Scene::linkObjectOf; -1: none yet, the
   // camera's): the lights its next-event estimate and the emitters its sampled direction
   // meets count only where they light it (Scene::lightReaches, light linking).
   int linkObject = -1;
-  void scattered(bool delta, float pdf, const Vec3& at, float neeChance, float sunHalfAngle) {
+  void scattered(bool delta, float pdf, const Vec3& at, float neeChance, float sunHalfAngle,
+                 const Vec3& above = Vec3(0.0f)) {
     lastDelta = delta;
     lastPdf = pdf;
     lastP = at;
+    lastAbove = above;
     lastNeeChance = neeChance;
     lastSunHalfAngle = sunHalfAngle;
   }

@@ -75,7 +75,7 @@ void Renderer::tracePixel(int x, int y, long first, int count, Film& film, int f
   // (golden-ratio steps), rotated per pixel and seed; each one uniform.
   const double rotation = double(toUnitFloat(hashInts(rs.seed, uint64_t(x), uint64_t(y), 0x11647ULL)));
   for (int b = 0; b < count; b += bundle_) {
-    if (adaptive && first + b >= minSamples && film.pixelBelowNoiseThreshold(fx, fy, threshold_)) break;
+    if (adaptive && first + b >= minSamples && pixelConverged(fx, fy)) break;
     paths.clear();
     for (int s = b; s < std::min(b + bundle_, count); ++s) {
       long index = first + s;
@@ -124,12 +124,31 @@ bool Renderer::renderPass(int samples, const std::atomic<bool>* cancel, const Ti
                                                  ", ", w.y1, ")) is not this renderer's: make a new renderer after a "
                                                  "change of view"));
   if (!prepared_) prepare();
-  std::atomic<bool> cancelled{false};
-  passPixels_ = 0;  // before the state names the new pass (progressSamples relies on it)
-  passState_ = (uint64_t(done_) << 24) | uint64_t(samples);
   // Each pixel continues from its own count (done_, or less where adaptive sampling
   // stopped it, or more after a cancelled pass) up to the pass's end.
   const long end = done_ + samples;
+  const bool vouch = threshold_ > 0 && guard_.empty() && end >= minAdaptiveSamples();
+  const long minimum = minAdaptiveSamples();
+  passPixels_ = 0;  // before the state names the new pass (progressSamples relies on it)
+  passState_ = (uint64_t(done_) << 24) | uint64_t(vouch && done_ < minimum ? minimum - done_ : samples);
+  if (vouch) {
+    // Every pixel to the minimum first, so that its neighbours vouch for it (computeGuard).
+    if (done_ < minimum) {
+      if (!sweep(minimum, cancel, onTile)) return false;
+      done_ = minimum;
+      passPixels_ = 0;
+      passState_ = (uint64_t(done_) << 24) | uint64_t(end - done_);
+    }
+    computeGuard();
+  }
+  if (!sweep(end, cancel, onTile)) return false;
+  done_ = end;
+  passState_ = uint64_t(done_) << 24;
+  return true;
+}
+
+bool Renderer::sweep(long end, const std::atomic<bool>* cancel, const TileCallback& onTile) {
+  std::atomic<bool> cancelled{false};
   const bool adaptive = threshold_ > 0;
   std::atomic<long> active{0};
   forTiles(window_.width(), window_.height(), [&](const tbb::blocked_range2d<int>& r) {
@@ -140,17 +159,65 @@ bool Renderer::renderPass(int samples, const std::atomic<bool>* cancel, const Ti
         const long n = film_.samples(x, y);
         if (n < end) tracePixel(window_.x0 + x, window_.y0 + y, n, int(end - n), film_, x, y, true, adaptive);
         passPixels_.fetch_add(1, std::memory_order_relaxed);
-        going += !adaptive || (film_.samples(x, y) >= end &&
-                               !(end >= minAdaptiveSamples() && film_.pixelBelowNoiseThreshold(x, y, threshold_)));
+        going += !adaptive ||
+                 (film_.samples(x, y) >= end && !(end >= minAdaptiveSamples() && pixelConverged(x, y)));
       }
     active += going;
     if (onTile) onTile(r.cols().begin(), r.cols().end(), r.rows().begin(), r.rows().end());
   });
   if (cancelled) return false;
-  done_ = end;
   active_ = active;
-  passState_ = uint64_t(done_) << 24;
   return true;
+}
+
+void Renderer::computeGuard() {
+  const int W = window_.width(), H = window_.height(), R = kVouchRadius, FW = W + 2 * R;
+  const long minimum = minAdaptiveSamples();
+  // The relative per-sample variance of a film pixel at the minimum.
+  auto relative = [](const Film& f, int x, int y) {
+    const double se = f.stdError(x, y), scale = double(luminance(f.mean(x, y))) + 0.01;
+    return std::isfinite(se) ? float(double(f.samples(x, y)) * se * se / (scale * scale)) : kInf;
+  };
+  // A crop's ring of neighbours, outside it but in the image: their first samples, as the
+  // full film has them, in a film of one row. (i, j): in the window framed by R pixels.
+  auto inWindow = [&](int i, int j) { return i >= R && i < W + R && j >= R && j < H + R; };
+  auto inImage = [&](int i, int j) {
+    const int x = window_.x0 + i - R, y = window_.y0 + j - R;
+    return x >= 0 && y >= 0 && x < width_ && y < height_;
+  };
+  std::vector<std::pair<int, int>> ringAt;
+  for (int j = 0; j < H + 2 * R; ++j)
+    for (int i = 0; i < FW; ++i)
+      if (!inWindow(i, j) && inImage(i, j)) ringAt.emplace_back(i, j);
+  Film ring(std::max<int>(1, int(ringAt.size())), 1);
+  forTiles(int(ringAt.size()), 1, [&](const tbb::blocked_range2d<int>& r) {
+    for (int k = r.cols().begin(); k < r.cols().end(); ++k)
+      tracePixel(window_.x0 + ringAt[k].first - R, window_.y0 + ringAt[k].second - R, 0, int(minimum), ring, k, 0,
+                 false);
+  });
+  std::vector<float> rel(size_t(FW) * (H + 2 * R), -1.0f);  // −1 outside the image
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x) rel[size_t(y + R) * FW + (x + R)] = relative(film_, x, y);
+  for (size_t k = 0; k < ringAt.size(); ++k) rel[size_t(ringAt[k].second) * FW + ringAt[k].first] = relative(ring, int(k), 0);
+  guard_.assign(size_t(W) * H, 0.0f);
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x) {
+      double sum = 0;
+      int count = 0;
+      for (int dy = -R; dy <= R; ++dy)
+        for (int dx = -R; dx <= R; ++dx) {
+          const float v = rel[size_t(y + R + dy) * FW + (x + R + dx)];
+          if ((dx || dy) && v >= 0) sum += v, ++count;
+        }
+      guard_[size_t(y) * W + x] = count ? float(sum / count) : 0.0f;
+    }
+}
+
+bool Renderer::pixelConverged(int fx, int fy) const {
+  if (!film_.pixelBelowNoiseThreshold(fx, fy, threshold_)) return false;
+  if (guard_.empty()) return true;
+  const double n = double(film_.samples(fx, fy));
+  return double(guard_[size_t(fy) * window_.width() + fx]) <= double(threshold_) * threshold_ * n;
 }
 
 bool Renderer::renderPreview(int stride, Film& preview, const std::atomic<bool>* cancel, bool tuned) {

@@ -21,14 +21,24 @@
 // has at least minAdaptiveSamples() samples and Film::pixelBelowNoiseThreshold(T) holds,
 // checked before each of its bundles from its own film statistics — so a pixel's
 // samples stay whole bundles [bN, bN+N) of the same streams, and where it stops depends
-// only on (seed, x, y, spp, T), not on threads or pass splits: the image is the one a
+// only on the seed, spp and T, not on threads or pass splits: the image is the one a
 // render of those per-pixel sample counts draws. A pixel that stopped stays stopped (its
 // statistics no longer change). After each pass the renderer counts the pixels still
 // going; converged() is true when none is, and render() then ends before spp.
 // The minimum is two bundles and at least 16 samples: the paths of a bundle share its
 // switch to the media (hybrid.h), so one bundle's spread understates the pixel's
 // variance, and a handful of samples that happen to agree (all missing a small light)
-// would read as no noise at all.
+// would read as no noise at all. Samples that agree because an event of a few percent
+// (a bounce onto a nearby object, an occluder of the sky) has not happened yet are
+// common where the rest of the estimate is exact (a sky-lit floor), so the pixel's
+// neighbours vouch for it: a pixel stops only once its own standard error meets the
+// threshold and so would, with its own count, the mean relative per-sample variance of
+// the 24 pixels around it (within kVouchRadius) at the minimum — an estimate of the
+// region's spread from 24 times the samples, in which an event of a few percent shows.
+// (Their largest instead would hold a whole region to the one neighbour whose 16 samples
+// met a rare bright path, at 16 times its weight.) The first pass that reaches the minimum
+// takes every pixel there before any goes on; a crop traces its ring of neighbours to the
+// minimum as well, so tiles stay the full film's pixels.
 //
 // Interactive hosts: renderPass() calls onTile from the worker thread that finished a
 // tile (its pixels then hold the pass's samples), so a host can show tiles as they come;
@@ -146,6 +156,14 @@ class Renderer {
                   bool adaptive = false);
   template <typename Body>
   void forTiles(int width, int height, const Body& body) const;
+  // Traces every pixel that has not stopped up to `end` samples (renderPass); false when
+  // cancelled. Counts the pixels still going after it into active_.
+  bool sweep(long end, const std::atomic<bool>* cancel, const TileCallback& onTile);
+  static constexpr int kVouchRadius = 2;
+  // The neighbours' vouching (see the top): guard_ from the film at the minimum, and
+  // whether pixel (fx, fy) of the film has met the threshold.
+  void computeGuard();
+  bool pixelConverged(int fx, int fy) const;
   const Scene& scene_;
   int width_, height_;  // of the image
   PixelWindow window_;  // the image pixels this renderer covers
@@ -155,6 +173,10 @@ class Renderer {
   float threshold_ = 0;
   long active_ = 0;
   bool prepared_ = false;
+  // Per film pixel: the mean relative per-sample variance (variance / (luminance + 0.01)²,
+  // Film::pixelBelowNoiseThreshold's scale) of its neighbours in the image at the minimum;
+  // empty until every pixel has it.
+  std::vector<float> guard_;
   // Progress of the pass under way: (samples done before it << 24 | its samples), and
   // its finished pixels; the pair is read consistently (see progressSamples()).
   std::atomic<uint64_t> passState_{0};
