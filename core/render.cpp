@@ -173,10 +173,11 @@ bool Renderer::sweep(long end, const std::atomic<bool>* cancel, const TileCallba
 void Renderer::computeGuard() {
   const int W = window_.width(), H = window_.height(), R = kVouchRadius, FW = W + 2 * R;
   const long minimum = minAdaptiveSamples();
-  // The relative per-sample variance of a film pixel at the minimum.
+  // The relative per-sample variance of a film pixel at the minimum (of one sample: none
+  // known, so a value no count meets, finite so that box sums stay finite).
   auto relative = [](const Film& f, int x, int y) {
     const double se = f.stdError(x, y), scale = double(luminance(f.mean(x, y))) + 0.01;
-    return std::isfinite(se) ? float(double(f.samples(x, y)) * se * se / (scale * scale)) : kInf;
+    return std::isfinite(se) ? double(f.samples(x, y)) * se * se / (scale * scale) : 1e30;
   };
   // A crop's ring of neighbours, outside it but in the image: their first samples, as the
   // full film has them, in a film of one row. (i, j): in the window framed by R pixels.
@@ -195,21 +196,26 @@ void Renderer::computeGuard() {
       tracePixel(window_.x0 + ringAt[k].first - R, window_.y0 + ringAt[k].second - R, 0, int(minimum), ring, k, 0,
                  false);
   });
-  std::vector<float> rel(size_t(FW) * (H + 2 * R), -1.0f);  // −1 outside the image
+  // The mean over each pixel's (2R+1)² box less itself, by box sums: rows, then columns.
+  const int FH = H + 2 * R;
+  std::vector<double> rel(size_t(FW) * FH, 0.0), in(size_t(FW) * FH, 0.0);  // 0 outside the image
+  auto put = [&](int i, int j, double v) { rel[size_t(j) * FW + i] = v, in[size_t(j) * FW + i] = 1; };
   for (int y = 0; y < H; ++y)
-    for (int x = 0; x < W; ++x) rel[size_t(y + R) * FW + (x + R)] = relative(film_, x, y);
-  for (size_t k = 0; k < ringAt.size(); ++k) rel[size_t(ringAt[k].second) * FW + ringAt[k].first] = relative(ring, int(k), 0);
+    for (int x = 0; x < W; ++x) put(x + R, y + R, relative(film_, x, y));
+  for (size_t k = 0; k < ringAt.size(); ++k) put(ringAt[k].first, ringAt[k].second, relative(ring, int(k), 0));
+  std::vector<double> rowRel(size_t(W) * FH), rowIn(size_t(W) * FH);  // each row's sums over 2R+1 columns
+  for (int j = 0; j < FH; ++j)
+    for (int x = 0; x < W; ++x) {
+      double a = 0, b = 0;
+      for (int i = x; i <= x + 2 * R; ++i) a += rel[size_t(j) * FW + i], b += in[size_t(j) * FW + i];
+      rowRel[size_t(j) * W + x] = a, rowIn[size_t(j) * W + x] = b;
+    }
   guard_.assign(size_t(W) * H, 0.0f);
   for (int y = 0; y < H; ++y)
     for (int x = 0; x < W; ++x) {
-      double sum = 0;
-      int count = 0;
-      for (int dy = -R; dy <= R; ++dy)
-        for (int dx = -R; dx <= R; ++dx) {
-          const float v = rel[size_t(y + R + dy) * FW + (x + R + dx)];
-          if ((dx || dy) && v >= 0) sum += v, ++count;
-        }
-      guard_[size_t(y) * W + x] = count ? float(sum / count) : 0.0f;
+      double a = -rel[size_t(y + R) * FW + x + R], b = -1;  // less the pixel itself
+      for (int j = y; j <= y + 2 * R; ++j) a += rowRel[size_t(j) * W + x], b += rowIn[size_t(j) * W + x];
+      guard_[size_t(y) * W + x] = b > 0 ? float(a / b) : 0.0f;
     }
 }
 
