@@ -103,6 +103,28 @@ def test_crop_tiles_merge_into_the_full_render(tmp_path, scene_file, capsys, tec
     assert full["A"].mean() > 0.2  # the castle is in view: the comparison means something
 
 
+def test_adaptive_crop_tiles_merge_into_the_full_render(tmp_path, scene_file, capsys):
+    """With --noise-threshold a pixel stops by its neighbours too (core/render.h), and a tile
+    traces the ring of neighbours around it, so the tiles still merge into the full render."""
+    scene = scene_file()
+    opts = ["--width", 40, "--height", 30, "--spp", 128, "--seed", 5, "--technique", "hybrid",
+            "--noise-threshold", 0.003]
+    rc, _, err = run_cli(["render", scene, "-o", tmp_path / "full.exr", *opts], capsys)
+    assert rc == 0, err
+    tiles = []
+    for k, (x0, x1, y0, y1) in enumerate(tile_windows((0, 40, 0, 30), 4)):
+        out = tmp_path / f"tile{k}.exr"
+        rc, _, err = run_cli(["render", scene, "-o", out, *opts, "--crop", f"{x0}:{x1},{y0}:{y1}"], capsys)
+        assert rc == 0, err
+        tiles.append(out)
+    rc, _, err = run_cli(["merge", *tiles, "-o", tmp_path / "merged.exr"], capsys)
+    assert rc == 0, err
+    _same(tmp_path / "merged.exr", tmp_path / "full.exr")
+    _, full = _exr(tmp_path / "full.exr")
+    counts = full["sampleCount"]
+    assert counts.min() < counts.max() <= 128  # pixels stopped at different counts
+
+
 def test_merge_of_a_part_keeps_its_place(tmp_path, scene_file, capsys):
     scene = scene_file()
     for k, crop in enumerate(["5:20,3:10", "20:31,3:10"]):
