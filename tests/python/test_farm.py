@@ -78,10 +78,9 @@ def test_tile_windows_cover_the_window_once(n, window):
 
 # ---- render --crop and merge ---------------------------------------------------------------
 
-@pytest.mark.parametrize("technique", ["ept", "hybrid"])
-def test_crop_tiles_merge_into_the_full_render(tmp_path, scene_file, capsys, technique):
-    scene = scene_file()
-    opts = [*SIZE, "--technique", technique]
+def _full_and_tiles(tmp_path, scene, opts, capsys):
+    """Renders the full 40 x 30 image and its 4 tiles (--crop) with opts, each checked to
+    name its pixels and keep its place in the image; the tiles' paths."""
     rc, _, err = run_cli(["render", scene, "-o", tmp_path / "full.exr", *opts], capsys)
     assert rc == 0, err
     tiles = []
@@ -94,6 +93,12 @@ def test_crop_tiles_merge_into_the_full_render(tmp_path, scene_file, capsys, tec
         assert (img.x, img.y, img.width, img.height, img.full_width, img.full_height) == \
             (x0, y0, x1 - x0, y1 - y0, 40, 30)
         tiles.append(out)
+    return tiles
+
+
+@pytest.mark.parametrize("technique", ["ept", "hybrid"])
+def test_crop_tiles_merge_into_the_full_render(tmp_path, scene_file, capsys, technique):
+    tiles = _full_and_tiles(tmp_path, scene_file(), [*SIZE, "--technique", technique], capsys)
     rc, _, err = run_cli(["merge", *tiles, "-o", tmp_path / "merged.exr", "--png", tmp_path / "merged.png"], capsys)
     assert rc == 0, err
     assert "merged 4 tiles into 40x30" in err
@@ -106,17 +111,9 @@ def test_crop_tiles_merge_into_the_full_render(tmp_path, scene_file, capsys, tec
 def test_adaptive_crop_tiles_merge_into_the_full_render(tmp_path, scene_file, capsys):
     """With --noise-threshold a pixel stops by its neighbours too (core/render.h), and a tile
     traces the ring of neighbours around it, so the tiles still merge into the full render."""
-    scene = scene_file()
     opts = ["--width", 40, "--height", 30, "--spp", 128, "--seed", 5, "--technique", "hybrid",
             "--noise-threshold", 0.003]
-    rc, _, err = run_cli(["render", scene, "-o", tmp_path / "full.exr", *opts], capsys)
-    assert rc == 0, err
-    tiles = []
-    for k, (x0, x1, y0, y1) in enumerate(tile_windows((0, 40, 0, 30), 4)):
-        out = tmp_path / f"tile{k}.exr"
-        rc, _, err = run_cli(["render", scene, "-o", out, *opts, "--crop", f"{x0}:{x1},{y0}:{y1}"], capsys)
-        assert rc == 0, err
-        tiles.append(out)
+    tiles = _full_and_tiles(tmp_path, scene_file(), opts, capsys)
     rc, _, err = run_cli(["merge", *tiles, "-o", tmp_path / "merged.exr"], capsys)
     assert rc == 0, err
     _same(tmp_path / "merged.exr", tmp_path / "full.exr")
