@@ -63,15 +63,10 @@ float Film::stdError(int x, int y) const {
   return float(std::sqrt(var / p.n));
 }
 
-bool Film::pixelBelowNoiseThreshold(int x, int y, float threshold) const {
-  return stdError(x, y) <= threshold * (luminance(mean(x, y)) + 0.01f);
-}
+float Film::noiseScale(int x, int y) const { return luminance(mean(x, y)) + 0.01f; }
 
-bool Film::belowNoiseThreshold(float threshold) const {
-  for (int y = 0; y < height_; ++y)
-    for (int x = 0; x < width_; ++x)
-      if (!pixelBelowNoiseThreshold(x, y, threshold)) return false;
-  return true;
+bool Film::pixelBelowNoiseThreshold(int x, int y, float threshold) const {
+  return stdError(x, y) <= threshold * noiseScale(x, y);
 }
 
 const std::vector<std::string>& Film::channelNames() {

@@ -75,12 +75,13 @@ class Film {
   Vec3 mean(int x, int y) const;
   // Standard error of the mean of the pixel's luminance.
   float stdError(int x, int y) const;
-  // The noise threshold both front ends stop at, per pixel: its standard error at most
-  // threshold × (its luminance + 0.01), the 0.01 keeping black pixels from never settling
-  // (false below two samples); adaptive sampling (render.h) stops each pixel there.
+  // What the noise threshold is relative to: the pixel's luminance + 0.01, the 0.01 keeping
+  // black pixels from never settling.
+  float noiseScale(int x, int y) const;
+  // The pixel's own part of the noise threshold both front ends stop at: its standard error
+  // at most threshold × noiseScale (false below two samples); adaptive sampling (render.h)
+  // adds its neighbours' part.
   bool pixelBelowNoiseThreshold(int x, int y, float threshold) const;
-  // Every pixel below it.
-  bool belowNoiseThreshold(float threshold) const;
   Image toImage() const;
   // The channels of toImage() (kChannels of them, named by channelNames()) of one pixel.
   static constexpr int kChannels = 30;

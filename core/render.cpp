@@ -126,9 +126,8 @@ bool Renderer::renderPass(int samples, const std::atomic<bool>* cancel, const Ti
   if (!prepared_) prepare();
   // Each pixel continues from its own count (done_, or less where adaptive sampling
   // stopped it, or more after a cancelled pass) up to the pass's end.
-  const long end = done_ + samples;
-  const bool vouch = threshold_ > 0 && guard_.empty() && end >= minAdaptiveSamples();
-  const long minimum = minAdaptiveSamples();
+  const long end = done_ + samples, minimum = minAdaptiveSamples();
+  const bool vouch = threshold_ > 0 && guard_.empty() && end >= minimum;
   passPixels_ = 0;  // before the state names the new pass (progressSamples relies on it)
   passState_ = (uint64_t(done_) << 24) | uint64_t(vouch && done_ < minimum ? minimum - done_ : samples);
   if (vouch) {
@@ -176,7 +175,7 @@ void Renderer::computeGuard() {
   // The relative per-sample variance of a film pixel at the minimum (of one sample: none
   // known, so a value no count meets, finite so that box sums stay finite).
   auto relative = [](const Film& f, int x, int y) {
-    const double se = f.stdError(x, y), scale = double(luminance(f.mean(x, y))) + 0.01;
+    const double se = f.stdError(x, y), scale = f.noiseScale(x, y);
     return std::isfinite(se) ? double(f.samples(x, y)) * se * se / (scale * scale) : 1e30;
   };
   // A crop's ring of neighbours, outside it but in the image: their first samples, as the

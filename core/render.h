@@ -173,8 +173,8 @@ class Renderer {
   float threshold_ = 0;
   long active_ = 0;
   bool prepared_ = false;
-  // Per film pixel: the mean relative per-sample variance (variance / (luminance + 0.01)²,
-  // Film::pixelBelowNoiseThreshold's scale) of its neighbours in the image at the minimum;
+  // Per film pixel: the mean relative per-sample variance (variance / Film::noiseScale²) of
+  // its neighbours in the image at the minimum;
   // empty until every pixel has it.
   std::vector<float> guard_;
   // Progress of the pass under way: (samples done before it << 24 | its samples), and

@@ -245,7 +245,11 @@ TEST(Adaptive, NeighboursKeepGoingAPixelWhoseSamplesAgreeByChance) {
   // it that only BSDF sampling finds, in about 2.4% of a floor pixel's samples, each worth
   // 60 times the rest: about 2/3 of the floor pixels see none of it in their 16 first
   // samples, and by their own spread would stop there, less than half as bright as they
-  // are. Their neighbours, which saw it, keep them going.
+  // are (180 of 256 do without the neighbours). Their neighbours, which saw it, keep them
+  // going: a pixel stops there only if its 25-pixel box all missed the lamp, 0.68^25 =
+  // 6e-5 inside the image; a corner's box is 9 pixels (0.03), an edge's 15: below one
+  // such pixel expected in all, so at most 4 (a Poisson count of mean 1 exceeds 4 with
+  // chance 0.004).
   SceneDesc d;
   d.settings.width = d.settings.height = 16;
   d.settings.spp = 256;
@@ -281,26 +285,5 @@ TEST(Adaptive, NeighboursKeepGoingAPixelWhoseSamplesAgreeByChance) {
       atMinimum += f.samples(x, y) == minimum;
     }
   std::printf("floor pixels stopped at the minimum: %d of %d\n", atMinimum, pixels);
-  EXPECT_LE(atMinimum, pixels / 20);
-}
-
-TEST(Adaptive, ACropsPixelsAreTheFullFilmsWithTheNeighboursVouching) {
-  // The crop traces its ring of neighbours to the minimum, so its pixels stop where the
-  // full film's do, with the same samples.
-  SceneDesc d = ballOnFloor(256, 3);
-  auto full = renderAdaptive(d, 0.03f);
-  d.settings.cropX0 = 9, d.settings.cropX1 = 21, d.settings.cropY0 = 6, d.settings.cropY1 = 15;
-  auto crop = renderAdaptive(d, 0.03f);
-  const Film& fc = crop.renderer->film();
-  const Film& ff = full.renderer->film();
-  ASSERT_EQ(fc.width(), 12);
-  ASSERT_EQ(fc.height(), 9);
-  for (int y = 0; y < fc.height(); ++y)
-    for (int x = 0; x < fc.width(); ++x) {
-      ASSERT_EQ(fc.samples(x, y), ff.samples(x + 9, y + 6)) << x << "," << y;
-      float pc[Film::kChannels], pf[Film::kChannels];
-      fc.pixelChannels(x, y, pc);
-      ff.pixelChannels(x + 9, y + 6, pf);
-      for (int c = 0; c < 3; ++c) ASSERT_EQ(pc[c], pf[c]) << x << "," << y << " channel " << c;
-    }
+  EXPECT_LE(atMinimum, 4);
 }

@@ -19,9 +19,10 @@ using granular::testing::sameImage;
 
 namespace {
 
-Image renderWith(const SceneDesc& d) {
+Image renderWith(const SceneDesc& d, float noiseThreshold = 0) {
   auto scene = Scene::build(d);
   Renderer r(*scene);
+  r.setNoiseThreshold(noiseThreshold);
   EXPECT_TRUE(r.render(4));
   return r.film().toImage();
 }
@@ -38,21 +39,19 @@ SceneDesc ballScene(Technique t) {
   return d;
 }
 
-}  // namespace
-
 class CropTiling : public ::testing::TestWithParam<Technique> {};
 
-TEST_P(CropTiling, TilesMergeIntoTheFullRenderBitForBit) {
-  SceneDesc d = ballScene(GetParam());
-  const Image full = renderWith(d);
+// Four uneven tiles of d's 37 × 29 image, one a single pixel wide, rendered alone and
+// merged: the full render bit for bit. The full image.
+Image expectTilesMergeIntoTheFullRender(SceneDesc d, float noiseThreshold) {
+  const Image full = renderWith(d, noiseThreshold);
   EXPECT_EQ(full.x, 0);
   EXPECT_EQ(full.fullWidth, 0);  // a full image says so
-  // Four uneven tiles, one a single pixel wide.
   const std::vector<PixelWindow> windows = {{0, 20, 0, 13}, {20, 37, 0, 13}, {0, 1, 13, 29}, {1, 37, 13, 29}};
   std::vector<Image> tiles;
   for (const PixelWindow& w : windows) {
     d.settings.cropX0 = w.x0, d.settings.cropX1 = w.x1, d.settings.cropY0 = w.y0, d.settings.cropY1 = w.y1;
-    tiles.push_back(renderWith(d));
+    tiles.push_back(renderWith(d, noiseThreshold));
     const Image& t = tiles.back();
     EXPECT_EQ(t.width, w.width());
     EXPECT_EQ(t.height, w.height());
@@ -61,13 +60,30 @@ TEST_P(CropTiling, TilesMergeIntoTheFullRenderBitForBit) {
     EXPECT_EQ(t.displayWidth(), 37);
     EXPECT_EQ(t.displayHeight(), 29);
   }
-  const Image merged = mergeTiles(tiles);
-  EXPECT_TRUE(sameImage(merged, full));
+  EXPECT_TRUE(sameImage(mergeTiles(tiles), full));
   // The scene must have something in view for this to mean anything.
   double sum = 0;
   for (int y = 0; y < full.height; ++y)
     for (int x = 0; x < full.width; ++x) sum += full.at(x, y)[full.channelIndex("A")];
   EXPECT_GT(sum, 0.2 * full.width * full.height);
+  return full;
+}
+
+}  // namespace
+
+TEST_P(CropTiling, TilesMergeIntoTheFullRenderBitForBit) { expectTilesMergeIntoTheFullRender(ballScene(GetParam()), 0); }
+
+TEST_P(CropTiling, UnderAdaptiveSamplingTooWhereNeighboursVouchAcrossTheTiles) {
+  // A pixel stops by its neighbours too (render.h); a crop traces the ring of them around
+  // it, so its pixels stop where the full film's do.
+  SceneDesc d = ballScene(GetParam());
+  d.settings.spp = 64;
+  const Image full = expectTilesMergeIntoTheFullRender(d, 0.05f);
+  const int n = full.channelIndex("sampleCount");
+  float least = 1e9f, most = 0;
+  for (int y = 0; y < full.height; ++y)
+    for (int x = 0; x < full.width; ++x) least = std::min(least, full.at(x, y)[n]), most = std::max(most, full.at(x, y)[n]);
+  EXPECT_LT(least, most);  // pixels stopped at different counts
 }
 
 INSTANTIATE_TEST_SUITE_P(Techniques, CropTiling, ::testing::Values(Technique::Ept, Technique::EptVpt, Technique::Hybrid),
