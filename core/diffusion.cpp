@@ -304,6 +304,19 @@ void diffusionStep(const Scene& scene, PathState& path, const Vec3& x, const Dif
     path.lost = true;
     return;
   }
+  // Shadow linking: the direct light ω brings past objects that cast no shadow, as the
+  // single scattering's next-event estimation casts its shadow ray (the flight to the
+  // boundary in the reduced medium). The MIS state is this scattering's, as the uncollided
+  // beam below leaves it.
+  path.scattered(false, phasePdf, x, 1.0f, 0.0f);
+  const Vec3 along = path.beta * phaseWeight;
+  addDirectPastNonCasters(scene, path, along, x, w, [&](const Vec3& c, float dist, ShadowCasters who) {
+    Vec3 tr = scene.transmittance(x, w, dist, path.ray.time, &path.rng, who);
+    float s2;
+    Vec3 ng2;
+    if (!isBlack(tr) && boundary.intersect(x, w, dist, s2, ng2)) tr *= vexp((m.sigmaT - prof.sigmaTReduced) * s2);
+    path.L[path.credit] += c * tr;
+  });
   const float sigmaBar = average(prof.sigmaTReduced);
   const float t = -std::log1p(-std::min(path.rng.next1D(), 1.0f - 1e-7f)) / sigmaBar;
   if (t >= s) {

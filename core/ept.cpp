@@ -12,10 +12,16 @@ void addAreaLightHit(const Scene& scene, PathState& path, const Hit& hit) {
   if (!scene.lightReaches(hit.light, path.linkObject)) return;
   const Light& light = scene.lights()[hit.light];
   float w = 1.0f;
-  if (!path.lastDelta)
-    w = powerHeuristic(path.lastPdf,
-                       light.pdfLi(path.lastP, dir, length(hit.p - path.lastP)) * scene.lightPick(hit.light, path.linkObject) *
-                           path.lastNeeChance);
+  const float dist = length(hit.p - path.lastP);
+  // Past an object that casts no shadow from it, the last scattering counted it already
+  // (addDirectPastNonCasters); the camera sees it.
+  if (path.depth > 0 && scene.shadowLinked(hit.light) &&
+      scene.crossesNonCaster(hit.light, path.linkObject, path.lastP, dir, dist))
+    return;
+  if (!path.lastDelta) {
+    w = powerHeuristic(path.lastPdf, light.pdfLi(path.lastP, dir, dist) * scene.lightPick(hit.light, path.linkObject) *
+                                         path.lastNeeChance);
+  }
   path.L[path.credit] += path.beta * light.areaLe(hit.p, dir) * w;
 }
 
@@ -75,6 +81,9 @@ Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir)
     const Light& light = scene.lights()[li];
     if (camera && light.type() == LightType::Dome && !scene.settings().domeCameraVisible) continue;
     if (!scene.lightReaches(li, path.linkObject)) continue;
+    // Past an object that casts no shadow from it, the last scattering counted it already.
+    if (!camera && scene.shadowLinked(li) && scene.crossesNonCaster(li, path.linkObject, path.lastP, dir, kInf))
+      continue;
     float lightPdf = 0;
     Vec3 Le = light.escapedLeSeen(dir, halfAngle, path.lastDelta ? nullptr : &lightPdf, path.lastAbove);
     if (isBlack(Le)) continue;
@@ -222,15 +231,18 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
         float dist = std::isfinite(ls.dist) ? ls.dist * (1.0f - 1e-4f) : kInf;
         const Vec3 c = path.beta * f * ls.Li *
                        (ls.delta ? 1.0f / lightPick : powerHeuristic(ls.pdf * lightPick, bsdfPdf) / (ls.pdf * lightPick));
+        const ShadowCasters casters{li, path.linkObject};
         if (mediaMode) {
-          const Vec3 Tr = scene.transmittance(origin, ls.wi, dist, ray.time, &path.rng);
+          const Vec3 Tr = scene.transmittance(origin, ls.wi, dist, ray.time, &path.rng, casters);
           if (!isBlack(Tr)) path.L[path.credit] += c * Tr;
           cost += 1;
         } else if (path.mode == kPpt) {
-          path.addThroughProxies(c, scene.proxyTransmittance(origin, ls.wi, dist, nullptr, path.rng.nextU32(), ray.time));
+          path.addThroughProxies(c,
+                                 scene.proxyTransmittance(origin, ls.wi, dist, nullptr, path.rng.nextU32(), ray.time,
+                                                          casters));
           cost += 1;
         } else {
-          if (!scene.occluded(origin, ls.wi, dist, ray.time)) path.L[path.credit] += c;
+          if (!scene.occluded(origin, ls.wi, dist, ray.time, casters)) path.L[path.credit] += c;
           cost += scene.aggregates().empty() ? 1 : kGrainCastCost;
         }
       }
@@ -269,6 +281,17 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
   path.ray.d = wi;
   path.ray.tmin = 0;
   path.ray.tmax = kInf;
+  // Shadow linking: the direct light this direction brings past objects that cast no
+  // shadow, by the shadow ray next-event estimation casts here.
+  addDirectPastNonCasters(scene, path, path.beta, path.ray.o, wi, [&](const Vec3& c, float dist, ShadowCasters who) {
+    if (mediaMode)
+      path.L[path.credit] += c * scene.transmittance(path.ray.o, wi, dist, ray.time, &path.rng, who);
+    else if (path.mode == kPpt)
+      path.addThroughProxies(c, scene.proxyTransmittance(path.ray.o, wi, dist, nullptr, path.rng.nextU32(), ray.time,
+                                                         who));
+    else if (!scene.occluded(path.ray.o, wi, dist, ray.time, who))
+      path.L[path.credit] += c;
+  });
   ++path.depth;
   if (!russianRoulette(scene, path) || !isFinite(path.beta) || isBlack(path.beta)) path.alive = false;
 }

@@ -63,11 +63,59 @@ void addAreaLightHit(const Scene& scene, PathState& path, const Hit& hit);
 // light sampling when the last bounce could have sampled them.
 Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir);
 
+// Shadow linking: light a scattering's sampled direction would bring past objects that cast
+// no shadow from it (Scene::crossesNonCaster). Called after the scattering (path.last* are
+// its, path.linkObject its object) with beta, the throughput along its sampled direction
+// dir, whose ray starts at origin: for each shadow-linked light that direction meets past
+// the bounds of such an object, the light's radiance there times beta and the scattering's
+// MIS weight (1 after a delta bounce, which samples no light), handed to add(c, dist,
+// casters) to cast the shadow ray (its own transport's: grains, proxies or media) from
+// origin over dist and add c times what passes. The emitter the path meets later is not
+// counted again (addAreaLightHit, escapedRadiance). So at every scattering, the light that
+// arrives straight from a light passes what casts no shadow from it. Does nothing in a
+// scene without shadow links.
+template <class Add>
+void addDirectPastNonCasters(const Scene& scene, PathState& path, const Vec3& beta, const Vec3& origin,
+                             const Vec3& dir, Add&& add);
+
 // A ray's end at no hit (the infinite lights' radiance) or at an area light (its
 // emission): adds it, ends the path and returns true; else false (the path goes on).
 bool endsAtLight(const Scene& scene, PathState& path, bool found, const Hit& hit);
 
 // Throughput Russian roulette after rrDepth events; false: the path ends.
 bool russianRoulette(const Scene& scene, PathState& path);
+
+template <class Add>
+void addDirectPastNonCasters(const Scene& scene, PathState& path, const Vec3& beta, const Vec3& origin,
+                             const Vec3& dir, Add&& add) {
+  if (!scene.anyShadowLinked()) return;
+  const Vec3& x = path.lastP;
+  const bool delta = path.lastDelta;
+  for (int li = 0; li < int(scene.lights().size()); ++li) {
+    // The whole line first: a direction that crosses no such bounds is the usual case.
+    if (!scene.shadowLinked(li) || !scene.crossesNonCaster(li, path.linkObject, x, dir, kInf) ||
+        !scene.lightReaches(li, path.linkObject))
+      continue;
+    const Light& light = scene.lights()[li];
+    // As the emitter met later would be weighed (distances from the scattering's point).
+    float reach = kInf, lightPdf = 0, t = kInf;
+    Vec3 Le;
+    if (light.isInfinite()) {
+      // As escapedRadiance sees it (a smooth chain: the sun widened as the chain sees it).
+      Le = light.escapedLeSeen(dir, delta ? path.sunHalfAngle : path.lastSunHalfAngle, delta ? nullptr : &lightPdf,
+                               path.lastAbove);
+    } else {
+      if (!light.intersect(Ray{origin, dir, 0.0f, kInf, path.ray.time}, t)) continue;
+      const Vec3 q = origin + dir * t;
+      reach = length(q - x);
+      Le = light.areaLe(q, dir);
+      lightPdf = light.pdfLi(x, dir, reach);
+    }
+    if (isBlack(Le) || (std::isfinite(reach) && !scene.crossesNonCaster(li, path.linkObject, x, dir, reach))) continue;
+    const float w =
+        delta ? 1.0f : powerHeuristic(path.lastPdf, lightPdf * scene.lightPick(li, path.linkObject) * path.lastNeeChance);
+    add(beta * Le * w, std::isfinite(t) ? t * (1.0f - 1e-4f) : kInf, ShadowCasters{li, path.linkObject});
+  }
+}
 
 }  // namespace granular

@@ -72,7 +72,8 @@ void scatter(const Scene& scene, PathState& path, const Hit& hit, const ProxyTab
         const Vec3 from = scene.beforeSurfaces(g.center, onSphere(g, frame, table.exitPoint(b, d, uExit)),
                                                path.ray.time);
         const float dist = std::isfinite(ls.dist) ? std::max(0.0f, ls.dist - g.radius) * (1.0f - 1e-4f) : kInf;
-        const ProxyShadow tr = scene.proxyTransmittance(from, ls.wi, dist, &own, path.rng.nextU32(), path.ray.time);
+        const ProxyShadow tr = scene.proxyTransmittance(from, ls.wi, dist, &own, path.rng.nextU32(), path.ray.time,
+                                                        ShadowCasters{li, path.linkObject});
         path.cost[0] += 1;
         if (!tr.blocked()) {
           const Vec3 c = path.beta * d.f * ls.Li *
@@ -109,6 +110,11 @@ void scatter(const Scene& scene, PathState& path, const Hit& hit, const ProxyTab
   path.ray.d = wi;
   path.ray.tmin = 0;
   path.ray.tmax = kInf;
+  // Shadow linking: the direct light this direction brings past objects that cast no shadow.
+  addDirectPastNonCasters(scene, path, path.beta, path.ray.o, wi, [&](const Vec3& c, float dist, ShadowCasters who) {
+    path.addThroughProxies(c, scene.proxyTransmittance(path.ray.o, wi, dist, &own, path.rng.nextU32(), path.ray.time,
+                                                       who));
+  });
   path.coneSpread = std::max(path.coneSpread, kDiffuseConeSpread);
   path.depth += kProxyOrders;
   ++path.proxyVisits;

@@ -352,6 +352,10 @@ void Scene::buildSurfaceMaps(const SceneDesc& desc) {
 Bounds3 Scene::buildMeshes(const SceneDesc& desc, int defaultSurface) {
   device_ = makeEmbreeDevice();
   surfaces_ = makeEmbreeScene(device_);
+  // Shadow linking passes meshes on shadow rays by a filter of the ray's context.
+  for (const auto& l : desc.lights)
+    if (!l.shadowLink.empty() || !l.shadows)
+      rtcSetSceneFlags(surfaces_.get(), rtcGetSceneFlags(surfaces_.get()) | RTC_SCENE_FLAG_CONTEXT_FILTER_FUNCTION);
   cutoutData_.reserve(desc.meshes.size());
   Bounds3 all;
   const CameraDesc& cam = desc.camera;
@@ -996,6 +1000,7 @@ void Scene::buildLightLinks(const SceneDesc& desc, const std::vector<LightDesc>&
   lightLinksText_.clear();
   linkPicks_.clear();
   objectPick_.clear();
+  buildShadowLinks(categories, lights);
   bool linked = false;
   for (const auto& l : lights) linked = linked || !l.lightLink.empty();
   if (!linked) return;
@@ -1026,6 +1031,72 @@ void Scene::buildLightLinks(const SceneDesc& desc, const std::vector<LightDesc>&
     if (added) linkPicks_.emplace_back(w);
     objectPick_.push_back(it->second);
   }
+}
+
+void Scene::buildShadowLinks(const std::vector<const std::vector<std::string>*>& categories,
+                             const std::vector<LightDesc>& lights) {
+  unshadowed_.clear();
+  shadowLinked_.clear();
+  shadowLinksText_.clear();
+  nonCasters_.clear();
+  nonCasterBounds_.clear();
+  bool linked = false;
+  for (const auto& l : lights) linked = linked || !l.shadowLink.empty() || !l.shadows;
+  if (!linked || categories.empty()) return;
+  unshadowed_.assign(lights.size() * categories.size(), 0);
+  shadowLinked_.assign(lights.size(), 0);
+  for (size_t i = 0; i < lights.size(); ++i) {
+    if (lights[i].shadowLink.empty() && lights[i].shadows) continue;
+    size_t casting = 0;
+    for (size_t o = 0; o < categories.size(); ++o) {
+      const auto& c = *categories[o];
+      const bool casts = lights[i].shadows && std::find(c.begin(), c.end(), lights[i].shadowLink) != c.end();
+      unshadowed_[i * categories.size() + o] = !casts;
+      casting += casts;
+    }
+    if (casting == categories.size()) continue;  // the collection holds every object
+    shadowLinked_[i] = 1;
+    nonCasters_.resize(lights.size());
+    nonCasterBounds_.resize(lights.size());
+    for (size_t o = 0; o < categories.size(); ++o)
+      if (unshadowed_[i * categories.size() + o]) {
+        nonCasters_[i].push_back({int(o), linkObjectBounds(int(o))});
+        nonCasterBounds_[i].extend(nonCasters_[i].back().bounds);
+      }
+    shadowLinksText_ += str(shadowLinksText_.empty() ? "" : "; ", lights[i].name, ": ", casting, " of ",
+                            categories.size(), " objects cast shadows");
+  }
+}
+
+Bounds3 Scene::linkObjectBounds(int object) const {
+  Bounds3 b;
+  const int a = object - linkMeshes_;
+  if (object < linkMeshes_) {
+    b = worldMeshes_[size_t(object)].bounds();
+    if (worldMeshesAtClose_[size_t(object)].numTriangles() > 0) b.extend(worldMeshesAtClose_[size_t(object)].bounds());
+  } else if (a < int(aggregates_.size())) {
+    b = aggregateBounds_[size_t(a)];
+  } else {
+    b = builtInstanced_[size_t(a) - aggregates_.size()].bounds;
+  }
+  if (b.empty()) return b;
+  // Padded a little, as surfaceBounds_: a ray that meets the object must cross them.
+  const Vec3 pad = b.extent() * 1e-4f + Vec3(1e-6f * std::max(maxComponent(vabs(b.lo)), maxComponent(vabs(b.hi))));
+  b.lo = b.lo - pad;
+  b.hi = b.hi + pad;
+  return b;
+}
+
+bool Scene::crossesNonCaster(int light, int self, const Vec3& x, const Vec3& dir, float dist) const {
+  if (!shadowLinked(light)) return false;
+  const Vec3 invD(1.0f / dir.x, 1.0f / dir.y, 1.0f / dir.z);
+  float t0, t1;
+  if (!nonCasterBounds_[size_t(light)].intersect(x, invD, 0.0f, dist, t0, t1)) return false;
+  const std::vector<NonCaster>& listed = nonCasters_[size_t(light)];
+  if (listed.size() > kListedNonCasters) return true;
+  for (const NonCaster& n : listed)
+    if (n.object != self && n.bounds.intersect(x, invD, 0.0f, dist, t0, t1)) return true;
+  return false;
 }
 
 int Scene::linkObjectOf(const Hit& hit) const {
@@ -1689,11 +1760,12 @@ bool Scene::firstGrainProxy(const Ray& ray, const GrainStart& met, Hit& hit) con
 }
 
 ProxyShadow Scene::proxyTransmittance(const Vec3& p, const Vec3& dir, float dist, const GrainStart* from,
-                                      uint64_t seed, float time) const {
-  if (surfacesOccluded(p, dir, dist, time, false, true)) return ProxyShadow{Vec3(0.0f), 0.0f};
+                                      uint64_t seed, float time, ShadowCasters casters) const {
+  const ShadowPass passes = shadowPass(casters);
+  if (surfacesOccluded(p, dir, dist, time, false, true, passes)) return ProxyShadow{Vec3(0.0f), 0.0f};
   ProxyShadow tr;
   for (size_t i = 0; i < builtInstanced_.size() && !tr.blocked(); ++i) {
-    if (!instancedProxies_[i]) continue;
+    if (!instancedProxies_[i] || passes(instancerLinkObject(int(i)))) continue;
     const BuiltInstanced& b = builtInstanced_[i];
     const ProxyTables& tables = *b.proxies;
     const bool own = from && from->instancer == int(i);
@@ -1707,15 +1779,32 @@ ProxyShadow Scene::proxyTransmittance(const Vec3& p, const Vec3& dir, float dist
   }
   for (size_t a = 0; a < aggregates_.size() && !tr.blocked(); ++a) {
     const bool own = from && from->aggregate == int(a);
-    if (missesMoving(a, p, dir, 0.0f, dist)) continue;
+    if (passes(aggregateLinkObject(int(a))) || missesMoving(a, p, dir, 0.0f, dist)) continue;
     tr *= aggregateAt(int(a), time).proxyTransmittance(p, dir, 0.0f, dist, *proxyTables_[a],
                                                        own ? &from->grain : nullptr, hashInts(seed, a));
   }
   return tr;
 }
 
+namespace {
+
+// Embree's context for a shadow ray that passes some meshes (shadow linking): the filter
+// rejects a candidate hit on a mesh the ray passes (by geometry id, its link object).
+struct ShadowLinkContext {
+  RTCIntersectContext context;  // first: Embree hands the filter a pointer to it
+  const ShadowPass* passes;
+};
+
+void shadowLinkFilter(const RTCFilterFunctionNArguments* args) {
+  const auto* c = reinterpret_cast<const ShadowLinkContext*>(args->context);
+  for (unsigned i = 0; i < args->N; ++i)
+    if (args->valid[i] == -1 && (*c->passes)(int(RTCHitN_geomID(args->hit, args->N, i)))) args->valid[i] = 0;
+}
+
+}  // namespace
+
 bool Scene::surfacesOccluded(const Vec3& p, const Vec3& dir, float dist, float time, bool mediaMode,
-                             bool proxyMode) const {
+                             bool proxyMode, ShadowPass passes) const {
   if (!traceable(p, dir, 0.0f, dist)) return false;
   if (areaLightsOccluded(p, dir, dist)) return true;
   if (!instanced_.empty()) {
@@ -1725,13 +1814,17 @@ bool Scene::surfacesOccluded(const Vec3& p, const Vec3& dir, float dist, float t
       for (size_t i = 0; i < builtInstanced_.size(); ++i) {
         const BuiltInstanced& b = builtInstanced_[i];
         if (!(mediaMode && b.medium) && !(proxyMode && instancedProxies_[i]) &&
-            b.bounds.intersect(p, invD, 0.0f, dist, t0, t1) && b.grains->occluded(p, dir, 0.0f, dist, time))
+            !passes(instancerLinkObject(int(i))) && b.bounds.intersect(p, invD, 0.0f, dist, t0, t1) &&
+            b.grains->occluded(p, dir, 0.0f, dist, time))
           return true;
       }
   }
   if (surfaceBounds_.empty()) return false;
-  RTCIntersectContext ctx;
+  ShadowLinkContext link;
+  RTCIntersectContext& ctx = link.context;
   rtcInitIntersectContext(&ctx);
+  link.passes = &passes;
+  if (passes.row) ctx.filter = shadowLinkFilter;
   RTCRay r;
   r.org_x = p.x; r.org_y = p.y; r.org_z = p.z;
   r.dir_x = dir.x; r.dir_y = dir.y; r.dir_z = dir.z;
@@ -1740,8 +1833,10 @@ bool Scene::surfacesOccluded(const Vec3& p, const Vec3& dir, float dist, float t
   return r.tfar < 0;  // Embree marks a hit by tfar = -inf
 }
 
-Vec3 Scene::transmittance(const Vec3& p, const Vec3& dir, float dist, float time, Rng* rng) const {
-  if (surfacesOccluded(p, dir, dist, time, true)) return Vec3(0.0f);
+Vec3 Scene::transmittance(const Vec3& p, const Vec3& dir, float dist, float time, Rng* rng,
+                          ShadowCasters casters) const {
+  const ShadowPass passes = shadowPass(casters);
+  if (surfacesOccluded(p, dir, dist, time, true, false, passes)) return Vec3(0.0f);
   Vec3 tr(1.0f);
   if (instancedMedia_ > 0) {
     std::optional<Rng> own;  // without the path's: from a hash of the ray, reproducible
@@ -1750,8 +1845,8 @@ Vec3 Scene::transmittance(const Vec3& p, const Vec3& dir, float dist, float time
                                   floatBits(dir.x) ^ (uint64_t(floatBits(dir.y)) << 32)),
                          floatBits(dir.z));
     Ray ray{p, dir, 0.0f, kInf, time};
-    for (const BuiltInstanced& b : builtInstanced_)
-      if (b.medium) {
+    for (size_t i = 0; i < builtInstanced_.size(); ++i)
+      if (const BuiltInstanced& b = builtInstanced_[i]; b.medium && !passes(instancerLinkObject(int(i)))) {
         tr *= b.medium->medium.transmittance(ray, dist, *rng);
         if (isBlack(tr)) return tr;
       }
@@ -1760,7 +1855,8 @@ Vec3 Scene::transmittance(const Vec3& p, const Vec3& dir, float dist, float time
   for (size_t a = 0; a < aggregates_.size(); ++a) {
     // Walk the boundary crossings; a crossing whose normal faces along the ray leaves
     // the medium, so the segment before it was inside.
-    if (missesMoving(a, p, dir, 0.0f, dist)) continue;  // neither crosses nor holds p
+    if (passes(aggregateLinkObject(int(a))) || missesMoving(a, p, dir, 0.0f, dist))
+      continue;  // casts no shadow from the light, or neither crosses nor holds p
     const PosedAggregate agg = aggregateAt(int(a), time);
     float t0 = 0, t;
     Vec3 ng;
@@ -1796,10 +1892,13 @@ int Scene::mediumAt(const Vec3& p, float time) const {
   return -1;
 }
 
-bool Scene::occluded(const Vec3& p, const Vec3& dir, float dist, float time) const {
-  if (surfacesOccluded(p, dir, dist, time)) return true;
+bool Scene::occluded(const Vec3& p, const Vec3& dir, float dist, float time, ShadowCasters casters) const {
+  const ShadowPass passes = shadowPass(casters);
+  if (surfacesOccluded(p, dir, dist, time, false, false, passes)) return true;
   for (size_t a = 0; a < aggregates_.size(); ++a)
-    if (!missesMoving(a, p, dir, 0.0f, dist) && aggregateAt(int(a), time).occluded(p, dir, 0.0f, dist)) return true;
+    if (!passes(aggregateLinkObject(int(a))) && !missesMoving(a, p, dir, 0.0f, dist) &&
+        aggregateAt(int(a), time).occluded(p, dir, 0.0f, dist))
+      return true;
   return false;
 }
 

@@ -83,6 +83,21 @@ enum class SceneDetail { Full, StandIns };
 // the build cache does not hold), called on the building thread.
 using BuildLog = std::function<void(const std::string&)>;
 
+// A shadow ray's light and the object it leaves (Scene::linkObjectOf; -1: none), for
+// shadow linking (Scene::castsShadow). light -1: every object blocks the ray.
+struct ShadowCasters {
+  int light = -1;
+  int self = -1;
+};
+
+// Which objects a shadow ray passes (Scene::shadowPass): those whose entry of `row` (per
+// object, Scene::linkObjectOf's numbering) is 1, but `self`. No row: none.
+struct ShadowPass {
+  const uint8_t* row = nullptr;
+  int self = -1;
+  bool operator()(int object) const { return row && object != self && row[object]; }
+};
+
 class Scene {
  public:
   static std::unique_ptr<Scene> build(const SceneDesc& desc, const Scene* previous = nullptr,
@@ -96,7 +111,10 @@ class Scene {
   // transmittance, proxyTransmittance) is blocked by what would end a ray of intersect():
   // surfaces, grains, and area lights hit from their emitting side (Light::intersect), so
   // light sampling sees what BSDF and phase sampling see and their MIS weights agree.
-  bool occluded(const Vec3& p, const Vec3& dir, float dist, float time = 0) const;
+  // casters: the light the ray is cast toward and the object it leaves; the objects that
+  // cast no shadow from that light but that one (shadow linking: castsShadow) are passed.
+  // The default: every object blocks.
+  bool occluded(const Vec3& p, const Vec3& dir, float dist, float time = 0, ShadowCasters casters = {}) const;
 
   // The equivalent media (VPT, DA): nearest surface, area light or aggregate boundary
   // (Hit::Boundary, ng outward); grains are not seen.
@@ -109,7 +127,8 @@ class Scene {
   // Transmittance of a shadow ray through the media: 0 if a surface blocks it, else the
   // product of exp(−σ_t ℓ) over the lengths ℓ it runs inside each aggregate's boundary.
   // Instancers' media are crossed by ratio tracking, from rng (without one: from a hash of the ray).
-  Vec3 transmittance(const Vec3& p, const Vec3& dir, float dist, float time = 0, Rng* rng = nullptr) const;
+  Vec3 transmittance(const Vec3& p, const Vec3& dir, float dist, float time = 0, Rng* rng = nullptr,
+                     ShadowCasters casters = {}) const;
   // Proxies (proxy.h; when useProxies()): nearest surface,
   // area light or proxy sphere entered (Hit::Proxy; its grain's prototype in hit.grain, p
   // on the sphere, ng the sphere's outward normal there). from: the sphere the ray leaves.
@@ -132,7 +151,7 @@ class Scene {
   // through the proxy spheres on its line (ProxyShadow, proxy.h; Aggregate::
   // proxyTransmittance; seed: its roulette's random numbers).
   ProxyShadow proxyTransmittance(const Vec3& p, const Vec3& dir, float dist, const GrainStart* from, uint64_t seed,
-                                 float time = 0) const;
+                                 float time = 0, ShadowCasters casters = {}) const;
   // Paths go on among proxies after their first grain in some aggregate (useProxies(a)).
   // Their tables are built (or read from the disk cache) when first needed, by build() or
   // setView(): for every aggregate once any uses proxies or switching is measured.
@@ -382,6 +401,28 @@ class Scene {
   bool lightReaches(int light, int object) const {
     return unlit_.empty() || object < 0 || !unlit_[size_t(light) * size_t(linkObjects_) + size_t(object)];
   }
+  // Shadow linking (LightDesc::shadowLink, shadows): whether object o (as linkObjectOf)
+  // casts shadows from light i, i.e. blocks the shadow rays cast toward it. An object's
+  // shadow on itself stays (a shadow ray leaving it is blocked by it as usual): an
+  // aggregate's light transport is made of it.
+  bool castsShadow(int light, int object) const {
+    const uint8_t* passes = shadowPasses(light);
+    return !passes || object < 0 || !passes[object];
+  }
+  // A light some object casts no shadow from; whether any light is.
+  bool shadowLinked(int light) const { return !shadowLinked_.empty() && shadowLinked_[size_t(light)]; }
+  bool anyShadowLinked() const { return !shadowLinked_.empty(); }
+  // Whether the segment from x (a vertex of object `self`) along dir over dist meets the
+  // bounds of another object that casts no shadow from light i. A direction sampled by
+  // scattering there would meet what the light's shadow rays pass, so the vertex counts the
+  // light that direction brings itself, by a shadow ray (ept.h: addDirectPastNonCasters),
+  // and the emitter the path meets later is not counted again. Elsewhere the two
+  // strategies see the same blockers and MIS is as usual. A function of the vertex and
+  // the direction alone, so that both places agree on it.
+  bool crossesNonCaster(int light, int self, const Vec3& x, const Vec3& dir, float dist) const;
+  // For the front ends' logs: "/World/Key: 3 of 14 objects cast shadows" per shadow-linked
+  // light, "; " between them; "" when none is.
+  const std::string& shadowLinksText() const { return shadowLinksText_; }
   const std::vector<std::shared_ptr<const Aggregate>>& aggregates() const { return aggregates_; }
   // Explicit grains from simulations (SceneDesc::instancedGrains), in render space. A
   // grain's absorption is per its prototype's bounding radius at scale 1 (the instancer's
@@ -495,8 +536,9 @@ class Scene {
   // Meshes, explicit grains from instancers (which every transport sees as surfaces) and
   // area lights (areaLightsOccluded). mediaMode: instancers with a medium are that medium
   // (transmittance), not grains.
+  ShadowPass shadowPass(ShadowCasters c) const { return ShadowPass{shadowPasses(c.light), c.self}; }
   bool surfacesOccluded(const Vec3& p, const Vec3& dir, float dist, float time, bool mediaMode = false,
-                        bool proxyMode = false) const;
+                        bool proxyMode = false, ShadowPass passes = {}) const;
   bool intersectMeshes(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax) const;
   bool intersectInstancedGrains(const Ray& ray, const Vec3& invD, Hit& hit, float& tmax, bool mediaMode,
                                 bool proxyMode = false) const;
@@ -593,6 +635,26 @@ class Scene {
   std::vector<uint8_t> unlit_;
   int linkMeshes_ = 0, linkObjects_ = 0;
   std::string lightLinksText_;
+  // Shadow linking (castsShadow): per light and object, 1 where the object casts no shadow
+  // from the light (empty when every object casts every shadow); per light, whether any does not.
+  std::vector<uint8_t> unshadowed_, shadowLinked_;
+  std::string shadowLinksText_;
+  // The row of unshadowed_ for light i, or null where every object blocks its shadow rays.
+  const uint8_t* shadowPasses(int light) const {
+    return light < 0 || !shadowLinked(light) ? nullptr : &unshadowed_[size_t(light) * size_t(linkObjects_)];
+  }
+  // Per light, the objects that cast no shadow from it, with their bounds (over the
+  // shutter), and the union of those bounds: crossesNonCaster's test. Past
+  // kListedNonCasters objects the union alone answers (conservatively: a direction that
+  // crosses it is counted at its scattering, which is right if needless).
+  struct NonCaster {
+    int object;
+    Bounds3 bounds;
+  };
+  static constexpr size_t kListedNonCasters = 64;
+  std::vector<std::vector<NonCaster>> nonCasters_;
+  std::vector<Bounds3> nonCasterBounds_;
+  Bounds3 linkObjectBounds(int object) const;
   std::vector<float> pickWeights_;  // lightPick_'s weights
   std::vector<Distribution1D> linkPicks_;
   std::vector<int> objectPick_;
@@ -669,6 +731,8 @@ class Scene {
   };
   std::vector<CutoutFilterData> cutoutData_;  // one per mesh, reserved before any is used
   static void cutoutFilter(const RTCFilterFunctionNArguments* args);
+  void buildShadowLinks(const std::vector<const std::vector<std::string>*>& categories,
+                        const std::vector<LightDesc>& lights);
   void surfaceUv(int geom, unsigned prim, float bu, float bv, float& u, float& v) const;
   std::vector<int> meshMaterial_, meshId_;
   std::vector<int> aggregateId_;

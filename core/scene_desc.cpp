@@ -611,7 +611,7 @@ static_assert(fieldCount<TriangleMesh>() == 3, "compare the new field in sameMes
 static_assert(fieldCount<CameraDesc>() == 12, "compare the new field in sameCamera");
 static_assert(fieldCount<TextureDesc>() == 14, "compare the new field in sameTexture (scale, bias: 4 each)");
 static_assert(fieldCount<MaterialDesc>() == 13, "compare the new field in sameMaterial");
-static_assert(fieldCount<LightDesc>() == 15, "compare the new field in sameLight");
+static_assert(fieldCount<LightDesc>() == 17, "compare the new field in sameLight");
 static_assert(fieldCount<LightShaping>() == 5, "compare the new field in sameLight");
 static_assert(fieldCount<MeshDesc>() == 9, "compare the new field in sameMeshDesc (or linkCategories)");
 static_assert(fieldCount<GrainPrototypeDesc>() == 3, "compare the new field in sameAggregateInputs");
@@ -667,7 +667,8 @@ bool sameLight(const LightDesc& a, const LightDesc& b) {
          a.radius == b.radius && a.width == b.width && a.height == b.height && a.length == b.length &&
          a.shaping.enabled == b.shaping.enabled && a.shaping.coneAngle == b.shaping.coneAngle &&
          a.shaping.coneSoftness == b.shaping.coneSoftness && a.shaping.focus == b.shaping.focus &&
-         a.shaping.focusTint == b.shaping.focusTint && a.textureFile == b.textureFile && a.lightLink == b.lightLink;
+         a.shaping.focusTint == b.shaping.focusTint && a.textureFile == b.textureFile && a.lightLink == b.lightLink &&
+         a.shadowLink == b.shadowLink && a.shadows == b.shadows;
 }
 
 // Transforms at the shutter's open and close (MeshDesc::shutterXf, AggregateDesc::shutterXf).

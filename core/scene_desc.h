@@ -151,6 +151,15 @@ struct LightDesc {
   // DA's) the light then counts only if it lights that vertex's object, sampled or met;
   // what the objects it lights pass on still reaches the others. The camera sees it.
   std::string lightLink;
+  // Shadow linking (UsdLuxShadowAPI's collection:shadowLink, inputs:shadow:enable): empty,
+  // every object casts shadows from the light; else only the objects whose linkCategories
+  // hold this name. shadows false: no object does. An object that casts none is passed by
+  // the light's shadow rays from other objects (its surfaces, grains, proxies and media);
+  // its shadow on itself stays. Rays sampled by scattering still meet it; the light they
+  // would bring past it is counted where they were sampled (ept.h: addDirectPastNonCasters).
+  // Area lights' own bodies always block.
+  std::string shadowLink;
+  bool shadows = true;
 };
 
 struct MeshDesc {
@@ -163,7 +172,7 @@ struct MeshDesc {
   // The index of the instance this mesh is of a flattened instancer (a PointInstancer's
   // instance index), reported by the instanceId AOV; -1: not instanced. >= -1.
   int instanceId = -1;
-  std::vector<std::string> linkCategories;  // the lights' lightLink names this object is lit by (LightDesc::lightLink)
+  std::vector<std::string> linkCategories;  // the light- and shadow-link names that include it (LightDesc::lightLink, shadowLink)
   // Transform motion blur: the object-to-world transforms at the camera's shutter open and
   // close (CameraDesc); the mesh moves vertex by vertex linearly between them over the
   // shutter (Embree's linear motion blur). Unset, or without an open shutter: still at xf.

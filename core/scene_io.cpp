@@ -609,11 +609,13 @@ void parseMeshes(const json& v, SceneDesc& desc, const MaterialIndex& mats, cons
 }
 
 // A light's "light_link": the objects it lights by name, every one unless "include" lists
-// them, less those "exclude" lists (UsdCollectionAPI's includes and excludes).
+// them, less those "exclude" lists (UsdCollectionAPI's includes and excludes); its
+// "shadow_link" likewise the objects that cast shadows from it.
 struct JsonLightLink {
   size_t light;
   std::optional<std::vector<std::string>> include;
   std::vector<std::string> exclude;
+  std::string key;  // light_link, shadow_link
 };
 
 std::vector<std::string> toNames(const json& v, const std::string& obj, const std::string& key) {
@@ -623,24 +625,27 @@ std::vector<std::string> toNames(const json& v, const std::string& obj, const st
   return names;
 }
 
-JsonLightLink parseLightLink(const json& v, size_t light, const std::string& label) {
-  Obj o(v, label, "light_link", label, {"include", "exclude"});
-  JsonLightLink link{light, std::nullopt, {}};
-  if (const json* in = o.find("include")) link.include = toNames(*in, label, "light_link.include");
-  if (const json* ex = o.find("exclude")) link.exclude = toNames(*ex, label, "light_link.exclude");
+JsonLightLink parseLightLink(const json& v, size_t light, const std::string& label, const std::string& key) {
+  Obj o(v, label, key, label, {"include", "exclude"});
+  JsonLightLink link{light, std::nullopt, {}, key};
+  if (const json* in = o.find("include")) link.include = toNames(*in, label, key + ".include");
+  if (const json* ex = o.find("exclude")) link.exclude = toNames(*ex, label, key + ".exclude");
   return link;
 }
 
-// Light links as core holds them (LightDesc::lightLink): the light's name as the category of
-// each object it lights. A name that is no mesh, aggregate or instanced grains is an error.
+// Links as core holds them (LightDesc::lightLink, shadowLink): the light's name (its shadow
+// link's "name:shadow") as the category of each object it lights (that casts shadows from
+// it). A name that is no mesh, aggregate or instanced grains is an error.
 void applyLightLinks(const std::vector<JsonLightLink>& links, SceneDesc& desc) {
   for (const JsonLightLink& link : links) {
     LightDesc& light = desc.lights[link.light];
+    const bool shadow = link.key == "shadow_link";
+    const std::string category = shadow ? light.name + ":shadow" : light.name;
     std::set<std::string> known;
     auto object = [&](const std::string& name, std::vector<std::string>& categories) {
       known.insert(name);
       const bool in = !link.include || std::count(link.include->begin(), link.include->end(), name);
-      if (in && !std::count(link.exclude.begin(), link.exclude.end(), name)) categories.push_back(light.name);
+      if (in && !std::count(link.exclude.begin(), link.exclude.end(), name)) categories.push_back(category);
     };
     for (MeshDesc& m : desc.meshes) object(m.name, m.linkCategories);
     for (AggregateDesc& a : desc.aggregates) object(a.name, a.linkCategories);
@@ -648,9 +653,9 @@ void applyLightLinks(const std::vector<JsonLightLink>& links, SceneDesc& desc) {
     for (const auto* names : {link.include ? &*link.include : nullptr, &link.exclude})
       for (size_t k = 0; names && k < names->size(); ++k)
         if (!known.count((*names)[k]))
-          throw InputError(light.name, str("light_link.", names == &link.exclude ? "exclude" : "include"),
+          throw InputError(light.name, str(link.key, ".", names == &link.exclude ? "exclude" : "include"),
                            str("\"", (*names)[k], "\" is no mesh, aggregate or instanced grains of the scene"));
-    light.lightLink = light.name;
+    (shadow ? light.shadowLink : light.lightLink) = category;
   }
 }
 
@@ -664,7 +669,8 @@ void parseLights(const json& v, SceneDesc& desc, const Context& ctx, std::vector
       throw InputError(label, "type", "is required (distant, sphere, rect, disk, cylinder or dome)");
     std::string type = toString(a[i].at("type"), label, "type");
     std::vector<std::string> keys = {"name",      "type",      "color",     "intensity",
-                                     "exposure",  "normalize", "transform", "light_link"};
+                                     "exposure",  "normalize", "transform", "light_link",
+                                     "shadow_link", "shadows"};
     const std::vector<std::string> shapingKeys = {"shaping_cone_angle", "shaping_cone_softness", "shaping_focus",
                                                   "shaping_focus_tint"};
     LightDesc l;
@@ -729,7 +735,9 @@ void parseLights(const json& v, SceneDesc& desc, const Context& ctx, std::vector
           throw InputError(label, "texture_file", str("\"", l.textureFile, "\" does not exist"));
       }
     }
-    if (const json* link = o.find("light_link")) links.push_back(parseLightLink(*link, desc.lights.size(), label));
+    l.shadows = o.flag("shadows", l.shadows);
+    for (const char* key : {"light_link", "shadow_link"})
+      if (const json* link = o.find(key)) links.push_back(parseLightLink(*link, desc.lights.size(), label, key));
     desc.lights.push_back(std::move(l));
   }
 }

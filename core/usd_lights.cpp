@@ -40,7 +40,13 @@ const char* const kIesFile = "inputs:shaping:ies:file";
 // Non-physical controls a path tracer of grains has no meaning for: warned about when set.
 const char* const kDiffuse = "inputs:diffuse";
 const char* const kSpecular = "inputs:specular";
+// ShadowAPI: shadow:enable is honoured (LightDesc::shadows); the rest shape shadows in ways
+// light transport has no meaning for: warned about when set off their fallbacks.
 const char* const kShadowEnable = "inputs:shadow:enable";
+const char* const kShadowColor = "inputs:shadow:color";
+const char* const kShadowDistance = "inputs:shadow:distance";
+const char* const kShadowFalloff = "inputs:shadow:falloff";
+const char* const kShadowFalloffGamma = "inputs:shadow:falloffGamma";
 
 // One lobe of the fit: a Gaussian with different widths below and above its mean.
 double lobe(double lambda, double mean, double below, double above) {
@@ -73,7 +79,7 @@ const std::vector<std::string>& usdLightAttributeNames() {
       kIntensity, kExposure, kColor,        kNormalize,   kEnableTemperature, kTemperature, kAngle,
       kTextureFile, kTextureFormat, kWidth, kHeight,      kRadius,            kLength,      kTreatAsPoint,
       kTreatAsLine, kConeAngle, kConeSoftness, kFocus,    kFocusTint,         kIesFile,     kDiffuse,
-      kSpecular,    kShadowEnable};
+      kSpecular,    kShadowEnable, kShadowColor, kShadowDistance, kShadowFalloff, kShadowFalloffGamma};
   return names;
 }
 
@@ -168,12 +174,15 @@ std::optional<LightDesc> lightFromUsd(const UsdPrimRecord& r, UsdWarnings& warni
   for (const char* multiplier : {kDiffuse, kSpecular})
     if (usdFloat(r, multiplier, 1.0f) != 1.0f)
       warnings.push_back(str(path, ".", multiplier, ": not supported (light reaches every surface as it is); ignored"));
-  if (!usdBool(r, kShadowEnable, true))
-    warnings.push_back(str(path, ".", kShadowEnable, ": not supported (every light casts shadows); ignored"));
+  l.shadows = usdBool(r, kShadowEnable, true);
+  if (usdColor(r, kShadowColor, Vec3(0.0f)) != Vec3(0.0f))
+    warnings.push_back(str(path, ".", kShadowColor, ": not supported (shadows are where the light does not reach); ignored"));
+  for (const auto& [name, fallback] : {std::pair{kShadowDistance, -1.0f}, std::pair{kShadowFalloff, -1.0f},
+                                       std::pair{kShadowFalloffGamma, 1.0f}})
+    if (usdFloat(r, name, fallback) != fallback)
+      warnings.push_back(str(path, ".", name, ": not supported (shadows reach as far as the light); ignored"));
   l.lightLink = usdToken(r, kUsdLightLink, "");
-  if (!usdToken(r, kUsdShadowLink, "").empty())
-    warnings.push_back(str(path, ".", kUsdShadowLink,
-                           ": shadow linking is not supported (every object casts shadows from every light); ignored"));
+  l.shadowLink = usdToken(r, kUsdShadowLink, "");
   // Core's checks, in USD's names (a light's SceneDesc fields are its inputs).
   checkInUsdNames(path, [&] { validateLightDesc(l, path); }, [](const std::string& field) {
     for (const auto& [shapingField, name] : kShapingInputs)

@@ -15,8 +15,11 @@
 //    inputs:shaping:cone:softness (0), inputs:shaping:focus (0), inputs:shaping:focusTint
 //    (0, 0, 0) (LightShaping, scene_desc.h), on where any of them has a value; on a distant
 //    or dome light it is warned about and ignored, as is inputs:shaping:ies:file;
-//  - inputs:diffuse and inputs:specular other than 1 and inputs:shadow:enable false
-//    (non-physical controls): one warning each, ignored;
+//  - ShadowAPI: inputs:shadow:enable (true; false: no object casts shadows from the light,
+//    LightDesc::shadows); inputs:shadow:color, :distance, :falloff and :falloffGamma off
+//    their fallbacks (0, -1, -1, 1) are warned about and ignored;
+//  - inputs:diffuse and inputs:specular other than 1 (non-physical controls): one warning
+//    each, ignored;
 //  - a surface with MeshLightAPI (Mesh, an implicit surface): one warning; the front end
 //    draws it as an ordinary surface, as Hydra hosts do;
 //  - any other light type (PortalLight, a GeometryLight, ...): one warning, skipped.
@@ -24,8 +27,8 @@
 // when the light's collection of that name does not hold every prim (includeRoot with no
 // exclude): the collection's name, which each drawn prim it includes lists in its
 // linkCategories (granular_prims.h; Hydra's categories, usd-core's membership query). The
-// light then lights those objects alone (LightDesc::lightLink); a shadowLink is warned about
-// and ignored.
+// light then lights those objects alone (LightDesc::lightLink), and only the objects its
+// shadowLink includes cast shadows from it (LightDesc::shadowLink).
 // Every light: inputs:intensity (1), inputs:exposure (0), inputs:color (1, 1, 1),
 // inputs:normalize (false), and inputs:colorTemperature (6500 K, > 0) when
 // inputs:enableColorTemperature is true: the colour is multiplied by blackbodyRgb of it.

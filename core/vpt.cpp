@@ -153,7 +153,7 @@ void mediumNee(const Scene& scene, PathState& path, const HomogeneousMedium& med
         from = scene.movedLight(p, move, path.ray.time);
         if (std::isfinite(dist)) dist = std::max(0.0f, dist - length(move));
       }
-      Vec3 Tr = scene.transmittance(from, ls.wi, dist, path.ray.time, &path.rng);
+      Vec3 Tr = scene.transmittance(from, ls.wi, dist, path.ray.time, &path.rng, ShadowCasters{li, path.linkObject});
       path.cost[1] += 1;
       if (boundary && !isBlack(Tr)) {
         // The flight to the own medium's boundary in the reduced medium (diffusion.h).
@@ -236,6 +236,11 @@ void scatterInMedium(const Scene& scene, PathState& path, const HomogeneousMediu
   path.ray.d = wo;
   path.ray.tmin = 0;
   path.ray.tmax = kInf;
+  // Shadow linking: the direct light this direction brings past objects that cast no shadow.
+  if (pdf > 0)
+    addDirectPastNonCasters(scene, path, path.beta, path.ray.o, wo, [&](const Vec3& c, float dist, ShadowCasters who) {
+      path.L[path.credit] += c * scene.transmittance(path.ray.o, wo, dist, path.ray.time, &path.rng, who);
+    });
   ++path.depth;
   if (!russianRoulette(scene, path) || !isFinite(path.beta) || isBlack(path.beta) || pdf <= 0) path.alive = false;
 }

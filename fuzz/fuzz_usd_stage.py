@@ -391,7 +391,8 @@ ATTRS = []
 for _l in LIGHTS:
     ATTRS += [(_l, "inputs:intensity", "float", H(0, 20)), (_l, "inputs:exposure", "float", H(-5, 5)),
               (_l, "inputs:color", "color3f", H(0, 1)), (_l, "inputs:colorTemperature", "float", H(1000, 20000)),
-              (_l, "inputs:enableColorTemperature", "bool", H()), (_l, "inputs:normalize", "bool", H())]
+              (_l, "inputs:enableColorTemperature", "bool", H()), (_l, "inputs:normalize", "bool", H()),
+              (_l, "inputs:shadow:enable", "bool", H())]
 ATTRS += [("/World/Sun", "inputs:angle", "float", H(0, 10)), ("/World/Sky", "inputs:texture:file", "asset", H()),
           ("/World/Sky", "inputs:texture:format", "token",
            H(choices=["automatic", "latlong", "mirroredBall", "angular", "cubeMapVerticalCross"])),

@@ -285,6 +285,8 @@ VtDictionary HdGranularRenderer::GetStats() const {
     stats["granular:lightPicks"] = VtValue(_scene->lightPicksText());
     // Light linking: each linked light and how many objects it lights ("" when none is linked).
     stats["granular:lightLinks"] = VtValue(_scene->lightLinksText());
+    // Shadow linking: each shadow-linked light and how many objects cast its shadows.
+    stats["granular:shadowLinks"] = VtValue(_scene->shadowLinksText());
     // What carries the low orders: proxies (granular:proxies), and how many bounces before
     // the medium.
     stats["granular:proxies"] = VtValue(_scene->useProxies());

@@ -516,7 +516,9 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("length", &LightDesc::length)
       .def_readwrite("shaping", &LightDesc::shaping)
       .def_readwrite("texture_file", &LightDesc::textureFile)
-      .def_readwrite("light_link", &LightDesc::lightLink);
+      .def_readwrite("light_link", &LightDesc::lightLink)
+      .def_readwrite("shadow_link", &LightDesc::shadowLink)
+      .def_readwrite("shadows", &LightDesc::shadows);
 
   py::class_<MeshDesc>(m, "MeshDesc")
       .def(py::init<>())
@@ -1083,6 +1085,9 @@ PYBIND11_MODULE(granular_core, m) {
       .def_property_readonly("light_links", [](const PyScene& s) { return s.scene->lightLinksText(); },
                              "each linked light and the objects it lights, \"/World/Rim lights 2 of 14 objects\" "
                              "(\"\" when no light is linked)")
+      .def_property_readonly("shadow_links", [](const PyScene& s) { return s.scene->shadowLinksText(); },
+                             "each shadow-linked light and the objects that cast shadows from it, "
+                             "\"/World/Key: 3 of 14 objects cast shadows\" (\"\" when none is)")
       .def_property_readonly("has_media", [](const PyScene& s) { return s.scene->hasMedia(); },
                              "whether the integrator uses the equivalent media (VPT, DA) in this scene")
       .def_property_readonly("use_proxies", [](const PyScene& s) { return s.scene->useProxies(); },

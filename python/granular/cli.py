@@ -473,6 +473,8 @@ def _log_transports(args, built, renderer, image):
         _log(args, f"  light sampling picks: {built.light_picks}")
     if built.light_links:
         _log(args, f"  light linking: {built.light_links}")
+    if built.shadow_links:
+        _log(args, f"  shadow linking: {built.shadow_links}")
     if args.technique != "ept":
         for line in _low_orders(built):
             _log(args, "  " + line)

@@ -58,7 +58,7 @@ class StageScene:
         self.camera_path = None
         self.aggregates = []     # per desc.aggregates entry: {"prim", "world_boundary", "prototypes"}
         self.explicit_grains = []  # PointInstancer prims of simulated grains (read_instanced_grains)
-        self.light_links = []    # (name, membership query) of each light's collection:lightLink (read_light)
+        self.light_links = []    # (name, membership query) of each light's lightLink and shadowLink (read_light)
         self.warnings = []
         self.material_st = {}    # material index -> the primvar its textures read (None: none)
         # core object name -> {core attribute: (prim path, USD attribute)}, "*": prim path
@@ -630,7 +630,7 @@ def _text_value(type_name, text):
 
 def read_light(scene, prim, xf_cache):
     """A UsdLux light through core (usd_lights.h), its light-link collections named in its
-    record (scene.light_links keeps the lightLink's query for the prims' categories)."""
+    record (scene.light_links keeps their queries for the prims' categories)."""
     record = prim_record(prim, core.usd_light_attribute_names(), scene.time, xf_cache)
     attrs = record.attributes
     api = UsdLux.LightAPI(prim)
@@ -639,8 +639,7 @@ def read_light(scene, prim, xf_cache):
         link = _link_collection(collection)
         if link is not None:
             attrs[entry] = _text_value("token", link[0])
-            if entry == core.USD_LIGHT_LINK:
-                scene.light_links.append(link)
+            scene.light_links.append(link)
     record.attributes = attrs
     light, warnings = _core_call(core.light_from_usd, record)
     for w in warnings:
@@ -713,7 +712,7 @@ def _motion_blur_disabled(settings):
 
 
 def link_categories(scene, path):
-    """The light-link collections (scene.light_links) that include the prim at path."""
+    """The light- and shadow-link collections (scene.light_links) that include the prim at path."""
     if not scene.light_links or not Sdf.Path.IsValidPathString(path)[0]:
         return []
     p = Sdf.Path(path)

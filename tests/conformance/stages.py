@@ -529,9 +529,22 @@ def _():
     return granular_scene(lights=sky() + sun(extra=link))
 
 
-@stage("shadow_link", "a sun whose collection:shadowLink excludes the block (not supported: a warning)")
+@stage("shadow_link", "a sun whose collection:shadowLink excludes the block (no shadow from it on the ground)")
 def _():
-    return scene(lights=sky() + sun(extra="        rel collection:shadowLink:excludes = </World/Block>"))
+    return scene(lights=sky() + sun(extra=NORMALIZED + "        rel collection:shadowLink:excludes = </World/Block>"))
+
+
+@stage("shadow_link_aggregate", "a sun whose shadows the aggregate alone casts (includeRoot 0, includes the pile)")
+def _():
+    link = NORMALIZED + "        uniform bool collection:shadowLink:includeRoot = 0\n" \
+                        "        rel collection:shadowLink:includes = </World/Pile>"
+    return granular_scene(lights=sky() + sun(extra=link))
+
+
+@stage("shadow_enable_off", "a sun and a sky of inputs:shadow:enable 0 (nothing casts their shadows)")
+def _():
+    off = "        bool inputs:shadow:enable = 0"
+    return granular_scene(lights=sky(extra=off) + sun(extra=NORMALIZED + off))
 
 
 @stage("mesh_light", "a mesh with MeshLightAPI (a geometry light) and a dim sky")

@@ -120,19 +120,39 @@ TEST(UsdLights, OtherTypesAndUnsupportedAttributesAreWarnedAbout) {
   w.clear();
   EXPECT_TRUE(lightFromUsd(usdRecord("/Sun", "DistantLight",
                                      {{"inputs:diffuse", usdNumbers("float", {0})},
-                                      {"inputs:specular", usdNumbers("float", {1})},
-                                      {"inputs:shadow:enable", usdNumbers("bool", {0})}}),
+                                      {"inputs:specular", usdNumbers("float", {1})}}),
                            w));
-  ASSERT_EQ(w.size(), 2u);
+  ASSERT_EQ(w.size(), 1u);
   EXPECT_EQ(w[0], "/Sun.inputs:diffuse: not supported (light reaches every surface as it is); ignored");
-  EXPECT_EQ(w[1], "/Sun.inputs:shadow:enable: not supported (every light casts shadows); ignored");
+  w.clear();
+  // ShadowAPI: enable is honoured; the shaping of shadows is warned about off its fallbacks.
+  const LightDesc unshadowed = *lightFromUsd(
+      usdRecord("/Sun", "DistantLight",
+                {{"inputs:shadow:enable", usdNumbers("bool", {0})},
+                 {"inputs:shadow:color", usdNumbers("color3f", {0, 0, 0})},
+                 {"inputs:shadow:distance", usdNumbers("float", {-1})},
+                 {"inputs:shadow:falloffGamma", usdNumbers("float", {1})}}),
+      w);
+  EXPECT_FALSE(unshadowed.shadows);
+  EXPECT_TRUE(w.empty());
+  EXPECT_TRUE(lightFromUsd(usdRecord("/Sun", "DistantLight"), w)->shadows);  // UsdLux's fallback
+  EXPECT_TRUE(lightFromUsd(usdRecord("/Sun", "DistantLight",
+                                     {{"inputs:shadow:color", usdNumbers("color3f", {0.2f, 0, 0})},
+                                      {"inputs:shadow:distance", usdNumbers("float", {3})},
+                                      {"inputs:shadow:falloff", usdNumbers("float", {1})},
+                                      {"inputs:shadow:falloffGamma", usdNumbers("float", {2})}}),
+                           w));
+  ASSERT_EQ(w.size(), 4u);
+  EXPECT_EQ(w[0], "/Sun.inputs:shadow:color: not supported (shadows are where the light does not reach); ignored");
+  EXPECT_EQ(w[1], "/Sun.inputs:shadow:distance: not supported (shadows reach as far as the light); ignored");
+  EXPECT_EQ(w[3], "/Sun.inputs:shadow:falloffGamma: not supported (shadows reach as far as the light); ignored");
   w.clear();
   EXPECT_TRUE(lightFromUsd(usdRecord("/Bulb", "SphereLight", {{"treatAsPoint", usdNumbers("bool", {1})}}), w));
   ASSERT_EQ(w.size(), 1u);
   EXPECT_EQ(w[0], "/Bulb.treatAsPoint: not supported; rendered as a sphere of inputs:radius");
 }
 
-TEST(UsdLights, ALightLinkCollectionNamedByTheFrontEndLinksTheLightAndAShadowLinkIsWarnedAbout) {
+TEST(UsdLights, LightAndShadowLinkCollectionsNamedByTheFrontEndLinkTheLight) {
   UsdWarnings w;
   const LightDesc all = *lightFromUsd(usdRecord("/Sun", "DistantLight"), w);
   EXPECT_EQ(all.lightLink, "");  // no collection named: it holds every prim
@@ -142,9 +162,11 @@ TEST(UsdLights, ALightLinkCollectionNamedByTheFrontEndLinksTheLightAndAShadowLin
                  {kUsdShadowLink, usdText("token", "/Sun.collection:shadowLink")}}),
       w);
   EXPECT_EQ(linked.lightLink, "/Sun.collection:lightLink");
-  ASSERT_EQ(w.size(), 1u);
-  EXPECT_EQ(w[0], "/Sun.collection:shadowLink: shadow linking is not supported (every object casts shadows from every "
-                  "light); ignored");
+  EXPECT_EQ(linked.shadowLink, "/Sun.collection:shadowLink");
+  EXPECT_EQ(all.shadowLink, "");
+  EXPECT_TRUE(w.empty());
+  EXPECT_EQ(errorOf(usdRecord("/Sun", "DistantLight", {{kUsdShadowLink, usdNumbers("float", {1})}})),
+            "/Sun.collection:shadowLink: has value 1, expected a token");
   EXPECT_EQ(errorOf(usdRecord("/Sun", "DistantLight", {{kUsdLightLink, usdNumbers("float", {1})}})),
             "/Sun.collection:lightLink: has value 1, expected a token");
 }

@@ -951,6 +951,55 @@ TEST(HdGranular, LightLinkingLightsOnlyTheLinkedPrimsAndFollowsEditsOfTheCollect
               seDome, sunlit);
 }
 
+TEST(HdGranular, ShadowLinkingPassesTheObjectsLeftOutOfALightsShadowLinkAndFollowsEdits) {
+  // The floor facing the camera under the dome and a normalised 20° sun that leans 27° to
+  // +x, and a black card out of view (z = 5, x from 0.5) that stands between the floor in
+  // view and the sun, and hides some of the dome. The card left out of both lights'
+  // collection:shadowLink: the floor is as without the card (nothing else casts shadows,
+  // and the card returns no light), as granular render renders it (tests/conformance:
+  // shadow_*). Then the exclusions are removed: the same engine renders the shadow.
+  const std::string floor = kFloorFacingCamera;
+  const std::string sun = R"(
+  def DistantLight "Sun" {
+    float inputs:angle = 20
+    float inputs:intensity = 3
+    bool inputs:normalize = 1
+    float3 xformOp:rotateXYZ = (0, 26.6, 0)
+    uniform token[] xformOpOrder = ["xformOp:rotateXYZ"]
+    rel collection:shadowLink:excludes = </World/Card>
+  }
+)";
+  const std::string card = R"(
+  def Mesh "Card" {
+    point3f[] points = [(0.5, -3, 5), (3, -3, 5), (3, 3, 5), (0.5, 3, 5)]
+    int[] faceVertexCounts = [4]
+    int[] faceVertexIndices = [0, 1, 2, 3]
+    color3f[] primvars:displayColor = [(0, 0, 0)]
+  }
+)";
+  UsdStageRefPtr linked = domeLitStage(4, floor + card + sun);
+  ASSERT_TRUE(linked->GetPrimAtPath(SdfPath("/World/Sky"))
+                  .CreateRelationship(TfToken("collection:shadowLink:excludes"))
+                  .AddTarget(SdfPath("/World/Card")));
+  UsdStageRefPtr open = domeLitStage(4, floor + sun);
+  auto engine = makeEngine(32);
+  double seLinked = 0, seOpen = 0, seShaded = 0;
+  const double withLink = meanAndError(*engine, linked, 8, seLinked);
+  EXPECT_EQ(stat<std::string>(engine->GetRenderStats(), "granular:shadowLinks"),
+            "/World/Sky: 1 of 2 objects cast shadows; /World/Sun: 1 of 2 objects cast shadows");
+  const double withoutCard = meanAndError(*makeEngine(32), open, 8, seOpen);
+  EXPECT_NEAR(withLink, withoutCard, 4 * std::hypot(seLinked, seOpen));
+  for (const char* light : {"/World/Sun", "/World/Sky"})
+    ASSERT_TRUE(linked->GetPrimAtPath(SdfPath(light))
+                    .GetRelationship(TfToken("collection:shadowLink:excludes"))
+                    .ClearTargets(true));
+  const double shaded = meanAndError(*engine, linked, 8, seShaded);
+  EXPECT_EQ(stat<std::string>(engine->GetRenderStats(), "granular:shadowLinks"), "");
+  EXPECT_LT(shaded, 0.6 * withoutCard);  // the sun's irradiance 3 against the dome's π, its rest shaded too
+  std::printf("floor: card left out %.4f ± %.4f, no card %.4f ± %.4f, in the card's shadow %.4f\n", withLink,
+              seLinked, withoutCard, seOpen, shaded);
+}
+
 // The snow slab's grains alone (ground and sky hidden) under its 0.53° sun, explicit grains
 // of the given roughness: regularised to 5°, the image is the one of a normalised 5° sun with
 // the setting at 0, as granular render's (tests/python/test_physical_sun.py); 0 keeps the

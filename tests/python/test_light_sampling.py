@@ -1,6 +1,7 @@
 """Next-event estimation picks each light by its weight (core: Light::pickWeight,
 Scene::lightPick); `granular render` says the chances it took, by the lights' prim paths.
-Shadow rays stop at area lights as every other ray does (core: Scene::occluded)."""
+Shadow rays stop at area lights as every other ray does (core: Scene::occluded), and pass
+the objects a light's collection:shadowLink leaves out (core: Scene::castsShadow)."""
 import math
 import re
 
@@ -68,9 +69,8 @@ def test_render_says_what_each_linked_light_lights(tmp_path, capsys):
     assert rc == 0 and "light linking" not in err, err
 
 
-def _floor_under(path, bulb):
-    """A floor facing the camera 15 below it under the uniform dome; with `bulb`, a 20° sun
-    behind the camera and a black sphere light of radius 7.5 centred on the camera."""
+def _floor_in_view(path):
+    """dome_world with a floor facing the camera 15 below it, which sees [-0.6, 0.6]^2 of it."""
     stage = dome_world(path)
     camera = UsdGeom.Camera(stage.GetPrimAtPath("/World/Camera"))
     camera.CreateHorizontalApertureAttr(4.0)
@@ -79,6 +79,60 @@ def _floor_under(path, bulb):
     floor.CreatePointsAttr([(-30, -30, 0), (30, -30, 0), (30, 30, 0), (-30, 30, 0)])
     floor.CreateFaceVertexCountsAttr([4])
     floor.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    return stage
+
+
+def _floor_and_card(path, card, exclude):
+    """A floor facing the camera 15 below it under the uniform dome and a normalised 20° sun
+    leaning 27° to +x; with `card`, a black card out of view (z = 7.5, x from 0.5) between
+    the floor in view and the sun that hides some of the dome too; `exclude`: left out of
+    both lights' collection:shadowLink."""
+    stage = _floor_in_view(path)
+    sun = UsdLux.DistantLight.Define(stage, "/World/Sun")
+    sun.CreateAngleAttr(20.0)
+    sun.CreateIntensityAttr(3.0)
+    sun.CreateNormalizeAttr(True)
+    UsdGeom.Xformable(sun).AddRotateYOp().Set(26.6)
+    if card:
+        c = UsdGeom.Mesh.Define(stage, "/World/Card")
+        c.CreatePointsAttr([(0.75, -4, 7.5), (5, -4, 7.5), (5, 4, 7.5), (0.75, 4, 7.5)])
+        c.CreateFaceVertexCountsAttr([4])
+        c.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+        c.CreateDisplayColorAttr([(0, 0, 0)])
+    if exclude:
+        for light in ("/World/Sun", "/World/Sky"):
+            link = UsdLux.LightAPI(stage.GetPrimAtPath(light)).GetShadowLinkCollectionAPI()
+            link.GetExcludesRel().AddTarget("/World/Card")
+    stage.Save()
+    return str(path)
+
+
+def test_objects_left_out_of_a_lights_shadow_link_cast_no_shadow_from_it(tmp_path, capsys):
+    """The card left out of the sun's and the sky's collection:shadowLink: the floor is as
+    without the card (black, it returns no light); in the links, its shadow darkens the
+    floor. hdGranular renders the same (tests/hydra: ShadowLinking...; tests/conformance)."""
+    means, errors = {}, {}
+    for name, card, exclude in (("linked", True, True), ("open", False, False), ("shaded", True, False)):
+        stage = _floor_and_card(tmp_path / f"{name}.usda", card, exclude)
+        out = tmp_path / f"{name}.exr"
+        rc, _, err = run_cli(["render", stage, "-o", out, "--width", "8", "--height", "8", "--spp", "32"], capsys)
+        assert rc == 0, err
+        if name == "linked":
+            assert ("  shadow linking: /World/Sky: 1 of 2 objects cast shadows; "
+                    "/World/Sun: 1 of 2 objects cast shadows") in err.splitlines(), err
+        else:
+            assert "shadow linking" not in err, err
+        rgb, var = rgb_and_variance(out)
+        means[name] = rgb[..., 0].mean()
+        errors[name] = math.sqrt(var[..., 0].sum()) / rgb[..., 0].size
+    assert abs(means["linked"] - means["open"]) < 4 * math.hypot(errors["linked"], errors["open"]), (means, errors)
+    assert means["shaded"] < 0.6 * means["open"], means
+
+
+def _floor_under(path, bulb):
+    """A floor facing the camera 15 below it under the uniform dome; with `bulb`, a 20° sun
+    behind the camera and a black sphere light of radius 7.5 centred on the camera."""
+    stage = _floor_in_view(path)
     if bulb:
         sun = UsdLux.DistantLight.Define(stage, "/World/Sun")
         sun.CreateAngleAttr(20.0)

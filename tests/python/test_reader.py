@@ -175,7 +175,8 @@ def test_camera_lights_and_render_settings(tmp_path):
 def test_light_linking_names_each_lights_collection_and_the_prims_it_includes(tmp_path):
     """A light's collection:lightLink that does not hold every prim is named by its path; the
     prims it includes carry that name among their categories (core/usd_lights.h); a trivial
-    one (includeRoot alone) links nothing; a shadowLink is warned about."""
+    one (includeRoot alone) links nothing; a shadowLink likewise names the prims that cast
+    the light's shadows."""
     def mutate(stage):
         add_mesh(stage, "/World/Ground", core.make_box((-1, -0.1, -1), (1, 0, 1)))
         add_mesh(stage, "/World/Props/Wall", core.make_box((-1, 0, -1), (1, 1, -0.9)))
@@ -194,14 +195,16 @@ def test_light_linking_names_each_lights_collection_and_the_prims_it_includes(tm
     lights = {l.name: l.light_link for l in d.lights}
     assert lights == {"/World/Sun": "/World/Sun.collection:lightLink",
                       "/World/Key": "/World/Key.collection:lightLink", "/World/Sky": ""}
+    shadows = {l.name: (l.shadow_link, l.shadows) for l in d.lights}
+    assert shadows == {"/World/Sun": ("", True), "/World/Key": ("/World/Key.collection:shadowLink", True),
+                       "/World/Sky": ("", True)}
     meshes = {m.name: list(m.link_categories) for m in d.meshes}
-    assert meshes == {"/World/Ground": [], "/World/Props/Wall": ["/World/Sun.collection:lightLink",
-                                                                 "/World/Key.collection:lightLink"]}
+    assert meshes == {"/World/Ground": ["/World/Key.collection:shadowLink"],
+                      "/World/Props/Wall": ["/World/Sun.collection:lightLink", "/World/Key.collection:lightLink",
+                                            "/World/Key.collection:shadowLink"]}
     assert list(d.aggregates[0].link_categories) == ["/World/Sun.collection:lightLink",
                                                      "/World/Key.collection:lightLink"]
-    assert [w for w in scene.warnings if "shadowLink" in w] == [
-        "/World/Key.collection:shadowLink: shadow linking is not supported (every object casts shadows from "
-        "every light); ignored"]
+    assert not [w for w in scene.warnings if "shadow" in w]
 
 
 def test_a_value_blocked_with_another_type_is_the_schemas_fallback(tmp_path, capsys):

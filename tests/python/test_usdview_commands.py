@@ -44,11 +44,15 @@ def test_light_links_list_what_each_selected_light_lights(tmp_path):
         UsdGeom.Cube.Define(stage, "/World/Block")
         UsdLux.LightAPI(stage.GetPrimAtPath("/World/Sun")).GetLightLinkCollectionAPI().GetExcludesRel().AddTarget(
             "/World/Block")
-        UsdLux.DomeLight.Define(stage, "/World/Sky")
+        sky = UsdLux.DomeLight.Define(stage, "/World/Sky")
+        UsdLux.LightAPI(sky).GetShadowLinkCollectionAPI().GetExcludesRel().AddTarget("/World/Castle")
+        UsdLux.ShadowAPI.Apply(stage.GetPrimAtPath("/World/Sun")).CreateShadowEnableAttr(False)
     stage = Usd.Stage.Open(str(small_scene(tmp_path / "s.usda", mutate)))
     assert commands.light_links_text(stage, ["/World/Sun", "/World/Sky"]).splitlines() == [
         "/World/Sun lights 1 of 2 objects", "  lights /World/Castle", "  not /World/Block",
-        "/World/Sky lights every object (its collection:lightLink holds every prim)"]
+        "/World/Sun: no object casts its shadows (inputs:shadow:enable is off)",
+        "/World/Sky lights every object (its collection:lightLink holds every prim)",
+        "/World/Sky: 1 of 2 objects cast its shadows", "  casts /World/Block", "  not /World/Castle"]
     assert commands.light_links_text(stage, ["/World/Castle"]) == "No light selected (select a UsdLux light)."
 
 

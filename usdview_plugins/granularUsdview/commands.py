@@ -36,7 +36,8 @@ def statistics_text(stage, paths):
 
 def light_links_text(stage, paths):
     """What each selected light lights (UsdLux light linking), as both front ends read it: the
-    drawn meshes, aggregates and simulated grains its collection:lightLink includes."""
+    drawn meshes, aggregates and simulated grains its collection:lightLink includes; and which
+    of them cast its shadows (its collection:shadowLink, inputs:shadow:enable)."""
     from pxr import UsdLux
     from granular import usd_reader
     lights = [str(p) for p in paths if stage.GetPrimAtPath(str(p)) and
@@ -49,17 +50,26 @@ def light_links_text(stage, paths):
     for o in list(d.meshes) + list(d.aggregates) + list(d.instanced_grains):
         objects.setdefault(o.name, set()).update(o.link_categories)
     links = {l.name: l.light_link for l in d.lights}
+    shadows = {l.name: (l.shadow_link, l.shadows) for l in d.lights}
     lines = []
     for path in lights:
         if path not in links:
             lines.append(f"{path}: not rendered (see the render's warnings)")
-        elif not links[path]:
+            continue
+        if not links[path]:
             lines.append(f"{path} lights every object (its collection:lightLink holds every prim)")
         else:
             lit = sorted(n for n, c in objects.items() if links[path] in c)
             unlit = sorted(n for n in objects if n not in lit)
             lines.append(f"{path} lights {len(lit)} of {len(objects)} objects")
             lines += [f"  lights {n}" for n in lit] + [f"  not {n}" for n in unlit]
+        link, enabled = shadows[path]
+        if not enabled:
+            lines.append(f"{path}: no object casts its shadows (inputs:shadow:enable is off)")
+        elif link:
+            cast = sorted(n for n, c in objects.items() if link in c)
+            lines.append(f"{path}: {len(cast)} of {len(objects)} objects cast its shadows")
+            lines += [f"  casts {n}" for n in cast] + [f"  not {n}" for n in sorted(objects) if n not in cast]
     return "\n".join(lines)
 
 
