@@ -290,7 +290,8 @@ void diffusionStep(const Scene& scene, PathState& path, const Vec3& x, const Dif
   // below carries the rest): a delta sun can only be reached this way. Its flight to the
   // boundary is in the reduced medium: σ_t − σ'_t of it given back.
   path.credit = kDa;
-  mediumNee(scene, path, med, x, &boundary, m.sigmaT - prof.sigmaTReduced);
+  const Vec3 reducedBy = m.sigmaT - prof.sigmaTReduced;
+  mediumNee(scene, path, med, x, &boundary, reducedBy);
 
   // 1. The beam: ω from the phase function, the first reduced scattering at t along it.
   Vec3 phaseWeight;
@@ -304,26 +305,19 @@ void diffusionStep(const Scene& scene, PathState& path, const Vec3& x, const Dif
     path.lost = true;
     return;
   }
-  // Shadow linking: the direct light ω brings past objects that cast no shadow, as the
-  // single scattering's next-event estimation casts its shadow ray (the flight to the
-  // boundary in the reduced medium). The MIS state is this scattering's, as the uncollided
-  // beam below leaves it.
+  // MIS with the NEE at x (its weights were computed against this phase pdf), for the
+  // uncollided beam below and for shadow linking: the direct light ω brings past objects
+  // that cast no shadow, by the single scattering's shadow ray.
   path.scattered(false, phasePdf, x, 1.0f, 0.0f);
   const Vec3 along = path.beta * phaseWeight;
   addDirectPastNonCasters(scene, path, along, x, w, [&](const Vec3& c, float dist, ShadowCasters who) {
-    Vec3 tr = scene.transmittance(x, w, dist, path.ray.time, &path.rng, who);
-    float s2;
-    Vec3 ng2;
-    if (!isBlack(tr) && boundary.intersect(x, w, dist, s2, ng2)) tr *= vexp((m.sigmaT - prof.sigmaTReduced) * s2);
-    path.L[path.credit] += c * tr;
+    path.L[path.credit] += c * mediumShadow(scene, path, x, x, w, dist, who, &boundary, reducedBy);
   });
   const float sigmaBar = average(prof.sigmaTReduced);
   const float t = -std::log1p(-std::min(path.rng.next1D(), 1.0f - 1e-7f)) / sigmaBar;
   if (t >= s) {
     // Uncollided: probability e^{−σ'_t s} per channel, sampled as e^{−σ̄ s}.
     path.beta *= phaseWeight * vexp((prof.sigmaTReduced - Vec3(sigmaBar)) * -s);
-    // MIS with the NEE at x (its weights were computed against this phase pdf).
-    path.scattered(false, phasePdf, x, 1.0f, 0.0f);
     leaveAt(scene, path, boundary.exitPoint(x + w * s, ngS), ngS, w);
     ++path.depth;
     if (!isFinite(path.beta) || isBlack(path.beta)) path.alive = false;

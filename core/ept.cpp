@@ -15,9 +15,7 @@ void addAreaLightHit(const Scene& scene, PathState& path, const Hit& hit) {
   const float dist = length(hit.p - path.lastP);
   // Past an object that casts no shadow from it, the last scattering counted it already
   // (addDirectPastNonCasters); the camera sees it.
-  if (path.depth > 0 && scene.shadowLinked(hit.light) &&
-      scene.crossesNonCaster(hit.light, path.linkObject, path.lastP, dir, dist))
-    return;
+  if (path.depth > 0 && scene.crossesNonCaster(hit.light, path.linkObject, path.lastP, dir, dist)) return;
   if (!path.lastDelta) {
     w = powerHeuristic(path.lastPdf, light.pdfLi(path.lastP, dir, dist) * scene.lightPick(hit.light, path.linkObject) *
                                          path.lastNeeChance);
@@ -82,8 +80,7 @@ Vec3 escapedRadiance(const Scene& scene, const PathState& path, const Vec3& dir)
     if (camera && light.type() == LightType::Dome && !scene.settings().domeCameraVisible) continue;
     if (!scene.lightReaches(li, path.linkObject)) continue;
     // Past an object that casts no shadow from it, the last scattering counted it already.
-    if (!camera && scene.shadowLinked(li) && scene.crossesNonCaster(li, path.linkObject, path.lastP, dir, kInf))
-      continue;
+    if (!camera && scene.crossesNonCaster(li, path.linkObject, path.lastP, dir, kInf)) continue;
     float lightPdf = 0;
     Vec3 Le = light.escapedLeSeen(dir, halfAngle, path.lastDelta ? nullptr : &lightPdf, path.lastAbove);
     if (isBlack(Le)) continue;
@@ -215,6 +212,16 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
           : 0.0f;
   // A surface that only reflects sees a constant dome over its hemisphere (Light::sampleLi).
   const Vec3 above = !m.twoSided() && wo.z > 0 ? hit.ng : Vec3(0.0f);
+  // A shadow ray from o along d over dist, as the path's mode sees the scene (the media,
+  // proxies or grains), adding c times what passes.
+  auto addShadowed = [&](const Vec3& c, const Vec3& o, const Vec3& d, float dist, ShadowCasters casters) {
+    if (mediaMode)
+      path.L[path.credit] += c * scene.transmittance(o, d, dist, ray.time, &path.rng, casters);
+    else if (path.mode == kPpt)
+      path.addThroughProxies(c, scene.proxyTransmittance(o, d, dist, nullptr, path.rng.nextU32(), ray.time, casters));
+    else if (!scene.occluded(o, d, dist, ray.time, casters))
+      path.L[path.credit] += c;
+  };
   if (!m.isDelta() && !lights.empty() && (wo.z > 0 || m.twoSided())) {
     // Next-event estimation: one light, picked by Scene::lightPick.
     int li = scene.pickLight(path.nextLightU(), path.linkObject);
@@ -231,20 +238,8 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
         float dist = std::isfinite(ls.dist) ? ls.dist * (1.0f - 1e-4f) : kInf;
         const Vec3 c = path.beta * f * ls.Li *
                        (ls.delta ? 1.0f / lightPick : powerHeuristic(ls.pdf * lightPick, bsdfPdf) / (ls.pdf * lightPick));
-        const ShadowCasters casters{li, path.linkObject};
-        if (mediaMode) {
-          const Vec3 Tr = scene.transmittance(origin, ls.wi, dist, ray.time, &path.rng, casters);
-          if (!isBlack(Tr)) path.L[path.credit] += c * Tr;
-          cost += 1;
-        } else if (path.mode == kPpt) {
-          path.addThroughProxies(c,
-                                 scene.proxyTransmittance(origin, ls.wi, dist, nullptr, path.rng.nextU32(), ray.time,
-                                                          casters));
-          cost += 1;
-        } else {
-          if (!scene.occluded(origin, ls.wi, dist, ray.time, casters)) path.L[path.credit] += c;
-          cost += scene.aggregates().empty() ? 1 : kGrainCastCost;
-        }
+        addShadowed(c, origin, ls.wi, dist, ShadowCasters{li, path.linkObject});
+        cost += mediaMode || path.mode == kPpt || scene.aggregates().empty() ? 1 : kGrainCastCost;
       }
     }
   }
@@ -284,13 +279,7 @@ void shadeSurface(const Scene& scene, PathState& path, const Hit& hit, bool medi
   // Shadow linking: the direct light this direction brings past objects that cast no
   // shadow, by the shadow ray next-event estimation casts here.
   addDirectPastNonCasters(scene, path, path.beta, path.ray.o, wi, [&](const Vec3& c, float dist, ShadowCasters who) {
-    if (mediaMode)
-      path.L[path.credit] += c * scene.transmittance(path.ray.o, wi, dist, ray.time, &path.rng, who);
-    else if (path.mode == kPpt)
-      path.addThroughProxies(c, scene.proxyTransmittance(path.ray.o, wi, dist, nullptr, path.rng.nextU32(), ray.time,
-                                                         who));
-    else if (!scene.occluded(path.ray.o, wi, dist, ray.time, who))
-      path.L[path.credit] += c;
+    addShadowed(c, path.ray.o, wi, dist, who);
   });
   ++path.depth;
   if (!russianRoulette(scene, path) || !isFinite(path.beta) || isBlack(path.beta)) path.alive = false;

@@ -93,8 +93,7 @@ void addDirectPastNonCasters(const Scene& scene, PathState& path, const Vec3& be
   const bool delta = path.lastDelta;
   for (int li = 0; li < int(scene.lights().size()); ++li) {
     // The whole line first: a direction that crosses no such bounds is the usual case.
-    if (!scene.shadowLinked(li) || !scene.crossesNonCaster(li, path.linkObject, x, dir, kInf) ||
-        !scene.lightReaches(li, path.linkObject))
+    if (!scene.crossesNonCaster(li, path.linkObject, x, dir, kInf) || !scene.lightReaches(li, path.linkObject))
       continue;
     const Light& light = scene.lights()[li];
     // As the emitter met later would be weighed (distances from the scattering's point).

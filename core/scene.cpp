@@ -27,6 +27,9 @@ namespace granular {
 
 namespace {
 
+// A light whose shadows some object may not cast (LightDesc::shadowLink, shadows).
+bool mayPassObjects(const LightDesc& l) { return !l.shadowLink.empty() || !l.shadows; }
+
 // The kernel width of an instancer's packing-rate grid, in mean bounding radii.
 constexpr double kKernelRadii = 3.0;
 
@@ -353,9 +356,8 @@ Bounds3 Scene::buildMeshes(const SceneDesc& desc, int defaultSurface) {
   device_ = makeEmbreeDevice();
   surfaces_ = makeEmbreeScene(device_);
   // Shadow linking passes meshes on shadow rays by a filter of the ray's context.
-  for (const auto& l : desc.lights)
-    if (!l.shadowLink.empty() || !l.shadows)
-      rtcSetSceneFlags(surfaces_.get(), rtcGetSceneFlags(surfaces_.get()) | RTC_SCENE_FLAG_CONTEXT_FILTER_FUNCTION);
+  if (std::any_of(desc.lights.begin(), desc.lights.end(), mayPassObjects))
+    rtcSetSceneFlags(surfaces_.get(), rtcGetSceneFlags(surfaces_.get()) | RTC_SCENE_FLAG_CONTEXT_FILTER_FUNCTION);
   cutoutData_.reserve(desc.meshes.size());
   Bounds3 all;
   const CameraDesc& cam = desc.camera;
@@ -1036,17 +1038,13 @@ void Scene::buildLightLinks(const SceneDesc& desc, const std::vector<LightDesc>&
 void Scene::buildShadowLinks(const std::vector<const std::vector<std::string>*>& categories,
                              const std::vector<LightDesc>& lights) {
   unshadowed_.clear();
-  shadowLinked_.clear();
   shadowLinksText_.clear();
   nonCasters_.clear();
   nonCasterBounds_.clear();
-  bool linked = false;
-  for (const auto& l : lights) linked = linked || !l.shadowLink.empty() || !l.shadows;
-  if (!linked || categories.empty()) return;
+  if (std::none_of(lights.begin(), lights.end(), mayPassObjects) || categories.empty()) return;
   unshadowed_.assign(lights.size() * categories.size(), 0);
-  shadowLinked_.assign(lights.size(), 0);
   for (size_t i = 0; i < lights.size(); ++i) {
-    if (lights[i].shadowLink.empty() && lights[i].shadows) continue;
+    if (!mayPassObjects(lights[i])) continue;
     size_t casting = 0;
     for (size_t o = 0; o < categories.size(); ++o) {
       const auto& c = *categories[o];
@@ -1055,7 +1053,6 @@ void Scene::buildShadowLinks(const std::vector<const std::vector<std::string>*>&
       casting += casts;
     }
     if (casting == categories.size()) continue;  // the collection holds every object
-    shadowLinked_[i] = 1;
     nonCasters_.resize(lights.size());
     nonCasterBounds_.resize(lights.size());
     for (size_t o = 0; o < categories.size(); ++o)
@@ -1088,6 +1085,7 @@ Bounds3 Scene::linkObjectBounds(int object) const {
 }
 
 bool Scene::crossesNonCaster(int light, int self, const Vec3& x, const Vec3& dir, float dist) const {
+  // Cheap for a light without shadow links, which callers ask about too.
   if (!shadowLinked(light)) return false;
   const Vec3 invD(1.0f / dir.x, 1.0f / dir.y, 1.0f / dir.z);
   float t0, t1;

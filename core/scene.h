@@ -410,8 +410,8 @@ class Scene {
     return !passes || object < 0 || !passes[object];
   }
   // A light some object casts no shadow from; whether any light is.
-  bool shadowLinked(int light) const { return !shadowLinked_.empty() && shadowLinked_[size_t(light)]; }
-  bool anyShadowLinked() const { return !shadowLinked_.empty(); }
+  bool shadowLinked(int light) const { return size_t(light) < nonCasters_.size() && !nonCasters_[size_t(light)].empty(); }
+  bool anyShadowLinked() const { return !nonCasters_.empty(); }
   // Whether the segment from x (a vertex of object `self`) along dir over dist meets the
   // bounds of another object that casts no shadow from light i. A direction sampled by
   // scattering there would meet what the light's shadow rays pass, so the vertex counts the
@@ -636,8 +636,8 @@ class Scene {
   int linkMeshes_ = 0, linkObjects_ = 0;
   std::string lightLinksText_;
   // Shadow linking (castsShadow): per light and object, 1 where the object casts no shadow
-  // from the light (empty when every object casts every shadow); per light, whether any does not.
-  std::vector<uint8_t> unshadowed_, shadowLinked_;
+  // from the light (empty when every object casts every shadow).
+  std::vector<uint8_t> unshadowed_;
   std::string shadowLinksText_;
   // The row of unshadowed_ for light i, or null where every object blocks its shadow rays.
   const uint8_t* shadowPasses(int light) const {

@@ -129,6 +129,18 @@ float shadowChance(const Scene& scene, const PathState& path, const HomogeneousM
 
 }  // namespace
 
+Vec3 mediumShadow(const Scene& scene, PathState& path, const Vec3& p, const Vec3& from, const Vec3& wi, float dist,
+                  ShadowCasters who, const DiffusionBoundary* boundary, const Vec3& reducedBy) {
+  Vec3 tr = scene.transmittance(from, wi, dist, path.ray.time, &path.rng, who);
+  if (boundary && !isBlack(tr)) {
+    // The flight to the own medium's boundary in the reduced medium (diffusion.h).
+    float s;
+    Vec3 ng;
+    if (boundary->intersect(p, wi, dist, s, ng)) tr *= vexp(reducedBy * s);
+  }
+  return tr;
+}
+
 void mediumNee(const Scene& scene, PathState& path, const HomogeneousMedium& med, const Vec3& p,
                const DiffusionBoundary* boundary, const Vec3& reducedBy) {
   const auto& lights = scene.lights();
@@ -153,14 +165,9 @@ void mediumNee(const Scene& scene, PathState& path, const HomogeneousMedium& med
         from = scene.movedLight(p, move, path.ray.time);
         if (std::isfinite(dist)) dist = std::max(0.0f, dist - length(move));
       }
-      Vec3 Tr = scene.transmittance(from, ls.wi, dist, path.ray.time, &path.rng, ShadowCasters{li, path.linkObject});
+      const Vec3 Tr =
+          mediumShadow(scene, path, p, from, ls.wi, dist, ShadowCasters{li, path.linkObject}, boundary, reducedBy);
       path.cost[1] += 1;
-      if (boundary && !isBlack(Tr)) {
-        // The flight to the own medium's boundary in the reduced medium (diffusion.h).
-        float s;
-        Vec3 ng;
-        if (boundary->intersect(p, ls.wi, dist, s, ng)) Tr *= vexp(reducedBy * s);
-      }
       if (!isBlack(Tr) && !isBlack(f)) {
         if (ls.delta) {
           path.L[path.credit] += path.beta * f * Tr * ls.Li / (lightPick * chance);
@@ -239,7 +246,7 @@ void scatterInMedium(const Scene& scene, PathState& path, const HomogeneousMediu
   // Shadow linking: the direct light this direction brings past objects that cast no shadow.
   if (pdf > 0)
     addDirectPastNonCasters(scene, path, path.beta, path.ray.o, wo, [&](const Vec3& c, float dist, ShadowCasters who) {
-      path.L[path.credit] += c * scene.transmittance(path.ray.o, wo, dist, path.ray.time, &path.rng, who);
+      path.L[path.credit] += c * mediumShadow(scene, path, p, path.ray.o, wo, dist, who);
     });
   ++path.depth;
   if (!russianRoulette(scene, path) || !isFinite(path.beta) || isBlack(path.beta) || pdf <= 0) path.alive = false;

@@ -76,6 +76,7 @@ class HomogeneousMedium {
 
 struct PathState;
 class Scene;
+struct ShadowCasters;
 class DiffusionBoundary;
 
 // A path leaves the discrete levels (explicit grains, proxies) for the media: the hybrid's
@@ -112,6 +113,15 @@ void vptStep(const Scene& scene, PathState& path);
 // reducedBy less than the media's (DA's reduced medium, σ_t − σ'_t given back: diffusion.h).
 void mediumNee(const Scene& scene, PathState& path, const HomogeneousMedium& med, const Vec3& p,
                const DiffusionBoundary* boundary = nullptr, const Vec3& reducedBy = Vec3(0.0f));
+
+// The shadow ray of a scattering at p in the media toward who.light, over dist along wi:
+// its transmittance (Scene::transmittance) from `from` (p, or where the exits model lets
+// the light out), times, with a boundary, e^{reducedBy s} for its flight s to that boundary
+// (as mediumNee). Next-event estimation and shadow linking's sampled directions
+// (ept.h: addDirectPastNonCasters) share it.
+Vec3 mediumShadow(const Scene& scene, PathState& path, const Vec3& p, const Vec3& from, const Vec3& wi, float dist,
+                  ShadowCasters who, const DiffusionBoundary* boundary = nullptr,
+                  const Vec3& reducedBy = Vec3(0.0f));
 
 // Depth below the boundary beyond which DA replaces VPT: factor × Meng et al. 2015's
 // min(1/σ'_t, 0.5/σ_tr), taken for the channel with the longest such depth (DA must be
