@@ -145,6 +145,7 @@ TEST(UsdLights, OtherTypesAndUnsupportedAttributesAreWarnedAbout) {
   ASSERT_EQ(w.size(), 4u);
   EXPECT_EQ(w[0], "/Sun.inputs:shadow:color: not supported (shadows are where the light does not reach); ignored");
   EXPECT_EQ(w[1], "/Sun.inputs:shadow:distance: not supported (shadows reach as far as the light); ignored");
+  EXPECT_EQ(w[2], "/Sun.inputs:shadow:falloff: not supported (shadows reach as far as the light); ignored");
   EXPECT_EQ(w[3], "/Sun.inputs:shadow:falloffGamma: not supported (shadows reach as far as the light); ignored");
   w.clear();
   EXPECT_TRUE(lightFromUsd(usdRecord("/Bulb", "SphereLight", {{"treatAsPoint", usdNumbers("bool", {1})}}), w));
