@@ -169,8 +169,30 @@ Light Light::fromDesc(const LightDesc& d) {
     l.coneSmooth_ = l.coneAngle_ * (1.0f - std::clamp(d.shaping.coneSoftness, 0.0f, 1.0f));
     l.focus_ = std::max(d.shaping.focus, 0.0f);
     l.focusTint_ = d.shaping.focusTint;
+    if (!d.shaping.iesFile.empty()) {
+      try {
+        l.ies_ = readIesFile(d.shaping.iesFile);
+      } catch (const InputError& e) {
+        throw InputError(d.name, "shaping_ies_file", str("\"", d.shaping.iesFile, "\" ", e.detail()));
+      }
+      if (!d.xf.inverse(l.toLocal_)) throw InputError(d.name, "transform", "is singular");
+      l.iesAngleScale_ = d.shaping.iesAngleScale;
+      const double mean = l.ies_->meanIntensity();
+      l.iesScale_ = !d.shaping.iesNormalize ? 1.0f : mean > 0 ? float(1.0 / mean) : 0.0f;
+    }
   }
   return l;
+}
+
+float Light::iesFactor(const Vec3& w) const {
+  // The emission direction in the light's own frame (UsdLux: θ off its −Z, φ from +X to
+  // +Y), θ mapped by angleScale (LightShaping, scene_desc.h).
+  const Vec3 local = toLocal_.vector(w);
+  const float theta = std::atan2(std::sqrt(local.x * local.x + local.y * local.y), -local.z);
+  const float s = iesAngleScale_;
+  const float t = s > 0 ? theta / s : s < 0 ? kPi + (theta - kPi) / -s : theta;
+  if (!(t >= 0.0f && t <= kPi)) return 0.0f;
+  return ies_->intensity(t, std::atan2(local.y, local.x)) * iesScale_;
 }
 
 float Light::facingHalf(const Vec3& p) const {
@@ -202,13 +224,15 @@ Vec3 Light::emitted(const Vec3& q, const Vec3& w) const {
     const float x = (coneAngle_ - theta) / (coneAngle_ - coneSmooth_);
     cone = x * x * (3.0f - 2.0f * x);
   }
+  if (ies_) cone *= iesFactor(w);
   if (focus_ <= 0) return radiance_ * cone;
   const float f = std::pow(std::fabs(dot(surfaceNormal(q), w)), focus_);
   return radiance_ * (focusTint_ + (Vec3(1.0f) - focusTint_) * f) * cone;
 }
 
 double Light::pickWeight(const Vec3& ref) const {
-  const double L = std::max(0.0, double(average(radiance_)));
+  // An IES profile scales the light by its candela: by their mean here.
+  const double L = std::max(0.0, double(average(radiance_))) * (ies_ ? ies_->meanIntensity() * iesScale_ : 1.0);
   // E √(4π/Ω) = L √(4π Ω) for a light of uniform radiance L over Ω.
   auto cone = [L](double omega) { return L * std::sqrt(4.0 * kPiD * omega); };
   switch (type_) {

@@ -1,5 +1,6 @@
 // light.h — the UsdLux lights: distant (with angular size), sphere, rect, disk, cylinder
-// and dome, the area lights shaped by UsdLuxShapingAPI (LightShaping, scene_desc.h).
+// and dome, the area lights shaped by UsdLuxShapingAPI (LightShaping, scene_desc.h: its
+// cone, focus and IES profile, ies.h).
 //
 // Contract: sampleLi() picks a direction from a shading point towards the light and
 // returns its radiance and pdf in solid angle (delta lights: pdf 0, radiance is the
@@ -21,6 +22,7 @@
 #include <memory>
 #include <vector>
 
+#include "ies.h"
 #include "math.h"
 #include "sampling.h"
 #include "scene_desc.h"
@@ -101,13 +103,17 @@ class Light {
   bool shaped_ = false;
   Vec3 shapeAxis_, focusTint_;
   float coneAngle_ = 0, coneSmooth_ = 0, focus_ = 0;
+  // an IES profile (ies.h): read in the light's frame (toLocal_), its candela times iesScale_
+  std::shared_ptr<const IesProfile> ies_;
+  float iesAngleScale_ = 0, iesScale_ = 1;
+  float iesFactor(const Vec3& w) const;  // toward w (unit), angleScale applied
   Vec3 surfaceNormal(const Vec3& q) const;
   // A cylinder's side sampled for p: the half centred on p's side of the axis (the angle
   // about the axis from across1_ toward across2_), uniform in area, pdf 2 / area there.
   float facingHalf(const Vec3& p) const;
   // radiance_ leaving point q of the light in direction w (unit), shaped.
   Vec3 emitted(const Vec3& q, const Vec3& w) const;
-  // dome
+  // dome (and an IES profile's frame: toLocal_)
   Transform toLocal_, toWorld_;
   std::shared_ptr<const std::vector<float>> texels_;  // RGB
   int texW_ = 0, texH_ = 0;

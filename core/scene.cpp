@@ -10,6 +10,7 @@
 #include <chrono>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
 #include <map>
 #include <set>
 
@@ -18,6 +19,7 @@
 #include "build_cache.h"
 #include "cache.h"
 #include "error.h"
+#include "ies.h"
 #include "microfacet.h"
 #include "ppt.h"
 #include "rng.h"
@@ -775,6 +777,19 @@ std::vector<LightDesc> Scene::buildLights(const SceneDesc& desc, const Bounds3& 
     char chance[32];
     std::snprintf(chance, sizeof chance, " %.1f%%", 100.0 * lightPick(int(i)));
     lightPicksText_ += (i ? ", " : "") + lights[i].name + chance;
+  }
+  for (const LightDesc& d : lights) {
+    const std::shared_ptr<const IesProfile> p = d.shaping.enabled && !d.shaping.iesFile.empty() &&
+                                                        d.type != LightType::Distant && d.type != LightType::Dome
+                                                    ? readIesFile(d.shaping.iesFile)
+                                                    : nullptr;
+    if (!p) continue;
+    char text[160];
+    std::snprintf(text, sizeof text, " (%d × %d angles, peak %.4g cd, mean %.4g cd%s)", p->verticalCount(),
+                  p->horizontalCount(), double(p->maxIntensity()), p->meanIntensity(),
+                  d.shaping.iesNormalize ? ", normalised: divided by the mean" : "");
+    iesProfilesText_ += (iesProfilesText_.empty() ? "" : "; ") + d.name + ": " +
+                        std::filesystem::path(d.shaping.iesFile).filename().string() + text;
   }
   return lights;
 }

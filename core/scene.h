@@ -388,6 +388,9 @@ class Scene {
   int pickLight(float u, int object = -1) const { return pickFor(object).sampleDiscrete(u); }
   // Those chances for the front ends' logs, "sun 87.6%, sky 12.4%"; "" with one light or none.
   const std::string& lightPicksText() const { return lightPicksText_; }
+  // The lights' IES profiles (LightShaping::iesFile) for the logs: "/World/Spot: spot.ies
+  // (37 × 1 angles, peak 2400 cd, mean 310 cd)"; "" when no light has one.
+  const std::string& iesProfilesText() const { return iesProfilesText_; }
   const std::vector<int>& infiniteLights() const { return infiniteLights_; }
   // Light linking (LightDesc::lightLink). The objects a path's vertices belong to: each
   // visible mesh by its geometry id, then each aggregate, then each instancer; -1 the
@@ -552,7 +555,7 @@ class Scene {
   std::vector<Material> materials_;
   std::vector<Light> lights_;
   Distribution1D lightPick_;
-  std::string lightPicksText_;
+  std::string lightPicksText_, iesProfilesText_;
   std::vector<int> infiniteLights_, areaLights_;
   std::vector<std::shared_ptr<const Aggregate>> aggregates_;
   // Per aggregate: its motion over the shutter, and its world bounds over it (culling).

@@ -13,6 +13,7 @@
 #include <utility>
 
 #include "error.h"
+#include "ies.h"
 #include "instanced_grains.h"
 #include "light.h"
 
@@ -183,6 +184,14 @@ void validateLightDesc(const LightDesc& l, const std::string& obj) {
     checkFinite(l.shaping.coneSoftness, obj, "shaping_cone_softness");
     checkFinite(l.shaping.focus, obj, "shaping_focus");
     checkNonNegative(l.shaping.focusTint, obj, "shaping_focus_tint");
+    checkFinite(l.shaping.iesAngleScale, obj, "shaping_ies_angle_scale");
+    if (!l.shaping.iesFile.empty()) {
+      try {
+        readIesFile(l.shaping.iesFile);
+      } catch (const InputError& e) {
+        throw InputError(obj, "shaping_ies_file", str("\"", l.shaping.iesFile, "\" ", e.detail()));
+      }
+    }
   }
   {
     // The radiance color * intensity * 2^exposure, divided by the light's area when it
@@ -612,7 +621,7 @@ static_assert(fieldCount<CameraDesc>() == 12, "compare the new field in sameCame
 static_assert(fieldCount<TextureDesc>() == 14, "compare the new field in sameTexture (scale, bias: 4 each)");
 static_assert(fieldCount<MaterialDesc>() == 13, "compare the new field in sameMaterial");
 static_assert(fieldCount<LightDesc>() == 17, "compare the new field in sameLight");
-static_assert(fieldCount<LightShaping>() == 5, "compare the new field in sameLight");
+static_assert(fieldCount<LightShaping>() == 8, "compare the new field in sameLight");
 static_assert(fieldCount<MeshDesc>() == 9, "compare the new field in sameMeshDesc (or linkCategories)");
 static_assert(fieldCount<GrainPrototypeDesc>() == 3, "compare the new field in sameAggregateInputs");
 static_assert(fieldCount<AggregateDesc>() == 16, "compare the new field in sameAggregateInputs (or the id check, or linkCategories)");
@@ -667,7 +676,9 @@ bool sameLight(const LightDesc& a, const LightDesc& b) {
          a.radius == b.radius && a.width == b.width && a.height == b.height && a.length == b.length &&
          a.shaping.enabled == b.shaping.enabled && a.shaping.coneAngle == b.shaping.coneAngle &&
          a.shaping.coneSoftness == b.shaping.coneSoftness && a.shaping.focus == b.shaping.focus &&
-         a.shaping.focusTint == b.shaping.focusTint && a.textureFile == b.textureFile && a.lightLink == b.lightLink &&
+         a.shaping.focusTint == b.shaping.focusTint && a.shaping.iesFile == b.shaping.iesFile &&
+         a.shaping.iesAngleScale == b.shaping.iesAngleScale && a.shaping.iesNormalize == b.shaping.iesNormalize &&
+         a.textureFile == b.textureFile && a.lightLink == b.lightLink &&
          a.shadowLink == b.shadowLink && a.shadows == b.shadows;
 }
 

@@ -122,13 +122,20 @@ enum class LightType { Distant, Sphere, Rect, Dome, Disk, Cylinder };
 // UsdLuxShapingAPI on an area light: its radiance toward an emission direction ω scaled by
 // the cone (off the light's axis, its local −Z, by θ: 1 up to θ_c (1 − softness), then
 // falling smoothly to 0 at θ_c, 0 beyond) and tinted by focus (lerp(focusTint, 1,
-// |n·ω|^focus), n the emitting surface's normal). The fallbacks are UsdLux's.
+// |n·ω|^focus), n the emitting surface's normal), and scaled by an IES profile (ies.h):
+// its candela toward ω in the light's frame, at the vertical angle θ_ies that angleScale s
+// maps θ to (UsdLux: θ / s for s > 0, π + (θ − π) / −s for s < 0, θ for 0; 0 where θ_ies
+// leaves [0, π]), divided by the profile's mean (IesProfile::meanIntensity) when
+// iesNormalize. The fallbacks are UsdLux's.
 struct LightShaping {
   bool enabled = false;       // ShapingAPI applied (its inputs authored or given)
   float coneAngle = 90.0f;    // θ_c, degrees
   float coneSoftness = 0.0f;  // clamped to [0, 1]
   float focus = 0.0f;         // below 0: 0
   Vec3 focusTint{0.0f};
+  std::string iesFile;        // an IES LM-63 profile (empty: none)
+  float iesAngleScale = 0.0f;
+  bool iesNormalize = false;
 };
 
 struct LightDesc {

@@ -671,8 +671,10 @@ void parseLights(const json& v, SceneDesc& desc, const Context& ctx, std::vector
     std::vector<std::string> keys = {"name",      "type",      "color",     "intensity",
                                      "exposure",  "normalize", "transform", "light_link",
                                      "shadow_link", "shadows"};
-    const std::vector<std::string> shapingKeys = {"shaping_cone_angle", "shaping_cone_softness", "shaping_focus",
-                                                  "shaping_focus_tint"};
+    const std::vector<std::string> shapingKeys = {"shaping_cone_angle",     "shaping_cone_softness",
+                                                  "shaping_focus",          "shaping_focus_tint",
+                                                  "shaping_ies_file",       "shaping_ies_angle_scale",
+                                                  "shaping_ies_normalize"};
     LightDesc l;
     if (type == "distant") {
       l.type = LightType::Distant;
@@ -726,6 +728,17 @@ void parseLights(const json& v, SceneDesc& desc, const Context& ctx, std::vector
     l.shaping.coneSoftness = o.num("shaping_cone_softness", l.shaping.coneSoftness);
     l.shaping.focus = o.num("shaping_focus", l.shaping.focus);
     l.shaping.focusTint = o.vec3("shaping_focus_tint", l.shaping.focusTint, true);
+    l.shaping.iesAngleScale = o.num("shaping_ies_angle_scale", l.shaping.iesAngleScale);
+    l.shaping.iesNormalize = o.flag("shaping_ies_normalize", l.shaping.iesNormalize);
+    if (o.has("shaping_ies_file")) {
+      const std::string file = toString(*o.find("shaping_ies_file"), label, "shaping_ies_file");
+      if (!file.empty()) {
+        l.shaping.iesFile = resolvePath(ctx, file);
+        std::error_code ec;
+        if (!fs::is_regular_file(l.shaping.iesFile, ec))
+          throw InputError(label, "shaping_ies_file", str("\"", l.shaping.iesFile, "\" does not exist"));
+      }
+    }
     if (o.has("texture_file")) {
       std::string file = toString(*o.find("texture_file"), label, "texture_file");
       if (!file.empty()) {

@@ -32,8 +32,9 @@
 //             // every one unless "include" lists them, less "exclude"; LightDesc::lightLink);
 //             // radiance = color * intensity * 2^exposure; the area
 //             // lights also "shaping_cone_angle":90, "shaping_cone_softness":0,
-//             // "shaping_focus":0, "shaping_focus_tint":[0,0,0] (UsdLuxShapingAPI; any of
-//             // them turns shaping on)
+//             // "shaping_focus":0, "shaping_focus_tint":[0,0,0], "shaping_ies_file":"spot.ies"
+//             // (an IES LM-63 profile, relative to the scene file), "shaping_ies_angle_scale":0,
+//             // "shaping_ies_normalize":false (UsdLuxShapingAPI; any of them turns shaping on)
 //  "aggregates": [{"name":"castle", "boundary"*: S, "transform": T, "grain_radius":0.01,
 //                  "packing_rate":0.6, "seed":1, "tile_spheres":512,
 //                  "prototypes"*: [{"name":"rock", "shape"*: S, "material":"sand"}],

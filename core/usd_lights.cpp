@@ -32,11 +32,14 @@ const char* const kConeSoftness = "inputs:shaping:cone:softness";
 const char* const kFocus = "inputs:shaping:focus";
 const char* const kFocusTint = "inputs:shaping:focusTint";
 // ShapingAPI's inputs by the LightDesc field names core's checks use (validateLightDesc).
-const std::pair<const char*, const char*> kShapingInputs[] = {{"shaping_cone_angle", kConeAngle},
-                                                              {"shaping_cone_softness", kConeSoftness},
-                                                              {"shaping_focus", kFocus},
-                                                              {"shaping_focus_tint", kFocusTint}};
 const char* const kIesFile = "inputs:shaping:ies:file";
+const char* const kIesAngleScale = "inputs:shaping:ies:angleScale";
+const char* const kIesNormalize = "inputs:shaping:ies:normalize";
+const std::pair<const char*, const char*> kShapingInputs[] = {
+    {"shaping_cone_angle", kConeAngle},   {"shaping_cone_softness", kConeSoftness},
+    {"shaping_focus", kFocus},            {"shaping_focus_tint", kFocusTint},
+    {"shaping_ies_file", kIesFile},       {"shaping_ies_angle_scale", kIesAngleScale},
+    {"shaping_ies_normalize", kIesNormalize}};
 // Non-physical controls a path tracer of grains has no meaning for: warned about when set.
 const char* const kDiffuse = "inputs:diffuse";
 const char* const kSpecular = "inputs:specular";
@@ -78,7 +81,7 @@ const std::vector<std::string>& usdLightAttributeNames() {
   static const std::vector<std::string> names = {
       kIntensity, kExposure, kColor,        kNormalize,   kEnableTemperature, kTemperature, kAngle,
       kTextureFile, kTextureFormat, kWidth, kHeight,      kRadius,            kLength,      kTreatAsPoint,
-      kTreatAsLine, kConeAngle, kConeSoftness, kFocus,    kFocusTint,         kIesFile,     kDiffuse,
+      kTreatAsLine, kConeAngle, kConeSoftness, kFocus,    kFocusTint,         kIesFile,     kIesAngleScale, kIesNormalize, kDiffuse,
       kSpecular,    kShadowEnable, kShadowColor, kShadowDistance, kShadowFalloff, kShadowFalloffGamma};
   return names;
 }
@@ -168,9 +171,10 @@ std::optional<LightDesc> lightFromUsd(const UsdPrimRecord& r, UsdWarnings& warni
     l.shaping.coneSoftness = usdFloat(r, kConeSoftness, l.shaping.coneSoftness);
     l.shaping.focus = usdFloat(r, kFocus, l.shaping.focus);
     l.shaping.focusTint = usdColor(r, kFocusTint, l.shaping.focusTint);
+    l.shaping.iesFile = usdFile(r, kIesFile);
+    l.shaping.iesAngleScale = usdFloat(r, kIesAngleScale, l.shaping.iesAngleScale);
+    l.shaping.iesNormalize = usdBool(r, kIesNormalize, l.shaping.iesNormalize);
   }
-  if (!usdAsset(r, kIesFile).first.empty())
-    warnings.push_back(str(path, ".", kIesFile, ": IES profiles are not supported; ignored"));
   for (const char* multiplier : {kDiffuse, kSpecular})
     if (usdFloat(r, multiplier, 1.0f) != 1.0f)
       warnings.push_back(str(path, ".", multiplier, ": not supported (light reaches every surface as it is); ignored"));

@@ -13,8 +13,10 @@
 //  - CylinderLight: inputs:radius (0.5), inputs:length (1); treatAsLine is warned about;
 //  - ShapingAPI on the area lights above: inputs:shaping:cone:angle (90),
 //    inputs:shaping:cone:softness (0), inputs:shaping:focus (0), inputs:shaping:focusTint
-//    (0, 0, 0) (LightShaping, scene_desc.h), on where any of them has a value; on a distant
-//    or dome light it is warned about and ignored, as is inputs:shaping:ies:file;
+//    (0, 0, 0), inputs:shaping:ies:file (an IES LM-63 profile, ies.h; must exist and parse),
+//    inputs:shaping:ies:angleScale (0), inputs:shaping:ies:normalize (false) (LightShaping,
+//    scene_desc.h), on where any of them has a value; on a distant or dome light it is
+//    warned about and ignored;
 //  - ShadowAPI: inputs:shadow:enable (true; false: no object casts shadows from the light,
 //    LightDesc::shadows); inputs:shadow:color, :distance, :falloff and :falloffGamma off
 //    their fallbacks (0, -1, -1, 1) are warned about and ignored;

@@ -285,6 +285,7 @@ VtDictionary HdGranularRenderer::GetStats() const {
     stats["granular:lightPicks"] = VtValue(_scene->lightPicksText());
     // Light linking: each linked light and how many objects it lights ("" when none is linked).
     stats["granular:lightLinks"] = VtValue(_scene->lightLinksText());
+    stats["granular:iesProfiles"] = VtValue(_scene->iesProfilesText());
     // Shadow linking: each shadow-linked light and how many objects cast its shadows.
     stats["granular:shadowLinks"] = VtValue(_scene->shadowLinksText());
     // What carries the low orders: proxies (granular:proxies), and how many bounces before

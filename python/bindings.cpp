@@ -32,6 +32,7 @@
 #include "core/grain_density.h"
 #include "core/granular_prims.h"
 #include "core/heterogeneous_medium.h"
+#include "core/ies.h"
 #include "core/image_io.h"
 #include "core/instanced_grains.h"
 #include "core/medium.h"
@@ -499,7 +500,20 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("cone_angle", &LightShaping::coneAngle)
       .def_readwrite("cone_softness", &LightShaping::coneSoftness)
       .def_readwrite("focus", &LightShaping::focus)
-      .def_readwrite("focus_tint", &LightShaping::focusTint);
+      .def_readwrite("focus_tint", &LightShaping::focusTint)
+      .def_readwrite("ies_file", &LightShaping::iesFile)
+      .def_readwrite("ies_angle_scale", &LightShaping::iesAngleScale)
+      .def_readwrite("ies_normalize", &LightShaping::iesNormalize);
+  py::class_<IesProfile, std::shared_ptr<IesProfile>>(m, "IesProfile",
+                                                      "An IES LM-63 profile as core reads it (core/ies.h).")
+      .def("intensity", &IesProfile::intensity, py::arg("theta"), py::arg("phi"),
+           "candela toward (theta, phi), radians: theta off the light's -Z, phi from +X toward +Y")
+      .def_property_readonly("mean_intensity", &IesProfile::meanIntensity, "what inputs:shaping:ies:normalize divides by")
+      .def_property_readonly("max_intensity", &IesProfile::maxIntensity)
+      .def_property_readonly("vertical_count", &IesProfile::verticalCount)
+      .def_property_readonly("horizontal_count", &IesProfile::horizontalCount);
+  m.def("read_ies_file", [](const std::string& path) { return std::const_pointer_cast<IesProfile>(readIesFile(path)); },
+        py::arg("path"), "The profile of an .ies file (read once while the file is unchanged); InputError when it is not one.");
   py::class_<LightDesc>(m, "LightDesc")
       .def(py::init<>())
       .def_readwrite("name", &LightDesc::name)
@@ -1082,6 +1096,8 @@ PYBIND11_MODULE(granular_core, m) {
                              "the warning about delta suns rendered as the physical sun (\"\" when none)")
       .def_property_readonly("light_picks", [](const PyScene& s) { return s.scene->lightPicksText(); },
                              "each light's chance in light sampling, \"sun 87.6%, sky 12.4%\" (\"\" with one light)")
+      .def_property_readonly("ies_profiles", [](const PyScene& s) { return s.scene->iesProfilesText(); },
+                             "the lights' IES profiles, for the logs (\"\" when none has one)")
       .def_property_readonly("light_links", [](const PyScene& s) { return s.scene->lightLinksText(); },
                              "each linked light and the objects it lights, \"/World/Rim lights 2 of 14 objects\" "
                              "(\"\" when no light is linked)")

@@ -471,6 +471,8 @@ def _log_transports(args, built, renderer, image):
                    f"DA {means[3]:.4g}{da}{lod}")
     if built.light_picks:
         _log(args, f"  light sampling picks: {built.light_picks}")
+    if built.ies_profiles:
+        _log(args, f"  IES profiles: {built.ies_profiles}")
     if built.light_links:
         _log(args, f"  light linking: {built.light_links}")
     if built.shadow_links:

@@ -342,6 +342,16 @@ def write_textures(folder):
     TEX["sky"] = os.path.join(folder, "sky.exr")
     core.write_exr(TEX["sky"], core.Image(sky_px.astype(np.float32), ["R", "G", "B"]))
     TEX["missing"] = os.path.join(folder, "no_such_texture.png")
+    # An IES LM-63 profile without symmetry (rows at 0, 90, 180 and 270 degrees), so that its
+    # orientation shows; and a file that is not one.
+    rows = ["90 70 20 0 0", "20 60 40 5 0", "60 10 80 10 0", "30 30 30 30 0"]
+    with open(os.path.join(folder, "spot.ies"), "w") as f:
+        f.write("IESNA:LM-63-2002\n[TEST] conformance\nTILT=NONE\n1 -1 0.01 5 4 1 2 0 0 0\n1 1 10\n"
+                "0 20 40 60 90\n0 90 180 270\n" + "\n".join(rows) + "\n")
+    TEX["ies"] = os.path.join(folder, "spot.ies")
+    with open(os.path.join(folder, "photo.ies"), "w") as f:
+        f.write("a photograph, not a profile\n")
+    TEX["ies_bad"] = os.path.join(folder, "photo.ies")
     return TEX
 
 
@@ -495,6 +505,31 @@ def _():
         extra="        float inputs:shaping:cone:angle = 40\n        float inputs:shaping:cone:softness = 0.5\n"
               "        float inputs:shaping:focus = 4\n        color3f inputs:shaping:focusTint = (0.1, 0.2, 0.6)",
         api='prepend apiSchemas = ["ShapingAPI"]'))
+
+
+@stage("light_ies", "a sphere light with an IES profile (no symmetry; named relative to the stage)")
+def _():
+    return scene(lights=sphere_light(
+        extra="        asset inputs:shaping:ies:file = @./textures/spot.ies@\n"
+              "        float3 xformOp:rotateXYZ = (-80, 20, 0)",
+        intensity=30.0).replace('uniform token[] xformOpOrder = ["xformOp:translate"]',
+                                'uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:rotateXYZ"]')
+        .replace('def SphereLight "Bulb"', 'def SphereLight "Bulb" (\n        prepend apiSchemas = ["ShapingAPI"]\n    )')
+        + sky(0.1))
+
+
+@stage("light_ies_scaled_normalized", "a disk light's IES profile narrowed by angleScale 0.5 and normalised")
+def _():
+    return scene(lights=sky(0.1) + disk_light(
+        extra=f"        asset inputs:shaping:ies:file = @{TEX['ies']}@\n"
+              "        float inputs:shaping:ies:angleScale = 0.5\n        bool inputs:shaping:ies:normalize = 1",
+        api='prepend apiSchemas = ["ShapingAPI"]'))
+
+
+@stage("light_ies_not_a_profile", "an IES file that is not a profile (invalid)")
+def _():
+    return scene(lights=sky(0.1) + disk_light(
+        extra=f"        asset inputs:shaping:ies:file = @{TEX['ies_bad']}@", api='prepend apiSchemas = ["ShapingAPI"]'))
 
 
 @stage("cylinder_light_length_zero", "a cylinder light of length 0 (invalid)")

@@ -2,7 +2,12 @@
 // core/light.* and the MIS helper in core/sampling.h).
 #include <gtest/gtest.h>
 
+#include <unistd.h>
+
 #include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <functional>
 
 #include "core/image_io.h"
 #include "core/light.h"
@@ -442,10 +447,12 @@ double shapingFactor(const LightShaping& s, double theta, double c) {
 // The mean radiance of the floor in floorFromAbove's view ([−0.2, 0.2]² of y = 0, albedo
 // 0.5) under one area light of radiance 1: ρ/π ∫ cos θ_p cos θ_l / d² dA by the midpoint
 // rule, over n × n floor points and the light's surface as `emitters` gives it (points,
-// their normals, their areas).
+// their normals, their areas); times the shaping's factor, and `weight` of the unit
+// emission direction.
 template <class Emitters>
 double floorRadiance(const Emitters& emitters, int n, const LightShaping* shaping = nullptr,
-                     const Vec3& axis = Vec3(0, -1, 0)) {
+                     const Vec3& axis = Vec3(0, -1, 0),
+                     const std::function<double(double, double, double)>& weight = {}) {
   double sum = 0;
   for (int i = 0; i < n; ++i)
     for (int j = 0; j < n; ++j) {
@@ -460,6 +467,7 @@ double floorRadiance(const Emitters& emitters, int n, const LightShaping* shapin
           const double ca = (axis.x * wx + axis.y * wy + axis.z * wz) / d;
           f = shapingFactor(*shaping, std::acos(std::clamp(ca, -1.0, 1.0)), cosL);
         }
+        if (weight) f *= weight(wx / d, wy / d, wz / d);
         E += f * cosL * cosP / (d * d) * dA;
       });
       sum += 0.5 / kPiD * E;
@@ -623,6 +631,144 @@ TEST(DiskAndCylinderLights, ShapingConesAndFocusesWhatTheyEmit) {
     const ChannelEstimate e = imageEstimates(r.film().toImage(), {{0, 8, 0, 8}})[0];
     if (shaped) EXPECT_EQ(e.mean[0], 0.0);
     else EXPECT_GT(e.mean[0], 0.1);
+  }
+}
+
+// ---- IES profiles ----------------------------------------------------------------------
+
+namespace {
+
+// A .ies file (LM-63-2002, type C) in the temporary folder while the object lives: the
+// vertical angles, the horizontal ones and the candela rows, as the file lists them.
+struct IesFile {
+  std::string path;
+  IesFile(const std::string& name, const std::vector<double>& vertical, const std::vector<double>& horizontal,
+          const std::vector<double>& candela) {
+    path = (std::filesystem::temp_directory_path() / (name + "_" + std::to_string(::getpid()) + ".ies")).string();
+    std::ofstream f(path);
+    f << "IESNA:LM-63-2002\n[TEST] test profile\nTILT=NONE\n1 -1 1 " << vertical.size() << " " << horizontal.size()
+      << " 1 2 0 0 0\n1 1 10\n";
+    for (double v : vertical) f << v << " ";
+    f << "\n";
+    for (double h : horizontal) f << h << " ";
+    f << "\n";
+    for (double c : candela) f << c << " ";
+    f << "\n";
+  }
+  ~IesFile() { std::filesystem::remove(path); }
+};
+
+// Piecewise linear through (x[i], y[i]); 0 outside [x.front(), x.back()].
+double piecewise(const std::vector<double>& x, const std::vector<double>& y, double at) {
+  if (at < x.front() || at > x.back()) return 0;
+  for (size_t i = 1; i < x.size(); ++i)
+    if (at <= x[i]) return y[i - 1] + (y[i] - y[i - 1]) * (at - x[i - 1]) / (x[i] - x[i - 1]);
+  return y.back();
+}
+
+}  // namespace
+
+TEST(IesProfiles, ScaleWhatALightEmitsByTheCandelaOfItsOwnFrame) {
+  // A profile without symmetry (rows at φ = 0°, 90°, 180° and 270°, closed back to the
+  // first at 360°; each linear over θ ∈ [0°, 180°]) on a sphere light turned and tilted:
+  // each direction's radiance is the light's times the candela at its θ off the light's −Z
+  // and its φ from +X toward +Y, the frame read back from the light's transform here.
+  const std::vector<double> vertical = {0, 60, 120, 180}, horizontal = {0, 90, 180, 270};
+  const std::vector<std::vector<double>> rows = {{8, 4, 2, 1}, {2, 6, 1, 3}, {5, 5, 0, 9}, {1, 7, 3, 3}};
+  std::vector<double> candela;
+  for (const auto& r : rows) candela.insert(candela.end(), r.begin(), r.end());
+  const IesFile file("asymmetric", vertical, horizontal, candela);
+  LightDesc d = sphereLight("bulb", 0.1f, 2, Vec3(0.0f));
+  d.xf = Transform::lookAt(Vec3(0.3f, 0.2f, 0.1f), Vec3(1, -1, 0.5f), Vec3(0, 0, 1));
+  d.shaping.enabled = true;
+  d.shaping.coneAngle = 180;  // no cone: every direction
+  d.shaping.iesFile = file.path;
+  const Vec3 X = normalize(d.xf.vector(Vec3(1, 0, 0))), Y = normalize(d.xf.vector(Vec3(0, 1, 0))),
+             Z = normalize(d.xf.vector(Vec3(0, 0, 1)));
+  auto expected = [&](const Vec3& w, float angleScale) {
+    const double theta = std::acos(std::clamp(double(-dot(w, Z)), -1.0, 1.0));
+    double phi = std::atan2(double(dot(w, Y)), double(dot(w, X))) * 180 / kPiD;
+    phi = std::fmod(phi + 360, 360);
+    double t = theta;
+    if (angleScale > 0) t = theta / angleScale;
+    if (angleScale < 0) t = kPiD + (theta - kPiD) / -angleScale;
+    if (t < 0 || t > kPiD) return 0.0;
+    const int j = std::min(int(phi / 90), 3);
+    const double a = piecewise(vertical, rows[j], t * 180 / kPiD), b = piecewise(vertical, rows[(j + 1) % 4], t * 180 / kPiD);
+    return a + (b - a) * (phi - 90 * j) / 90;
+  };
+  Rng rng(3);
+  for (float angleScale : {0.0f, 0.6f, -0.7f}) {
+    d.shaping.iesAngleScale = angleScale;
+    const Light l = Light::fromDesc(d);
+    int lit = 0;
+    for (int i = 0; i < 400; ++i) {
+      const Vec3 w = sampleUniformSphere(rng.next1D(), rng.next1D());
+      const Vec3 q = d.xf.point(Vec3(0.0f)) + w * 0.1f;
+      const double want = 2 * expected(w, angleScale);
+      EXPECT_NEAR(l.areaLe(q, -w).x, want, 1e-4 * (1 + want)) << "angleScale " << angleScale << " w " << w.x << " " << w.y << " " << w.z;
+      lit += want > 0;
+    }
+    EXPECT_GT(lit, angleScale == 0 ? 390 : 100);  // the mapped angles leave some directions dark
+  }
+  // Normalised: divided by the profile's mean, here ∫ I dω / 4π by a fine midpoint rule.
+  double sum = 0;
+  const int n = 1000, m = 360;
+  for (int i = 0; i < n; ++i)
+    for (int k = 0; k < m; ++k) {
+      const double theta = kPiD * (i + 0.5) / n, phi = 2 * kPiD * (k + 0.5) / m;
+      const Vec3 w = X * float(std::sin(theta) * std::cos(phi)) + Y * float(std::sin(theta) * std::sin(phi)) -
+                     Z * float(std::cos(theta));
+      sum += expected(normalize(w), 0) * std::sin(theta) * (kPiD / n) * (2 * kPiD / m);
+    }
+  const double mean = sum / (4 * kPiD);
+  d.shaping.iesAngleScale = 0;
+  d.shaping.iesNormalize = true;
+  const Light normalized = Light::fromDesc(d);
+  for (int i = 0; i < 100; ++i) {
+    const Vec3 w = sampleUniformSphere(rng.next1D(), rng.next1D());
+    const Vec3 q = d.xf.point(Vec3(0.0f)) + w * 0.1f;
+    EXPECT_NEAR(normalized.areaLe(q, -w).x, 2 * expected(w, 0) / mean, 2e-3 * (1 + 2 * expected(w, 0) / mean));
+  }
+}
+
+TEST(IesProfiles, AFloorUnderAnIesDiskHasTheRadianceItsCandelaGive) {
+  // A downlight's axial profile, bright at 0°, dark at 20°, bright again at 30°: a disk
+  // facing the floor draws its rings there (θ reaches 34° at the view's corners), and light
+  // sampling, BSDF rays that meet the disk and MIS add up to the integral over its surface.
+  const std::vector<double> vertical = {0, 10, 20, 30, 40, 90}, candela = {100, 80, 30, 60, 10, 0};
+  const IesFile file("downlight", vertical, {0}, candela);
+  LightDesc spot = diskLight("downlight", 0.05f, 0.01f, Vec3(0.05f, 0.4f, 0));
+  spot.shaping.enabled = true;
+  spot.shaping.iesFile = file.path;
+  // The candela toward a unit emission direction w off the disk's axis (world −Y).
+  auto profile = [&](double angleScale, double scale) {
+    return [&vertical, &candela, angleScale, scale](double wx, double wy, double wz) {
+      const double theta = std::acos(std::clamp(-wy, -1.0, 1.0)) / angleScale;
+      (void)wx, (void)wz;
+      return scale * piecewise(vertical, candela, theta * 180 / kPiD);
+    };
+  };
+  // Its mean over the lower hemisphere, ∫ I sin θ dθ (midpoint rule).
+  double mean = 0;
+  for (int i = 0; i < 90000; ++i) {
+    const double theta = (i + 0.5) * kPiD / 180 / 1000;
+    mean += piecewise(vertical, candela, theta * 180 / kPiD) * std::sin(theta) * kPiD / 180 / 1000;
+  }
+  struct Case {
+    float angleScale;
+    bool normalize;
+    double scale;
+  };
+  const double unshaped = floorRadiance(diskEmitters(0.05, 0.4, 0.05, 0.0, 60), 48);
+  for (const Case& c : {Case{0, false, 0.01}, Case{0.5f, false, 0.01}, Case{0, true, 0.01 / mean}}) {
+    spot.shaping.iesAngleScale = c.angleScale;
+    spot.shaping.iesNormalize = c.normalize;
+    const double expected = floorRadiance(diskEmitters(0.05, 0.4, 0.05, 0.0, 60), 48, nullptr, Vec3(0, -1, 0),
+                                          profile(c.angleScale > 0 ? c.angleScale : 1, c.scale));
+    // The profile's shape matters: its peak everywhere would give far more.
+    EXPECT_LT(expected, 0.8 * unshaped * c.scale * candela[0]) << expected / (unshaped * c.scale * candela[0]);
+    expectFloorRadiance({spot}, expected, 256);
   }
 }
 

@@ -645,6 +645,41 @@ TEST(SceneIo, BadMotionBlurAndInstancedGrainsNameTheObjectAndKey) {
                   "instanced_grains[1].name: \"pile\" is used by another entry of instanced_grains");
 }
 
+TEST(SceneIo, AnIesProfileIsNamedRelativeToTheSceneFile) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() / ("granular_json_ies_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  std::ofstream(dir / "spot.ies") << "IESNA:LM-63-2002\nTILT=NONE\n1 -1 1 2 1 1 2 0 0 0\n1 1 10\n0 90\n0\n10 0\n";
+  std::ofstream(dir / "photo.ies") << "a photograph\n";
+  const std::string source = (dir / "scene.json").string();
+  SceneDesc d = parseSceneJson(R"({"lights": [{"name": "spot", "type": "sphere", "shaping_ies_file": "spot.ies",
+      "shaping_ies_angle_scale": -0.5, "shaping_ies_normalize": true}]})",
+                               source);
+  ASSERT_EQ(d.lights.size(), 1u);
+  EXPECT_TRUE(d.lights[0].shaping.enabled);
+  EXPECT_EQ(fs::path(d.lights[0].shaping.iesFile), dir / "spot.ies");
+  EXPECT_FLOAT_EQ(d.lights[0].shaping.iesAngleScale, -0.5f);
+  EXPECT_TRUE(d.lights[0].shaping.iesNormalize);
+  auto error = [&](const std::string& text) {
+    try {
+      parseSceneJson(text, source);
+    } catch (const InputError& e) {
+      return std::string(e.what());
+    }
+    return std::string("NO ERROR");
+  };
+  EXPECT_EQ(error(R"({"lights": [{"name": "s", "type": "disk", "shaping_ies_file": "none.ies"}]})"),
+            "s.shaping_ies_file: \"" + (dir / "none.ies").string() + "\" does not exist");
+  EXPECT_EQ(error(R"({"lights": [{"name": "s", "type": "disk", "shaping_ies_file": "photo.ies"}]})"),
+            "s.shaping_ies_file: \"" + (dir / "photo.ies").string() +
+                "\" has no TILT= line: it is not an IES LM-63 photometric file");
+  EXPECT_CONTAINS(error(R"({"lights": [{"name": "s", "type": "disk", "shaping_ies_angle_scale": "wide"}]})"),
+                  "s.shaping_ies_angle_scale");
+  EXPECT_CONTAINS(error(R"({"lights": [{"name": "s", "type": "distant", "shaping_ies_file": "spot.ies"}]})"),
+                  "s.shaping_ies_file");
+  fs::remove_all(dir);
+}
+
 TEST(SceneIo, DiskAndCylinderLightsAndShapingParse) {
   SceneDesc d = parseSceneJson(R"({"lights": [
       {"name": "disk", "type": "disk", "radius": 0.3, "shaping_cone_angle": 30, "shaping_cone_softness": 0.2},

@@ -2,6 +2,12 @@
 // temperature, what is skipped or warned about, and errors named prim.attribute.
 #include <gtest/gtest.h>
 
+#include <unistd.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+
 #include "core/error.h"
 #include "core/usd_lights.h"
 #include "usd_records.h"
@@ -98,6 +104,45 @@ TEST(UsdLights, DisksCylindersAndShapingTakeUsdLuxFallbacksAndAuthoredValues) {
             0u);
 }
 
+TEST(UsdLights, AnIesProfileIsReadWithItsAngleScaleAndNormalisation) {
+  namespace fs = std::filesystem;
+  const std::string dir = (fs::temp_directory_path() / ("granular_usd_ies_" + std::to_string(::getpid()))).string();
+  fs::create_directories(dir);
+  const std::string good = dir + "/spot.ies", bad = dir + "/photo.ies";
+  std::ofstream(good) << "IESNA:LM-63-2002\nTILT=NONE\n1 -1 1 2 1 1 2 0 0 0\n1 1 10\n0 90\n0\n10 0\n";
+  std::ofstream(bad) << "not a profile\n";
+  UsdWarnings w;
+  // As the asset resolver gives it: authored relative, resolved absolute.
+  const LightDesc spot = *lightFromUsd(usdRecord("/Spot", "SphereLight",
+                                                 {{"inputs:shaping:ies:file", usdText("asset", "spot.ies", good)},
+                                                  {"inputs:shaping:ies:angleScale", usdNumbers("float", {0.5})},
+                                                  {"inputs:shaping:ies:normalize", usdNumbers("bool", {1})}}),
+                                       w);
+  EXPECT_TRUE(w.empty());
+  EXPECT_TRUE(spot.shaping.enabled);
+  EXPECT_EQ(spot.shaping.iesFile, good);
+  EXPECT_FLOAT_EQ(spot.shaping.iesAngleScale, 0.5f);
+  EXPECT_TRUE(spot.shaping.iesNormalize);
+  EXPECT_FLOAT_EQ(spot.shaping.coneAngle, 90.0f);  // the cone's fallback, as ShapingAPI's
+  // Any of them turns shaping on, the others at their fallbacks.
+  const LightDesc scaled =
+      *lightFromUsd(usdRecord("/Spot", "RectLight", {{"inputs:shaping:ies:angleScale", usdNumbers("float", {2})}}), w);
+  EXPECT_TRUE(scaled.shaping.enabled);
+  EXPECT_TRUE(scaled.shaping.iesFile.empty());
+  EXPECT_FALSE(scaled.shaping.iesNormalize);
+  // Errors name the prim and the attribute: a missing file, one that is not a profile, a
+  // scale that is not finite.
+  EXPECT_EQ(errorOf(usdRecord("/Spot", "SphereLight", {{"inputs:shaping:ies:file", usdText("asset", "no/such.ies")}})),
+            "/Spot.inputs:shaping:ies:file: \"no/such.ies\" cannot be found");
+  EXPECT_EQ(errorOf(usdRecord("/Spot", "DiskLight", {{"inputs:shaping:ies:file", usdText("asset", "photo.ies", bad)}})),
+            "/Spot.inputs:shaping:ies:file: \"" + bad + "\" has no TILT= line: it is not an IES LM-63 photometric file");
+  EXPECT_EQ(errorOf(usdRecord("/Spot", "DiskLight",
+                              {{"inputs:shaping:ies:angleScale", usdNumbers("float", {std::nan("")})}}))
+                .rfind("/Spot.inputs:shaping:ies:angleScale: ", 0),
+            0u);
+  fs::remove_all(dir);
+}
+
 TEST(UsdLights, OtherTypesAndUnsupportedAttributesAreWarnedAbout) {
   UsdWarnings w;
   EXPECT_FALSE(lightFromUsd(usdRecord("/Portal", "PortalLight"), w));
@@ -114,9 +159,9 @@ TEST(UsdLights, OtherTypesAndUnsupportedAttributesAreWarnedAbout) {
   ASSERT_EQ(w.size(), 1u);
   EXPECT_EQ(w[0], "/Sun: ShapingAPI on a DistantLight is not supported; ignored");
   w.clear();
-  EXPECT_TRUE(lightFromUsd(usdRecord("/Spot", "SphereLight", {{"inputs:shaping:ies:file", usdText("asset", "a.ies")}}), w));
+  EXPECT_TRUE(lightFromUsd(usdRecord("/Sky", "DomeLight", {{"inputs:shaping:ies:file", usdText("asset", "a.ies")}}), w));
   ASSERT_EQ(w.size(), 1u);
-  EXPECT_EQ(w[0], "/Spot.inputs:shaping:ies:file: IES profiles are not supported; ignored");
+  EXPECT_EQ(w[0], "/Sky: ShapingAPI on a DomeLight is not supported; ignored");
   w.clear();
   EXPECT_TRUE(lightFromUsd(usdRecord("/Sun", "DistantLight",
                                      {{"inputs:diffuse", usdNumbers("float", {0})},

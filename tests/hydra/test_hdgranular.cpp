@@ -3,6 +3,8 @@
 // that restarts the render, a bad stage that still converges, stopping mid-render.
 #include <gtest/gtest.h>
 
+#include <unistd.h>
+
 #include <chrono>
 #include <cstdint>
 #include <cstring>
@@ -10,6 +12,8 @@
 #include <map>
 #include <cstdlib>
 #include <cstdio>
+#include <filesystem>
+#include <fstream>
 #include <functional>
 #include <cmath>
 #include <set>
@@ -949,6 +953,47 @@ TEST(HdGranular, LightLinkingLightsOnlyTheLinkedPrimsAndFollowsEditsOfTheCollect
   EXPECT_GT(sunlit, 1.5 * underDome);  // the sun's irradiance 3 against the dome's π
   std::printf("floor: linked away %.4f ± %.4f, dome alone %.4f ± %.4f, sunlit %.4f\n", withLink, seLinked, underDome,
               seDome, sunlit);
+}
+
+TEST(HdGranular, AnIesProfileScalesTheLightByItsCandelaAndFollowsEdits) {
+  // The floor facing the camera under a disk light 3 above it (the dome off), its IES
+  // profile 5 candela in every direction of its lower half: the image is 5 times the one
+  // without it, sample for sample, as in granular render (tests/python/test_ies.py;
+  // tests/conformance: light_ies*). Normalised on the live stage, it is the plain image.
+  const std::string file = (std::filesystem::temp_directory_path() /
+                            ("granular_hydra_ies_" + std::to_string(::getpid()) + ".ies")).string();
+  std::ofstream(file) << "IESNA:LM-63-2002\nTILT=NONE\n1 -1 1 3 1 1 2 0 0 0\n1 1 10\n0 45 90\n0\n5 5 5\n";
+  auto stageWith = [&](std::string const& shaping) {
+    UsdStageRefPtr stage = domeLitStage(4, std::string(kFloorFacingCamera) + R"(
+  def DiskLight "Disk" (
+    prepend apiSchemas = ["ShapingAPI"]
+  ) {
+    float inputs:radius = 0.5
+    float inputs:intensity = 4
+    double3 xformOp:translate = (0, 0, 3)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+)" + shaping + "  }\n");
+    EXPECT_TRUE(stage->GetPrimAtPath(SdfPath("/World/Sky")).SetActive(false));
+    return stage;
+  };
+  UsdStageRefPtr profiled = stageWith("    asset inputs:shaping:ies:file = @" + file + "@\n");
+  auto engine = makeEngine(8);
+  const Frame plain = render(*makeEngine(8), stageWith(""), HdAovTokens->color, 8, 8);
+  const Frame five = render(*engine, profiled, HdAovTokens->color, 8, 8);
+  ASSERT_TRUE(plain.converged && five.converged);
+  EXPECT_EQ(stat<std::string>(engine->GetRenderStats(), "granular:iesProfiles"),
+            "/World/Disk: " + std::filesystem::path(file).filename().string() + " (3 × 1 angles, peak 5 cd, mean 5 cd)");
+  ASSERT_EQ(plain.values.size(), five.values.size());
+  EXPECT_GT(mean(plain, 0), 0);
+  for (size_t i = 0; i < plain.values.size(); ++i)
+    if (i % plain.channels < 3) EXPECT_NEAR(five.values[i], 5 * plain.values[i], 1e-5f * (1 + five.values[i])) << i;
+  ASSERT_TRUE(profiled->GetPrimAtPath(SdfPath("/World/Disk"))
+                  .CreateAttribute(TfToken("inputs:shaping:ies:normalize"), SdfValueTypeNames->Bool)
+                  .Set(true));
+  const Frame normalized = render(*engine, profiled, HdAovTokens->color, 8, 8);
+  for (size_t i = 0; i < plain.values.size(); ++i)
+    if (i % plain.channels < 3) EXPECT_NEAR(normalized.values[i], plain.values[i], 1e-5f * (1 + plain.values[i])) << i;
+  std::filesystem::remove(file);
 }
 
 TEST(HdGranular, ShadowLinkingPassesTheObjectsLeftOutOfALightsShadowLinkAndFollowsEdits) {

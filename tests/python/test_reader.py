@@ -99,6 +99,9 @@ def test_camera_lights_and_render_settings(tmp_path):
     empty = core.SceneDesc()
     empty.settings.width, empty.settings.height, empty.settings.spp = 8, 4, 1
     core.write_png(str(sky_file), core.Renderer(core.Scene.build(empty)).image())  # a black image
+    ies_file = tmp_path / "profiles" / "spot.ies"
+    ies_file.parent.mkdir()
+    ies_file.write_text("IESNA:LM-63-2002\nTILT=NONE\n1 -1 1 2 1 1 2 0 0 0\n1 1 10\n0 90\n0\n10 0\n")
 
     def mutate(stage):
         cam = UsdGeom.Camera(stage.GetPrimAtPath("/World/Camera"))
@@ -125,7 +128,11 @@ def test_camera_lights_and_render_settings(tmp_path):
         ball.CreateColorAttr((1.0, 0.5, 0.25))
         disk = UsdLux.DiskLight.Define(stage, "/World/Disk")
         disk.CreateRadiusAttr(0.2)
-        UsdLux.ShapingAPI.Apply(disk.GetPrim()).CreateShapingConeAngleAttr(30.0)
+        shaping = UsdLux.ShapingAPI.Apply(disk.GetPrim())
+        shaping.CreateShapingConeAngleAttr(30.0)
+        shaping.CreateShapingIesFileAttr(Sdf.AssetPath("profiles/spot.ies"))  # relative to the stage
+        shaping.CreateShapingIesAngleScaleAttr(0.5)
+        shaping.CreateShapingIesNormalizeAttr(True)
         tube = UsdLux.CylinderLight.Define(stage, "/World/Tube")
         tube.CreateLengthAttr(2.0)
         UsdLux.PluginLight.Define(stage, "/World/Plugin")
@@ -164,8 +171,11 @@ def test_camera_lights_and_render_settings(tmp_path):
     assert bulb.color == pytest.approx((1.0, 0.5, 0.25))
     disk = lights["/World/Disk"]
     assert (disk.type, disk.radius) == (core.LightType.Disk, pytest.approx(0.2))
-    # ShapingAPI applied: its authored cone, the schema's fallbacks for the rest.
+    # ShapingAPI applied: its authored cone and IES profile (resolved), the schema's
+    # fallbacks for the rest.
     assert disk.shaping.enabled and (disk.shaping.cone_angle, disk.shaping.cone_softness) == (30.0, 0.0)
+    assert disk.shaping.ies_file == str(ies_file)
+    assert (disk.shaping.ies_angle_scale, disk.shaping.ies_normalize) == (0.5, True)
     tube = lights["/World/Tube"]
     assert (tube.type, tube.radius, tube.length) == (core.LightType.Cylinder, 0.5, 2.0)
     assert not tube.shaping.enabled and not bulb.shaping.enabled
