@@ -78,10 +78,10 @@ FUZZ_CC ?= $(shell command -v clang-14 || command -v clang)
 fuzz: deps
 	@test -n "$(FUZZ_CXX)" || { echo "fuzz: needs clang (apt-get install clang-14 libclang-rt-14-dev)" >&2; exit 1; }
 	@CC=$(FUZZ_CC) CXX=$(FUZZ_CXX) cmake -S . -B $(FUZZ_BUILD) -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DGRANULAR_FUZZ=ON -DGRANULAR_BUILD_TESTS=OFF -DGRANULAR_PYTHON=OFF > $(FUZZ_BUILD).configure.log 2>&1 || { cat $(FUZZ_BUILD).configure.log; exit 1; }
-	@cmake --build $(FUZZ_BUILD) -j $(JOBS) --target fuzz_scene_json fuzz_usd_attributes fuzz_usd_prims
+	@cmake --build $(FUZZ_BUILD) -j $(JOBS) --target fuzz_scene_json fuzz_usd_attributes fuzz_usd_prims fuzz_ies
 	@python3 fuzz/seed_corpus.py $(FUZZ_BUILD)/corpus
 	@mkdir -p $(FUZZ_BUILD)/artifacts
-	@for t in fuzz_scene_json fuzz_usd_attributes fuzz_usd_prims; do \
+	@for t in fuzz_scene_json fuzz_usd_attributes fuzz_usd_prims fuzz_ies; do \
 	  echo "== $$t, $(FUZZ_SECONDS) s"; \
 	  mkdir -p $(FUZZ_BUILD)/corpus/$$t.run && cd $(FUZZ_BUILD) && \
 	  GRANULAR_CACHE_DIR=$(abspath $(FUZZ_BUILD))/cache ./fuzz/$$t -max_total_time=$(FUZZ_SECONDS) -timeout=30 -rss_limit_mb=3072 \

@@ -10,14 +10,26 @@ Prints a markdown table: light | reference | render | bias % +- s.e. (from the v
 AOV) | relative s.e. per sample (the noise of one sample, s.e. * sqrt(spp * pixels) /
 mean) | render time. The s.e. per sample measures how well each light is sampled.
 
+The "ies" lights carry an IES profile (UsdLuxShapingAPI's inputs:shaping:ies:*): the
+reference evaluates the profile here (linear in the vertical and the horizontal angle, in
+the light's frame) and normalises it by its own quadrature. A second table times reading a
+profile (parsing and the mean normalisation divides by) for three sizes of file.
+
+A third table (--grain-spp N > 0) prices a profile in a scene of grains: the sugar cube
+example with its sun and sky off, lit by a sphere light 8 cm above it with a 60° cone,
+rendered by `granular render` with that cone alone and with the downlight's profile
+(normalised) as well, best of three.
+
 Usage: .venv/bin/python bench/area_lights.py [--spp 1024] [--width 32] [--build build]
-       [--out out/bench/area_lights] [--lights sphere,rect,disk,cylinder,spot]
+       [--out out/bench/area_lights] [--lights sphere,rect,disk,cylinder,spot,ies,ies_scaled,ies_asym]
+       [--grain-spp 16]
 """
 import argparse
 import json
 import os
 import subprocess
 import sys
+import time
 
 import numpy as np
 
@@ -73,6 +85,54 @@ def at(c):
 
 
 SPOT = {"shaping_cone_angle": 20, "shaping_cone_softness": 0.5, "shaping_focus": 8, "shaping_focus_tint": 0.25}
+# Profiles: a downlight (axial, 2.5° steps to 90°, I = 1000 cos^8 θ + 200 on a ring at 30°)
+# and one without symmetry (5° steps over the sphere and the circle).
+DOWN_V = np.arange(0, 90.01, 2.5)
+DOWN_ROWS = [1000 * np.cos(np.radians(DOWN_V)) ** 8 + 200 * np.exp(-((DOWN_V - 30) / 6) ** 2)]
+ASYM_V, ASYM_H = np.arange(0, 180.01, 5), np.arange(0, 360.01, 15)
+ASYM_ROWS = [300 * (1.2 + np.cos(np.radians(h)) * np.cos(np.radians(ASYM_V))) * np.exp(-np.radians(ASYM_V)) + 20
+             for h in ASYM_H]
+
+
+def ies_text(vertical, horizontal, rows):
+    rows = [np.round(r, 3) for r in rows]
+    numbers = lambda v: " ".join(f"{x:g}" for x in v)
+    return (f"IESNA:LM-63-2002\n[TEST] bench profile\nTILT=NONE\n1 -1 1 {len(vertical)} {len(horizontal)} 1 2 0 0 0\n"
+            f"1 1 10\n{numbers(vertical)}\n{numbers(horizontal)}\n" + "\n".join(numbers(r) for r in rows) + "\n")
+
+
+PROFILES = {"down": (DOWN_V, np.array([0.0]), DOWN_ROWS), "asym": (ASYM_V, ASYM_H, ASYM_ROWS)}
+
+
+def ies_eval(profile, theta, phi):
+    """Candela at (theta, phi) degrees, written out here: linear in theta per row (0 past the
+    last vertical angle), then linear in phi between rows (one row: axial)."""
+    v, h, rows = PROFILES[profile]
+    rows = [np.round(r, 3) for r in rows]
+    per_row = [np.where(theta <= v[-1], np.interp(theta, v, r), 0.0) for r in rows]
+    if len(h) == 1:
+        return per_row[0]
+    phi = np.mod(phi, 360.0)
+    j = np.clip(np.searchsorted(h, phi, side="right"), 1, len(h) - 1)
+    t = (phi - h[j - 1]) / (h[j] - h[j - 1])
+    stacked = np.stack(per_row)
+    idx = np.arange(len(phi))
+    return stacked[j - 1, idx] * (1 - t) + stacked[j, idx] * t
+
+
+def ies_mean(profile):
+    """∫ I dω over 4π, or 2π for a profile over the lower hemisphere alone (core/ies.h)."""
+    v, _, _ = PROFILES[profile]
+    th, ph = np.meshgrid(np.radians(np.arange(0.025, v[-1], 0.05)), np.radians(np.arange(0.25, 360, 0.5)),
+                         indexing="ij")
+    I = ies_eval(profile, np.degrees(th).ravel(), np.degrees(ph).ravel()).reshape(th.shape)
+    total = (I * np.sin(th)).sum() * np.radians(0.05) * np.radians(0.5)
+    return total / (2 * np.pi if v[-1] <= 90 else 4 * np.pi)
+
+
+IES = {"down": {"shaping_ies_file": "down.ies"},
+       "scaled": {"shaping_ies_file": "down.ies", "shaping_ies_angle_scale": 1.5, "shaping_ies_normalize": True},
+       "asym": {"shaping_ies_file": "asym.ies", "shaping_cone_angle": 180}}
 LIGHTS = {
     "sphere": ({"type": "sphere", "position": [0, 0.3, 0.4], "radius": 0.1}, lambda: sphere_surface((0, 0.3, 0.4), 0.1)),
     "rect": ({"type": "rect", "width": 0.4, "height": 0.2, **at((0.0, 0.5, 0.45))},
@@ -81,6 +141,12 @@ LIGHTS = {
     "cylinder": ({"type": "cylinder", "position": [0, 0.5, 0.5], "radius": 0.05, "length": 1},
                  lambda: cylinder_surface((0, 0.5, 0.5), 0.05, 1.0)),
     "spot": ({"type": "disk", "radius": 0.3, **at((0.1, 1.0, 0.0)), **SPOT}, lambda: disk_surface((0.1, 1.0, 0.0), 0.3)),
+    "ies": ({"type": "disk", "radius": 0.05, "intensity": 0.01, **at((0.05, 0.4, 0.0)), **IES["down"]},
+            lambda: disk_surface((0.05, 0.4, 0.0), 0.05)),
+    "ies_scaled": ({"type": "disk", "radius": 0.05, "intensity": 0.5, **at((0.05, 0.4, 0.0)), **IES["scaled"]},
+                   lambda: disk_surface((0.05, 0.4, 0.0), 0.05)),
+    "ies_asym": ({"type": "disk", "radius": 0.05, "intensity": 0.01, **at((0.05, 0.4, 0.0)), **IES["asym"]},
+                 lambda: disk_surface((0.05, 0.4, 0.0), 0.05)),
 }
 
 
@@ -107,8 +173,18 @@ def reference(name, n=48):
             cos_l = np.einsum("ij,ij->i", nq, w) / d
             cos_p = q[:, 1] / d
             f = np.where((cos_l > 0) & (cos_p > 0), cos_l * cos_p / d ** 2 * dA, 0.0)
-            if "shaping_cone_angle" in light:
+            if "shaping_cone_angle" in light and "shaping_ies_file" not in light:
                 f = f * shaping(-w[:, 1] / d, cos_l, light)  # the axis: straight down
+            if "shaping_ies_file" in light:
+                # The light's frame (at()): local -Z down, +X along x, +Y along -z.
+                theta = np.degrees(np.arccos(np.clip(-w[:, 1] / d, -1, 1)))
+                phi = np.degrees(np.arctan2(-w[:, 2], w[:, 0]))
+                scale = light.get("shaping_ies_angle_scale", 0)
+                profile = light["shaping_ies_file"][:-4]
+                candela = ies_eval(profile, theta / scale if scale > 0 else theta, phi)
+                if light.get("shaping_ies_normalize"):
+                    candela = candela / ies_mean(profile)
+                f = f * candela * light.get("intensity", 1.0)
             total += 0.5 / np.pi * f.sum()
     return total / n ** 2
 
@@ -131,12 +207,16 @@ def main():
     ap.add_argument("--build", default=os.path.join(ROOT, "build"))
     ap.add_argument("--out", default=os.path.join(ROOT, "out", "bench", "area_lights"))
     ap.add_argument("--lights", default=",".join(LIGHTS))
+    ap.add_argument("--grain-spp", type=int, default=16, help="0: no grain scene table")
     a = ap.parse_args()
     sys.path[:0] = [os.path.join(a.build, "python"), os.path.join(ROOT, "python")]
     import granular_core as core
     os.makedirs(a.out, exist_ok=True)
     print("| light | reference | render | bias % ± s.e. | s.e. per sample | render s |")
     print("|---|---|---|---|---|---|")
+    for profile, (v, h, rows) in PROFILES.items():
+        with open(os.path.join(a.out, profile + ".ies"), "w") as f:
+            f.write(ies_text(v, h, rows))
     for name in a.lights.split(","):
         path = os.path.join(a.out, name + ".json")
         with open(path, "w") as f:
@@ -155,6 +235,66 @@ def main():
             t = json.load(f)["render_s"]
         print(f"| {name} | {ref:.5f} | {mean:.5f} | {100 * (mean / ref - 1):+.2f} ± {100 * se / ref:.2f} "
               f"| {per_sample:.2f} | {t:.2f} |", flush=True)
+    # Reading a profile: a fresh file each time (core reads one again only when it changes).
+    print("\n| profile | angles (vertical × horizontal) | read and normalised, ms (best of 5) |")
+    print("|---|---|---|")
+    sizes = {"downlight": (DOWN_V, [0.0], DOWN_ROWS), "without symmetry": (ASYM_V, ASYM_H, ASYM_ROWS),
+             "0.5° × 2.5° over the sphere": (np.arange(0, 180.01, 0.5), np.arange(0, 360.01, 2.5), None)}
+    for label, (v, h, rows) in sizes.items():
+        if rows is None:
+            rows = [100 + 50 * np.sin(np.radians(v) * 3 + np.radians(x)) for x in h]
+        best = float("inf")
+        for k in range(5):
+            path = os.path.join(a.out, f"load_{k}_{len(v)}x{len(h)}.ies")
+            with open(path, "w") as f:
+                f.write(ies_text(v, h, rows))
+            t0 = time.perf_counter()
+            core.read_ies_file(path)
+            best = min(best, time.perf_counter() - t0)
+        print(f"| {label} | {len(v)} × {len(h)} | {1000 * best:.1f} |", flush=True)
+    if a.grain_spp > 0:
+        grain_table(a)
+
+
+def grain_table(a):
+    """The sugar cube under a shaped sphere light, without and with the downlight's profile."""
+    import re
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
+    print("\n| sugar cube, sphere light | render s (best of 3) | mean | s.e. per sample |")
+    print("|---|---|---|---|")
+    import granular_core as core
+    for label, profile in (("60° cone", None), ("60° cone and the downlight's profile", "down.ies")):
+        path = os.path.join(a.out, f"sugarcube_{'ies' if profile else 'cone'}.usda")
+        stage = Usd.Stage.CreateNew(path)
+        stage.GetRootLayer().subLayerPaths.append(os.path.join(ROOT, "examples", "sugarcube.usda"))
+        for prim in ("/World/Sun", "/World/Sky"):
+            stage.OverridePrim(prim).SetActive(False)
+        bulb = UsdLux.SphereLight.Define(stage, "/World/Bulb")
+        bulb.CreateRadiusAttr(0.005)
+        bulb.CreateIntensityAttr(2000.0)
+        UsdGeom.Xformable(bulb).AddTranslateOp().Set(Gf.Vec3d(0.01, 0.09, 0.0))
+        UsdGeom.Xformable(bulb).AddRotateXOp().Set(-90.0)  # its -Z down
+        shaping = UsdLux.ShapingAPI.Apply(bulb.GetPrim())
+        shaping.CreateShapingConeAngleAttr(60.0)
+        if profile:
+            shaping.CreateShapingIesFileAttr(Sdf.AssetPath(os.path.join(a.out, profile)))
+            shaping.CreateShapingIesNormalizeAttr(True)
+        stage.Save()
+        times = []
+        for k in range(3):
+            exr = os.path.join(a.out, f"sugarcube_{k}.exr")
+            r = subprocess.run([sys.executable, "-m", "granular.cli", "render", path, "-o", exr, "--width", "160",
+                                "--spp", str(a.grain_spp), "--threads", "2"],
+                               capture_output=True, text=True, check=True,
+                               env=dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path[:2])))
+            times.append(float(re.search(r"\(render ([0-9.]+) s", r.stderr).group(1)))
+        img = core.read_exr(exr)
+        px = np.asarray(img.pixels)
+        ch = list(img.channels)
+        mean = px[..., ch.index("R")].mean()
+        se = np.sqrt(px[..., ch.index("variance.R")].sum()) / px[..., 0].size
+        print(f"| {label} | {min(times):.2f} | {mean:.4f} | {se * np.sqrt(a.grain_spp * px[..., 0].size) / mean:.2f} |",
+              flush=True)
 
 
 if __name__ == "__main__":

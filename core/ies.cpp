@@ -33,13 +33,20 @@ class Numbers {
   }
 
   double next(const std::string& what) {
-    if (at_ >= tokens_.size()) throw InputError("", "", str("ends before its ", what));
+    return value([&] { return what; });
+  }
+
+  // The next number; what() names it, called only for an error's message (a file holds
+  // ~10^4 numbers).
+  template <typename What>
+  double value(const What& what) {
+    if (at_ >= tokens_.size()) throw InputError("", "", str("ends before its ", what()));
     const std::string& t = tokens_[at_++];
     char* end = nullptr;
     const double v = std::strtod(t.c_str(), &end);
-    if (end == t.c_str() || *end != '\0') throw InputError("", "", str(what, " is not a number: \"", t.substr(0, 40), "\""));
-    if (!std::isfinite(v)) throw InputError("", "", str(what, " is not a finite number: \"", t.substr(0, 40), "\""));
-    if (std::fabs(v) > 3.0e38) throw InputError("", "", str(what, " is ", v, ", beyond a 32-bit float"));
+    if (end == t.c_str() || *end != '\0') throw InputError("", "", str(what(), " is not a number: \"", t.substr(0, 40), "\""));
+    if (!std::isfinite(v)) throw InputError("", "", str(what(), " is not a finite number: \"", t.substr(0, 40), "\""));
+    if (std::fabs(v) > 3.0e38) throw InputError("", "", str(what(), " is ", v, ", beyond a 32-bit float"));
     return v;
   }
 
@@ -59,7 +66,7 @@ class Numbers {
 std::vector<double> readAngles(Numbers& in, int n, const char* which, double lo, double hi) {
   std::vector<double> a(n);
   for (int i = 0; i < n; ++i) {
-    a[i] = in.next(str(which, " angle ", i + 1));
+    a[i] = in.value([&] { return str(which, " angle ", i + 1); });
     if (a[i] < lo - kAngleTolerance || a[i] > hi + kAngleTolerance)
       throw InputError("", "", str(which, " angle ", i + 1, " is ", a[i], "°, outside [", lo, ", ", hi, "]°"));
     a[i] = std::clamp(a[i], lo, hi);
@@ -135,27 +142,41 @@ IesProfile parseIes(const std::string& text) {
   p.candela_.resize(size_t(nv) * nh);
   for (int j = 0; j < nh; ++j)
     for (int i = 0; i < nv; ++i) {
-      const double c = in.next(str("candela value at horizontal ", h[j], "°, vertical ", v[i], "°"));
-      if (c < 0)
-        throw InputError("", "", str("candela value at horizontal ", h[j], "°, vertical ", v[i], "° is ", c, ", below 0"));
+      auto what = [&] { return str("candela value at horizontal ", h[j], "°, vertical ", v[i], "°"); };
+      const double c = in.value(what);
+      if (c < 0) throw InputError("", "", str(what(), " is ", c, ", below 0"));
       const float value = float(c * factor);
       if (!std::isfinite(value))
-        throw InputError("", "", str("candela value at horizontal ", h[j], "°, vertical ", v[i], "° times its multipliers overflows"));
+        throw InputError("", "", str(what(), " times its multipliers overflows"));
       p.candela_[size_t(j) * nv + i] = value;
       p.max_ = std::max(p.max_, value);
     }
 
-  // The mean for normalisation: ∫ I dω by the midpoint rule, θ in 0.1° cells over the
-  // covered range, φ in 0.5° cells (one, about an axis).
+  // The mean for normalisation. The profile is linear in φ between rows, so ∫ I dω is
+  // Σ_h W_h ∫ row_h(θ) sin θ dθ, W_h the measure of φ each row stands for: the rows'
+  // blending weights summed over 0.5° steps of φ (exact for rows on half degrees, as files
+  // list them: the weights bend only there), the θ integral by the midpoint rule in 0.1°
+  // cells over the covered range.
+  std::vector<double> weight(nh, 0.0);
+  const int np = p.symmetry_ == S::Axial ? 1 : 720;
+  for (int k = 0; k < np; ++k) {
+    int j0 = 0, j1 = 0;
+    float t = 0;
+    p.phiRows(float(2 * kPiD * (k + 0.5) / np), j0, j1, t);
+    weight[j0] += (1 - t) * 2 * kPiD / np;
+    weight[j1] += t * 2 * kPiD / np;
+  }
   const double t0 = v.front() * kDegree, t1 = v.back() * kDegree;
   const int nt = std::max(1, int(std::ceil((v.back() - v.front()) / 0.1)));
-  const int np = p.symmetry_ == S::Axial ? 1 : 720;
   double sum = 0;
-  for (int i = 0; i < nt; ++i) {
-    const double theta = t0 + (t1 - t0) * (i + 0.5) / nt, dOmegaTheta = std::sin(theta) * (t1 - t0) / nt;
+  for (int j = 0; j < nh; ++j) {
+    if (weight[j] == 0) continue;
     double ring = 0;
-    for (int k = 0; k < np; ++k) ring += p.intensity(float(theta), float(2 * kPiD * (k + 0.5) / np));
-    sum += ring / np * 2 * kPiD * dOmegaTheta;
+    for (int i = 0; i < nt; ++i) {
+      const double theta = t0 + (t1 - t0) * (i + 0.5) / nt;
+      ring += p.row(j, float(theta)) * std::sin(theta);
+    }
+    sum += weight[j] * ring * (t1 - t0) / nt;
   }
   p.mean_ = sum / ((v.back() - v.front() <= 90 + kAngleTolerance ? 2 : 4) * kPiD);
   return p;
@@ -172,8 +193,10 @@ float IesProfile::row(int h, float theta) const {
   return c[i - 1] + (c[i] - c[i - 1]) * t;
 }
 
-float IesProfile::intensity(float theta, float phi) const {
-  if (symmetry_ == Symmetry::Axial) return row(0, theta);
+void IesProfile::phiRows(float phi, int& j0, int& j1, float& t) const {
+  j0 = j1 = 0;
+  t = 0;
+  if (symmetry_ == Symmetry::Axial) return;
   const float twoPi = 2 * kPi;
   phi = std::fmod(phi, twoPi);
   if (phi < 0) phi += twoPi;
@@ -195,16 +218,22 @@ float IesProfile::intensity(float theta, float phi) const {
   if (symmetry_ == Symmetry::None && phi > horizontal_.back()) {
     // Past the last row, back to the 0° row at 360°.
     const float span = twoPi - horizontal_.back();
-    const float t = span > 0 ? std::clamp((phi - horizontal_.back()) / span, 0.0f, 1.0f) : 0.0f;
-    const float a = row(nh - 1, theta);
-    return a + (row(0, theta) - a) * t;
+    j0 = nh - 1;
+    t = span > 0 ? std::clamp((phi - horizontal_.back()) / span, 0.0f, 1.0f) : 0.0f;
+    return;
   }
   phi = std::clamp(phi, horizontal_.front(), horizontal_.back());
-  const int j = std::clamp(int(std::upper_bound(horizontal_.begin(), horizontal_.end(), phi) - horizontal_.begin()), 1, nh - 1);
-  const float a = horizontal_[j - 1], b = horizontal_[j];
-  const float t = std::clamp((phi - a) / (b - a), 0.0f, 1.0f);
-  const float ra = row(j - 1, theta);
-  return ra + (row(j, theta) - ra) * t;
+  j1 = std::clamp(int(std::upper_bound(horizontal_.begin(), horizontal_.end(), phi) - horizontal_.begin()), 1, nh - 1);
+  j0 = j1 - 1;
+  t = std::clamp((phi - horizontal_[j0]) / (horizontal_[j1] - horizontal_[j0]), 0.0f, 1.0f);
+}
+
+float IesProfile::intensity(float theta, float phi) const {
+  int j0, j1;
+  float t;
+  phiRows(phi, j0, j1, t);
+  const float a = row(j0, theta);
+  return t > 0 ? a + (row(j1, theta) - a) * t : a;
 }
 
 std::shared_ptr<const IesProfile> readIesFile(const std::string& path) {

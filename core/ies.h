@@ -35,8 +35,8 @@ class IesProfile {
   float intensity(float theta, float phi) const;
   // UsdLuxShapingAPI's inputs:shaping:ies:normalize divides by this: the profile's power,
   // ∫ I dω over the directions it covers, over 4π — or 2π when its vertical angles span no
-  // more than a hemisphere (90°, as Karma and RenderMan normalise). Integrated on a grid
-  // of 0.25° cells (midpoint rule over the interpolated profile).
+  // more than a hemisphere (90°, as Karma and RenderMan normalise): the interpolated
+  // profile integrated over 0.5° of φ and 0.1° cells of θ.
   double meanIntensity() const { return mean_; }
   float maxIntensity() const { return max_; }
   int verticalCount() const { return int(vertical_.size()); }
@@ -51,6 +51,8 @@ class IesProfile {
   double mean_ = 0;
   float max_ = 0;
   float row(int h, float theta) const;  // the h-th horizontal row at θ (0 off its range)
+  // The rows φ falls between after the symmetry's folding, and its place t from j0 to j1.
+  void phiRows(float phi, int& j0, int& j1, float& t) const;
 };
 
 // The profile in `text` (the contents of a .ies file); InputError("", "", what) on what

@@ -1,7 +1,6 @@
 #!/usr/bin/env python3
 """Writes the bundled USD examples (sandcastle, snowslab, sugarcube, mixture, animated, macro,
-frosted) with
-usd-core and the granular schema helpers:
+frosted, sugarcube_spot) with usd-core and the granular schema helpers:
 
     .venv/bin/python examples/make_examples.py [OUT_DIR]
 
@@ -15,6 +14,8 @@ ground's st. `animated` is a short shot (frames 1 to 3) for `granular render --f
 a close-up with depth of field (fStop, focusDistance): the front grains of a heap sharp,
 the heap behind them soft. `frosted` is sea glass: rough grains (GranularGrainAPI's
 roughness). `mixture` holds grains of many sizes (GranularAggregateAPI sizes, sizeSpread).
+`sugarcube_spot` lights the sugar cube by a spotlight's IES profile (profiles/narrow_spot.ies,
+written here).
 """
 import math
 import os
@@ -428,8 +429,45 @@ def sandcastle_paper(path):
     stage.GetRootLayer().Save()
 
 
+def narrow_spot_profile(path):
+    """An IES LM-63 profile of a narrow spotlight (written here, deterministic): a beam of
+    about 10 degrees (half its peak at 7.5 degrees off the axis) over a faint spill that
+    fades out by 70 degrees; photometric type C, rotationally symmetric, lower half only."""
+    theta = np.arange(0, 90.5, 1.0)
+    candela = 1200 * np.exp(-((theta / 9.0) ** 2)) + 40 * np.clip(1 - theta / 70.0, 0, None) ** 2
+    numbers = lambda v: " ".join(f"{x:.4g}" for x in v)
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    with open(path, "w") as f:
+        f.write("IESNA:LM-63-2002\n[TEST] hdGranular example profile\n[LUMINAIRE] narrow spot, 10 degree beam\n"
+                f"TILT=NONE\n1 -1 1 {len(theta)} 1 1 2 0 0 0\n1 1 12\n{numbers(theta)}\n0\n{numbers(candela)}\n")
+
+
+def sugarcube_spot(path):
+    """The sugar cube (sugarcube.usda, a sublayer) as on a product shoot: its sun and sky
+    off, a small sphere light with the narrow spot's IES profile (profiles/narrow_spot.ies,
+    normalised) aimed at it from above and to the left, and a dim sky for fill."""
+    narrow_spot_profile(os.path.join(os.path.dirname(path), "profiles", "narrow_spot.ies"))
+    stage = Usd.Stage.CreateNew(path)
+    stage.GetRootLayer().subLayerPaths.append("./sugarcube.usda")
+    stage.SetDefaultPrim(stage.GetPrimAtPath("/World"))
+    stage.OverridePrim("/World/Sun").SetActive(False)
+    UsdLux.DomeLight(stage.OverridePrim("/World/Sky")).CreateIntensityAttr(0.04)
+    spot = UsdLux.SphereLight.Define(stage, "/World/Spot")
+    spot.CreateRadiusAttr(0.02)
+    spot.CreateIntensityAttr(0.9)
+    spot.CreateColorAttr(Gf.Vec3f(1.0, 0.95, 0.88))
+    at, target = Gf.Vec3d(-0.035, 0.12, 0.045), Gf.Vec3d(0.0, 0.006, 0.0)
+    rot = Gf.Rotation(Gf.Vec3d(0, 0, -1), (target - at).GetNormalized())  # its -Z, the profile's axis, on the cube
+    UsdGeom.Xformable(spot).AddTransformOp().Set(Gf.Matrix4d().SetRotate(rot).SetTranslateOnly(at))
+    shaping = UsdLux.ShapingAPI.Apply(spot.GetPrim())
+    shaping.CreateShapingIesFileAttr(Sdf.AssetPath("./profiles/narrow_spot.ies"))
+    shaping.CreateShapingIesNormalizeAttr(True)
+    stage.GetRootLayer().Save()
+
+
 SCENES = {"sandcastle": sandcastle, "snowslab": snowslab, "sugarcube": sugarcube, "mixture": mixture,
-          "animated": animated, "macro": macro, "frosted": frosted, "sandcastle_paper": sandcastle_paper}
+          "animated": animated, "macro": macro, "frosted": frosted, "sandcastle_paper": sandcastle_paper,
+          "sugarcube_spot": sugarcube_spot}
 
 
 def main(argv):

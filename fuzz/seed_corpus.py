@@ -8,6 +8,7 @@ OUT/fuzz_usd_attributes/  a few well-formed inputs in fuzz_usd_attributes.cpp's 
 OUT/fuzz_usd_prims/       well-formed inputs in fuzz_usd_prims.cpp's layout: an aggregate
                           (box boundary, prototype by a relative path) with its grain
                           prototype listed or found through the lookup, each light type
+OUT/fuzz_ies/             IES profiles: each symmetry of type C, a tilt table, commas
 fuzz/regressions/         inputs that once crashed a target (*.json: the JSON target,
                           usd_attributes_*.bin, prims_*.bin: the USD targets), replayed by every run
 """
@@ -172,6 +173,22 @@ def prims_seeds(out):
     return n + copy_regressions("prims_*.bin", out)
 
 
+def ies_seeds(out):
+    """Profiles of each horizontal symmetry, one with a tilt table and commas; returns the count."""
+    os.makedirs(out, exist_ok=True)
+    head = "IESNA:LM-63-2002\n[TEST] seed\nTILT={tilt}\n1 -1 1 {nv} {nh} 1 2 0 0 0\n1 1 10\n"
+    seeds = [("0 45 90", "0", "100 50 0", "NONE"),
+             ("0 90", "0 45 90", "10 0 20 0 40 0", "NONE"),
+             ("0 90 180", "0 90 180", "1 2 3 4 5 6 7 8 9", "NONE"),
+             ("0 90", "90 180 270", "1 1 2 2 3 3", "NONE"),
+             ("0,60,120,180", "0,90,180,270", "8,4,2,1,2,6,1,3,5,5,0,9,1,7,3,3", "INCLUDE\n1\n2\n0 90\n1 0.5")]
+    for i, (v, h, c, tilt) in enumerate(seeds):
+        nv, nh = len(v.replace(",", " ").split()), len(h.replace(",", " ").split())
+        with open(os.path.join(out, f"seed_{i}.ies"), "w") as f:
+            f.write(head.format(tilt=tilt, nv=nv, nh=nh) + f"{v}\n{h}\n{c}\n")
+    return len(seeds)
+
+
 def main():
     if len(sys.argv) != 2:
         sys.exit(__doc__)
@@ -179,7 +196,8 @@ def main():
     a = json_seeds(os.path.join(out, "fuzz_scene_json"))
     b = usd_seeds(os.path.join(out, "fuzz_usd_attributes"))
     c = prims_seeds(os.path.join(out, "fuzz_usd_prims"))
-    print(f"seed corpus: {a} JSON scenes, {b} USD attribute inputs, {c} USD prim inputs in {out}")
+    d = ies_seeds(os.path.join(out, "fuzz_ies"))
+    print(f"seed corpus: {a} JSON scenes, {b} USD attribute inputs, {c} USD prim inputs, {d} IES profiles in {out}")
 
 
 if __name__ == "__main__":

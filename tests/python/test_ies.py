@@ -2,7 +2,7 @@
 `granular render`: the asset resolved against the stage, the candela scaling the light,
 normalisation dividing by the profile's mean, and a file that is not a profile refused with
 the prim and the attribute named. hdGranular renders the same (tests/hydra:
-IesProfiles...; tests/conformance: light_ies*)."""
+AnIesProfileScalesTheLight...; tests/conformance: light_ies*)."""
 import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
 
