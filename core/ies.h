@@ -11,7 +11,8 @@
 // multiplier × the ballast factor × the ballast-lamp factor, 1 in newer files), the
 // vertical and the horizontal angles, each strictly increasing, and the candela values,
 // one row of vertical angles per horizontal angle. Numbers may be split by blanks, commas
-// or line breaks. Refused, with InputError(source, "", what) for the caller to rename:
+// or line breaks. Refused, with an InputError whose detail() says what, for the caller to
+// name the light and its attribute:
 // not LM-63 text, photometric types A and B (automotive and floodlight photometry, on
 // other axes), a count, angle or candela value missing, not finite, negative or out of
 // range, angles out of order, horizontal angles that no symmetry of type C explains.
@@ -45,7 +46,7 @@ class IesProfile {
  private:
   friend IesProfile parseIes(const std::string& text);
   std::vector<float> vertical_;    // radians, increasing
-  std::vector<float> horizontal_;  // radians, increasing, after the symmetry's folding
+  std::vector<float> horizontal_;  // radians, increasing, as the file lists them (φ is folded onto them)
   std::vector<float> candela_;     // [h * vertical_.size() + v]
   enum class Symmetry { Axial, Quadrant, Bilateral0, Bilateral90, None } symmetry_ = Symmetry::Axial;
   double mean_ = 0;
@@ -59,8 +60,8 @@ class IesProfile {
 // the contract refuses, `what` saying which number is wrong.
 IesProfile parseIes(const std::string& text);
 
-// The profile of the file at `path`: InputError(path, "", what) when it cannot be read or
-// parsed.
+// The profile of the file at `path` (read again only when the file's time or size
+// changes): InputError(path, "", what) when it cannot be found, read or parsed.
 std::shared_ptr<const IesProfile> readIesFile(const std::string& path);
 
 }  // namespace granular

@@ -31,10 +31,10 @@ const char* const kConeAngle = "inputs:shaping:cone:angle";
 const char* const kConeSoftness = "inputs:shaping:cone:softness";
 const char* const kFocus = "inputs:shaping:focus";
 const char* const kFocusTint = "inputs:shaping:focusTint";
-// ShapingAPI's inputs by the LightDesc field names core's checks use (validateLightDesc).
 const char* const kIesFile = "inputs:shaping:ies:file";
 const char* const kIesAngleScale = "inputs:shaping:ies:angleScale";
 const char* const kIesNormalize = "inputs:shaping:ies:normalize";
+// ShapingAPI's inputs by the LightDesc field names core's checks use (validateLightDesc).
 const std::pair<const char*, const char*> kShapingInputs[] = {
     {"shaping_cone_angle", kConeAngle},   {"shaping_cone_softness", kConeSoftness},
     {"shaping_focus", kFocus},            {"shaping_focus_tint", kFocusTint},
@@ -79,10 +79,11 @@ void orderUsdLights(std::vector<LightDesc>& lights) {
 
 const std::vector<std::string>& usdLightAttributeNames() {
   static const std::vector<std::string> names = {
-      kIntensity, kExposure, kColor,        kNormalize,   kEnableTemperature, kTemperature, kAngle,
-      kTextureFile, kTextureFormat, kWidth, kHeight,      kRadius,            kLength,      kTreatAsPoint,
-      kTreatAsLine, kConeAngle, kConeSoftness, kFocus,    kFocusTint,         kIesFile,     kIesAngleScale, kIesNormalize, kDiffuse,
-      kSpecular,    kShadowEnable, kShadowColor, kShadowDistance, kShadowFalloff, kShadowFalloffGamma};
+      kIntensity,    kExposure,       kColor,        kNormalize,      kEnableTemperature,  kTemperature,
+      kAngle,        kTextureFile,    kTextureFormat, kWidth,         kHeight,             kRadius,
+      kLength,       kTreatAsPoint,   kTreatAsLine,  kConeAngle,      kConeSoftness,       kFocus,
+      kFocusTint,    kIesFile,        kIesAngleScale, kIesNormalize,  kDiffuse,            kSpecular,
+      kShadowEnable, kShadowColor,    kShadowDistance, kShadowFalloff, kShadowFalloffGamma};
   return names;
 }
 
