@@ -254,6 +254,42 @@ def main():
         print(f"| {label} | {len(v)} × {len(h)} | {1000 * best:.1f} |", flush=True)
     if a.grain_spp > 0:
         grain_table(a)
+        spot_pick_table(a)
+
+
+def spot_pick_table(a):
+    """examples/sugarcube_spot.usda with its sky at 0.4 (ten times the example's fill): how
+    often light sampling picks the spot, and the noise per sample over the image and over
+    the cube's lit top (the spot's beam)."""
+    import re
+    from pxr import Usd, UsdLux
+    path = os.path.join(a.out, "sugarcube_spot_sky.usda")
+    stage = Usd.Stage.CreateNew(path)
+    stage.GetRootLayer().subLayerPaths.append(os.path.join(ROOT, "examples", "sugarcube_spot.usda"))
+    UsdLux.DomeLight(stage.OverridePrim("/World/Sky")).CreateIntensityAttr(0.4)
+    stage.Save()
+    exr = os.path.join(a.out, "sugarcube_spot_sky.exr")
+    r = subprocess.run([sys.executable, "-m", "granular.cli", "render", path, "-o", exr, "--width", "160",
+                        "--spp", str(a.grain_spp), "--threads", "2"], capture_output=True, text=True, check=True,
+                       env=dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path[:2])))
+    picks = re.search(r"light sampling picks: (.*)", r.stderr).group(1)
+    import granular_core as core
+    img = core.read_exr(exr)
+    px = np.asarray(img.pixels)
+    ch = list(img.channels)
+    lum, var = px[..., ch.index("G")], px[..., ch.index("variance.G")]
+
+    def per_sample(region):
+        m, v = lum[region], var[region]
+        return np.sqrt(v.sum()) / m.size * np.sqrt(a.grain_spp * m.size) / m.mean()
+    h, w = lum.shape
+    top = (slice(int(0.36 * h), int(0.42 * h)), slice(int(0.42 * w), int(0.58 * w)))  # the cube's top face
+    se = np.sqrt(var.sum()) / lum.size
+    print("\n| sugar cube spot, sky 0.4 | light sampling picks | mean G ± s.e. | s.e. per sample, image "
+          "| the cube's top |")
+    print("|---|---|---|---|---|")
+    print(f"| {a.grain_spp} spp, 160 px | {picks} | {lum.mean():.5f} ± {se:.5f} | "
+          f"{per_sample((slice(None), slice(None))):.2f} | {per_sample(top):.2f} |", flush=True)
 
 
 def grain_table(a):

@@ -231,8 +231,16 @@ Vec3 Light::emitted(const Vec3& q, const Vec3& w) const {
 }
 
 double Light::pickWeight(const Vec3& ref) const {
-  // An IES profile scales the light by its candela: by their mean here.
-  const double L = std::max(0.0, double(average(radiance_))) * (ies_ ? ies_->meanIntensity() * iesScale_ : 1.0);
+  // An IES profile scales the light by its candela: by those toward ref where its beam
+  // points there (a spot aimed at the scene is picked for its beam, up to ~100 times its
+  // mean), never by less than their mean (ref is one point: the beam may light others).
+  double profile = 1.0;
+  if (ies_) {
+    profile = ies_->meanIntensity() * iesScale_;
+    const Vec3 c = type_ == LightType::Rect ? corner_ + (edgeU_ + edgeV_) * 0.5f : center_, d = ref - c;
+    if (length2(d) > 0) profile = std::max(profile, double(iesFactor(normalize(d))));
+  }
+  const double L = std::max(0.0, double(average(radiance_))) * profile;
   // E √(4π/Ω) = L √(4π Ω) for a light of uniform radiance L over Ω.
   auto cone = [L](double omega) { return L * std::sqrt(4.0 * kPiD * omega); };
   switch (type_) {

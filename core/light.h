@@ -80,7 +80,8 @@ class Light {
   // (a textured dome's effective one, (∫L dω)² / ∫L² dω; a delta sun's, that of the widest
   // sun that is still one). E alone would be right were light sampling the only strategy:
   // a light spread over many directions is found as well by BSDF and phase sampling under
-  // MIS, a small one by light sampling alone. 0 for a black light.
+  // MIS, a small one by light sampling alone. 0 for a black light. An IES profile scales E
+  // by its candela toward ref, or by their mean where that is more.
   double pickWeight(const Vec3& ref) const;
 
  private:

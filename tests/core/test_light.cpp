@@ -9,6 +9,7 @@
 #include <fstream>
 #include <functional>
 
+#include "core/ies.h"
 #include "core/image_io.h"
 #include "core/light.h"
 #include "core/render.h"
@@ -730,6 +731,28 @@ TEST(IesProfiles, ScaleWhatALightEmitsByTheCandelaOfItsOwnFrame) {
     const Vec3 q = d.xf.point(Vec3(0.0f)) + w * 0.1f;
     EXPECT_NEAR(normalized.areaLe(q, -w).x, 2 * expected(w, 0) / mean, 2e-3 * (1 + 2 * expected(w, 0) / mean));
   }
+}
+
+TEST(IesProfiles, LightSamplingWeighsALightByItsBeamTowardThePointNeverBelowItsMean) {
+  // A normalised narrow downlight on a sphere light: seen from a point on its axis it
+  // weighs its peak over its mean; from a point off its beam (at the same distance, the
+  // same solid angle), its mean, as a light without a profile of the same radiance would.
+  const std::vector<double> vertical = {0, 5, 10, 90}, candela = {100, 50, 1, 1};
+  const IesFile file("narrow", vertical, {0}, candela);
+  LightDesc spot = sphereLight("spot", 0.05f, 1, Vec3(0, 2, 0));
+  spot.xf = Transform::lookAt(Vec3(0, 2, 0), Vec3(0, 0, 0), Vec3(0, 0, 1));  // −Z down
+  spot.shaping.enabled = true;
+  spot.shaping.coneAngle = 180;
+  spot.shaping.iesFile = file.path;
+  spot.shaping.iesNormalize = true;
+  LightDesc plain = spot;
+  plain.shaping = LightShaping();
+  const Light l = Light::fromDesc(spot), p = Light::fromDesc(plain);
+  const double mean = readIesFile(file.path)->meanIntensity();
+  const Vec3 onAxis(0, 0, 0), offBeam(2, 2, 0);  // both 2 from the light
+  EXPECT_NEAR(l.pickWeight(onAxis) / p.pickWeight(onAxis), 100 / mean, 1e-3 * 100 / mean);
+  EXPECT_NEAR(l.pickWeight(offBeam) / p.pickWeight(offBeam), 1.0, 1e-4);
+  EXPECT_GT(100 / mean, 20);  // the beam matters here
 }
 
 TEST(IesProfiles, AFloorUnderAnIesDiskHasTheRadianceItsCandelaGive) {
