@@ -140,6 +140,8 @@ int main(int argc, char** argv) {
     }
     if (!quiet && !scene->lightPicksText().empty())
       std::fprintf(stderr, "  light sampling picks: %s\n", scene->lightPicksText().c_str());
+    if (!quiet && !scene->iesProfilesText().empty())
+      std::fprintf(stderr, "  IES profiles: %s\n", scene->iesProfilesText().c_str());
     writeImage(out, img);
     if (!png.empty()) writePngSrgb(png, img, exposure);
     if (!quiet) std::fprintf(stderr, "wrote %s%s%s\n", out.c_str(), png.empty() ? "" : " and ", png.c_str());

@@ -3,10 +3,13 @@
 normalisation dividing by the profile's mean, and a file that is not a profile refused with
 the prim and the attribute named. hdGranular renders the same (tests/hydra:
 AnIesProfileScalesTheLight...; tests/conformance: light_ies*)."""
+import json
+import subprocess
+
 import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
 
-from conftest import run_cli
+from conftest import BUILD, run_cli
 from noise_check import rgb_and_variance
 
 # A downlight of 5 candela in every direction of its lower half, and a photograph.
@@ -74,3 +77,31 @@ def test_a_file_that_is_not_a_profile_names_the_light_and_its_attribute(tmp_path
         assert rc == 2, err
         assert f"error: /World/Disk.inputs:shaping:ies:file: {message}" in err, err
         assert not (tmp_path / f"{name}.exr").exists()
+
+
+def test_a_json_scene_names_its_profile_relative_to_the_scene_file(tmp_path):
+    """`granular-render` (the C++ command line, JSON scenes): the same 5 cd profile makes the
+    image 5 times the plain one, sample for sample, and the log names it."""
+    (tmp_path / "profiles").mkdir()
+    (tmp_path / "profiles" / "five.ies").write_text(CONSTANT)
+    images = {}
+    for name, shaping in (("plain", {}), ("five", {"shaping_ies_file": "profiles/five.ies"})):
+        scene = {
+            "render": {"width": 8, "height": 8, "spp": 8, "technique": "ept"},
+            "camera": {"look_at": {"eye": [0, 15, 0], "target": [0, 0, 0], "up": [0, 0, -1]}},
+            "meshes": [{"name": "floor", "shape": {"box": {"lo": [-30, -0.1, -30], "hi": [30, 0, 30]}}}],
+            "lights": [{"name": "disk", "type": "disk", "radius": 0.5, "intensity": 4,
+                        "transform": {"translate": [0, 3, 0], "rotate": [-90, 1, 0, 0]}, **shaping}],
+        }
+        path = tmp_path / f"{name}.json"
+        path.write_text(json.dumps(scene))
+        out = tmp_path / f"{name}.exr"
+        r = subprocess.run([str(BUILD / "core" / "granular-render"), str(path), "-o", str(out)],
+                           capture_output=True, text=True)
+        assert r.returncode == 0, r.stderr
+        if shaping:
+            assert "  IES profiles: disk: five.ies (3 × 1 angles, peak 5 cd, mean 5 cd)" in r.stderr.splitlines(), \
+                r.stderr
+        images[name] = rgb_and_variance(out)[0]
+    assert images["plain"].mean() > 0
+    np.testing.assert_allclose(images["five"], 5 * images["plain"], rtol=1e-5, atol=1e-7)
