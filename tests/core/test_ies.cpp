@@ -134,6 +134,10 @@ TEST(IesProfile, WhatIsNotAProfileOfTypeCIsRefusedSayingWhichNumber) {
   EXPECT_EQ(errorOf(iesText("0 90", "0", "5 nan", 2, 1)),
             "candela value at horizontal 0°, vertical 90° is not a finite number: \"nan\"");
   EXPECT_EQ(errorOf(iesText("0 90", "0", "5 x", 2, 1)), "candela value at horizontal 0°, vertical 90° is not a number: \"x\"");
+  // Bytes that are not printable ASCII are shown as '?': a front end decodes the message
+  // as UTF-8, which a byte 0xff (or a character cut at 40 bytes) is not.
+  EXPECT_EQ(errorOf(iesText("0 90", "0", "5 \xff\xc3\xa9x", 2, 1)),
+            "candela value at horizontal 0°, vertical 90° is not a number: \"???x\"");
   EXPECT_EQ(errorOf(iesText("0 90 45", "0", "5 1 1", 3, 1)), "vertical angles are not increasing: 90° then 45°");
   EXPECT_EQ(errorOf(iesText("0 200", "0", "5 1", 2, 1)), "vertical angle 2 is 200°, outside [0, 180]°");
   EXPECT_EQ(errorOf(iesText("0 90", "0 120", "5 1 5 1", 2, 2)),

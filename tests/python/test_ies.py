@@ -69,8 +69,10 @@ def test_a_profiles_candela_scale_the_light_and_normalisation_divides_by_their_m
 
 def test_a_file_that_is_not_a_profile_names_the_light_and_its_attribute(tmp_path, capsys):
     (tmp_path / "photo.ies").write_text("a photograph\n")
+    (tmp_path / "binary.ies").write_bytes(b"TILT=NONE\n1 -1 1 \xff\xfe 2 1\n")
     for name, profile, message in (
             ("bad", "photo.ies", f'"{tmp_path / "photo.ies"}" has no TILT= line'),
+            ("binary", "binary.ies", f'"{tmp_path / "binary.ies"}" number of vertical angles is not a number: "??"'),
             ("missing", "none.ies", '"none.ies" cannot be found')):
         stage = _floor_under_disk(tmp_path / f"{name}.usda", profile=profile)
         rc, _, err = run_cli(["render", stage, "-o", tmp_path / f"{name}.exr"], capsys)
