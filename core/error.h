@@ -50,4 +50,13 @@ std::string str(const Ts&... parts) {
   return s.str();
 }
 
+// A token read from a file, as an error quotes it: its first `max` bytes, each that is not
+// printable ASCII as '?' (a file may hold any bytes; a front end decodes messages as UTF-8).
+inline std::string printableToken(const std::string& token, size_t max = 40) {
+  std::string s = token.substr(0, max);
+  for (char& c : s)
+    if (c < 0x20 || c > 0x7e) c = '?';
+  return s;
+}
+
 }  // namespace granular

@@ -23,15 +23,6 @@ constexpr size_t kMaxValues = size_t(1) << 22;  // candela values: real files ho
 
 bool near(double a, double b) { return std::fabs(a - b) <= kAngleTolerance; }
 
-// A token as an error shows it: its first 40 bytes, each that is not printable ASCII as
-// '?' (a file may hold any bytes; a front end decodes the message as UTF-8).
-std::string shown(const std::string& token) {
-  std::string s = token.substr(0, 40);
-  for (char& c : s)
-    if (c < 0x20 || c > 0x7e) c = '?';
-  return s;
-}
-
 // The numbers after the TILT= line, split by blanks, commas or line breaks.
 class Numbers {
  public:
@@ -53,8 +44,8 @@ class Numbers {
     const std::string& t = tokens_[at_++];
     char* end = nullptr;
     const double v = std::strtod(t.c_str(), &end);
-    if (end == t.c_str() || *end != '\0') throw InputError("", "", str(what(), " is not a number: \"", shown(t), "\""));
-    if (!std::isfinite(v)) throw InputError("", "", str(what(), " is not a finite number: \"", shown(t), "\""));
+    if (end == t.c_str() || *end != '\0') throw InputError("", "", str(what(), " is not a number: \"", printableToken(t), "\""));
+    if (!std::isfinite(v)) throw InputError("", "", str(what(), " is not a finite number: \"", printableToken(t), "\""));
     if (std::fabs(v) > 3.0e38) throw InputError("", "", str(what(), " is ", v, ", beyond a 32-bit float"));
     return v;
   }

@@ -885,7 +885,7 @@ TriangleMesh loadObj(const std::string& path, const std::string& object) {
         errno = 0;
         x = std::strtof(tok.c_str(), &end);
         if (end == tok.c_str() || *end != '\0' || errno == ERANGE || !std::isfinite(x))
-          fail(str("\"", tok, "\" is not a finite number"));
+          fail(str("\"", printableToken(tok), "\" is not a finite number"));
       }
       pts.push_back({c[0], c[1], c[2]});
     } else if (tag == "f") {
@@ -897,7 +897,7 @@ TriangleMesh loadObj(const std::string& path, const std::string& object) {
         char* end = nullptr;
         errno = 0;
         long long k = std::strtoll(vs.c_str(), &end, 10);
-        if (vs.empty() || *end != '\0' || errno == ERANGE) fail(str("\"", tok, "\" is not a vertex index"));
+        if (vs.empty() || *end != '\0' || errno == ERANGE) fail(str("\"", printableToken(tok), "\" is not a vertex index"));
         if (k == 0) fail("vertex index 0 is invalid (OBJ indices start at 1)");
         // Negative indices count back from the latest vertex defined so far.
         f.idx.push_back(k > 0 ? k - 1 : (long long)pts.size() + k);

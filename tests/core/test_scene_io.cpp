@@ -368,6 +368,17 @@ TEST(SceneIo, ObjShapesAndFiles) {
     EXPECT_CONTAINS(w, "castle.boundary.obj");
     EXPECT_CONTAINS(w, "bad.obj:4: vertex index 4 is out of range");
   }
+  // A token that is not a number is quoted with its bytes that are not printable ASCII as
+  // '?': the Python bindings decode the message as UTF-8, which 0xff is not.
+  std::ofstream(dir / "models" / "binary.obj") << "v 0 0 0\nv 1 \xff\xc3\xa9 0\n";
+  j["aggregates"][0]["boundary"] = {{"obj", "models/binary.obj"}};
+  std::ofstream(dir / "scene.json") << j.dump(2);
+  try {
+    loadSceneJson((dir / "scene.json").string());
+    ADD_FAILURE() << "no error";
+  } catch (const InputError& e) {
+    EXPECT_CONTAINS(std::string(e.what()), "binary.obj:2: \"???\" is not a finite number");
+  }
   EXPECT_CONTAINS(errorAfter([](json& jj) { jj["meshes"][0]["shape"] = {{"obj", "nope.obj"}}; }), "cannot open");
   try {
     loadSceneJson((dir / "no_such.json").string());
