@@ -88,15 +88,15 @@ SPOT = {"shaping_cone_angle": 20, "shaping_cone_softness": 0.5, "shaping_focus":
 # Profiles: a downlight (axial, 2.5° steps to 90°, I = 1000 cos^8 θ + 200 on a ring at 30°)
 # and one without symmetry (5° steps over the sphere and the circle).
 DOWN_V = np.arange(0, 90.01, 2.5)
-DOWN_ROWS = [1000 * np.cos(np.radians(DOWN_V)) ** 8 + 200 * np.exp(-((DOWN_V - 30) / 6) ** 2)]
+# Candela to 3 decimals, as the files hold them (ies_text writes them in full).
+DOWN_ROWS = [np.round(1000 * np.cos(np.radians(DOWN_V)) ** 8 + 200 * np.exp(-((DOWN_V - 30) / 6) ** 2), 3)]
 ASYM_V, ASYM_H = np.arange(0, 180.01, 5), np.arange(0, 360.01, 15)
-ASYM_ROWS = [300 * (1.2 + np.cos(np.radians(h)) * np.cos(np.radians(ASYM_V))) * np.exp(-np.radians(ASYM_V)) + 20
-             for h in ASYM_H]
+ASYM_ROWS = [np.round(300 * (1.2 + np.cos(np.radians(h)) * np.cos(np.radians(ASYM_V))) * np.exp(-np.radians(ASYM_V))
+                      + 20, 3) for h in ASYM_H]
 
 
 def ies_text(vertical, horizontal, rows):
-    rows = [np.round(r, 3) for r in rows]
-    numbers = lambda v: " ".join(f"{x:g}" for x in v)
+    numbers = lambda v: " ".join(f"{x:.10g}" for x in v)
     return (f"IESNA:LM-63-2002\n[TEST] bench profile\nTILT=NONE\n1 -1 1 {len(vertical)} {len(horizontal)} 1 2 0 0 0\n"
             f"1 1 10\n{numbers(vertical)}\n{numbers(horizontal)}\n" + "\n".join(numbers(r) for r in rows) + "\n")
 
@@ -108,7 +108,6 @@ def ies_eval(profile, theta, phi):
     """Candela at (theta, phi) degrees, written out here: linear in theta per row (0 past the
     last vertical angle), then linear in phi between rows (one row: axial)."""
     v, h, rows = PROFILES[profile]
-    rows = [np.round(r, 3) for r in rows]
     per_row = [np.where(theta <= v[-1], np.interp(theta, v, r), 0.0) for r in rows]
     if len(h) == 1:
         return per_row[0]

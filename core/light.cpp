@@ -169,12 +169,8 @@ Light Light::fromDesc(const LightDesc& d) {
     l.coneSmooth_ = l.coneAngle_ * (1.0f - std::clamp(d.shaping.coneSoftness, 0.0f, 1.0f));
     l.focus_ = std::max(d.shaping.focus, 0.0f);
     l.focusTint_ = d.shaping.focusTint;
-    if (!d.shaping.iesFile.empty()) {
-      try {
-        l.ies_ = readIesFile(d.shaping.iesFile);
-      } catch (const InputError& e) {
-        throw InputError(d.name, "shaping_ies_file", str("\"", d.shaping.iesFile, "\" ", e.detail()));
-      }
+    l.ies_ = lightIesProfile(d, d.name);
+    if (l.ies_) {
       if (!d.xf.inverse(l.toLocal_)) throw InputError(d.name, "transform", "is singular");
       l.iesAngleScale_ = d.shaping.iesAngleScale;
       const double mean = l.ies_->meanIntensity();
@@ -183,6 +179,17 @@ Light Light::fromDesc(const LightDesc& d) {
   }
   return l;
 }
+
+std::shared_ptr<const IesProfile> lightIesProfile(const LightDesc& d, const std::string& object) {
+  if (d.shaping.iesFile.empty()) return nullptr;
+  try {
+    return readIesFile(d.shaping.iesFile);
+  } catch (const InputError& e) {
+    throw InputError(object, "shaping_ies_file", str("\"", d.shaping.iesFile, "\" ", e.detail()));
+  }
+}
+
+Vec3 Light::centre() const { return type_ == LightType::Rect ? corner_ + (edgeU_ + edgeV_) * 0.5f : center_; }
 
 float Light::iesFactor(const Vec3& w) const {
   // The emission direction in the light's own frame (UsdLux: θ off its −Z, φ from +X to
@@ -237,7 +244,7 @@ double Light::pickWeight(const Vec3& ref) const {
   double profile = 1.0;
   if (ies_) {
     profile = ies_->meanIntensity() * iesScale_;
-    const Vec3 c = type_ == LightType::Rect ? corner_ + (edgeU_ + edgeV_) * 0.5f : center_, d = ref - c;
+    const Vec3 d = ref - centre();
     if (length2(d) > 0) profile = std::max(profile, double(iesFactor(normalize(d))));
   }
   const double L = std::max(0.0, double(average(radiance_))) * profile;
@@ -254,7 +261,7 @@ double Light::pickWeight(const Vec3& ref) const {
     }
     case LightType::Rect:
     case LightType::Disk: {
-      const Vec3 c = type_ == LightType::Rect ? corner_ + (edgeU_ + edgeV_) * 0.5f : center_, d = ref - c;
+      const Vec3 c = centre(), d = ref - c;
       const double d2 = double(length2(d));
       const double omega = d2 > 0 ? double(area_) * std::fabs(double(dot(normal_, d))) / (d2 * std::sqrt(d2)) : 2.0 * kPiD;
       return cone(std::min(omega, 2.0 * kPiD));

@@ -44,6 +44,9 @@ bool isDeltaSun(const LightDesc& d);
 // normalised, for a point-like sun and for a dome. In double: a tiny light's area
 // underflows a float (0 / 0 made the radiance NaN: the USD fuzzer's finding).
 double normalizationArea(const LightDesc& d);
+// The IES profile a light names (LightShaping::iesFile), or null: InputError(object,
+// "shaping_ies_file", ...) when it cannot be read (readIesFile).
+std::shared_ptr<const IesProfile> lightIesProfile(const LightDesc& d, const std::string& object);
 
 class Light {
  public:
@@ -83,6 +86,8 @@ class Light {
   // MIS, a small one by light sampling alone. 0 for a black light. An IES profile scales E
   // by its candela toward ref, or by their mean where that is more.
   double pickWeight(const Vec3& ref) const;
+  // The IES profile that shapes this light (null: none), for the logs.
+  const IesProfile* iesProfile() const { return ies_.get(); }
 
  private:
   LightType type_ = LightType::Distant;
@@ -108,6 +113,7 @@ class Light {
   std::shared_ptr<const IesProfile> ies_;
   float iesAngleScale_ = 0, iesScale_ = 1;
   float iesFactor(const Vec3& w) const;  // toward w (unit), angleScale applied
+  Vec3 centre() const;                   // of a rect (its corners' mean), a disk, sphere or cylinder
   Vec3 surfaceNormal(const Vec3& q) const;
   // A cylinder's side sampled for p: the half centred on p's side of the axis (the angle
   // about the axis from across1_ toward across2_), uniform in area, pdf 2 / area there.

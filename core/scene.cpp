@@ -19,7 +19,6 @@
 #include "build_cache.h"
 #include "cache.h"
 #include "error.h"
-#include "ies.h"
 #include "microfacet.h"
 #include "ppt.h"
 #include "rng.h"
@@ -778,12 +777,10 @@ std::vector<LightDesc> Scene::buildLights(const SceneDesc& desc, const Bounds3& 
     std::snprintf(chance, sizeof chance, " %.1f%%", 100.0 * lightPick(int(i)));
     lightPicksText_ += (i ? ", " : "") + lights[i].name + chance;
   }
-  for (const LightDesc& d : lights) {
-    const std::shared_ptr<const IesProfile> p = d.shaping.enabled && !d.shaping.iesFile.empty() &&
-                                                        d.type != LightType::Distant && d.type != LightType::Dome
-                                                    ? readIesFile(d.shaping.iesFile)
-                                                    : nullptr;
+  for (size_t i = 0; i < lights.size(); ++i) {
+    const IesProfile* p = lights_[i].iesProfile();
     if (!p) continue;
+    const LightDesc& d = lights[i];
     char text[160];
     std::snprintf(text, sizeof text, " (%d × %d angles, peak %.4g cd, mean %.4g cd%s)", p->verticalCount(),
                   p->horizontalCount(), double(p->maxIntensity()), p->meanIntensity(),

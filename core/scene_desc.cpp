@@ -13,7 +13,6 @@
 #include <utility>
 
 #include "error.h"
-#include "ies.h"
 #include "instanced_grains.h"
 #include "light.h"
 
@@ -185,13 +184,7 @@ void validateLightDesc(const LightDesc& l, const std::string& obj) {
     checkFinite(l.shaping.focus, obj, "shaping_focus");
     checkNonNegative(l.shaping.focusTint, obj, "shaping_focus_tint");
     checkFinite(l.shaping.iesAngleScale, obj, "shaping_ies_angle_scale");
-    if (!l.shaping.iesFile.empty()) {
-      try {
-        readIesFile(l.shaping.iesFile);
-      } catch (const InputError& e) {
-        throw InputError(obj, "shaping_ies_file", str("\"", l.shaping.iesFile, "\" ", e.detail()));
-      }
-    }
+    lightIesProfile(l, obj);  // it must read as a profile
   }
   {
     // The radiance color * intensity * 2^exposure, divided by the light's area when it

@@ -240,6 +240,15 @@ std::string resolvePath(const Context& ctx, const std::string& p) {
   return (path.is_absolute() || ctx.base.empty()) ? path.string() : (ctx.base / path).string();
 }
 
+// A file the scene names (a texture, an IES profile): resolved, and refused naming
+// label.key when it does not exist.
+std::string existingFile(const Context& ctx, const std::string& name, const std::string& label, const char* key) {
+  const std::string file = resolvePath(ctx, name);
+  std::error_code ec;
+  if (!fs::is_regular_file(file, ec)) throw InputError(label, key, str("\"", file, "\" does not exist"));
+  return file;
+}
+
 struct Vec2f {
   float u, v;
 };
@@ -471,9 +480,7 @@ TextureDesc parseTexture(const json& v, const std::string& material, const std::
   Obj o(v, material, key, label, {"file", "wrap_s", "wrap_t", "scale", "bias", "color_space", "channel"});
   TextureDesc t;
   t.source = label;
-  t.file = resolvePath(ctx, toString(o.required("file"), label, "file"));
-  std::error_code ec;
-  if (!fs::is_regular_file(t.file, ec)) throw InputError(label, "file", str("\"", t.file, "\" does not exist"));
+  t.file = existingFile(ctx, toString(o.required("file"), label, "file"), label, "file");
   t.wrapS = textureWrapFromName(o.string("wrap_s", "useMetadata"), label, "wrap_s");
   t.wrapT = textureWrapFromName(o.string("wrap_t", "useMetadata"), label, "wrap_t");
   for (const char* k : {"scale", "bias"}) {
@@ -730,24 +737,11 @@ void parseLights(const json& v, SceneDesc& desc, const Context& ctx, std::vector
     l.shaping.focusTint = o.vec3("shaping_focus_tint", l.shaping.focusTint, true);
     l.shaping.iesAngleScale = o.num("shaping_ies_angle_scale", l.shaping.iesAngleScale);
     l.shaping.iesNormalize = o.flag("shaping_ies_normalize", l.shaping.iesNormalize);
-    if (o.has("shaping_ies_file")) {
-      const std::string file = toString(*o.find("shaping_ies_file"), label, "shaping_ies_file");
-      if (!file.empty()) {
-        l.shaping.iesFile = resolvePath(ctx, file);
-        std::error_code ec;
-        if (!fs::is_regular_file(l.shaping.iesFile, ec))
-          throw InputError(label, "shaping_ies_file", str("\"", l.shaping.iesFile, "\" does not exist"));
+    for (auto [key, file] : {std::pair{"shaping_ies_file", &l.shaping.iesFile}, std::pair{"texture_file", &l.textureFile}})
+      if (const json* f = o.find(key)) {
+        const std::string name = toString(*f, label, key);
+        if (!name.empty()) *file = existingFile(ctx, name, label, key);
       }
-    }
-    if (o.has("texture_file")) {
-      std::string file = toString(*o.find("texture_file"), label, "texture_file");
-      if (!file.empty()) {
-        l.textureFile = resolvePath(ctx, file);
-        std::error_code ec;
-        if (!fs::is_regular_file(l.textureFile, ec))
-          throw InputError(label, "texture_file", str("\"", l.textureFile, "\" does not exist"));
-      }
-    }
     l.shadows = o.flag("shadows", l.shadows);
     for (const char* key : {"light_link", "shadow_link"})
       if (const json* link = o.find(key)) links.push_back(parseLightLink(*link, desc.lights.size(), label, key));
