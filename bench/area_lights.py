@@ -10,6 +10,13 @@ Prints a markdown table: light | reference | render | bias % +- s.e. (from the v
 AOV) | relative s.e. per sample (the noise of one sample, s.e. * sqrt(spp * pixels) /
 mean) | render time. The s.e. per sample measures how well each light is sampled.
 
+The "mesh" lights are UsdLuxMeshLightAPI's (core's LightType::Mesh): the rect's quad and a
+valley of two tilted panels; "emissive_quad" is the quad as an emissive surface, which only
+BSDF rays find (what a stage could do before mesh lights). A table (--mesh-sizes 1) prices a
+mesh light's triangles: a ball as icospheres of 80 to 20480 triangles against the sphere light.
+A last table (with --grain-spp) lights the sugar cube by a softbox, as a mesh light and as an
+emissive surface.
+
 The "ies" lights carry an IES profile (UsdLuxShapingAPI's inputs:shaping:ies:*): the
 reference evaluates the profile here (linear in the vertical and the horizontal angle, in
 the light's frame) and normalises it by its own quadrature. A second table times reading a
@@ -21,8 +28,9 @@ rendered by `granular render` with that cone alone and with the downlight's prof
 (normalised) as well, best of three.
 
 Usage: .venv/bin/python bench/area_lights.py [--spp 1024] [--width 32] [--build build]
-       [--out out/bench/area_lights] [--lights sphere,rect,disk,cylinder,spot,ies,ies_scaled,ies_asym]
-       [--grain-spp 16]
+       [--out out/bench/area_lights]
+       [--lights sphere,rect,disk,cylinder,spot,ies,ies_scaled,ies_asym,mesh_quad,mesh_valley,emissive_quad]
+       [--grain-spp 16] [--mesh-sizes 1]
 """
 import argparse
 import json
@@ -77,6 +85,32 @@ def cylinder_surface(c, r, length):  # along X
     n = np.stack([np.zeros_like(phi), np.cos(phi), np.sin(phi)], -1).reshape(-1, 3)
     p = np.stack([c[0] + (a - 0.5) * length, c[1] + r * np.cos(phi), c[2] + r * np.sin(phi)], -1).reshape(-1, 3)
     return p, n, np.full(len(p), 2 * np.pi * r * length / M ** 2)
+
+
+def valley_surface(c, w, depth):
+    """Two panels meeting along z at c (their fold, lowest), each w wide in x and w in z,
+    rising to depth above the fold at x = c_x +- w, facing down (and away from the fold)."""
+    a, b = grid()
+    slope = depth / w
+    norm = np.sqrt(1 + slope * slope)
+    parts = []
+    for side in (-1, 1):
+        x = side * w * a
+        p = np.stack([c[0] + x, c[1] + slope * np.abs(x), c[2] + (b - 0.5) * w], -1).reshape(-1, 3)
+        n = np.tile([side * slope / norm, -1 / norm, 0.0], (len(p), 1))
+        parts.append((p, n, np.full(len(p), w * w * norm / M ** 2)))
+    return tuple(np.concatenate(x) for x in zip(*parts))
+
+
+def mesh_shape(points, faces):
+    return {"mesh": {"points": [list(map(float, p)) for p in points], "face_vertex_counts": [len(f) for f in faces],
+                     "face_vertex_indices": [i for f in faces for i in f]}}
+
+
+# The rect's quad (0.4 x 0.2, facing down) and a valley of two 0.2 x 0.2 panels, as meshes.
+QUAD = mesh_shape([(-0.2, 0.5, 0.35), (0.2, 0.5, 0.35), (0.2, 0.5, 0.55), (-0.2, 0.5, 0.55)], [(0, 1, 2, 3)])
+VALLEY = mesh_shape([(-0.2, 0.6, 0.35), (0, 0.5, 0.35), (0.2, 0.6, 0.35), (-0.2, 0.6, 0.55), (0, 0.5, 0.55),
+                     (0.2, 0.6, 0.55)], [(0, 1, 4, 3), (1, 2, 5, 4)])
 
 
 def at(c):
@@ -146,6 +180,11 @@ LIGHTS = {
                    lambda: disk_surface((0.05, 0.4, 0.0), 0.05)),
     "ies_asym": ({"type": "disk", "radius": 0.05, "intensity": 0.01, **at((0.05, 0.4, 0.0)), **IES["asym"]},
                  lambda: disk_surface((0.05, 0.4, 0.0), 0.05)),
+    # Mesh lights (UsdLuxMeshLightAPI), and the quad as an emissive surface instead, which only
+    # BSDF rays find.
+    "mesh_quad": ({"type": "mesh", "shape": QUAD}, lambda: rect_surface((0.0, 0.5, 0.45), 0.4, 0.2)),
+    "mesh_valley": ({"type": "mesh", "shape": VALLEY}, lambda: valley_surface((0.0, 0.5, 0.45), 0.2, 0.1)),
+    "emissive_quad": ({"emissive_mesh": QUAD}, lambda: rect_surface((0.0, 0.5, 0.45), 0.4, 0.2)),
 }
 
 
@@ -190,13 +229,57 @@ def reference(name, n=48):
 
 def scene(name, width, spp):
     light, _ = LIGHTS[name]
-    return {
+    s = {
         "render": {"width": width, "height": width, "spp": spp, "technique": "ept"},
         "camera": {"look_at": {"eye": [0, 2, 0], "target": [0, 0, 0], "up": [0, 0, -1]},
                    "focal_length": 50, "horizontal_aperture": 10, "vertical_aperture": 10},
         "meshes": [{"name": "floor", "shape": {"box": {"lo": [-5, -0.1, -5], "hi": [5, 0, 5]}}}],
         "lights": [dict(light, name=name)],
     }
+    if "emissive_mesh" in light:  # a surface of emission 1 (black otherwise), no light
+        s["materials"] = {"glow": {"type": "lambert", "albedo": [0, 0, 0], "emission": 1}}
+        s["meshes"].append({"name": name, "shape": light["emissive_mesh"], "material": "glow"})
+        s["lights"] = []
+    return s
+
+
+def render_json(a, sc, stem):
+    """granular-render of scene sc (written to OUT/stem.json): (mean R, its s.e., the s.e. of
+    one sample relative to the mean, render s)."""
+    import granular_core as core
+    path = os.path.join(a.out, stem + ".json")
+    with open(path, "w") as f:
+        json.dump(sc, f)
+    exr, stats = os.path.join(a.out, stem + ".exr"), os.path.join(a.out, stem + ".stats.json")
+    subprocess.run([os.path.join(a.build, "core", "granular-render"), path, "-o", exr, "--quiet",
+                    "--stats-json", stats], check=True)
+    img = core.read_exr(exr)
+    px, ch = np.asarray(img.pixels), list(img.channels)
+    mean = px[..., ch.index("R")].mean()
+    se = np.sqrt(px[..., ch.index("variance.R")].sum()) / px[..., 0].size
+    with open(stats) as f:
+        t = json.load(f)["render_s"]
+    return mean, se, se * np.sqrt(a.spp * px[..., 0].size) / mean, t
+
+
+def render_usd_best_of_3(a, path, stem, channel):
+    """`granular render` of the stage at path, 160 px wide, --grain-spp samples, three times:
+    (best render s, mean of the channel, its s.e., the s.e. of one sample relative to the mean)."""
+    import re
+    import granular_core as core
+    times = []
+    for k in range(3):
+        exr = os.path.join(a.out, f"{stem}_{k}.exr")
+        r = subprocess.run([sys.executable, "-m", "granular.cli", "render", path, "-o", exr, "--width", "160",
+                            "--spp", str(a.grain_spp), "--threads", "2"], capture_output=True, text=True, check=True,
+                           env=dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path[:2])))
+        times.append(float(re.search(r"\(render ([0-9.]+) s", r.stderr).group(1)))
+    img = core.read_exr(exr)
+    px = np.asarray(img.pixels)
+    ch = list(img.channels)
+    v, var = px[..., ch.index(channel)], px[..., ch.index("variance." + channel)]
+    se = np.sqrt(var.sum()) / v.size
+    return min(times), v.mean(), se, se * np.sqrt(a.grain_spp * v.size) / v.mean()
 
 
 def main():
@@ -207,6 +290,7 @@ def main():
     ap.add_argument("--out", default=os.path.join(ROOT, "out", "bench", "area_lights"))
     ap.add_argument("--lights", default=",".join(LIGHTS))
     ap.add_argument("--grain-spp", type=int, default=16, help="0: no grain scene table")
+    ap.add_argument("--mesh-sizes", type=int, default=1, help="0: no table of mesh lights by triangle count")
     a = ap.parse_args()
     sys.path[:0] = [os.path.join(a.build, "python"), os.path.join(ROOT, "python")]
     import granular_core as core
@@ -217,21 +301,8 @@ def main():
         with open(os.path.join(a.out, profile + ".ies"), "w") as f:
             f.write(ies_text(v, h, rows))
     for name in a.lights.split(","):
-        path = os.path.join(a.out, name + ".json")
-        with open(path, "w") as f:
-            json.dump(scene(name, a.width, a.spp), f)
-        exr, stats = os.path.join(a.out, name + ".exr"), os.path.join(a.out, name + ".stats.json")
-        subprocess.run([os.path.join(a.build, "core", "granular-render"), path, "-o", exr, "--quiet",
-                        "--stats-json", stats], check=True)
-        img = core.read_exr(exr)
-        px = np.asarray(img.pixels)
-        ch = list(img.channels)
-        mean = px[..., ch.index("R")].mean()
-        se = np.sqrt(px[..., ch.index("variance.R")].sum()) / px[..., 0].size
+        mean, se, per_sample, t = render_json(a, scene(name, a.width, a.spp), name)
         ref = reference(name)
-        per_sample = se * np.sqrt(a.spp * px[..., 0].size) / mean
-        with open(stats) as f:
-            t = json.load(f)["render_s"]
         print(f"| {name} | {ref:.5f} | {mean:.5f} | {100 * (mean / ref - 1):+.2f} ± {100 * se / ref:.2f} "
               f"| {per_sample:.2f} | {t:.2f} |", flush=True)
     # Reading a profile: a fresh file each time (core reads one again only when it changes).
@@ -251,9 +322,70 @@ def main():
             core.read_ies_file(path)
             best = min(best, time.perf_counter() - t0)
         print(f"| {label} | {len(v)} × {len(h)} | {1000 * best:.1f} |", flush=True)
+    if a.mesh_sizes:
+        mesh_size_table(a)
     if a.grain_spp > 0:
         grain_table(a)
         spot_pick_table(a)
+        softbox_table(a)
+
+
+def unlit_sugarcube(path):
+    """A new stage at path over examples/sugarcube.usda with its sun and sky off."""
+    from pxr import Usd
+    stage = Usd.Stage.CreateNew(path)
+    stage.GetRootLayer().subLayerPaths.append(os.path.join(ROOT, "examples", "sugarcube.usda"))
+    for prim in ("/World/Sun", "/World/Sky"):
+        stage.OverridePrim(prim).SetActive(False)
+    return stage
+
+
+def softbox_table(a):
+    """The sugar cube example with its sun and sky off, under a 4 cm square softbox 8 cm above
+    it facing down: a mesh light (MeshLightAPI) against the same quad as an emissive
+    UsdPreviewSurface of the same radiance, which only BSDF rays find; best of three."""
+    from pxr import Gf, Sdf, UsdGeom, UsdLux, UsdShade
+    print("\n| sugar cube, 4 cm softbox | render s (best of 3) | mean G ± s.e. | s.e. per sample |")
+    print("|---|---|---|---|")
+    for label, as_light in (("mesh light (MeshLightAPI)", True), ("emissive surface", False)):
+        path = os.path.join(a.out, f"softbox_{'light' if as_light else 'emissive'}.usda")
+        stage = unlit_sugarcube(path)
+        box = UsdGeom.Mesh.Define(stage, "/World/Softbox")
+        box.CreatePointsAttr([(-0.02, 0.08, -0.02), (0.02, 0.08, -0.02), (0.02, 0.08, 0.02), (-0.02, 0.08, 0.02)])
+        box.CreateFaceVertexCountsAttr([4])
+        box.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+        if as_light:
+            UsdLux.MeshLightAPI.Apply(box.GetPrim())
+            UsdLux.LightAPI(box.GetPrim()).CreateIntensityAttr(200.0)
+        else:
+            material = UsdShade.Material.Define(stage, "/World/Looks/Softbox")
+            shader = UsdShade.Shader.Define(stage, "/World/Looks/Softbox/Surface")
+            shader.CreateIdAttr("UsdPreviewSurface")
+            shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(0.0))
+            shader.CreateInput("emissiveColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(200.0))
+            material.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
+            UsdShade.MaterialBindingAPI.Apply(box.GetPrim()).Bind(material)
+        stage.Save()
+        t, mean, se, per_sample = render_usd_best_of_3(a, path, "softbox", "G")
+        print(f"| {label} | {t:.2f} | {mean:.5f} ± {se:.5f} | {per_sample:.2f} |", flush=True)
+
+
+def mesh_size_table(a):
+    """A ball of radius 0.1 as an icosphere mesh light of 80 to 20480 triangles, where the
+    sphere light is: what its triangles cost (their BVH, picking one by area) against the
+    sphere light, at the same samples."""
+    print("\n| ball light | triangles | mean | s.e. per sample | render s |")
+    print("|---|---|---|---|---|")
+    rows = [("sphere light", None)] + [("icosphere mesh light", k) for k in (1, 3, 5)]
+    for label, sub in rows:
+        light = LIGHTS["sphere"][0] if sub is None else {
+            "type": "mesh", "transform": {"translate": [0, 0.3, 0.4]},
+            "shape": {"icosphere": {"radius": 0.1, "subdivisions": sub}}}
+        sc = scene("sphere", a.width, a.spp)
+        sc["lights"] = [dict(light, name="ball")]
+        mean, _, per_sample, t = render_json(a, sc, f"ball_{sub}")
+        tris = "—" if sub is None else str(20 * 4 ** sub)
+        print(f"| {label} | {tris} | {mean:.5f} | {per_sample:.2f} | {t:.2f} |", flush=True)
 
 
 def spot_pick_table(a):
@@ -293,17 +425,12 @@ def spot_pick_table(a):
 
 def grain_table(a):
     """The sugar cube under a shaped sphere light, without and with the downlight's profile."""
-    import re
-    from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
+    from pxr import Gf, Sdf, UsdGeom, UsdLux
     print("\n| sugar cube, sphere light | render s (best of 3) | mean | s.e. per sample |")
     print("|---|---|---|---|")
-    import granular_core as core
     for label, profile in (("60° cone", None), ("60° cone and the downlight's profile", "down.ies")):
         path = os.path.join(a.out, f"sugarcube_{'ies' if profile else 'cone'}.usda")
-        stage = Usd.Stage.CreateNew(path)
-        stage.GetRootLayer().subLayerPaths.append(os.path.join(ROOT, "examples", "sugarcube.usda"))
-        for prim in ("/World/Sun", "/World/Sky"):
-            stage.OverridePrim(prim).SetActive(False)
+        stage = unlit_sugarcube(path)
         bulb = UsdLux.SphereLight.Define(stage, "/World/Bulb")
         bulb.CreateRadiusAttr(0.005)
         bulb.CreateIntensityAttr(2000.0)
@@ -315,21 +442,8 @@ def grain_table(a):
             shaping.CreateShapingIesFileAttr(Sdf.AssetPath(os.path.join(a.out, profile)))
             shaping.CreateShapingIesNormalizeAttr(True)
         stage.Save()
-        times = []
-        for k in range(3):
-            exr = os.path.join(a.out, f"sugarcube_{k}.exr")
-            r = subprocess.run([sys.executable, "-m", "granular.cli", "render", path, "-o", exr, "--width", "160",
-                                "--spp", str(a.grain_spp), "--threads", "2"],
-                               capture_output=True, text=True, check=True,
-                               env=dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path[:2])))
-            times.append(float(re.search(r"\(render ([0-9.]+) s", r.stderr).group(1)))
-        img = core.read_exr(exr)
-        px = np.asarray(img.pixels)
-        ch = list(img.channels)
-        mean = px[..., ch.index("R")].mean()
-        se = np.sqrt(px[..., ch.index("variance.R")].sum()) / px[..., 0].size
-        print(f"| {label} | {min(times):.2f} | {mean:.4f} | {se * np.sqrt(a.grain_spp * px[..., 0].size) / mean:.2f} |",
-              flush=True)
+        t, mean, _, per_sample = render_usd_best_of_3(a, path, "sugarcube", "R")
+        print(f"| {label} | {t:.2f} | {mean:.4f} | {per_sample:.2f} |", flush=True)
 
 
 if __name__ == "__main__":

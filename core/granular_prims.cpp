@@ -20,6 +20,7 @@
 #include <Imath/half.h>
 
 #include "error.h"
+#include "usd_lights.h"
 
 namespace granular {
 
@@ -357,7 +358,10 @@ class Assembler {
       const MeshPrim& p = prims_[i];
       if (!p.visible || isAggregate.count(i) || prototypes_.count(p.path)) continue;
       if (p.apiSchemas ? hasApi(p, kGrainApi) : anyGrainPrimvar(p)) continue;  // a grain, never drawn
-      addMesh(p);
+      if (p.light)
+        addMeshLight(p);
+      else
+        addMesh(p);
     }
   }
 
@@ -538,6 +542,29 @@ class Assembler {
       d.linkCategories = linkCategoriesOf(prim, k);
       d.instanceId = prim.instanceIds.empty() ? -1 : prim.instanceIds[k];
       desc_.meshes.push_back(std::move(d));
+    }
+  }
+
+  // A surface with MeshLightAPI: a mesh light per instance, the mesh its body (not drawn
+  // as a surface as well), its colour tinted by the bound material's emission where
+  // MeshLightAPI's materialSyncMode asks (LightDesc::tintByMaterial) and that emission is
+  // a colour, not black.
+  void addMeshLight(const MeshPrim& prim) {
+    LightDesc light = *prim.light;
+    light.type = LightType::Mesh;
+    light.name = prim.path;
+    light.mesh = prim.mesh;
+    light.doubleSided = prim.doubleSided;
+    if (light.tintByMaterial && prim.material >= 0) {
+      const MaterialDesc& m = desc_.materials[size_t(prim.material)];
+      if (!m.emissionTexture.enabled() && !isBlack(m.emission)) light.color = light.color * m.emission;
+    }
+    light.tintByMaterial = false;
+    std::vector<Transform> xfs = prim.instances.empty() ? std::vector<Transform>(1) : prim.instances;
+    for (const Transform& xf : xfs) {
+      light.xf = xf;
+      validateUsdLight(light, prim.path);
+      desc_.lights.push_back(light);
     }
   }
 

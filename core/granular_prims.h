@@ -22,6 +22,7 @@
 //    (MeshPrim::material), else clear glass (-1);
 //  - applies the schema's fallbacks to unauthored values (Hydra delivers authored
 //    primvars only) and checks every value, with core's own validation;
+//  - turns a visible surface with a light (MeshLightAPI) into a mesh light per instance;
 //  - appends everything else that is visible as an ordinary MeshDesc, one per instance.
 // Every error is an InputError naming the prim path (where the value was authored, for
 // an inherited primvar) and the attribute "primvars:granular:<name>", e.g.
@@ -73,6 +74,11 @@ struct MeshPrim {
   // categories: one list per instance, or none).
   std::vector<std::string> linkCategories;
   std::vector<std::vector<std::string>> instanceLinkCategories;
+  // UsdLuxMeshLightAPI: the light its record gives (lightFromUsd, type Mesh). A visible
+  // prim with one becomes a mesh light per instance, its mesh the light's body, instead of
+  // a drawn surface (LightDesc::mesh, tintByMaterial); an aggregate or a prototype ignores it.
+  std::optional<LightDesc> light;
+  bool doubleSided = false;  // UsdGeomGprim's doubleSided: a mesh light emits from both sides
 };
 
 // A prim that is not among the listed ones, by absolute path (a front end may list only

@@ -1,9 +1,65 @@
 #include "light.h"
 
+#include <mutex>
+
+#include "embree_util.h"
 #include "error.h"
 #include "image_io.h"
 
 namespace granular {
+
+namespace {
+
+// One Embree device for every mesh light while any lives (an instancer may make many).
+EmbreeDevice meshLightDevice() {
+  static std::mutex mutex;
+  static std::weak_ptr<std::remove_pointer_t<RTCDevice>> shared;
+  std::lock_guard<std::mutex> lock(mutex);
+  EmbreeDevice d = shared.lock();
+  if (!d) shared = d = makeEmbreeDevice();
+  return d;
+}
+
+}  // namespace
+
+// A mesh light's triangles in world space, each one's unit front normal, the distribution
+// that picks them by area and their BVH (which lets a one-sided mesh's back faces through).
+struct MeshEmitter {
+  TriangleMesh world;
+  std::vector<Vec3> normals;
+  std::vector<float> areas;
+  Distribution1D byArea;
+  float area = 0;
+  bool twoSided = false;
+  Bounds3 bounds;
+  EmbreeDevice device;
+  EmbreeScene bvh;
+
+  // Rejects a hit on a face's back (one-sided): the back neither emits nor blocks.
+  static void backFaces(const RTCFilterFunctionNArguments* args) {
+    const auto* e = static_cast<const MeshEmitter*>(args->geometryUserPtr);
+    for (unsigned i = 0; i < args->N; ++i) {
+      if (args->valid[i] != -1) continue;
+      const Vec3& n = e->normals[RTCHitN_primID(args->hit, args->N, i)];
+      const Vec3 d(RTCRayN_dir_x(args->ray, args->N, i), RTCRayN_dir_y(args->ray, args->N, i),
+                   RTCRayN_dir_z(args->ray, args->N, i));
+      if (!(dot(d, n) < 0)) args->valid[i] = 0;
+    }
+  }
+
+  // The nearest emitting face along r in (r.tmin, r.tmax): its distance and triangle.
+  bool intersect(const Ray& r, float& t, unsigned& prim) const {
+    if (!traceable(r.o, r.d, r.tmin, r.tmax)) return false;
+    RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    RTCRayHit rh = makeRayHit(r.o, r.d, r.tmin, r.tmax);
+    rtcIntersect1(bvh.get(), &ctx, &rh);
+    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID || !(rh.ray.tfar > r.tmin)) return false;
+    t = rh.ray.tfar;
+    prim = rh.hit.primID;
+    return true;
+  }
+};
 
 namespace {
 
@@ -54,6 +110,7 @@ double normalizationArea(const LightDesc& d) {
     case LightType::Cylinder:  // its side: the caps do not emit
       return 2.0 * kPiD * double(d.radius) * length(d.xf.vector(Vec3(0, 1, 0))) * double(d.length) *
              length(d.xf.vector(Vec3(1, 0, 0)));
+    case LightType::Mesh: return d.mesh.transformed(d.xf).area();  // its world area, front faces
     case LightType::Dome: break;
   }
   return 1.0;
@@ -116,6 +173,36 @@ Light Light::fromDesc(const LightDesc& d) {
       l.radiance_ = L;
       break;
     }
+    case LightType::Mesh: {
+      auto e = std::make_shared<MeshEmitter>();
+      e->world = d.mesh.transformed(d.xf);
+      e->twoSided = d.doubleSided;
+      std::vector<float>& areas = e->areas;
+      areas.resize(e->world.numTriangles());
+      e->normals.resize(areas.size());
+      double total = 0;
+      for (size_t t = 0; t < areas.size(); ++t) {
+        const Vec3 &a = e->world.points[e->world.indices[3 * t]], &b = e->world.points[e->world.indices[3 * t + 1]],
+                   &c = e->world.points[e->world.indices[3 * t + 2]];
+        const Vec3 n = cross(b - a, c - a);
+        areas[t] = 0.5f * length(n);
+        e->normals[t] = areas[t] > 0 ? n / (2.0f * areas[t]) : Vec3(0.0f);
+        total += areas[t];
+        for (const Vec3* v : {&a, &b, &c}) e->bounds.extend(*v);
+      }
+      e->area = float(total);
+      e->byArea = Distribution1D(areas);
+      e->device = meshLightDevice();
+      e->bvh = makeEmbreeScene(e->device);
+      attachTriangleMesh(e->device.get(), e->bvh.get(), e->world, e->twoSided ? nullptr : &MeshEmitter::backFaces,
+                         e.get());
+      rtcCommitScene(e->bvh.get());
+      l.center_ = e->bounds.center();
+      l.area_ = e->area;
+      l.emitter_ = std::move(e);
+      l.radiance_ = L;
+      break;
+    }
     case LightType::Dome: {
       l.radiance_ = L;
       l.toWorld_ = d.xf;
@@ -162,7 +249,7 @@ Light Light::fromDesc(const LightDesc& d) {
       break;
     }
   }
-  if (d.shaping.enabled && d.type != LightType::Distant && d.type != LightType::Dome) {
+  if (d.shaping.enabled && d.type != LightType::Distant && d.type != LightType::Dome && d.type != LightType::Mesh) {
     l.shaped_ = true;
     l.shapeAxis_ = normalize(d.xf.vector(Vec3(0, 0, -1)));
     l.coneAngle_ = std::clamp(d.shaping.coneAngle, 0.0f, 180.0f) * (kPi / 180.0f);
@@ -274,6 +361,22 @@ double Light::pickWeight(const Vec3& ref) const {
       const double c = double(dot(axis_, d)) / std::sqrt(d2), sine = std::sqrt(std::max(0.0, 1.0 - c * c));
       return cone(std::min(4.0 * double(radius_) * halfLength_ * sine / d2, 2.0 * kPiD));
     }
+    case LightType::Mesh: {
+      // The solid angle its emitting faces subtend from ref, face by face (their overlaps
+      // counted twice, as a bound should).
+      const MeshEmitter& e = *emitter_;
+      double omega = 0;
+      for (size_t t = 0; t < e.normals.size(); ++t) {
+        const Vec3 c = (e.world.points[e.world.indices[3 * t]] + e.world.points[e.world.indices[3 * t + 1]] +
+                        e.world.points[e.world.indices[3 * t + 2]]) /
+                       3.0f;
+        const Vec3 d = ref - c;
+        const double d2 = double(length2(d)), cosL = double(dot(e.normals[t], d));
+        if (!(d2 > 0)) return cone(2.0 * kPiD);
+        if (cosL > 0 || e.twoSided) omega += double(e.areas[t]) * std::fabs(cosL) / (d2 * std::sqrt(d2));
+      }
+      return cone(std::min(omega, 2.0 * kPiD));
+    }
     case LightType::Dome:
       // E = π × mean radiance, Ω = 4π mean² / mean square: E √(4π/Ω) = π × the rms radiance.
       return kPiD * (texels_ ? domeRms_ : L);
@@ -366,6 +469,34 @@ bool Light::sampleLi(const Vec3& p, float u1, float u2, LightSample& s, const Ve
       s.dist = d;
       s.pdf = d2 / (cosL * (type_ == LightType::Cylinder ? 0.5f * area_ : area_));
       s.Li = emitted(q, -w);
+      s.delta = false;
+      return true;
+    }
+    case LightType::Mesh: {
+      // A face by its area (sampleContinuous: the offset within its bin is uniform again),
+      // then a point uniform in it.
+      const MeshEmitter& e = *emitter_;
+      float binPdf;
+      int t = 0;
+      const float x = e.byArea.sampleContinuous(u1, &binPdf, &t);
+      const float v1 = std::clamp(x * float(e.byArea.size()) - float(t), 0.0f, 1.0f);
+      const float su = std::sqrt(v1);
+      const Vec3 &a = e.world.points[e.world.indices[3 * size_t(t)]],
+                 &b = e.world.points[e.world.indices[3 * size_t(t) + 1]],
+                 &c = e.world.points[e.world.indices[3 * size_t(t) + 2]];
+      const Vec3 q = a * (1.0f - su) + b * (su * (1.0f - u2)) + c * (su * u2);
+      Vec3 w = q - p;
+      const float d2 = length2(w);
+      if (!(d2 > 0)) return false;
+      const float d = std::sqrt(d2);
+      w /= d;
+      float cosL = -dot(w, e.normals[size_t(t)]);
+      if (e.twoSided) cosL = std::fabs(cosL);
+      if (!(cosL > 0)) return false;  // the face's back
+      s.wi = w;
+      s.dist = d;
+      s.pdf = d2 / (cosL * e.area);
+      s.Li = radiance_;
       s.delta = false;
       return true;
     }
@@ -463,6 +594,15 @@ float Light::pdfLi(const Vec3& p, const Vec3& wi, float dist, const Vec3& above)
       float cosL = -dot(wi, surfaceNormal(p + wi * dist));
       return cosL > 0 ? dist * dist / (cosL * 0.5f * area_) : 0.0f;
     }
+    case LightType::Mesh: {
+      // The face the direction meets about dist away (the hit the caller found, from an
+      // origin that may sit a little off p): its cosine.
+      float t;
+      unsigned prim;
+      if (!emitter_->intersect(Ray{p, wi, 0.0f, dist * 1.001f + 1e-6f}, t, prim)) return 0.0f;
+      const float cosL = std::fabs(dot(wi, emitter_->normals[prim]));
+      return cosL > 0 ? t * t / (cosL * emitter_->area) : 0.0f;
+    }
     case LightType::Dome: {
       if (!dist_) return length2(above) > 0 ? cosineHemispherePdf(dot(wi, above)) : kUniformSpherePdf;
       Vec3 local = normalize(toLocal_.vector(wi));
@@ -476,6 +616,10 @@ float Light::pdfLi(const Vec3& p, const Vec3& wi, float dist, const Vec3& above)
 }
 
 bool Light::intersect(const Ray& r, float& t) const {
+  if (type_ == LightType::Mesh) {
+    unsigned prim;
+    return emitter_->intersect(r, t, prim);
+  }
   if (type_ == LightType::Sphere) {
     Vec3 oc = r.o - center_;
     float b = dot(oc, r.d), c = length2(oc) - radius_ * radius_;

@@ -7,7 +7,8 @@
 // irradiance). areaLe()/escapedLe() and pdfLi() evaluate the same quantities for a
 // direction found by BSDF sampling, so that the integrator can weight both strategies by
 // MIS. Area lights are emitters hit by intersect(): a sphere outward, a rect and a disk on
-// their −Z side, a cylinder outward from its side (not its caps); a light's back side and
+// their −Z side, a cylinder outward from its side (not its caps), a mesh on its front faces
+// (both sides when LightDesc::doubleSided); a light's back side and
 // inside neither emit nor block. Distant and dome lights are seen by rays that escape the
 // scene (escapedLe()). Sampling draws points uniformly over the emitting area (the sphere:
 // directions uniformly in the cone it subtends), so pdf = d² / (cos θ_light · area); a
@@ -17,6 +18,9 @@
 // sphere, pdf 1/(4π), or, given `above` (a unit normal: a surface that only reflects, whose
 // BSDF is zero below it), cosine-weighted over that hemisphere, pdf cos θ / π: the
 // directions below would count nothing, and cos θ is the factor every reflection has.
+// A mesh light's triangles are picked in proportion to their area and sampled uniformly
+// within, so pdf = d² / (|cos θ_light| · total area) as for a rect; a point on a face that
+// turns its back (a one-sided mesh) is rejected (sampleLi false). It is hit by its own BVH.
 #pragma once
 
 #include <memory>
@@ -28,6 +32,8 @@
 #include "scene_desc.h"
 
 namespace granular {
+
+struct MeshEmitter;  // a mesh light's triangles, their areas and BVH (light.cpp)
 
 struct LightSample {
   Vec3 wi;          // towards the light
@@ -113,13 +119,15 @@ class Light {
   std::shared_ptr<const IesProfile> ies_;
   float iesAngleScale_ = 0, iesScale_ = 1;
   float iesFactor(const Vec3& w) const;  // toward w (unit), angleScale applied
-  Vec3 centre() const;                   // of a rect (its corners' mean), a disk, sphere or cylinder
+  Vec3 centre() const;                   // of a rect (its corners' mean), a disk, sphere or cylinder; a mesh's bounds
   Vec3 surfaceNormal(const Vec3& q) const;
   // A cylinder's side sampled for p: the half centred on p's side of the axis (the angle
   // about the axis from across1_ toward across2_), uniform in area, pdf 2 / area there.
   float facingHalf(const Vec3& p) const;
   // radiance_ leaving point q of the light in direction w (unit), shaped.
   Vec3 emitted(const Vec3& q, const Vec3& w) const;
+  // mesh (LightType::Mesh)
+  std::shared_ptr<const MeshEmitter> emitter_;
   // dome (and an IES profile's frame: toLocal_)
   Transform toLocal_, toWorld_;
   std::shared_ptr<const std::vector<float>> texels_;  // RGB

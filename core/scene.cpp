@@ -89,7 +89,8 @@ bool meshReachesInto(const DaRegion& region, const TriangleMesh& m) {
 
 // Does an area light reach into the region (sphere: centre inside or the surface closer
 // than its radius; rect: a corner inside or an edge or diagonal crossing; disk: likewise
-// its rim as a polygon; cylinder: a point of its axis within its radius)?
+// its rim as a polygon; cylinder: a point of its axis within its radius; mesh: as an
+// emissive mesh)?
 bool emitterReachesInto(const DaRegion& region, const LightDesc& l) {
   if (l.type == LightType::Sphere) {
     Vec3 c = l.xf.point(Vec3(0.0f));
@@ -123,6 +124,7 @@ bool emitterReachesInto(const DaRegion& region, const LightDesc& l) {
     }
     return false;
   }
+  if (l.type == LightType::Mesh) return meshReachesInto(region, l.mesh.transformed(l.xf));
   return false;  // distant and dome lights are outside everything
 }
 
@@ -799,7 +801,7 @@ std::vector<LightDesc> Scene::buildLights(const SceneDesc& desc, const Bounds3& 
 // measured by bench/stress.py against EPT.
 void Scene::findEmittersInside(const SceneDesc& desc, const std::vector<LightDesc>& lights) {
   // An instancer's medium likewise: a sphere, disk or cylinder light's centre, a rect
-  // light's corner or an emissive mesh's vertex where its packing rate is > 0 (within the
+  // light's corner or an emissive or mesh light's vertex where its packing rate is > 0 (within the
   // grains' reach).
   instancedEmitterInside_.assign(builtInstanced_.size(), 0);
   for (size_t i = 0; i < builtInstanced_.size(); ++i) {
@@ -813,6 +815,8 @@ void Scene::findEmittersInside(const SceneDesc& desc, const std::vector<LightDes
         for (float sx : {-0.5f, 0.5f})
           for (float sy : {-0.5f, 0.5f}) found = found || inside(l.xf.point(Vec3(sx * l.width, sy * l.height, 0)));
       if (l.type == LightType::Disk || l.type == LightType::Cylinder) found = found || inside(l.xf.point(Vec3(0.0f)));
+      if (l.type == LightType::Mesh)
+        for (const Vec3& v : l.mesh.points) found = found || inside(l.xf.point(v));
     }
     for (const auto& m : desc.meshes)
       if (isEmitter(desc, m))
@@ -936,6 +940,15 @@ bool Scene::areaLightsOccluded(const Vec3& p, const Vec3& dir, float dist) const
   const float tol = 1e-3f * dist;
   for (int li : areaLights_) {
     float t;
+    if (lights_[li].type() == LightType::Mesh) {
+      // A mesh may shadow itself: its faces block but for those met within tol of the end
+      // (the ray leaves from an offset origin, so toward a point near a silhouette it may
+      // meet that face, or the one beside it, a little short of the point).
+      Ray m = r;
+      if (aimed) m.tmax = dist - tol;
+      if (lights_[li].intersect(m, t)) return true;
+      continue;
+    }
     if (lights_[li].intersect(r, t) && !(aimed && lights_[li].endsOn(end, tol))) return true;
   }
   return false;

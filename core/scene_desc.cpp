@@ -141,7 +141,7 @@ void validateCameraDesc(const CameraDesc& c, const std::string& obj) {
     throw InputError(obj, "shutterClose", str(c.shutterClose, " is before shutterOpen ", c.shutterOpen));
 }
 
-void validateLightDesc(const LightDesc& l, const std::string& obj) {
+void validateLightDesc(const LightDesc& l, const std::string& obj, bool geometry) {
   checkTransform(l.xf, obj, "transform");
   checkWorldPosition(l.xf, obj);
   checkNonNegative(l.color, obj, "color");
@@ -177,6 +177,17 @@ void validateLightDesc(const LightDesc& l, const std::string& obj) {
       checkSize(l.length * length(l.xf.vector(Vec3(1, 0, 0))), obj, "length");
       break;
     case LightType::Dome: break;
+    case LightType::Mesh: {
+      if (l.shaping.enabled) throw InputError(obj, "shaping", "is not supported on a mesh light");
+      if (!geometry) break;
+      validateMesh(l.mesh, obj, "points");
+      const TriangleMesh world = l.mesh.transformed(l.xf);
+      for (const Vec3& p : world.points)
+        if (!(std::fabs(p.x) <= kMaxCoordinate && std::fabs(p.y) <= kMaxCoordinate && std::fabs(p.z) <= kMaxCoordinate))
+          throw InputError(obj, "points", str("a point at ", fmt(p), " in world space is beyond +-", kMaxCoordinate));
+      if (!(world.area() > 0)) throw InputError(obj, "points", "the mesh has no area, so it cannot emit");
+      break;
+    }
   }
   if (l.shaping.enabled) {
     checkFinite(l.shaping.coneAngle, obj, "shaping_cone_angle");
@@ -191,7 +202,9 @@ void validateLightDesc(const LightDesc& l, const std::string& obj) {
     // is normalised, must be a finite float too (1e38 x 2^100 gave an all-black image
     // of non-finite samples; so did normalising a sphere of radius 6e-39, whose area
     // underflows: the USD fuzzer's finding).
-    double peak = double(maxComponent(l.color)) * l.intensity * std::exp2(double(l.exposure)) / normalizationArea(l);
+    const bool area = geometry || l.type != LightType::Mesh;  // else divided by its area later
+    double peak = double(maxComponent(l.color)) * l.intensity * std::exp2(double(l.exposure)) /
+                  (area ? normalizationArea(l) : 1.0);
     if (!(peak <= 1e30))
       throw InputError(obj, "intensity",
                        str("color ", fmt(l.color), " x intensity ", l.intensity, " x 2^exposure ", l.exposure,
@@ -613,7 +626,7 @@ static_assert(fieldCount<TriangleMesh>() == 3, "compare the new field in sameMes
 static_assert(fieldCount<CameraDesc>() == 12, "compare the new field in sameCamera");
 static_assert(fieldCount<TextureDesc>() == 14, "compare the new field in sameTexture (scale, bias: 4 each)");
 static_assert(fieldCount<MaterialDesc>() == 13, "compare the new field in sameMaterial");
-static_assert(fieldCount<LightDesc>() == 17, "compare the new field in sameLight");
+static_assert(fieldCount<LightDesc>() == 20, "compare the new field in sameLight");
 static_assert(fieldCount<LightShaping>() == 8, "compare the new field in sameLight");
 static_assert(fieldCount<MeshDesc>() == 9, "compare the new field in sameMeshDesc (or linkCategories)");
 static_assert(fieldCount<GrainPrototypeDesc>() == 3, "compare the new field in sameAggregateInputs");
@@ -671,8 +684,9 @@ bool sameLight(const LightDesc& a, const LightDesc& b) {
          a.shaping.coneSoftness == b.shaping.coneSoftness && a.shaping.focus == b.shaping.focus &&
          a.shaping.focusTint == b.shaping.focusTint && a.shaping.iesFile == b.shaping.iesFile &&
          a.shaping.iesAngleScale == b.shaping.iesAngleScale && a.shaping.iesNormalize == b.shaping.iesNormalize &&
-         a.textureFile == b.textureFile && a.lightLink == b.lightLink &&
-         a.shadowLink == b.shadowLink && a.shadows == b.shadows;
+         a.textureFile == b.textureFile && sameMesh(a.mesh, b.mesh) && a.doubleSided == b.doubleSided &&
+         a.tintByMaterial == b.tintByMaterial && a.lightLink == b.lightLink && a.shadowLink == b.shadowLink &&
+         a.shadows == b.shadows;
 }
 
 // Transforms at the shutter's open and close (MeshDesc::shutterXf, AggregateDesc::shutterXf).

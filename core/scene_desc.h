@@ -117,7 +117,7 @@ struct MaterialDesc {
   bool hasCutouts() const { return type == MaterialType::Lambert && (opacity < 1 || opacityTexture.enabled()); }
 };
 
-enum class LightType { Distant, Sphere, Rect, Dome, Disk, Cylinder };
+enum class LightType { Distant, Sphere, Rect, Dome, Disk, Cylinder, Mesh };
 
 // UsdLuxShapingAPI on an area light: its radiance toward an emission direction ω scaled by
 // the cone (off the light's axis, its local −Z, by θ: 1 up to θ_c (1 − softness), then
@@ -152,6 +152,17 @@ struct LightDesc {
   float length = 1.0f;       // Cylinder, along its local X axis
   LightShaping shaping;      // Sphere, Rect, Disk, Cylinder
   std::string textureFile;   // Dome: lat-long EXR (empty: constant)
+  // Mesh (UsdLuxMeshLightAPI): the emitting triangles in the light's own space (xf places
+  // them), each emitting from its front (counter-clockwise seen from there, as a mesh's
+  // outside), or from both sides when doubleSided. The mesh is the light's body, as a
+  // rect's quad is: it emits, blocks the rays that meet its emitting sides and reflects
+  // nothing. No shaping.
+  TriangleMesh mesh;
+  bool doubleSided = false;
+  // A USD front end's mesh light (light:materialSyncMode materialGlowTintsLight, MeshLightAPI's
+  // fallback): the bound material's emissive colour multiplies `color`, applied by
+  // assembleGranularScene (granular_prims.h), which clears it.
+  bool tintByMaterial = false;
   // Light linking (UsdLuxLightAPI's collection:lightLink): empty, the light lights every
   // object; else only the meshes, aggregates and instanced grains whose linkCategories hold
   // this name. At every vertex of a path (a surface's, a grain's, a proxy's, the medium's,
@@ -506,7 +517,9 @@ void stillFrame(SceneDesc& desc);
 // material; an aggregate's transform, grain radius, packing rate, tile spheres, prototype
 // count and weights (not its meshes: validateClosed, nor its material indices); one light.
 void validateMaterialDesc(const MaterialDesc& m, const std::string& object);
-void validateLightDesc(const LightDesc& l, const std::string& object);
+// geometry false: all but a mesh light's triangles and what depends on them (the area a
+// normalised light divides by), for a USD mesh light before its front end's mesh is given.
+void validateLightDesc(const LightDesc& l, const std::string& object, bool geometry = true);
 // One camera on its own (not its field of view, which depends on the image's aspect).
 void validateCameraDesc(const CameraDesc& c, const std::string& object);
 void validateAggregateParameters(const AggregateDesc& a, const std::string& object);

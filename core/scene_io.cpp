@@ -673,7 +673,7 @@ void parseLights(const json& v, SceneDesc& desc, const Context& ctx, std::vector
     std::string label = itemLabel(a[i], "lights", i);
     if (!a[i].is_object()) throw InputError("lights", str("[", i, "]"), "expected an object, got " + describe(a[i]));
     if (!a[i].contains("type"))
-      throw InputError(label, "type", "is required (distant, sphere, rect, disk, cylinder or dome)");
+      throw InputError(label, "type", "is required (distant, sphere, rect, disk, cylinder, mesh or dome)");
     std::string type = toString(a[i].at("type"), label, "type");
     std::vector<std::string> keys = {"name",      "type",      "color",     "intensity",
                                      "exposure",  "normalize", "transform", "light_link",
@@ -701,11 +701,15 @@ void parseLights(const json& v, SceneDesc& desc, const Context& ctx, std::vector
     } else if (type == "dome") {
       l.type = LightType::Dome;
       keys.push_back("texture_file");
+    } else if (type == "mesh") {
+      l.type = LightType::Mesh;
+      keys.insert(keys.end(), {"shape", "double_sided"});
     } else {
       throw InputError(label, "type",
-                       str("unknown light type \"", type, "\" (expected distant, sphere, rect, disk, cylinder or dome)"));
+                       str("unknown light type \"", type,
+                           "\" (expected distant, sphere, rect, disk, cylinder, mesh or dome)"));
     }
-    if (l.type != LightType::Distant && l.type != LightType::Dome)
+    if (l.type != LightType::Distant && l.type != LightType::Dome && l.type != LightType::Mesh)
       keys.insert(keys.end(), shapingKeys.begin(), shapingKeys.end());
     Obj o(a[i], "lights", str("[", i, "]"), label, keys);
     checkUnique(seen, label, "lights", i);
@@ -730,6 +734,10 @@ void parseLights(const json& v, SceneDesc& desc, const Context& ctx, std::vector
     l.width = o.num("width", l.width);
     l.height = o.num("height", l.height);
     l.length = o.num("length", l.length);
+    if (l.type == LightType::Mesh) {  // a mesh's shape, emitting from its front faces
+      l.mesh = parseShape(o.required("shape"), label, "shape", ctx);
+      l.doubleSided = o.flag("double_sided", false);
+    }
     for (const std::string& k : shapingKeys) l.shaping.enabled = l.shaping.enabled || o.has(k);
     l.shaping.coneAngle = o.num("shaping_cone_angle", l.shaping.coneAngle);
     l.shaping.coneSoftness = o.num("shaping_cone_softness", l.shaping.coneSoftness);

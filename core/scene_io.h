@@ -25,13 +25,14 @@
 //             {"type"*:"rect", "transform":T, "width":1, "height":1},
 //             {"type"*:"disk", "transform":T, "radius":0.5},                // emits along its -Z
 //             {"type"*:"cylinder", "transform":T, "radius":0.5, "length":1}, // along its X, from its side
+//             {"type"*:"mesh", "shape"*: S, "transform":T, "double_sided":false}, // from its front faces
 //             {"type"*:"dome", "texture_file":"sky.exr", "transform":T}],
 //             // every light also takes "name", "color":[1,1,1], "intensity":1, "exposure":0,
 //             // "normalize":false, "light_link": {"include": [names], "exclude": [names]}
 //             // (light linking: the meshes, aggregates and instanced grains it lights,
 //             // every one unless "include" lists them, less "exclude"; LightDesc::lightLink);
 //             // radiance = color * intensity * 2^exposure; the area
-//             // lights also "shaping_cone_angle":90, "shaping_cone_softness":0,
+//             // lights but a mesh also "shaping_cone_angle":90, "shaping_cone_softness":0,
 //             // "shaping_focus":0, "shaping_focus_tint":[0,0,0], "shaping_ies_file":"spot.ies"
 //             // (an IES LM-63 profile, relative to the scene file), "shaping_ies_angle_scale":0,
 //             // "shaping_ies_normalize":false (UsdLuxShapingAPI; any of them turns shaping on)

@@ -27,6 +27,7 @@ const char* const kRadius = "inputs:radius";
 const char* const kLength = "inputs:length";
 const char* const kTreatAsPoint = "treatAsPoint";
 const char* const kTreatAsLine = "treatAsLine";
+const char* const kMaterialSyncMode = "light:materialSyncMode";
 const char* const kConeAngle = "inputs:shaping:cone:angle";
 const char* const kConeSoftness = "inputs:shaping:cone:softness";
 const char* const kFocus = "inputs:shaping:focus";
@@ -83,7 +84,7 @@ const std::vector<std::string>& usdLightAttributeNames() {
       kAngle,        kTextureFile,    kTextureFormat, kWidth,         kHeight,             kRadius,
       kLength,       kTreatAsPoint,   kTreatAsLine,  kConeAngle,      kConeSoftness,       kFocus,
       kFocusTint,    kIesFile,        kIesAngleScale, kIesNormalize,  kDiffuse,            kSpecular,
-      kShadowEnable, kShadowColor,    kShadowDistance, kShadowFalloff, kShadowFalloffGamma};
+      kShadowEnable, kShadowColor,    kShadowDistance, kShadowFalloff, kShadowFalloffGamma, kMaterialSyncMode};
   return names;
 }
 
@@ -142,10 +143,14 @@ std::optional<LightDesc> lightFromUsd(const UsdPrimRecord& r, UsdWarnings& warni
     l.length = usdFloat(r, kLength, 1.0f);
     if (usdBool(r, kTreatAsLine, false))
       warnings.push_back(str(path, ".", kTreatAsLine, ": not supported; rendered as a cylinder of inputs:radius"));
-  } else if (type == "Mesh" || type == "MeshLight" || isUsdImplicitSurface(type)) {
-    warnings.push_back(str(path, ": light emission of a surface (MeshLightAPI) is not supported; drawn as an "
-                                 "ordinary surface"));
-    return std::nullopt;
+  } else if (type == "Mesh" || isUsdImplicitSurface(type)) {
+    // MeshLightAPI: the front end's MeshPrim holds the triangles (granular_prims.h).
+    l.type = LightType::Mesh;
+    const std::string mode = usdToken(r, kMaterialSyncMode, "materialGlowTintsLight");
+    if (mode != "materialGlowTintsLight" && mode != "independent" && mode != "noMaterialResponse")
+      throw InputError(path, kMaterialSyncMode,
+                       str("\"", mode, "\" is not one of materialGlowTintsLight, independent, noMaterialResponse"));
+    l.tintByMaterial = mode == "materialGlowTintsLight";
   } else {
     warnings.push_back(str(path, ": ", type.empty() ? std::string("untyped") : type,
                            " lights are not supported; skipped"));
@@ -164,8 +169,9 @@ std::optional<LightDesc> lightFromUsd(const UsdPrimRecord& r, UsdWarnings& warni
   // ShapingAPI: on where any of its inputs has a value (applied, or authored).
   bool shaping = false;
   for (const auto& [field, name] : kShapingInputs) shaping = shaping || r.attributes.count(name);
-  if (shaping && (l.type == LightType::Distant || l.type == LightType::Dome)) {
-    warnings.push_back(str(path, ": ShapingAPI on a ", type, " is not supported; ignored"));
+  if (shaping && (l.type == LightType::Distant || l.type == LightType::Dome || l.type == LightType::Mesh)) {
+    warnings.push_back(str(path, ": ShapingAPI on a ", l.type == LightType::Mesh ? "mesh light" : type.c_str(),
+                           " is not supported; ignored"));
   } else if (shaping) {
     l.shaping.enabled = true;  // LightShaping's defaults are UsdLux's fallbacks
     l.shaping.coneAngle = usdFloat(r, kConeAngle, l.shaping.coneAngle);
@@ -188,13 +194,17 @@ std::optional<LightDesc> lightFromUsd(const UsdPrimRecord& r, UsdWarnings& warni
       warnings.push_back(str(path, ".", name, ": not supported (shadows reach as far as the light); ignored"));
   l.lightLink = usdToken(r, kUsdLightLink, "");
   l.shadowLink = usdToken(r, kUsdShadowLink, "");
+  validateUsdLight(l, path, l.type != LightType::Mesh);
+  return l;
+}
+
+void validateUsdLight(const LightDesc& l, const std::string& path, bool geometry) {
   // Core's checks, in USD's names (a light's SceneDesc fields are its inputs).
-  checkInUsdNames(path, [&] { validateLightDesc(l, path); }, [](const std::string& field) {
+  checkInUsdNames(path, [&] { validateLightDesc(l, path, geometry); }, [](const std::string& field) {
     for (const auto& [shapingField, name] : kShapingInputs)
       if (field == shapingField) return std::string(name);
-    return field == "transform" || field.empty() ? field : "inputs:" + field;
+    return field == "transform" || field == "points" || field.empty() ? field : "inputs:" + field;
   });
-  return l;
 }
 
 }  // namespace granular

@@ -22,8 +22,13 @@
 //    their fallbacks (0, -1, -1, 1) are warned about and ignored;
 //  - inputs:diffuse and inputs:specular other than 1 (non-physical controls): one warning
 //    each, ignored;
-//  - a surface with MeshLightAPI (Mesh, an implicit surface): one warning; the front end
-//    draws it as an ordinary surface, as Hydra hosts do;
+//  - a surface with MeshLightAPI (Mesh, an implicit surface): a mesh light (LightType::Mesh)
+//    whose triangles the front end's MeshPrim gives (granular_prims.h): the surface is the
+//    light's body, emitting from its front faces (both sides when doubleSided) and
+//    reflecting nothing, whatever its light:materialSyncMode; materialGlowTintsLight (the
+//    fallback) multiplies inputs:color by the bound material's emissiveColor where that is
+//    a colour other than black (a textured one does not tint); ShapingAPI on it is warned
+//    about and ignored;
 //  - any other light type (PortalLight, a GeometryLight, ...): one warning, skipped.
 // Light linking: a front end gives collection:lightLink and collection:shadowLink (tokens)
 // when the light's collection of that name does not hold every prim (includeRoot with no
@@ -57,6 +62,10 @@ inline constexpr const char* kUsdShadowLink = "collection:shadowLink";
 // type that is not rendered (a warning says so). InputError naming prim.attribute on a
 // value of the wrong type or out of range.
 std::optional<LightDesc> lightFromUsd(const UsdPrimRecord& light, UsdWarnings& warnings);
+
+// validateLightDesc (geometry as there) with errors in USD's names: inputs:intensity, a
+// ShapingAPI input, transform, points.
+void validateUsdLight(const LightDesc& l, const std::string& path, bool geometry = true);
 
 // The lights in the order both front ends sample them: by prim path, element by element
 // (SdfPath's dictionary order), so that a seed draws the same light for a sample whatever

@@ -37,6 +37,13 @@ struct UsdValue {
   std::string resolvedPath;  // an asset path as the front end's resolver found it; empty: unresolved
 };
 
+inline bool operator==(const UsdValue& a, const UsdValue& b) {
+  return a.typeName == b.typeName && a.numbers == b.numbers && a.strings == b.strings && a.isArray == b.isArray &&
+         a.isString == b.isString && a.interpolation == b.interpolation && a.source == b.source &&
+         a.resolvedPath == b.resolvedPath;
+}
+inline bool operator!=(const UsdValue& a, const UsdValue& b) { return !(a == b); }
+
 // A prim as a front end read it at one time: its type as USD names it ("DistantLight",
 // "Camera", "RenderProduct"), the attributes core asked for that hold a value (authored or
 // the schema's fallback; a missing one means "use core's fallback"), and where it is.

@@ -104,7 +104,8 @@ inline void readViewAndLight(Reader& r, SceneDesc& d) {
   d.camera.clipFar = r.f();
   LightDesc l;
   l.name = "/World/Light";
-  l.type = LightType(r.get<uint8_t>() % 6);
+  const uint8_t type = r.get<uint8_t>();
+  l.type = type == 255 ? LightType::Mesh : LightType(type % 6);  // 255: a mesh light (earlier inputs keep their type)
   l.xf = r.matrix();
   l.color = r.v3();
   l.intensity = r.f();
@@ -115,6 +116,11 @@ inline void readViewAndLight(Reader& r, SceneDesc& d) {
   l.height = r.f();
   l.normalize = r.get<uint8_t>() & 1;
   l.length = r.f();
+  if (l.type == LightType::Mesh) {  // a quad of width × height facing its −Z, as a rect
+    const float w = 0.5f * l.width, h = 0.5f * l.height;
+    l.mesh.points = {Vec3(-w, -h, 0), Vec3(-w, h, 0), Vec3(w, h, 0), Vec3(w, -h, 0)};
+    l.mesh.indices = {0, 1, 2, 0, 2, 3};
+  }
   l.shaping.enabled = r.get<uint8_t>() & 1;
   l.shaping.coneAngle = r.f();
   l.shaping.coneSoftness = r.f();

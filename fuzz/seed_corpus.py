@@ -4,10 +4,10 @@
 OUT/fuzz_scene_json/      examples/*.json, bench/scenes/*.json, the full scene of
                           tests/core/test_scene_io.cpp and bench/stress.py's base case
 OUT/fuzz_usd_attributes/  a few well-formed inputs in fuzz_usd_attributes.cpp's layout:
-                          a box and a tetrahedron with sane attributes, each light type (distant, sphere, rect, dome, disk, cylinder)
+                          a box and a tetrahedron with sane attributes, each light type (distant, sphere, rect, dome, disk, cylinder, mesh)
 OUT/fuzz_usd_prims/       well-formed inputs in fuzz_usd_prims.cpp's layout: an aggregate
                           (box boundary, prototype by a relative path) with its grain
-                          prototype listed or found through the lookup, each light type
+                          prototype listed or found through the lookup, each light type (a mesh light too)
 OUT/fuzz_ies/             IES profiles: each symmetry of type C, a tilt table, commas
 fuzz/regressions/         inputs that once crashed a target (*.json: the JSON target,
                           usd_attributes_*.bin, prims_*.bin: the USD targets), replayed by every run
@@ -46,7 +46,7 @@ def view_and_light(light_type):
     b += struct.pack("<3f6fB", 1, 1, 1, 2, 0, 0.53, 0.5, 1, 1, 0)
     # length; shaping on for the area lights of odd type (sphere, dome: ignored, cylinder),
     # a 60° cone of softness 0.3, focus 2, a grey tint
-    b += struct.pack("<fB3f3f", 1, light_type % 2, 60, 0.3, 2, 0.2, 0.2, 0.2)
+    b += struct.pack("<fB3f3f", 1, light_type % 2 if light_type < 255 else 0, 60, 0.3, 2, 0.2, 0.2, 0.2)
     # light linking: none, to every object, to none, by type
     b += struct.pack("<B", (0, 3, 1)[light_type % 3])
     b += struct.pack("<BB", 5, 4)
@@ -103,7 +103,7 @@ def usd_seed(points, counts, indices, light_type, dielectric=True):
 def usd_seeds(out):
     os.makedirs(out, exist_ok=True)
     n = 0
-    for lt in range(6):
+    for lt in (0, 1, 2, 3, 4, 5, 255):  # 255: a mesh light
         with open(os.path.join(out, f"box_light{lt}.bin"), "wb") as f:
             f.write(usd_seed(BOX, [4] * 6, QUADS, lt))
         with open(os.path.join(out, f"tet_light{lt}.bin"), "wb") as f:
@@ -165,7 +165,7 @@ def prims_seed(light_type, lookup):
 def prims_seeds(out):
     os.makedirs(out, exist_ok=True)
     n = 0
-    for lt in range(6):
+    for lt in (0, 1, 2, 3, 4, 5, 255):  # 255: a mesh light
         for lookup in (False, True):
             with open(os.path.join(out, f"castle_light{lt}{'_lookup' if lookup else ''}.bin"), "wb") as f:
                 f.write(prims_seed(lt, lookup))

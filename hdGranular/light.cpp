@@ -24,12 +24,26 @@ void HdGranularLight::Sync(HdSceneDelegate* delegate, HdRenderParam* renderParam
     store->Remove(id);
     return;
   }
-  // The light as core reads it (core/usd_lights.h): USD's type name (Hydra's sprim type,
-  // capitalised) and the attributes core asks for, by Hydra's names (without "inputs:").
+  // The light as core reads it: USD's type name is Hydra's sprim type, capitalised.
+  std::string typeName = _type.GetString();
+  if (!typeName.empty()) typeName[0] = char(std::toupper(typeName[0]));
+  const granular::UsdPrimRecord record = HdGranularLightRecord(delegate, id, typeName);
+  try {
+    granular::UsdWarnings warnings;
+    std::optional<granular::LightDesc> light = granular::lightFromUsd(record, warnings);
+    store->Warn(warnings);
+    if (light) store->SetLight(id, std::move(*light));
+    else store->Remove(id);
+  } catch (granular::InputError const& e) {
+    store->SetError(id, e);  // the render pass reports it, as granular render does
+  }
+}
+
+granular::UsdPrimRecord HdGranularLightRecord(HdSceneDelegate* delegate, SdfPath const& id,
+                                              std::string const& typeName) {
   granular::UsdPrimRecord record;
   record.path = id.GetString();
-  record.typeName = _type.GetString();
-  if (!record.typeName.empty()) record.typeName[0] = char(std::toupper(record.typeName[0]));
+  record.typeName = typeName;
   for (std::string const& name : granular::usdLightAttributeNames()) {
     const std::string hydraName = name.rfind("inputs:", 0) == 0 ? name.substr(7) : name;
     if (auto v = HdGranularUsdValue(delegate->GetLightParamValue(id, TfToken(hydraName))))
@@ -44,15 +58,7 @@ void HdGranularLight::Sync(HdSceneDelegate* delegate, HdRenderParam* renderParam
       if (auto v = HdGranularUsdValue(link)) record.attributes[name] = *v;
   }
   record.xf = HdGranularToCore(delegate->GetTransform(id));
-  try {
-    granular::UsdWarnings warnings;
-    std::optional<granular::LightDesc> light = granular::lightFromUsd(record, warnings);
-    store->Warn(warnings);
-    if (light) store->SetLight(id, std::move(*light));
-    else store->Remove(id);
-  } catch (granular::InputError const& e) {
-    store->SetError(id, e);  // the render pass reports it, as granular render does
-  }
+  return record;
 }
 
 void HdGranularLight::Finalize(HdRenderParam* renderParam) {

@@ -4,10 +4,21 @@
 #ifndef HDGRANULAR_LIGHT_H
 #define HDGRANULAR_LIGHT_H
 
+#include <string>
+
+#include "core/usd_values.h"
 #include "pxr/imaging/hd/light.h"
 #include "pxr/pxr.h"
 
 PXR_NAMESPACE_OPEN_SCOPE
+
+class HdSceneDelegate;
+
+// The record core reads a light from (core/usd_lights.h): the attributes it asks for by
+// Hydra's names (without "inputs:"), its light-link collections and transform. typeName:
+// USD's (a sprim's type capitalised; "Mesh" or an implicit surface's for MeshLightAPI).
+granular::UsdPrimRecord HdGranularLightRecord(HdSceneDelegate* delegate, SdfPath const& id,
+                                              std::string const& typeName);
 
 class HdGranularLight final : public HdLight {
  public:

@@ -4,6 +4,7 @@
 #include "mesh.h"
 
 #include "instancer.h"
+#include "light.h"
 #include "pxr/base/gf/vec3d.h"
 #include "pxr/base/gf/vec2f.h"
 #include "pxr/base/gf/vec3f.h"
@@ -15,6 +16,7 @@
 #include "pxr/imaging/hd/tokens.h"
 #include "core/error.h"
 #include "core/usd_implicit.h"
+#include "core/usd_lights.h"
 #include "core/usd_mesh.h"
 #include "core/usd_shading.h"
 #include "renderParam.h"
@@ -148,6 +150,32 @@ void HdGranularMesh::Sync(HdSceneDelegate* delegate, HdRenderParam* renderParam,
       if (indices.size() == m.prim.instances.size()) m.prim.instanceIds.assign(indices.begin(), indices.end());
       m.prim.instanceLinkCategories = instancer->ComputeInstanceCategories(id);
       if (m.prim.instanceLinkCategories.size() != m.prim.instances.size()) m.prim.instanceLinkCategories.clear();
+    }
+  }
+
+  // MeshLightAPI: the surface is a mesh light's body (core/granular_prims.h). UsdImaging
+  // answers a light's parameter for a prim with LightAPI applied, nothing for another.
+  if (!delegate->GetLightParamValue(id, HdLightTokens->intensity).IsEmpty()) {
+    try {
+      granular::UsdWarnings warnings;
+      m.lightRecord = HdGranularLightRecord(delegate, id, m.prim.typeName);
+      m.prim.light = granular::lightFromUsd(*m.lightRecord, warnings);
+      param->Warn(warnings);
+    } catch (granular::InputError const& e) {
+      param->SetError(id, e);
+      *dirtyBits &= ~HdChangeTracker::AllSceneDirtyBits;
+      return;
+    }
+    m.prim.doubleSided = delegate->GetDoubleSided(id);
+    // OpenUSD 24.08's UsdImaging names the light-link collections of light prims alone: a
+    // mesh light's are not seen, and it lights (and is shadowed by) every object. Said where
+    // its collection leaves the root out, which the attribute shows.
+    for (const char* link : {"lightLink", "shadowLink"}) {
+      const VtValue root = delegate->Get(id, TfToken(std::string("collection:") + link + ":includeRoot"));
+      if (root.IsHolding<bool>() && !root.UncheckedGet<bool>())
+        param->Warn({id.GetString() + ".collection:" + link +
+                     ": a mesh light's collections are not seen by hdGranular (OpenUSD 24.08's UsdImaging resolves "
+                     "those of light prims alone); it reaches every object"});
     }
   }
 

@@ -1,6 +1,8 @@
 #include "renderParam.h"
 
 #include "core/usd_lights.h"
+#include "light.h"
+#include "pxr/imaging/hd/renderIndex.h"
 #include "renderer.h"
 
 PXR_NAMESPACE_OPEN_SCOPE
@@ -55,6 +57,41 @@ void HdGranularRenderParam::SetError(SdfPath const& id, granular::InputError con
   _materialSt.erase(id);
   _errors.insert_or_assign(id, error);
   ++_version;
+}
+
+void HdGranularRenderParam::RefreshMeshLights(HdRenderIndex& index) {
+  std::vector<std::pair<SdfPath, granular::UsdPrimRecord>> lights;
+  {
+    std::lock_guard<std::mutex> lock(_mutex);
+    for (auto const& [id, m] : _meshes)
+      if (m.lightRecord) lights.emplace_back(id, *m.lightRecord);
+  }
+  for (auto const& [id, before] : lights) {
+    HdSceneDelegate* delegate = index.GetSceneDelegateForRprim(id);
+    if (!delegate) continue;
+    granular::UsdPrimRecord now = HdGranularLightRecord(delegate, id, before.typeName);
+    if (now.attributes == before.attributes) continue;
+    std::optional<granular::LightDesc> light;
+    std::optional<granular::InputError> error;
+    granular::UsdWarnings warnings;
+    try {
+      light = granular::lightFromUsd(now, warnings);
+    } catch (granular::InputError const& e) {
+      error = e;
+    }
+    Warn(warnings);
+    std::lock_guard<std::mutex> lock(_mutex);
+    auto m = _meshes.find(id);
+    if (m == _meshes.end()) continue;
+    m->second.lightRecord = std::move(now);
+    if (error) {
+      _errors.insert_or_assign(id, *error);
+    } else {
+      m->second.prim.light = std::move(light);
+      _errors.erase(id);
+    }
+    ++_version;
+  }
 }
 
 void HdGranularRenderParam::Warn(granular::UsdWarnings const& warnings) {

@@ -59,6 +59,8 @@ class HdGranularRenderParam final : public HdRenderParam {
     // prototype's, its root's own transform included), which explicit grains need alone.
     SdfPath instancerId;
     granular::Transform local;
+    // MeshLightAPI: the light's record as last read (prim.light is core's reading of it).
+    std::optional<granular::UsdPrimRecord> lightRecord;
   };
   // An instancer as its scene delegate hands it, for explicit grains (Assemble): the
   // per-instance arrays whole, as authored (USD's masks are in the prototypes' instance
@@ -95,6 +97,13 @@ class HdGranularRenderParam final : public HdRenderParam {
   // The error that refused the last scene ("" when it was built): render stat granular:error.
   void SetRenderError(std::string error);
   std::string RenderError() const;
+
+  // A mesh light's inputs read again from its scene delegate, before each render: UsdImaging
+  // marks a mesh dirty for no change of its light's inputs (OpenUSD 24.08's gprim adapters
+  // ignore them), so an edit of one is found by comparing what it reads now. A change is
+  // read by core again as an edit (Version()); a value core refuses is the prim's error
+  // until it changes again.
+  void RefreshMeshLights(HdRenderIndex& index);
 
   // The scene as the core sees it; throws granular::InputError on bad data. A PointInstancer
   // of explicit grains (core's isExplicitGrainInstancer on its prototype meshes: each carries

@@ -228,6 +228,7 @@ void HdGranularRenderPass::_Execute(HdRenderPassStateSharedPtr const& state, TfT
   const GfVec2f lens = camera ? GfVec2f(camera->GetFStop(), camera->GetFocusDistance()) : GfVec2f(0.0f);
   const GfVec2d shutter = shutterOf(camera, delegate, GetRenderIndex());
 
+  _param->RefreshMeshLights(*GetRenderIndex());
   const int sceneVersion = _param->Version(), settingsVersion = delegate->GetRenderSettingsVersion();
   // An edit of the scene or of the settings: the description is assembled again and
   // compared with the one the scene was built from (compareScenes), which decides between

@@ -493,7 +493,8 @@ PYBIND11_MODULE(granular_core, m) {
       .value("Rect", LightType::Rect)
       .value("Dome", LightType::Dome)
       .value("Disk", LightType::Disk)
-      .value("Cylinder", LightType::Cylinder);
+      .value("Cylinder", LightType::Cylinder)
+      .value("Mesh", LightType::Mesh);
   py::class_<LightShaping>(m, "LightShaping")
       .def(py::init<>())
       .def_readwrite("enabled", &LightShaping::enabled)
@@ -530,6 +531,9 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("length", &LightDesc::length)
       .def_readwrite("shaping", &LightDesc::shaping)
       .def_readwrite("texture_file", &LightDesc::textureFile)
+      .def_readwrite("mesh", &LightDesc::mesh, "a mesh light's triangles (a copy: assign a whole TriangleMesh)")
+      .def_readwrite("double_sided", &LightDesc::doubleSided)
+      .def_readwrite("tint_by_material", &LightDesc::tintByMaterial)
       .def_readwrite("light_link", &LightDesc::lightLink)
       .def_readwrite("shadow_link", &LightDesc::shadowLink)
       .def_readwrite("shadows", &LightDesc::shadows);
@@ -726,7 +730,9 @@ PYBIND11_MODULE(granular_core, m) {
       .def_readwrite("granular", &MeshPrim::granular, "a copy: assign a whole dict {name: PrimvarValue}")
       .def_readwrite("api_schemas", &MeshPrim::apiSchemas)
       .def_readwrite("id", &MeshPrim::id)
-      .def_readwrite("link_categories", &MeshPrim::linkCategories);
+      .def_readwrite("link_categories", &MeshPrim::linkCategories)
+      .def_readwrite("light", &MeshPrim::light, "MeshLightAPI: its LightDesc (light_from_usd), or None")
+      .def_readwrite("double_sided", &MeshPrim::doubleSided);
 
   py::class_<AggregateValues>(m, "AggregateValues")
       .def_readonly("grain_radius", &AggregateValues::grainRadius)

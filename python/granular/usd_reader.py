@@ -427,6 +427,9 @@ def _mesh_prim(scene, prim, xf_cache, material_cache, drawn):
         mp.mesh = _tessellated(prim, time)
     mp.instances = [world_matrix(xf_cache, prim)]
     scene.name(mp.path, mp.path, {"transform": (mp.path, "transform")})
+    if drawn and _is_light(prim):  # MeshLightAPI: the surface is the light's body
+        mp.light = read_light(scene, prim, xf_cache)
+        mp.double_sided = bool(UsdGeom.Gprim(prim).GetDoubleSidedAttr().Get(time))
     # A boundary or grain with its API applied never uses a bound material: not read.
     if not has_api:
         idx = _bound_material(scene, prim, time, material_cache)
@@ -630,7 +633,9 @@ def _text_value(type_name, text):
 
 def read_light(scene, prim, xf_cache):
     """A UsdLux light through core (usd_lights.h), its light-link collections named in its
-    record (scene.light_links keeps their queries for the prims' categories)."""
+    record (scene.light_links keeps their queries for the prims' categories): added to the
+    scene, or, for a surface with MeshLightAPI, returned (its MeshPrim's light, which core
+    makes a mesh light of its triangles)."""
     record = prim_record(prim, core.usd_light_attribute_names(), scene.time, xf_cache)
     attrs = record.attributes
     api = UsdLux.LightAPI(prim)
@@ -644,8 +649,11 @@ def read_light(scene, prim, xf_cache):
     light, warnings = _core_call(core.light_from_usd, record)
     for w in warnings:
         scene.warn(w)
+    if light is not None and light.type == core.LightType.Mesh:
+        return light
     if light is not None:
         scene.desc.add_light(light)
+    return None
 
 
 def _transform_varies(prim):
@@ -762,10 +770,9 @@ def read_stage(path, camera=None, width=None, height=None, surfaces=True, need_c
             continue
         if not surfaces:
             continue
-        if _is_light(prim):
+        if _is_light(prim) and not (prim.IsA(UsdGeom.Mesh) or _is_implicit(prim)):
             read_light(scene, prim, xf_cache)
-            if not (prim.IsA(UsdGeom.Mesh) or _is_implicit(prim)):
-                continue  # a light; a surface with MeshLightAPI is drawn as well
+            continue  # a light; a surface with MeshLightAPI is a mesh light (_mesh_prim)
         if prim.IsA(UsdGeom.Mesh) or _is_implicit(prim):
             prims.append(_mesh_prim(scene, prim, xf_cache, material_cache, drawn=True))
         elif prim.IsA(UsdGeom.PointInstancer):

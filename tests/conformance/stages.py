@@ -582,10 +582,68 @@ def _():
     return granular_scene(lights=sky(extra=off) + sun(extra=NORMALIZED + off))
 
 
+GLOW_CARD = [(-0.2, 0.9, -0.2), (0.2, 0.9, -0.2), (0.2, 0.9, 0.2), (-0.2, 0.9, 0.2)]  # facing down
+
+
 @stage("mesh_light", "a mesh with MeshLightAPI (a geometry light) and a dim sky")
 def _():
-    card = mesh("Glow", [(-0.2, 0.9, -0.2), (0.2, 0.9, -0.2), (0.2, 0.9, 0.2), (-0.2, 0.9, 0.2)], [(0, 1, 2, 3)],
-                api=["MeshLightAPI"], extra="        float inputs:intensity = 20")
+    card = mesh("Glow", GLOW_CARD, [(0, 1, 2, 3)], api=["MeshLightAPI"], extra="        float inputs:intensity = 20")
+    return scene(lights=sky(0.1) + card)
+
+
+@stage("mesh_light_double_sided", "a mesh light wound to face up, doubleSided, normalised and warm")
+def _():
+    card = mesh("Glow", GLOW_CARD, [(3, 2, 1, 0)], api=["MeshLightAPI"],
+                extra="        float inputs:intensity = 3\n        bool inputs:normalize = 1\n"
+                      "        bool inputs:enableColorTemperature = 1\n        float inputs:colorTemperature = 3000\n"
+                      "        uniform bool doubleSided = 1")
+    return scene(lights=sky(0.1) + card)
+
+
+def glowing_card(extra=""):
+    """The card as a mesh light of intensity 20 bound to a material of emissiveColor (1, 0.4, 0.1)."""
+    card = mesh("Glow", GLOW_CARD, [(0, 1, 2, 3)], api=["MeshLightAPI"], material="/World/Looks/M",
+                extra="        float inputs:intensity = 20" + extra)
+    return scene(lights=sky(0.1) + card, objects=block() + looks(preview_material(
+        "M", ["color3f inputs:diffuseColor = (0.2, 0.2, 0.2)", "color3f inputs:emissiveColor = (1, 0.4, 0.1)"])))
+
+
+@stage("mesh_light_tinted", "a mesh light tinted by its material's emissiveColor (materialGlowTintsLight)")
+def _():
+    return glowing_card()
+
+
+@stage("mesh_light_untinted", "the tinted mesh light with light:materialSyncMode noMaterialResponse")
+def _():
+    return glowing_card('\n        uniform token light:materialSyncMode = "noMaterialResponse"')
+
+
+@stage("mesh_light_sphere", "a Sphere with MeshLightAPI (an implicit surface as a light)")
+def _():
+    return scene(lights=sky(0.1) + """
+    def Sphere "Glow" (
+        prepend apiSchemas = ["MeshLightAPI"]
+    )
+    {
+        double radius = 0.1
+        float inputs:intensity = 30
+        double3 xformOp:translate = (0.3, 0.7, 0.3)
+        uniform token[] xformOpOrder = ["xformOp:translate"]
+    }
+""")
+
+
+@stage("mesh_light_link", "a mesh light whose collection:lightLink holds the block alone (includeRoot 0)")
+def _():
+    card = mesh("Glow", GLOW_CARD, [(0, 1, 2, 3)], api=["MeshLightAPI"],
+                extra="        float inputs:intensity = 20\n        uniform bool collection:lightLink:includeRoot = 0\n"
+                      "        rel collection:lightLink:includes = </World/Block>")
+    return scene(lights=sky(0.1) + card)
+
+
+@stage("mesh_light_intensity_negative", "a mesh light of inputs:intensity -1 (invalid)")
+def _():
+    card = mesh("Glow", GLOW_CARD, [(0, 1, 2, 3)], api=["MeshLightAPI"], extra="        float inputs:intensity = -1")
     return scene(lights=sky(0.1) + card)
 
 

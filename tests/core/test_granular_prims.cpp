@@ -702,3 +702,52 @@ TEST(GranularPrims, InstancedGrainsFromEachPrototypesInstancesNameTheAttribute) 
   p.scales[4] = 2;
   EXPECT_EQ(read(p, {{0, 3}, {1, 2, 4}}).rfind("/World/Sim.scales: instance 1 has non-uniform scale", 0), 0u);
 }
+
+TEST(GranularPrims, ASurfaceWithALightIsAMeshLightPerInstanceNotDrawn) {
+  SceneDesc desc;
+  MaterialDesc glow;
+  glow.name = "glow";
+  glow.emission = Vec3(1.0f, 0.5f, 0.25f);
+  desc.materials.push_back(glow);
+  MeshPrim panel = meshPrim("/World/Panel", makeBox(Vec3(0.0f), Vec3(1.0f)));
+  panel.instances = {Transform::translate(Vec3(0, 2, 0)), Transform::translate(Vec3(3, 2, 0))};
+  panel.material = 0;
+  panel.doubleSided = true;
+  LightDesc light;
+  light.type = LightType::Mesh;
+  light.color = Vec3(0.5f);
+  light.tintByMaterial = true;
+  panel.light = light;
+  MeshPrim untinted = meshPrim("/World/Untinted", makeBox(Vec3(0.0f), Vec3(1.0f)));
+  untinted.material = 0;
+  untinted.light = light;
+  untinted.light->tintByMaterial = false;
+  MeshPrim hidden = untinted;
+  hidden.path = "/World/Hidden";
+  hidden.visible = false;  // an invisible light emits nothing
+  assembleGranularScene({panel, untinted, hidden, meshPrim("/World/Ground", makeBox(Vec3(-1.0f), Vec3(1.0f)))}, desc);
+  ASSERT_EQ(desc.meshes.size(), 1u);  // the ground alone is drawn
+  EXPECT_EQ(desc.meshes[0].name, "/World/Ground");
+  ASSERT_EQ(desc.lights.size(), 3u);
+  for (int i : {0, 1}) {
+    const LightDesc& l = desc.lights[size_t(i)];
+    EXPECT_EQ(l.name, "/World/Panel");
+    EXPECT_EQ(l.type, LightType::Mesh);
+    EXPECT_EQ(l.mesh.numTriangles(), 12u);
+    EXPECT_TRUE(l.doubleSided);
+    EXPECT_FALSE(l.tintByMaterial);  // applied
+    EXPECT_EQ(l.color, Vec3(0.5f, 0.25f, 0.125f));
+  }
+  EXPECT_EQ(desc.lights[0].xf.point(Vec3(0.0f)), Vec3(0, 2, 0));
+  EXPECT_EQ(desc.lights[1].xf.point(Vec3(0.0f)), Vec3(3, 2, 0));
+  EXPECT_EQ(desc.lights[2].name, "/World/Untinted");
+  EXPECT_EQ(desc.lights[2].color, Vec3(0.5f));
+  EXPECT_FALSE(desc.lights[2].doubleSided);
+  // A light core refuses names the prim, in USD's names.
+  SceneDesc bad;
+  MeshPrim flat = meshPrim("/World/Flat", makeBox(Vec3(0.0f), Vec3(1.0f)));
+  flat.light = light;
+  flat.light->intensity = -1;
+  EXPECT_EQ(granular::testing::errorOf([&] { assembleGranularScene({flat}, bad); }),
+            "/World/Flat.inputs:intensity: -1 must be finite and >= 0");
+}

@@ -502,6 +502,56 @@ void expectFloorRadiance(const std::vector<LightDesc>& lights, double expected, 
   EXPECT_NEAR(e.mean[0], expected, 4 * e.se[0] + 2e-4 * expected) << "se " << e.se[0];
 }
 
+// Light l sampled from p at the midpoints of an m × m grid of (u1, u2): every stride-th
+// sample accepted meets the light at its distance (intersect), where pdfLi agrees with its
+// pdf (1 / pdf, its weight, within pdfTolerance of the largest) and areaLe with its
+// radiance; and pdfLi integrates over the directions that meet the light, drawn uniform in
+// the cone about the sphere (c, R) that bounds it, to the share of samples accepted (uniform
+// directions against stratified points: two ways of measuring one area; the share on the
+// grid is exact but for the cells its edge crosses: within 2 / m). Returns that share.
+double expectSamplesMeetTheLight(const Light& l, const std::string& name, const Vec3& p, int m, int stride,
+                                 float pdfTolerance, const Vec3& c, double R, uint64_t seed) {
+  int accepted = 0;
+  float largestWeight = 0;
+  std::vector<LightSample> checked;
+  for (int i = 0; i < m; ++i)
+    for (int j = 0; j < m; ++j) {
+      LightSample s;
+      if (!l.sampleLi(p, (i + 0.5f) / m, (j + 0.5f) / m, s)) continue;
+      ++accepted;
+      largestWeight = std::max(largestWeight, 1.0f / s.pdf);
+      if ((i * m + j) % stride == 0) checked.push_back(s);
+    }
+  EXPECT_GT(checked.size(), 1000u) << name;
+  for (const LightSample& s : checked) {
+    float t = 0;
+    if (!l.intersect(Ray{p, s.wi, 1e-4f, kInf}, t)) {
+      ADD_FAILURE() << name << ": a sample's direction misses the light";
+      break;
+    }
+    EXPECT_NEAR(t, s.dist, 1e-4f * s.dist) << name;
+    EXPECT_NEAR(1.0f / l.pdfLi(p, s.wi, t), 1.0f / s.pdf, pdfTolerance * largestWeight) << name;
+    EXPECT_EQ(l.areaLe(p + s.wi * t, s.wi).x, s.Li.x) << name;
+  }
+  const double share = double(accepted) / (double(m) * m);
+  const double sin2 = R * R / double(length2(c - p));
+  const Frame toLight(normalize(c - p));
+  Rng rng(seed);
+  const int n = 1 << 19;
+  double sum = 0, sum2 = 0;
+  for (int k = 0; k < n; ++k) {
+    const Vec3 w = toLight.toWorld(sampleUniformConeSin2(rng.next1D(), rng.next1D(), sin2));
+    float t;
+    if (!l.intersect(Ray{p, w, 0.0f, kInf}, t)) continue;
+    const double v = l.pdfLi(p, w, t) / uniformConePdfSin2(sin2);
+    sum += v;
+    sum2 += v * v;
+  }
+  const double mean = sum / n, se = std::sqrt((sum2 / n - mean * mean) / n);
+  EXPECT_NEAR(mean, share, 4 * se + 2.0 / m) << name << " se " << se;
+  return share;
+}
+
 }  // namespace
 
 TEST(DiskAndCylinderLights, SamplesMeetTheLightWhereTheirPdfSays) {
@@ -517,55 +567,15 @@ TEST(DiskAndCylinderLights, SamplesMeetTheLightWhereTheirPdfSays) {
   tube.xf = Transform::lookAt(Vec3(0.5f, 1.5f, 0.2f), Vec3(0.8f, 0.5f, 0.7f), Vec3(0, 0, 1));
   const Vec3 p(-0.2f, 0.1f, 0.3f);
   for (const LightDesc& desc : {disk, tube}) {
-    const Light l = Light::fromDesc(desc);
-    const int m = 1024;
-    int accepted = 0;
-    float largestWeight = 0;  // of 1 / pdf over the samples
-    std::vector<LightSample> checked;  // a subset, checked against intersect and pdfLi below
-    for (int i = 0; i < m; ++i)
-      for (int j = 0; j < m; ++j) {
-        LightSample s;
-        if (!l.sampleLi(p, (i + 0.5f) / m, (j + 0.5f) / m, s)) continue;
-        ++accepted;
-        largestWeight = std::max(largestWeight, 1.0f / s.pdf);
-        if ((i * m + j) % 389 == 0) checked.push_back(s);
-      }
-    ASSERT_GT(checked.size(), 1000u);
-    for (const LightSample& s : checked) {
-      Ray r{p, s.wi, 1e-4f, kInf};
-      float t = 0;
-      ASSERT_TRUE(l.intersect(r, t)) << desc.name;
-      EXPECT_NEAR(t, s.dist, 1e-4f * s.dist) << desc.name;
-      // 1 / pdf, the sample's weight: near a cylinder's silhouette a ray meets the side
-      // ill-conditioned (a few ulps move the hit, its normal and cos θ_light by percents),
-      // where the weight is small: within 0.1% of the largest.
-      EXPECT_NEAR(1.0f / l.pdfLi(p, s.wi, t), 1.0f / s.pdf, 1e-3f * largestWeight) << desc.name;
-      EXPECT_EQ(l.areaLe(p + s.wi * t, s.wi).x, s.Li.x);
-    }
-    // The share on the grid is exact but for the cells its edge crosses: within 2 / m.
-    const double share = double(accepted) / (double(m) * m);
-    EXPECT_GT(share, 0.2) << desc.name;
-    // ∫ pdfLi over directions, by directions uniform in a cone about the light's bounding
-    // sphere (every direction that meets the light lies in it).
-    const Vec3 c = desc.xf.point(Vec3(0.0f));
+    // Near a cylinder's silhouette a ray meets the side ill-conditioned (a few ulps move the
+    // hit, its normal and cos θ_light by percents), where the weight is small: its 1 / pdf
+    // within 0.1% of the largest. Every direction that meets the light lies in the cone
+    // about its bounding sphere.
     const float R = desc.type == LightType::Disk ? desc.radius
                                                  : std::sqrt(0.25f * desc.length * desc.length + desc.radius * desc.radius);
-    const double sin2 = double(R) * R / double(length2(c - p));
-    const Frame toLight(normalize(c - p));
-    Rng rng(7);
-    const int n = 1 << 19;
-    double sum = 0, sum2 = 0;
-    for (int k = 0; k < n; ++k) {
-      const Vec3 w = toLight.toWorld(sampleUniformConeSin2(rng.next1D(), rng.next1D(), sin2));
-      Ray r{p, w, 0.0f, kInf};
-      float t;
-      if (!l.intersect(r, t)) continue;
-      const double v = l.pdfLi(p, w, t) / uniformConePdfSin2(sin2);
-      sum += v;
-      sum2 += v * v;
-    }
-    const double mean = sum / n, se = std::sqrt((sum2 / n - mean * mean) / n);
-    EXPECT_NEAR(mean, share, 4 * se + 2.0 / m) << desc.name << " se " << se;
+    const double share = expectSamplesMeetTheLight(Light::fromDesc(desc), desc.name, p, 1024, 389, 1e-3f,
+                                                   desc.xf.point(Vec3(0.0f)), R, 7);
+    EXPECT_GT(share, 0.2) << desc.name;
   }
 }
 
@@ -1161,4 +1171,130 @@ TEST(SunRegularization, AGrainThePixelsResolveKeepsItsSharpGlint) {
   for (int y = 0; y < 16; ++y)
     for (int x = 0; x < 16; ++x) differs = differs || wideOn.at(x, y)[0] != wideOff.at(x, y)[0];
   EXPECT_TRUE(differs);
+}
+
+namespace {
+
+// A valley of two panels, y = 0.5 |x| over x, z in [−0.3, 0.3] (points relative to the
+// light's origin), wound to face down: a convex height field, so a direction from below
+// meets it at most once on its front and one from above at most once on its back.
+LightDesc valleyLight(const std::string& name, float intensity, const Transform& xf, bool doubleSided = false) {
+  LightDesc l;
+  l.name = name;
+  l.type = LightType::Mesh;
+  l.intensity = intensity;
+  l.xf = xf;
+  l.doubleSided = doubleSided;
+  l.mesh.points = {Vec3(-0.3f, 0.15f, -0.3f), Vec3(0, 0, -0.3f), Vec3(0.3f, 0.15f, -0.3f),
+                   Vec3(-0.3f, 0.15f, 0.3f),  Vec3(0, 0, 0.3f),  Vec3(0.3f, 0.15f, 0.3f)};
+  l.mesh.indices = {0, 1, 4, 0, 4, 3, 1, 2, 5, 1, 5, 4};
+  return l;
+}
+
+// The valley at `at` in m × m cells per panel, for floorRadiance.
+auto valleyEmitters(double ax, double ay, double az, int m) {
+  return [=](auto&& f) {
+    const double s = 1 / std::sqrt(1.25), dA = (0.3 / m) * (0.6 / m) * std::sqrt(1.25);
+    for (int side : {-1, 1})
+      for (int a = 0; a < m; ++a)
+        for (int b = 0; b < m; ++b) {
+          const double x = side * 0.3 * (a + 0.5) / m, z = -0.3 + 0.6 * (b + 0.5) / m;
+          f(ax + x, ay + 0.5 * std::fabs(x), az + z, side * 0.5 * s, -s, 0.0, dA);
+        }
+  };
+}
+
+// A world-space mesh's triangles, each cut into k² (k along each edge) whose centroids
+// stand for them, for floorRadiance (front faces: counter-clockwise).
+auto meshEmitters(const TriangleMesh& m, int k) {
+  return [&m, k](auto&& f) {
+    for (size_t t = 0; t < m.numTriangles(); ++t) {
+      const Vec3 a = m.points[m.indices[3 * t]], b = m.points[m.indices[3 * t + 1]], c = m.points[m.indices[3 * t + 2]];
+      const Vec3 cr = cross(b - a, c - a);
+      const double area = 0.5 * length(cr) / (k * k);
+      const Vec3 n = normalize(cr);
+      const Vec3 u = (b - a) / float(k), v = (c - a) / float(k);
+      // The k(k + 1)/2 sub-triangles that point as the triangle does, and the k(k − 1)/2
+      // between them that point the other way.
+      for (int i = 0; i < k; ++i)
+        for (int j = 0; i + j < k; ++j) {
+          const Vec3 o = a + u * float(i) + v * float(j), up = o + (u + v) / 3.0f, down = o + (u + v) * (2.0f / 3.0f);
+          f(up.x, up.y, up.z, n.x, n.y, n.z, area);
+          if (i + j < k - 1) f(down.x, down.y, down.z, n.x, n.y, n.z, area);
+        }
+    }
+  };
+}
+
+}  // namespace
+
+TEST(MeshLights, SamplesMeetTheLightWhereTheirPdfSays) {
+  // The valley turned and moved, seen from below its front (one-sided) and from above its
+  // back (double-sided): a sample meets the light at its distance, where pdfLi and areaLe
+  // agree with it; the pdf integrates over the directions that meet the light to the share
+  // of samples accepted; the radiance is intensity / area when normalised.
+  const Vec3 at(0.2f, 1.5f, -0.1f);
+  const Transform xf = Transform::lookAt(at, at + Vec3(0.3f, -0.2f, -1), Vec3(0, 1, 0));
+  LightDesc below = valleyLight("below", 2, xf), above = valleyLight("above", 2, xf, true);
+  above.normalize = true;
+  const double area = 2 * 0.3 * 0.6 * std::sqrt(1.25);
+  EXPECT_NEAR(normalizationArea(above), area, 1e-5 * area);
+  for (const auto& [desc, p] : {std::pair{below, Vec3(-0.1f, 0.4f, 0.2f)}, std::pair{above, Vec3(0.1f, 2.6f, -0.3f)}}) {
+    const Light l = Light::fromDesc(desc);
+    const double share = expectSamplesMeetTheLight(l, desc.name, p, 512, 97, 1e-4f, xf.point(Vec3(0, 0.075f, 0)), 0.45, 11);
+    EXPECT_GT(share, 0.99) << desc.name;  // every face turns its emitting side to p
+    LightSample s;
+    ASSERT_TRUE(l.sampleLi(p, 0.3f, 0.6f, s));
+    EXPECT_FLOAT_EQ(s.Li.y, desc.normalize ? float(2 / area) : 2.0f) << desc.name;
+  }
+  // One-sided, its back neither emits nor blocks: from above nothing is sampled or met.
+  const Light oneSided = Light::fromDesc(below);
+  LightSample s;
+  int sampled = 0;
+  for (int i = 0; i < 64; ++i) sampled += oneSided.sampleLi(Vec3(0.1f, 2.6f, -0.3f), (i + 0.5f) / 64, 0.5f, s);
+  EXPECT_EQ(sampled, 0);
+  float t;
+  EXPECT_FALSE(oneSided.intersect(Ray{Vec3(0.2f, 2.6f, -0.1f), Vec3(0, -1, 0), 0.0f, kInf}, t));
+  EXPECT_TRUE(oneSided.intersect(Ray{Vec3(0.2f, 0.5f, -0.1f), Vec3(0, 1, 0), 0.0f, kInf}, t));
+}
+
+TEST(MeshLights, AFloorUnderAMeshLightHasTheRadianceItsFacesGive) {
+  // Light sampling, BSDF rays that meet the faces and their MIS weights add up to the
+  // floor's radiance integrated over the faces by the midpoint rule. Over the view, the
+  // camera above sees the light's backs, which let its rays through. Beside the view, the
+  // same valley flipped to face up and double-sided lights the floor as much.
+  const double over = floorRadiance(valleyEmitters(0.1, 0.8, 0.0, 100), 24);
+  expectFloorRadiance({valleyLight("valley", 1, Transform::translate(Vec3(0.1f, 0.8f, 0)))}, over, 256);
+  const double beside = floorRadiance(valleyEmitters(0.1, 0.8, 0.5, 100), 24);
+  expectFloorRadiance({valleyLight("valley", 1, Transform::translate(Vec3(0.1f, 0.8f, 0.5f)))}, beside, 256);
+  LightDesc flipped = valleyLight("flipped", 1, Transform::translate(Vec3(0.1f, 0.8f, 0.5f)), true);
+  flipped.mesh.flip();
+  expectFloorRadiance({flipped}, beside, 256);
+  // A closed ball of 320 faces 0.2 above the floor beside the view: shadow rays leave the
+  // floor from an offset origin and, toward a point near its silhouette, meet the ball a
+  // little short of it; they counted as blocked (6.6% dark) until faces met within the
+  // tolerance of the end stopped blocking.
+  LightDesc ball;
+  ball.name = "ball";
+  ball.type = LightType::Mesh;
+  ball.mesh = makeIcosphere(2);
+  for (Vec3& p : ball.mesh.points) p *= 0.1f;
+  ball.xf = Transform::translate(Vec3(0, 0.3f, 0.4f));
+  const TriangleMesh world = ball.mesh.transformed(ball.xf);
+  expectFloorRadiance({ball}, floorRadiance(meshEmitters(world, 16), 24), 1024);
+}
+
+TEST(MeshLights, AreRefusedWithoutAreaOrWithShaping) {
+  using granular::testing::errorOf;
+  LightDesc l = valleyLight("flat", 1, Transform());
+  for (Vec3& p : l.mesh.points) p.y = 0.0f, p.z = 0.0f;  // every triangle a segment
+  EXPECT_EQ(errorOf([&] { validateLightDesc(l, "/World/Flat"); }),
+            "/World/Flat.points: the mesh has no area, so it cannot emit");
+  l = valleyLight("empty", 1, Transform());
+  l.mesh = TriangleMesh();
+  EXPECT_EQ(errorOf([&] { validateLightDesc(l, "/World/Empty"); }), "/World/Empty.faceVertexIndices: has no triangles");
+  l = valleyLight("shaped", 1, Transform());
+  l.shaping.enabled = true;
+  EXPECT_EQ(errorOf([&] { validateLightDesc(l, "/World/Shaped"); }),
+            "/World/Shaped.shaping: is not supported on a mesh light");
 }

@@ -11,6 +11,7 @@
 
 #include "core/error.h"
 #include "core/image_io.h"
+#include "core/light.h"
 #include "core/scene_io.h"
 #include "core/shapes.h"
 
@@ -713,16 +714,33 @@ TEST(SceneIo, DiskAndCylinderLightsAndShapingParse) {
   EXPECT_EQ(d.lights[1].shaping.focusTint, Vec3(0.1f, 0.2f, 0.3f));
   EXPECT_FALSE(d.lights[2].shaping.enabled);
   // Errors name the light and the key.
-  auto error = [](const std::string& text) {
-    try {
-      parseSceneJson(text, "x.json");
-    } catch (const InputError& e) {
-      return std::string(e.what());
-    }
-    return std::string("NO ERROR");
-  };
-  EXPECT_CONTAINS(error(R"({"lights": [{"name": "t", "type": "cylinder", "length": 0}]})"), "t.length");
-  EXPECT_CONTAINS(error(R"({"lights": [{"name": "t", "type": "disk", "shaping_focus_tint": [-1, 0, 0]}]})"),
+  EXPECT_CONTAINS(errorOf(std::string(R"({"lights": [{"name": "t", "type": "cylinder", "length": 0}]})")), "t.length");
+  EXPECT_CONTAINS(errorOf(std::string(R"({"lights": [{"name": "t", "type": "disk", "shaping_focus_tint": [-1, 0, 0]}]})")),
                   "t.shaping_focus_tint");
-  EXPECT_CONTAINS(error(R"({"lights": [{"name": "s", "type": "distant", "shaping_focus": 1}]})"), "s.shaping_focus");
+  EXPECT_CONTAINS(errorOf(std::string(R"({"lights": [{"name": "s", "type": "distant", "shaping_focus": 1}]})")), "s.shaping_focus");
+}
+
+TEST(SceneIo, MeshLightsParseTheirShape) {
+  SceneDesc d = parseSceneJson(R"({"lights": [
+      {"name": "panel", "type": "mesh", "transform": {"translate": [0, 2, 0]}, "double_sided": true,
+       "shape": {"mesh": {"points": [[0, 0, 0], [1, 0, 0], [1, 0, 1], [0, 0, 1]],
+                          "face_vertex_counts": [4], "face_vertex_indices": [0, 1, 2, 3]}}},
+      {"name": "ball", "type": "mesh", "intensity": 2, "normalize": true, "shape": {"icosphere": {"radius": 0.5}}}]})",
+                               "x.json");
+  ASSERT_EQ(d.lights.size(), 2u);
+  EXPECT_EQ(d.lights[0].type, LightType::Mesh);
+  EXPECT_EQ(d.lights[0].mesh.numTriangles(), 2u);
+  EXPECT_TRUE(d.lights[0].doubleSided);
+  expectNear(d.lights[0].xf.point({0, 0, 0}), {0, 2, 0});
+  EXPECT_EQ(d.lights[1].type, LightType::Mesh);
+  EXPECT_GT(d.lights[1].mesh.numTriangles(), 20u);
+  EXPECT_FALSE(d.lights[1].doubleSided);
+  EXPECT_NEAR(normalizationArea(d.lights[1]), d.lights[1].mesh.area(), 1e-6);
+  EXPECT_CONTAINS(errorOf(std::string(R"({"lights": [{"name": "m", "type": "mesh"}]})")), "m.shape");
+  EXPECT_CONTAINS(errorOf(std::string(R"({"lights": [{"name": "m", "type": "mesh", "shaping_cone_angle": 30,
+                                        "shape": {"icosphere": {"radius": 1}}}]})")),
+                  "m.shaping_cone_angle");
+  EXPECT_CONTAINS(errorOf(std::string(R"({"lights": [{"name": "m", "type": "mesh", "shape": {"mesh": {"points": [[0, 0, 0], [1, 0, 0], [2, 0, 0]],
+                                        "face_vertex_counts": [3], "face_vertex_indices": [0, 1, 2]}}}]})")),
+                  "m.points: the mesh has no area");
 }

@@ -269,3 +269,30 @@ TEST(UsdLights, BadValuesNameThePrimAndItsAttribute) {
   EXPECT_EQ(longText.compare(0, shown.size(), shown), 0) << e;
   EXPECT_NE((static_cast<unsigned char>(longText[shown.size()]) & 0xC0), 0x80u) << e;  // cut before a character
 }
+
+TEST(UsdLights, ASurfaceWithMeshLightApiIsAMeshLightTintedAsItsSyncModeSays) {
+  // Its triangles come from the front end's MeshPrim (granular_prims.h): none yet.
+  UsdWarnings w;
+  for (const char* type : {"Mesh", "Sphere", "Cube"}) {
+    const LightDesc l = *lightFromUsd(usdRecord("/Panel", type, {{"inputs:intensity", usdNumbers("float", {3})}}), w);
+    EXPECT_EQ(l.type, LightType::Mesh) << type;
+    EXPECT_FLOAT_EQ(l.intensity, 3.0f);
+    EXPECT_TRUE(l.tintByMaterial);  // MeshLightAPI's fallback: materialGlowTintsLight
+    EXPECT_TRUE(l.mesh.points.empty());
+  }
+  for (const char* mode : {"independent", "noMaterialResponse"})
+    EXPECT_FALSE(lightFromUsd(usdRecord("/Panel", "Mesh", {{"light:materialSyncMode", usdText("token", mode)}}), w)
+                     ->tintByMaterial)
+        << mode;
+  EXPECT_TRUE(w.empty());
+  const LightDesc shaped =
+      *lightFromUsd(usdRecord("/Panel", "Mesh", {{"inputs:shaping:cone:angle", usdNumbers("float", {20})}}), w);
+  EXPECT_FALSE(shaped.shaping.enabled);
+  ASSERT_EQ(w.size(), 1u);
+  EXPECT_EQ(w[0], "/Panel: ShapingAPI on a mesh light is not supported; ignored");
+  EXPECT_EQ(errorOf(usdRecord("/Panel", "Mesh", {{"light:materialSyncMode", usdText("token", "glow")}})),
+            "/Panel.light:materialSyncMode: \"glow\" is not one of materialGlowTintsLight, independent, "
+            "noMaterialResponse");
+  EXPECT_EQ(errorOf(usdRecord("/Panel", "Mesh", {{"inputs:intensity", usdNumbers("float", {-1})}})),
+            "/Panel.inputs:intensity: -1 must be finite and >= 0");
+}

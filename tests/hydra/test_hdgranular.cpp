@@ -1637,3 +1637,46 @@ TEST(HdGranularMotionBlur, TurnedOffTheImageIsTheStillFrame) {
   EXPECT_GT(sumAbsDifference(blurred, still), 0.0);
   EXPECT_EQ(off.values, still.values);
 }
+
+TEST(HdGranular, AMeshLightLightsAsTheRectOfItsQuadAndFollowsEdits) {
+  // The floor facing the camera under a unit quad 3 above it with MeshLightAPI (the dome
+  // off), facing the floor: the same light as a RectLight there, within the two renders'
+  // noise, as granular render renders both (tests/python/test_mesh_light.py; tests/conformance:
+  // mesh_light). Its intensity doubled on the live stage doubles the image sample for sample.
+  const std::string quad = R"(
+  def Mesh "Panel" (
+    prepend apiSchemas = ["MeshLightAPI"]
+  ) {
+    point3f[] points = [(-0.5, -0.5, 3), (-0.5, 0.5, 3), (0.5, 0.5, 3), (0.5, -0.5, 3)]
+    int[] faceVertexCounts = [4]
+    int[] faceVertexIndices = [0, 1, 2, 3]
+    float inputs:intensity = 4
+  }
+)";
+  const std::string rect = R"(
+  def RectLight "Panel" {
+    float inputs:intensity = 4
+    double3 xformOp:translate = (0, 0, 3)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+  }
+)";
+  auto stageWith = [&](std::string const& light) {
+    UsdStageRefPtr stage = domeLitStage(4, std::string(kFloorFacingCamera) + light);
+    EXPECT_TRUE(stage->GetPrimAtPath(SdfPath("/World/Sky")).SetActive(false));
+    return stage;
+  };
+  UsdStageRefPtr meshLit = stageWith(quad);
+  auto engine = makeEngine(64);
+  double seMesh = 0, seRect = 0;
+  const double byMesh = meanAndError(*engine, meshLit, 8, seMesh);
+  const double byRect = meanAndError(*makeEngine(64), stageWith(rect), 8, seRect);
+  EXPECT_GT(byMesh, 0);
+  EXPECT_NEAR(byMesh, byRect, 4 * std::hypot(seMesh, seRect)) << "se " << seMesh << ", " << seRect;
+  const Frame before = render(*engine, meshLit, HdAovTokens->color, 8, 8);
+  ASSERT_TRUE(meshLit->GetPrimAtPath(SdfPath("/World/Panel")).GetAttribute(TfToken("inputs:intensity")).Set(8.0f));
+  const Frame after = render(*engine, meshLit, HdAovTokens->color, 8, 8);
+  ASSERT_EQ(before.values.size(), after.values.size());
+  for (size_t i = 0; i < before.values.size(); ++i)
+    if (i % before.channels < 3) EXPECT_NEAR(after.values[i], 2 * before.values[i], 1e-5f * (1 + after.values[i])) << i;
+  std::printf("floor: mesh light %.5f ± %.5f, rect light %.5f ± %.5f\n", byMesh, seMesh, byRect, seRect);
+}

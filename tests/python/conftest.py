@@ -41,6 +41,20 @@ def dome_world(path):
     return stage
 
 
+def floor_world(path):
+    """A new stage at `path` with /World, /World/Camera 15 units up +z looking down -z, and a
+    grey floor /World/Floor (60 x 60, at z = 0) filling its view; no light."""
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.Xform.Define(stage, "/World")
+    cam = UsdGeom.Camera.Define(stage, "/World/Camera")
+    UsdGeom.Xformable(cam).AddTranslateOp().Set(Gf.Vec3d(0, 0, 15))
+    floor = UsdGeom.Mesh.Define(stage, "/World/Floor")
+    floor.CreatePointsAttr([(-30, -30, 0), (30, -30, 0), (30, 30, 0), (-30, 30, 0)])
+    floor.CreateFaceVertexCountsAttr([4])
+    floor.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    return stage
+
+
 def dome_card(path, color=(0.5, 0.5, 0.5)):
     """A Lambert card of displayColor `color` filling the view of /Camera under a uniform
     dome: every sample of a pixel carries nearly the same radiance (little noise)."""

@@ -7,9 +7,9 @@ import json
 import subprocess
 
 import numpy as np
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
+from pxr import Gf, Sdf, UsdGeom, UsdLux
 
-from conftest import BUILD, run_cli
+from conftest import BUILD, floor_world, run_cli
 from noise_check import rgb_and_variance
 
 # A downlight of 5 candela in every direction of its lower half, and a photograph.
@@ -19,14 +19,7 @@ CONSTANT = "IESNA:LM-63-2002\n[TEST] constant\nTILT=NONE\n1 -1 1 3 1 1 2 0 0 0\n
 def _floor_under_disk(path, profile=None, normalize=None):
     """A grey floor 15 below the camera under a disk light 3 above it, facing it; with
     `profile` (a path relative to the stage), its IES profile."""
-    stage = Usd.Stage.CreateNew(str(path))
-    UsdGeom.Xform.Define(stage, "/World")
-    cam = UsdGeom.Camera.Define(stage, "/World/Camera")
-    UsdGeom.Xformable(cam).AddTranslateOp().Set(Gf.Vec3d(0, 0, 15))
-    floor = UsdGeom.Mesh.Define(stage, "/World/Floor")
-    floor.CreatePointsAttr([(-30, -30, 0), (30, -30, 0), (30, 30, 0), (-30, 30, 0)])
-    floor.CreateFaceVertexCountsAttr([4])
-    floor.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    stage = floor_world(path)
     disk = UsdLux.DiskLight.Define(stage, "/World/Disk")
     disk.CreateRadiusAttr(0.5)
     disk.CreateIntensityAttr(4.0)
