@@ -185,7 +185,10 @@ void validateLightDesc(const LightDesc& l, const std::string& obj, bool geometry
       for (const Vec3& p : world.points)
         if (!(std::fabs(p.x) <= kMaxCoordinate && std::fabs(p.y) <= kMaxCoordinate && std::fabs(p.z) <= kMaxCoordinate))
           throw InputError(obj, "points", str("a point at ", fmt(p), " in world space is beyond +-", kMaxCoordinate));
-      if (!(world.area() > 0)) throw InputError(obj, "points", "the mesh has no area, so it cannot emit");
+      const double area = world.area();
+      if (!(area > 0)) throw InputError(obj, "points", "the mesh has no area, so it cannot emit");
+      // Its faces' areas are sampled in float (a face 10^19 across would be infinite).
+      if (!(area <= 1e30)) throw InputError(obj, "points", str("the mesh's area ", area, " exceeds 1e30"));
       break;
     }
   }

@@ -1293,6 +1293,9 @@ TEST(MeshLights, AreRefusedWithoutAreaOrWithShaping) {
   l = valleyLight("empty", 1, Transform());
   l.mesh = TriangleMesh();
   EXPECT_EQ(errorOf([&] { validateLightDesc(l, "/World/Empty"); }), "/World/Empty.faceVertexIndices: has no triangles");
+  l = valleyLight("huge", 1, Transform());
+  for (Vec3& p : l.mesh.points) p *= 3e15f;  // within the coordinates' bound, 10^30 across in area
+  EXPECT_EQ(errorOf([&] { validateLightDesc(l, "/World/Huge"); }).find("/World/Huge.points: the mesh's area "), 0u);
   l = valleyLight("shaped", 1, Transform());
   l.shaping.enabled = true;
   EXPECT_EQ(errorOf([&] { validateLightDesc(l, "/World/Shaped"); }),
