@@ -15,7 +15,7 @@ valley of two tilted panels; "emissive_quad" is the quad as an emissive surface,
 BSDF rays find (what a stage could do before mesh lights). A table (--mesh-sizes 1) prices a
 mesh light's triangles: a ball as icospheres of 80 to 20480 triangles against the sphere light.
 A last table (with --grain-spp) lights the sugar cube by a softbox, as a mesh light and as an
-emissive surface.
+emissive surface. Another (--many 1) times the floor under 4 to 1024 small sphere lights.
 
 The "ies" lights carry an IES profile (UsdLuxShapingAPI's inputs:shaping:ies:*): the
 reference evaluates the profile here (linear in the vertical and the horizontal angle, in
@@ -30,7 +30,7 @@ rendered by `granular render` with that cone alone and with the downlight's prof
 Usage: .venv/bin/python bench/area_lights.py [--spp 1024] [--width 32] [--build build]
        [--out out/bench/area_lights]
        [--lights sphere,rect,disk,cylinder,spot,ies,ies_scaled,ies_asym,mesh_quad,mesh_valley,emissive_quad]
-       [--grain-spp 16] [--mesh-sizes 1]
+       [--grain-spp 16] [--mesh-sizes 1] [--many 1]
 """
 import argparse
 import json
@@ -291,6 +291,7 @@ def main():
     ap.add_argument("--lights", default=",".join(LIGHTS))
     ap.add_argument("--grain-spp", type=int, default=16, help="0: no grain scene table")
     ap.add_argument("--mesh-sizes", type=int, default=1, help="0: no table of mesh lights by triangle count")
+    ap.add_argument("--many", type=int, default=1, help="0: no table of render time against the number of lights")
     a = ap.parse_args()
     sys.path[:0] = [os.path.join(a.build, "python"), os.path.join(ROOT, "python")]
     import granular_core as core
@@ -324,6 +325,8 @@ def main():
         print(f"| {label} | {len(v)} × {len(h)} | {1000 * best:.1f} |", flush=True)
     if a.mesh_sizes:
         mesh_size_table(a)
+    if a.many:
+        many_lights_table(a)
     if a.grain_spp > 0:
         grain_table(a)
         spot_pick_table(a)
@@ -368,6 +371,22 @@ def softbox_table(a):
         stage.Save()
         t, mean, se, per_sample = render_usd_best_of_3(a, path, "softbox", "G")
         print(f"| {label} | {t:.2f} | {mean:.5f} ± {se:.5f} | {per_sample:.2f} |", flush=True)
+
+
+def many_lights_table(a):
+    """The floor lit by n small sphere lights (radius 0.02, or a third of their spacing) on a
+    ring 0.6 from the view's centre, 0.3 above the floor, of equal total power: the render time as n grows (every ray asks the area
+    lights: one by one, or through their BVH from Scene::kAreaLightBvhMin on)."""
+    print("\n| sphere lights | mean | s.e. per sample | render s |")
+    print("|---|---|---|---|")
+    for n in (4, 16, 64, 256, 1024):
+        r = min(0.02, 0.3 * np.pi * 0.6 / n)  # apart: a third of the spacing at most
+        sc = scene("sphere", a.width, a.spp)
+        sc["lights"] = [{"name": f"bulb{k}", "type": "sphere", "radius": r, "intensity": 64.0 / n * (0.02 / r) ** 2,
+                         "position": [0.6 * np.cos(2 * np.pi * k / n), 0.3, 0.6 * np.sin(2 * np.pi * k / n)]}
+                        for k in range(n)]
+        mean, _, per_sample, t = render_json(a, sc, f"many_{n}")
+        print(f"| {n} | {mean:.5f} | {per_sample:.2f} | {t:.2f} |", flush=True)
 
 
 def mesh_size_table(a):

@@ -665,6 +665,35 @@ bool Light::intersect(const Ray& r, float& t) const {
   return false;
 }
 
+Bounds3 Light::bounds() const {
+  Bounds3 b;
+  switch (type_) {
+    case LightType::Sphere:
+      b.extend(center_ - Vec3(radius_));
+      b.extend(center_ + Vec3(radius_));
+      break;
+    case LightType::Rect:
+      for (float u : {0.0f, 1.0f})
+        for (float v : {0.0f, 1.0f}) b.extend(corner_ + edgeU_ * u + edgeV_ * v);
+      break;
+    case LightType::Disk: {  // the box of its rim: ± |each axis's reach| about the centre
+      const Vec3 r(std::hypot(edgeU_.x, edgeV_.x), std::hypot(edgeU_.y, edgeV_.y), std::hypot(edgeU_.z, edgeV_.z));
+      b.extend(center_ - r);
+      b.extend(center_ + r);
+      break;
+    }
+    case LightType::Cylinder:
+      for (float s : {-1.0f, 1.0f}) {
+        b.extend(center_ + axis_ * (s * halfLength_) - Vec3(radius_));
+        b.extend(center_ + axis_ * (s * halfLength_) + Vec3(radius_));
+      }
+      break;
+    case LightType::Mesh: b = emitter_->bounds; break;
+    default: break;
+  }
+  return b;
+}
+
 bool Light::endsOn(const Vec3& e, float tol) const {
   switch (type_) {
     case LightType::Sphere: return std::fabs(length(e - center_) - radius_) <= tol;

@@ -76,6 +76,8 @@ class Light {
   float pdfLi(const Vec3& p, const Vec3& wi, float dist, const Vec3& above = Vec3(0.0f)) const;
   // For area lights: nearest hit of the emitting shape in (tmin, tmax).
   bool intersect(const Ray& r, float& t) const;
+  // For area lights: a box holding the emitting shape (Scene's BVH over many lights).
+  Bounds3 bounds() const;
   // Whether point e lies on this area light's emitting surface, within tol: a shadow ray
   // that ends there was aimed at this light, which (convex, and sampled only where it
   // faces the ray) cannot block it — though intersect() may meet it a little short of e,

@@ -761,6 +761,7 @@ std::vector<LightDesc> Scene::buildLights(const SceneDesc& desc, const Bounds3& 
     lights_.push_back(Light::fromDesc(l));
     (lights_.back().isInfinite() ? infiniteLights_ : areaLights_).push_back(idx);
   }
+  buildAreaLightBvh();
   const Vec3 ref = all.empty() ? Vec3(0.0f) : all.center();
   // Weights relative to the largest (in double: a bright delta sun's would overflow a float).
   std::vector<double> x;
@@ -911,7 +912,101 @@ bool Scene::intersectMeshes(const Ray& ray, const Vec3& invD, Hit& hit, float& t
   return true;
 }
 
+namespace {
+
+// Whether area light l blocks a shadow ray r (r.tmax = dist; aimed: a finite dist, the ray
+// aimed at a light's surface point end, within tol).
+bool lightBlocks(const Light& l, Ray r, bool aimed, const Vec3& end, float tol) {
+  float t;
+  if (l.type() == LightType::Mesh) {
+    // A mesh may shadow itself: its faces block but for those met within tol of the end
+    // (the ray leaves from an offset origin, so toward a point near a silhouette it may
+    // meet that face, or the one beside it, a little short of the point).
+    if (aimed) r.tmax -= tol;
+    return l.intersect(r, t);
+  }
+  return l.intersect(r, t) && !(aimed && l.endsOn(end, tol));
+}
+
+// Embree's context for a shadow ray through the area lights' BVH: what lightBlocks needs.
+struct AreaLightShadowContext {
+  RTCIntersectContext context;  // first: Embree hands the callbacks a pointer to it
+  bool aimed;
+  Vec3 end;
+  float tol;
+};
+
+Ray rayOf(RTCRayN* ray, unsigned N, unsigned i) {
+  return Ray{Vec3(RTCRayN_org_x(ray, N, i), RTCRayN_org_y(ray, N, i), RTCRayN_org_z(ray, N, i)),
+             Vec3(RTCRayN_dir_x(ray, N, i), RTCRayN_dir_y(ray, N, i), RTCRayN_dir_z(ray, N, i)),
+             RTCRayN_tnear(ray, N, i), RTCRayN_tfar(ray, N, i)};
+}
+
+}  // namespace
+
+void Scene::areaLightBounds(const RTCBoundsFunctionArguments* args) {
+  const auto* s = static_cast<const Scene*>(args->geometryUserPtr);
+  const Bounds3 b = s->lights_[size_t(s->areaLights_[args->primID])].bounds();
+  *args->bounds_o = RTCBounds{b.lo.x, b.lo.y, b.lo.z, 0.0f, b.hi.x, b.hi.y, b.hi.z, 0.0f};
+}
+
+void Scene::areaLightIntersect(const RTCIntersectFunctionNArguments* args) {
+  const auto* s = static_cast<const Scene*>(args->geometryUserPtr);
+  RTCRayN* ray = RTCRayHitN_RayN(args->rayhit, args->N);
+  RTCHitN* hit = RTCRayHitN_HitN(args->rayhit, args->N);
+  const Light& l = s->lights_[size_t(s->areaLights_[args->primID])];
+  for (unsigned i = 0; i < args->N; ++i) {
+    if (args->valid[i] != -1) continue;
+    float t;
+    const Ray r = rayOf(ray, args->N, i);
+    if (!l.intersect(r, t) || !(t < r.tmax)) continue;
+    RTCRayN_tfar(ray, args->N, i) = t;
+    RTCHitN_Ng_x(hit, args->N, i) = RTCHitN_Ng_y(hit, args->N, i) = RTCHitN_Ng_z(hit, args->N, i) = 0.0f;
+    RTCHitN_u(hit, args->N, i) = RTCHitN_v(hit, args->N, i) = 0.0f;
+    RTCHitN_primID(hit, args->N, i) = args->primID;
+    RTCHitN_geomID(hit, args->N, i) = args->geomID;
+    RTCHitN_instID(hit, args->N, i, 0) = args->context->instID[0];
+  }
+}
+
+void Scene::areaLightOccluded(const RTCOccludedFunctionNArguments* args) {
+  const auto* s = static_cast<const Scene*>(args->geometryUserPtr);
+  const auto* c = reinterpret_cast<const AreaLightShadowContext*>(args->context);
+  const Light& l = s->lights_[size_t(s->areaLights_[args->primID])];
+  for (unsigned i = 0; i < args->N; ++i)
+    if (args->valid[i] == -1 && lightBlocks(l, rayOf(args->ray, args->N, i), c->aimed, c->end, c->tol))
+      RTCRayN_tfar(args->ray, args->N, i) = -kInf;
+}
+
+void Scene::buildAreaLightBvh() {
+  if (areaLights_.size() < kAreaLightBvhMin) return;
+  areaLightBvh_ = makeEmbreeScene(device_);
+  RTCGeometry g = rtcNewGeometry(device_.get(), RTC_GEOMETRY_TYPE_USER);
+  rtcSetGeometryUserPrimitiveCount(g, unsigned(areaLights_.size()));
+  rtcSetGeometryUserData(g, this);
+  rtcSetGeometryBoundsFunction(g, &Scene::areaLightBounds, nullptr);
+  rtcSetGeometryIntersectFunction(g, &Scene::areaLightIntersect);
+  rtcSetGeometryOccludedFunction(g, &Scene::areaLightOccluded);
+  rtcCommitGeometry(g);
+  rtcAttachGeometry(areaLightBvh_.get(), g);
+  rtcReleaseGeometry(g);
+  rtcCommitScene(areaLightBvh_.get());
+}
+
 bool Scene::intersectAreaLights(const Ray& ray, Hit& hit, float& tmax) const {
+  if (areaLightBvh_) {
+    if (!traceable(ray.o, ray.d, ray.tmin, tmax)) return false;
+    RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    RTCRayHit rh = makeRayHit(ray.o, ray.d, ray.tmin, tmax);
+    rtcIntersect1(areaLightBvh_.get(), &ctx, &rh);
+    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
+    tmax = rh.ray.tfar;
+    hit.kind = Hit::AreaLight;
+    hit.t = tmax;
+    hit.light = areaLights_[rh.hit.primID];
+    return true;
+  }
   bool found = false;
   for (int li : areaLights_) {
     float t;
@@ -938,19 +1033,16 @@ bool Scene::areaLightsOccluded(const Vec3& p, const Vec3& dir, float dist) const
   const bool aimed = std::isfinite(dist);
   const Vec3 end = aimed ? p + dir * dist : Vec3(0.0f);
   const float tol = 1e-3f * dist;
-  for (int li : areaLights_) {
-    float t;
-    if (lights_[li].type() == LightType::Mesh) {
-      // A mesh may shadow itself: its faces block but for those met within tol of the end
-      // (the ray leaves from an offset origin, so toward a point near a silhouette it may
-      // meet that face, or the one beside it, a little short of the point).
-      Ray m = r;
-      if (aimed) m.tmax = dist - tol;
-      if (lights_[li].intersect(m, t)) return true;
-      continue;
-    }
-    if (lights_[li].intersect(r, t) && !(aimed && lights_[li].endsOn(end, tol))) return true;
+  if (areaLightBvh_) {
+    if (!traceable(p, dir, 0.0f, dist)) return false;
+    AreaLightShadowContext c{{}, aimed, end, tol};
+    rtcInitIntersectContext(&c.context);
+    RTCRay ray = makeRayHit(p, dir, 0.0f, dist).ray;
+    rtcOccluded1(areaLightBvh_.get(), &c.context, &ray);
+    return ray.tfar < 0;
   }
+  for (int li : areaLights_)
+    if (lightBlocks(lights_[li], r, aimed, end, tol)) return true;
   return false;
 }
 

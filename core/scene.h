@@ -529,6 +529,14 @@ class Scene {
   // Some area light within (0, dist) of p along dir (a shadow ray to a light's own surface
   // stops short of it: its dist is shortened by the caller).
   bool areaLightsOccluded(const Vec3& p, const Vec3& dir, float dist) const;
+  // With kAreaLightBvhMin area lights or more, both ask a BVH over their bounds (Embree
+  // user geometry, one primitive per light, built by buildLights) instead of every light.
+  static constexpr size_t kAreaLightBvhMin = 8;
+  void buildAreaLightBvh();
+  static void areaLightBounds(const RTCBoundsFunctionArguments* args);
+  static void areaLightIntersect(const RTCIntersectFunctionNArguments* args);
+  static void areaLightOccluded(const RTCOccludedFunctionNArguments* args);
+  EmbreeScene areaLightBvh_;
   void finishHit(const Ray& ray, Hit& hit) const;  // position and ray-offset scale
   // A surface hit's ray offset at p, reached over t (finishHit).
   float surfaceOffset(const Vec3& p, float t) const;

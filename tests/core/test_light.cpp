@@ -1301,3 +1301,74 @@ TEST(MeshLights, AreRefusedWithoutAreaOrWithShaping) {
   EXPECT_EQ(errorOf([&] { validateLightDesc(l, "/World/Shaped"); }),
             "/World/Shaped.shaping: is not supported on a mesh light");
 }
+
+TEST(AreaLightOcclusion, ManyLightsAreFoundThroughTheirBvhAsOneByOne) {
+  // 24 area lights of every kind scattered in a box (past Scene::kAreaLightBvhMin, so the
+  // scene asks its BVH over them): random rays meet the nearest light at the distance the
+  // lights, asked one by one, give; shadow rays are blocked exactly when some light met one
+  // by one blocks them (a ray aimed at a point sampled on a light passes that light).
+  SceneDesc d = floorFromAbove(1);
+  d.meshes.clear();
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(-3.0f, 3.0f);
+  for (int i = 0; i < 24; ++i) {
+    const Vec3 at(u(rng), u(rng), u(rng));
+    LightDesc l;
+    switch (i % 5) {
+      case 0: l = sphereLight("s" + std::to_string(i), 0.3f, 1, at); break;
+      case 1: l = diskLight("d" + std::to_string(i), 0.4f, 1, at); break;
+      case 2: l = cylinderLight("c" + std::to_string(i), 0.1f, 0.8f, 1, at); break;
+      case 3: l = valleyLight("v" + std::to_string(i), 1, Transform::translate(at)); break;
+      default:
+        l.name = "r" + std::to_string(i);
+        l.type = LightType::Rect;
+        l.width = 0.6f;
+        l.height = 0.3f;
+        break;
+    }
+    if (i % 5 != 3) l.xf = Transform::lookAt(at, at + Vec3(u(rng), u(rng), u(rng)), Vec3(0.3f, 1, 0.1f));
+    d.lights.push_back(l);
+  }
+  auto scene = Scene::build(d);
+  const auto& lights = scene->lights();
+  ASSERT_EQ(lights.size(), 24u);
+  int met = 0, blocked = 0;
+  for (int k = 0; k < 4096; ++k) {
+    // From anywhere in the box (the scene's render space) toward near a random light's centre.
+    const Vec3 o = lights[0].bounds().center() + Vec3(u(rng), u(rng), u(rng));
+    const Vec3 toward = lights[size_t(k * 7 % 24)].bounds().center() + Vec3(u(rng), u(rng), u(rng)) * 0.1f;
+    if (!(length2(toward - o) > 1e-4f)) continue;
+    const Vec3 dir = normalize(toward - o);
+    float nearest = kInf;
+    int which = -1;
+    for (int li = 0; li < 24; ++li) {
+      float t;
+      if (lights[li].intersect(Ray{o, dir, 0.0f, nearest}, t) && t < nearest) nearest = t, which = li;
+    }
+    Hit hit;
+    const bool found = scene->intersect(Ray{o, dir, 0.0f, kInf}, hit, nullptr);
+    ASSERT_EQ(found, which >= 0) << k;
+    if (!found) continue;
+    ++met;
+    EXPECT_EQ(hit.kind, Hit::AreaLight);
+    EXPECT_EQ(hit.light, which) << k;
+    EXPECT_EQ(hit.t, nearest) << k;
+    EXPECT_TRUE(scene->occluded(o, dir, kInf));
+    EXPECT_FALSE(scene->occluded(o, dir, nearest * 0.999f));
+    // Toward a point sampled on light k % 24, shortened as the integrators shorten it.
+    LightSample ls;
+    const int target = k % 24;
+    if (!lights[target].sampleLi(o, 0.37f, 0.61f, ls)) continue;
+    const float dist = ls.dist * (1.0f - 1e-4f);
+    bool byOne = false;
+    for (int li = 0; li < 24 && !byOne; ++li) {
+      float t;
+      if (li == target) continue;
+      byOne = lights[li].intersect(Ray{o, ls.wi, 0.0f, dist}, t);
+    }
+    blocked += byOne;
+    EXPECT_EQ(scene->occluded(o, ls.wi, dist), byOne) << k;
+  }
+  EXPECT_GT(met, 1000);
+  EXPECT_GT(blocked, 50);
+}
