@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Writes the bundled USD examples (sandcastle, snowslab, sugarcube, mixture, animated, macro,
-frosted, sugarcube_spot) with usd-core and the granular schema helpers:
+frosted, sugarcube_spot, sugarcube_neon) with usd-core and the granular schema helpers:
 
     .venv/bin/python examples/make_examples.py [OUT_DIR]
 
@@ -15,7 +15,7 @@ a close-up with depth of field (fStop, focusDistance): the front grains of a hea
 the heap behind them soft. `frosted` is sea glass: rough grains (GranularGrainAPI's
 roughness). `mixture` holds grains of many sizes (GranularAggregateAPI sizes, sizeSpread).
 `sugarcube_spot` lights the sugar cube by a spotlight's IES profile (profiles/narrow_spot.ies,
-written here).
+written here); `sugarcube_neon` by mesh lights (MeshLightAPI): a softbox and a neon ring.
 """
 import math
 import os
@@ -442,32 +442,88 @@ def narrow_spot_profile(path):
                 f"TILT=NONE\n1 -1 1 {len(theta)} 1 1 2 0 0 0\n1 1 12\n{numbers(theta)}\n0\n{numbers(candela)}\n")
 
 
+def sugarcube_shoot(path, sky):
+    """A new stage at path over sugarcube.usda (a sublayer) with its sun off and its sky at
+    intensity `sky`, for a product shoot's own lights."""
+    stage = Usd.Stage.CreateNew(path)
+    stage.GetRootLayer().subLayerPaths.append("./sugarcube.usda")
+    stage.SetDefaultPrim(stage.GetPrimAtPath("/World"))
+    stage.OverridePrim("/World/Sun").SetActive(False)
+    UsdLux.DomeLight(stage.OverridePrim("/World/Sky")).CreateIntensityAttr(sky)
+    return stage
+
+
+def aim(xformable, at, target):
+    """Places a prim at `at` with its -Z (a light's axis, a quad's front) toward `target`."""
+    rot = Gf.Rotation(Gf.Vec3d(0, 0, -1), (target - at).GetNormalized())
+    UsdGeom.Xformable(xformable).AddTransformOp().Set(Gf.Matrix4d().SetRotate(rot).SetTranslateOnly(at))
+
+
 def sugarcube_spot(path):
     """The sugar cube (sugarcube.usda, a sublayer) as on a product shoot: its sun and sky
     off, a small sphere light with the narrow spot's IES profile (profiles/narrow_spot.ies,
     normalised) aimed at it from above and to the left, and a dim sky for fill."""
     narrow_spot_profile(os.path.join(os.path.dirname(path), "profiles", "narrow_spot.ies"))
-    stage = Usd.Stage.CreateNew(path)
-    stage.GetRootLayer().subLayerPaths.append("./sugarcube.usda")
-    stage.SetDefaultPrim(stage.GetPrimAtPath("/World"))
-    stage.OverridePrim("/World/Sun").SetActive(False)
-    UsdLux.DomeLight(stage.OverridePrim("/World/Sky")).CreateIntensityAttr(0.04)
+    stage = sugarcube_shoot(path, sky=0.04)
     spot = UsdLux.SphereLight.Define(stage, "/World/Spot")
     spot.CreateRadiusAttr(0.02)
     spot.CreateIntensityAttr(0.9)
     spot.CreateColorAttr(Gf.Vec3f(1.0, 0.95, 0.88))
-    at, target = Gf.Vec3d(-0.035, 0.12, 0.045), Gf.Vec3d(0.0, 0.006, 0.0)
-    rot = Gf.Rotation(Gf.Vec3d(0, 0, -1), (target - at).GetNormalized())  # its -Z, the profile's axis, on the cube
-    UsdGeom.Xformable(spot).AddTransformOp().Set(Gf.Matrix4d().SetRotate(rot).SetTranslateOnly(at))
+    aim(spot, Gf.Vec3d(-0.035, 0.12, 0.045), Gf.Vec3d(0.0, 0.006, 0.0))  # its -Z, the profile's axis, on the cube
     shaping = UsdLux.ShapingAPI.Apply(spot.GetPrim())
     shaping.CreateShapingIesFileAttr(Sdf.AssetPath("./profiles/narrow_spot.ies"))
     shaping.CreateShapingIesNormalizeAttr(True)
     stage.GetRootLayer().Save()
 
 
+def torus(major, minor, segments, sides):
+    """A closed torus about +Y in the XZ plane: points, and quads wound counter-clockwise seen
+    from outside (its front, the side a mesh light emits from)."""
+    points, faces = [], []
+    for i in range(segments):
+        a = 2 * math.pi * i / segments
+        for j in range(sides):
+            b = 2 * math.pi * j / sides
+            rho = major + minor * math.cos(b)
+            points.append((rho * math.cos(a), minor * math.sin(b), rho * math.sin(a)))
+    for i in range(segments):
+        for j in range(sides):
+            i1, j1 = (i + 1) % segments, (j + 1) % sides
+            faces.append([i * sides + j, i * sides + j1, i1 * sides + j1, i1 * sides + j])
+    return points, faces
+
+
+def sugarcube_neon(path):
+    """The sugar cube (sugarcube.usda, a sublayer) lit by mesh lights (UsdLuxMeshLightAPI):
+    a white softbox (a quad) above and to the left, and a pink neon ring (a torus) on the
+    table around the cube; its sun off and its sky dimmed."""
+    stage = sugarcube_shoot(path, sky=0.02)
+    # The softbox, 4 x 3 cm, its front (counter-clockwise seen from the cube) facing the cube.
+    box = UsdGeom.Mesh.Define(stage, "/World/Softbox")
+    box.CreatePointsAttr([(-0.02, -0.015, 0), (-0.02, 0.015, 0), (0.02, 0.015, 0), (0.02, -0.015, 0)])
+    box.CreateFaceVertexCountsAttr([4])
+    box.CreateFaceVertexIndicesAttr([0, 1, 2, 3])  # facing -Z
+    aim(box, Gf.Vec3d(-0.05, 0.09, 0.03), Gf.Vec3d(0.0, 0.006, 0.0))
+    UsdLux.MeshLightAPI.Apply(box.GetPrim())
+    UsdLux.LightAPI(box.GetPrim()).CreateIntensityAttr(120.0)
+    UsdLux.LightAPI(box.GetPrim()).CreateColorAttr(Gf.Vec3f(1.0, 0.96, 0.9))
+    # The neon ring: a torus of radius 2.2 cm and tube 1.2 mm lying on the table.
+    points, faces = torus(0.022, 0.0012, 96, 8)
+    ring = UsdGeom.Mesh.Define(stage, "/World/Neon")
+    ring.CreatePointsAttr(points)
+    ring.CreateFaceVertexCountsAttr([4] * len(faces))
+    ring.CreateFaceVertexIndicesAttr([i for f in faces for i in f])
+    ring.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    UsdGeom.Xformable(ring).AddTranslateOp().Set(Gf.Vec3d(0.0, 0.0012, 0.0))
+    UsdLux.MeshLightAPI.Apply(ring.GetPrim())
+    UsdLux.LightAPI(ring.GetPrim()).CreateIntensityAttr(8.0)
+    UsdLux.LightAPI(ring.GetPrim()).CreateColorAttr(Gf.Vec3f(1.0, 0.2, 0.55))
+    stage.GetRootLayer().Save()
+
+
 SCENES = {"sandcastle": sandcastle, "snowslab": snowslab, "sugarcube": sugarcube, "mixture": mixture,
           "animated": animated, "macro": macro, "frosted": frosted, "sandcastle_paper": sandcastle_paper,
-          "sugarcube_spot": sugarcube_spot}
+          "sugarcube_spot": sugarcube_spot, "sugarcube_neon": sugarcube_neon}
 
 
 def main(argv):

@@ -10,9 +10,10 @@ from granular.usd_reader import read_stage, validate
 USD_EXAMPLES = sorted(p.name for p in EXAMPLES.glob("*.usda"))
 
 
-def test_the_nine_examples_are_there():
+def test_the_ten_examples_are_there():
     assert USD_EXAMPLES == ["animated.usda", "frosted.usda", "macro.usda", "mixture.usda", "sandcastle.usda",
-                            "sandcastle_paper.usda", "snowslab.usda", "sugarcube.usda", "sugarcube_spot.usda"]
+                            "sandcastle_paper.usda", "snowslab.usda", "sugarcube.usda", "sugarcube_neon.usda",
+                            "sugarcube_spot.usda"]
 
 
 @pytest.mark.parametrize("name", USD_EXAMPLES)
