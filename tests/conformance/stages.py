@@ -641,6 +641,25 @@ def _():
     return scene(lights=sky(0.1) + card)
 
 
+@stage("mesh_light_instanced", "a PointInstancer of a small glowing card (MeshLightAPI), three instances")
+def _():
+    card = mesh("Glow", [(-0.08, 0.6, -0.08), (0.08, 0.6, -0.08), (0.08, 0.6, 0.08), (-0.08, 0.6, 0.08)],
+                [(0, 1, 2, 3)], api=["MeshLightAPI"], extra="        float inputs:intensity = 40")
+    card = card.replace("\n    ", "\n            ")
+    return scene(lights=sky(0.1), objects=block() + f"""
+    def PointInstancer "Lamps"
+    {{
+        point3f[] positions = [(0.3, 0, 0.5), (-0.4, 0, 0.4), (0.2, 0.2, -0.5)]
+        int[] protoIndices = [0, 0, 0]
+        rel prototypes = </World/Lamps/Protos/Glow>
+
+        def Scope "Protos"
+        {{{card}
+        }}
+    }}
+""")
+
+
 @stage("mesh_light_intensity_negative", "a mesh light of inputs:intensity -1 (invalid)")
 def _():
     card = mesh("Glow", GLOW_CARD, [(0, 1, 2, 3)], api=["MeshLightAPI"], extra="        float inputs:intensity = -1")
