@@ -694,6 +694,17 @@ Bounds3 Light::bounds() const {
   return b;
 }
 
+bool Light::blocksShadowRay(Ray r) const {
+  const bool aimed = std::isfinite(r.tmax);
+  const float tol = 1e-3f * r.tmax;
+  float t;
+  if (type_ == LightType::Mesh) {
+    if (aimed) r.tmax -= tol;
+    return intersect(r, t);
+  }
+  return intersect(r, t) && !(aimed && endsOn(r.o + r.d * r.tmax, tol));
+}
+
 bool Light::endsOn(const Vec3& e, float tol) const {
   switch (type_) {
     case LightType::Sphere: return std::fabs(length(e - center_) - radius_) <= tol;

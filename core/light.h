@@ -78,12 +78,13 @@ class Light {
   bool intersect(const Ray& r, float& t) const;
   // For area lights: a box holding the emitting shape (Scene's BVH over many lights).
   Bounds3 bounds() const;
-  // Whether point e lies on this area light's emitting surface, within tol: a shadow ray
-  // that ends there was aimed at this light, which (convex, and sampled only where it
-  // faces the ray) cannot block it — though intersect() may meet it a little short of e,
-  // since the ray leaves from an origin offset off its surface (bench/README.md, "Area
-  // lights").
-  bool endsOn(const Vec3& e, float tol) const;
+  // For area lights: whether this light blocks the shadow ray r, over (r.tmin, r.tmax). A
+  // ray of finite r.tmax is aimed at a light's surface point there, and intersect() may meet
+  // that light a little short of it, since the ray leaves from an origin offset off its
+  // surface (bench/README.md, "Area lights"): so a convex light the ray ends on (within
+  // 10⁻³ of its length) does not block it, being sampled only where it faces the ray; a
+  // mesh, which may shadow itself, blocks by the faces met short of that tolerance.
+  bool blocksShadowRay(Ray r) const;
   // Radiance leaving the area light at its point q towards -dir (q: intersect()'s hit).
   Vec3 areaLe(const Vec3& q, const Vec3& dir) const;
   // This light's weight in light sampling (Scene::lightPick): the irradiance E it gives a
@@ -123,6 +124,7 @@ class Light {
   float iesFactor(const Vec3& w) const;  // toward w (unit), angleScale applied
   Vec3 centre() const;                   // of a rect (its corners' mean), a disk, sphere or cylinder; a mesh's bounds
   Vec3 surfaceNormal(const Vec3& q) const;
+  bool endsOn(const Vec3& e, float tol) const;  // e on the emitting surface, within tol (convex lights)
   // A cylinder's side sampled for p: the half centred on p's side of the axis (the angle
   // about the axis from across1_ toward across2_), uniform in area, pdf 2 / area there.
   float facingHalf(const Vec3& p) const;

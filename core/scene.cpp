@@ -914,28 +914,6 @@ bool Scene::intersectMeshes(const Ray& ray, const Vec3& invD, Hit& hit, float& t
 
 namespace {
 
-// Whether area light l blocks a shadow ray r (r.tmax = dist; aimed: a finite dist, the ray
-// aimed at a light's surface point end, within tol).
-bool lightBlocks(const Light& l, Ray r, bool aimed, const Vec3& end, float tol) {
-  float t;
-  if (l.type() == LightType::Mesh) {
-    // A mesh may shadow itself: its faces block but for those met within tol of the end
-    // (the ray leaves from an offset origin, so toward a point near a silhouette it may
-    // meet that face, or the one beside it, a little short of the point).
-    if (aimed) r.tmax -= tol;
-    return l.intersect(r, t);
-  }
-  return l.intersect(r, t) && !(aimed && l.endsOn(end, tol));
-}
-
-// Embree's context for a shadow ray through the area lights' BVH: what lightBlocks needs.
-struct AreaLightShadowContext {
-  RTCIntersectContext context;  // first: Embree hands the callbacks a pointer to it
-  bool aimed;
-  Vec3 end;
-  float tol;
-};
-
 Ray rayOf(RTCRayN* ray, unsigned N, unsigned i) {
   return Ray{Vec3(RTCRayN_org_x(ray, N, i), RTCRayN_org_y(ray, N, i), RTCRayN_org_z(ray, N, i)),
              Vec3(RTCRayN_dir_x(ray, N, i), RTCRayN_dir_y(ray, N, i), RTCRayN_dir_z(ray, N, i)),
@@ -971,10 +949,9 @@ void Scene::areaLightIntersect(const RTCIntersectFunctionNArguments* args) {
 
 void Scene::areaLightOccluded(const RTCOccludedFunctionNArguments* args) {
   const auto* s = static_cast<const Scene*>(args->geometryUserPtr);
-  const auto* c = reinterpret_cast<const AreaLightShadowContext*>(args->context);
   const Light& l = s->lights_[size_t(s->areaLights_[args->primID])];
   for (unsigned i = 0; i < args->N; ++i)
-    if (args->valid[i] == -1 && lightBlocks(l, rayOf(args->ray, args->N, i), c->aimed, c->end, c->tol))
+    if (args->valid[i] == -1 && l.blocksShadowRay(rayOf(args->ray, args->N, i)))
       RTCRayN_tfar(args->ray, args->N, i) = -kInf;
 }
 
@@ -1025,24 +1002,18 @@ bool Scene::intersectAreaLights(const Ray& ray, Hit& hit, float& tmax) const {
 
 bool Scene::areaLightsOccluded(const Vec3& p, const Vec3& dir, float dist) const {
   if (areaLights_.empty()) return false;
-  Ray r;
-  r.o = p;
-  r.d = dir;
-  r.tmax = dist;
-  // A shadow ray aimed at an area light ends on it (Light::endsOn): that light is not asked.
-  const bool aimed = std::isfinite(dist);
-  const Vec3 end = aimed ? p + dir * dist : Vec3(0.0f);
-  const float tol = 1e-3f * dist;
+  // A shadow ray aimed at an area light ends on it: Light::blocksShadowRay.
   if (areaLightBvh_) {
     if (!traceable(p, dir, 0.0f, dist)) return false;
-    AreaLightShadowContext c{{}, aimed, end, tol};
-    rtcInitIntersectContext(&c.context);
+    RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
     RTCRay ray = makeRayHit(p, dir, 0.0f, dist).ray;
-    rtcOccluded1(areaLightBvh_.get(), &c.context, &ray);
+    rtcOccluded1(areaLightBvh_.get(), &ctx, &ray);
     return ray.tfar < 0;
   }
+  const Ray r{p, dir, 0.0f, dist};
   for (int li : areaLights_)
-    if (lightBlocks(lights_[li], r, aimed, end, tol)) return true;
+    if (lights_[li].blocksShadowRay(r)) return true;
   return false;
 }
 

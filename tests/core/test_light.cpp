@@ -601,7 +601,7 @@ TEST(DiskAndCylinderLights, AFloorUnderEachAreaLightHasTheRadianceItsSurfaceGive
   // A sphere of radius 0.1 close beside the view, wholly above the floor's horizon:
   // E = L π r² cos θ / D² at distance D from its centre. Shadow rays leave the floor from an
   // offset origin, which met this sphere short of the sampled point on 6% of them until
-  // the light a ray is aimed at stopped counting as its blocker (Light::endsOn).
+  // the light a ray is aimed at stopped counting as its blocker (Light::blocksShadowRay).
   const int n = 200;
   double bulb = 0;
   for (int i = 0; i < n; ++i)

@@ -72,6 +72,16 @@ std::string errorOf(const std::string& text) {
 }
 std::string errorOf(const json& j) { return errorOf(j.dump()); }
 
+// The InputError message of loading the scene file at path, or "NO ERROR".
+std::string errorLoading(const std::filesystem::path& path) {
+  try {
+    loadSceneJson(path.string());
+  } catch (const InputError& e) {
+    return e.what();
+  }
+  return "NO ERROR";
+}
+
 std::string errorAfter(const std::function<void(json&)>& edit) {
   json j = base();
   edit(j);
@@ -359,27 +369,19 @@ TEST(SceneIo, ObjShapesAndFiles) {
   EXPECT_EQ(d.aggregates[0].boundary.numTriangles(), 12u);
   EXPECT_DOUBLE_EQ(d.aggregates[0].boundary.signedVolume(), 1.0);
 
-  j["aggregates"][0]["boundary"] = {{"obj", "models/bad.obj"}};
-  std::ofstream(dir / "scene.json") << j.dump(2);
-  try {
-    loadSceneJson((dir / "scene.json").string());
-    ADD_FAILURE() << "no error";
-  } catch (const InputError& e) {
-    std::string w = e.what();
-    EXPECT_CONTAINS(w, "castle.boundary.obj");
-    EXPECT_CONTAINS(w, "bad.obj:4: vertex index 4 is out of range");
-  }
+  // The error of the scene whose castle's boundary is that OBJ file.
+  auto errorWithBoundary = [&](const std::string& obj) {
+    j["aggregates"][0]["boundary"] = {{"obj", obj}};
+    std::ofstream(dir / "scene.json") << j.dump(2);
+    return errorLoading(dir / "scene.json");
+  };
+  const std::string bad = errorWithBoundary("models/bad.obj");
+  EXPECT_CONTAINS(bad, "castle.boundary.obj");
+  EXPECT_CONTAINS(bad, "bad.obj:4: vertex index 4 is out of range");
   // A token that is not a number is quoted with its bytes that are not printable ASCII as
   // '?': the Python bindings decode the message as UTF-8, which 0xff is not.
   std::ofstream(dir / "models" / "binary.obj") << "v 0 0 0\nv 1 \xff\xc3\xa9 0\n";
-  j["aggregates"][0]["boundary"] = {{"obj", "models/binary.obj"}};
-  std::ofstream(dir / "scene.json") << j.dump(2);
-  try {
-    loadSceneJson((dir / "scene.json").string());
-    ADD_FAILURE() << "no error";
-  } catch (const InputError& e) {
-    EXPECT_CONTAINS(std::string(e.what()), "binary.obj:2: \"???\" is not a finite number");
-  }
+  EXPECT_CONTAINS(errorWithBoundary("models/binary.obj"), "binary.obj:2: \"???\" is not a finite number");
   EXPECT_CONTAINS(errorAfter([](json& jj) { jj["meshes"][0]["shape"] = {{"obj", "nope.obj"}}; }), "cannot open");
   try {
     loadSceneJson((dir / "no_such.json").string());
@@ -497,12 +499,7 @@ TEST(SceneIo, TexturesAndTextureCoordinates) {
     json k = j;
     edit(k);
     std::ofstream(dir / "scene.json") << k.dump(2);
-    try {
-      loadSceneJson((dir / "scene.json").string());
-    } catch (const InputError& e) {
-      return std::string(e.what());
-    }
-    return std::string("NO ERROR");
+    return errorLoading(dir / "scene.json");
   };
   EXPECT_CONTAINS(errorIn([](json& k) { k["materials"]["floor"]["albedo_texture"]["file"] = "maps/nope.png"; }),
                   "floor.albedo_texture.file");
